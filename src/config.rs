@@ -1,0 +1,437 @@
+//! config.json: strict parsing, and the checks that need no program knowledge.
+//!
+//! Every error names the file, the JSON path inside it and what was expected. Parsing stops at the
+//! first malformed element (serde cannot go on), but semantic checks run over the whole
+//! configuration and report every problem at once.
+
+use std::fmt;
+use std::path::{Path, PathBuf};
+
+use serde::Deserialize;
+
+use crate::image::DeclIssue;
+
+/// The configuration built into the binary: the repository's top-level config.json.
+pub const BUILTIN_CONFIG: &str = include_str!("../config.json");
+
+/// Shortest cycle time accepted (µs).
+pub const MIN_CYCLE_US: u32 = 200;
+/// Longest cycle time accepted (µs).
+pub const MAX_CYCLE_US: u32 = 10_000_000;
+
+/// The whole configuration file.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Config {
+    /// The task classes, each with its programs.
+    pub task_classes: Vec<TaskClassConfig>,
+    /// How real time is kept.
+    #[serde(default)]
+    pub timing: TimingConfig,
+}
+
+/// One task class (B&R: a "cyclic" task class).
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TaskClassConfig {
+    /// Unique name, used in logs, summaries and traces.
+    pub name: String,
+    /// Cycle time in microseconds.
+    pub cycle_us: u32,
+    /// How far past its deadline a cycle may end before it is a cycle time violation (µs).
+    pub tolerance_us: u32,
+    /// 1 is the highest. Classes due at the same instant run in priority order; a faster class
+    /// must have a higher priority than a slower one.
+    pub priority: u8,
+    /// What a cycle time violation does.
+    #[serde(default)]
+    pub on_violation: Reaction,
+    /// The programs, run in this order in every cycle.
+    pub programs: Vec<ProgramEntry>,
+}
+
+/// One program instance in a task class.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ProgramEntry {
+    /// The program type's name.
+    pub program: String,
+    /// Program-specific parameters, checked by the program itself.
+    #[serde(default)]
+    pub params: Option<serde_json::Value>,
+}
+
+/// What a cycle time violation does.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Reaction {
+    /// Count it and log a warning.
+    Log,
+    /// Count it, log it, and tell the application, which enters ERROR ("cycle time violation"),
+    /// as a B&R controller goes to service mode.
+    #[default]
+    Error,
+}
+
+/// How real time is kept.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TimingConfig {
+    /// The timer that wakes the cyclic thread.
+    #[serde(default)]
+    pub source: TimeSourceKind,
+    /// SCHED_FIFO priority for the cyclic thread (1..=99); 0 does not ask for real-time priority.
+    #[serde(default = "default_rt_priority")]
+    pub realtime_priority: u8,
+    /// Lock the process's memory (mlockall) so that page faults cannot delay a cycle.
+    #[serde(default = "default_true")]
+    pub lock_memory: bool,
+    /// Wake this many µs before each release and busy-wait to it (0: no spinning). Cuts wake-up
+    /// latency at the cost of that much CPU time per release.
+    #[serde(default)]
+    pub spin_us: u32,
+}
+
+fn default_rt_priority() -> u8 {
+    80
+}
+fn default_true() -> bool {
+    true
+}
+
+impl Default for TimingConfig {
+    fn default() -> Self {
+        TimingConfig {
+            source: TimeSourceKind::Auto,
+            realtime_priority: default_rt_priority(),
+            lock_memory: true,
+            spin_us: 0,
+        }
+    }
+}
+
+/// The timers the real-time scheduler can wait on (see the README's measurements).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "kebab-case")]
+pub enum TimeSourceKind {
+    /// The best measured on Linux: `nanosleep`.
+    #[default]
+    Auto,
+    /// tokio's timer (`sleep_until` on absolute deadlines, as `tokio::time::interval` uses):
+    /// 1 ms granularity.
+    Tokio,
+    /// A timerfd armed with an absolute deadline, registered with tokio's `AsyncFd`.
+    Timerfd,
+    /// `clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME)` on the dedicated cyclic thread.
+    Nanosleep,
+}
+
+impl TimeSourceKind {
+    /// The concrete source `auto` stands for.
+    pub fn resolve(self) -> TimeSourceKind {
+        match self {
+            TimeSourceKind::Auto => TimeSourceKind::Nanosleep,
+            other => other,
+        }
+    }
+
+    /// The name used in config.json and on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            TimeSourceKind::Auto => "auto",
+            TimeSourceKind::Tokio => "tokio",
+            TimeSourceKind::Timerfd => "timerfd",
+            TimeSourceKind::Nanosleep => "nanosleep",
+        }
+    }
+}
+
+/// A configuration and where it came from.
+#[derive(Clone, Debug)]
+pub struct LoadedConfig {
+    /// The file's name as the user gave it, or `<built-in config.json>`.
+    pub origin: String,
+    /// The parsed configuration.
+    pub config: Config,
+}
+
+/// Why a configuration was refused.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    /// The file could not be read.
+    #[error("{file}: cannot read the file: {source}")]
+    Read {
+        /// The file.
+        file: String,
+        /// The OS error.
+        source: std::io::Error,
+    },
+    /// The file is not well-formed JSON.
+    #[error("{file}: line {line}, column {column}: {message}")]
+    Syntax {
+        /// The file.
+        file: String,
+        /// 1-based line.
+        line: usize,
+        /// 1-based column.
+        column: usize,
+        /// What the JSON parser says.
+        message: String,
+    },
+    /// One or more elements are missing, unknown, of the wrong type or out of range.
+    #[error("{}", Problems { file, problems })]
+    Invalid {
+        /// The file.
+        file: String,
+        /// Every problem found, in document order.
+        problems: Vec<DeclIssue>,
+    },
+}
+
+impl ConfigError {
+    /// The problems of an `Invalid` error (empty for the others).
+    pub fn problems(&self) -> &[DeclIssue] {
+        match self {
+            ConfigError::Invalid { problems, .. } => problems,
+            _ => &[],
+        }
+    }
+}
+
+struct Problems<'a> {
+    file: &'a str,
+    problems: &'a [DeclIssue],
+}
+
+impl fmt::Display for Problems<'_> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self.problems {
+            [one] => write!(f, "{}: at {}: {}", self.file, one.at, one.message),
+            many => {
+                write!(f, "{}: {} problems:", self.file, many.len())?;
+                for p in many {
+                    write!(f, "\n  at {}: {}", p.at, p.message)?;
+                }
+                Ok(())
+            }
+        }
+    }
+}
+
+/// Loads `path`, or the built-in configuration when `path` is `None`.
+pub fn load(path: Option<&Path>) -> Result<LoadedConfig, ConfigError> {
+    match path {
+        Some(p) => {
+            let origin = p.display().to_string();
+            let text = std::fs::read_to_string(p).map_err(|source| ConfigError::Read {
+                file: origin.clone(),
+                source,
+            })?;
+            parse(&text, &origin)
+        }
+        None => parse(BUILTIN_CONFIG, "<built-in config.json>"),
+    }
+}
+
+/// The configuration file to use when none is given: `./config.json` if there is one.
+pub fn default_path() -> Option<PathBuf> {
+    let p = PathBuf::from("config.json");
+    p.is_file().then_some(p)
+}
+
+/// Parses a configuration text strictly; `origin` names it in errors.
+pub fn parse(text: &str, origin: &str) -> Result<LoadedConfig, ConfigError> {
+    let config: Config = parse_strict(text, origin)?;
+    Ok(LoadedConfig {
+        origin: origin.to_string(),
+        config,
+    })
+}
+
+/// Parses any strict JSON document, turning serde's errors into [`ConfigError`]s that name the
+/// file, the JSON path and what was expected.
+pub fn parse_strict<T: serde::de::DeserializeOwned>(
+    text: &str,
+    origin: &str,
+) -> Result<T, ConfigError> {
+    let mut de = serde_json::Deserializer::from_str(text);
+    let result: Result<T, (String, serde_json::Error)> = serde_path_to_error::deserialize(&mut de)
+        .map_err(|e| (e.path().to_string(), e.into_inner()))
+        .and_then(|v| de.end().map(|()| v).map_err(|e| (".".to_string(), e)));
+    result.map_err(|(path, inner)| {
+        let message = strip_position(&inner.to_string());
+        match inner.classify() {
+            serde_json::error::Category::Syntax
+            | serde_json::error::Category::Eof
+            | serde_json::error::Category::Io => ConfigError::Syntax {
+                file: origin.to_string(),
+                line: inner.line(),
+                column: inner.column(),
+                message,
+            },
+            serde_json::error::Category::Data => ConfigError::Invalid {
+                file: origin.to_string(),
+                problems: vec![DeclIssue {
+                    at: display_path(&path),
+                    message,
+                }],
+            },
+        }
+    })
+}
+
+/// serde_json appends " at line L column C" to its messages; the path says more, so drop it.
+fn strip_position(message: &str) -> String {
+    match message.rfind(" at line ") {
+        Some(i) => message[..i].to_string(),
+        None => message.to_string(),
+    }
+}
+
+fn display_path(path: &str) -> String {
+    if path == "." {
+        "(top level)".to_string()
+    } else {
+        path.to_string()
+    }
+}
+
+/// The checks of the configuration that need no knowledge of programs or the I/O map.
+pub fn check(config: &Config) -> Vec<DeclIssue> {
+    let mut issues = Vec::new();
+    let mut push = |at: String, message: String| issues.push(DeclIssue { at, message });
+    if config.task_classes.is_empty() {
+        push(
+            "task_classes".into(),
+            "at least one task class is required".into(),
+        );
+    }
+    for (i, tc) in config.task_classes.iter().enumerate() {
+        let at = format!("task_classes[{i}]");
+        if tc.name.is_empty()
+            || !tc
+                .name
+                .chars()
+                .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-')
+        {
+            push(
+                format!("{at}.name"),
+                format!(
+                    "task class name \"{}\" is not valid: use letters, digits, '_' and '-'",
+                    tc.name
+                ),
+            );
+        }
+        if let Some(j) = config.task_classes[..i]
+            .iter()
+            .position(|o| o.name == tc.name)
+        {
+            push(
+                format!("{at}.name"),
+                format!(
+                    "task class name \"{}\" is already used by task_classes[{j}]",
+                    tc.name
+                ),
+            );
+        }
+        if !(MIN_CYCLE_US..=MAX_CYCLE_US).contains(&tc.cycle_us) {
+            push(
+                format!("{at}.cycle_us"),
+                format!(
+                    "cycle time must be between {MIN_CYCLE_US} and {MAX_CYCLE_US} µs, got {}",
+                    tc.cycle_us
+                ),
+            );
+        }
+        if tc.tolerance_us > MAX_CYCLE_US {
+            push(
+                format!("{at}.tolerance_us"),
+                format!(
+                    "tolerance must be at most {MAX_CYCLE_US} µs, got {}",
+                    tc.tolerance_us
+                ),
+            );
+        }
+        if tc.priority == 0 {
+            push(
+                format!("{at}.priority"),
+                "priority must be 1 (highest) or more, got 0".into(),
+            );
+        }
+        if let Some(j) = config.task_classes[..i]
+            .iter()
+            .position(|o| o.priority == tc.priority)
+        {
+            push(
+                format!("{at}.priority"),
+                format!(
+                    "priority {} is already used by task class \"{}\" (task_classes[{j}]); priorities are unique",
+                    tc.priority, config.task_classes[j].name
+                ),
+            );
+        }
+        for (j, other) in config.task_classes[..i].iter().enumerate() {
+            let (fast, slow) = if tc.cycle_us < other.cycle_us {
+                (tc, other)
+            } else {
+                (other, tc)
+            };
+            if fast.cycle_us != slow.cycle_us && fast.priority > slow.priority {
+                push(
+                    format!("{at}.priority"),
+                    format!(
+                        "task class \"{}\" ({} µs, priority {}) is faster than \"{}\" ({} µs, priority {}) \
+                         but has the lower priority; a faster class must have the higher priority (smaller number) \
+                         (with task_classes[{j}])",
+                        fast.name,
+                        fast.cycle_us,
+                        fast.priority,
+                        slow.name,
+                        slow.cycle_us,
+                        slow.priority
+                    ),
+                );
+            }
+        }
+        for (k, entry) in tc.programs.iter().enumerate() {
+            let first = config.task_classes[..=i]
+                .iter()
+                .enumerate()
+                .find_map(|(ci, c)| {
+                    let upto = if ci == i { k } else { c.programs.len() };
+                    c.programs[..upto]
+                        .iter()
+                        .position(|e| e.program == entry.program)
+                        .map(|pk| (ci, pk))
+                });
+            if let Some((ci, pk)) = first {
+                push(
+                    format!("{at}.programs[{k}].program"),
+                    format!(
+                        "program \"{}\" is already configured at task_classes[{ci}].programs[{pk}]; each program runs once",
+                        entry.program
+                    ),
+                );
+            }
+        }
+    }
+    if config.timing.realtime_priority > 99 {
+        push(
+            "timing.realtime_priority".into(),
+            format!(
+                "real-time priority must be 1..=99 (or 0: do not ask), got {}",
+                config.timing.realtime_priority
+            ),
+        );
+    }
+    if config.timing.spin_us > 1000 {
+        push(
+            "timing.spin_us".into(),
+            format!(
+                "spin margin must be at most 1000 µs, got {}",
+                config.timing.spin_us
+            ),
+        );
+    }
+    issues
+}

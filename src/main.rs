@@ -1,0 +1,343 @@
+//! The `pkm-plc` command line.
+//!
+//! Exit codes: 0 success; 1 the run failed (timer, thread, file output); 2 usage or configuration
+//! error (nothing was started).
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::time::Duration;
+
+use clap::{Args, Parser, Subcommand};
+use tracing::{info, warn};
+use tracing_subscriber::EnvFilter;
+
+use pkm_plc::bench::{self, BenchOptions};
+use pkm_plc::bus::NoBus;
+use pkm_plc::config::{self, ConfigError, LoadedConfig, TimeSourceKind};
+use pkm_plc::plc::Plc;
+use pkm_plc::run::{self, RealTimeOptions};
+use pkm_plc::status;
+use pkm_plc::summary::Summary;
+
+/// A soft-PLC for parallel-kinematic machine models.
+#[derive(Parser, Debug)]
+#[command(name = "pkm-plc", version, about, propagate_version = true)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Run the soft-PLC (real time until Ctrl-C, or virtual time for a given duration).
+    Run(RunArgs),
+    /// Validate a configuration without running anything.
+    Check(ConfigArg),
+    /// Measure the time sources side by side (cycle start lateness of a 10 ms class).
+    Bench(BenchArgs),
+}
+
+#[derive(Args, Debug)]
+struct ConfigArg {
+    /// Configuration file [default: ./config.json if present, else the built-in one].
+    #[arg(long, value_name = "FILE")]
+    config: Option<PathBuf>,
+}
+
+#[derive(Args, Debug)]
+struct RunArgs {
+    #[command(flatten)]
+    config: ConfigArg,
+    /// Run in virtual time: as fast as the CPU allows, deterministic. Needs --duration.
+    #[arg(long = "virtual", requires = "duration")]
+    virtual_time: bool,
+    /// Stop after this many seconds (of simulated time with --virtual).
+    #[arg(long, value_name = "SECONDS", value_parser = parse_seconds)]
+    duration: Option<f64>,
+    /// Write a JSON summary (cycle statistics, final state) to FILE at exit.
+    #[arg(long, value_name = "FILE")]
+    summary: Option<PathBuf>,
+    /// Override the configured time source (real time only).
+    #[arg(long, value_enum, value_name = "SOURCE")]
+    time_source: Option<TimeSourceKind>,
+}
+
+#[derive(Args, Debug)]
+struct BenchArgs {
+    /// Seconds per measured row.
+    #[arg(long, default_value_t = 30.0, value_parser = parse_seconds)]
+    seconds: f64,
+    /// Cycle time of the measured task class (µs).
+    #[arg(long, default_value_t = 10_000)]
+    cycle_us: u32,
+    /// The time sources to measure.
+    #[arg(long, value_enum, value_delimiter = ',', default_values_t = [TimeSourceKind::Tokio, TimeSourceKind::Timerfd, TimeSourceKind::Nanosleep])]
+    sources: Vec<TimeSourceKind>,
+    /// SCHED_FIFO priority for the real-time rows (0 skips them).
+    #[arg(long, default_value_t = 80)]
+    realtime_priority: u8,
+    /// Also measure each source with this spin margin (µs) before each release (0: skip).
+    #[arg(long, default_value_t = 0)]
+    spin_us: u32,
+    /// Also write the rows as JSON to FILE.
+    #[arg(long, value_name = "FILE")]
+    json: Option<PathBuf>,
+}
+
+fn parse_seconds(s: &str) -> Result<f64, String> {
+    let v: f64 = s
+        .parse()
+        .map_err(|_| format!("\"{s}\" is not a number of seconds"))?;
+    if v.is_finite() && v > 0.0 && v <= 1e7 {
+        Ok(v)
+    } else {
+        Err(format!(
+            "must be more than 0 and at most 10000000 seconds, got {s}"
+        ))
+    }
+}
+
+/// A failure with the exit code it means.
+struct Failure {
+    code: u8,
+    message: String,
+}
+
+impl Failure {
+    fn usage(message: impl Into<String>) -> Self {
+        Failure {
+            code: 2,
+            message: message.into(),
+        }
+    }
+    fn run(message: impl Into<String>) -> Self {
+        Failure {
+            code: 1,
+            message: message.into(),
+        }
+    }
+}
+
+impl From<ConfigError> for Failure {
+    fn from(e: ConfigError) -> Self {
+        Failure::usage(e.to_string())
+    }
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    init_logging();
+    let result = match cli.command {
+        Command::Run(args) => cmd_run(args),
+        Command::Check(args) => cmd_check(args),
+        Command::Bench(args) => cmd_bench(args),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(f) => {
+            status::finish();
+            eprintln!("error: {}", f.message);
+            ExitCode::from(f.code)
+        }
+    }
+}
+
+fn init_logging() {
+    let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new("info"));
+    tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(status::LogWriter)
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
+        .with_target(false)
+        .init();
+}
+
+/// Loads the configuration named on the command line, or the default one.
+fn load_config(arg: &ConfigArg) -> Result<LoadedConfig, ConfigError> {
+    let path = arg.config.clone().or_else(config::default_path);
+    config::load(path.as_deref())
+}
+
+/// Loads and builds: every problem of the configuration is reported at once.
+fn build(arg: &ConfigArg) -> Result<(LoadedConfig, Plc), Failure> {
+    let loaded = load_config(arg)?;
+    let plc =
+        Plc::build(&loaded.config, &pkm_plc::registry(), Box::new(NoBus)).map_err(|problems| {
+            ConfigError::Invalid {
+                file: loaded.origin.clone(),
+                problems,
+            }
+        })?;
+    Ok((loaded, plc))
+}
+
+fn cmd_check(args: ConfigArg) -> Result<(), Failure> {
+    let (loaded, plc) = build(&args)?;
+    let classes: Vec<String> = plc
+        .classes()
+        .map(|c| format!("{} ({} ms)", c.name, c.period_ns as f64 / 1e6))
+        .collect();
+    println!(
+        "{}: valid ({} task classes: {}; {} process-image variables)",
+        loaded.origin,
+        classes.len(),
+        classes.join(", "),
+        plc.vars().vars().len()
+    );
+    Ok(())
+}
+
+fn cmd_run(args: RunArgs) -> Result<(), Failure> {
+    let (loaded, mut plc) = build(&args.config)?;
+    info!("configuration: {}; bus: {}", loaded.origin, plc.bus_name());
+    if plc
+        .app_program()
+        .is_some_and(|p| p.starts_with("selftest."))
+    {
+        warn!("running the runtime's built-in self-test programs, not the TRIJOINT application");
+    }
+    let summary = if args.virtual_time {
+        let duration = args
+            .duration
+            .ok_or_else(|| Failure::usage("--virtual needs --duration"))?;
+        let duration_ns = (duration * 1e9) as u64;
+        let report = run::run_virtual(&mut plc, duration_ns);
+        info!(
+            "virtual time: {:.3} s simulated in {:.3} s wall-clock ({:.0}x)",
+            duration,
+            report.wall.as_secs_f64(),
+            duration / report.wall.as_secs_f64().max(1e-9)
+        );
+        Summary::collect(&plc, "virtual", &loaded.origin, report.simulated_ns)
+    } else {
+        if args.time_source.is_some_and(|_| args.virtual_time) {
+            return Err(Failure::usage("--time-source applies to real time only"));
+        }
+        let timing = &loaded.config.timing;
+        let options = RealTimeOptions {
+            source: args.time_source.unwrap_or(timing.source),
+            realtime_priority: timing.realtime_priority,
+            lock_memory: timing.lock_memory,
+            spin_ns: u64::from(timing.spin_us) * 1000,
+            duration_ns: args.duration.map(|d| (d * 1e9) as u64),
+        };
+        info!(
+            "real time, time source {}; Ctrl-C stops",
+            options.source.resolve().name()
+        );
+        let outcome = run_realtime(plc, options)?;
+        let mut s = Summary::collect(
+            &outcome.plc,
+            "real-time",
+            &loaded.origin,
+            outcome.elapsed_ns,
+        );
+        s.time_source = Some(outcome.source.name());
+        s.realtime_priority = Some(outcome.realtime_priority);
+        s
+    };
+    for line in summary.lines() {
+        info!("{line}");
+    }
+    if let Some(path) = &args.summary {
+        write_file(path, &summary.to_json())?;
+        info!("summary written to {}", path.display());
+    }
+    Ok(())
+}
+
+/// Runs in real time on a tokio runtime that watches for Ctrl-C / SIGTERM and draws the status
+/// line, while the cyclic thread does the work.
+fn run_realtime(plc: Plc, options: RealTimeOptions) -> Result<run::RealTimeOutcome, Failure> {
+    let runtime = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .map_err(|e| Failure::run(format!("cannot start the tokio runtime: {e}")))?;
+    let run = run::start_realtime(plc, options).map_err(|e| Failure::run(e.to_string()))?;
+    let stop = run.stop_flag();
+    let snapshot = run.snapshot();
+    let outcome = runtime.block_on(async move {
+        let status_task = status::wanted().then(|| status::spawn(snapshot, Duration::from_millis(250)));
+        let mut sigterm = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()).ok();
+        let mut poll = tokio::time::interval(Duration::from_millis(20));
+        loop {
+            tokio::select! {
+                _ = tokio::signal::ctrl_c() => {
+                    info!("Ctrl-C: stopping after the current cycle, outputs to safe values");
+                    stop.store(true, std::sync::atomic::Ordering::Relaxed);
+                    break;
+                }
+                Some(()) = async { match sigterm.as_mut() { Some(s) => s.recv().await, None => std::future::pending().await } } => {
+                    info!("SIGTERM: stopping after the current cycle, outputs to safe values");
+                    stop.store(true, std::sync::atomic::Ordering::Relaxed);
+                    break;
+                }
+                _ = poll.tick() => if run.is_finished() { break },
+            }
+        }
+        let joined = tokio::task::spawn_blocking(move || run.join()).await;
+        if let Some(task) = status_task {
+            task.abort();
+        }
+        status::finish();
+        joined
+    });
+    match outcome {
+        Ok(Ok(o)) => Ok(o),
+        Ok(Err(e)) => Err(Failure::run(e.to_string())),
+        Err(e) => Err(Failure::run(format!("cyclic thread: {e}"))),
+    }
+}
+
+fn cmd_bench(args: BenchArgs) -> Result<(), Failure> {
+    let options = BenchOptions {
+        seconds: args.seconds,
+        cycle_us: args.cycle_us,
+        sources: args.sources.iter().map(|s| s.resolve()).collect(),
+        realtime_priority: args.realtime_priority,
+        spin_us: args.spin_us,
+    };
+    if !(config::MIN_CYCLE_US..=config::MAX_CYCLE_US).contains(&options.cycle_us) {
+        return Err(Failure::usage(format!(
+            "--cycle-us must be between {} and {}",
+            config::MIN_CYCLE_US,
+            config::MAX_CYCLE_US
+        )));
+    }
+    let rows = bench::run(&options, |row| info!("measuring {row}"))
+        .map_err(|e| Failure::run(e.to_string()))?;
+    print!("{}", bench::table(&rows));
+    if let Some(path) = &args.json {
+        let json = serde_json::to_string_pretty(&rows).map_err(|e| Failure::run(e.to_string()))?;
+        write_file(path, &json)?;
+    }
+    Ok(())
+}
+
+fn write_file(path: &Path, text: &str) -> Result<(), Failure> {
+    std::fs::write(path, format!("{text}\n"))
+        .map_err(|e| Failure::run(format!("{}: cannot write: {e}", path.display())))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::CommandFactory;
+
+    #[test]
+    fn cli_definition_is_consistent() {
+        Cli::command().debug_assert();
+    }
+
+    #[test]
+    fn seconds_must_be_positive_and_finite() {
+        assert_eq!(parse_seconds("2.5"), Ok(2.5));
+        assert!(parse_seconds("0").is_err());
+        assert!(parse_seconds("-1").is_err());
+        assert!(parse_seconds("inf").is_err());
+        assert_eq!(
+            parse_seconds("ten"),
+            Err("\"ten\" is not a number of seconds".into())
+        );
+    }
+}

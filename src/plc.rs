@@ -1,0 +1,335 @@
+//! The scheduler core: task classes, their images, their programs and cycle monitoring.
+//!
+//! [`Plc`] knows nothing of real or virtual time: a driver (see [`crate::run`]) asks it for the
+//! next release, waits for it in its own way, and calls [`Plc::run_due`] with a [`Clock`]. Classes
+//! are never preempted: among the classes that are due, the one with the highest priority runs
+//! first (and so the faster one, which configuration checks enforce).
+
+use tracing::warn;
+
+use crate::bus::Bus;
+use crate::config::{self, Config, Reaction};
+use crate::image::{DeclIssue, Declare, Value, VarIndex, VarTable, Writer};
+use crate::program::{AppStatus, Clock, Cycle, CycleViolation, Program, ProgramArgs, Registry};
+use crate::stats::ClassStats;
+
+/// One program instance in its task class.
+struct Slot {
+    name: String,
+    program: Box<dyn Program>,
+    /// The violation sequence number this program has been told about.
+    seen_violation: u64,
+}
+
+/// A task class at run time.
+struct Class {
+    name: String,
+    period_ns: u64,
+    tolerance_ns: u64,
+    reaction: Reaction,
+    /// This class's private copy of the image.
+    image: Vec<Value>,
+    /// Variables latched from the global image before each cycle.
+    inputs: Vec<VarIndex>,
+    /// Variables published to the global image after each cycle.
+    outputs: Vec<VarIndex>,
+    programs: Vec<Slot>,
+    next_release: u64,
+    stats: ClassStats,
+    violation_logged: bool,
+}
+
+/// The soft-PLC: process image, task classes and their programs, and a bus.
+pub struct Plc {
+    table: VarTable,
+    global: Vec<Value>,
+    classes: Vec<Class>,
+    /// Class indices in priority order (highest first).
+    order: Vec<usize>,
+    bus: Box<dyn Bus>,
+    violation_seq: u64,
+    last_violation: Option<CycleViolation>,
+}
+
+/// A read-only view of one task class, for summaries and status lines.
+#[derive(Clone, Copy)]
+pub struct ClassView<'a> {
+    /// Its name.
+    pub name: &'a str,
+    /// Its cycle time (ns).
+    pub period_ns: u64,
+    /// Its tolerance (ns).
+    pub tolerance_ns: u64,
+    /// What it has measured.
+    pub stats: &'a ClassStats,
+}
+
+impl Plc {
+    /// Builds the PLC from a configuration: checks it as a whole, lets the bus and every program
+    /// declare their variables, and returns every problem found at once.
+    pub fn build(
+        config: &Config,
+        registry: &Registry,
+        mut bus: Box<dyn Bus>,
+    ) -> Result<Plc, Vec<DeclIssue>> {
+        let mut issues = config::check(config);
+        let mut table = VarTable::new();
+        bus.declare(&mut table);
+        let mut classes = Vec::with_capacity(config.task_classes.len());
+        for (ci, tc) in config.task_classes.iter().enumerate() {
+            let mut programs = Vec::with_capacity(tc.programs.len());
+            for (pi, entry) in tc.programs.iter().enumerate() {
+                let at = format!("task_classes[{ci}].programs[{pi}]");
+                let Some(info) = registry.get(&entry.program) else {
+                    let known: Vec<&str> = registry.programs().iter().map(|p| p.name).collect();
+                    issues.push(DeclIssue {
+                        at: format!("{at}.program"),
+                        message: format!(
+                            "unknown program \"{}\"; known programs: {}",
+                            entry.program,
+                            known.join(", ")
+                        ),
+                    });
+                    continue;
+                };
+                let mut decl = Declare::new(&mut table, ci, info.name, &at);
+                let program = (info.factory)(
+                    &ProgramArgs {
+                        params: entry.params.as_ref(),
+                    },
+                    &mut decl,
+                );
+                programs.push(Slot {
+                    name: info.name.to_string(),
+                    program,
+                    seen_violation: 0,
+                });
+            }
+            classes.push(Class {
+                name: tc.name.clone(),
+                period_ns: u64::from(tc.cycle_us.max(1)) * 1000,
+                tolerance_ns: u64::from(tc.tolerance_us) * 1000,
+                reaction: tc.on_violation,
+                image: Vec::new(),
+                inputs: Vec::new(),
+                outputs: Vec::new(),
+                programs,
+                next_release: 0,
+                stats: ClassStats::default(),
+                violation_logged: false,
+            });
+        }
+        let table = match table.finish() {
+            Ok(t) if issues.is_empty() => t,
+            Ok(_) => return Err(issues),
+            Err(decl_issues) => {
+                issues.extend(decl_issues);
+                return Err(issues);
+            }
+        };
+        let global = table.initial_image();
+        for (ci, class) in classes.iter_mut().enumerate() {
+            class.image = global.clone();
+            for (vi, var) in table.vars().iter().enumerate() {
+                let index = VarIndex::try_from(vi).unwrap_or(VarIndex::MAX);
+                let written_here =
+                    matches!(&var.writer, Some(Writer::Program { class, .. }) if *class == ci);
+                if written_here {
+                    class.outputs.push(index);
+                } else if var.readers.iter().any(|r| r.class == ci) {
+                    class.inputs.push(index);
+                }
+            }
+        }
+        let mut order: Vec<usize> = (0..classes.len()).collect();
+        order.sort_by_key(|&c| (config.task_classes[c].priority, c));
+        Ok(Plc {
+            table,
+            global,
+            classes,
+            order,
+            bus,
+            violation_seq: 0,
+            last_violation: None,
+        })
+    }
+
+    /// The variable table.
+    pub fn vars(&self) -> &VarTable {
+        &self.table
+    }
+
+    /// The published (global) image.
+    pub fn global_image(&self) -> &[Value] {
+        &self.global
+    }
+
+    /// The bus's name.
+    pub fn bus_name(&self) -> &str {
+        self.bus.name()
+    }
+
+    /// The task classes in configuration order.
+    pub fn classes(&self) -> impl Iterator<Item = ClassView<'_>> {
+        self.classes.iter().map(|c| ClassView {
+            name: &c.name,
+            period_ns: c.period_ns,
+            tolerance_ns: c.tolerance_ns,
+            stats: &c.stats,
+        })
+    }
+
+    /// The main program's status: the first program (in priority order) that reports one.
+    pub fn app_status(&self) -> Option<AppStatus<'_>> {
+        self.order
+            .iter()
+            .flat_map(|&c| self.classes[c].programs.iter())
+            .find_map(|slot| slot.program.status())
+    }
+
+    /// The name of the program whose status [`Plc::app_status`] reports.
+    pub fn app_program(&self) -> Option<&str> {
+        self.order
+            .iter()
+            .flat_map(|&c| self.classes[c].programs.iter())
+            .find(|slot| slot.program.status().is_some())
+            .map(|slot| slot.name.as_str())
+    }
+
+    /// Runs every program's init part (classes in priority order) and sets the first release of
+    /// every class to `start_ns`.
+    pub fn init(&mut self, start_ns: u64, clock: &mut dyn Clock) {
+        for ci in self.order.clone() {
+            let class = &mut self.classes[ci];
+            self.bus.read_inputs(ci, start_ns, &mut self.global);
+            for &i in &class.inputs {
+                class.image[usize::from(i)] = self.global[usize::from(i)];
+            }
+            for slot in &mut class.programs {
+                let mut ctx = Cycle {
+                    image: &mut class.image,
+                    time_ns: start_ns,
+                    cycle: 0,
+                    period_ns: class.period_ns,
+                    violation: None,
+                    clock: &mut *clock,
+                };
+                slot.program.init(&mut ctx);
+            }
+            for &o in &class.outputs {
+                self.global[usize::from(o)] = class.image[usize::from(o)];
+            }
+            self.bus.write_outputs(ci, start_ns, &self.global);
+            class.next_release = start_ns;
+        }
+    }
+
+    /// The earliest next release of any class (ns since the epoch).
+    pub fn next_release(&self) -> u64 {
+        self.classes
+            .iter()
+            .map(|c| c.next_release)
+            .min()
+            .unwrap_or(u64::MAX)
+    }
+
+    /// Runs every class that is due at the clock's current time, highest priority first, until
+    /// none is due. A class that becomes due while another runs is picked up in the same call.
+    pub fn run_due(&mut self, clock: &mut dyn Clock) {
+        loop {
+            let now = clock.now_ns();
+            let due = self
+                .order
+                .iter()
+                .copied()
+                .find(|&c| self.classes[c].next_release <= now);
+            match due {
+                Some(ci) => self.run_class(ci, clock),
+                None => break,
+            }
+        }
+    }
+
+    fn run_class(&mut self, ci: usize, clock: &mut dyn Clock) {
+        let class = &mut self.classes[ci];
+        let release = class.next_release;
+        let start = clock.now_ns();
+        self.bus.read_inputs(ci, release, &mut self.global);
+        for &i in &class.inputs {
+            class.image[usize::from(i)] = self.global[usize::from(i)];
+        }
+        let cycle = class.stats.cycles;
+        for slot in &mut class.programs {
+            let violation = if slot.seen_violation != self.violation_seq {
+                slot.seen_violation = self.violation_seq;
+                self.last_violation
+            } else {
+                None
+            };
+            let mut ctx = Cycle {
+                image: &mut class.image,
+                time_ns: release,
+                cycle,
+                period_ns: class.period_ns,
+                violation,
+                clock: &mut *clock,
+            };
+            slot.program.cycle(&mut ctx);
+        }
+        for &o in &class.outputs {
+            self.global[usize::from(o)] = class.image[usize::from(o)];
+        }
+        self.bus.write_outputs(ci, release, &self.global);
+        let end = clock.now_ns();
+
+        let stats = &mut class.stats;
+        stats.cycles += 1;
+        stats.lateness.record(start.saturating_sub(release));
+        stats.exec.record(end.saturating_sub(start));
+        let deadline = release + class.period_ns;
+        if end > deadline {
+            stats.overruns += 1;
+            let late_by = end - deadline;
+            if late_by > class.tolerance_ns {
+                stats.violations += 1;
+                if !class.violation_logged {
+                    // Logged once per class from here; the count is in the statistics, and the
+                    // real-time monitor reports further violations off the cyclic thread.
+                    class.violation_logged = true;
+                    warn!(
+                        task_class = %class.name,
+                        "cycle time violation: cycle {cycle} ended {:.3} ms past its deadline (tolerance {:.3} ms); reaction: {}",
+                        late_by as f64 / 1e6,
+                        class.tolerance_ns as f64 / 1e6,
+                        match class.reaction { Reaction::Log => "log", Reaction::Error => "error (the application is told)" },
+                    );
+                }
+                if class.reaction == Reaction::Error {
+                    self.violation_seq += 1;
+                    self.last_violation = Some(CycleViolation {
+                        class: ci,
+                        late_by_ns: late_by,
+                    });
+                }
+            }
+        }
+        // Absolute deadlines: the next release is a multiple of the period from the epoch, so
+        // lateness never accumulates. Releases whose whole window has passed are skipped.
+        let mut next = release + class.period_ns;
+        while next + class.period_ns <= end {
+            next += class.period_ns;
+            stats.missed += 1;
+        }
+        class.next_release = next;
+    }
+
+    /// Sets every output to its safe value and hands that image to the bus. Call once, at the end.
+    pub fn shutdown(&mut self) {
+        for (i, var) in self.table.vars().iter().enumerate() {
+            if matches!(var.writer, Some(Writer::Program { .. })) {
+                self.global[i] = var.safe;
+            }
+        }
+        self.bus.write_safe(&self.global);
+    }
+}

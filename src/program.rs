@@ -1,0 +1,186 @@
+//! The interface between the runtime and application programs.
+//!
+//! A program is the counterpart of a B&R program object: an init part that runs once before the
+//! first cycle and a cyclic part that the runtime calls in every cycle of its task class. A cycle is
+//! a pure step: the program sees its latched inputs, the cycle's nominal time and runtime events,
+//! and writes its outputs. It never reads a clock, touches a file or a wire.
+
+use serde::de::DeserializeOwned;
+
+use crate::image::{Declare, Input, Output, PlcType, Value};
+
+/// A cycle time violation that the runtime reports to the application (reaction `error`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct CycleViolation {
+    /// Index of the task class that violated its cycle time (configuration order).
+    pub class: usize,
+    /// How far past its deadline (release + cycle time) that cycle ended, in nanoseconds.
+    pub late_by_ns: u64,
+}
+
+/// Where the runtime's notion of "now" comes from while a cycle runs.
+///
+/// Real time reads the monotonic clock; virtual time keeps a simulated clock. Only the runtime and
+/// [`Cycle::burn`] (for test programs that model a heavy cycle) use it.
+pub trait Clock {
+    /// Nanoseconds since the schedule's epoch.
+    fn now_ns(&mut self) -> u64;
+    /// Spends `ns` nanoseconds of execution time: busy-waits in real time, advances the simulated
+    /// clock in virtual time.
+    fn burn(&mut self, ns: u64);
+}
+
+/// What a program sees during one cycle (or its init part).
+pub struct Cycle<'a> {
+    pub(crate) image: &'a mut [Value],
+    pub(crate) time_ns: u64,
+    pub(crate) cycle: u64,
+    pub(crate) period_ns: u64,
+    pub(crate) violation: Option<CycleViolation>,
+    pub(crate) clock: &'a mut dyn Clock,
+}
+
+impl Cycle<'_> {
+    /// The latched value of an input.
+    #[inline]
+    pub fn get<T: PlcType>(&self, input: Input<T>) -> T {
+        T::from_value(self.image[usize::from(input.index)])
+    }
+
+    /// Writes an output; it is published when the cycle ends.
+    #[inline]
+    pub fn set<T: PlcType>(&mut self, output: Output<T>, value: T) {
+        self.image[usize::from(output.index)] = value.into_value();
+    }
+
+    /// The value an output has now (as last written, or its safe value before the first write).
+    #[inline]
+    pub fn output_value<T: PlcType>(&self, output: Output<T>) -> T {
+        T::from_value(self.image[usize::from(output.index)])
+    }
+
+    /// The nominal start time of this cycle in nanoseconds since the start of the schedule
+    /// (deterministic: the same in real and virtual time).
+    #[inline]
+    pub fn time_ns(&self) -> u64 {
+        self.time_ns
+    }
+
+    /// The number of this cycle of the task class, from 0 (the init part sees 0 too).
+    #[inline]
+    pub fn cycle(&self) -> u64 {
+        self.cycle
+    }
+
+    /// The task class's cycle time in nanoseconds.
+    #[inline]
+    pub fn period_ns(&self) -> u64 {
+        self.period_ns
+    }
+
+    /// A cycle time violation (reaction `error`) that happened since this program's last cycle.
+    #[inline]
+    pub fn violation(&self) -> Option<CycleViolation> {
+        self.violation
+    }
+
+    /// Spends execution time, for test programs that model a heavy cycle. Real time busy-waits;
+    /// virtual time advances the simulated clock, so overruns are reproducible there too.
+    pub fn burn(&mut self, ns: u64) {
+        self.clock.burn(ns);
+    }
+}
+
+/// The state the main program reports: shown on the status line and in the run summary.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct AppStatus<'a> {
+    /// The state's name (REBOOT, INIT, READY, MOTION, ERROR for the TRIJOINT application).
+    pub state: &'a str,
+    /// Why the program is in its error state, if it is.
+    pub reason: Option<&'a str>,
+}
+
+/// An application program.
+pub trait Program: Send {
+    /// The init part: runs once before the first cycle, with the inputs latched.
+    fn init(&mut self, _ctx: &mut Cycle<'_>) {}
+    /// The cyclic part.
+    fn cycle(&mut self, ctx: &mut Cycle<'_>);
+    /// The program's state, if it is the kind of program that has one (the main program).
+    fn status(&self) -> Option<AppStatus<'_>> {
+        None
+    }
+}
+
+/// The configuration of one program instance, handed to its factory.
+pub struct ProgramArgs<'a> {
+    /// The `params` object of the program entry, if there is one.
+    pub params: Option<&'a serde_json::Value>,
+}
+
+impl ProgramArgs<'_> {
+    /// Parses the `params` strictly into `P`; a problem is recorded against the program entry's
+    /// path (with the path inside `params`) and `P::default()` is returned so that declaration can
+    /// go on and every problem of the configuration is reported at once.
+    pub fn parse<P: DeserializeOwned + Default>(&self, decl: &mut Declare<'_>) -> P {
+        let Some(params) = self.params else {
+            return P::default();
+        };
+        match serde_path_to_error::deserialize::<_, P>(params) {
+            Ok(p) => p,
+            Err(e) => {
+                let inner = e.path().to_string();
+                let sub = if inner == "." {
+                    "params".to_string()
+                } else {
+                    format!("params.{inner}")
+                };
+                decl.issue(&sub, e.into_inner().to_string());
+                P::default()
+            }
+        }
+    }
+}
+
+/// Creates a program: declares its variables through `decl` and returns it.
+pub type Factory = fn(&ProgramArgs<'_>, &mut Declare<'_>) -> Box<dyn Program>;
+
+/// A program type that configurations can name.
+#[derive(Clone, Copy)]
+pub struct ProgramInfo {
+    /// The name used in config.json (`"program": NAME`).
+    pub name: &'static str,
+    /// One line on what it does.
+    pub summary: &'static str,
+    /// Its factory.
+    pub factory: Factory,
+}
+
+/// The program types a build knows.
+#[derive(Clone, Default)]
+pub struct Registry {
+    programs: Vec<ProgramInfo>,
+}
+
+impl Registry {
+    /// An empty registry.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Adds a program type.
+    pub fn register(&mut self, info: ProgramInfo) -> &mut Self {
+        self.programs.push(info);
+        self
+    }
+
+    /// Looks a program type up by name.
+    pub fn get(&self, name: &str) -> Option<&ProgramInfo> {
+        self.programs.iter().find(|p| p.name == name)
+    }
+
+    /// All registered program types.
+    pub fn programs(&self) -> &[ProgramInfo] {
+        &self.programs
+    }
+}
