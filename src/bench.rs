@@ -7,9 +7,7 @@
 use serde::Serialize;
 
 use crate::bus::NoBus;
-use crate::config::{
-    Config, ProgramEntry, Reaction, TaskClassConfig, TimeSourceKind, TimingConfig,
-};
+use crate::config::{Config, ProgramEntry, Reaction, TaskClassConfig, TimeSourceKind, TimingConfig};
 use crate::plc::Plc;
 use crate::program::Registry;
 use crate::run::{RealTimeOptions, RunError, start_realtime};
@@ -53,10 +51,7 @@ pub struct BenchRow {
 }
 
 /// Runs the benchmark, calling `progress` before each row.
-pub fn run(
-    options: &BenchOptions,
-    mut progress: impl FnMut(&str),
-) -> Result<Vec<BenchRow>, RunError> {
+pub fn run(options: &BenchOptions, mut progress: impl FnMut(&str)) -> Result<Vec<BenchRow>, RunError> {
     let mut registry = Registry::new();
     selftest::register(&mut registry);
     let config = Config {
@@ -85,10 +80,7 @@ pub fn run(
         &[0]
     };
     for &source in &options.sources {
-        for (&spin_us, &fifo) in spins
-            .iter()
-            .flat_map(|s| fifo_modes.iter().map(move |f| (s, f)))
-        {
+        for (&spin_us, &fifo) in spins.iter().flat_map(|s| fifo_modes.iter().map(move |f| (s, f))) {
             let scheduling = if fifo { "SCHED_FIFO" } else { "normal" };
             progress(&format!(
                 "{} / {scheduling} / spin {spin_us} µs: {} s",
@@ -135,15 +127,7 @@ pub fn run(
 pub fn table(rows: &[BenchRow]) -> String {
     let mut out = format!(
         "{:<10} {:<11} {:>6} {:>7} {:>10} {:>10} {:>10} {:>10} {:>9}\n",
-        "source",
-        "scheduling",
-        "spin",
-        "cycles",
-        "late p50",
-        "late p99",
-        "late max",
-        "exec mean",
-        "overruns"
+        "source", "scheduling", "spin", "cycles", "late p50", "late p99", "late max", "exec mean", "overruns"
     );
     for r in rows {
         let sched = if r.priority_granted {

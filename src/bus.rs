@@ -59,11 +59,7 @@ struct Latest {
 impl ImageMailbox {
     /// A mailbox for the variables `slots`, initially holding `initial` (one value per slot).
     pub fn new(slots: Vec<VarIndex>, initial: Vec<Value>) -> Self {
-        assert_eq!(
-            slots.len(),
-            initial.len(),
-            "one initial value per mailbox slot"
-        );
+        assert_eq!(slots.len(), initial.len(), "one initial value per mailbox slot");
         ImageMailbox {
             slots,
             latest: Mutex::new(Latest {
@@ -75,11 +71,7 @@ impl ImageMailbox {
 
     /// Publishes a complete set (producer side; one value per slot, in slot order).
     pub fn publish(&self, values: &[Value]) {
-        assert_eq!(
-            values.len(),
-            self.slots.len(),
-            "a published set covers every slot"
-        );
+        assert_eq!(values.len(), self.slots.len(), "a published set covers every slot");
         let mut latest = self.latest.lock().unwrap_or_else(|p| p.into_inner());
         latest.values.copy_from_slice(values);
         latest.sequence += 1;

@@ -250,10 +250,7 @@ pub fn parse(text: &str, origin: &str) -> Result<LoadedConfig, ConfigError> {
 
 /// Parses any strict JSON document, turning serde's errors into [`ConfigError`]s that name the
 /// file, the JSON path and what was expected.
-pub fn parse_strict<T: serde::de::DeserializeOwned>(
-    text: &str,
-    origin: &str,
-) -> Result<T, ConfigError> {
+pub fn parse_strict<T: serde::de::DeserializeOwned>(text: &str, origin: &str) -> Result<T, ConfigError> {
     let mut de = serde_json::Deserializer::from_str(text);
     let result: Result<T, (String, serde_json::Error)> = serde_path_to_error::deserialize(&mut de)
         .map_err(|e| (e.path().to_string(), e.into_inner()))
@@ -301,10 +298,7 @@ pub fn check(config: &Config) -> Vec<DeclIssue> {
     let mut issues = Vec::new();
     let mut push = |at: String, message: String| issues.push(DeclIssue { at, message });
     if config.task_classes.is_empty() {
-        push(
-            "task_classes".into(),
-            "at least one task class is required".into(),
-        );
+        push("task_classes".into(), "at least one task class is required".into());
     }
     for (i, tc) in config.task_classes.iter().enumerate() {
         let at = format!("task_classes[{i}]");
@@ -322,16 +316,10 @@ pub fn check(config: &Config) -> Vec<DeclIssue> {
                 ),
             );
         }
-        if let Some(j) = config.task_classes[..i]
-            .iter()
-            .position(|o| o.name == tc.name)
-        {
+        if let Some(j) = config.task_classes[..i].iter().position(|o| o.name == tc.name) {
             push(
                 format!("{at}.name"),
-                format!(
-                    "task class name \"{}\" is already used by task_classes[{j}]",
-                    tc.name
-                ),
+                format!("task class name \"{}\" is already used by task_classes[{j}]", tc.name),
             );
         }
         if !(MIN_CYCLE_US..=MAX_CYCLE_US).contains(&tc.cycle_us) {
@@ -346,10 +334,7 @@ pub fn check(config: &Config) -> Vec<DeclIssue> {
         if tc.tolerance_us > MAX_CYCLE_US {
             push(
                 format!("{at}.tolerance_us"),
-                format!(
-                    "tolerance must be at most {MAX_CYCLE_US} µs, got {}",
-                    tc.tolerance_us
-                ),
+                format!("tolerance must be at most {MAX_CYCLE_US} µs, got {}", tc.tolerance_us),
             );
         }
         if tc.priority == 0 {
@@ -358,10 +343,7 @@ pub fn check(config: &Config) -> Vec<DeclIssue> {
                 "priority must be 1 (highest) or more, got 0".into(),
             );
         }
-        if let Some(j) = config.task_classes[..i]
-            .iter()
-            .position(|o| o.priority == tc.priority)
-        {
+        if let Some(j) = config.task_classes[..i].iter().position(|o| o.priority == tc.priority) {
             push(
                 format!("{at}.priority"),
                 format!(
@@ -370,7 +352,7 @@ pub fn check(config: &Config) -> Vec<DeclIssue> {
                 ),
             );
         }
-        for (j, other) in config.task_classes[..i].iter().enumerate() {
+        for other in &config.task_classes[..i] {
             let (fast, slow) = if tc.cycle_us < other.cycle_us {
                 (tc, other)
             } else {
@@ -381,29 +363,20 @@ pub fn check(config: &Config) -> Vec<DeclIssue> {
                     format!("{at}.priority"),
                     format!(
                         "task class \"{}\" ({} µs, priority {}) is faster than \"{}\" ({} µs, priority {}) \
-                         but has the lower priority; a faster class must have the higher priority (smaller number) \
-                         (with task_classes[{j}])",
-                        fast.name,
-                        fast.cycle_us,
-                        fast.priority,
-                        slow.name,
-                        slow.cycle_us,
-                        slow.priority
+                         but has the lower priority; a faster class must have the higher priority (a smaller number)",
+                        fast.name, fast.cycle_us, fast.priority, slow.name, slow.cycle_us, slow.priority
                     ),
                 );
             }
         }
         for (k, entry) in tc.programs.iter().enumerate() {
-            let first = config.task_classes[..=i]
-                .iter()
-                .enumerate()
-                .find_map(|(ci, c)| {
-                    let upto = if ci == i { k } else { c.programs.len() };
-                    c.programs[..upto]
-                        .iter()
-                        .position(|e| e.program == entry.program)
-                        .map(|pk| (ci, pk))
-                });
+            let first = config.task_classes[..=i].iter().enumerate().find_map(|(ci, c)| {
+                let upto = if ci == i { k } else { c.programs.len() };
+                c.programs[..upto]
+                    .iter()
+                    .position(|e| e.program == entry.program)
+                    .map(|pk| (ci, pk))
+            });
             if let Some((ci, pk)) = first {
                 push(
                     format!("{at}.programs[{k}].program"),
@@ -427,10 +400,7 @@ pub fn check(config: &Config) -> Vec<DeclIssue> {
     if config.timing.spin_us > 1000 {
         push(
             "timing.spin_us".into(),
-            format!(
-                "spin margin must be at most 1000 µs, got {}",
-                config.timing.spin_us
-            ),
+            format!("spin margin must be at most 1000 µs, got {}", config.timing.spin_us),
         );
     }
     issues

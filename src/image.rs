@@ -281,12 +281,7 @@ impl VarTable {
                     .writer
                     .as_ref()
                     .map(Writer::describe)
-                    .or_else(|| {
-                        existing
-                            .readers
-                            .first()
-                            .map(|r| format!("\"{}\" ({})", r.who, r.at))
-                    })
+                    .or_else(|| existing.readers.first().map(|r| format!("\"{}\" ({})", r.who, r.at)))
                     .unwrap_or_default();
                 self.issues.push(DeclIssue {
                     at: at.to_string(),
@@ -301,23 +296,14 @@ impl VarTable {
         let Ok(index) = VarIndex::try_from(self.vars.len()) else {
             self.issues.push(DeclIssue {
                 at: at.to_string(),
-                message: format!(
-                    "too many variables (the process image holds at most {})",
-                    VarIndex::MAX
-                ),
+                message: format!("too many variables (the process image holds at most {})", VarIndex::MAX),
             });
             return 0;
         };
-        if name.is_empty()
-            || !name
-                .chars()
-                .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '.')
-        {
+        if name.is_empty() || !name.chars().all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '.') {
             self.issues.push(DeclIssue {
                 at: at.to_string(),
-                message: format!(
-                    "variable name \"{name}\" is not valid: use letters, digits, '_' and '.'"
-                ),
+                message: format!("variable name \"{name}\" is not valid: use letters, digits, '_' and '.'"),
             });
         }
         self.vars.push(VarInfo {
@@ -332,13 +318,7 @@ impl VarTable {
     }
 
     /// Declares `writer` as the one writer of `name`; `safe` is the value it falls back to.
-    pub fn declare_writer(
-        &mut self,
-        name: &str,
-        ty: VarType,
-        writer: Writer,
-        safe: Value,
-    ) -> VarIndex {
+    pub fn declare_writer(&mut self, name: &str, ty: VarType, writer: Writer, safe: Value) -> VarIndex {
         let at = match &writer {
             Writer::Program { at, .. } | Writer::Bus { at, .. } => at.clone(),
         };
@@ -436,9 +416,7 @@ impl<'a> Declare<'a> {
             program: self.program.clone(),
             at: self.at.clone(),
         };
-        let index = self
-            .table
-            .declare_writer(name, T::TYPE, writer, safe.into_value());
+        let index = self.table.declare_writer(name, T::TYPE, writer, safe.into_value());
         Output {
             index,
             _type: PhantomData,

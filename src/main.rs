@@ -85,15 +85,11 @@ struct BenchArgs {
 }
 
 fn parse_seconds(s: &str) -> Result<f64, String> {
-    let v: f64 = s
-        .parse()
-        .map_err(|_| format!("\"{s}\" is not a number of seconds"))?;
+    let v: f64 = s.parse().map_err(|_| format!("\"{s}\" is not a number of seconds"))?;
     if v.is_finite() && v > 0.0 && v <= 1e7 {
         Ok(v)
     } else {
-        Err(format!(
-            "must be more than 0 and at most 10000000 seconds, got {s}"
-        ))
+        Err(format!("must be more than 0 and at most 10000000 seconds, got {s}"))
     }
 }
 
@@ -162,11 +158,9 @@ fn load_config(arg: &ConfigArg) -> Result<LoadedConfig, ConfigError> {
 fn build(arg: &ConfigArg) -> Result<(LoadedConfig, Plc), Failure> {
     let loaded = load_config(arg)?;
     let plc =
-        Plc::build(&loaded.config, &pkm_plc::registry(), Box::new(NoBus)).map_err(|problems| {
-            ConfigError::Invalid {
-                file: loaded.origin.clone(),
-                problems,
-            }
+        Plc::build(&loaded.config, &pkm_plc::registry(), Box::new(NoBus)).map_err(|problems| ConfigError::Invalid {
+            file: loaded.origin.clone(),
+            problems,
         })?;
     Ok((loaded, plc))
 }
@@ -190,10 +184,7 @@ fn cmd_check(args: ConfigArg) -> Result<(), Failure> {
 fn cmd_run(args: RunArgs) -> Result<(), Failure> {
     let (loaded, mut plc) = build(&args.config)?;
     info!("configuration: {}; bus: {}", loaded.origin, plc.bus_name());
-    if plc
-        .app_program()
-        .is_some_and(|p| p.starts_with("selftest."))
-    {
+    if plc.app_program().is_some_and(|p| p.starts_with("selftest.")) {
         warn!("running the runtime's built-in self-test programs, not the TRIJOINT application");
     }
     let summary = if args.virtual_time {
@@ -226,12 +217,7 @@ fn cmd_run(args: RunArgs) -> Result<(), Failure> {
             options.source.resolve().name()
         );
         let outcome = run_realtime(plc, options)?;
-        let mut s = Summary::collect(
-            &outcome.plc,
-            "real-time",
-            &loaded.origin,
-            outcome.elapsed_ns,
-        );
+        let mut s = Summary::collect(&outcome.plc, "real-time", &loaded.origin, outcome.elapsed_ns);
         s.time_source = Some(outcome.source.name());
         s.realtime_priority = Some(outcome.realtime_priority);
         s
@@ -304,8 +290,7 @@ fn cmd_bench(args: BenchArgs) -> Result<(), Failure> {
             config::MAX_CYCLE_US
         )));
     }
-    let rows = bench::run(&options, |row| info!("measuring {row}"))
-        .map_err(|e| Failure::run(e.to_string()))?;
+    let rows = bench::run(&options, |row| info!("measuring {row}")).map_err(|e| Failure::run(e.to_string()))?;
     print!("{}", bench::table(&rows));
     if let Some(path) = &args.json {
         let json = serde_json::to_string_pretty(&rows).map_err(|e| Failure::run(e.to_string()))?;
@@ -335,9 +320,6 @@ mod tests {
         assert!(parse_seconds("0").is_err());
         assert!(parse_seconds("-1").is_err());
         assert!(parse_seconds("inf").is_err());
-        assert_eq!(
-            parse_seconds("ten"),
-            Err("\"ten\" is not a number of seconds".into())
-        );
+        assert_eq!(parse_seconds("ten"), Err("\"ten\" is not a number of seconds".into()));
     }
 }

@@ -67,11 +67,7 @@ pub struct ClassView<'a> {
 impl Plc {
     /// Builds the PLC from a configuration: checks it as a whole, lets the bus and every program
     /// declare their variables, and returns every problem found at once.
-    pub fn build(
-        config: &Config,
-        registry: &Registry,
-        mut bus: Box<dyn Bus>,
-    ) -> Result<Plc, Vec<DeclIssue>> {
+    pub fn build(config: &Config, registry: &Registry, mut bus: Box<dyn Bus>) -> Result<Plc, Vec<DeclIssue>> {
         let mut issues = config::check(config);
         let mut table = VarTable::new();
         bus.declare(&mut table);
@@ -132,8 +128,7 @@ impl Plc {
             class.image = global.clone();
             for (vi, var) in table.vars().iter().enumerate() {
                 let index = VarIndex::try_from(vi).unwrap_or(VarIndex::MAX);
-                let written_here =
-                    matches!(&var.writer, Some(Writer::Program { class, .. }) if *class == ci);
+                let written_here = matches!(&var.writer, Some(Writer::Program { class, .. }) if *class == ci);
                 if written_here {
                     class.outputs.push(index);
                 } else if var.readers.iter().any(|r| r.class == ci) {
@@ -226,26 +221,21 @@ impl Plc {
 
     /// The earliest next release of any class (ns since the epoch).
     pub fn next_release(&self) -> u64 {
-        self.classes
-            .iter()
-            .map(|c| c.next_release)
-            .min()
-            .unwrap_or(u64::MAX)
+        self.classes.iter().map(|c| c.next_release).min().unwrap_or(u64::MAX)
     }
 
-    /// Runs every class that is due at the clock's current time, highest priority first, until
-    /// none is due. A class that becomes due while another runs is picked up in the same call.
-    pub fn run_due(&mut self, clock: &mut dyn Clock) {
-        loop {
-            let now = clock.now_ns();
-            let due = self
-                .order
-                .iter()
-                .copied()
-                .find(|&c| self.classes[c].next_release <= now);
-            match due {
-                Some(ci) => self.run_class(ci, clock),
-                None => break,
+    /// One pass over the classes in priority order: each class that is due when its turn comes
+    /// runs one cycle. The driver calls this again while [`Plc::next_release`] has passed, so a
+    /// class that became due meanwhile runs next, highest priority first. Returning after one pass
+    /// lets the driver check for a stop between cycles, and keeps a class that overruns every cycle
+    /// from starving the others (they run between its late cycles, late themselves). Releases at
+    /// or after `end_ns` (the end of the run) are not run.
+    pub fn run_due(&mut self, clock: &mut dyn Clock, end_ns: u64) {
+        for k in 0..self.order.len() {
+            let ci = self.order[k];
+            let release = self.classes[ci].next_release;
+            if release < end_ns && release <= clock.now_ns() {
+                self.run_class(ci, clock);
             }
         }
     }

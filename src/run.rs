@@ -57,7 +57,7 @@ pub fn run_virtual(plc: &mut Plc, duration_ns: u64) -> VirtualReport {
             break;
         }
         clock.advance_to(t);
-        plc.run_due(&mut clock);
+        plc.run_due(&mut clock, duration_ns);
     }
     plc.shutdown();
     VirtualReport {
@@ -220,7 +220,10 @@ pub fn start_realtime(mut plc: Plc, options: RealTimeOptions) -> Result<RealTime
             let realtime_priority = options.realtime_priority > 0 && {
                 match timing::set_realtime_priority(options.realtime_priority) {
                     Ok(()) => {
-                        info!("cyclic thread runs with SCHED_FIFO priority {}", options.realtime_priority);
+                        info!(
+                            "cyclic thread runs with SCHED_FIFO priority {}",
+                            options.realtime_priority
+                        );
                         true
                     }
                     Err(e) => {
@@ -237,8 +240,10 @@ pub fn start_realtime(mut plc: Plc, options: RealTimeOptions) -> Result<RealTime
             if let Err(e) = timing::minimize_timer_slack() {
                 warn!("could not reduce the timer slack of the cyclic thread ({e}); wake-ups may be up to 50 µs later");
             }
-            let mut waiter = timing::waiter(source)
-                .map_err(|error| RunError::Timer { source_name: source.name(), error })?;
+            let mut waiter = timing::waiter(source).map_err(|error| RunError::Timer {
+                source_name: source.name(),
+                error,
+            })?;
             if options.spin_ns > 0 {
                 waiter = Box::new(timing::SpinningWaiter::new(waiter, options.spin_ns));
             }
@@ -246,15 +251,19 @@ pub fn start_realtime(mut plc: Plc, options: RealTimeOptions) -> Result<RealTime
             let mut clock = MonotonicClock::with_epoch(timing::monotonic_ns() + 2_000_000);
             plc.init(0, &mut clock);
             let mut next_snapshot = SNAPSHOT_EVERY_NS;
+            let end_ns = options.duration_ns.unwrap_or(u64::MAX);
             loop {
                 let t = plc.next_release();
-                if stop_t.load(Ordering::Relaxed) || options.duration_ns.is_some_and(|d| t >= d) {
+                if stop_t.load(Ordering::Relaxed) || t >= end_ns {
                     break;
                 }
                 waiter
                     .wait_until(clock.epoch_ns() + t)
-                    .map_err(|error| RunError::Timer { source_name: source.name(), error })?;
-                plc.run_due(&mut clock);
+                    .map_err(|error| RunError::Timer {
+                        source_name: source.name(),
+                        error,
+                    })?;
+                plc.run_due(&mut clock, end_ns);
                 if t >= next_snapshot {
                     next_snapshot = t + SNAPSHOT_EVERY_NS;
                     // Never block the cyclic thread: if the status line holds the lock, skip.
@@ -268,14 +277,15 @@ pub fn start_realtime(mut plc: Plc, options: RealTimeOptions) -> Result<RealTime
             if let Ok(mut s) = snap_t.lock() {
                 s.update(&plc, elapsed_ns);
             }
-            Ok(RealTimeOutcome { plc, source, realtime_priority, elapsed_ns })
+            Ok(RealTimeOutcome {
+                plc,
+                source,
+                realtime_priority,
+                elapsed_ns,
+            })
         })
         .map_err(RunError::Thread)?;
-    Ok(RealTimeRun {
-        stop,
-        snapshot,
-        thread,
-    })
+    Ok(RealTimeRun { stop, snapshot, thread })
 }
 
 impl RealTimeRun {

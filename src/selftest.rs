@@ -23,15 +23,17 @@ pub struct LoadParams {
     /// Do not burn before this cycle number (lets a run start cleanly).
     #[serde(default)]
     pub burn_from_cycle: u64,
+    /// Do not burn from this cycle number on (default: never stop).
+    #[serde(default)]
+    pub burn_until_cycle: Option<u64>,
 }
 
 impl LoadParams {
     fn apply(&self, ctx: &mut Cycle<'_>) {
         let every = u64::from(self.burn_every.max(1));
-        if self.burn_us > 0
-            && ctx.cycle() >= self.burn_from_cycle
-            && ctx.cycle().is_multiple_of(every)
-        {
+        let cycle = ctx.cycle();
+        let in_window = cycle >= self.burn_from_cycle && self.burn_until_cycle.is_none_or(|u| cycle < u);
+        if self.burn_us > 0 && in_window && cycle.is_multiple_of(every) {
             ctx.burn(u64::from(self.burn_us) * 1000);
         }
     }
@@ -73,8 +75,7 @@ impl Program for Producer {
         self.rng ^= self.rng >> 12;
         self.rng ^= self.rng << 25;
         self.rng ^= self.rng >> 27;
-        let step =
-            (self.rng.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 11) as f64 / (1u64 << 53) as f64 - 0.5;
+        let step = (self.rng.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 11) as f64 / (1u64 << 53) as f64 - 0.5;
         let walk = ctx.output_value(self.walk) + step;
         ctx.set(self.walk, walk);
         self.load.apply(ctx);
@@ -117,9 +118,7 @@ impl Program for Consumer {
             let seq = ctx.get(self.seq);
             if let Some(bad) = self.copies.iter().find(|c| ctx.get(**c) != seq) {
                 let copy = ctx.get(*bad);
-                self.reason = Some(format!(
-                    "torn input set: selftest_seq = {seq} but a copy = {copy}"
-                ));
+                self.reason = Some(format!("torn input set: selftest_seq = {seq} but a copy = {copy}"));
             }
         }
         let checked = ctx.output_value(self.checked).wrapping_add(1);
@@ -170,10 +169,6 @@ pub fn register(registry: &mut Registry) {
         .register(ProgramInfo {
             name: "selftest.idle",
             summary: "runtime self-test: an empty cycle (optionally burning time)",
-            factory: |args, decl| {
-                Box::new(Idle {
-                    load: args.parse(decl),
-                })
-            },
+            factory: |args, decl| Box::new(Idle { load: args.parse(decl) }),
         });
 }

@@ -86,11 +86,7 @@ impl Waiter for NanosleepWaiter {
     fn wait_until(&mut self, deadline_ns: u64) -> io::Result<()> {
         let ts = ns_to_ts(deadline_ns);
         loop {
-            match clock_nanosleep(
-                ClockId::CLOCK_MONOTONIC,
-                ClockNanosleepFlags::TIMER_ABSTIME,
-                &ts,
-            ) {
+            match clock_nanosleep(ClockId::CLOCK_MONOTONIC, ClockNanosleepFlags::TIMER_ABSTIME, &ts) {
                 Ok(_) => return Ok(()),
                 // A signal woke us early: the deadline is absolute, so sleep again.
                 Err(nix::errno::Errno::EINTR) => continue,
@@ -118,9 +114,7 @@ impl AsRawFd for RawTimerFd {
 
 impl TimerfdWaiter {
     fn new() -> io::Result<Self> {
-        let runtime = tokio::runtime::Builder::new_current_thread()
-            .enable_io()
-            .build()?;
+        let runtime = tokio::runtime::Builder::new_current_thread().enable_io().build()?;
         let tfd = TimerFd::new(
             TfdClock::CLOCK_MONOTONIC,
             TimerFlags::TFD_NONBLOCK | TimerFlags::TFD_CLOEXEC,
@@ -130,13 +124,8 @@ impl TimerfdWaiter {
             let _guard = runtime.enter();
             // SAFETY: the timerfd is open and owned by `RawTimerFd`, which the `AsyncFd` owns; it
             // stays open, and `as_raw_fd` returns the same descriptor, until the `AsyncFd` drops.
-            unsafe {
-                tokio::io::unix::AsyncFd::register_with_interest(
-                    RawTimerFd(tfd),
-                    tokio::io::Interest::READABLE,
-                )
-            }
-            .map_err(io::Error::from)?
+            unsafe { tokio::io::unix::AsyncFd::register_with_interest(RawTimerFd(tfd), tokio::io::Interest::READABLE) }
+                .map_err(io::Error::from)?
         };
         Ok(TimerfdWaiter { runtime, fd })
     }
@@ -162,14 +151,8 @@ impl Waiter for TimerfdWaiter {
                 let mut expirations = [0u8; 8];
                 let read = guard.try_io(|inner| {
                     // SAFETY: reading 8 bytes into an 8-byte buffer from a valid, open timerfd.
-                    let n = unsafe {
-                        libc::read(inner.as_raw_fd(), expirations.as_mut_ptr().cast(), 8)
-                    };
-                    if n < 0 {
-                        Err(io::Error::last_os_error())
-                    } else {
-                        Ok(n)
-                    }
+                    let n = unsafe { libc::read(inner.as_raw_fd(), expirations.as_mut_ptr().cast(), 8) };
+                    if n < 0 { Err(io::Error::last_os_error()) } else { Ok(n) }
                 });
                 match read {
                     Ok(Ok(_)) => return Ok(()),
@@ -192,9 +175,7 @@ struct TokioWaiter {
 
 impl TokioWaiter {
     fn new() -> io::Result<Self> {
-        let runtime = tokio::runtime::Builder::new_current_thread()
-            .enable_time()
-            .build()?;
+        let runtime = tokio::runtime::Builder::new_current_thread().enable_time().build()?;
         // std's Instant is CLOCK_MONOTONIC on Linux; take both readings back to back.
         let origin = (tokio::time::Instant::now(), monotonic_ns());
         Ok(TokioWaiter { runtime, origin })
@@ -204,8 +185,7 @@ impl TokioWaiter {
 impl Waiter for TokioWaiter {
     fn wait_until(&mut self, deadline_ns: u64) -> io::Result<()> {
         let at = self.origin.0 + Duration::from_nanos(deadline_ns.saturating_sub(self.origin.1));
-        self.runtime
-            .block_on(async move { tokio::time::sleep_until(at).await });
+        self.runtime.block_on(async move { tokio::time::sleep_until(at).await });
         Ok(())
     }
 }
@@ -238,8 +218,7 @@ impl SpinningWaiter {
 
 impl Waiter for SpinningWaiter {
     fn wait_until(&mut self, deadline_ns: u64) -> io::Result<()> {
-        self.inner
-            .wait_until(deadline_ns.saturating_sub(self.spin_ns))?;
+        self.inner.wait_until(deadline_ns.saturating_sub(self.spin_ns))?;
         while monotonic_ns() < deadline_ns {
             std::hint::spin_loop();
         }

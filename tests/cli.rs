@@ -1,0 +1,145 @@
+//! The command line as a user runs it: exit codes, messages, summaries.
+
+use std::process::{Command, Output};
+
+fn pkm(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_pkm-plc"))
+        .args(args)
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .env("RUST_LOG", "warn")
+        .output()
+        .expect("the binary runs")
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+#[test]
+fn check_accepts_the_default_configuration() {
+    let o = pkm(&["check"]);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    assert_eq!(
+        String::from_utf8_lossy(&o.stdout),
+        "config.json: valid (3 task classes: fast (10 ms), main (50 ms), spare (100 ms); 8 process-image variables)\n"
+    );
+}
+
+#[test]
+fn check_refuses_a_bad_configuration_with_exit_code_2() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("bad.json");
+    std::fs::write(
+        &path,
+        r#"{"task_classes": [{"name": "x", "cycle_us": 10, "tolerance_us": 0, "priority": 1, "programs": []}]}"#,
+    )
+    .expect("write");
+    let o = pkm(&["check", "--config", path.to_str().expect("utf-8 path")]);
+    assert_eq!(o.status.code(), Some(2));
+    assert_eq!(
+        stderr(&o),
+        format!(
+            "error: {}: at task_classes[0].cycle_us: cycle time must be between 200 and 10000000 µs, got 10\n",
+            path.display()
+        )
+    );
+}
+
+#[test]
+fn a_missing_configuration_file_is_a_clear_error() {
+    let o = pkm(&["run", "--config", "/nonexistent.json", "--virtual", "--duration", "1"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert_eq!(
+        stderr(&o),
+        "error: /nonexistent.json: cannot read the file: No such file or directory (os error 2)\n"
+    );
+}
+
+#[test]
+fn virtual_needs_a_duration() {
+    let o = pkm(&["run", "--virtual"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(stderr(&o).contains("--duration <SECONDS>"), "{}", stderr(&o));
+    let o = pkm(&["run", "--virtual", "--duration", "-3"]);
+    assert_eq!(o.status.code(), Some(2));
+}
+
+#[test]
+fn a_virtual_run_writes_its_summary() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("summary.json");
+    let o = pkm(&[
+        "run",
+        "--virtual",
+        "--duration",
+        "60",
+        "--summary",
+        path.to_str().expect("utf-8 path"),
+    ]);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    let s: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&path).expect("summary")).expect("json");
+    assert_eq!(s["mode"], "virtual");
+    assert_eq!(s["duration_s"], 60.0);
+    let cycles: Vec<u64> = s["task_classes"]
+        .as_array()
+        .expect("classes")
+        .iter()
+        .map(|c| c["cycles"].as_u64().expect("n"))
+        .collect();
+    assert_eq!(cycles, [6000, 1200, 600]);
+    assert_eq!(s["task_classes"][0]["lateness_us"]["max"], 0.0);
+    assert_eq!(s["main"]["state"], "SELFTEST-RUN");
+    assert_eq!(s["main"]["error_reason"], serde_json::Value::Null);
+}
+
+#[test]
+fn a_real_time_run_ends_after_its_duration_with_a_summary() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("summary.json");
+    let o = pkm(&[
+        "run",
+        "--duration",
+        "0.3",
+        "--time-source",
+        "timerfd",
+        "--summary",
+        path.to_str().expect("utf-8 path"),
+    ]);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    let s: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&path).expect("summary")).expect("json");
+    assert_eq!(s["mode"], "real-time");
+    assert_eq!(s["time_source"], "timerfd");
+    let fast = &s["task_classes"][0];
+    assert_eq!(
+        fast["cycles"].as_u64().unwrap_or(0) + fast["missed"].as_u64().unwrap_or(0),
+        30
+    );
+}
+
+#[test]
+fn sigterm_stops_a_real_time_run_cleanly() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("summary.json");
+    let child = Command::new(env!("CARGO_BIN_EXE_pkm-plc"))
+        .args(["run", "--summary", path.to_str().expect("utf-8 path")])
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .env("RUST_LOG", "warn")
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("spawn");
+    // Give the runtime time to install its signal handlers and run some cycles.
+    std::thread::sleep(std::time::Duration::from_millis(500));
+    nix_kill(child.id());
+    let o = child.wait_with_output().expect("wait");
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    let s: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&path).expect("summary")).expect("json");
+    assert!(s["task_classes"][0]["cycles"].as_u64().unwrap_or(0) > 0);
+}
+
+fn nix_kill(pid: u32) {
+    let status = Command::new("kill")
+        .args(["-TERM", &pid.to_string()])
+        .status()
+        .expect("kill runs");
+    assert!(status.success());
+}

@@ -1,0 +1,361 @@
+//! Every configuration error path, with the exact message a user sees.
+
+use pkm_plc::bus::NoBus;
+use pkm_plc::config::{self, ConfigError};
+use pkm_plc::image::{Declare, Reader, VarTable, VarType};
+use pkm_plc::plc::Plc;
+use pkm_plc::program::{Cycle, Program, ProgramArgs, ProgramInfo, Registry};
+
+/// Parses and builds `json` (named `cfg.json`) with `registry`; returns the error as displayed.
+fn error_with(json: &str, registry: &Registry) -> String {
+    let loaded = match config::parse(json, "cfg.json") {
+        Ok(l) => l,
+        Err(e) => return e.to_string(),
+    };
+    match Plc::build(&loaded.config, registry, Box::new(NoBus)) {
+        Ok(_) => panic!("configuration unexpectedly valid: {json}"),
+        Err(problems) => ConfigError::Invalid {
+            file: loaded.origin,
+            problems,
+        }
+        .to_string(),
+    }
+}
+
+fn error(json: &str) -> String {
+    error_with(json, &pkm_plc::registry())
+}
+
+/// One task class with the given fields replacing the defaults.
+fn class(overrides: &str) -> String {
+    let mut fields = serde_json::json!({
+        "name": "fast", "cycle_us": 10000, "tolerance_us": 10000, "priority": 1,
+        "programs": [{"program": "selftest.idle"}]
+    });
+    let extra: serde_json::Value = serde_json::from_str(overrides).expect("test override is JSON");
+    for (k, v) in extra.as_object().expect("object").iter() {
+        fields[k] = v.clone();
+    }
+    fields.to_string()
+}
+
+#[test]
+fn the_default_configuration_is_valid() {
+    let loaded = config::load(None).expect("built-in config parses");
+    Plc::build(&loaded.config, &pkm_plc::registry(), Box::new(NoBus)).expect("built-in config builds");
+    let file = config::load(Some(std::path::Path::new(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/config.json"
+    ))))
+    .expect("config.json parses");
+    Plc::build(&file.config, &pkm_plc::registry(), Box::new(NoBus)).expect("config.json builds");
+}
+
+#[test]
+fn unreadable_file() {
+    let e = config::load(Some(std::path::Path::new("/nonexistent/cfg.json"))).unwrap_err();
+    assert_eq!(
+        e.to_string(),
+        "/nonexistent/cfg.json: cannot read the file: No such file or directory (os error 2)"
+    );
+}
+
+#[test]
+fn syntax_errors_give_line_and_column() {
+    assert_eq!(
+        error("{\"task_classes\": [ }"),
+        "cfg.json: line 1, column 20: expected value"
+    );
+    assert_eq!(
+        error("{\"task_classes\": []} x"),
+        "cfg.json: line 1, column 22: trailing characters"
+    );
+    assert_eq!(
+        error("{\n  \"task_classes\": [],\n"),
+        "cfg.json: line 3, column 0: EOF while parsing a value"
+    );
+}
+
+#[test]
+fn unknown_fields_are_refused_with_the_expected_ones() {
+    assert_eq!(
+        error(r#"{"tasks": []}"#),
+        "cfg.json: at tasks: unknown field `tasks`, expected `task_classes` or `timing`"
+    );
+    assert_eq!(
+        error(&format!(r#"{{"task_classes": [{}]}}"#, class(r#"{"cycle_ms": 10}"#))),
+        "cfg.json: at task_classes[0].cycle_ms: unknown field `cycle_ms`, expected one of `name`, `cycle_us`, \
+         `tolerance_us`, `priority`, `on_violation`, `programs`"
+    );
+    assert_eq!(
+        error(r#"{"task_classes": [], "timing": {"spin": 3}}"#),
+        "cfg.json: at timing.spin: unknown field `spin`, expected one of `source`, `realtime_priority`, \
+         `lock_memory`, `spin_us`"
+    );
+    assert_eq!(
+        error(&format!(
+            r#"{{"task_classes": [{}]}}"#,
+            class(r#"{"programs": [{"program": "selftest.idle", "args": 1}]}"#)
+        )),
+        "cfg.json: at task_classes[0].programs[0].args: unknown field `args`, expected `program` or `params`"
+    );
+}
+
+#[test]
+fn wrong_types_and_missing_fields() {
+    assert_eq!(
+        error(&format!(r#"{{"task_classes": [{}]}}"#, class(r#"{"cycle_us": "10"}"#))),
+        "cfg.json: at task_classes[0].cycle_us: invalid type: string \"10\", expected u32"
+    );
+    assert_eq!(
+        error(r#"{"task_classes": [{"name": "f", "cycle_us": 10000, "tolerance_us": 1, "programs": []}]}"#),
+        "cfg.json: at task_classes[0]: missing field `priority`"
+    );
+    assert_eq!(error(r#"{}"#), "cfg.json: at (top level): missing field `task_classes`");
+    assert_eq!(
+        error(&format!(
+            r#"{{"task_classes": [{}]}}"#,
+            class(r#"{"on_violation": "stop"}"#)
+        )),
+        "cfg.json: at task_classes[0].on_violation: unknown variant `stop`, expected `log` or `error`"
+    );
+    assert_eq!(
+        error(r#"{"task_classes": [], "timing": {"source": "hpet"}}"#),
+        "cfg.json: at timing.source: unknown variant `hpet`, expected one of `auto`, `tokio`, `timerfd`, `nanosleep`"
+    );
+    assert_eq!(
+        error(r#"{"task_classes": [], "timing": {"realtime_priority": 300}}"#),
+        "cfg.json: at timing.realtime_priority: invalid value: integer `300`, expected u8"
+    );
+}
+
+#[test]
+fn task_class_checks() {
+    assert_eq!(
+        error(r#"{"task_classes": []}"#),
+        "cfg.json: at task_classes: at least one task class is required"
+    );
+    assert_eq!(
+        error(&format!(
+            r#"{{"task_classes": [{}]}}"#,
+            class(r#"{"name": "fast class"}"#)
+        )),
+        "cfg.json: at task_classes[0].name: task class name \"fast class\" is not valid: use letters, digits, '_' and '-'"
+    );
+    assert_eq!(
+        error(&format!(r#"{{"task_classes": [{}]}}"#, class(r#"{"cycle_us": 100}"#))),
+        "cfg.json: at task_classes[0].cycle_us: cycle time must be between 200 and 10000000 µs, got 100"
+    );
+    assert_eq!(
+        error(&format!(
+            r#"{{"task_classes": [{}]}}"#,
+            class(r#"{"tolerance_us": 20000000}"#)
+        )),
+        "cfg.json: at task_classes[0].tolerance_us: tolerance must be at most 10000000 µs, got 20000000"
+    );
+    assert_eq!(
+        error(&format!(r#"{{"task_classes": [{}]}}"#, class(r#"{"priority": 0}"#))),
+        "cfg.json: at task_classes[0].priority: priority must be 1 (highest) or more, got 0"
+    );
+    assert_eq!(
+        error(&format!(
+            r#"{{"task_classes": [{}, {}]}}"#,
+            class("{}"),
+            class(r#"{"priority": 2, "programs": []}"#)
+        )),
+        "cfg.json: at task_classes[1].name: task class name \"fast\" is already used by task_classes[0]"
+    );
+    assert_eq!(
+        error(&format!(
+            r#"{{"task_classes": [{}, {}]}}"#,
+            class("{}"),
+            class(r#"{"name": "main", "cycle_us": 50000, "programs": []}"#)
+        )),
+        "cfg.json: at task_classes[1].priority: priority 1 is already used by task class \"fast\" (task_classes[0]); \
+         priorities are unique"
+    );
+    assert_eq!(
+        error(&format!(
+            r#"{{"task_classes": [{}, {}]}}"#,
+            class(r#"{"priority": 2}"#),
+            class(r#"{"name": "main", "cycle_us": 50000, "priority": 1, "programs": []}"#)
+        )),
+        "cfg.json: at task_classes[1].priority: task class \"fast\" (10000 µs, priority 2) is faster than \"main\" \
+         (50000 µs, priority 1) but has the lower priority; a faster class must have the higher priority \
+         (a smaller number)"
+    );
+}
+
+#[test]
+fn timing_checks() {
+    assert_eq!(
+        error(&format!(
+            r#"{{"task_classes": [{}], "timing": {{"realtime_priority": 120}}}}"#,
+            class("{}")
+        )),
+        "cfg.json: at timing.realtime_priority: real-time priority must be 1..=99 (or 0: do not ask), got 120"
+    );
+    assert_eq!(
+        error(&format!(
+            r#"{{"task_classes": [{}], "timing": {{"spin_us": 5000}}}}"#,
+            class("{}")
+        )),
+        "cfg.json: at timing.spin_us: spin margin must be at most 1000 µs, got 5000"
+    );
+}
+
+#[test]
+fn program_checks() {
+    assert_eq!(
+        error(&format!(
+            r#"{{"task_classes": [{}]}}"#,
+            class(r#"{"programs": [{"program": "encoder"}]}"#)
+        )),
+        "cfg.json: at task_classes[0].programs[0].program: unknown program \"encoder\"; known programs: \
+         selftest.producer, selftest.consumer, selftest.idle"
+    );
+    assert_eq!(
+        error(&format!(
+            r#"{{"task_classes": [{}, {}]}}"#,
+            class("{}"),
+            class(r#"{"name": "main", "cycle_us": 50000, "priority": 2}"#)
+        )),
+        "cfg.json: at task_classes[1].programs[0].program: program \"selftest.idle\" is already configured at \
+         task_classes[0].programs[0]; each program runs once"
+    );
+    assert_eq!(
+        error(&format!(
+            r#"{{"task_classes": [{}]}}"#,
+            class(r#"{"programs": [{"program": "selftest.idle", "params": {"burn": 5}}]}"#)
+        )),
+        "cfg.json: at task_classes[0].programs[0].params.burn: unknown field `burn`, expected one of `burn_us`, \
+         `burn_every`, `burn_from_cycle`, `burn_until_cycle`"
+    );
+    assert_eq!(
+        error(&format!(
+            r#"{{"task_classes": [{}]}}"#,
+            class(r#"{"programs": [{"program": "selftest.idle", "params": {"burn_us": -1}}]}"#)
+        )),
+        "cfg.json: at task_classes[0].programs[0].params.burn_us: invalid value: integer `-1`, expected u32"
+    );
+    assert_eq!(
+        error(&format!(
+            r#"{{"task_classes": [{}]}}"#,
+            class(r#"{"programs": [{"program": "selftest.consumer"}]}"#)
+        )),
+        "cfg.json: 6 problems:\n  \
+         at task_classes[0].programs[0]: variable \"selftest_seq\" read by \"selftest.consumer\" has no writer: no program writes it and no bus input is bound to it\n  \
+         at task_classes[0].programs[0]: variable \"selftest_copy1\" read by \"selftest.consumer\" has no writer: no program writes it and no bus input is bound to it\n  \
+         at task_classes[0].programs[0]: variable \"selftest_copy2\" read by \"selftest.consumer\" has no writer: no program writes it and no bus input is bound to it\n  \
+         at task_classes[0].programs[0]: variable \"selftest_copy3\" read by \"selftest.consumer\" has no writer: no program writes it and no bus input is bound to it\n  \
+         at task_classes[0].programs[0]: variable \"selftest_copy4\" read by \"selftest.consumer\" has no writer: no program writes it and no bus input is bound to it\n  \
+         at task_classes[0].programs[0]: variable \"selftest_walk\" read by \"selftest.consumer\" has no writer: no program writes it and no bus input is bound to it"
+    );
+}
+
+/// A test program whose variables come from its params: `{"writes": [..], "reads": [[name, type]..]}`.
+struct Declared;
+impl Program for Declared {
+    fn cycle(&mut self, _ctx: &mut Cycle<'_>) {}
+}
+
+#[derive(Default, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+struct DeclaredParams {
+    #[serde(default)]
+    writes: Vec<String>,
+    #[serde(default)]
+    reads_real: Vec<String>,
+}
+
+fn declared(args: &ProgramArgs<'_>, decl: &mut Declare<'_>) -> Box<dyn Program> {
+    let p: DeclaredParams = args.parse(decl);
+    for w in &p.writes {
+        decl.output::<i32>(w, 0);
+    }
+    for r in &p.reads_real {
+        decl.input::<f64>(r);
+    }
+    Box::new(Declared)
+}
+
+fn test_registry() -> Registry {
+    let mut r = Registry::new();
+    for name in ["a", "b"] {
+        r.register(ProgramInfo {
+            name,
+            summary: "test",
+            factory: declared,
+        });
+    }
+    r
+}
+
+#[test]
+fn variable_conflicts_between_programs() {
+    let two = |a: &str, b: &str| {
+        format!(
+            r#"{{"task_classes": [
+                {{"name": "fast", "cycle_us": 10000, "tolerance_us": 0, "priority": 1, "programs": [{{"program": "a", "params": {a}}}]}},
+                {{"name": "main", "cycle_us": 50000, "tolerance_us": 0, "priority": 2, "programs": [{{"program": "b", "params": {b}}}]}}
+            ]}}"#
+        )
+    };
+    assert_eq!(
+        error_with(&two(r#"{"writes": ["x"]}"#, r#"{"writes": ["x"]}"#), &test_registry()),
+        "cfg.json: at task_classes[1].programs[0]: variable \"x\" has two writers: program \"a\" \
+         (task_classes[0].programs[0]) and program \"b\" (task_classes[1].programs[0]); a variable has exactly one writer"
+    );
+    assert_eq!(
+        error_with(
+            &two(r#"{"writes": ["x"]}"#, r#"{"reads_real": ["x"]}"#),
+            &test_registry()
+        ),
+        "cfg.json: at task_classes[1].programs[0]: variable \"x\" is used as REAL here but as DINT by program \"a\" \
+         (task_classes[0].programs[0])"
+    );
+    assert_eq!(
+        error_with(&two(r#"{"writes": ["bad name"]}"#, r#"{}"#), &test_registry()),
+        "cfg.json: at task_classes[0].programs[0]: variable name \"bad name\" is not valid: use letters, digits, '_' and '.'"
+    );
+}
+
+#[test]
+fn every_problem_is_reported_at_once() {
+    let json = format!(
+        r#"{{"task_classes": [{}, {}], "timing": {{"spin_us": 2000}}}}"#,
+        class(r#"{"cycle_us": 0, "programs": [{"program": "nope"}]}"#),
+        class(r#"{"priority": 1}"#)
+    );
+    let e = error(&json);
+    assert!(e.starts_with("cfg.json: 5 problems:\n"), "{e}");
+    for part in [
+        "at task_classes[0].cycle_us: cycle time must be between 200 and 10000000 µs, got 0",
+        "at task_classes[1].name: task class name \"fast\" is already used by task_classes[0]",
+        "at task_classes[1].priority: priority 1 is already used",
+        "at timing.spin_us: spin margin must be at most 1000 µs, got 2000",
+        "at task_classes[0].programs[0].program: unknown program \"nope\"",
+    ] {
+        assert!(e.contains(part), "missing {part:?} in:\n{e}");
+    }
+}
+
+#[test]
+fn bus_declarations_take_part_in_the_checks() {
+    // A variable read by the bus (an output to the field) that no program writes.
+    let mut t = VarTable::new();
+    t.declare_reader(
+        "PWM01",
+        VarType::Int,
+        Reader {
+            class: 0,
+            who: "bus".into(),
+            at: "io_map.bindings[0]".into(),
+        },
+    );
+    let issues = t.finish().unwrap_err();
+    assert_eq!(
+        issues[0].message,
+        "variable \"PWM01\" read by \"bus\" has no writer: no program writes it and no bus input is bound to it"
+    );
+}
