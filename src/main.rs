@@ -261,18 +261,17 @@ fn run_realtime(plc: Plc, options: RealTimeOptions) -> Result<run::RealTimeOutco
                 _ = poll.tick() => if run.is_finished() { break },
             }
         }
-        let joined = tokio::task::spawn_blocking(move || run.join()).await;
+        // The cyclic thread ends within one wait (at most the shortest cycle time) of the stop.
+        while !run.is_finished() {
+            poll.tick().await;
+        }
         if let Some(task) = status_task {
             task.abort();
         }
         status::finish();
-        joined
+        run.join()
     });
-    match outcome {
-        Ok(Ok(o)) => Ok(o),
-        Ok(Err(e)) => Err(Failure::run(e.to_string())),
-        Err(e) => Err(Failure::run(format!("cyclic thread: {e}"))),
-    }
+    outcome.map_err(|e| Failure::run(e.to_string()))
 }
 
 fn cmd_bench(args: BenchArgs) -> Result<(), Failure> {

@@ -205,10 +205,7 @@ pub fn start_realtime(mut plc: Plc, options: RealTimeOptions) -> Result<RealTime
     if options.lock_memory
         && let Err(e) = timing::lock_memory()
     {
-        warn!(
-            "could not lock memory (mlockall: {e}); page faults may delay cycles. \
-             Raise the memlock limit (ulimit -l) or run as root to lock it"
-        );
+        warn!("could not lock memory: {e}; page faults may delay cycles");
     }
     let stop = Arc::new(AtomicBool::new(false));
     let snapshot = Arc::new(Mutex::new(Snapshot::for_plc(&plc)));

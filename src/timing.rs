@@ -252,8 +252,55 @@ pub fn set_normal_priority() -> io::Result<()> {
     }
 }
 
-/// Locks the process's current and future memory, so page faults cannot delay a cycle.
-pub fn lock_memory() -> io::Result<()> {
+/// The smallest RLIMIT_MEMLOCK under which locking is attempted without CAP_IPC_LOCK: with
+/// MCL_FUTURE every later allocation (thread stacks, buffers) must fit under the limit, and the
+/// common 8 MiB default would make the next thread creation fail.
+const MIN_MEMLOCK_LIMIT: u64 = 512 * 1024 * 1024;
+
+/// Why memory was not locked.
+#[derive(Debug, thiserror::Error)]
+pub enum LockMemoryError {
+    /// The limit is too small to lock the process and everything it will allocate.
+    #[error(
+        "the locked-memory limit is {limit_kib} KiB and the process lacks CAP_IPC_LOCK; locking would make later \
+         allocations fail, so memory is not locked. Run as root, or raise the limit (ulimit -l unlimited)"
+    )]
+    LimitTooSmall {
+        /// RLIMIT_MEMLOCK in KiB.
+        limit_kib: u64,
+    },
+    /// mlockall refused.
+    #[error("mlockall: {0}")]
+    Os(io::Error),
+}
+
+/// Locks the process's current and future memory, so page faults cannot delay a cycle — but only
+/// where that is safe: with CAP_IPC_LOCK, or under a locked-memory limit of at least 512 MiB.
+pub fn lock_memory() -> Result<(), LockMemoryError> {
     use nix::sys::mman::{MlockAllFlags, mlockall};
-    mlockall(MlockAllFlags::MCL_CURRENT | MlockAllFlags::MCL_FUTURE).map_err(io::Error::from)
+    use nix::sys::resource::{Resource, getrlimit};
+    if !has_cap_ipc_lock() {
+        let (soft, _hard) = getrlimit(Resource::RLIMIT_MEMLOCK).map_err(|e| LockMemoryError::Os(e.into()))?;
+        if soft != nix::sys::resource::RLIM_INFINITY && soft < MIN_MEMLOCK_LIMIT {
+            return Err(LockMemoryError::LimitTooSmall { limit_kib: soft / 1024 });
+        }
+    }
+    mlockall(MlockAllFlags::MCL_CURRENT | MlockAllFlags::MCL_FUTURE).map_err(|e| LockMemoryError::Os(e.into()))
+}
+
+/// Whether the process has CAP_IPC_LOCK (bit 14 of the effective capability set), which lifts the
+/// locked-memory limit.
+fn has_cap_ipc_lock() -> bool {
+    const CAP_IPC_LOCK: u32 = 14;
+    std::fs::read_to_string("/proc/self/status")
+        .ok()
+        .and_then(|status| {
+            let hex = status
+                .lines()
+                .find_map(|l| l.strip_prefix("CapEff:"))?
+                .trim()
+                .to_string();
+            u64::from_str_radix(&hex, 16).ok()
+        })
+        .is_some_and(|caps| caps & (1 << CAP_IPC_LOCK) != 0)
 }

@@ -143,3 +143,46 @@ fn nix_kill(pid: u32) {
         .expect("kill runs");
     assert!(status.success());
 }
+
+#[test]
+fn without_privileges_the_run_warns_and_goes_on() {
+    // Needs root to drop to an unprivileged user; CI runs as root. Elsewhere there is nothing to
+    // drop, and the same code path is what an unprivileged user runs anyway.
+    let is_root = std::fs::read_to_string("/proc/self/status")
+        .map(|s| {
+            s.lines()
+                .any(|l| l.starts_with("Uid:") && l.split_whitespace().nth(1) == Some("0"))
+        })
+        .unwrap_or(false);
+    let setpriv = std::path::Path::new("/usr/bin/setpriv");
+    if !is_root || !setpriv.exists() {
+        eprintln!("not root or no setpriv: running as the current user instead");
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    // The unprivileged user must be able to run the binary: copy it somewhere world-readable.
+    let exe = dir.path().join("pkm-plc");
+    std::fs::copy(env!("CARGO_BIN_EXE_pkm-plc"), &exe).expect("copy binary");
+    use std::os::unix::fs::PermissionsExt;
+    std::fs::set_permissions(dir.path(), std::fs::Permissions::from_mode(0o755)).expect("chmod dir");
+    std::fs::set_permissions(&exe, std::fs::Permissions::from_mode(0o755)).expect("chmod exe");
+    let mut cmd = if is_root && setpriv.exists() {
+        let mut c = Command::new(setpriv);
+        c.args(["--reuid", "65534", "--regid", "65534", "--clear-groups"])
+            .arg(&exe);
+        c
+    } else {
+        Command::new(&exe)
+    };
+    let o = cmd
+        .args(["run", "--duration", "0.3"])
+        .current_dir(dir.path())
+        .env("RUST_LOG", "warn")
+        .output()
+        .expect("runs");
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    if is_root && setpriv.exists() {
+        let err = stderr(&o);
+        assert!(err.contains("could not get real-time priority SCHED_FIFO 80"), "{err}");
+        assert!(err.contains("running with normal scheduling"), "{err}");
+    }
+}
