@@ -67,6 +67,7 @@ pub fn run(options: &BenchOptions, mut progress: impl FnMut(&str)) -> Result<Vec
             }],
         }],
         timing: TimingConfig::default(),
+        kinematics: None,
     };
     let mut rows = Vec::new();
     let fifo_modes: &[bool] = if options.realtime_priority > 0 {

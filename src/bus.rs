@@ -4,9 +4,7 @@
 //! and which it consumes (outputs). The runtime calls it around every cycle: `read_inputs` before
 //! the class's inputs are latched, `write_outputs` after its outputs are published. A simulated bus
 //! does its work right there (deterministic); a real bus runs its own exchange loop and hands
-//! complete images over through an [`ImageMailbox`], so a cycle never waits on a wire.
-
-use std::sync::Mutex;
+//! complete images over through an [`image_mailbox`], so a cycle never waits on a wire.
 
 use crate::image::{Value, VarIndex, VarTable};
 
@@ -39,55 +37,48 @@ impl Bus for NoBus {
     fn write_safe(&mut self, _image: &[Value]) {}
 }
 
-/// Hands complete input sets from a bus's exchange thread to the cyclic thread.
+/// Creates a mailbox that hands complete input sets from a bus's exchange thread to the cyclic
+/// thread, for the variables `slots` (initially `initial`, one value per slot).
 ///
-/// The producer publishes a whole set at once; the consumer copies the latest complete set into
-/// the image. The consumer never blocks: if the producer holds the lock at that instant, the cycle
-/// keeps the previous (complete) set. So a cycle sees either the old or the new set, never a mix.
-#[derive(Debug)]
-pub struct ImageMailbox {
+/// It is a triple buffer: the writer fills a private buffer and publishes it as a whole; the
+/// reader takes the latest published buffer. Both sides are wait-free — the cyclic thread never
+/// blocks and never fails to get the latest complete set — and neither allocates after creation.
+/// So a cycle sees either the previous or the newest set, never a mix.
+pub fn image_mailbox(slots: Vec<VarIndex>, initial: Vec<Value>) -> (MailboxWriter, MailboxReader) {
+    assert_eq!(slots.len(), initial.len(), "one initial value per mailbox slot");
+    let (input, output) = triple_buffer::triple_buffer(&initial);
+    (MailboxWriter { input }, MailboxReader { slots, output })
+}
+
+/// The exchange thread's end of a mailbox.
+pub struct MailboxWriter {
+    input: triple_buffer::Input<Vec<Value>>,
+}
+
+impl MailboxWriter {
+    /// Publishes a complete set: one value per slot, in slot order.
+    pub fn publish(&mut self, values: &[Value]) {
+        let buffer = self.input.input_buffer_mut();
+        assert_eq!(values.len(), buffer.len(), "a published set covers every slot");
+        buffer.copy_from_slice(values);
+        self.input.publish();
+    }
+}
+
+/// The cyclic thread's end of a mailbox.
+pub struct MailboxReader {
     slots: Vec<VarIndex>,
-    latest: Mutex<Latest>,
+    output: triple_buffer::Output<Vec<Value>>,
 }
 
-#[derive(Debug)]
-struct Latest {
-    values: Vec<Value>,
-    sequence: u64,
-}
-
-impl ImageMailbox {
-    /// A mailbox for the variables `slots`, initially holding `initial` (one value per slot).
-    pub fn new(slots: Vec<VarIndex>, initial: Vec<Value>) -> Self {
-        assert_eq!(slots.len(), initial.len(), "one initial value per mailbox slot");
-        ImageMailbox {
-            slots,
-            latest: Mutex::new(Latest {
-                values: initial,
-                sequence: 0,
-            }),
-        }
-    }
-
-    /// Publishes a complete set (producer side; one value per slot, in slot order).
-    pub fn publish(&self, values: &[Value]) {
-        assert_eq!(values.len(), self.slots.len(), "a published set covers every slot");
-        let mut latest = self.latest.lock().unwrap_or_else(|p| p.into_inner());
-        latest.values.copy_from_slice(values);
-        latest.sequence += 1;
-    }
-
-    /// Copies the latest complete set into `image` (consumer side, never blocks). Returns the
-    /// set's sequence number, or `None` when the producer was busy and `image` was left as it was.
-    pub fn take_latest(&self, image: &mut [Value]) -> Option<u64> {
-        let latest = match self.latest.try_lock() {
-            Ok(g) => g,
-            Err(std::sync::TryLockError::Poisoned(p)) => p.into_inner(),
-            Err(std::sync::TryLockError::WouldBlock) => return None,
-        };
-        for (slot, value) in self.slots.iter().zip(&latest.values) {
+impl MailboxReader {
+    /// Copies the latest complete set into `image`. Returns whether a new set arrived since the
+    /// last call (if not, `image` gets the same set again).
+    pub fn take_latest(&mut self, image: &mut [Value]) -> bool {
+        let updated = self.output.update();
+        for (slot, value) in self.slots.iter().zip(self.output.output_buffer()) {
             image[usize::from(*slot)] = *value;
         }
-        Some(latest.sequence)
+        updated
     }
 }

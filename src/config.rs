@@ -28,6 +28,10 @@ pub struct Config {
     /// How real time is kept.
     #[serde(default)]
     pub timing: TimingConfig,
+    /// Kinematic parameters of the machine models; checked by the application
+    /// (`tasks::kinematics::KinematicsConfig`), defaults from the spec.
+    #[serde(default)]
+    pub kinematics: Option<serde_json::Value>,
 }
 
 /// One task class (B&R: a "cyclic" task class).

@@ -17,6 +17,45 @@ pub mod status;
 pub mod summary;
 pub mod timing;
 
+/// The application programs and machine models (the `tasks/` directory).
+#[path = "../tasks/mod.rs"]
+pub mod tasks;
+
+/// Parses and checks the application's sections of a configuration (the kinematic parameters);
+/// problems are reported with their JSON paths like the runtime's own.
+pub fn application_config(
+    config: &config::Config,
+) -> Result<tasks::kinematics::KinematicsConfig, Vec<image::DeclIssue>> {
+    let kinematics = match &config.kinematics {
+        None => tasks::kinematics::KinematicsConfig::default(),
+        Some(v) => serde_path_to_error::deserialize(v).map_err(|e| {
+            let inner = e.path().to_string();
+            let at = if inner == "." {
+                "kinematics".to_string()
+            } else {
+                format!("kinematics.{inner}")
+            };
+            vec![image::DeclIssue {
+                at,
+                message: e.into_inner().to_string(),
+            }]
+        })?,
+    };
+    let problems: Vec<image::DeclIssue> = kinematics
+        .check()
+        .into_iter()
+        .map(|(at, message)| image::DeclIssue {
+            at: format!("kinematics.{at}"),
+            message,
+        })
+        .collect();
+    if problems.is_empty() {
+        Ok(kinematics)
+    } else {
+        Err(problems)
+    }
+}
+
 /// The program types this build knows: until the TRIJOINT application lands, only the runtime's
 /// self-test programs.
 pub fn registry() -> program::Registry {

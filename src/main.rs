@@ -19,6 +19,8 @@ use pkm_plc::run::{self, RealTimeOptions};
 use pkm_plc::status;
 use pkm_plc::summary::Summary;
 
+mod kin_cmd;
+
 /// A soft-PLC for parallel-kinematic machine models.
 #[derive(Parser, Debug)]
 #[command(name = "pkm-plc", version, about, propagate_version = true)]
@@ -35,13 +37,15 @@ enum Command {
     Check(ConfigArg),
     /// Measure the time sources side by side (cycle start lateness of a 10 ms class).
     Bench(BenchArgs),
+    /// Kinematics of a machine model: fk, ik, workspace, bench, convergence.
+    Kin(kin_cmd::KinArgs),
 }
 
 #[derive(Args, Debug)]
-struct ConfigArg {
+pub(crate) struct ConfigArg {
     /// Configuration file [default: ./config.json if present, else the built-in one].
     #[arg(long, value_name = "FILE")]
-    config: Option<PathBuf>,
+    pub(crate) config: Option<PathBuf>,
 }
 
 #[derive(Args, Debug)]
@@ -127,6 +131,10 @@ fn main() -> ExitCode {
         Command::Run(args) => cmd_run(args),
         Command::Check(args) => cmd_check(args),
         Command::Bench(args) => cmd_bench(args),
+        Command::Kin(args) => kin_cmd::run(args, load_config).map_err(|e| Failure {
+            code: e.code,
+            message: e.message,
+        }),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -157,12 +165,20 @@ fn load_config(arg: &ConfigArg) -> Result<LoadedConfig, ConfigError> {
 /// Loads and builds: every problem of the configuration is reported at once.
 fn build(arg: &ConfigArg) -> Result<(LoadedConfig, Plc), Failure> {
     let loaded = load_config(arg)?;
-    let plc =
-        Plc::build(&loaded.config, &pkm_plc::registry(), Box::new(NoBus)).map_err(|problems| ConfigError::Invalid {
-            file: loaded.origin.clone(),
-            problems,
-        })?;
-    Ok((loaded, plc))
+    let plc = Plc::build(&loaded.config, &pkm_plc::registry(), Box::new(NoBus));
+    let app = pkm_plc::application_config(&loaded.config);
+    match (plc, app) {
+        (Ok(plc), Ok(_)) => Ok((loaded, plc)),
+        (plc, app) => {
+            let mut problems = plc.err().unwrap_or_default();
+            problems.extend(app.err().unwrap_or_default());
+            Err(ConfigError::Invalid {
+                file: loaded.origin.clone(),
+                problems,
+            }
+            .into())
+        }
+    }
 }
 
 fn cmd_check(args: ConfigArg) -> Result<(), Failure> {

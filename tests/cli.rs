@@ -186,3 +186,111 @@ fn without_privileges_the_run_warns_and_goes_on() {
         assert!(err.contains("running with normal scheduling"), "{err}");
     }
 }
+
+#[test]
+fn kin_fk_and_ik_print_one_json_object() {
+    let o = pkm(&["kin", "trijoint", "fk", "0", "0"]);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        out.starts_with("{\"machine\":\"trijoint\",\"joints\":[0.0,0.0],\"pose\":{\"x\":318.055"),
+        "{out}"
+    );
+    let v: serde_json::Value = serde_json::from_str(&out).expect("json");
+    let (x, y) = (v["pose"]["x"].as_f64().expect("x"), v["pose"]["y"].as_f64().expect("y"));
+    let o = pkm(&["kin", "trijoint", "ik", &x.to_string(), &y.to_string()]);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    let back: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
+    for q in back["joints"].as_array().expect("joints") {
+        assert!(q.as_f64().expect("number").abs() < 1e-9, "{back}");
+    }
+    let o = pkm(&["kin", "hexapod", "ik", "10", "-20", "520", "3", "-4", "5"]);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
+    let keys: Vec<&String> = v["pose"].as_object().expect("pose").keys().collect();
+    assert_eq!(keys, ["x", "y", "z", "a", "b", "c"]);
+    assert_eq!(v["joints"].as_array().map(Vec::len), Some(6));
+}
+
+#[test]
+fn kin_unreachable_input_exits_1_with_the_reason() {
+    let o = pkm(&["kin", "trijoint", "ik", "100", "500"]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(o.stdout.is_empty());
+    assert_eq!(
+        stderr(&o),
+        "error: joint 2 = 384.673380 mm is outside its travel 0 … 250 mm\n"
+    );
+    let o = pkm(&["kin", "ox-x", "fk", "0", "0"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert_eq!(stderr(&o), "error: expected 3 joint values, got 2\n");
+    let o = pkm(&["kin", "delta", "fk", "0"]);
+    assert_eq!(o.status.code(), Some(2));
+}
+
+#[test]
+fn kin_workspace_draws_an_svg() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let svg = dir.path().join("ws.svg");
+    let o = pkm(&[
+        "kin",
+        "ox-o",
+        "workspace",
+        "--svg",
+        svg.to_str().expect("utf-8"),
+        "--samples",
+        "30",
+    ]);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    let summary: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
+    assert_eq!(summary["samples"], 900);
+    assert!(summary["reachable"].as_u64().unwrap_or(0) > 450, "{summary}");
+    let text = std::fs::read_to_string(&svg).expect("svg written");
+    assert!(
+        text.starts_with("<svg") && text.contains("<circle"),
+        "not an SVG scatter plot"
+    );
+}
+
+#[test]
+fn kinematic_parameters_are_checked_with_their_paths() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("k.json");
+    let base: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/config.json")).expect("config"),
+    )
+    .expect("json");
+    let mut bad = base.clone();
+    bad["kinematics"] = serde_json::json!({"trijoint": {"l3": -4, "h1_travel": [250, 0]}, "hexapod": {"struts": 6}});
+    std::fs::write(&path, bad.to_string()).expect("write");
+    let o = pkm(&["check", "--config", path.to_str().expect("utf-8")]);
+    assert_eq!(o.status.code(), Some(2));
+    assert_eq!(
+        stderr(&o),
+        format!(
+            "error: {}: at kinematics.hexapod.struts: unknown field `struts`, expected one of `base`, `platform`, `home`, \
+             `strut_travel`, `max_iterations`, `tolerance_mm`, `divergence_bound_mm`\n",
+            path.display()
+        )
+    );
+    bad["kinematics"] = serde_json::json!({"trijoint": {"l3": -4, "h1_travel": [250, 0]}});
+    std::fs::write(&path, bad.to_string()).expect("write");
+    let o = pkm(&[
+        "kin",
+        "trijoint",
+        "fk",
+        "0",
+        "0",
+        "--config",
+        path.to_str().expect("utf-8"),
+    ]);
+    assert_eq!(o.status.code(), Some(2));
+    assert_eq!(
+        stderr(&o),
+        format!(
+            "error: {}: 2 problems:\n  at kinematics.trijoint.l3: must be a positive length in mm, got -4\n  \
+             at kinematics.trijoint.h1_travel: travel must be [min, max] with min < max, got [250, 0]\n",
+            path.display()
+        )
+    );
+}
