@@ -62,7 +62,7 @@ struct RunArgs {
     #[arg(long, value_name = "FILE")]
     summary: Option<PathBuf>,
     /// Override the configured time source (real time only).
-    #[arg(long, value_enum, value_name = "SOURCE")]
+    #[arg(long, value_enum, value_name = "SOURCE", conflicts_with = "virtual_time")]
     time_source: Option<TimeSourceKind>,
 }
 
@@ -217,9 +217,6 @@ fn cmd_run(args: RunArgs) -> Result<(), Failure> {
         );
         Summary::collect(&plc, "virtual", &loaded.origin, report.simulated_ns)
     } else {
-        if args.time_source.is_some_and(|_| args.virtual_time) {
-            return Err(Failure::usage("--time-source applies to real time only"));
-        }
         let timing = &loaded.config.timing;
         let options = RealTimeOptions {
             source: args.time_source.unwrap_or(timing.source),

@@ -294,3 +294,10 @@ fn kinematic_parameters_are_checked_with_their_paths() {
         )
     );
 }
+
+#[test]
+fn a_time_source_with_virtual_time_is_a_usage_error() {
+    let o = pkm(&["run", "--virtual", "--duration", "1", "--time-source", "tokio"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(stderr(&o).contains("cannot be used with"), "{}", stderr(&o));
+}

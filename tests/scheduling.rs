@@ -371,17 +371,19 @@ fn two_virtual_runs_give_identical_summaries_and_images() {
 
 // ---------------------------------------------------------------- overruns and reactions
 
+/// Runs the self-test pair for 3 s of virtual time with a 5 ms tolerance on the 10 ms class,
+/// whose cycle 100 (released at 1000 ms) burns `burn_us`.
+fn one_long_cycle(reaction: &str, burn_us: u32) -> Plc {
+    let params = format!(r#"{{"burn_us": {burn_us}, "burn_from_cycle": 100, "burn_until_cycle": 101}}"#);
+    let mut plc = build(&selftest_config(5000, reaction, &params), Box::new(NoBus));
+    run_virtual_keep(&mut plc, 3_000_000_000);
+    plc
+}
+
 #[test]
 fn a_violation_with_reaction_error_sends_the_application_to_error() {
-    // Cycle 100 of the 10 ms class (released at 1000 ms) burns 20 ms: it ends at 1020 ms, 10 ms
-    // past its deadline, beyond the 5 ms tolerance.
-    let json = selftest_config(
-        5000,
-        "error",
-        r#"{"burn_us": 20000, "burn_from_cycle": 100, "burn_until_cycle": 101}"#,
-    );
-    let mut plc = build(&json, Box::new(NoBus));
-    run_virtual_keep(&mut plc, 3_000_000_000);
+    // 20 ms: the cycle ends at 1020 ms, 10 ms past its deadline, beyond the 5 ms tolerance.
+    let plc = one_long_cycle("error", 20_000);
     let fast = class_stats(&plc, "fast");
     assert_eq!((fast.overruns, fast.violations, fast.missed), (1, 1, 1));
     assert_eq!(
@@ -402,13 +404,7 @@ fn a_violation_with_reaction_error_sends_the_application_to_error() {
 
 #[test]
 fn a_violation_with_reaction_log_is_counted_only() {
-    let json = selftest_config(
-        5000,
-        "log",
-        r#"{"burn_us": 20000, "burn_from_cycle": 100, "burn_until_cycle": 101}"#,
-    );
-    let mut plc = build(&json, Box::new(NoBus));
-    run_virtual_keep(&mut plc, 3_000_000_000);
+    let plc = one_long_cycle("log", 20_000);
     let fast = class_stats(&plc, "fast");
     assert_eq!((fast.overruns, fast.violations), (1, 1));
     assert_eq!(plc.app_status().map(|s| s.state), Some("SELFTEST-RUN"));
@@ -417,13 +413,7 @@ fn a_violation_with_reaction_log_is_counted_only() {
 #[test]
 fn an_overrun_within_the_tolerance_is_not_a_violation() {
     // 12 ms in a 10 ms class: 2 ms past the deadline, inside the 5 ms tolerance.
-    let json = selftest_config(
-        5000,
-        "error",
-        r#"{"burn_us": 12000, "burn_from_cycle": 100, "burn_until_cycle": 101}"#,
-    );
-    let mut plc = build(&json, Box::new(NoBus));
-    run_virtual_keep(&mut plc, 3_000_000_000);
+    let plc = one_long_cycle("error", 12_000);
     let fast = class_stats(&plc, "fast");
     assert_eq!(
         (fast.overruns, fast.violations, fast.missed, fast.cycles),
