@@ -68,6 +68,8 @@ pub fn run(options: &BenchOptions, mut progress: impl FnMut(&str)) -> Result<Vec
         }],
         timing: TimingConfig::default(),
         kinematics: None,
+        io_map: None,
+        plant: Default::default(),
     };
     let mut rows = Vec::new();
     let fifo_modes: &[bool] = if options.realtime_priority > 0 {

@@ -21,6 +21,9 @@ pub trait Bus: Send {
     fn write_outputs(&mut self, class: usize, t_ns: u64, image: &[Value]);
     /// Called once at shutdown with every output at its safe value, before the bus closes.
     fn write_safe(&mut self, image: &[Value]);
+    /// The bus as `Any`, so that callers who know its type can reach it (tests and status
+    /// displays read the simulated machine's true state this way).
+    fn as_any(&self) -> &dyn std::any::Any;
 }
 
 /// No field I/O: programs exchange variables among themselves only.
@@ -35,6 +38,9 @@ impl Bus for NoBus {
     fn read_inputs(&mut self, _class: usize, _t_ns: u64, _image: &mut [Value]) {}
     fn write_outputs(&mut self, _class: usize, _t_ns: u64, _image: &[Value]) {}
     fn write_safe(&mut self, _image: &[Value]) {}
+    fn as_any(&self) -> &dyn std::any::Any {
+        self
+    }
 }
 
 /// Creates a mailbox that hands complete input sets from a bus's exchange thread to the cyclic

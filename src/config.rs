@@ -28,6 +28,13 @@ pub struct Config {
     /// How real time is kept.
     #[serde(default)]
     pub timing: TimingConfig,
+    /// The I/O map file, relative to this file's directory (the built-in configuration uses the
+    /// built-in io-map/trijoint.json). Without it there is no field I/O.
+    #[serde(default)]
+    pub io_map: Option<String>,
+    /// The simulated machine (used with `--bus sim`).
+    #[serde(default)]
+    pub plant: crate::sim::PlantConfig,
     /// Kinematic parameters of the machine models; checked by the application
     /// (`tasks::kinematics::KinematicsConfig`), defaults from the spec.
     #[serde(default)]
@@ -157,6 +164,8 @@ pub struct LoadedConfig {
     pub origin: String,
     /// The parsed configuration.
     pub config: Config,
+    /// The directory that relative paths in it are relative to (`None`: the built-in one).
+    pub dir: Option<PathBuf>,
 }
 
 /// Why a configuration was refused.
@@ -231,7 +240,9 @@ pub fn load(path: Option<&Path>) -> Result<LoadedConfig, ConfigError> {
                 file: origin.clone(),
                 source,
             })?;
-            parse(&text, &origin)
+            let mut loaded = parse(&text, &origin)?;
+            loaded.dir = Some(p.parent().map(Path::to_path_buf).unwrap_or_default());
+            Ok(loaded)
         }
         None => parse(BUILTIN_CONFIG, "<built-in config.json>"),
     }
@@ -249,6 +260,7 @@ pub fn parse(text: &str, origin: &str) -> Result<LoadedConfig, ConfigError> {
     Ok(LoadedConfig {
         origin: origin.to_string(),
         config,
+        dir: None,
     })
 }
 

@@ -215,6 +215,9 @@ pub struct Reader {
     pub who: String,
     /// Where the reader is configured (JSON path).
     pub at: String,
+    /// Whether a missing writer is an error. A bus output bound to a variable no program writes
+    /// just keeps the variable's safe value.
+    pub needs_writer: bool,
 }
 
 /// What the runtime knows of one variable.
@@ -351,7 +354,7 @@ impl VarTable {
     pub fn finish(mut self) -> Result<VarTable, Vec<DeclIssue>> {
         for var in &self.vars {
             if var.writer.is_none() {
-                for r in &var.readers {
+                for r in var.readers.iter().filter(|r| r.needs_writer) {
                     self.issues.push(DeclIssue {
                         at: r.at.clone(),
                         message: format!(
@@ -401,6 +404,7 @@ impl<'a> Declare<'a> {
             class: self.class,
             who: self.program.clone(),
             at: self.at.clone(),
+            needs_writer: true,
         };
         let index = self.table.declare_reader(name, T::TYPE, reader);
         Input {

@@ -61,6 +61,13 @@ struct RunArgs {
     /// Write a JSON summary (cycle statistics, final state) to FILE at exit.
     #[arg(long, value_name = "FILE")]
     summary: Option<PathBuf>,
+    /// The field bus: `sim`, the simulated TRIJOINT lab model behind the configured I/O map; or
+    /// `none`, no field I/O.
+    #[arg(long, value_enum, default_value_t = BusKind::Sim)]
+    bus: BusKind,
+    /// A scenario for the simulated machine: timed operator actions and faults (JSON).
+    #[arg(long, value_name = "FILE")]
+    scenario: Option<PathBuf>,
     /// Override the configured time source (real time only).
     #[arg(long, value_enum, value_name = "SOURCE", conflicts_with = "virtual_time")]
     time_source: Option<TimeSourceKind>,
@@ -86,6 +93,15 @@ struct BenchArgs {
     /// Also write the rows as JSON to FILE.
     #[arg(long, value_name = "FILE")]
     json: Option<PathBuf>,
+}
+
+/// The buses `run` can use.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+enum BusKind {
+    /// The simulated machine.
+    Sim,
+    /// No field I/O.
+    None,
 }
 
 fn parse_seconds(s: &str) -> Result<f64, String> {
@@ -163,10 +179,24 @@ fn load_config(arg: &ConfigArg) -> Result<LoadedConfig, ConfigError> {
 }
 
 /// Loads and builds: every problem of the configuration is reported at once.
-fn build(arg: &ConfigArg) -> Result<(LoadedConfig, Plc), Failure> {
+fn build(arg: &ConfigArg, bus: BusKind, scenario: Option<&Path>) -> Result<(LoadedConfig, Plc), Failure> {
     let loaded = load_config(arg)?;
-    let plc = Plc::build(&loaded.config, &pkm_plc::registry(), Box::new(NoBus));
     let app = pkm_plc::application_config(&loaded.config);
+    let bus: Box<dyn pkm_plc::bus::Bus> = match (bus, &loaded.config.io_map) {
+        (BusKind::None, _) | (BusKind::Sim, None) => {
+            if scenario.is_some() {
+                return Err(Failure::usage(
+                    "--scenario needs the simulated bus (--bus sim and an io_map in the configuration)",
+                ));
+            }
+            Box::new(NoBus)
+        }
+        (BusKind::Sim, Some(_)) => {
+            let kinematics = app.clone().unwrap_or_default();
+            Box::new(pkm_plc::sim::build(&loaded, &kinematics.trijoint, scenario)?)
+        }
+    };
+    let plc = Plc::build(&loaded.config, &pkm_plc::registry(), bus);
     match (plc, app) {
         (Ok(plc), Ok(_)) => Ok((loaded, plc)),
         (plc, app) => {
@@ -182,23 +212,24 @@ fn build(arg: &ConfigArg) -> Result<(LoadedConfig, Plc), Failure> {
 }
 
 fn cmd_check(args: ConfigArg) -> Result<(), Failure> {
-    let (loaded, plc) = build(&args)?;
+    let (loaded, plc) = build(&args, BusKind::Sim, None)?;
     let classes: Vec<String> = plc
         .classes()
         .map(|c| format!("{} ({} ms)", c.name, c.period_ns as f64 / 1e6))
         .collect();
     println!(
-        "{}: valid ({} task classes: {}; {} process-image variables)",
+        "{}: valid ({} task classes: {}; {} process-image variables; I/O map: {})",
         loaded.origin,
         classes.len(),
         classes.join(", "),
-        plc.vars().vars().len()
+        plc.vars().vars().len(),
+        loaded.config.io_map.as_deref().unwrap_or("none")
     );
     Ok(())
 }
 
 fn cmd_run(args: RunArgs) -> Result<(), Failure> {
-    let (loaded, mut plc) = build(&args.config)?;
+    let (loaded, mut plc) = build(&args.config, args.bus, args.scenario.as_deref())?;
     info!("configuration: {}; bus: {}", loaded.origin, plc.bus_name());
     if plc.app_program().is_some_and(|p| p.starts_with("selftest.")) {
         warn!("running the runtime's built-in self-test programs, not the TRIJOINT application");

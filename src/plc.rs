@@ -159,6 +159,11 @@ impl Plc {
         &self.global
     }
 
+    /// The bus.
+    pub fn bus(&self) -> &dyn Bus {
+        self.bus.as_ref()
+    }
+
     /// The bus's name.
     pub fn bus_name(&self) -> &str {
         self.bus.name()

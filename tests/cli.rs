@@ -21,7 +21,7 @@ fn check_accepts_the_default_configuration() {
     assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
     assert_eq!(
         String::from_utf8_lossy(&o.stdout),
-        "config.json: valid (3 task classes: fast (10 ms), main (50 ms), spare (100 ms); 8 process-image variables)\n"
+        "config.json: valid (3 task classes: fast (10 ms), main (50 ms), spare (100 ms); 31 process-image variables; I/O map: io-map/trijoint.json)\n"
     );
 }
 
@@ -261,6 +261,8 @@ fn kinematic_parameters_are_checked_with_their_paths() {
     )
     .expect("json");
     let mut bad = base.clone();
+    // The copy lives elsewhere: without the I/O map next to it, leave field I/O out.
+    bad.as_object_mut().expect("object").remove("io_map");
     bad["kinematics"] = serde_json::json!({"trijoint": {"l3": -4, "h1_travel": [250, 0]}, "hexapod": {"struts": 6}});
     std::fs::write(&path, bad.to_string()).expect("write");
     let o = pkm(&["check", "--config", path.to_str().expect("utf-8")]);
@@ -300,4 +302,55 @@ fn a_time_source_with_virtual_time_is_a_usage_error() {
     let o = pkm(&["run", "--virtual", "--duration", "1", "--time-source", "tokio"]);
     assert_eq!(o.status.code(), Some(2));
     assert!(stderr(&o).contains("cannot be used with"), "{}", stderr(&o));
+}
+
+#[test]
+fn run_takes_a_scenario_and_refuses_a_bad_one() {
+    let o = pkm(&[
+        "run",
+        "--virtual",
+        "--duration",
+        "3",
+        "--scenario",
+        "scenarios/faults.json",
+    ]);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("s.json");
+    std::fs::write(
+        &path,
+        r#"{"events": [{"at_ms": 1, "fault": "bridge_error", "drive": "middle"}]}"#,
+    )
+    .expect("write");
+    let o = pkm(&[
+        "run",
+        "--virtual",
+        "--duration",
+        "3",
+        "--scenario",
+        path.to_str().expect("utf-8"),
+    ]);
+    assert_eq!(o.status.code(), Some(2));
+    assert_eq!(
+        stderr(&o),
+        format!(
+            "error: {}: at events[0].drive: unknown variant `middle`, expected `left` or `right`\n",
+            path.display()
+        )
+    );
+    let o = pkm(&[
+        "run",
+        "--virtual",
+        "--duration",
+        "3",
+        "--bus",
+        "none",
+        "--scenario",
+        "scenarios/faults.json",
+    ]);
+    assert_eq!(o.status.code(), Some(2));
+    assert_eq!(
+        stderr(&o),
+        "error: --scenario needs the simulated bus (--bus sim and an io_map in the configuration)\n"
+    );
 }

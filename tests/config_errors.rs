@@ -80,7 +80,7 @@ fn syntax_errors_give_line_and_column() {
 fn unknown_fields_are_refused_with_the_expected_ones() {
     assert_eq!(
         error(r#"{"tasks": []}"#),
-        "cfg.json: at tasks: unknown field `tasks`, expected one of `task_classes`, `timing`, `kinematics`"
+        "cfg.json: at tasks: unknown field `tasks`, expected one of `task_classes`, `timing`, `io_map`, `plant`, `kinematics`"
     );
     assert_eq!(
         error(&format!(r#"{{"task_classes": [{}]}}"#, class(r#"{"cycle_ms": 10}"#))),
@@ -351,6 +351,7 @@ fn bus_declarations_take_part_in_the_checks() {
             class: 0,
             who: "bus".into(),
             at: "io_map.bindings[0]".into(),
+            needs_writer: true,
         },
     );
     let issues = t.finish().unwrap_err();

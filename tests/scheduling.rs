@@ -220,6 +220,9 @@ impl Bus for SnoopBus {
         last.extend_from_slice(image);
     }
     fn write_safe(&mut self, _image: &[Value]) {}
+    fn as_any(&self) -> &dyn std::any::Any {
+        self
+    }
 }
 
 #[test]
@@ -273,6 +276,9 @@ impl Bus for ThreadedBus {
     }
     fn write_outputs(&mut self, _class: usize, _t_ns: u64, _image: &[Value]) {}
     fn write_safe(&mut self, _image: &[Value]) {}
+    fn as_any(&self) -> &dyn std::any::Any {
+        self
+    }
 }
 
 #[test]
@@ -467,6 +473,7 @@ impl Bus for RecordingBus {
                 class: 0,
                 who: "bus".into(),
                 at: "test-bus".into(),
+                needs_writer: true,
             },
         );
     }
@@ -476,6 +483,9 @@ impl Bus for RecordingBus {
     }
     fn write_safe(&mut self, image: &[Value]) {
         self.0.lock().expect("lock").safe = Some(image[0]);
+    }
+    fn as_any(&self) -> &dyn std::any::Any {
+        self
     }
 }
 

@@ -1,0 +1,152 @@
+//! The module catalogue: X20-like I/O modules and their channels, as in the original I/O mapping
+//! table, plus the operator's joystick (an HID device on the real machine, issue 8).
+
+use crate::image::VarType;
+
+/// Whether a channel carries data from the field to the PLC or back.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Direction {
+    /// Field → PLC.
+    Input,
+    /// PLC → field.
+    Output,
+}
+
+impl Direction {
+    /// "input" or "output".
+    pub fn name(self) -> &'static str {
+        match self {
+            Direction::Input => "input",
+            Direction::Output => "output",
+        }
+    }
+}
+
+/// One channel of a module type.
+#[derive(Clone, Copy, Debug)]
+pub struct Channel {
+    /// The channel's name (B&R spelling).
+    pub name: &'static str,
+    /// Its direction.
+    pub direction: Direction,
+    /// Its type.
+    pub ty: VarType,
+}
+
+/// A module type.
+#[derive(Clone, Copy, Debug)]
+pub struct ModuleType {
+    /// The order number (X20DI9371, ...).
+    pub name: &'static str,
+    /// What it is.
+    pub description: &'static str,
+    /// Its channels.
+    pub channels: &'static [Channel],
+}
+
+impl ModuleType {
+    /// Looks a channel up by name.
+    pub fn channel(&self, name: &str) -> Option<(usize, &Channel)> {
+        self.channels.iter().enumerate().find(|(_, c)| c.name == name)
+    }
+}
+
+const fn ch(name: &'static str, direction: Direction, ty: VarType) -> Channel {
+    Channel { name, direction, ty }
+}
+
+use Direction::{Input as I, Output as O};
+use VarType::{Bool as B, Int, Real, Uint};
+
+const DI9371: &[Channel] = &[
+    ch("DigitalInput01", I, B),
+    ch("DigitalInput02", I, B),
+    ch("DigitalInput03", I, B),
+    ch("DigitalInput04", I, B),
+    ch("DigitalInput05", I, B),
+    ch("DigitalInput06", I, B),
+    ch("DigitalInput07", I, B),
+    ch("DigitalInput08", I, B),
+    ch("DigitalInput09", I, B),
+    ch("DigitalInput10", I, B),
+    ch("DigitalInput11", I, B),
+    ch("DigitalInput12", I, B),
+];
+
+const DO9322: &[Channel] = &[
+    ch("DigitalOutput01", O, B),
+    ch("DigitalOutput02", O, B),
+    ch("DigitalOutput03", O, B),
+    ch("DigitalOutput04", O, B),
+    ch("DigitalOutput05", O, B),
+    ch("DigitalOutput06", O, B),
+    ch("DigitalOutput07", O, B),
+    ch("DigitalOutput08", O, B),
+    ch("DigitalOutput09", O, B),
+    ch("DigitalOutput10", O, B),
+    ch("DigitalOutput11", O, B),
+    ch("DigitalOutput12", O, B),
+];
+
+const DC1196: &[Channel] = &[ch("Counter01", I, Int), ch("CounterReset01", O, B)];
+
+const MM2436: &[Channel] = &[
+    ch("PeriodDurationPWM01", O, Uint),
+    ch("PulseWidthCurrentPWM01", O, Int),
+    ch("PulseWidthCurrentPWM02", O, Int),
+    ch("ClearError01", O, B),
+    ch("ClearError02", O, B),
+    ch("DitherDisable01", O, B),
+    ch("DitherDisable02", O, B),
+    ch("StatusInput01", I, B),
+    ch("StatusInput02", I, B),
+    ch("StatusInput03", I, B),
+    ch("StatusInput04", I, B),
+    ch("Error01", I, B),
+    ch("Error02", I, B),
+];
+
+const JOYSTICK: &[Channel] = &[
+    ch("AxisX", I, Real),
+    ch("AxisY", I, Real),
+    ch("Button01", I, B),
+    ch("Button02", I, B),
+    ch("Button03", I, B),
+    ch("Button04", I, B),
+    ch("Connected", I, B),
+];
+
+/// Every module type known.
+pub const CATALOGUE: &[ModuleType] = &[
+    ModuleType {
+        name: "X20DI9371",
+        description: "12 digital inputs, 24 V",
+        channels: DI9371,
+    },
+    ModuleType {
+        name: "X20DO9322",
+        description: "12 digital outputs, 24 V / 0.5 A",
+        channels: DO9322,
+    },
+    ModuleType {
+        name: "X20DC1196",
+        description: "1 ABR incremental counter, 16-bit signed, wraps; counter reset",
+        channels: DC1196,
+    },
+    ModuleType {
+        name: "X20MM2436",
+        description: "2 PWM motor bridges 3 A (period µs, signed pulse width ±32767 = ±100 %, clear error, \
+                      dither disable), 4 digital inputs, per-bridge error (overcurrent, overtemperature)",
+        channels: MM2436,
+    },
+    ModuleType {
+        name: "Joystick",
+        description: "the operator's joystick: axes −1..1, buttons, connected (HID on the real machine)",
+        channels: JOYSTICK,
+    },
+];
+
+/// Looks a module type up by name.
+pub fn module_type(name: &str) -> Option<&'static ModuleType> {
+    CATALOGUE.iter().find(|m| m.name == name)
+}

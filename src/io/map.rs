@@ -1,0 +1,250 @@
+//! I/O map files (`io-map/*.json`): the modules present and the bindings channel → variable,
+//! each assigned to the task class whose cycle exchanges it.
+
+use std::collections::HashMap;
+
+use serde::Deserialize;
+
+use super::catalogue::{self, Direction, ModuleType};
+use crate::config::{self, ConfigError};
+use crate::image::{DeclIssue, VarType};
+
+/// The file as written.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct IoMapFile {
+    /// The modules of the station.
+    pub modules: Vec<ModuleEntry>,
+    /// The channel bindings.
+    pub bindings: Vec<BindingEntry>,
+}
+
+/// One module of the station.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ModuleEntry {
+    /// A unique name, used by bindings and by the simulated machine's wiring.
+    pub name: String,
+    /// The module type (see the catalogue).
+    #[serde(rename = "type")]
+    pub module_type: String,
+    /// Its slot in the station (unique).
+    pub slot: u16,
+}
+
+/// One binding.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BindingEntry {
+    /// The module's name.
+    pub module: String,
+    /// The channel's name.
+    pub channel: String,
+    /// The process-image variable.
+    pub variable: String,
+    /// The task class that exchanges it.
+    pub task_class: String,
+}
+
+/// A module of a validated map.
+#[derive(Clone, Debug)]
+pub struct Module {
+    /// Its name.
+    pub name: String,
+    /// Its type.
+    pub ty: &'static ModuleType,
+    /// Its slot.
+    pub slot: u16,
+}
+
+/// A validated binding.
+#[derive(Clone, Debug)]
+pub struct Binding {
+    /// Index into [`IoMap::modules`].
+    pub module: usize,
+    /// Index into the module type's channels.
+    pub channel: usize,
+    /// The variable's name.
+    pub variable: String,
+    /// The task class index.
+    pub class: usize,
+    /// The channel's direction.
+    pub direction: Direction,
+    /// The channel's type.
+    pub ty: VarType,
+    /// Where it is written, for messages: `FILE: bindings[i] (MODULE.Channel)`.
+    pub at: String,
+}
+
+/// A validated I/O map.
+#[derive(Clone, Debug)]
+pub struct IoMap {
+    /// The file it came from.
+    pub origin: String,
+    /// The modules.
+    pub modules: Vec<Module>,
+    /// The bindings.
+    pub bindings: Vec<Binding>,
+}
+
+/// The I/O map built into the binary (used with the built-in configuration).
+pub const BUILTIN_TRIJOINT: &str = include_str!("../../io-map/trijoint.json");
+
+impl IoMap {
+    /// Parses and validates a map; `classes` are the configured task class names.
+    pub fn parse(text: &str, origin: &str, classes: &[String]) -> Result<IoMap, ConfigError> {
+        let file: IoMapFile = config::parse_strict(text, origin)?;
+        let mut problems = Vec::new();
+        let mut push = |at: String, message: String| problems.push(DeclIssue { at, message });
+        let mut modules = Vec::new();
+        for (i, m) in file.modules.iter().enumerate() {
+            let at = format!("modules[{i}]");
+            if let Some(j) = file.modules[..i].iter().position(|o| o.name == m.name) {
+                push(
+                    format!("{at}.name"),
+                    format!("module name \"{}\" is already used by modules[{j}]", m.name),
+                );
+            }
+            if let Some(j) = file.modules[..i].iter().position(|o| o.slot == m.slot) {
+                push(
+                    format!("{at}.slot"),
+                    format!(
+                        "slot {} is already taken by module \"{}\" (modules[{j}])",
+                        m.slot, file.modules[j].name
+                    ),
+                );
+            }
+            match catalogue::module_type(&m.module_type) {
+                Some(ty) => modules.push(Module {
+                    name: m.name.clone(),
+                    ty,
+                    slot: m.slot,
+                }),
+                None => {
+                    let known: Vec<&str> = catalogue::CATALOGUE.iter().map(|t| t.name).collect();
+                    push(
+                        format!("{at}.type"),
+                        format!(
+                            "unknown module type \"{}\"; known types: {}",
+                            m.module_type,
+                            known.join(", ")
+                        ),
+                    );
+                }
+            }
+        }
+        let mut bindings: Vec<Binding> = Vec::new();
+        let mut by_channel: HashMap<(usize, usize), usize> = HashMap::new();
+        for (i, b) in file.bindings.iter().enumerate() {
+            let at = format!("bindings[{i}]");
+            let Some(mi) = modules.iter().position(|m| m.name == b.module) else {
+                let known: Vec<&str> = modules.iter().map(|m| m.name.as_str()).collect();
+                push(
+                    format!("{at}.module"),
+                    format!(
+                        "unknown module \"{}\"; modules in this map: {}",
+                        b.module,
+                        known.join(", ")
+                    ),
+                );
+                continue;
+            };
+            let ty = modules[mi].ty;
+            let Some((ci, channel)) = ty.channel(&b.channel) else {
+                let known: Vec<&str> = ty.channels.iter().map(|c| c.name).collect();
+                push(
+                    format!("{at}.channel"),
+                    format!(
+                        "module \"{}\" ({}) has no channel \"{}\"; its channels: {}",
+                        b.module,
+                        ty.name,
+                        b.channel,
+                        known.join(", ")
+                    ),
+                );
+                continue;
+            };
+            let Some(class) = classes.iter().position(|c| *c == b.task_class) else {
+                push(
+                    format!("{at}.task_class"),
+                    format!(
+                        "no task class \"{}\" in the configuration; task classes: {}",
+                        b.task_class,
+                        classes.join(", ")
+                    ),
+                );
+                continue;
+            };
+            if let Some(&j) = by_channel.get(&(mi, ci)) {
+                push(
+                    format!("{at}.channel"),
+                    format!("channel {}.{} is already bound by bindings[{j}]", b.module, b.channel),
+                );
+                continue;
+            }
+            by_channel.insert((mi, ci), i);
+            for other in bindings.iter().filter(|o| o.variable == b.variable) {
+                let what = match (other.direction, channel.direction) {
+                    (Direction::Output, Direction::Output) => "two outputs",
+                    (Direction::Input, Direction::Input) => "two inputs",
+                    _ => "both an input and an output",
+                };
+                push(
+                    format!("{at}.variable"),
+                    format!(
+                        "variable \"{}\" is bound to {what}: {} and {}.{}",
+                        b.variable, other.at, b.module, b.channel
+                    ),
+                );
+            }
+            bindings.push(Binding {
+                module: mi,
+                channel: ci,
+                variable: b.variable.clone(),
+                class,
+                direction: channel.direction,
+                ty: channel.ty,
+                at: format!("{origin}: {at} ({}.{})", b.module, b.channel),
+            });
+        }
+        if problems.is_empty() {
+            Ok(IoMap {
+                origin: origin.to_string(),
+                modules,
+                bindings,
+            })
+        } else {
+            Err(ConfigError::Invalid {
+                file: origin.to_string(),
+                problems,
+            })
+        }
+    }
+
+    /// Resolves `MODULE.Channel` to (module index, channel index), checking direction and type.
+    pub fn resolve(&self, reference: &str, direction: Direction, ty: VarType) -> Result<(usize, usize), String> {
+        let Some((module, channel)) = reference.split_once('.') else {
+            return Err(format!("\"{reference}\" is not of the form MODULE.Channel"));
+        };
+        let Some(mi) = self.modules.iter().position(|m| m.name == module) else {
+            return Err(format!("no module \"{module}\" in {}", self.origin));
+        };
+        let mt = self.modules[mi].ty;
+        let Some((ci, c)) = mt.channel(channel) else {
+            return Err(format!(
+                "module \"{module}\" ({}) has no channel \"{channel}\"",
+                mt.name
+            ));
+        };
+        if c.direction != direction || c.ty != ty {
+            return Err(format!(
+                "{reference} is a {} {} channel, but a {} {} channel is needed here",
+                c.ty,
+                c.direction.name(),
+                ty,
+                direction.name()
+            ));
+        }
+        Ok((mi, ci))
+    }
+}

@@ -1,0 +1,177 @@
+//! The simulated bus: module channel images exchanged synchronously with the cycles, backed by
+//! the plant. Before a class's cycle the plant is advanced to the cycle's nominal time and the
+//! input channels that class latches are copied into the image; after the cycle the class's output
+//! channels are taken from the image and applied to the plant. Deterministic: a run depends only
+//! on its configuration and scenario.
+
+use crate::bus::Bus;
+use crate::image::{Reader, Value, VarIndex, VarTable, Writer};
+use crate::io::catalogue::Direction;
+use crate::io::map::IoMap;
+
+use super::plant::Plant;
+use super::scenario::Scenario;
+use super::{ResolvedWiring, Signal};
+
+/// The simulated bus.
+pub struct SimBus {
+    map: IoMap,
+    /// Per module, per channel.
+    channels: Vec<Vec<Value>>,
+    /// Per binding, the variable's index (set by `declare`).
+    vars: Vec<VarIndex>,
+    plant: Plant,
+    wiring: ResolvedWiring,
+    scenario: Scenario,
+    next_event: usize,
+    time_ns: u64,
+    step_ns: u64,
+}
+
+impl SimBus {
+    /// A simulated bus over `map`, wired by `wiring`, integrating every `step_ns`.
+    pub fn new(map: IoMap, plant: Plant, wiring: ResolvedWiring, scenario: Scenario, step_ns: u64) -> Self {
+        let channels = map
+            .modules
+            .iter()
+            .map(|m| m.ty.channels.iter().map(|c| Value::zero(c.ty)).collect())
+            .collect();
+        let vars = vec![0; map.bindings.len()];
+        SimBus {
+            map,
+            channels,
+            vars,
+            plant,
+            wiring,
+            scenario,
+            next_event: 0,
+            time_ns: 0,
+            step_ns: step_ns.max(1),
+        }
+    }
+
+    /// The plant (for tests and status displays: the machine's true state).
+    pub fn plant(&self) -> &Plant {
+        &self.plant
+    }
+
+    /// The simulated time the plant has reached (ns).
+    pub fn time_ns(&self) -> u64 {
+        self.time_ns
+    }
+
+    /// Advances the plant to `t_ns`, applying scenario events at their times.
+    pub fn advance_to(&mut self, t_ns: u64) {
+        loop {
+            while let Some(&(at, action)) = self.scenario.events.get(self.next_event) {
+                if at > self.time_ns {
+                    break;
+                }
+                action.apply(&mut self.plant);
+                self.next_event += 1;
+            }
+            if self.time_ns + self.step_ns > t_ns {
+                break;
+            }
+            self.plant.step(self.step_ns as f64 * 1e-9);
+            self.time_ns += self.step_ns;
+        }
+    }
+
+    /// Copies the plant's signals into the input channels.
+    fn plant_to_channels(&mut self) {
+        for &(signal, (m, c)) in &self.wiring.signals {
+            let p = &self.plant;
+            let value = match signal {
+                Signal::Button(b) => Value::Bool(p.button(b)),
+                Signal::Switch(d, end) => Value::Bool(p.switch(d, end)),
+                Signal::Encoder(d) => Value::Int(p.counter(d)),
+                Signal::BridgeError(d) => Value::Bool(p.bridge_error(d)),
+                Signal::JoystickAxis(a) => Value::Real(p.joystick()[a]),
+                Signal::JoystickConnected => Value::Bool(p.joystick_connected()),
+                _ => continue,
+            };
+            self.channels[m][c] = value;
+        }
+    }
+
+    /// Applies the output channels to the plant.
+    fn channels_to_plant(&mut self) {
+        for &(signal, (m, c)) in &self.wiring.signals {
+            let value = self.channels[m][c];
+            match (signal, value) {
+                (Signal::Pwm(d), Value::Int(v)) => self.plant.set_pwm(d, v),
+                (Signal::PwmPeriod, Value::Uint(v)) => self.plant.set_period(v),
+                (Signal::ClearError(d), Value::Bool(v)) => self.plant.set_clear_error(d, v),
+                (Signal::CounterReset(d), Value::Bool(v)) => self.plant.set_counter_reset(d, v),
+                _ => {}
+            }
+        }
+    }
+}
+
+impl Bus for SimBus {
+    fn name(&self) -> &str {
+        "sim"
+    }
+
+    fn declare(&mut self, table: &mut VarTable) {
+        for (i, b) in self.map.bindings.iter().enumerate() {
+            self.vars[i] = match b.direction {
+                Direction::Input => table.declare_writer(
+                    &b.variable,
+                    b.ty,
+                    Writer::Bus {
+                        class: b.class,
+                        at: b.at.clone(),
+                    },
+                    Value::zero(b.ty),
+                ),
+                // An output nobody writes keeps its safe value, as an unwritten I/O-mapped
+                // variable does on a B&R controller.
+                Direction::Output => table.declare_reader(
+                    &b.variable,
+                    b.ty,
+                    Reader {
+                        class: b.class,
+                        who: "the bus".into(),
+                        at: b.at.clone(),
+                        needs_writer: false,
+                    },
+                ),
+            };
+        }
+    }
+
+    fn read_inputs(&mut self, class: usize, t_ns: u64, image: &mut [Value]) {
+        self.advance_to(t_ns);
+        self.plant_to_channels();
+        for (b, &var) in self.map.bindings.iter().zip(&self.vars) {
+            if b.class == class && b.direction == Direction::Input {
+                image[usize::from(var)] = self.channels[b.module][b.channel];
+            }
+        }
+    }
+
+    fn write_outputs(&mut self, class: usize, _t_ns: u64, image: &[Value]) {
+        for (b, &var) in self.map.bindings.iter().zip(&self.vars) {
+            if b.class == class && b.direction == Direction::Output {
+                self.channels[b.module][b.channel] = image[usize::from(var)];
+            }
+        }
+        self.channels_to_plant();
+    }
+
+    fn write_safe(&mut self, image: &[Value]) {
+        for (b, &var) in self.map.bindings.iter().zip(&self.vars) {
+            if b.direction == Direction::Output {
+                self.channels[b.module][b.channel] = image[usize::from(var)];
+            }
+        }
+        self.channels_to_plant();
+    }
+
+    fn as_any(&self) -> &dyn std::any::Any {
+        self
+    }
+}

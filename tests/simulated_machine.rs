@@ -1,0 +1,486 @@
+//! The I/O map, the module catalogue and the simulated TRIJOINT lab model: every validation error
+//! with its message, and the plant's behaviour seen through the process image.
+
+use std::path::{Path, PathBuf};
+
+use pkm_plc::config::{self, ConfigError, LoadedConfig};
+use pkm_plc::image::{Declare, Input, Output, Value};
+use pkm_plc::io::map::IoMap;
+use pkm_plc::plc::Plc;
+use pkm_plc::program::{Cycle, Program, ProgramArgs, ProgramInfo, Registry};
+use pkm_plc::run::VirtualClock;
+use pkm_plc::sim::bus::SimBus;
+use pkm_plc::sim::plant::Plant;
+use pkm_plc::tasks::kinematics::trijoint::TrijointParams;
+
+const CLASSES: [&str; 3] = ["fast", "main", "spare"];
+
+fn map_error(json: &str) -> String {
+    let classes: Vec<String> = CLASSES.iter().map(|s| s.to_string()).collect();
+    match IoMap::parse(json, "map.json", &classes) {
+        Ok(_) => panic!("map unexpectedly valid"),
+        Err(e) => e.to_string(),
+    }
+}
+
+const MODULES: &str =
+    r#""modules": [{"name": "DI", "type": "X20DI9371", "slot": 1}, {"name": "MM", "type": "X20MM2436", "slot": 2}]"#;
+
+#[test]
+fn the_default_io_map_validates() {
+    let text = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/io-map/trijoint.json")).expect("map");
+    let classes: Vec<String> = CLASSES.iter().map(|s| s.to_string()).collect();
+    let map = IoMap::parse(&text, "io-map/trijoint.json", &classes).expect("valid");
+    assert_eq!(map.modules.len(), 6);
+    for name in [
+        "BUTTON_STOP",
+        "SWITCH_LEFT_UPPER",
+        "SWITCH_RIGHT_DOWN",
+        "velocity_left_set",
+        "period_duration",
+    ] {
+        assert!(map.bindings.iter().any(|b| b.variable == name), "{name} is bound");
+    }
+}
+
+#[test]
+fn module_errors() {
+    assert_eq!(
+        map_error(r#"{"modules": [{"name": "A", "type": "X20AI4622", "slot": 1}], "bindings": []}"#),
+        "map.json: at modules[0].type: unknown module type \"X20AI4622\"; known types: X20DI9371, X20DO9322, \
+         X20DC1196, X20MM2436, Joystick"
+    );
+    assert_eq!(
+        map_error(
+            r#"{"modules": [{"name": "A", "type": "X20DI9371", "slot": 1}, {"name": "B", "type": "X20DO9322", "slot": 1}], "bindings": []}"#
+        ),
+        "map.json: at modules[1].slot: slot 1 is already taken by module \"A\" (modules[0])"
+    );
+    assert_eq!(
+        map_error(
+            r#"{"modules": [{"name": "A", "type": "X20DI9371", "slot": 1}, {"name": "A", "type": "X20DO9322", "slot": 2}], "bindings": []}"#
+        ),
+        "map.json: at modules[1].name: module name \"A\" is already used by modules[0]"
+    );
+    assert_eq!(
+        map_error(r#"{"modules": [{"name": "A", "kind": "X20DI9371", "slot": 1}], "bindings": []}"#),
+        "map.json: at modules[0].kind: unknown field `kind`, expected one of `name`, `type`, `slot`"
+    );
+}
+
+fn binding_error(bindings: &str) -> String {
+    map_error(&format!("{{{MODULES}, \"bindings\": [{bindings}]}}"))
+}
+
+#[test]
+fn binding_errors() {
+    assert_eq!(
+        binding_error(r#"{"module": "DX", "channel": "DigitalInput01", "variable": "A", "task_class": "fast"}"#),
+        "map.json: at bindings[0].module: unknown module \"DX\"; modules in this map: DI, MM"
+    );
+    assert_eq!(
+        binding_error(r#"{"module": "DI", "channel": "DigitalInput13", "variable": "A", "task_class": "fast"}"#),
+        "map.json: at bindings[0].channel: module \"DI\" (X20DI9371) has no channel \"DigitalInput13\"; its channels: \
+         DigitalInput01, DigitalInput02, DigitalInput03, DigitalInput04, DigitalInput05, DigitalInput06, DigitalInput07, \
+         DigitalInput08, DigitalInput09, DigitalInput10, DigitalInput11, DigitalInput12"
+    );
+    assert_eq!(
+        binding_error(r#"{"module": "DI", "channel": "DigitalInput01", "variable": "A", "task_class": "slow"}"#),
+        "map.json: at bindings[0].task_class: no task class \"slow\" in the configuration; task classes: fast, main, spare"
+    );
+    assert_eq!(
+        binding_error(
+            r#"{"module": "DI", "channel": "DigitalInput01", "variable": "A", "task_class": "fast"},
+               {"module": "DI", "channel": "DigitalInput01", "variable": "B", "task_class": "fast"}"#
+        ),
+        "map.json: at bindings[1].channel: channel DI.DigitalInput01 is already bound by bindings[0]"
+    );
+    assert_eq!(
+        binding_error(
+            r#"{"module": "MM", "channel": "PulseWidthCurrentPWM01", "variable": "v", "task_class": "fast"},
+               {"module": "MM", "channel": "PulseWidthCurrentPWM02", "variable": "v", "task_class": "fast"}"#
+        ),
+        "map.json: at bindings[1].variable: variable \"v\" is bound to two outputs: map.json: bindings[0] \
+         (MM.PulseWidthCurrentPWM01) and MM.PulseWidthCurrentPWM02"
+    );
+    assert_eq!(
+        binding_error(
+            r#"{"module": "DI", "channel": "DigitalInput01", "variable": "s", "task_class": "fast"},
+               {"module": "MM", "channel": "ClearError01", "variable": "s", "task_class": "fast"}"#
+        ),
+        "map.json: at bindings[1].variable: variable \"s\" is bound to both an input and an output: map.json: \
+         bindings[0] (DI.DigitalInput01) and MM.ClearError01"
+    );
+}
+
+/// A program for tests: drives the motors with constant outputs and reads whatever it is told to,
+/// so that direction and type conflicts with the I/O map can be provoked.
+struct Drive {
+    period: Output<u16>,
+    left: Output<i16>,
+    right: Output<i16>,
+    params: DriveParams,
+}
+
+#[derive(Default, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+struct DriveParams {
+    #[serde(default)]
+    left: i16,
+    #[serde(default)]
+    right: i16,
+    #[serde(default)]
+    until_ms: Option<u64>,
+    #[serde(default)]
+    write_bool: Option<String>,
+    #[serde(default)]
+    read_dint: Option<String>,
+}
+
+impl Program for Drive {
+    fn cycle(&mut self, ctx: &mut Cycle<'_>) {
+        let on = self.params.until_ms.is_none_or(|u| ctx.time_ns() < u * 1_000_000);
+        ctx.set(self.period, 50);
+        ctx.set(self.left, if on { self.params.left } else { 0 });
+        ctx.set(self.right, if on { self.params.right } else { 0 });
+    }
+}
+
+fn registry() -> Registry {
+    let mut r = pkm_plc::registry();
+    r.register(ProgramInfo {
+        name: "test.drive",
+        summary: "test",
+        factory: |args: &ProgramArgs<'_>, decl: &mut Declare<'_>| {
+            let params: DriveParams = args.parse(decl);
+            if let Some(name) = &params.write_bool {
+                decl.output::<bool>(name, false);
+            }
+            if let Some(name) = &params.read_dint {
+                let _: Input<i32> = decl.input(name);
+            }
+            Box::new(Drive {
+                period: decl.output("period_duration", 0),
+                left: decl.output("velocity_left_set", 0),
+                right: decl.output("velocity_right_set", 0),
+                params,
+            })
+        },
+    });
+    r
+}
+
+/// The repository's config.json with the fast class running `test.drive` with `params`, and
+/// `plant` merged into the plant section.
+fn loaded_config(params: &str, plant: &str) -> LoadedConfig {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut c: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(root.join("config.json")).expect("config")).expect("json");
+    c["task_classes"][0]["programs"] = serde_json::json!([{"program": "test.drive", "params": serde_json::from_str::<serde_json::Value>(params).expect("params")}]);
+    c["task_classes"][1]["programs"] = serde_json::json!([]);
+    c["plant"] = serde_json::from_str(plant).expect("plant");
+    let mut loaded = config::parse(&c.to_string(), "test-config.json").expect("parses");
+    loaded.dir = Some(PathBuf::from(root));
+    loaded
+}
+
+fn build(params: &str, plant: &str, scenario: Option<&str>) -> Result<Plc, ConfigError> {
+    let loaded = loaded_config(params, plant);
+    let dir = tempfile::tempdir().expect("tempdir");
+    let scenario_path = scenario.map(|s| {
+        let p = dir.path().join("scenario.json");
+        std::fs::write(&p, s).expect("write scenario");
+        p
+    });
+    let kinematics = pkm_plc::application_config(&loaded.config).expect("kinematics");
+    let bus = pkm_plc::sim::build(&loaded, &kinematics.trijoint, scenario_path.as_deref())?;
+    Plc::build(&loaded.config, &registry(), Box::new(bus)).map_err(|problems| ConfigError::Invalid {
+        file: loaded.origin.clone(),
+        problems,
+    })
+}
+
+fn plant(plc: &Plc) -> &Plant {
+    plc.bus()
+        .as_any()
+        .downcast_ref::<SimBus>()
+        .expect("the simulated bus")
+        .plant()
+}
+
+fn var(plc: &Plc, name: &str) -> Value {
+    plc.global_image()[usize::from(plc.vars().index_of(name).expect("variable"))]
+}
+
+/// Runs in virtual time; calls `each` after every pass with the time of the release.
+fn run(plc: &mut Plc, until_ms: u64, mut each: impl FnMut(&Plc, u64)) {
+    let mut clock = VirtualClock::default();
+    plc.init(0, &mut clock);
+    while plc.next_release() < until_ms * 1_000_000 {
+        let t = plc.next_release();
+        clock.advance_to(t);
+        plc.run_due(&mut clock, u64::MAX);
+        each(plc, t);
+    }
+}
+
+#[test]
+fn programs_that_contradict_the_io_map_are_refused() {
+    let map = format!("{}/io-map/trijoint.json", env!("CARGO_MANIFEST_DIR"));
+    // Writing a variable bound to an input channel (a direction mismatch).
+    let e = build(r#"{"write_bool": "SWITCH_LEFT_UPPER"}"#, "{}", None)
+        .err()
+        .expect("refused")
+        .to_string();
+    assert_eq!(
+        e,
+        format!(
+            "test-config.json: at task_classes[0].programs[0]: variable \"SWITCH_LEFT_UPPER\" has two writers: the bus \
+             ({map}: bindings[5] (DI.DigitalInput06)) and program \"test.drive\" (task_classes[0].programs[0]); a \
+             variable has exactly one writer"
+        )
+    );
+    // Reading a BOOL input as DINT (a type mismatch).
+    let e = build(r#"{"read_dint": "BUTTON_STOP"}"#, "{}", None)
+        .err()
+        .expect("refused")
+        .to_string();
+    assert_eq!(
+        e,
+        format!(
+            "test-config.json: at task_classes[0].programs[0]: variable \"BUTTON_STOP\" is used as DINT here but as BOOL \
+             by the bus ({map}: bindings[0] (DI.DigitalInput01))"
+        )
+    );
+}
+
+#[test]
+fn wiring_and_plant_errors_name_their_paths() {
+    let e = build("{}", r#"{"wiring": {"pwm_left": "DI.DigitalInput10"}}"#, None)
+        .err()
+        .expect("refused")
+        .to_string();
+    assert_eq!(
+        e,
+        "test-config.json: at plant.wiring.pwm_left: DI.DigitalInput10 is a BOOL input channel, but a INT output channel \
+         is needed here"
+    );
+    let e = build("{}", r#"{"wiring": {"encoder_left": "ENC.Counter01"}}"#, None)
+        .err()
+        .expect("refused")
+        .to_string();
+    assert!(
+        e.starts_with("test-config.json: at plant.wiring.encoder_left: no module \"ENC\" in "),
+        "{e}"
+    );
+    let e = build("{}", r#"{"left": {"lower_switch_mm": -5}}"#, None)
+        .err()
+        .expect("refused")
+        .to_string();
+    assert_eq!(
+        e,
+        "test-config.json: at plant.left: positions must satisfy hard_stop_min_mm < lower_switch_mm < upper_switch_mm \
+         < hard_stop_max_mm, got -3 < -5 < 250 < 253"
+    );
+}
+
+#[test]
+fn scenario_errors_name_the_event() {
+    let bad = |events: &str| {
+        build("{}", "{}", Some(&format!(r#"{{"events": [{events}]}}"#)))
+            .err()
+            .expect("refused")
+            .to_string()
+    };
+    let e = bad(r#"{"at_ms": 5, "input": "BUTTON_GO", "value": true}"#);
+    assert!(
+        e.ends_with(&format!(
+            "scenario.json: at events[0].input: no input variable \"BUTTON_GO\" in {}/io-map/trijoint.json wired to the machine",
+            env!("CARGO_MANIFEST_DIR")
+        )),
+        "{e}"
+    );
+    let e = bad(r#"{"at_ms": 5, "input": "SWITCH_LEFT_UPPER", "value": true}"#);
+    assert!(
+        e.contains(
+            "at events[0].input: \"SWITCH_LEFT_UPPER\" is wired to Switch(0, Upper), not to an operator panel button"
+        ),
+        "{e}"
+    );
+    let e = bad(r#"{"at_ms": 5, "joystick": [0.5, 0.5], "input": "BUTTON_STOP", "value": true}"#);
+    assert!(
+        e.contains("at events[0]: an event has exactly one of \"input\", \"joystick\" or \"fault\""),
+        "{e}"
+    );
+    let e = bad(r#"{"at_ms": 5, "fault": "bridge_error"}"#);
+    assert!(
+        e.contains("at events[0].drive: this fault needs \"drive\": \"left\" or \"right\""),
+        "{e}"
+    );
+    let e = bad(r#"{"at_ms": 5, "fault": "switch_stuck", "switch": "BUTTON_STOP", "value": true}"#);
+    assert!(
+        e.contains("at events[0].switch: \"BUTTON_STOP\" is not a limit switch input of"),
+        "{e}"
+    );
+    let e = bad(r#"{"at_ms": 5, "joystick": [2, 0]}"#);
+    assert!(
+        e.contains("at events[0].joystick: axes must lie in −1 … 1, got [2, 0]"),
+        "{e}"
+    );
+    let e = bad(r#"{"at_ms": 5, "fault": "meltdown", "drive": "left"}"#);
+    assert!(e.contains("at events[0].fault: unknown variant `meltdown`"), "{e}");
+}
+
+#[test]
+fn a_carriage_at_full_duty_reaches_its_switch_in_the_expected_time_and_stops_at_the_hard_stop() {
+    // Right drive from 125 mm up at full duty: 125 mm at 80 mm/s after a 50 ms lag ≈ 1.6125 s.
+    // The mechanism is off here so that the right carriage can travel alone.
+    let mut plc = build(r#"{"right": 32767}"#, r#"{"mechanism": false}"#, None).expect("valid");
+    let mut first_seen = None;
+    run(&mut plc, 4000, |plc, t| {
+        if first_seen.is_none() && var(plc, "SWITCH_RIGHT_UPPER") == Value::Bool(true) {
+            first_seen = Some(t / 1_000_000);
+        }
+    });
+    assert_eq!(first_seen, Some(1620), "the first 10 ms cycle at or after 1.6125 s");
+    let p = plant(&plc);
+    assert_eq!(p.position_mm(1), 253.0, "at the hard stop");
+    assert_eq!(p.velocity_mm_s(1), 0.0);
+    assert_eq!(var(&plc, "SWITCH_RIGHT_UPPER"), Value::Bool(true));
+    assert_eq!(p.position_mm(0), 125.0, "the left carriage did not move");
+}
+
+#[test]
+fn the_counter_seen_by_the_plc_wraps_exactly() {
+    let mut plc = build(r#"{"left": -32767}"#, r#"{"mechanism": false}"#, None).expect("valid");
+    let mut checked = 0;
+    let mut wraps = 0;
+    let mut last = None;
+    run(&mut plc, 2000, |plc, _| {
+        let counts = (plant(plc).position_mm(0) * 7000.0).round() as i64;
+        let expected = (counts + 32_768).rem_euclid(65_536) - 32_768;
+        let Value::Int(seen) = var(plc, "encoder_left_counter") else {
+            panic!("INT")
+        };
+        assert_eq!(i64::from(seen), expected);
+        if let Some(prev) = last
+            && i64::from(seen) > prev
+        {
+            wraps += 1;
+        }
+        last = Some(i64::from(seen));
+        checked += 1;
+    });
+    assert!(checked >= 200 && wraps >= 10, "{checked} cycles, {wraps} wraps");
+}
+
+#[test]
+fn the_linkage_jams_where_it_cannot_assemble() {
+    // With a 200 mm rod, arm and rod span at most 500 mm, but |AC| grows from 475 mm towards
+    // 548 mm as the left carriage goes down: the machine jams at h1 ≈ 78.3 mm, long before the
+    // lower switch.
+    let mut loaded = loaded_config(r#"{"left": -32767}"#, "{}");
+    loaded.config.kinematics = Some(serde_json::json!({"trijoint": {"l3": 200.0}}));
+    let kinematics = pkm_plc::application_config(&loaded.config).expect("kinematics");
+    let bus = pkm_plc::sim::build(&loaded, &kinematics.trijoint, None).expect("bus");
+    let mut jammed = Plc::build(&loaded.config, &registry(), Box::new(bus)).expect("valid");
+    run(&mut jammed, 4000, |_, _| {});
+    let p = plant(&jammed);
+    assert!(p.jams() > 0);
+    let h1 = p.position_mm(0);
+    assert!((h1 - 78.3).abs() < 0.5, "stopped where the linkage is stretched: {h1}");
+    assert_eq!(var(&jammed, "SWITCH_LEFT_DOWN"), Value::Bool(false));
+    // It stands where the linkage is just at full stretch: |AC| = l2 + l3.
+    let g = TrijointParams::default();
+    let (c, s) = (g.alpha1_deg.to_radians().cos(), g.alpha1_deg.to_radians().sin());
+    let a = [g.d - 125.0 * c, 125.0 * s];
+    let cc = [h1 * c, h1 * s];
+    let ac = (a[0] - cc[0]).hypot(a[1] - cc[1]);
+    assert!((ac - 500.0).abs() < 0.2, "|AC| = {ac}");
+}
+
+#[test]
+fn a_stuck_switch_stays_stuck_until_freed() {
+    let scenario = r#"{"events": [
+        {"at_ms": 100, "fault": "switch_stuck", "switch": "SWITCH_LEFT_UPPER", "value": true},
+        {"at_ms": 500, "fault": "switch_free", "switch": "SWITCH_LEFT_UPPER"},
+        {"at_ms": 600, "fault": "switch_stuck", "switch": "SWITCH_RIGHT_DOWN", "value": false}
+    ]}"#;
+    let mut plc = build(r#"{"right": -32767}"#, r#"{"mechanism": false}"#, Some(scenario)).expect("valid");
+    run(&mut plc, 3500, |plc, t| {
+        let ms = t / 1_000_000;
+        let stuck = (100..500).contains(&ms);
+        assert_eq!(var(plc, "SWITCH_LEFT_UPPER"), Value::Bool(stuck), "at {ms} ms");
+        if ms >= 600 {
+            assert_eq!(
+                var(plc, "SWITCH_RIGHT_DOWN"),
+                Value::Bool(false),
+                "stuck off at {ms} ms"
+            );
+        }
+    });
+    assert!(
+        plant(&plc).position_mm(1) < 0.0,
+        "the right carriage passed its (dead) lower switch"
+    );
+}
+
+#[test]
+fn panel_inputs_and_faults_from_a_scenario() {
+    let scenario = r#"{"events": [
+        {"at_ms": 200, "input": "BUTTON_STOP", "value": true},
+        {"at_ms": 300, "input": "BUTTON_STOP", "value": false},
+        {"at_ms": 400, "joystick": [0.5, -0.25]},
+        {"at_ms": 500, "fault": "encoder_glitch", "drive": "right", "counts": 1000},
+        {"at_ms": 600, "fault": "bridge_error", "drive": "left"},
+        {"at_ms": 700, "fault": "drive_dead", "drive": "right"}
+    ]}"#;
+    let mut plc = build(
+        r#"{"left": 16000, "right": 16000}"#,
+        r#"{"mechanism": false}"#,
+        Some(scenario),
+    )
+    .expect("valid");
+    let mut counter_before = 0i64;
+    run(&mut plc, 1500, |plc, t| {
+        let ms = t / 1_000_000;
+        assert_eq!(
+            var(plc, "BUTTON_STOP"),
+            Value::Bool((200..300).contains(&ms)),
+            "at {ms} ms"
+        );
+        if ms == 490 {
+            let Value::Int(c) = var(plc, "encoder_right_counter") else {
+                panic!()
+            };
+            counter_before = i64::from(c);
+        }
+        if ms >= 600 {
+            assert_eq!(var(plc, "bridge_error_left"), Value::Bool(true), "latched at {ms} ms");
+        }
+    });
+    let p = plant(&plc);
+    assert_eq!(p.joystick(), [0.5, -0.25]);
+    assert_eq!(var(&plc, "JOYSTICK_X"), Value::Real(0.5));
+    assert!(p.velocity_mm_s(0).abs() < 1e-3, "no drive after the bridge error");
+    assert!(p.velocity_mm_s(1).abs() < 1e-3, "the dead drive coasted to a stop");
+    assert_eq!(
+        var(&plc, "bridge_error_right"),
+        Value::Bool(false),
+        "a dead drive shows no error"
+    );
+    assert!(counter_before != 0);
+}
+
+#[test]
+fn the_shipped_scenarios_are_valid() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios");
+    let mut count = 0;
+    for entry in std::fs::read_dir(&dir).expect("scenarios/") {
+        let path = entry.expect("entry").path();
+        let text = std::fs::read_to_string(&path).expect("readable");
+        build("{}", "{}", Some(&text)).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        count += 1;
+    }
+    assert!(count >= 3);
+}
