@@ -137,6 +137,8 @@ pub struct Plant {
     joystick_connected: bool,
     mechanism: Option<Trijoint>,
     jams: u64,
+    /// The step the lag factors were computed for, and the factors (1 − e^(−dt/τ)) per drive.
+    lag: (f64, [f64; 2]),
 }
 
 /// Drive index: 0 = left (h1, guide 1), 1 = right (h2, guide 2).
@@ -174,12 +176,17 @@ impl Plant {
             joystick_connected: true,
             mechanism,
             jams: 0,
+            lag: (f64::NAN, [0.0; 2]),
         }
     }
 
     /// Advances the plant by `dt_s` seconds.
     pub fn step(&mut self, dt_s: f64) {
         let enabled_period = self.period_us > 0;
+        if self.lag.0 != dt_s {
+            // Exact discretisation of the first-order lag over a step of dt.
+            self.lag = (dt_s, self.drives.each_ref().map(|d| 1.0 - (-dt_s / d.p.tau_s).exp()));
+        }
         let mut next = [0.0; 2];
         for (i, d) in self.drives.iter_mut().enumerate() {
             let duty = if enabled_period && !d.bridge_error && !d.dead {
@@ -187,9 +194,7 @@ impl Plant {
             } else {
                 0.0
             };
-            // Exact discretisation of the first-order lag over the step.
-            let alpha = 1.0 - (-dt_s / d.p.tau_s).exp();
-            d.velocity_mm_s += (duty.clamp(-1.0, 1.0) * d.p.v_max_mm_s - d.velocity_mm_s) * alpha;
+            d.velocity_mm_s += (duty.clamp(-1.0, 1.0) * d.p.v_max_mm_s - d.velocity_mm_s) * self.lag.1[i];
             next[i] = d.position_mm + d.velocity_mm_s * dt_s;
             if next[i] <= d.p.hard_stop_min_mm {
                 next[i] = d.p.hard_stop_min_mm;
@@ -199,7 +204,9 @@ impl Plant {
                 d.velocity_mm_s = d.velocity_mm_s.min(0.0);
             }
         }
-        if let Some(m) = &self.mechanism {
+        // Standing still cannot jam: skip the linkage check then (most of a run).
+        let moved = self.drives.iter().zip(next).any(|(d, n)| d.position_mm != n);
+        if let Some(m) = self.mechanism.as_ref().filter(|_| moved) {
             let mut pose = [0.0; 2];
             if m.forward(&next, None, &mut pose).is_err() {
                 // The linkage cannot assemble there: the machine jams and stands still.
