@@ -63,5 +63,6 @@ pub fn application_config(
 pub fn registry() -> program::Registry {
     let mut registry = program::Registry::new();
     selftest::register(&mut registry);
+    tasks::trijoint::register(&mut registry);
     registry
 }

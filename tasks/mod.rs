@@ -6,3 +6,4 @@
 //! `tests/architecture.rs` checks that.
 
 pub mod kinematics;
+pub mod trijoint;

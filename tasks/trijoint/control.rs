@@ -1,0 +1,183 @@
+//! The drive controller (10 ms class): a PI position regulator per drive, following-error
+//! supervision, and the fast interlock — STOP pressed, a limit switch outside INIT, a motor bridge
+//! or encoder fault, or a main state that does not drive: PWM zero in that same cycle. (The
+//! original reacted only in its 50 ms task.)
+
+use serde::Deserialize;
+
+use super::state::MainState;
+use crate::image::{Declare, Input, Output};
+use crate::program::{Cycle, Program, ProgramArgs};
+
+/// Regulator parameters.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ControlParams {
+    /// Proportional gain: duty (−1…1) per mm of following error.
+    pub kp: f64,
+    /// Integral gain: duty per mm·s.
+    pub ki: f64,
+    /// Output limit (duty, 0…1).
+    pub output_limit: f64,
+    /// A following error above this (mm) is a fault.
+    pub max_following_error_mm: f64,
+}
+
+impl Default for ControlParams {
+    fn default() -> Self {
+        ControlParams {
+            kp: 0.25,
+            ki: 1.0,
+            output_limit: 1.0,
+            max_following_error_mm: 5.0,
+        }
+    }
+}
+
+/// One drive's PI regulator with anti-windup by conditional integration.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Pi {
+    integral: f64,
+}
+
+impl Pi {
+    /// One step: returns the duty for following error `e` (mm) over `dt` seconds.
+    pub fn step(&mut self, p: &ControlParams, e: f64, dt: f64) -> f64 {
+        let unclamped = p.kp * e + p.ki * (self.integral + e * dt);
+        let out = unclamped.clamp(-p.output_limit, p.output_limit);
+        // Integrate only while the output is not saturated, or when the error drives it back.
+        if out == unclamped || unclamped.signum() != e.signum() {
+            self.integral += e * dt;
+        }
+        out
+    }
+
+    /// Forgets the integral (on enable and after a stop).
+    pub fn reset(&mut self) {
+        self.integral = 0.0;
+    }
+}
+
+struct Drive {
+    position: Input<f64>,
+    setpoint: Input<f64>,
+    setpoint_velocity: Input<f64>,
+    fault: Input<bool>,
+    bridge_error: Input<bool>,
+    switches: [Input<bool>; 2],
+    pwm: Output<i16>,
+    following_error: Output<bool>,
+}
+
+/// The controller program.
+pub struct Control {
+    p: ControlParams,
+    state: Input<i16>,
+    enable: Input<bool>,
+    setpoint_time: Input<f64>,
+    stop: Input<bool>,
+    interlock: Output<bool>,
+    drives: [Drive; 2],
+    pi: [Pi; 2],
+}
+
+impl Control {
+    /// Declares the program's variables.
+    pub fn create(args: &ProgramArgs<'_>, decl: &mut Declare<'_>) -> Box<dyn Program> {
+        let p: ControlParams = args.parse(decl);
+        for (k, v) in [
+            ("kp", p.kp),
+            ("ki", p.ki),
+            ("max_following_error_mm", p.max_following_error_mm),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                decl.issue(&format!("params.{k}"), format!("must be zero or positive, got {v}"));
+            }
+        }
+        if !(p.output_limit > 0.0 && p.output_limit <= 1.0) {
+            decl.issue(
+                "params.output_limit",
+                format!("must be in (0, 1], got {}", p.output_limit),
+            );
+        }
+        let drive = |s: &str, upper: &str, lower: &str, decl: &mut Declare<'_>| Drive {
+            position: decl.input(&format!("position_{s}_mm")),
+            setpoint: decl.input(&format!("setpoint_{s}_mm")),
+            setpoint_velocity: decl.input(&format!("setpoint_{s}_mm_s")),
+            fault: decl.input(&format!("encoder_fault_{s}")),
+            bridge_error: decl.input(&format!("bridge_error_{s}")),
+            switches: [decl.input(lower), decl.input(upper)],
+            pwm: decl.output(&format!("velocity_{s}_set"), 0),
+            following_error: decl.output(&format!("following_error_{s}"), false),
+        };
+        let drives = [
+            drive("left", "SWITCH_LEFT_UPPER", "SWITCH_LEFT_DOWN", decl),
+            drive("right", "SWITCH_RIGHT_UPPER", "SWITCH_RIGHT_DOWN", decl),
+        ];
+        Box::new(Control {
+            p,
+            state: decl.input("main_state"),
+            enable: decl.input("drives_enable"),
+            setpoint_time: decl.input("setpoint_time_s"),
+            stop: decl.input("BUTTON_STOP"),
+            interlock: decl.output("interlock", false),
+            drives,
+            pi: [Pi::default(); 2],
+        })
+    }
+}
+
+impl Program for Control {
+    fn cycle(&mut self, ctx: &mut Cycle<'_>) {
+        let state = MainState::from_code(ctx.get(self.state));
+        let in_init = state == Some(MainState::Init);
+        let driving_state = matches!(state, Some(MainState::Init | MainState::Ready | MainState::Motion));
+        let any = |ctx: &Cycle<'_>, f: &dyn Fn(&Drive) -> Input<bool>| self.drives.iter().any(|d| ctx.get(f(d)));
+        let switch = self.drives.iter().any(|d| d.switches.iter().any(|s| ctx.get(*s)));
+        let interlock = ctx.get(self.stop)
+            || (switch && !in_init)
+            || any(ctx, &|d| d.bridge_error)
+            || any(ctx, &|d| d.fault)
+            || !driving_state
+            || !ctx.get(self.enable);
+        ctx.set(self.interlock, interlock);
+        let dt = ctx.period_ns() as f64 * 1e-9;
+        // The main program publishes set-points every 50 ms with their velocity and time; between
+        // its cycles the set-point moves on at that velocity, so ramps reach the drives smoothly.
+        let since = (ctx.time_ns() as f64 * 1e-9 - ctx.get(self.setpoint_time)).max(0.0);
+        for (d, pi) in self.drives.iter().zip(self.pi.iter_mut()) {
+            let setpoint = ctx.get(d.setpoint) + ctx.get(d.setpoint_velocity) * since;
+            let e = setpoint - ctx.get(d.position);
+            let duty = if interlock {
+                pi.reset();
+                0.0
+            } else {
+                pi.step(&self.p, e, dt)
+            };
+            ctx.set(d.pwm, (duty * 32767.0).round() as i16);
+            // Latched until the next enable: the main program turns it into ERROR.
+            let latched = ctx.output_value(d.following_error) && !interlock;
+            ctx.set(
+                d.following_error,
+                latched || (!interlock && e.abs() > self.p.max_following_error_mm),
+            );
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn pi_saturates_without_winding_up() {
+        let p = ControlParams::default();
+        let mut pi = Pi::default();
+        for _ in 0..1000 {
+            assert_eq!(pi.step(&p, 100.0, 0.01), 1.0);
+        }
+        // After a long saturation the integral has not grown, so a small error gives a small duty.
+        let out = pi.step(&p, 0.1, 0.01);
+        assert!(out < 0.2, "{out}");
+    }
+}

@@ -1,0 +1,198 @@
+//! The encoder program (10 ms class): unwraps both 16-bit counters to absolute counts, converts
+//! them to millimetres of carriage travel, estimates velocities, flags implausible jumps, and
+//! latches the count at every edge of a limit switch (a touch-probe capture: referencing then
+//! knows the switch position to one count, although the main program runs only every 50 ms).
+
+use serde::Deserialize;
+
+use crate::image::{Declare, Input, Output};
+use crate::program::{Cycle, Program, ProgramArgs};
+
+/// Parameters of the encoder program.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct EncoderParams {
+    /// Counts per mm of carriage travel (must match the drive: encoder × gearbox ÷ lead).
+    pub counts_per_mm: f64,
+    /// A change of more than this many counts in one cycle is an encoder fault (must be below
+    /// 32768, half the counter range, where the unwrap becomes ambiguous).
+    pub max_counts_per_cycle: u16,
+}
+
+impl Default for EncoderParams {
+    fn default() -> Self {
+        // 80 mm/s × 7000 counts/mm × 10 ms = 5600 counts per cycle at full speed.
+        EncoderParams {
+            counts_per_mm: 7000.0,
+            max_counts_per_cycle: 12_000,
+        }
+    }
+}
+
+/// Unwraps a wrapping 16-bit counter: the absolute count after `previous` (absolute) saw the raw
+/// counter go from `last_raw` to `raw`. Exact for any true change of less than half the counter
+/// range; returns the signed change as well.
+pub fn unwrap(previous: i64, last_raw: i16, raw: i16) -> (i64, i64) {
+    let delta = i64::from(raw.wrapping_sub(last_raw));
+    (previous + delta, delta)
+}
+
+/// One drive's encoder state.
+#[derive(Clone, Copy, Debug, Default)]
+struct Channel {
+    started: bool,
+    last_raw: i16,
+    counts: i64,
+    fault: bool,
+    last_switch: [bool; 2],
+}
+
+struct Vars {
+    raw: Input<i16>,
+    switches: [Input<bool>; 2],
+    counts: Output<i32>,
+    position: Output<f64>,
+    velocity: Output<f64>,
+    fault: Output<bool>,
+    capture: [Output<i32>; 2],
+    captured: [Output<i32>; 2],
+}
+
+/// The encoder program.
+pub struct Encoders {
+    p: EncoderParams,
+    reference: [Input<i32>; 2],
+    ack: Input<bool>,
+    vars: [Vars; 2],
+    state: [Channel; 2],
+    last_ack: bool,
+}
+
+impl Encoders {
+    /// Declares the program's variables (`*_left_*`, `*_right_*`).
+    pub fn create(args: &ProgramArgs<'_>, decl: &mut Declare<'_>) -> Box<dyn Program> {
+        let p: EncoderParams = args.parse(decl);
+        if !(p.counts_per_mm.is_finite() && p.counts_per_mm > 0.0) {
+            decl.issue(
+                "params.counts_per_mm",
+                format!("must be positive, got {}", p.counts_per_mm),
+            );
+        }
+        if p.max_counts_per_cycle == 0 || p.max_counts_per_cycle >= 32_768 {
+            decl.issue(
+                "params.max_counts_per_cycle",
+                format!(
+                    "must be 1 … 32767 (half the counter range), got {}",
+                    p.max_counts_per_cycle
+                ),
+            );
+        }
+        let side = |s: &str, decl: &mut Declare<'_>| {
+            let upper = if s == "left" {
+                "SWITCH_LEFT_UPPER"
+            } else {
+                "SWITCH_RIGHT_UPPER"
+            };
+            let lower = if s == "left" {
+                "SWITCH_LEFT_DOWN"
+            } else {
+                "SWITCH_RIGHT_DOWN"
+            };
+            Vars {
+                raw: decl.input(&format!("encoder_{s}_counter")),
+                switches: [decl.input(lower), decl.input(upper)],
+                counts: decl.output(&format!("counts_{s}"), 0),
+                position: decl.output(&format!("position_{s}_mm"), 0.0),
+                velocity: decl.output(&format!("velocity_{s}_mm_s"), 0.0),
+                fault: decl.output(&format!("encoder_fault_{s}"), false),
+                capture: [
+                    decl.output(&format!("capture_{s}_lower"), 0),
+                    decl.output(&format!("capture_{s}_upper"), 0),
+                ],
+                captured: [
+                    decl.output(&format!("captures_{s}_lower"), 0),
+                    decl.output(&format!("captures_{s}_upper"), 0),
+                ],
+            }
+        };
+        let vars = [side("left", decl), side("right", decl)];
+        Box::new(Encoders {
+            p,
+            reference: [
+                decl.input("reference_left_counts"),
+                decl.input("reference_right_counts"),
+            ],
+            ack: decl.input("encoder_fault_ack"),
+            vars,
+            state: [Channel::default(); 2],
+            last_ack: false,
+        })
+    }
+}
+
+impl Program for Encoders {
+    fn cycle(&mut self, ctx: &mut Cycle<'_>) {
+        let ack = ctx.get(self.ack);
+        let ack_edge = ack && !self.last_ack;
+        self.last_ack = ack;
+        let dt = ctx.period_ns() as f64 * 1e-9;
+        for (i, v) in self.vars.iter().enumerate() {
+            let s = &mut self.state[i];
+            let raw = ctx.get(v.raw);
+            if !s.started {
+                s.started = true;
+                s.last_raw = raw;
+                s.counts = i64::from(raw);
+            }
+            let (counts, delta) = unwrap(s.counts, s.last_raw, raw);
+            s.last_raw = raw;
+            if ack_edge {
+                s.fault = false;
+            }
+            if delta.unsigned_abs() > u64::from(self.p.max_counts_per_cycle) {
+                // Not a plausible motion: keep the last good count and report the fault, rather
+                // than a position that may be wrong by a whole counter range.
+                s.fault = true;
+            } else {
+                s.counts = counts;
+            }
+            let counts32 = i32::try_from(s.counts).unwrap_or(if s.counts < 0 { i32::MIN } else { i32::MAX });
+            ctx.set(v.counts, counts32);
+            let reference = i64::from(ctx.get(self.reference[i]));
+            let position = (s.counts - reference) as f64 / self.p.counts_per_mm;
+            let previous = ctx.output_value(v.position);
+            ctx.set(v.position, position);
+            // A first-order filtered difference: one count per cycle is 1.4 mm/s of noise.
+            let raw_velocity = if ctx.cycle() == 0 {
+                0.0
+            } else {
+                (position - previous) / dt
+            };
+            let velocity = ctx.output_value(v.velocity) * 0.5 + raw_velocity * 0.5;
+            ctx.set(v.velocity, velocity);
+            ctx.set(v.fault, s.fault);
+            for end in 0..2 {
+                let on = ctx.get(v.switches[end]);
+                if on && !s.last_switch[end] {
+                    ctx.set(v.capture[end], counts32);
+                    let n = ctx.output_value(v.captured[end]).wrapping_add(1);
+                    ctx.set(v.captured[end], n);
+                }
+                s.last_switch[end] = on;
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::unwrap;
+
+    #[test]
+    fn unwrap_across_the_wrap_points() {
+        assert_eq!(unwrap(32_767, 32_767, -32_768), (32_768, 1));
+        assert_eq!(unwrap(-32_768, -32_768, 32_767), (-32_769, -1));
+        // A true change of +33 436 is more than half the range: it reads as −32 100.
+        assert_eq!(unwrap(100, 100, -32_000), (-32_000, -32_100));
+    }
+}
