@@ -89,12 +89,11 @@ impl Plc {
                     continue;
                 };
                 let mut decl = Declare::new(&mut table, ci, info.name, &at);
-                let program = (info.factory)(
-                    &ProgramArgs {
-                        params: entry.params.as_ref(),
-                    },
-                    &mut decl,
-                );
+                let args = ProgramArgs {
+                    params: entry.params.as_ref(),
+                    kinematics: config.kinematics.as_ref(),
+                };
+                let program = (info.factory)(&args, &mut decl);
                 programs.push(Slot {
                     name: info.name.to_string(),
                     program,

@@ -116,6 +116,9 @@ pub trait Program: Send {
 pub struct ProgramArgs<'a> {
     /// The `params` object of the program entry, if there is one.
     pub params: Option<&'a serde_json::Value>,
+    /// The configuration's `kinematics` section (machine geometry), if there is one; checked
+    /// separately, so programs may take it as valid.
+    pub kinematics: Option<&'a serde_json::Value>,
 }
 
 impl ProgramArgs<'_> {

@@ -212,7 +212,7 @@ fn program_checks() {
             class(r#"{"programs": [{"program": "encoder"}]}"#)
         )),
         "cfg.json: at task_classes[0].programs[0].program: unknown program \"encoder\"; known programs: \
-         selftest.producer, selftest.consumer, selftest.idle"
+         selftest.producer, selftest.consumer, selftest.idle, trijoint.encoders, trijoint.main, trijoint.control"
     );
     assert_eq!(
         error(&format!(

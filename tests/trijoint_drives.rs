@@ -95,8 +95,8 @@ fn registry() -> Registry {
         factory: |args: &ProgramArgs<'_>, decl: &mut Declare<'_>| {
             let p: StandInParams = args.parse(decl);
             // The references stay at 0: positions are relative to the counters at power-on.
-            decl.output::<i32>("reference_left_counts", 0);
-            decl.output::<i32>("reference_right_counts", 0);
+            decl.output::<f64>("reference_left_mm", 0.0);
+            decl.output::<f64>("reference_right_mm", 0.0);
             decl.output::<bool>("encoder_fault_ack", false);
             Box::new(MainStandIn {
                 p,

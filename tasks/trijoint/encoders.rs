@@ -1,6 +1,6 @@
 //! The encoder program (10 ms class): unwraps both 16-bit counters to absolute counts, converts
 //! them to millimetres of carriage travel, estimates velocities, flags implausible jumps, and
-//! latches the count at every edge of a limit switch (a touch-probe capture: referencing then
+//! latches the position at every rising edge of a limit switch (a touch-probe capture: referencing then
 //! knows the switch position to one count, although the main program runs only every 50 ms).
 
 use serde::Deserialize;
@@ -54,14 +54,14 @@ struct Vars {
     position: Output<f64>,
     velocity: Output<f64>,
     fault: Output<bool>,
-    capture: [Output<i32>; 2],
+    capture: [Output<f64>; 2],
     captured: [Output<i32>; 2],
 }
 
 /// The encoder program.
 pub struct Encoders {
     p: EncoderParams,
-    reference: [Input<i32>; 2],
+    reference: [Input<f64>; 2],
     ack: Input<bool>,
     vars: [Vars; 2],
     state: [Channel; 2],
@@ -106,8 +106,8 @@ impl Encoders {
                 velocity: decl.output(&format!("velocity_{s}_mm_s"), 0.0),
                 fault: decl.output(&format!("encoder_fault_{s}"), false),
                 capture: [
-                    decl.output(&format!("capture_{s}_lower"), 0),
-                    decl.output(&format!("capture_{s}_upper"), 0),
+                    decl.output(&format!("capture_{s}_lower_mm"), 0.0),
+                    decl.output(&format!("capture_{s}_upper_mm"), 0.0),
                 ],
                 captured: [
                     decl.output(&format!("captures_{s}_lower"), 0),
@@ -118,10 +118,7 @@ impl Encoders {
         let vars = [side("left", decl), side("right", decl)];
         Box::new(Encoders {
             p,
-            reference: [
-                decl.input("reference_left_counts"),
-                decl.input("reference_right_counts"),
-            ],
+            reference: [decl.input("reference_left_mm"), decl.input("reference_right_mm")],
             ack: decl.input("encoder_fault_ack"),
             vars,
             state: [Channel::default(); 2],
@@ -158,8 +155,9 @@ impl Program for Encoders {
             }
             let counts32 = i32::try_from(s.counts).unwrap_or(if s.counts < 0 { i32::MIN } else { i32::MAX });
             ctx.set(v.counts, counts32);
-            let reference = i64::from(ctx.get(self.reference[i]));
-            let position = (s.counts - reference) as f64 / self.p.counts_per_mm;
+            // Counts since power-on, in mm; the reference (set by INIT) moves 0 to the lower switch.
+            let absolute = s.counts as f64 / self.p.counts_per_mm;
+            let position = absolute - ctx.get(self.reference[i]);
             let previous = ctx.output_value(v.position);
             ctx.set(v.position, position);
             // A first-order filtered difference: one count per cycle is 1.4 mm/s of noise.
@@ -174,7 +172,7 @@ impl Program for Encoders {
             for end in 0..2 {
                 let on = ctx.get(v.switches[end]);
                 if on && !s.last_switch[end] {
-                    ctx.set(v.capture[end], counts32);
+                    ctx.set(v.capture[end], absolute);
                     let n = ctx.output_value(v.captured[end]).wrapping_add(1);
                     ctx.set(v.captured[end], n);
                 }

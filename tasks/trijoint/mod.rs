@@ -6,6 +6,7 @@
 
 pub mod control;
 pub mod encoders;
+pub mod main_program;
 pub mod state;
 
 use crate::program::{ProgramInfo, Registry};
@@ -17,6 +18,11 @@ pub fn register(registry: &mut Registry) {
             name: "trijoint.encoders",
             summary: "10 ms: unwraps the 16-bit counters, positions and velocities in mm, encoder faults, switch captures",
             factory: encoders::Encoders::create,
+        })
+                .register(ProgramInfo {
+            name: "trijoint.main",
+            summary: "50 ms: the REBOOT/INIT/READY/MOTION/ERROR automaton, referencing, jogging M in the plane",
+            factory: main_program::MainProgram::create,
         })
         .register(ProgramInfo {
             name: "trijoint.control",

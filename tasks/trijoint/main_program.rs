@@ -1,0 +1,789 @@
+//! The main program (50 ms class, HW_obsluha of the original): the REBOOT → INIT → READY ⇄ MOTION
+//! and ERROR automaton of application.md, as a statig state machine.
+//!
+//! Every cycle dispatches one event: an accepted STOP press, else a supervision fault, else a tick.
+//! The superstate `operating` (INIT, READY, MOTION) turns STOP and faults into ERROR; ERROR turns
+//! an accepted STOP press into REBOOT (acknowledgement). STOP acts on the press (the rising edge),
+//! not the level: with the original's level semantics, holding STOP longer than the lockout would
+//! acknowledge the error and restart INIT while the button is still held.
+
+use serde::Deserialize;
+use statig::prelude::*;
+
+use super::state::MainState;
+use crate::image::{Declare, Input, Output};
+use crate::program::{AppStatus, Cycle, Program, ProgramArgs};
+use crate::tasks::kinematics::trijoint::{Trijoint, TrijointParams};
+use crate::tasks::kinematics::{Kinematics, KinematicsConfig};
+
+/// Parameters of the main program.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct MainParams {
+    /// After an accepted STOP press the button is ignored this long (ms).
+    pub stop_lockout_ms: u64,
+    /// PWM period written to the motor bridges (µs).
+    pub pwm_period_us: u16,
+    /// Speed of the coarse switch search and of moves in INIT (mm/s).
+    pub init_speed_mm_s: f64,
+    /// Speed of the second approach to a switch (mm/s).
+    pub approach_speed_mm_s: f64,
+    /// Speed of the final approach (mm/s): at most one encoder count per 10 ms cycle, so that the
+    /// switch position is known to one count (7000 counts/mm: 0.0143 mm/s).
+    pub creep_speed_mm_s: f64,
+    /// The second approach starts this far before the coarse switch position (mm).
+    pub approach_distance_mm: f64,
+    /// The final approach starts this far before the second approach's switch position (mm).
+    pub creep_distance_mm: f64,
+    /// A switch not found within this time is an INIT timeout (s).
+    pub search_timeout_s: f64,
+    /// Carriage positions after INIT, from the lower switches (mm); default: the middle.
+    pub start_position_mm: Option<[f64; 2]>,
+    /// Software limits lie this far inside the switches (mm).
+    pub soft_limit_margin_mm: f64,
+    /// Speed of the spindle point M at full joystick deflection (mm/s).
+    pub max_speed_mm_s: f64,
+    /// Joystick deflections below this count as released.
+    pub dead_zone: f64,
+    /// M is never commanded where the singularity measure is below this.
+    pub singularity_threshold: f64,
+}
+
+impl Default for MainParams {
+    fn default() -> Self {
+        MainParams {
+            stop_lockout_ms: 500,
+            pwm_period_us: 50,
+            init_speed_mm_s: 15.0,
+            approach_speed_mm_s: 1.0,
+            creep_speed_mm_s: 0.012,
+            approach_distance_mm: 0.5,
+            creep_distance_mm: 0.03,
+            search_timeout_s: 30.0,
+            start_position_mm: None,
+            soft_limit_margin_mm: 2.0,
+            max_speed_mm_s: 20.0,
+            dead_zone: 0.05,
+            singularity_threshold: 0.3,
+        }
+    }
+}
+
+/// Why the machine is in ERROR.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Reason {
+    /// The STOP button.
+    Stop,
+    /// A limit switch in READY or MOTION (index: left upper, left down, right upper, right down).
+    LimitSwitch(usize),
+    /// An implausible encoder change (drive 0 left, 1 right).
+    EncoderFault(usize),
+    /// A motor bridge error (drive).
+    BridgeError(usize),
+    /// A following error (drive).
+    FollowingError(usize),
+    /// A cycle time violation reported by the runtime.
+    CycleTimeViolation,
+    /// A switch not reached in time during INIT (drive).
+    InitTimeout(usize),
+    /// The wrong switch during INIT (switch index as for `LimitSwitch`).
+    InitWrongSwitch(usize),
+}
+
+const SWITCH_NAMES: [&str; 4] = [
+    "SWITCH_LEFT_UPPER",
+    "SWITCH_LEFT_DOWN",
+    "SWITCH_RIGHT_UPPER",
+    "SWITCH_RIGHT_DOWN",
+];
+
+impl Reason {
+    /// The reason as users read it.
+    pub fn text(self) -> &'static str {
+        const LIMIT: [&str; 4] = [
+            "limit switch SWITCH_LEFT_UPPER",
+            "limit switch SWITCH_LEFT_DOWN",
+            "limit switch SWITCH_RIGHT_UPPER",
+            "limit switch SWITCH_RIGHT_DOWN",
+        ];
+        const WRONG: [&str; 4] = [
+            "INIT: wrong switch SWITCH_LEFT_UPPER",
+            "INIT: wrong switch SWITCH_LEFT_DOWN",
+            "INIT: wrong switch SWITCH_RIGHT_UPPER",
+            "INIT: wrong switch SWITCH_RIGHT_DOWN",
+        ];
+        const SIDE: [[&str; 2]; 4] = [
+            ["encoder fault left", "encoder fault right"],
+            ["motor bridge error left", "motor bridge error right"],
+            ["following error left", "following error right"],
+            ["INIT timeout left", "INIT timeout right"],
+        ];
+        match self {
+            Reason::Stop => "STOP",
+            Reason::LimitSwitch(i) => LIMIT[i.min(3)],
+            Reason::EncoderFault(d) => SIDE[0][d.min(1)],
+            Reason::BridgeError(d) => SIDE[1][d.min(1)],
+            Reason::FollowingError(d) => SIDE[2][d.min(1)],
+            Reason::CycleTimeViolation => "cycle time violation",
+            Reason::InitTimeout(d) => SIDE[3][d.min(1)],
+            Reason::InitWrongSwitch(i) => WRONG[i.min(3)],
+        }
+    }
+
+    /// A number for the process image (`error_reason`): 0 is no error.
+    pub fn code(self) -> i16 {
+        match self {
+            Reason::Stop => 1,
+            Reason::LimitSwitch(i) => 10 + i as i16,
+            Reason::EncoderFault(d) => 20 + d as i16,
+            Reason::BridgeError(d) => 30 + d as i16,
+            Reason::FollowingError(d) => 40 + d as i16,
+            Reason::CycleTimeViolation => 50,
+            Reason::InitTimeout(d) => 60 + d as i16,
+            Reason::InitWrongSwitch(i) => 70 + i as i16,
+        }
+    }
+}
+
+/// The events the automaton handles.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Event {
+    /// An accepted STOP press.
+    Stop,
+    /// A supervision fault.
+    Fault(Reason),
+    /// A cycle without either.
+    Tick,
+}
+
+/// Which end of a drive's travel.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum End {
+    Lower = 0,
+    Upper = 1,
+}
+
+impl End {
+    fn direction(self) -> f64 {
+        match self {
+            End::Lower => -1.0,
+            End::Upper => 1.0,
+        }
+    }
+
+    fn other(self) -> End {
+        match self {
+            End::Lower => End::Upper,
+            End::Upper => End::Lower,
+        }
+    }
+
+    /// Index of drive `i`'s switch at this end in [`SWITCH_NAMES`] order.
+    fn switch(self, drive: usize) -> usize {
+        drive * 2 + if self == End::Upper { 0 } else { 1 }
+    }
+}
+
+/// One drive's progress through referencing. Each switch is found three times, ever slower:
+/// stage 0 at the init speed, stage 1 at the approach speed, stage 2 creeping at most one count
+/// per 10 ms cycle; the encoder program's capture of the last one is the switch position.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Search {
+    /// Moving towards the switch until its capture counter moves past `seen[end]`.
+    Seek {
+        end: End,
+        stage: u8,
+        seen: [i32; 2],
+        since_s: f64,
+    },
+    /// Moving back to `target`, clear of the switch, before the next stage.
+    Retreat { end: End, stage: u8, target: f64 },
+    /// Both switches found; waiting for the other drive.
+    Found,
+    /// Moving to the start position.
+    ToStart { target: f64 },
+    /// At the start position.
+    Done,
+}
+
+/// Inputs and outputs of one cycle, shared with the states.
+#[derive(Clone, Debug, Default)]
+pub struct Io {
+    now_s: f64,
+    dt_s: f64,
+    positions: [f64; 2],
+    switches: [bool; 4],
+    captures: [[f64; 2]; 2],
+    capture_counts: [[i32; 2]; 2],
+    joystick: [f64; 2],
+    buttons: [bool; 4],
+    // Outputs. A set-point is published with its velocity: the 10 ms controller moves it on at
+    // that velocity until the next main cycle.
+    enable: bool,
+    setpoints: [f64; 2],
+    velocities: [f64; 2],
+    references: [f64; 2],
+    acknowledge: bool,
+    referenced: bool,
+}
+
+impl Io {
+    /// Holds both drives at their current set-points.
+    fn hold(&mut self) {
+        self.velocities = [0.0; 2];
+    }
+
+    /// Moves set-point `i` towards `target` at up to `speed`; true once it is there.
+    fn ramp_to(&mut self, i: usize, target: f64, speed: f64) -> bool {
+        let gap = target - self.setpoints[i];
+        self.velocities[i] = (gap / self.dt_s).clamp(-speed, speed);
+        gap.abs() < 1e-9
+    }
+}
+
+/// The automaton's shared storage.
+pub struct Automaton {
+    p: MainParams,
+    geometry: TrijointParams,
+    state: MainState,
+    /// When the current state was entered (s); REBOOT lasts one cycle.
+    entered_s: f64,
+    reason: Option<Reason>,
+    edges: [[f64; 2]; 2],
+    limits: Option<Trijoint>,
+    m_setpoint: [f64; 2],
+    searches: [Search; 2],
+}
+
+#[state_machine(initial = "State::reboot()", context_identifier = "io")]
+impl Automaton {
+    #[state(entry_action = "enter_reboot")]
+    fn reboot(&mut self, io: &mut Io, event: &Event) -> Outcome<State> {
+        match event {
+            // The acknowledge pulses go out for the one cycle REBOOT lasts; then reference.
+            Event::Tick if io.now_s > self.entered_s => Transition(State::init()),
+            _ => Handled,
+        }
+    }
+
+    #[action]
+    fn enter_reboot(&mut self, io: &mut Io) {
+        self.state = MainState::Reboot;
+        self.entered_s = io.now_s;
+        self.reason = None;
+        self.limits = None;
+        io.enable = false;
+        io.acknowledge = true;
+        io.referenced = false;
+        io.references = [0.0; 2];
+        io.hold();
+    }
+
+    #[superstate]
+    fn operating(&mut self, event: &Event) -> Outcome<State> {
+        match event {
+            Event::Stop => Transition(State::error(Reason::Stop)),
+            Event::Fault(reason) => Transition(State::error(*reason)),
+            Event::Tick => Handled,
+        }
+    }
+
+    #[state(superstate = "operating", entry_action = "enter_init")]
+    fn init(&mut self, io: &mut Io, event: &Event) -> Outcome<State> {
+        if *event != Event::Tick {
+            return Super;
+        }
+        io.enable = true;
+        io.acknowledge = false;
+        for i in 0..2 {
+            if let Err(reason) = self.step_search(io, i) {
+                return Transition(State::error(reason));
+            }
+        }
+        if self.searches.iter().all(|s| *s == Search::Found) {
+            self.finish_referencing(io);
+        }
+        if self.searches.iter().all(|s| *s == Search::Done) {
+            return Transition(State::ready());
+        }
+        Handled
+    }
+
+    #[action]
+    fn enter_init(&mut self, io: &mut Io) {
+        self.state = MainState::Init;
+        io.setpoints = io.positions;
+        io.hold();
+        self.searches = [0, 1].map(|i| Search::Seek {
+            end: End::Upper,
+            stage: 0,
+            seen: io.capture_counts[i],
+            since_s: io.now_s,
+        });
+    }
+
+    #[state(superstate = "operating", entry_action = "enter_ready")]
+    fn ready(&mut self, io: &mut Io, event: &Event) -> Outcome<State> {
+        if *event != Event::Tick {
+            return Super;
+        }
+        io.hold();
+        if self.command(io) != [0.0; 2] {
+            return Transition(State::motion());
+        }
+        Handled
+    }
+
+    #[action]
+    fn enter_ready(&mut self, io: &mut Io) {
+        self.state = MainState::Ready;
+        io.hold();
+    }
+
+    #[state(superstate = "operating", entry_action = "enter_motion")]
+    fn motion(&mut self, io: &mut Io, event: &Event) -> Outcome<State> {
+        if *event != Event::Tick {
+            return Super;
+        }
+        let v = self.command(io);
+        if v == [0.0; 2] {
+            io.hold();
+            return Transition(State::ready());
+        }
+        self.jog(io, v);
+        Handled
+    }
+
+    #[action]
+    fn enter_motion(&mut self) {
+        self.state = MainState::Motion;
+    }
+
+    #[state(entry_action = "enter_error")]
+    fn error(reason: &mut Reason, io: &mut Io, event: &Event) -> Outcome<State> {
+        // The reason is kept in the state (and in shared storage for the status, on entry).
+        let _ = reason;
+        // Drives off; the set-points follow the carriages, so that re-enabling is bumpless.
+        io.enable = false;
+        io.setpoints = io.positions;
+        io.hold();
+        match event {
+            Event::Stop => Transition(State::reboot()),
+            _ => Handled,
+        }
+    }
+
+    #[action]
+    fn enter_error(&mut self, reason: &mut Reason, io: &mut Io) {
+        self.state = MainState::Error;
+        self.reason = Some(*reason);
+        io.enable = false;
+        io.setpoints = io.positions;
+        io.hold();
+    }
+}
+
+impl Automaton {
+    /// The automaton in REBOOT, with its parameters and the machine's geometry.
+    pub fn new(p: MainParams, geometry: TrijointParams) -> Self {
+        Automaton {
+            p,
+            geometry,
+            state: MainState::Reboot,
+            entered_s: 0.0,
+            reason: None,
+            edges: [[0.0; 2]; 2],
+            limits: None,
+            m_setpoint: [0.0; 2],
+            searches: [Search::Done; 2],
+        }
+    }
+
+    /// The operator's command as a velocity of M (mm/s): joystick, else direction buttons.
+    fn command(&self, io: &Io) -> [f64; 2] {
+        let dz = self.p.dead_zone;
+        let [jx, jy] = io.joystick;
+        let (mut x, mut y) = (
+            if jx.abs() > dz { jx } else { 0.0 },
+            if jy.abs() > dz { jy } else { 0.0 },
+        );
+        if x == 0.0 && y == 0.0 {
+            let [left, right, up, down] = io.buttons.map(|b| f64::from(u8::from(b)));
+            x = right - left;
+            y = up - down;
+        }
+        [x * self.p.max_speed_mm_s, y * self.p.max_speed_mm_s]
+    }
+
+    /// Whether M may be commanded to `m`: reachable inside the software limits and not near a
+    /// singularity. Writes the carriage positions for it into `joints`.
+    fn allowed(&self, m: [f64; 2], joints: &mut [f64; 2]) -> bool {
+        let Some(k) = &self.limits else { return false };
+        k.inverse(&m, joints).is_ok()
+            && k.singularity_measure(&m)
+                .is_ok_and(|s| s >= self.p.singularity_threshold)
+    }
+
+    /// Moves M's set-point by `v`·dt, stopping at the border of the allowed region.
+    fn jog(&mut self, io: &mut Io, v: [f64; 2]) {
+        let from = self.m_setpoint;
+        let at = |t: f64| [from[0] + v[0] * io.dt_s * t, from[1] + v[1] * io.dt_s * t];
+        let mut joints = [0.0; 2];
+        let mut t = 1.0;
+        if !self.allowed(at(1.0), &mut joints) {
+            // The border lies on this step: bisect for the farthest allowed point.
+            let (mut lo, mut hi) = (0.0, 1.0);
+            for _ in 0..30 {
+                let mid = (lo + hi) / 2.0;
+                if self.allowed(at(mid), &mut joints) {
+                    lo = mid;
+                } else {
+                    hi = mid;
+                }
+            }
+            t = lo;
+        }
+        if self.allowed(at(t), &mut joints) {
+            self.m_setpoint = at(t);
+            for ((v, q), sp) in io.velocities.iter_mut().zip(joints).zip(io.setpoints) {
+                *v = (q - sp) / io.dt_s;
+            }
+        } else {
+            io.hold();
+        }
+    }
+
+    /// One cycle of drive `i`'s referencing.
+    fn step_search(&mut self, io: &mut Io, i: usize) -> Result<(), Reason> {
+        let p = &self.p;
+        match self.searches[i] {
+            Search::Seek {
+                end,
+                stage,
+                seen,
+                since_s,
+            } => {
+                // The other switch tripping while seeking this one: wrong wiring or direction.
+                if io.capture_counts[i][end.other() as usize] != seen[end.other() as usize] {
+                    return Err(Reason::InitWrongSwitch(end.other().switch(i)));
+                }
+                if io.now_s - since_s > p.search_timeout_s {
+                    return Err(Reason::InitTimeout(i));
+                }
+                let speed = [p.init_speed_mm_s, p.approach_speed_mm_s, p.creep_speed_mm_s][usize::from(stage.min(2))];
+                if io.capture_counts[i][end as usize] != seen[end as usize] {
+                    let edge = io.captures[i][end as usize];
+                    io.setpoints[i] = io.positions[i];
+                    io.velocities[i] = 0.0;
+                    self.searches[i] = match (stage, end) {
+                        (0 | 1, _) => {
+                            let back = if stage == 0 {
+                                p.approach_distance_mm
+                            } else {
+                                p.creep_distance_mm
+                            };
+                            Search::Retreat {
+                                end,
+                                stage: stage + 1,
+                                target: edge - end.direction() * back,
+                            }
+                        }
+                        (_, End::Upper) => {
+                            self.edges[i][1] = edge;
+                            Search::Seek {
+                                end: End::Lower,
+                                stage: 0,
+                                seen: io.capture_counts[i],
+                                since_s: io.now_s,
+                            }
+                        }
+                        (_, End::Lower) => {
+                            self.edges[i][0] = edge;
+                            Search::Found
+                        }
+                    };
+                } else if stage == 0 && io.switches[end.switch(i)] {
+                    // Started on the switch: no edge to see from here; back off first.
+                    let target = io.positions[i] - end.direction() * p.approach_distance_mm;
+                    self.searches[i] = Search::Retreat { end, stage: 0, target };
+                } else {
+                    io.velocities[i] = end.direction() * speed;
+                }
+            }
+            Search::Retreat { end, stage, target } => {
+                let speed = if stage <= 1 {
+                    p.init_speed_mm_s
+                } else {
+                    p.approach_speed_mm_s
+                };
+                if io.ramp_to(i, target, speed) && (io.positions[i] - target).abs() < 0.005 {
+                    if io.switches[end.switch(i)] {
+                        // Still on the switch: back off further.
+                        let target = target - end.direction() * p.approach_distance_mm;
+                        self.searches[i] = Search::Retreat { end, stage, target };
+                    } else {
+                        self.searches[i] = Search::Seek {
+                            end,
+                            stage,
+                            seen: io.capture_counts[i],
+                            since_s: io.now_s,
+                        };
+                    }
+                }
+            }
+            Search::Found => io.hold(),
+            Search::ToStart { target } => {
+                if io.ramp_to(i, target, p.init_speed_mm_s) && (io.positions[i] - target).abs() < 0.01 {
+                    self.searches[i] = Search::Done;
+                }
+            }
+            Search::Done => io.velocities[i] = 0.0,
+        }
+        Ok(())
+    }
+
+    /// Both drives' switches are known: set the references (0 mm at the lower switches), the
+    /// software limits, and send the carriages to their start positions.
+    fn finish_referencing(&mut self, io: &mut Io) {
+        let travel = self.edges.map(|[lower, upper]| upper - lower);
+        for (i, [lower, _]) in self.edges.iter().enumerate() {
+            io.references[i] = *lower;
+            // The set-points move into the referenced frame with the positions.
+            io.setpoints[i] -= lower;
+        }
+        io.referenced = true;
+        let m = self.p.soft_limit_margin_mm;
+        let limits = Trijoint::new(&TrijointParams {
+            h1_travel: [m, travel[0] - m],
+            h2_travel: [m, travel[1] - m],
+            ..self.geometry.clone()
+        });
+        let start = self.p.start_position_mm.unwrap_or([travel[0] / 2.0, travel[1] / 2.0]);
+        let mut pose = [0.0; 2];
+        if limits.forward(&start, None, &mut pose).is_ok() {
+            self.m_setpoint = pose;
+        }
+        self.limits = Some(limits);
+        self.searches = [0, 1].map(|i| Search::ToStart { target: start[i] });
+    }
+
+    /// The measured carriage travel between the switches (mm), once referenced.
+    pub fn travel_mm(&self) -> Option<[f64; 2]> {
+        self.limits
+            .as_ref()
+            .map(|_| [self.edges[0][1] - self.edges[0][0], self.edges[1][1] - self.edges[1][0]])
+    }
+}
+
+struct Vars {
+    stop: Input<bool>,
+    switches: [Input<bool>; 4],
+    buttons: [Input<bool>; 4],
+    joystick: [Input<f64>; 2],
+    positions: [Input<f64>; 2],
+    captures: [[Input<f64>; 2]; 2],
+    capture_counts: [[Input<i32>; 2]; 2],
+    encoder_faults: [Input<bool>; 2],
+    bridge_errors: [Input<bool>; 2],
+    following_errors: [Input<bool>; 2],
+    state: Output<i16>,
+    reason: Output<i16>,
+    enable: Output<bool>,
+    setpoints: [Output<f64>; 2],
+    velocities: [Output<f64>; 2],
+    setpoint_time: Output<f64>,
+    references: [Output<f64>; 2],
+    acknowledge: Output<bool>,
+    clear_errors: [Output<bool>; 2],
+    period: Output<u16>,
+    referenced: Output<bool>,
+    m: [Output<f64>; 2],
+}
+
+/// The main program.
+pub struct MainProgram {
+    machine: StateMachine<Automaton>,
+    io: Io,
+    vars: Vars,
+    stop_was_pressed: bool,
+    stop_accepted_at: Option<f64>,
+    lockout_s: f64,
+    display: Trijoint,
+}
+
+impl MainProgram {
+    /// Declares the program's variables.
+    pub fn create(args: &ProgramArgs<'_>, decl: &mut Declare<'_>) -> Box<dyn Program> {
+        let p: MainParams = args.parse(decl);
+        for (k, v) in [
+            ("init_speed_mm_s", p.init_speed_mm_s),
+            ("approach_speed_mm_s", p.approach_speed_mm_s),
+            ("creep_speed_mm_s", p.creep_speed_mm_s),
+            ("approach_distance_mm", p.approach_distance_mm),
+            ("creep_distance_mm", p.creep_distance_mm),
+            ("search_timeout_s", p.search_timeout_s),
+            ("max_speed_mm_s", p.max_speed_mm_s),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                decl.issue(&format!("params.{k}"), format!("must be positive, got {v}"));
+            }
+        }
+        let geometry = args
+            .kinematics
+            .and_then(|k| serde_json::from_value::<KinematicsConfig>(k.clone()).ok())
+            .unwrap_or_default()
+            .trijoint;
+        let side = |s: &str| [format!("{s}_lower"), format!("{s}_upper")];
+        let vars = Vars {
+            stop: decl.input("BUTTON_STOP"),
+            switches: SWITCH_NAMES.map(|n| decl.input(n)),
+            buttons: ["BUTTON_LEFT", "BUTTON_RIGHT", "BUTTON_UP", "BUTTON_DOWN"].map(|n| decl.input(n)),
+            joystick: [decl.input("JOYSTICK_X"), decl.input("JOYSTICK_Y")],
+            positions: [decl.input("position_left_mm"), decl.input("position_right_mm")],
+            captures: ["left", "right"].map(|s| side(s).map(|n| decl.input(&format!("capture_{n}_mm")))),
+            capture_counts: ["left", "right"].map(|s| side(s).map(|n| decl.input(&format!("captures_{n}")))),
+            encoder_faults: [decl.input("encoder_fault_left"), decl.input("encoder_fault_right")],
+            bridge_errors: [decl.input("bridge_error_left"), decl.input("bridge_error_right")],
+            following_errors: [decl.input("following_error_left"), decl.input("following_error_right")],
+            state: decl.output("main_state", MainState::Reboot.code()),
+            reason: decl.output("error_reason", 0),
+            enable: decl.output("drives_enable", false),
+            setpoints: [
+                decl.output("setpoint_left_mm", 0.0),
+                decl.output("setpoint_right_mm", 0.0),
+            ],
+            velocities: [
+                decl.output("setpoint_left_mm_s", 0.0),
+                decl.output("setpoint_right_mm_s", 0.0),
+            ],
+            setpoint_time: decl.output("setpoint_time_s", 0.0),
+            references: [
+                decl.output("reference_left_mm", 0.0),
+                decl.output("reference_right_mm", 0.0),
+            ],
+            acknowledge: decl.output("encoder_fault_ack", false),
+            clear_errors: [
+                decl.output("clear_error_left", false),
+                decl.output("clear_error_right", false),
+            ],
+            period: decl.output("period_duration", 0),
+            referenced: decl.output("referenced", false),
+            m: [decl.output("M_x", 0.0), decl.output("M_y", 0.0)],
+        };
+        let lockout_s = p.stop_lockout_ms as f64 * 1e-3;
+        let display = Trijoint::new(&TrijointParams {
+            h1_travel: [-1e6, 1e6],
+            h2_travel: [-1e6, 1e6],
+            ..geometry.clone()
+        });
+        Box::new(MainProgram {
+            machine: Automaton::new(p, geometry).state_machine(),
+            io: Io::default(),
+            vars,
+            stop_was_pressed: false,
+            stop_accepted_at: None,
+            lockout_s,
+            display,
+        })
+    }
+
+    /// The automaton (for tests).
+    pub fn automaton(&self) -> &Automaton {
+        self.machine.inner()
+    }
+
+    /// Reads the inputs into `io` and advances the set-points to where the controller has taken
+    /// them since the last cycle.
+    fn read(&mut self, ctx: &Cycle<'_>) {
+        let (v, io) = (&self.vars, &mut self.io);
+        io.now_s = ctx.time_ns() as f64 * 1e-9;
+        io.dt_s = ctx.period_ns() as f64 * 1e-9;
+        io.positions = v.positions.map(|p| ctx.get(p));
+        io.switches = v.switches.map(|s| ctx.get(s));
+        io.buttons = v.buttons.map(|b| ctx.get(b));
+        io.joystick = v.joystick.map(|j| ctx.get(j));
+        io.captures = v.captures.map(|c| c.map(|x| ctx.get(x)));
+        io.capture_counts = v.capture_counts.map(|c| c.map(|x| ctx.get(x)));
+        for i in 0..2 {
+            io.setpoints[i] += io.velocities[i] * io.dt_s;
+        }
+    }
+
+    /// The event of this cycle.
+    fn event(&mut self, ctx: &Cycle<'_>) -> Event {
+        let v = &self.vars;
+        let state = self.machine.inner().state;
+        let now = self.io.now_s;
+        let pressed = ctx.get(v.stop);
+        let press = pressed && !self.stop_was_pressed;
+        self.stop_was_pressed = pressed;
+        let enabled = self.stop_accepted_at.is_none_or(|t| now - t >= self.lockout_s);
+        if press && enabled && state != MainState::Reboot {
+            self.stop_accepted_at = Some(now);
+            return Event::Stop;
+        }
+        if !matches!(state, MainState::Init | MainState::Ready | MainState::Motion) {
+            return Event::Tick;
+        }
+        if ctx.violation().is_some() {
+            return Event::Fault(Reason::CycleTimeViolation);
+        }
+        for d in 0..2 {
+            if ctx.get(v.encoder_faults[d]) {
+                return Event::Fault(Reason::EncoderFault(d));
+            }
+            if ctx.get(v.bridge_errors[d]) {
+                return Event::Fault(Reason::BridgeError(d));
+            }
+            if ctx.get(v.following_errors[d]) {
+                return Event::Fault(Reason::FollowingError(d));
+            }
+        }
+        if state != MainState::Init
+            && let Some(i) = self.io.switches.iter().position(|s| *s)
+        {
+            return Event::Fault(Reason::LimitSwitch(i));
+        }
+        Event::Tick
+    }
+
+    fn write(&mut self, ctx: &mut Cycle<'_>) {
+        let automaton = self.machine.inner();
+        let (v, io) = (&self.vars, &self.io);
+        ctx.set(v.state, automaton.state.code());
+        ctx.set(v.reason, automaton.reason.map_or(0, Reason::code));
+        ctx.set(v.enable, io.enable);
+        for i in 0..2 {
+            ctx.set(v.setpoints[i], io.setpoints[i]);
+            ctx.set(v.velocities[i], io.velocities[i]);
+            ctx.set(v.references[i], io.references[i]);
+            ctx.set(v.clear_errors[i], io.acknowledge);
+        }
+        ctx.set(v.setpoint_time, io.now_s);
+        ctx.set(v.acknowledge, io.acknowledge);
+        ctx.set(v.period, self.machine.inner().p.pwm_period_us);
+        ctx.set(v.referenced, io.referenced);
+        let mut m = [0.0; 2];
+        if io.referenced && self.display.forward(&io.positions, None, &mut m).is_ok() {
+            ctx.set(v.m[0], m[0]);
+            ctx.set(v.m[1], m[1]);
+        }
+    }
+}
+
+impl Program for MainProgram {
+    fn cycle(&mut self, ctx: &mut Cycle<'_>) {
+        self.read(ctx);
+        let event = self.event(ctx);
+        self.machine.handle_with_context(&event, &mut self.io);
+        self.write(ctx);
+    }
+
+    fn status(&self) -> Option<AppStatus<'_>> {
+        let a = self.machine.inner();
+        Some(AppStatus {
+            state: a.state.name(),
+            reason: a.reason.map(Reason::text),
+        })
+    }
+}

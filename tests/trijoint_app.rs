@@ -1,0 +1,330 @@
+//! The TRIJOINT application on the simulated machine, in virtual time, driven by scenarios:
+//! referencing, jogging, STOP with lockout and acknowledgement, faults.
+
+use std::path::{Path, PathBuf};
+
+use pkm_plc::config;
+use pkm_plc::image::Value;
+use pkm_plc::plc::Plc;
+use pkm_plc::run::VirtualClock;
+use pkm_plc::sim::bus::SimBus;
+use pkm_plc::sim::plant::Plant;
+use pkm_plc::tasks::kinematics::Kinematics;
+use pkm_plc::tasks::kinematics::trijoint::{Trijoint, TrijointParams};
+
+const COUNT_MM: f64 = 1.0 / 7000.0;
+
+/// The repository's config.json with the TRIJOINT programs, and a scenario.
+fn build(scenario: Option<&str>) -> Plc {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut c: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(root.join("config.json")).expect("config")).expect("json");
+    c["task_classes"][0]["programs"] =
+        serde_json::json!([{"program": "trijoint.encoders"}, {"program": "trijoint.control"}]);
+    c["task_classes"][1]["programs"] = serde_json::json!([{"program": "trijoint.main"}]);
+    let mut loaded = config::parse(&c.to_string(), "test-config.json").expect("parses");
+    loaded.dir = Some(PathBuf::from(root));
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = scenario.map(|s| {
+        let p = dir.path().join("scenario.json");
+        std::fs::write(&p, s).expect("write");
+        p
+    });
+    let kinematics = pkm_plc::application_config(&loaded.config).expect("kinematics");
+    let bus = pkm_plc::sim::build(&loaded, &kinematics.trijoint, path.as_deref()).expect("bus");
+    match Plc::build(&loaded.config, &pkm_plc::registry(), Box::new(bus)) {
+        Ok(p) => p,
+        Err(problems) => panic!("{problems:#?}"),
+    }
+}
+
+fn plant(plc: &Plc) -> &Plant {
+    plc.bus().as_any().downcast_ref::<SimBus>().expect("sim").plant()
+}
+
+fn var(plc: &Plc, name: &str) -> Value {
+    plc.global_image()[usize::from(plc.vars().index_of(name).expect("variable"))]
+}
+
+fn real(plc: &Plc, name: &str) -> f64 {
+    match var(plc, name) {
+        Value::Real(v) => v,
+        other => panic!("{name}: {other:?}"),
+    }
+}
+
+fn state(plc: &Plc) -> &str {
+    plc.app_status().map(|s| s.state).unwrap_or("")
+}
+
+/// Runs in virtual time from power-on; `each(plc, t_ms)` after every pass.
+fn run(plc: &mut Plc, until_ms: u64, mut each: impl FnMut(&Plc, u64)) {
+    let mut clock = VirtualClock::default();
+    plc.init(0, &mut clock);
+    while plc.next_release() < until_ms * 1_000_000 {
+        let t = plc.next_release();
+        clock.advance_to(t);
+        plc.run_due(&mut clock, u64::MAX);
+        each(plc, t / 1_000_000);
+    }
+}
+
+/// State changes as (time ms, state, reason).
+fn transitions(plc: &mut Plc, until_ms: u64) -> Vec<(u64, String, Option<String>)> {
+    let mut seen: Vec<(u64, String, Option<String>)> = Vec::new();
+    run(plc, until_ms, |plc, t| {
+        let s = plc.app_status().expect("status");
+        if seen.last().is_none_or(|(_, st, _)| st != s.state) {
+            seen.push((t, s.state.to_string(), s.reason.map(str::to_string)));
+        }
+    });
+    seen
+}
+
+#[test]
+fn power_on_references_the_machine_and_reaches_ready() {
+    let mut plc = build(None);
+    let seen = transitions(&mut plc, 60_000);
+    let names: Vec<&str> = seen.iter().map(|(_, s, _)| s.as_str()).collect();
+    assert_eq!(names, ["REBOOT", "INIT", "READY"], "{seen:?}");
+    let ready_at = seen[2].0;
+    eprintln!("READY after {ready_at} ms");
+    // Referenced positions are the plant's true positions from the lower switch (at 0 mm).
+    let p = plant(&plc);
+    for (i, side) in ["left", "right"].iter().enumerate() {
+        let measured = real(&plc, &format!("position_{side}_mm"));
+        assert!(
+            (measured - p.position_mm(i)).abs() <= COUNT_MM + 1e-9,
+            "{side}: {measured} vs {}",
+            p.position_mm(i)
+        );
+        assert!(
+            (p.position_mm(i) - 125.0).abs() < 0.01,
+            "{side} at the middle: {}",
+            p.position_mm(i)
+        );
+    }
+}
+
+/// The TRIJOINT kinematics with the default geometry, unlimited travel (for the plant's truth).
+fn truth() -> Trijoint {
+    Trijoint::new(&TrijointParams {
+        h1_travel: [-1e3, 1e3],
+        h2_travel: [-1e3, 1e3],
+        ..TrijointParams::default()
+    })
+}
+
+fn true_m(plc: &Plc) -> [f64; 2] {
+    let p = plant(plc);
+    let mut m = [0.0; 2];
+    truth()
+        .forward(&[p.position_mm(0), p.position_mm(1)], None, &mut m)
+        .expect("the plant assembles");
+    m
+}
+
+/// Power-on takes 42.6 s of simulated time; scenarios start after it.
+const READY_MS: u64 = 43_000;
+
+fn no_switch_ever(plc: &Plc, t: u64) {
+    if t > 1000 && state(plc) != "INIT" {
+        for s in [
+            "SWITCH_LEFT_UPPER",
+            "SWITCH_LEFT_DOWN",
+            "SWITCH_RIGHT_UPPER",
+            "SWITCH_RIGHT_DOWN",
+        ] {
+            assert_eq!(var(plc, s), Value::Bool(false), "{s} at {t} ms in {}", state(plc));
+        }
+    }
+}
+
+#[test]
+fn jogging_moves_m_in_the_commanded_direction_at_the_commanded_speed() {
+    // x at half deflection for 2 s (10 mm/s), then y down at full deflection for 1 s (20 mm/s).
+    let scenario = format!(
+        r#"{{"events": [
+            {{"at_ms": {a}, "joystick": [0.5, 0.0]}},
+            {{"at_ms": {b}, "joystick": [0.0, -1.0]}},
+            {{"at_ms": {c}, "joystick": [0.0, 0.0]}}
+        ]}}"#,
+        a = READY_MS,
+        b = READY_MS + 2000,
+        c = READY_MS + 3000
+    );
+    let mut plc = build(Some(&scenario));
+    let mut marks = Vec::new();
+    let mut states = Vec::new();
+    run(&mut plc, READY_MS + 4000, |plc, t| {
+        no_switch_ever(plc, t);
+        if [READY_MS, READY_MS + 2000, READY_MS + 3000, READY_MS + 3950].contains(&t) {
+            marks.push(true_m(plc));
+        }
+        if t >= READY_MS - 100 && states.last() != Some(&state(plc).to_string()) {
+            states.push(state(plc).to_string());
+        }
+        if t >= READY_MS + 500 && t < READY_MS + 2000 && t % 50 == 0 {
+            // Steady motion: the displayed M (FK of the measured positions) matches the truth.
+            let shown = [real(plc, "M_x"), real(plc, "M_y")];
+            let real_m = true_m(plc);
+            assert!(
+                (shown[0] - real_m[0]).abs() < 0.01 && (shown[1] - real_m[1]).abs() < 0.01,
+                "{shown:?} vs {real_m:?}"
+            );
+        }
+    });
+    assert_eq!(states, ["READY", "MOTION", "READY"]);
+    let dx = [marks[1][0] - marks[0][0], marks[1][1] - marks[0][1]];
+    assert!((dx[0] - 20.0).abs() < 1.0 && dx[1].abs() < 0.2, "x jog: {dx:?}");
+    let dy = [marks[2][0] - marks[1][0], marks[2][1] - marks[1][1]];
+    assert!(dy[0].abs() < 0.3 && (dy[1] + 20.0).abs() < 1.0, "y jog: {dy:?}");
+    let settle = [marks[3][0] - marks[2][0], marks[3][1] - marks[2][1]];
+    assert!(
+        settle[0].abs() < 0.3 && settle[1].abs() < 0.6,
+        "stops after release: {settle:?}"
+    );
+}
+
+#[test]
+fn jogging_stops_at_the_border_of_the_allowed_region_without_error() {
+    // Full deflection up and to the right for 30 s: far beyond the workspace.
+    let scenario = format!(r#"{{"events": [{{"at_ms": {READY_MS}, "joystick": [0.7, 0.7]}}]}}"#);
+    let mut plc = build(Some(&scenario));
+    let mut last = [0.0; 2];
+    run(&mut plc, READY_MS + 30_000, |plc, t| {
+        no_switch_ever(plc, t);
+        assert_ne!(state(plc), "ERROR", "at {t} ms: {:?}", plc.app_status());
+        last = true_m(plc);
+    });
+    assert_eq!(state(&plc), "MOTION", "still commanded, standing at the border");
+    let p = plant(&plc);
+    let (h1, h2) = (p.position_mm(0), p.position_mm(1));
+    // At the border: a carriage at its software limit (2 mm inside a switch), or the singularity
+    // threshold; never beyond.
+    assert!(
+        (1.99..=248.01).contains(&h1) && (1.99..=248.01).contains(&h2),
+        "carriages {h1}, {h2}"
+    );
+    assert!(
+        p.velocity_mm_s(0).abs() < 0.05 && p.velocity_mm_s(1).abs() < 0.05,
+        "standing still at {last:?}"
+    );
+}
+
+#[test]
+fn stop_during_motion_lockout_and_acknowledgement() {
+    let t0 = READY_MS + 1000;
+    let scenario = format!(
+        r#"{{"events": [
+            {{"at_ms": {READY_MS}, "joystick": [0.0, 0.6]}},
+            {{"at_ms": {t0}, "input": "BUTTON_STOP", "value": true}},
+            {{"at_ms": {r1}, "input": "BUTTON_STOP", "value": false}},
+            {{"at_ms": {p2}, "input": "BUTTON_STOP", "value": true}},
+            {{"at_ms": {r2}, "input": "BUTTON_STOP", "value": false}},
+            {{"at_ms": {j0}, "joystick": [0.0, 0.0]}},
+            {{"at_ms": {p3}, "input": "BUTTON_STOP", "value": true}},
+            {{"at_ms": {r3}, "input": "BUTTON_STOP", "value": false}}
+        ]}}"#,
+        r1 = t0 + 100,
+        p2 = t0 + 300,
+        r2 = t0 + 400,
+        j0 = t0 + 500,
+        p3 = t0 + 1000,
+        r3 = t0 + 1100
+    );
+    let mut plc = build(Some(&scenario));
+    let mut seen: Vec<(u64, String, Option<String>)> = Vec::new();
+    run(&mut plc, t0 + 50_000, |plc, t| {
+        if t >= t0 && t < t0 + 1000 {
+            for side in ["left", "right"] {
+                assert_eq!(
+                    var(plc, &format!("velocity_{side}_set")),
+                    Value::Int(0),
+                    "PWM at {t} ms"
+                );
+            }
+        }
+        let s = plc.app_status().expect("status");
+        if seen.last().is_none_or(|(_, st, _)| st != s.state) {
+            seen.push((t, s.state.to_string(), s.reason.map(str::to_string)));
+        }
+    });
+    let after: Vec<(u64, &str, Option<&str>)> = seen
+        .iter()
+        .filter(|(t, ..)| *t >= READY_MS)
+        .map(|(t, s, r)| (*t, s.as_str(), r.as_deref()))
+        .collect();
+    // MOTION; ERROR (STOP) at the STOP press's main cycle; the press at +300 ms is inside the
+    // 500 ms lockout and ignored; the press at +1000 ms acknowledges: REBOOT, INIT, READY.
+    let names: Vec<&str> = after.iter().map(|(_, s, _)| *s).collect();
+    assert_eq!(names, ["MOTION", "ERROR", "REBOOT", "INIT", "READY"], "{after:?}");
+    assert_eq!(after[1], (t0, "ERROR", Some("STOP")));
+    assert_eq!(after[2].0, t0 + 1000);
+}
+
+fn fault_scenario(fault: &str) -> String {
+    let at = READY_MS + 500;
+    format!(r#"{{"events": [{{"at_ms": {READY_MS}, "joystick": [0.3, 0.3]}}, {{"at_ms": {at}, {fault}}}]}}"#)
+}
+
+fn assert_fault(fault: &str, reason: &str) {
+    let mut plc = build(Some(&fault_scenario(fault)));
+    let mut error_at = None;
+    run(&mut plc, READY_MS + 5000, |plc, t| {
+        if error_at.is_none() && state(plc) == "ERROR" {
+            error_at = Some(t);
+        }
+        if error_at.is_some() {
+            for side in ["left", "right"] {
+                assert_eq!(
+                    var(plc, &format!("velocity_{side}_set")),
+                    Value::Int(0),
+                    "PWM in ERROR at {t} ms"
+                );
+            }
+        }
+        // (INIT runs onto the switches on purpose; from READY on no carriage passes one.)
+        let p = plant(plc);
+        for i in 0..2 {
+            assert!(
+                t < READY_MS || (0.0..=250.0).contains(&p.position_mm(i)),
+                "carriage {i} beyond its switches at {t} ms"
+            );
+        }
+    });
+    let t = error_at.unwrap_or_else(|| panic!("{fault}: no ERROR"));
+    assert!(t >= READY_MS + 500 && t <= READY_MS + 600, "{fault}: ERROR at {t} ms");
+    assert_eq!(plc.app_status().and_then(|s| s.reason), Some(reason), "{fault}");
+}
+
+#[test]
+fn a_stuck_limit_switch_is_an_error_with_its_name() {
+    assert_fault(
+        r#""fault": "switch_stuck", "switch": "SWITCH_RIGHT_DOWN", "value": true"#,
+        "limit switch SWITCH_RIGHT_DOWN",
+    );
+}
+
+#[test]
+fn an_encoder_glitch_is_an_encoder_fault() {
+    assert_fault(
+        r#""fault": "encoder_glitch", "drive": "left", "counts": 20000"#,
+        "encoder fault left",
+    );
+}
+
+#[test]
+fn a_motor_bridge_error_is_an_error() {
+    assert_fault(
+        r#""fault": "bridge_error", "drive": "right""#,
+        "motor bridge error right",
+    );
+}
+
+#[test]
+fn a_dead_drive_is_a_following_error() {
+    let mut plc = build(Some(&fault_scenario(r#""fault": "drive_dead", "drive": "left""#)));
+    run(&mut plc, READY_MS + 5000, |_, _| {});
+    assert_eq!(plc.app_status().and_then(|s| s.reason), Some("following error left"));
+}
