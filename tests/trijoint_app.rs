@@ -164,7 +164,7 @@ fn jogging_moves_m_in_the_commanded_direction_at_the_commanded_speed() {
         if t >= READY_MS - 100 && states.last() != Some(&state(plc).to_string()) {
             states.push(state(plc).to_string());
         }
-        if t >= READY_MS + 500 && t < READY_MS + 2000 && t % 50 == 0 {
+        if (READY_MS + 500..READY_MS + 2000).contains(&t) && t % 50 == 0 {
             // Steady motion: the displayed M (FK of the measured positions) matches the truth.
             let shown = [real(plc, "M_x"), real(plc, "M_y")];
             let real_m = true_m(plc);
