@@ -294,7 +294,10 @@ fn assert_fault(fault: &str, reason: &str) {
         }
     });
     let t = error_at.unwrap_or_else(|| panic!("{fault}: no ERROR"));
-    assert!(t >= READY_MS + 500 && t <= READY_MS + 600, "{fault}: ERROR at {t} ms");
+    assert!(
+        (READY_MS + 500..=READY_MS + 600).contains(&t),
+        "{fault}: ERROR at {t} ms"
+    );
     assert_eq!(plc.app_status().and_then(|s| s.reason), Some(reason), "{fault}");
 }
 
