@@ -21,7 +21,7 @@ fn check_accepts_the_default_configuration() {
     assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
     assert_eq!(
         String::from_utf8_lossy(&o.stdout),
-        "config.json: valid (3 task classes: fast (10 ms), main (50 ms), spare (100 ms); 31 process-image variables; I/O map: io-map/trijoint.json)\n"
+        "config.json: valid (3 task classes: fast (10 ms), main (50 ms), spare (100 ms); 56 process-image variables; I/O map: io-map/trijoint.json)\n"
     );
 }
 
@@ -88,7 +88,8 @@ fn a_virtual_run_writes_its_summary() {
         .collect();
     assert_eq!(cycles, [6000, 1200, 600]);
     assert_eq!(s["task_classes"][0]["lateness_us"]["max"], 0.0);
-    assert_eq!(s["main"]["state"], "SELFTEST-RUN");
+    // The default configuration runs the TRIJOINT application: referenced and READY within 60 s.
+    assert_eq!(s["main"]["state"], "READY");
     assert_eq!(s["main"]["error_reason"], serde_json::Value::Null);
 }
 
@@ -261,8 +262,8 @@ fn kinematic_parameters_are_checked_with_their_paths() {
     )
     .expect("json");
     let mut bad = base.clone();
-    // The copy lives elsewhere: without the I/O map next to it, leave field I/O out.
-    bad.as_object_mut().expect("object").remove("io_map");
+    // The copy lives elsewhere: point it at the repository's I/O map.
+    bad["io_map"] = serde_json::json!(concat!(env!("CARGO_MANIFEST_DIR"), "/io-map/trijoint.json"));
     bad["kinematics"] = serde_json::json!({"trijoint": {"l3": -4, "h1_travel": [250, 0]}, "hexapod": {"struts": 6}});
     std::fs::write(&path, bad.to_string()).expect("write");
     let o = pkm(&["check", "--config", path.to_str().expect("utf-8")]);

@@ -41,14 +41,17 @@ fn class(overrides: &str) -> String {
 
 #[test]
 fn the_default_configuration_is_valid() {
-    let loaded = config::load(None).expect("built-in config parses");
-    Plc::build(&loaded.config, &pkm_plc::registry(), Box::new(NoBus)).expect("built-in config builds");
-    let file = config::load(Some(std::path::Path::new(concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/config.json"
-    ))))
-    .expect("config.json parses");
-    Plc::build(&file.config, &pkm_plc::registry(), Box::new(NoBus)).expect("config.json builds");
+    // Built-in and file configuration, each with its I/O map and the simulated machine, as
+    // `pkm-plc check` and `pkm-plc run` build them.
+    let file = std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/config.json"));
+    for loaded in [config::load(None), config::load(Some(file))] {
+        let loaded = loaded.expect("parses");
+        let kinematics = pkm_plc::application_config(&loaded.config).expect("kinematics");
+        let bus = pkm_plc::sim::build(&loaded, &kinematics.trijoint, None).expect("I/O map and plant");
+        if let Err(problems) = Plc::build(&loaded.config, &pkm_plc::registry(), Box::new(bus)) {
+            panic!("{}: {problems:#?}", loaded.origin);
+        }
+    }
 }
 
 #[test]
