@@ -92,12 +92,14 @@ impl Cycle<'_> {
 }
 
 /// The state the main program reports: shown on the status line and in the run summary.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct AppStatus<'a> {
     /// The state's name (REBOOT, INIT, READY, MOTION, ERROR for the TRIJOINT application).
     pub state: &'a str,
     /// Why the program is in its error state, if it is.
     pub reason: Option<&'a str>,
+    /// Values worth showing with the state (name, value), e.g. positions; at most 8 are shown.
+    pub values: &'a [(&'static str, f64)],
 }
 
 /// An application program.

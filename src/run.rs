@@ -92,6 +92,8 @@ pub struct Snapshot {
     pub state: String,
     /// Its error reason, empty when there is none.
     pub reason: String,
+    /// The values the main program shows with its state.
+    pub values: Vec<(&'static str, f64)>,
 }
 
 /// One task class in a [`Snapshot`].
@@ -129,6 +131,7 @@ impl Snapshot {
                 .collect(),
             state: String::with_capacity(64),
             reason: String::with_capacity(256),
+            values: Vec::with_capacity(MAX_STATUS_VALUES),
         };
         s.update(plc, 0);
         s
@@ -149,7 +152,9 @@ impl Snapshot {
         }
         self.state.clear();
         self.reason.clear();
+        self.values.clear();
         if let Some(status) = plc.app_status() {
+            self.values.extend(status.values.iter().take(MAX_STATUS_VALUES));
             self.state.push_str(status.state);
             if let Some(r) = status.reason {
                 self.reason.push_str(r);
@@ -157,6 +162,9 @@ impl Snapshot {
         }
     }
 }
+
+/// How many of the main program's values a snapshot keeps (its capacity, so no allocation).
+const MAX_STATUS_VALUES: usize = 8;
 
 /// Why a real-time run failed.
 #[derive(Debug, thiserror::Error)]

@@ -133,10 +133,12 @@ impl Program for Consumer {
             None => AppStatus {
                 state: "SELFTEST-RUN",
                 reason: None,
+                values: &[],
             },
             Some(r) => AppStatus {
                 state: "SELFTEST-ERROR",
                 reason: Some(r),
+                values: &[],
             },
         })
     }

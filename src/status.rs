@@ -49,6 +49,14 @@ pub fn format_line(s: &Snapshot) -> String {
             line.push_str(&format!(" ({})", s.reason));
         }
     }
+    for (name, value) in &s.values {
+        // NaN means "not known yet" (M before referencing, say).
+        if value.is_nan() {
+            line.push_str(&format!(" {name}=-"));
+        } else {
+            line.push_str(&format!(" {name}={value:.2}"));
+        }
+    }
     for c in &s.classes {
         line.push_str(&format!(
             "  | {} {} cyc late {:.0}/{:.0}µs exec {:.0}µs ovr {}",

@@ -609,6 +609,8 @@ pub struct MainProgram {
     stop_accepted_at: Option<f64>,
     lockout_s: f64,
     display: Trijoint,
+    /// M and the carriage positions, for the status line.
+    shown: [(&'static str, f64); 4],
 }
 
 impl MainProgram {
@@ -684,6 +686,7 @@ impl MainProgram {
             stop_accepted_at: None,
             lockout_s,
             display,
+            shown: [("Mx", f64::NAN), ("My", f64::NAN), ("h1", f64::NAN), ("h2", f64::NAN)],
         })
     }
 
@@ -763,11 +766,17 @@ impl MainProgram {
         ctx.set(v.acknowledge, io.acknowledge);
         ctx.set(v.period, self.machine.inner().p.pwm_period_us);
         ctx.set(v.referenced, io.referenced);
-        let mut m = [0.0; 2];
+        let mut m = [f64::NAN; 2];
         if io.referenced && self.display.forward(&io.positions, None, &mut m).is_ok() {
             ctx.set(v.m[0], m[0]);
             ctx.set(v.m[1], m[1]);
         }
+        self.shown = [
+            ("Mx", m[0]),
+            ("My", m[1]),
+            ("h1", io.positions[0]),
+            ("h2", io.positions[1]),
+        ];
     }
 }
 
@@ -784,6 +793,7 @@ impl Program for MainProgram {
         Some(AppStatus {
             state: a.state.name(),
             reason: a.reason.map(Reason::text),
+            values: &self.shown,
         })
     }
 }
