@@ -1,6 +1,7 @@
 //! The drive controller (10 ms class): a PI position regulator per drive, following-error
 //! supervision, and the fast interlock — STOP pressed, a limit switch outside INIT, a motor bridge
-//! or encoder fault, or a main state that does not drive: PWM zero in that same cycle. (The
+//! or encoder fault, a following error, or a main state that does not drive: PWM zero in that same
+//! cycle. (The
 //! original reacted only in its 50 ms task.)
 
 use serde::Deserialize;
@@ -132,35 +133,36 @@ impl Program for Control {
         let state = MainState::from_code(ctx.get(self.state));
         let in_init = state == Some(MainState::Init);
         let driving_state = matches!(state, Some(MainState::Init | MainState::Ready | MainState::Motion));
-        let any = |ctx: &Cycle<'_>, f: &dyn Fn(&Drive) -> Input<bool>| self.drives.iter().any(|d| ctx.get(f(d)));
+        let enabled = driving_state && ctx.get(self.enable);
         let switch = self.drives.iter().any(|d| d.switches.iter().any(|s| ctx.get(*s)));
-        let interlock = ctx.get(self.stop)
-            || (switch && !in_init)
-            || any(ctx, &|d| d.bridge_error)
-            || any(ctx, &|d| d.fault)
-            || !driving_state
-            || !ctx.get(self.enable);
-        ctx.set(self.interlock, interlock);
-        let dt = ctx.period_ns() as f64 * 1e-9;
+        let faults = self.drives.iter().any(|d| ctx.get(d.bridge_error) || ctx.get(d.fault));
+        let interlock = ctx.get(self.stop) || (switch && !in_init) || faults || !enabled;
         // The main program publishes set-points every 50 ms with their velocity and time; between
         // its cycles the set-point moves on at that velocity, so ramps reach the drives smoothly.
         let since = (ctx.time_ns() as f64 * 1e-9 - ctx.get(self.setpoint_time)).max(0.0);
-        for (d, pi) in self.drives.iter().zip(self.pi.iter_mut()) {
-            let setpoint = ctx.get(d.setpoint) + ctx.get(d.setpoint_velocity) * since;
-            let e = setpoint - ctx.get(d.position);
+        let errors = self
+            .drives
+            .each_ref()
+            .map(|d| ctx.get(d.setpoint) + ctx.get(d.setpoint_velocity) * since - ctx.get(d.position));
+        // A following error stays latched while the drives are enabled (the main program turns it
+        // into ERROR, which disables them) and stops both drives in the cycle it is found.
+        let following: [bool; 2] = std::array::from_fn(|i| {
+            enabled
+                && (ctx.output_value(self.drives[i].following_error)
+                    || (!interlock && errors[i].abs() > self.p.max_following_error_mm))
+        });
+        let interlock = interlock || following.iter().any(|f| *f);
+        ctx.set(self.interlock, interlock);
+        let dt = ctx.period_ns() as f64 * 1e-9;
+        for (i, (d, pi)) in self.drives.iter().zip(self.pi.iter_mut()).enumerate() {
             let duty = if interlock {
                 pi.reset();
                 0.0
             } else {
-                pi.step(&self.p, e, dt)
+                pi.step(&self.p, errors[i], dt)
             };
             ctx.set(d.pwm, (duty * 32767.0).round() as i16);
-            // Latched until the next enable: the main program turns it into ERROR.
-            let latched = ctx.output_value(d.following_error) && !interlock;
-            ctx.set(
-                d.following_error,
-                latched || (!interlock && e.abs() > self.p.max_following_error_mm),
-            );
+            ctx.set(d.following_error, following[i]);
         }
     }
 }

@@ -1,0 +1,176 @@
+//! Soak: one simulated hour of random joystick input, STOP presses and injected faults on the
+//! simulated machine, with the machine's invariants checked after every cycle.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use pkm_plc::config;
+use pkm_plc::image::Value;
+use pkm_plc::plc::Plc;
+use pkm_plc::run::VirtualClock;
+use pkm_plc::sim::bus::SimBus;
+
+const HOUR_MS: u64 = 3_600_000;
+
+/// A seeded generator: uniform in [0, 1).
+struct Rng(u64);
+
+impl Rng {
+    fn next(&mut self) -> f64 {
+        self.0 ^= self.0 << 13;
+        self.0 ^= self.0 >> 7;
+        self.0 ^= self.0 << 17;
+        (self.0 >> 11) as f64 / (1u64 << 53) as f64
+    }
+    fn between(&mut self, lo: u64, hi: u64) -> u64 {
+        lo + (self.next() * (hi - lo) as f64) as u64
+    }
+}
+
+/// Joystick changes every 2–8 s, STOP presses every 20–90 s, a fault every 2–5 min.
+fn random_scenario(seed: u64) -> (String, usize) {
+    let mut rng = Rng(seed);
+    let mut events = Vec::new();
+    let mut t = 0;
+    while t < HOUR_MS {
+        t += rng.between(2_000, 8_000);
+        let (x, y) = if rng.next() < 0.3 {
+            (0.0, 0.0)
+        } else {
+            (rng.next() * 2.0 - 1.0, rng.next() * 2.0 - 1.0)
+        };
+        events.push(format!(r#"{{"at_ms": {t}, "joystick": [{x:.3}, {y:.3}]}}"#));
+    }
+    let mut t = 0;
+    let mut presses = 0;
+    while t < HOUR_MS {
+        t += rng.between(20_000, 90_000);
+        events.push(format!(r#"{{"at_ms": {t}, "input": "BUTTON_STOP", "value": true}}"#));
+        events.push(format!(
+            r#"{{"at_ms": {}, "input": "BUTTON_STOP", "value": false}}"#,
+            t + 150
+        ));
+        presses += 1;
+    }
+    let switches = [
+        "SWITCH_LEFT_UPPER",
+        "SWITCH_LEFT_DOWN",
+        "SWITCH_RIGHT_UPPER",
+        "SWITCH_RIGHT_DOWN",
+    ];
+    let drives = ["left", "right"];
+    let mut t = 60_000;
+    while t < HOUR_MS {
+        let drive = drives[(rng.next() * 2.0) as usize];
+        match (rng.next() * 4.0) as usize {
+            0 => {
+                let s = switches[(rng.next() * 4.0) as usize];
+                events.push(format!(
+                    r#"{{"at_ms": {t}, "fault": "switch_stuck", "switch": "{s}", "value": true}}"#
+                ));
+                events.push(format!(
+                    r#"{{"at_ms": {}, "fault": "switch_free", "switch": "{s}"}}"#,
+                    t + 1_000
+                ));
+            }
+            1 => events.push(format!(
+                r#"{{"at_ms": {t}, "fault": "encoder_glitch", "drive": "{drive}", "counts": 20000}}"#
+            )),
+            2 => events.push(format!(
+                r#"{{"at_ms": {t}, "fault": "bridge_error", "drive": "{drive}"}}"#
+            )),
+            _ => {
+                events.push(format!(
+                    r#"{{"at_ms": {t}, "fault": "drive_dead", "drive": "{drive}"}}"#
+                ));
+                events.push(format!(
+                    r#"{{"at_ms": {}, "fault": "drive_alive", "drive": "{drive}"}}"#,
+                    t + 2_000
+                ));
+            }
+        }
+        t += rng.between(120_000, 300_000);
+    }
+    (format!(r#"{{"events": [{}]}}"#, events.join(",\n")), presses)
+}
+
+fn build(scenario: &str) -> Plc {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut loaded = config::load(Some(&root.join("config.json"))).expect("config");
+    loaded.dir = Some(PathBuf::from(root));
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("soak.json");
+    std::fs::write(&path, scenario).expect("write");
+    let kinematics = pkm_plc::application_config(&loaded.config).expect("kinematics");
+    let bus = pkm_plc::sim::build(&loaded, &kinematics.trijoint, Some(&path)).expect("bus");
+    match Plc::build(&loaded.config, &pkm_plc::registry(), Box::new(bus)) {
+        Ok(p) => p,
+        Err(problems) => panic!("{problems:#?}"),
+    }
+}
+
+#[test]
+fn one_simulated_hour_of_random_operation_keeps_every_invariant() {
+    let (scenario, presses) = random_scenario(0x5EED_0F_50A4);
+    let mut plc = build(&scenario);
+    let started = Instant::now();
+    let driving = |s: &str| matches!(s, "INIT" | "READY" | "MOTION");
+    let mut clock = VirtualClock::default();
+    plc.init(0, &mut clock);
+    let mut previous = String::from("REBOOT");
+    let mut error_since: Option<u64> = None;
+    let mut visits = std::collections::BTreeMap::<String, usize>::new();
+    let mut longest_error = 0;
+    while plc.next_release() < HOUR_MS * 1_000_000 {
+        let t_ns = plc.next_release();
+        clock.advance_to(t_ns);
+        plc.run_due(&mut clock, u64::MAX);
+        let t = t_ns / 1_000_000;
+        let status = plc.app_status().expect("status");
+        let state = status.state.to_string();
+        // Carriages inside their hard stops.
+        let plant = plc.bus().as_any().downcast_ref::<SimBus>().expect("sim").plant();
+        for i in 0..2 {
+            assert!((-3.0..=253.0).contains(&plant.position_mm(i)), "carriage {i} at {t} ms");
+        }
+        // PWM zero whenever the state does not drive (from the first fast cycle that sees it).
+        if !driving(&state) && !driving(&previous) {
+            for side in ["left", "right"] {
+                let name = format!("velocity_{side}_set");
+                let pwm = plc.global_image()[usize::from(plc.vars().index_of(&name).expect("var"))];
+                assert_eq!(pwm, Value::Int(0), "{name} in {state} at {t} ms");
+            }
+        }
+        // Every ERROR has a reason; ERROR is only left by acknowledgement (to REBOOT).
+        if state == "ERROR" {
+            assert!(status.reason.is_some(), "ERROR without a reason at {t} ms");
+        }
+        if previous == "ERROR" && state != "ERROR" {
+            assert_eq!(state, "REBOOT", "ERROR left for {state} at {t} ms");
+        }
+        if state != previous {
+            *visits.entry(state.clone()).or_default() += 1;
+            if state == "ERROR" {
+                error_since = Some(t);
+            } else if let Some(since) = error_since.take() {
+                longest_error = longest_error.max(t - since);
+            }
+        }
+        previous = state;
+    }
+    let wall = started.elapsed();
+    eprintln!(
+        "soak: 1 simulated hour in {:.2} s; states entered: {visits:?}; {presses} STOP presses; longest ERROR {longest_error} ms",
+        wall.as_secs_f64()
+    );
+    // Not vacuous: the run went through every state many times, and every ERROR was acknowledged
+    // by one of the next STOP presses (at most 90 s apart, the first may fall in the lockout).
+    for s in ["INIT", "READY", "MOTION", "ERROR", "REBOOT"] {
+        assert!(
+            visits.get(s).copied().unwrap_or(0) >= 10,
+            "{s} entered only {:?} times",
+            visits.get(s)
+        );
+    }
+    assert!(longest_error <= 181_000, "an ERROR lasted {longest_error} ms");
+}
