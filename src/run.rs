@@ -36,6 +36,27 @@ impl Clock for VirtualClock {
     }
 }
 
+/// Logs the main program's state changes (with the error reason), at the time they happen. Only a
+/// change formats anything, so it costs nothing in steady operation.
+#[derive(Debug, Default)]
+struct StateLog {
+    last: String,
+}
+
+impl StateLog {
+    fn observe(&mut self, plc: &Plc, t_ns: u64) {
+        let Some(status) = plc.app_status() else { return };
+        if status.state != self.last {
+            match status.reason {
+                Some(reason) => warn!("t={:.3} s: {} ({reason})", t_ns as f64 * 1e-9, status.state),
+                None => info!("t={:.3} s: {}", t_ns as f64 * 1e-9, status.state),
+            }
+            self.last.clear();
+            self.last.push_str(status.state);
+        }
+    }
+}
+
 /// What a virtual-time run reports besides the PLC's own statistics.
 #[derive(Clone, Copy, Debug)]
 pub struct VirtualReport {
@@ -50,6 +71,7 @@ pub struct VirtualReport {
 pub fn run_virtual(plc: &mut Plc, duration_ns: u64) -> VirtualReport {
     let started = Instant::now();
     let mut clock = VirtualClock::default();
+    let mut log = StateLog::default();
     plc.init(0, &mut clock);
     loop {
         let t = plc.next_release();
@@ -58,6 +80,7 @@ pub fn run_virtual(plc: &mut Plc, duration_ns: u64) -> VirtualReport {
         }
         clock.advance_to(t);
         plc.run_due(&mut clock, duration_ns);
+        log.observe(plc, t);
     }
     plc.shutdown();
     VirtualReport {
@@ -256,6 +279,7 @@ pub fn start_realtime(mut plc: Plc, options: RealTimeOptions) -> Result<RealTime
             let mut clock = MonotonicClock::with_epoch(timing::monotonic_ns() + 2_000_000);
             plc.init(0, &mut clock);
             let mut next_snapshot = SNAPSHOT_EVERY_NS;
+            let mut log = StateLog::default();
             let end_ns = options.duration_ns.unwrap_or(u64::MAX);
             loop {
                 let t = plc.next_release();
@@ -269,6 +293,7 @@ pub fn start_realtime(mut plc: Plc, options: RealTimeOptions) -> Result<RealTime
                         error,
                     })?;
                 plc.run_due(&mut clock, end_ns);
+                log.observe(&plc, t);
                 if t >= next_snapshot {
                     next_snapshot = t + SNAPSHOT_EVERY_NS;
                     // Never block the cyclic thread: if the status line holds the lock, skip.

@@ -111,7 +111,7 @@ fn build(scenario: &str) -> Plc {
 
 #[test]
 fn one_simulated_hour_of_random_operation_keeps_every_invariant() {
-    let (scenario, presses) = random_scenario(0x5EED_0F_50A4);
+    let (scenario, presses) = random_scenario(0x005E_ED0F_50A4);
     let mut plc = build(&scenario);
     let started = Instant::now();
     let driving = |s: &str| matches!(s, "INIT" | "READY" | "MOTION");
