@@ -331,3 +331,57 @@ fn a_dead_drive_is_a_following_error() {
     run(&mut plc, READY_MS + 5000, |_, _| {});
     assert_eq!(plc.app_status().and_then(|s| s.reason), Some("following error left"));
 }
+
+/// Runs from power-on until ERROR (or `until_ms`); returns the reason.
+fn error_reason(plc: &mut Plc, until_ms: u64) -> Option<String> {
+    let mut reason = None;
+    run(plc, until_ms, |plc, _| {
+        if reason.is_none() && state(plc) == "ERROR" {
+            reason = plc.app_status().and_then(|s| s.reason).map(str::to_string);
+        }
+    });
+    reason
+}
+
+#[test]
+fn init_reports_a_switch_that_is_never_reached() {
+    // The left upper switch is dead: the carriage runs into its hard stop instead.
+    let scenario =
+        r#"{"events": [{"at_ms": 0, "fault": "switch_stuck", "switch": "SWITCH_LEFT_UPPER", "value": false}]}"#;
+    let mut plc = build(Some(scenario));
+    assert_eq!(
+        error_reason(&mut plc, 30_000).as_deref(),
+        Some("INIT timeout: SWITCH_LEFT_UPPER not reached")
+    );
+    assert!(plant(&plc).position_mm(0) <= 253.0);
+}
+
+#[test]
+fn init_reports_the_wrong_switch() {
+    // While the right carriage seeks its upper switch, its lower switch trips.
+    let scenario =
+        r#"{"events": [{"at_ms": 2000, "fault": "switch_stuck", "switch": "SWITCH_RIGHT_DOWN", "value": true}]}"#;
+    let mut plc = build(Some(scenario));
+    assert_eq!(
+        error_reason(&mut plc, 30_000).as_deref(),
+        Some("INIT: wrong switch SWITCH_RIGHT_DOWN")
+    );
+}
+
+#[test]
+fn a_cycle_time_violation_sends_the_application_to_error() {
+    // The spare class runs a program that takes 250 ms once (at 45 s), beyond its 100 ms
+    // tolerance, with the reaction "error".
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut c: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(root.join("config.json")).expect("config")).expect("json");
+    c["task_classes"][2]["on_violation"] = serde_json::json!("error");
+    c["task_classes"][2]["programs"] = serde_json::json!([{"program": "selftest.idle",
+        "params": {"burn_us": 250000, "burn_from_cycle": 450, "burn_until_cycle": 451}}]);
+    let mut loaded = config::parse(&c.to_string(), "test-config.json").expect("parses");
+    loaded.dir = Some(PathBuf::from(root));
+    let kinematics = pkm_plc::application_config(&loaded.config).expect("kinematics");
+    let bus = pkm_plc::sim::build(&loaded, &kinematics.trijoint, None).expect("bus");
+    let mut plc = Plc::build(&loaded.config, &pkm_plc::registry(), Box::new(bus)).expect("valid");
+    assert_eq!(error_reason(&mut plc, 50_000).as_deref(), Some("cycle time violation"));
+}

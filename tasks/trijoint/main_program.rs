@@ -84,7 +84,8 @@ pub enum Reason {
     FollowingError(usize),
     /// A cycle time violation reported by the runtime.
     CycleTimeViolation,
-    /// A switch not reached in time during INIT (drive).
+    /// A switch not reached during INIT — in time, or at all because the carriage was blocked
+    /// (switch index as for `LimitSwitch`).
     InitTimeout(usize),
     /// The wrong switch during INIT (switch index as for `LimitSwitch`).
     InitWrongSwitch(usize),
@@ -112,11 +113,16 @@ impl Reason {
             "INIT: wrong switch SWITCH_RIGHT_UPPER",
             "INIT: wrong switch SWITCH_RIGHT_DOWN",
         ];
-        const SIDE: [[&str; 2]; 4] = [
+        const NOT_REACHED: [&str; 4] = [
+            "INIT timeout: SWITCH_LEFT_UPPER not reached",
+            "INIT timeout: SWITCH_LEFT_DOWN not reached",
+            "INIT timeout: SWITCH_RIGHT_UPPER not reached",
+            "INIT timeout: SWITCH_RIGHT_DOWN not reached",
+        ];
+        const SIDE: [[&str; 2]; 3] = [
             ["encoder fault left", "encoder fault right"],
             ["motor bridge error left", "motor bridge error right"],
             ["following error left", "following error right"],
-            ["INIT timeout left", "INIT timeout right"],
         ];
         match self {
             Reason::Stop => "STOP",
@@ -125,7 +131,7 @@ impl Reason {
             Reason::BridgeError(d) => SIDE[1][d.min(1)],
             Reason::FollowingError(d) => SIDE[2][d.min(1)],
             Reason::CycleTimeViolation => "cycle time violation",
-            Reason::InitTimeout(d) => SIDE[3][d.min(1)],
+            Reason::InitTimeout(i) => NOT_REACHED[i.min(3)],
             Reason::InitWrongSwitch(i) => WRONG[i.min(3)],
         }
     }
@@ -139,7 +145,7 @@ impl Reason {
             Reason::BridgeError(d) => 30 + d as i16,
             Reason::FollowingError(d) => 40 + d as i16,
             Reason::CycleTimeViolation => 50,
-            Reason::InitTimeout(d) => 60 + d as i16,
+            Reason::InitTimeout(i) => 60 + i as i16,
             Reason::InitWrongSwitch(i) => 70 + i as i16,
         }
     }
@@ -468,7 +474,7 @@ impl Automaton {
                     return Err(Reason::InitWrongSwitch(end.other().switch(i)));
                 }
                 if io.now_s - since_s > p.search_timeout_s {
-                    return Err(Reason::InitTimeout(i));
+                    return Err(Reason::InitTimeout(end.switch(i)));
                 }
                 let speed = [p.init_speed_mm_s, p.approach_speed_mm_s, p.creep_speed_mm_s][usize::from(stage.min(2))];
                 if io.capture_counts[i][end as usize] != seen[end as usize] {
@@ -739,7 +745,13 @@ impl MainProgram {
                 return Event::Fault(Reason::BridgeError(d));
             }
             if ctx.get(v.following_errors[d]) {
-                return Event::Fault(Reason::FollowingError(d));
+                // Blocked while seeking a switch in INIT (a switch stuck off, say, leaves the
+                // carriage at its hard stop): say which switch was not reached.
+                let seeking = match self.machine.inner().searches[d] {
+                    Search::Seek { end, .. } if state == MainState::Init => Some(end.switch(d)),
+                    _ => None,
+                };
+                return Event::Fault(seeking.map_or(Reason::FollowingError(d), Reason::InitTimeout));
             }
         }
         if state != MainState::Init
