@@ -1,16 +1,16 @@
 //! The I/O map, the module catalogue and the simulated TRIJOINT lab model: every validation error
 //! with its message, and the plant's behaviour seen through the process image.
 
-use std::path::{Path, PathBuf};
+mod common;
 
-use pkm_plc::config::{self, ConfigError, LoadedConfig};
+use std::path::Path;
+
+use common::{plant, run, var};
+use pkm_plc::config::{ConfigError, LoadedConfig};
 use pkm_plc::image::{Declare, Input, Output, Value};
 use pkm_plc::io::map::IoMap;
 use pkm_plc::plc::Plc;
 use pkm_plc::program::{Cycle, Program, ProgramArgs, ProgramInfo, Registry};
-use pkm_plc::run::VirtualClock;
-use pkm_plc::sim::bus::SimBus;
-use pkm_plc::sim::plant::Plant;
 use pkm_plc::tasks::kinematics::trijoint::TrijointParams;
 
 const CLASSES: [&str; 3] = ["fast", "main", "spare"];
@@ -173,55 +173,15 @@ fn registry() -> Registry {
 /// The repository's config.json with the fast class running `test.drive` with `params`, and
 /// `plant` merged into the plant section.
 fn loaded_config(params: &str, plant: &str) -> LoadedConfig {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let mut c: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(root.join("config.json")).expect("config")).expect("json");
+    let mut c = common::repo_config();
     c["task_classes"][0]["programs"] = serde_json::json!([{"program": "test.drive", "params": serde_json::from_str::<serde_json::Value>(params).expect("params")}]);
     c["task_classes"][1]["programs"] = serde_json::json!([]);
     c["plant"] = serde_json::from_str(plant).expect("plant");
-    let mut loaded = config::parse(&c.to_string(), "test-config.json").expect("parses");
-    loaded.dir = Some(PathBuf::from(root));
-    loaded
+    common::loaded(&c)
 }
 
 fn build(params: &str, plant: &str, scenario: Option<&str>) -> Result<Plc, ConfigError> {
-    let loaded = loaded_config(params, plant);
-    let dir = tempfile::tempdir().expect("tempdir");
-    let scenario_path = scenario.map(|s| {
-        let p = dir.path().join("scenario.json");
-        std::fs::write(&p, s).expect("write scenario");
-        p
-    });
-    let kinematics = pkm_plc::application_config(&loaded.config).expect("kinematics");
-    let bus = pkm_plc::sim::build(&loaded, &kinematics.trijoint, scenario_path.as_deref())?;
-    Plc::build(&loaded.config, &registry(), Box::new(bus)).map_err(|problems| ConfigError::Invalid {
-        file: loaded.origin.clone(),
-        problems,
-    })
-}
-
-fn plant(plc: &Plc) -> &Plant {
-    plc.bus()
-        .as_any()
-        .downcast_ref::<SimBus>()
-        .expect("the simulated bus")
-        .plant()
-}
-
-fn var(plc: &Plc, name: &str) -> Value {
-    plc.global_image()[usize::from(plc.vars().index_of(name).expect("variable"))]
-}
-
-/// Runs in virtual time; calls `each` after every pass with the time of the release.
-fn run(plc: &mut Plc, until_ms: u64, mut each: impl FnMut(&Plc, u64)) {
-    let mut clock = VirtualClock::default();
-    plc.init(0, &mut clock);
-    while plc.next_release() < until_ms * 1_000_000 {
-        let t = plc.next_release();
-        clock.advance_to(t);
-        plc.run_due(&mut clock, u64::MAX);
-        each(plc, t);
-    }
+    common::sim_plc(&loaded_config(params, plant), &registry(), scenario)
 }
 
 #[test]
@@ -339,7 +299,7 @@ fn a_carriage_at_full_duty_reaches_its_switch_in_the_expected_time_and_stops_at_
     let mut first_seen = None;
     run(&mut plc, 4000, |plc, t| {
         if first_seen.is_none() && var(plc, "SWITCH_RIGHT_UPPER") == Value::Bool(true) {
-            first_seen = Some(t / 1_000_000);
+            first_seen = Some(t);
         }
     });
     assert_eq!(first_seen, Some(1620), "the first 10 ms cycle at or after 1.6125 s");
@@ -381,9 +341,7 @@ fn the_linkage_jams_where_it_cannot_assemble() {
     // lower switch.
     let mut loaded = loaded_config(r#"{"left": -32767}"#, "{}");
     loaded.config.kinematics = Some(serde_json::json!({"trijoint": {"l3": 200.0}}));
-    let kinematics = pkm_plc::application_config(&loaded.config).expect("kinematics");
-    let bus = pkm_plc::sim::build(&loaded, &kinematics.trijoint, None).expect("bus");
-    let mut jammed = Plc::build(&loaded.config, &registry(), Box::new(bus)).expect("valid");
+    let mut jammed = common::sim_plc(&loaded, &registry(), None).expect("valid");
     run(&mut jammed, 4000, |_, _| {});
     let p = plant(&jammed);
     assert!(p.jams() > 0);
@@ -408,7 +366,7 @@ fn a_stuck_switch_stays_stuck_until_freed() {
     ]}"#;
     let mut plc = build(r#"{"right": -32767}"#, r#"{"mechanism": false}"#, Some(scenario)).expect("valid");
     run(&mut plc, 3500, |plc, t| {
-        let ms = t / 1_000_000;
+        let ms = t;
         let stuck = (100..500).contains(&ms);
         assert_eq!(var(plc, "SWITCH_LEFT_UPPER"), Value::Bool(stuck), "at {ms} ms");
         if ms >= 600 {
@@ -443,7 +401,7 @@ fn panel_inputs_and_faults_from_a_scenario() {
     .expect("valid");
     let mut counter_before = 0i64;
     run(&mut plc, 1500, |plc, t| {
-        let ms = t / 1_000_000;
+        let ms = t;
         assert_eq!(
             var(plc, "BUTTON_STOP"),
             Value::Bool((200..300).contains(&ms)),

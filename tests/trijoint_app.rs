@@ -1,72 +1,20 @@
 //! The TRIJOINT application on the simulated machine, in virtual time, driven by scenarios:
 //! referencing, jogging, STOP with lockout and acknowledgement, faults.
 
-use std::path::{Path, PathBuf};
+mod common;
 
-use pkm_plc::config;
+use common::{plant, real, run, state, var};
 use pkm_plc::image::Value;
 use pkm_plc::plc::Plc;
-use pkm_plc::run::VirtualClock;
-use pkm_plc::sim::bus::SimBus;
-use pkm_plc::sim::plant::Plant;
 use pkm_plc::tasks::kinematics::Kinematics;
 use pkm_plc::tasks::kinematics::trijoint::{Trijoint, TrijointParams};
 
 const COUNT_MM: f64 = 1.0 / 7000.0;
 
-/// The repository's config.json with the TRIJOINT programs, and a scenario.
+/// The repository's config.json (the TRIJOINT application) with a scenario.
 fn build(scenario: Option<&str>) -> Plc {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let mut c: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(root.join("config.json")).expect("config")).expect("json");
-    c["task_classes"][0]["programs"] =
-        serde_json::json!([{"program": "trijoint.encoders"}, {"program": "trijoint.control"}]);
-    c["task_classes"][1]["programs"] = serde_json::json!([{"program": "trijoint.main"}]);
-    let mut loaded = config::parse(&c.to_string(), "test-config.json").expect("parses");
-    loaded.dir = Some(PathBuf::from(root));
-    let dir = tempfile::tempdir().expect("tempdir");
-    let path = scenario.map(|s| {
-        let p = dir.path().join("scenario.json");
-        std::fs::write(&p, s).expect("write");
-        p
-    });
-    let kinematics = pkm_plc::application_config(&loaded.config).expect("kinematics");
-    let bus = pkm_plc::sim::build(&loaded, &kinematics.trijoint, path.as_deref()).expect("bus");
-    match Plc::build(&loaded.config, &pkm_plc::registry(), Box::new(bus)) {
-        Ok(p) => p,
-        Err(problems) => panic!("{problems:#?}"),
-    }
-}
-
-fn plant(plc: &Plc) -> &Plant {
-    plc.bus().as_any().downcast_ref::<SimBus>().expect("sim").plant()
-}
-
-fn var(plc: &Plc, name: &str) -> Value {
-    plc.global_image()[usize::from(plc.vars().index_of(name).expect("variable"))]
-}
-
-fn real(plc: &Plc, name: &str) -> f64 {
-    match var(plc, name) {
-        Value::Real(v) => v,
-        other => panic!("{name}: {other:?}"),
-    }
-}
-
-fn state(plc: &Plc) -> &str {
-    plc.app_status().map(|s| s.state).unwrap_or("")
-}
-
-/// Runs in virtual time from power-on; `each(plc, t_ms)` after every pass.
-fn run(plc: &mut Plc, until_ms: u64, mut each: impl FnMut(&Plc, u64)) {
-    let mut clock = VirtualClock::default();
-    plc.init(0, &mut clock);
-    while plc.next_release() < until_ms * 1_000_000 {
-        let t = plc.next_release();
-        clock.advance_to(t);
-        plc.run_due(&mut clock, u64::MAX);
-        each(plc, t / 1_000_000);
-    }
+    common::sim_plc(&common::loaded(&common::repo_config()), &pkm_plc::registry(), scenario)
+        .unwrap_or_else(|e| panic!("{e}"))
 }
 
 /// State changes as (time ms, state, reason).
@@ -372,16 +320,10 @@ fn init_reports_the_wrong_switch() {
 fn a_cycle_time_violation_sends_the_application_to_error() {
     // The spare class runs a program that takes 250 ms once (at 45 s), beyond its 100 ms
     // tolerance, with the reaction "error".
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let mut c: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(root.join("config.json")).expect("config")).expect("json");
+    let mut c = common::repo_config();
     c["task_classes"][2]["on_violation"] = serde_json::json!("error");
     c["task_classes"][2]["programs"] = serde_json::json!([{"program": "selftest.idle",
         "params": {"burn_us": 250000, "burn_from_cycle": 450, "burn_until_cycle": 451}}]);
-    let mut loaded = config::parse(&c.to_string(), "test-config.json").expect("parses");
-    loaded.dir = Some(PathBuf::from(root));
-    let kinematics = pkm_plc::application_config(&loaded.config).expect("kinematics");
-    let bus = pkm_plc::sim::build(&loaded, &kinematics.trijoint, None).expect("bus");
-    let mut plc = Plc::build(&loaded.config, &pkm_plc::registry(), Box::new(bus)).expect("valid");
+    let mut plc = common::sim_plc(&common::loaded(&c), &pkm_plc::registry(), None).expect("valid");
     assert_eq!(error_reason(&mut plc, 50_000).as_deref(), Some("cycle time violation"));
 }

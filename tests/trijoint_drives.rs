@@ -2,15 +2,12 @@
 //! the main program (which is not there yet): unwrap, position control, following error and the
 //! fast interlock.
 
-use std::path::{Path, PathBuf};
+mod common;
 
-use pkm_plc::config;
+use common::{plant, real, run, var};
 use pkm_plc::image::{Declare, Input, Output, Value};
 use pkm_plc::plc::Plc;
 use pkm_plc::program::{Cycle, Program, ProgramArgs, ProgramInfo, Registry};
-use pkm_plc::run::VirtualClock;
-use pkm_plc::sim::bus::SimBus;
-use pkm_plc::sim::plant::Plant;
 use pkm_plc::tasks::trijoint::encoders::unwrap;
 use pkm_plc::tasks::trijoint::state::MainState;
 use proptest::prelude::*;
@@ -122,53 +119,11 @@ fn registry() -> Registry {
 }
 
 fn build(stand_in: &str, scenario: Option<&str>) -> Plc {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let mut c: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(root.join("config.json")).expect("config")).expect("json");
+    let mut c = common::repo_config();
     c["task_classes"][0]["programs"] =
         serde_json::json!([{"program": "trijoint.encoders"}, {"program": "trijoint.control"}]);
     c["task_classes"][1]["programs"] = serde_json::json!([{"program": "test.main", "params": serde_json::from_str::<serde_json::Value>(stand_in).expect("params")}]);
-    let mut loaded = config::parse(&c.to_string(), "test-config.json").expect("parses");
-    loaded.dir = Some(PathBuf::from(root));
-    let dir = tempfile::tempdir().expect("tempdir");
-    let scenario_path = scenario.map(|s| {
-        let p = dir.path().join("scenario.json");
-        std::fs::write(&p, s).expect("write");
-        p
-    });
-    let kinematics = pkm_plc::application_config(&loaded.config).expect("kinematics");
-    let bus = pkm_plc::sim::build(&loaded, &kinematics.trijoint, scenario_path.as_deref()).expect("bus");
-    match Plc::build(&loaded.config, &registry(), Box::new(bus)) {
-        Ok(p) => p,
-        Err(problems) => panic!("{problems:#?}"),
-    }
-}
-
-fn plant(plc: &Plc) -> &Plant {
-    plc.bus().as_any().downcast_ref::<SimBus>().expect("sim").plant()
-}
-
-fn var(plc: &Plc, name: &str) -> Value {
-    plc.global_image()[usize::from(plc.vars().index_of(name).expect("variable"))]
-}
-
-fn real(plc: &Plc, name: &str) -> f64 {
-    match var(plc, name) {
-        Value::Real(v) => v,
-        other => panic!("{name}: {other:?}"),
-    }
-}
-
-/// Runs in virtual time, one fast-class cycle at a time: `each(plc, t_ms)` after every pass.
-fn run(plc: &mut Plc, until_ms: u64, mut each: impl FnMut(&Plc, u64)) {
-    let mut clock = VirtualClock::default();
-    plc.init(0, &mut clock);
-    while plc.next_release() < until_ms * 1_000_000 {
-        let t = plc.next_release();
-        clock.advance_to(t);
-        plc.run_due(&mut clock, u64::MAX);
-        each(plc, t / 1_000_000);
-    }
+    common::sim_plc(&common::loaded(&c), &registry(), scenario).unwrap_or_else(|e| panic!("{e}"))
 }
 
 const READY_RAMP: &str = r#"{"state": "READY", "ramp_from_ms": 500, "ramp_mm": 10.0, "speed_mm_s": 20.0}"#;

@@ -1,14 +1,13 @@
 //! Soak: one simulated hour of random joystick input, STOP presses and injected faults on the
 //! simulated machine, with the machine's invariants checked after every cycle.
 
-use std::path::{Path, PathBuf};
+mod common;
+
 use std::time::Instant;
 
-use pkm_plc::config;
 use pkm_plc::image::Value;
 use pkm_plc::plc::Plc;
 use pkm_plc::run::VirtualClock;
-use pkm_plc::sim::bus::SimBus;
 
 const HOUR_MS: u64 = 3_600_000;
 
@@ -95,18 +94,12 @@ fn random_scenario(seed: u64) -> (String, usize) {
 }
 
 fn build(scenario: &str) -> Plc {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let mut loaded = config::load(Some(&root.join("config.json"))).expect("config");
-    loaded.dir = Some(PathBuf::from(root));
-    let dir = tempfile::tempdir().expect("tempdir");
-    let path = dir.path().join("soak.json");
-    std::fs::write(&path, scenario).expect("write");
-    let kinematics = pkm_plc::application_config(&loaded.config).expect("kinematics");
-    let bus = pkm_plc::sim::build(&loaded, &kinematics.trijoint, Some(&path)).expect("bus");
-    match Plc::build(&loaded.config, &pkm_plc::registry(), Box::new(bus)) {
-        Ok(p) => p,
-        Err(problems) => panic!("{problems:#?}"),
-    }
+    common::sim_plc(
+        &common::loaded(&common::repo_config()),
+        &pkm_plc::registry(),
+        Some(scenario),
+    )
+    .unwrap_or_else(|e| panic!("{e}"))
 }
 
 #[test]
@@ -129,7 +122,7 @@ fn one_simulated_hour_of_random_operation_keeps_every_invariant() {
         let status = plc.app_status().expect("status");
         let state = status.state.to_string();
         // Carriages inside their hard stops.
-        let plant = plc.bus().as_any().downcast_ref::<SimBus>().expect("sim").plant();
+        let plant = common::plant(&plc);
         for i in 0..2 {
             assert!((-3.0..=253.0).contains(&plant.position_mm(i)), "carriage {i} at {t} ms");
         }

@@ -572,13 +572,6 @@ impl Automaton {
         self.limits = Some(limits);
         self.searches = [0, 1].map(|i| Search::ToStart { target: start[i] });
     }
-
-    /// The measured carriage travel between the switches (mm), once referenced.
-    pub fn travel_mm(&self) -> Option<[f64; 2]> {
-        self.limits
-            .as_ref()
-            .map(|_| [self.edges[0][1] - self.edges[0][0], self.edges[1][1] - self.edges[1][0]])
-    }
 }
 
 struct Vars {
@@ -694,11 +687,6 @@ impl MainProgram {
             display,
             shown: [("Mx", f64::NAN), ("My", f64::NAN), ("h1", f64::NAN), ("h2", f64::NAN)],
         })
-    }
-
-    /// The automaton (for tests).
-    pub fn automaton(&self) -> &Automaton {
-        self.machine.inner()
     }
 
     /// Reads the inputs into `io` and advances the set-points to where the controller has taken

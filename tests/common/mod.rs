@@ -1,0 +1,86 @@
+//! Helpers shared by the tests that run the simulated machine in virtual time. Each test file
+//! uses a part of them.
+#![allow(dead_code)]
+
+use std::path::{Path, PathBuf};
+
+use pkm_plc::config::{self, ConfigError, LoadedConfig};
+use pkm_plc::image::Value;
+use pkm_plc::plc::Plc;
+use pkm_plc::program::Registry;
+use pkm_plc::run::VirtualClock;
+use pkm_plc::sim::bus::SimBus;
+use pkm_plc::sim::plant::Plant;
+
+/// The repository's directory.
+pub fn root() -> &'static Path {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// The repository's config.json as JSON, to be modified by a test.
+pub fn repo_config() -> serde_json::Value {
+    let text = std::fs::read_to_string(root().join("config.json")).expect("config.json");
+    serde_json::from_str(&text).expect("config.json is JSON")
+}
+
+/// A configuration from JSON, named `test-config.json`, with paths relative to the repository.
+pub fn loaded(config: &serde_json::Value) -> LoadedConfig {
+    let mut loaded = config::parse(&config.to_string(), "test-config.json").expect("the test configuration parses");
+    loaded.dir = Some(PathBuf::from(root()));
+    loaded
+}
+
+/// Builds the PLC on the simulated machine, with `scenario` (JSON text) if given.
+pub fn sim_plc(loaded: &LoadedConfig, registry: &Registry, scenario: Option<&str>) -> Result<Plc, ConfigError> {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = scenario.map(|s| {
+        let p = dir.path().join("scenario.json");
+        std::fs::write(&p, s).expect("write the scenario");
+        p
+    });
+    let kinematics = pkm_plc::application_config(&loaded.config).expect("kinematics");
+    let bus = pkm_plc::sim::build(loaded, &kinematics.trijoint, path.as_deref())?;
+    Plc::build(&loaded.config, registry, Box::new(bus)).map_err(|problems| ConfigError::Invalid {
+        file: loaded.origin.clone(),
+        problems,
+    })
+}
+
+/// The simulated machine's plant: the machine's true state.
+pub fn plant(plc: &Plc) -> &Plant {
+    plc.bus()
+        .as_any()
+        .downcast_ref::<SimBus>()
+        .expect("the simulated bus")
+        .plant()
+}
+
+/// A variable of the published image.
+pub fn var(plc: &Plc, name: &str) -> Value {
+    plc.global_image()[usize::from(plc.vars().index_of(name).expect("variable"))]
+}
+
+/// A REAL variable of the published image.
+pub fn real(plc: &Plc, name: &str) -> f64 {
+    match var(plc, name) {
+        Value::Real(v) => v,
+        other => panic!("{name}: {other:?}"),
+    }
+}
+
+/// The main program's state.
+pub fn state(plc: &Plc) -> &str {
+    plc.app_status().map(|s| s.state).unwrap_or("")
+}
+
+/// Runs in virtual time from power-on; `each(plc, t_ms)` after every pass over the due classes.
+pub fn run(plc: &mut Plc, until_ms: u64, mut each: impl FnMut(&Plc, u64)) {
+    let mut clock = VirtualClock::default();
+    plc.init(0, &mut clock);
+    while plc.next_release() < until_ms * 1_000_000 {
+        let t = plc.next_release();
+        clock.advance_to(t);
+        plc.run_due(&mut clock, u64::MAX);
+        each(plc, t / 1_000_000);
+    }
+}
