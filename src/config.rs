@@ -166,6 +166,8 @@ pub struct LoadedConfig {
     pub config: Config,
     /// The directory that relative paths in it are relative to (`None`: the built-in one).
     pub dir: Option<PathBuf>,
+    /// The configuration as JSON (for digests).
+    pub json: serde_json::Value,
 }
 
 /// Why a configuration was refused.
@@ -261,6 +263,8 @@ pub fn parse(text: &str, origin: &str) -> Result<LoadedConfig, ConfigError> {
         origin: origin.to_string(),
         config,
         dir: None,
+        // Parsed above already, so this cannot fail.
+        json: serde_json::from_str(text).unwrap_or_default(),
     })
 }
 

@@ -18,6 +18,7 @@ pub mod stats;
 pub mod status;
 pub mod summary;
 pub mod timing;
+pub mod trace;
 
 /// The application programs and machine models (the `tasks/` directory).
 #[path = "../tasks/mod.rs"]

@@ -39,6 +39,20 @@ enum Command {
     Bench(BenchArgs),
     /// Kinematics of a machine model: fk, ik, workspace, bench, convergence.
     Kin(kin_cmd::KinArgs),
+    /// Replay a trace: feed its inputs to the programs, compare every output and state.
+    Replay(ReplayArgs),
+}
+
+#[derive(Args, Debug)]
+struct ReplayArgs {
+    /// The trace (JSON Lines, from `run --trace`).
+    #[arg(value_name = "TRACE")]
+    trace: PathBuf,
+    #[command(flatten)]
+    config: ConfigArg,
+    /// Replay even if the trace was recorded with another configuration or I/O map.
+    #[arg(long)]
+    force: bool,
 }
 
 #[derive(Args, Debug)]
@@ -68,6 +82,9 @@ struct RunArgs {
     /// A scenario for the simulated machine: timed operator actions and faults (JSON).
     #[arg(long, value_name = "FILE")]
     scenario: Option<PathBuf>,
+    /// Record every class cycle (inputs, outputs, main state) to FILE (JSON Lines).
+    #[arg(long, value_name = "FILE")]
+    trace: Option<PathBuf>,
     /// Override the configured time source (real time only).
     #[arg(long, value_enum, value_name = "SOURCE", conflicts_with = "virtual_time")]
     time_source: Option<TimeSourceKind>,
@@ -147,6 +164,7 @@ fn main() -> ExitCode {
         Command::Run(args) => cmd_run(args),
         Command::Check(args) => cmd_check(args),
         Command::Bench(args) => cmd_bench(args),
+        Command::Replay(args) => cmd_replay(args),
         Command::Kin(args) => kin_cmd::run(args, load_config).map_err(|e| Failure {
             code: e.code,
             message: e.message,
@@ -230,6 +248,12 @@ fn cmd_check(args: ConfigArg) -> Result<(), Failure> {
 
 fn cmd_run(args: RunArgs) -> Result<(), Failure> {
     let (loaded, mut plc) = build(&args.config, args.bus, args.scenario.as_deref())?;
+    if let Some(path) = &args.trace {
+        let digest = pkm_plc::trace::config_digest(&loaded)?;
+        let recorder = pkm_plc::trace::record::Recorder::create(path, &plc, &digest)
+            .map_err(|e| Failure::run(format!("{}: cannot create the trace: {e}", path.display())))?;
+        plc.set_recorder(Box::new(recorder));
+    }
     info!("configuration: {}; bus: {}", loaded.origin, plc.bus_name());
     if plc.app_program().is_some_and(|p| p.starts_with("selftest.")) {
         warn!("running the runtime's built-in self-test programs, not the TRIJOINT application");
@@ -246,6 +270,7 @@ fn cmd_run(args: RunArgs) -> Result<(), Failure> {
             report.wall.as_secs_f64(),
             duration / report.wall.as_secs_f64().max(1e-9)
         );
+        finish_trace(&mut plc)?;
         Summary::collect(&plc, "virtual", &loaded.origin, report.simulated_ns)
     } else {
         let timing = &loaded.config.timing;
@@ -260,7 +285,8 @@ fn cmd_run(args: RunArgs) -> Result<(), Failure> {
             "real time, time source {}; Ctrl-C stops",
             options.source.resolve().name()
         );
-        let outcome = run_realtime(plc, options)?;
+        let mut outcome = run_realtime(plc, options)?;
+        finish_trace(&mut outcome.plc)?;
         let mut s = Summary::collect(&outcome.plc, "real-time", &loaded.origin, outcome.elapsed_ns);
         s.time_source = Some(outcome.source.name());
         s.realtime_priority = Some(outcome.realtime_priority);
@@ -316,6 +342,38 @@ fn run_realtime(plc: Plc, options: RealTimeOptions) -> Result<run::RealTimeOutco
         run.join()
     });
     outcome.map_err(|e| Failure::run(e.to_string()))
+}
+
+/// Flushes and closes the trace, if one is being recorded.
+fn finish_trace(plc: &mut Plc) -> Result<(), Failure> {
+    match plc.take_recorder().map(|r| r.finish()) {
+        Some(Ok(message)) => {
+            info!("{message}");
+            Ok(())
+        }
+        Some(Err(message)) => Err(Failure::run(message)),
+        None => Ok(()),
+    }
+}
+
+fn cmd_replay(args: ReplayArgs) -> Result<(), Failure> {
+    use pkm_plc::trace::replay::{ReplayError, replay};
+    let loaded = load_config(&args.config)?;
+    match replay(&args.trace, &loaded, args.force) {
+        Ok(r) => {
+            println!(
+                "{}: identical: {} records over {:.1} s of recorded time, replayed in {:.3} s ({:.0}x)",
+                args.trace.display(),
+                r.records,
+                r.recorded_s,
+                r.wall.as_secs_f64(),
+                r.recorded_s / r.wall.as_secs_f64().max(1e-9)
+            );
+            Ok(())
+        }
+        Err(e @ ReplayError::Differs(_)) => Err(Failure::run(format!("{}: {e}", args.trace.display()))),
+        Err(e) => Err(Failure::usage(e.to_string())),
+    }
 }
 
 fn cmd_bench(args: BenchArgs) -> Result<(), Failure> {

@@ -13,6 +13,35 @@ use crate::image::{DeclIssue, Declare, Value, VarIndex, VarTable, Writer};
 use crate::program::{AppStatus, Clock, Cycle, CycleViolation, Program, ProgramArgs, Registry};
 use crate::stats::ClassStats;
 
+/// What a recorder sees of one class cycle.
+pub struct CycleRecord<'a> {
+    /// The task class (configuration order).
+    pub class: usize,
+    /// The cycle's nominal start (ns since the epoch).
+    pub t_ns: u64,
+    /// The cycle's number in its class, from 0.
+    pub cycle: u64,
+    /// The class's image after the cycle: inputs as latched, outputs as written.
+    pub image: &'a [Value],
+    /// The class's input variables.
+    pub inputs: &'a [VarIndex],
+    /// The class's output variables.
+    pub outputs: &'a [VarIndex],
+    /// The main program's state after the cycle.
+    pub status: Option<AppStatus<'a>>,
+    /// Whether a cycle time violation was delivered to the class's programs in this cycle.
+    pub violation: bool,
+}
+
+/// Receives every class cycle (a trace recorder). Called on the cyclic path: it must not block
+/// for long nor allocate in steady operation.
+pub trait CycleSink: Send {
+    /// One class cycle has run.
+    fn record(&mut self, record: &CycleRecord<'_>);
+    /// The run is over: flush, and say what was recorded (or what went wrong).
+    fn finish(self: Box<Self>) -> Result<String, String>;
+}
+
 /// One program instance in its task class.
 struct Slot {
     name: String,
@@ -49,6 +78,7 @@ pub struct Plc {
     bus: Box<dyn Bus>,
     violation_seq: u64,
     last_violation: Option<CycleViolation>,
+    sink: Option<Box<dyn CycleSink>>,
 }
 
 /// A read-only view of one task class, for summaries and status lines.
@@ -62,6 +92,10 @@ pub struct ClassView<'a> {
     pub tolerance_ns: u64,
     /// What it has measured.
     pub stats: &'a ClassStats,
+    /// The variables its cycles latch.
+    pub inputs: &'a [VarIndex],
+    /// The variables its cycles publish.
+    pub outputs: &'a [VarIndex],
 }
 
 impl Plc {
@@ -145,6 +179,7 @@ impl Plc {
             bus,
             violation_seq: 0,
             last_violation: None,
+            sink: None,
         })
     }
 
@@ -175,6 +210,8 @@ impl Plc {
             period_ns: c.period_ns,
             tolerance_ns: c.tolerance_ns,
             stats: &c.stats,
+            inputs: &c.inputs,
+            outputs: &c.outputs,
         })
     }
 
@@ -244,22 +281,27 @@ impl Plc {
         }
     }
 
-    fn run_class(&mut self, ci: usize, clock: &mut dyn Clock) {
+    /// Runs the programs of class `ci` on its image. With `replayed` the violation events are
+    /// the recorded ones; otherwise each program gets the runtime's pending one. Returns whether a
+    /// violation was delivered.
+    fn execute(&mut self, ci: usize, release: u64, clock: &mut dyn Clock, replayed: Option<bool>) -> bool {
         let class = &mut self.classes[ci];
-        let release = class.next_release;
-        let start = clock.now_ns();
-        self.bus.read_inputs(ci, release, &mut self.global);
-        for &i in &class.inputs {
-            class.image[usize::from(i)] = self.global[usize::from(i)];
-        }
         let cycle = class.stats.cycles;
+        let mut delivered = false;
         for slot in &mut class.programs {
-            let violation = if slot.seen_violation != self.violation_seq {
-                slot.seen_violation = self.violation_seq;
-                self.last_violation
-            } else {
-                None
+            let violation = match replayed {
+                Some(true) => Some(CycleViolation {
+                    class: ci,
+                    late_by_ns: 0,
+                }),
+                Some(false) => None,
+                None if slot.seen_violation != self.violation_seq => {
+                    slot.seen_violation = self.violation_seq;
+                    self.last_violation
+                }
+                None => None,
             };
+            delivered |= violation.is_some();
             let mut ctx = Cycle {
                 image: &mut class.image,
                 time_ns: release,
@@ -270,10 +312,77 @@ impl Plc {
             };
             slot.program.cycle(&mut ctx);
         }
+        delivered
+    }
+
+    /// Publishes class `ci`'s outputs to the global image.
+    fn publish(&mut self, ci: usize) {
+        let class = &self.classes[ci];
         for &o in &class.outputs {
             self.global[usize::from(o)] = class.image[usize::from(o)];
         }
+    }
+
+    /// Hands the cycle just run to the recorder, if there is one.
+    fn record(&mut self, ci: usize, release: u64, cycle: u64, violation: bool) {
+        if let Some(mut sink) = self.sink.take() {
+            let class = &self.classes[ci];
+            sink.record(&CycleRecord {
+                class: ci,
+                t_ns: release,
+                cycle,
+                image: &class.image,
+                inputs: &class.inputs,
+                outputs: &class.outputs,
+                status: self.app_status(),
+                violation,
+            });
+            self.sink = Some(sink);
+        }
+    }
+
+    /// Runs one cycle of class `ci` with recorded inputs instead of latched ones (`inputs` holds
+    /// them at their variable indices) and the recorded violation event; the outputs are then in
+    /// [`Plc::class_image`]. Used by replay: no bus, no statistics but the cycle count.
+    pub fn replay_cycle(&mut self, ci: usize, release: u64, inputs: &[Value], violation: bool, clock: &mut dyn Clock) {
+        let class = &mut self.classes[ci];
+        for &i in &class.inputs {
+            class.image[usize::from(i)] = inputs[usize::from(i)];
+        }
+        self.execute(ci, release, clock, Some(violation));
+        self.publish(ci);
+        self.classes[ci].stats.cycles += 1;
+    }
+
+    /// Class `ci`'s private image (its inputs as latched, its outputs as last written).
+    pub fn class_image(&self, ci: usize) -> &[Value] {
+        &self.classes[ci].image
+    }
+
+    /// Installs a recorder that sees every class cycle.
+    pub fn set_recorder(&mut self, sink: Box<dyn CycleSink>) {
+        self.sink = Some(sink);
+    }
+
+    /// Removes the recorder (to finish it after the run).
+    pub fn take_recorder(&mut self) -> Option<Box<dyn CycleSink>> {
+        self.sink.take()
+    }
+
+    fn run_class(&mut self, ci: usize, clock: &mut dyn Clock) {
+        let class = &mut self.classes[ci];
+        let release = class.next_release;
+        let start = clock.now_ns();
+        self.bus.read_inputs(ci, release, &mut self.global);
+        for &i in &class.inputs {
+            class.image[usize::from(i)] = self.global[usize::from(i)];
+        }
+        let cycle = class.stats.cycles;
+        let violation = self.execute(ci, release, clock, None);
+        self.publish(ci);
         self.bus.write_outputs(ci, release, &self.global);
+        self.record(ci, release, cycle, violation);
+        let class = &mut self.classes[ci];
         let end = clock.now_ns();
 
         let stats = &mut class.stats;

@@ -8,7 +8,8 @@ pub mod scenario;
 
 use serde::Deserialize;
 
-use crate::image::VarType;
+use crate::config::{ConfigError, LoadedConfig};
+use crate::image::{DeclIssue, VarType};
 use crate::io::catalogue::Direction;
 use crate::io::map::IoMap;
 
@@ -336,12 +337,10 @@ impl PlantConfig {
 /// to the configuration file; the built-in configuration uses the built-in map), the plant
 /// parameters and the wiring, and the scenario file if one is given.
 pub fn build(
-    loaded: &crate::config::LoadedConfig,
+    loaded: &LoadedConfig,
     mechanism: &crate::tasks::kinematics::trijoint::TrijointParams,
     scenario: Option<&std::path::Path>,
-) -> Result<bus::SimBus, crate::config::ConfigError> {
-    use crate::config::ConfigError;
-    use crate::image::DeclIssue;
+) -> Result<bus::SimBus, ConfigError> {
     let config = &loaded.config;
     let invalid = |problems: Vec<(String, String)>, prefix: &str| ConfigError::Invalid {
         file: loaded.origin.clone(),
@@ -353,35 +352,11 @@ pub fn build(
             })
             .collect(),
     };
-    let Some(map_name) = &config.io_map else {
+    let Some((text, origin)) = io_map_text(loaded)? else {
         return Err(invalid(
             vec![("io_map".into(), "the simulated bus needs an I/O map".into())],
             "",
         ));
-    };
-    let (text, origin) = match &loaded.dir {
-        Some(dir) => {
-            let path = dir.join(map_name);
-            let origin = path.display().to_string();
-            let text = std::fs::read_to_string(&path).map_err(|source| ConfigError::Read {
-                file: origin.clone(),
-                source,
-            })?;
-            (text, origin)
-        }
-        None if map_name == "io-map/trijoint.json" => (
-            crate::io::map::BUILTIN_TRIJOINT.to_string(),
-            "<built-in io-map/trijoint.json>".to_string(),
-        ),
-        None => {
-            return Err(invalid(
-                vec![(
-                    "io_map".into(),
-                    format!("the built-in configuration has no I/O map \"{map_name}\""),
-                )],
-                "",
-            ));
-        }
     };
     let classes: Vec<String> = config.task_classes.iter().map(|c| c.name.clone()).collect();
     let map = IoMap::parse(&text, &origin, &classes)?;
@@ -417,4 +392,37 @@ pub fn build(
         scenario,
         u64::from(config.plant.step_us) * 1000,
     ))
+}
+
+/// The text of the configuration's I/O map and the name to report it by: the file relative to
+/// the configuration's directory, or the built-in map for the built-in configuration. `None` when
+/// the configuration names no I/O map.
+pub fn io_map_text(loaded: &LoadedConfig) -> Result<Option<(String, String)>, ConfigError> {
+    let Some(map_name) = &loaded.config.io_map else {
+        return Ok(None);
+    };
+    Ok(Some(match &loaded.dir {
+        Some(dir) => {
+            let path = dir.join(map_name);
+            let origin = path.display().to_string();
+            let text = std::fs::read_to_string(&path).map_err(|source| ConfigError::Read {
+                file: origin.clone(),
+                source,
+            })?;
+            (text, origin)
+        }
+        None if map_name == "io-map/trijoint.json" => (
+            crate::io::map::BUILTIN_TRIJOINT.to_string(),
+            "<built-in io-map/trijoint.json>".to_string(),
+        ),
+        None => {
+            return Err(ConfigError::Invalid {
+                file: loaded.origin.clone(),
+                problems: vec![DeclIssue {
+                    at: "io_map".into(),
+                    message: format!("the built-in configuration has no I/O map \"{map_name}\""),
+                }],
+            });
+        }
+    }))
 }

@@ -1,0 +1,123 @@
+//! IO traces: every class cycle's inputs, outputs and main state, recorded to JSON Lines, read
+//! back strictly, and replayed deterministically against the programs.
+//!
+//! Format (version 1): the first line is a header —
+//! `{"format": "pkm-plc trace", "version": 1, "config_digest": …, "bus": …, "task_classes":
+//! [{"name", "cycle_us", "inputs": [..], "outputs": [..]}], "variables": {NAME: TYPE}}` — and every
+//! further line one class cycle: `{"t_us", "task", "cycle", "in": {VAR: VALUE}, "out": {VAR:
+//! VALUE}, "state", "reason"?, "violation"?}`. `in` and `out` hold the variables that changed
+//! since that class's previous record; a class's first record holds all of them.
+
+pub mod read;
+pub mod record;
+pub mod replay;
+
+use std::collections::BTreeMap;
+
+use serde::{Deserialize, Serialize};
+
+use crate::image::{Value, VarType};
+
+/// The `format` value of a header.
+pub const FORMAT: &str = "pkm-plc trace";
+/// The format version written and read.
+pub const VERSION: u32 = 1;
+
+/// The first line of a trace.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Header {
+    /// Always [`FORMAT`].
+    pub format: String,
+    /// [`VERSION`].
+    pub version: u32,
+    /// Digest of the configuration and I/O map the trace was recorded with.
+    pub config_digest: String,
+    /// The bus it was recorded on (`sim`, `none`, …).
+    pub bus: String,
+    /// The task classes with the variables each latches and publishes.
+    pub task_classes: Vec<ClassHeader>,
+    /// Every variable that appears, with its type.
+    pub variables: BTreeMap<String, VarType>,
+}
+
+/// One task class in a header.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ClassHeader {
+    /// Its name.
+    pub name: String,
+    /// Its cycle time (µs).
+    pub cycle_us: u64,
+    /// The variables its cycles latch.
+    pub inputs: Vec<String>,
+    /// The variables its cycles publish.
+    pub outputs: Vec<String>,
+}
+
+/// A value as JSON: numbers and booleans; a non-finite REAL (which JSON cannot hold) as null.
+pub fn value_to_json(v: Value) -> serde_json::Value {
+    match v {
+        Value::Bool(b) => serde_json::Value::Bool(b),
+        Value::Int(i) => i.into(),
+        Value::Uint(u) => u.into(),
+        Value::Dint(d) => d.into(),
+        Value::Real(r) => serde_json::Number::from_f64(r).map_or(serde_json::Value::Null, serde_json::Value::Number),
+    }
+}
+
+/// A JSON value as a value of type `ty`, or why it is not one.
+pub fn value_from_json(v: &serde_json::Value, ty: VarType) -> Result<Value, String> {
+    let int = |lo: i64, hi: i64| {
+        v.as_i64()
+            .filter(|i| (lo..=hi).contains(i))
+            .ok_or_else(|| format!("expected {ty} ({lo} … {hi}), got {v}"))
+    };
+    Ok(match ty {
+        VarType::Bool => Value::Bool(
+            v.as_bool()
+                .ok_or_else(|| format!("expected BOOL (true or false), got {v}"))?,
+        ),
+        VarType::Int => Value::Int(int(i16::MIN.into(), i16::MAX.into())? as i16),
+        VarType::Uint => Value::Uint(int(0, u16::MAX.into())? as u16),
+        VarType::Dint => Value::Dint(int(i32::MIN.into(), i32::MAX.into())? as i32),
+        VarType::Real => match v {
+            serde_json::Value::Null => Value::Real(f64::NAN),
+            other => Value::Real(
+                other
+                    .as_f64()
+                    .ok_or_else(|| format!("expected REAL (a number), got {other}"))?,
+            ),
+        },
+    })
+}
+
+/// Whether two values are the same for trace purposes (NaN equals NaN, as JSON null).
+pub fn same(a: Value, b: Value) -> bool {
+    match (a, b) {
+        (Value::Real(x), Value::Real(y)) => x.to_bits() == y.to_bits() || (x.is_nan() && y.is_nan()),
+        (x, y) => x == y,
+    }
+}
+
+/// A digest of the configuration and the I/O map (FNV-1a, 64 bit, over their JSON with the
+/// whitespace normalised): traces say what they were recorded with, replays check it.
+pub fn digest(parts: &[&serde_json::Value]) -> String {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for part in parts {
+        for b in part.to_string().bytes().chain([0u8]) {
+            h ^= u64::from(b);
+            h = h.wrapping_mul(0x0100_0000_01b3);
+        }
+    }
+    format!("fnv1a64:{h:016x}")
+}
+
+/// The digest of a loaded configuration together with its I/O map.
+pub fn config_digest(loaded: &crate::config::LoadedConfig) -> Result<String, crate::config::ConfigError> {
+    let map = match crate::sim::io_map_text(loaded)? {
+        Some((text, _)) => serde_json::from_str(&text).unwrap_or(serde_json::Value::String(text)),
+        None => serde_json::Value::Null,
+    };
+    Ok(digest(&[&loaded.json, &map]))
+}

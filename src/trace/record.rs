@@ -1,0 +1,278 @@
+//! Recording: the cyclic thread copies each class cycle's changed values into a pooled buffer
+//! and hands it to a writer thread through a preallocated bounded channel; the writer formats
+//! JSON Lines into a buffered file. Nothing is ever dropped: should the writer fall behind so far
+//! that the channel is full, the cycle waits for it (counted and reported as stalls).
+
+use std::fs::File;
+use std::io::{self, BufWriter, Write};
+use std::path::Path;
+use std::sync::mpsc::{Receiver, SyncSender, TrySendError, sync_channel};
+use std::thread::JoinHandle;
+
+use super::{ClassHeader, FORMAT, Header, VERSION, same, value_to_json};
+use crate::image::{Value, VarIndex};
+use crate::plc::{CycleRecord, CycleSink, Plc};
+
+/// Records in flight between the cyclic thread and the writer.
+const CHANNEL: usize = 16_384;
+/// Buffers made up front.
+const POOL: usize = 1024;
+
+enum Msg {
+    /// A state or reason name, interned under this number.
+    Name(u16, String),
+    /// One class cycle: `changes[..inputs]` are inputs, the rest outputs.
+    Cycle {
+        class: u16,
+        t_ns: u64,
+        cycle: u64,
+        changes: Vec<(VarIndex, Value)>,
+        inputs: usize,
+        state: Option<u16>,
+        reason: Option<u16>,
+        violation: bool,
+    },
+}
+
+/// What the writer reports when it is done.
+#[derive(Debug)]
+struct Written {
+    records: u64,
+    bytes: u64,
+    error: Option<io::Error>,
+}
+
+/// Records a run's class cycles to a trace file.
+pub struct Recorder {
+    path: String,
+    tx: Option<SyncSender<Msg>>,
+    pool: Receiver<Vec<(VarIndex, Value)>>,
+    writer: Option<JoinHandle<Written>>,
+    last: Vec<Vec<Value>>,
+    started: Vec<bool>,
+    names: Vec<String>,
+    capacity: usize,
+    stalls: u64,
+    allocations: u64,
+}
+
+impl Recorder {
+    /// Creates the trace file, writes its header and starts the writer thread.
+    pub fn create(path: &Path, plc: &Plc, config_digest: &str) -> io::Result<Recorder> {
+        let file = BufWriter::with_capacity(1 << 20, File::create(path)?);
+        let vars = plc.vars().vars();
+        let name = |i: &VarIndex| vars[usize::from(*i)].name.clone();
+        let header = Header {
+            format: FORMAT.into(),
+            version: VERSION,
+            config_digest: config_digest.into(),
+            bus: plc.bus_name().into(),
+            task_classes: plc
+                .classes()
+                .map(|c| ClassHeader {
+                    name: c.name.into(),
+                    cycle_us: c.period_ns / 1000,
+                    inputs: c.inputs.iter().map(name).collect(),
+                    outputs: c.outputs.iter().map(name).collect(),
+                })
+                .collect(),
+            variables: vars.iter().map(|v| (v.name.clone(), v.ty)).collect(),
+        };
+        let var_names: Vec<String> = vars.iter().map(|v| v.name.clone()).collect();
+        let class_names: Vec<String> = plc.classes().map(|c| c.name.to_string()).collect();
+        let (tx, rx) = sync_channel::<Msg>(CHANNEL);
+        let (pool_tx, pool) = sync_channel::<Vec<(VarIndex, Value)>>(POOL * 2);
+        let capacity = vars.len();
+        for _ in 0..POOL {
+            // Filling an empty channel of twice the size cannot fail.
+            let _ = pool_tx.try_send(Vec::with_capacity(capacity));
+        }
+        let writer = std::thread::Builder::new()
+            .name("trace-writer".into())
+            .spawn(move || write_all(file, &header, &var_names, &class_names, rx, pool_tx))?;
+        let n = plc.classes().count();
+        Ok(Recorder {
+            path: path.display().to_string(),
+            tx: Some(tx),
+            pool,
+            writer: Some(writer),
+            last: vec![plc.global_image().to_vec(); n],
+            started: vec![false; n],
+            names: Vec::new(),
+            capacity,
+            stalls: 0,
+            allocations: 0,
+        })
+    }
+
+    fn intern(&mut self, name: &str) -> u16 {
+        if let Some(i) = self.names.iter().position(|n| n == name) {
+            return i as u16;
+        }
+        // New names are rare (a state or reason seen for the first time): the only allocation.
+        let i = self.names.len() as u16;
+        self.names.push(name.to_string());
+        self.send(Msg::Name(i, name.to_string()));
+        i
+    }
+
+    fn send(&mut self, msg: Msg) {
+        let Some(tx) = &self.tx else { return };
+        match tx.try_send(msg) {
+            Ok(()) => {}
+            Err(TrySendError::Full(msg)) => {
+                self.stalls += 1;
+                // Never lose a record: wait for the writer.
+                if tx.send(msg).is_err() {
+                    self.tx = None;
+                }
+            }
+            // The writer ended (a write error): it reports that when the recorder finishes.
+            Err(TrySendError::Disconnected(_)) => self.tx = None,
+        }
+    }
+}
+
+impl CycleSink for Recorder {
+    fn record(&mut self, r: &CycleRecord<'_>) {
+        let mut changes = self.pool.try_recv().unwrap_or_else(|_| {
+            self.allocations += 1;
+            Vec::with_capacity(self.capacity)
+        });
+        changes.clear();
+        let first = !self.started[r.class];
+        self.started[r.class] = true;
+        let last = &mut self.last[r.class];
+        let mut inputs = 0;
+        for (k, list) in [r.inputs, r.outputs].into_iter().enumerate() {
+            for &i in list {
+                let v = r.image[usize::from(i)];
+                if first || !same(v, last[usize::from(i)]) {
+                    changes.push((i, v));
+                    last[usize::from(i)] = v;
+                }
+            }
+            if k == 0 {
+                inputs = changes.len();
+            }
+        }
+        let state = r.status.map(|s| s.state);
+        let reason = r.status.and_then(|s| s.reason);
+        let state = state.map(|s| self.intern(s));
+        let reason = reason.map(|s| self.intern(s));
+        let msg = Msg::Cycle {
+            class: r.class as u16,
+            t_ns: r.t_ns,
+            cycle: r.cycle,
+            changes,
+            inputs,
+            state,
+            reason,
+            violation: r.violation,
+        };
+        self.send(msg);
+    }
+
+    fn finish(mut self: Box<Self>) -> Result<String, String> {
+        self.tx = None;
+        let written = match self.writer.take().map(JoinHandle::join) {
+            Some(Ok(w)) => w,
+            _ => return Err(format!("{}: the trace writer panicked", self.path)),
+        };
+        match written.error {
+            Some(e) => Err(format!(
+                "{}: writing the trace failed after {} records: {e}",
+                self.path, written.records
+            )),
+            None => Ok(format!(
+                "trace {}: {} records, {:.1} MB; {} stalls, {} extra buffers",
+                self.path,
+                written.records,
+                written.bytes as f64 / 1e6,
+                self.stalls,
+                self.allocations
+            )),
+        }
+    }
+}
+
+/// The writer thread: formats every message as one JSON line.
+fn write_all(
+    mut out: BufWriter<File>,
+    header: &Header,
+    vars: &[String],
+    classes: &[String],
+    rx: Receiver<Msg>,
+    pool: SyncSender<Vec<(VarIndex, Value)>>,
+) -> Written {
+    let mut w = Written {
+        records: 0,
+        bytes: 0,
+        error: None,
+    };
+    let mut names: Vec<String> = Vec::new();
+    let emit = |line: String, w: &mut Written, out: &mut BufWriter<File>| {
+        if w.error.is_none() {
+            match out.write_all(line.as_bytes()).and_then(|()| out.write_all(b"\n")) {
+                Ok(()) => w.bytes += line.len() as u64 + 1,
+                Err(e) => w.error = Some(e),
+            }
+        }
+    };
+    match serde_json::to_string(header) {
+        Ok(line) => emit(line, &mut w, &mut out),
+        Err(e) => w.error = Some(io::Error::other(e)),
+    }
+    for msg in rx {
+        match msg {
+            Msg::Name(i, name) => {
+                let i = usize::from(i);
+                if names.len() <= i {
+                    names.resize(i + 1, String::new());
+                }
+                names[i] = name;
+            }
+            Msg::Cycle {
+                class,
+                t_ns,
+                cycle,
+                changes,
+                inputs,
+                state,
+                reason,
+                violation,
+            } => {
+                let map = |part: &[(VarIndex, Value)]| {
+                    part.iter()
+                        .map(|(i, v)| (vars[usize::from(*i)].clone(), value_to_json(*v)))
+                        .collect::<serde_json::Map<_, _>>()
+                };
+                let mut line = serde_json::Map::new();
+                line.insert("t_us".into(), (t_ns / 1000).into());
+                line.insert("task".into(), classes[usize::from(class)].clone().into());
+                line.insert("cycle".into(), cycle.into());
+                line.insert("in".into(), map(&changes[..inputs]).into());
+                line.insert("out".into(), map(&changes[inputs..]).into());
+                if let Some(s) = state {
+                    line.insert("state".into(), names[usize::from(s)].clone().into());
+                }
+                if let Some(r) = reason {
+                    line.insert("reason".into(), names[usize::from(r)].clone().into());
+                }
+                if violation {
+                    line.insert("violation".into(), true.into());
+                }
+                emit(serde_json::Value::Object(line).to_string(), &mut w, &mut out);
+                w.records += 1;
+                // Back to the pool; if it is full, this buffer is simply freed.
+                let _ = pool.try_send(changes);
+            }
+        }
+    }
+    if w.error.is_none()
+        && let Err(e) = out.flush()
+    {
+        w.error = Some(e);
+    }
+    w
+}

@@ -1,0 +1,189 @@
+//! Replay: the recorded inputs of every class cycle are fed to the programs in virtual time and
+//! every output and the main state are compared with the record.
+
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+use super::read::{TraceError, TraceReader};
+use super::same;
+use crate::bus::{Bus, NoBus};
+use crate::config::{ConfigError, LoadedConfig};
+use crate::image::{Value, VarIndex};
+use crate::plc::Plc;
+use crate::run::VirtualClock;
+
+/// The first difference between a trace and its replay.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Difference {
+    /// The record's line.
+    pub line: usize,
+    /// Its task class.
+    pub task: String,
+    /// Its cycle.
+    pub cycle: u64,
+    /// Its time (µs).
+    pub t_us: u64,
+    /// The variable, or `state` / `reason`.
+    pub what: String,
+    /// As recorded.
+    pub recorded: String,
+    /// As replayed.
+    pub replayed: String,
+}
+
+/// Why a replay did not confirm the trace.
+#[derive(Debug, thiserror::Error)]
+pub enum ReplayError {
+    /// The configuration is invalid.
+    #[error("{0}")]
+    Config(#[from] ConfigError),
+    /// The trace is malformed.
+    #[error("{0}")]
+    Trace(#[from] TraceError),
+    /// The trace does not fit this configuration.
+    #[error("{0}")]
+    Refused(String),
+    /// The replay differs from the record.
+    #[error(
+        "replay differs at line {} (task {}, cycle {}, t = {:.3} s): {} recorded {}, replayed {}",
+        .0.line, .0.task, .0.cycle, .0.t_us as f64 * 1e-6, .0.what, .0.recorded, .0.replayed
+    )]
+    Differs(Difference),
+}
+
+/// What an identical replay covered.
+#[derive(Debug, Clone)]
+pub struct ReplayReport {
+    /// Records replayed.
+    pub records: u64,
+    /// Recorded time covered (s).
+    pub recorded_s: f64,
+    /// Wall-clock time of the replay.
+    pub wall: Duration,
+}
+
+fn show(v: Value) -> String {
+    super::value_to_json(v).to_string()
+}
+
+/// Replays `trace` against the programs of `loaded`. A trace recorded with another configuration
+/// or I/O map is refused unless `force`.
+pub fn replay(trace: &Path, loaded: &LoadedConfig, force: bool) -> Result<ReplayReport, ReplayError> {
+    let started = Instant::now();
+    let mut reader = TraceReader::open(trace)?;
+    let header = reader.header().clone();
+    let digest = super::config_digest(loaded)?;
+    if header.config_digest != digest && !force {
+        return Err(ReplayError::Refused(format!(
+            "{}: recorded with another configuration or I/O map (digest {}, this one {digest}); use --force to replay anyway",
+            trace.display(),
+            header.config_digest
+        )));
+    }
+    let kinematics = crate::application_config(&loaded.config).map_err(|problems| ConfigError::Invalid {
+        file: loaded.origin.clone(),
+        problems,
+    })?;
+    // The bus only declares the variables here: replayed cycles never call it.
+    let bus: Box<dyn Bus> = match &loaded.config.io_map {
+        Some(_) => Box::new(crate::sim::build(loaded, &kinematics.trijoint, None)?),
+        None => Box::new(NoBus),
+    };
+    let mut plc = Plc::build(&loaded.config, &crate::registry(), bus).map_err(|problems| ConfigError::Invalid {
+        file: loaded.origin.clone(),
+        problems,
+    })?;
+    let refused = |m: String| ReplayError::Refused(format!("{}: {m}", trace.display()));
+    let mut index = std::collections::HashMap::new();
+    for (name, ty) in &header.variables {
+        let i = plc
+            .vars()
+            .index_of(name)
+            .ok_or_else(|| refused(format!("variable \"{name}\" is not in this configuration")))?;
+        let have = plc.vars().vars()[usize::from(i)].ty;
+        if have != *ty {
+            return Err(refused(format!(
+                "variable \"{name}\" is {ty} in the trace but {have} here"
+            )));
+        }
+        index.insert(name.clone(), i);
+    }
+    let mut classes = Vec::new();
+    for c in &header.task_classes {
+        let ci = plc
+            .classes()
+            .position(|k| k.name == c.name && k.period_ns == c.cycle_us * 1000)
+            .ok_or_else(|| {
+                refused(format!(
+                    "task class \"{}\" ({} µs) is not in this configuration",
+                    c.name, c.cycle_us
+                ))
+            })?;
+        let outputs: Vec<(String, VarIndex)> = c.outputs.iter().map(|n| (n.clone(), index[n])).collect();
+        classes.push((ci, outputs));
+    }
+    let initial = plc.global_image().to_vec();
+    let mut inputs = vec![initial.clone(); classes.len()];
+    let mut expected = vec![initial; classes.len()];
+    let mut cycles = vec![0u64; classes.len()];
+    let mut clock = VirtualClock::default();
+    plc.init(0, &mut clock);
+    let (mut records, mut last_t) = (0u64, 0u64);
+    while let Some(r) = reader.next_record()? {
+        let (ci, outputs) = &classes[r.class];
+        let task = &header.task_classes[r.class].name;
+        let differs = |what: &str, recorded: String, replayed: String| {
+            ReplayError::Differs(Difference {
+                line: r.line,
+                task: task.clone(),
+                cycle: r.cycle,
+                t_us: r.t_us,
+                what: what.into(),
+                recorded,
+                replayed,
+            })
+        };
+        if r.cycle != cycles[r.class] {
+            return Err(differs(
+                "cycle number",
+                r.cycle.to_string(),
+                cycles[r.class].to_string(),
+            ));
+        }
+        cycles[r.class] += 1;
+        for (name, v) in &r.inputs {
+            inputs[r.class][usize::from(index[name])] = *v;
+        }
+        for (name, v) in &r.outputs {
+            expected[r.class][usize::from(index[name])] = *v;
+        }
+        clock.advance_to(r.t_us * 1000);
+        plc.replay_cycle(*ci, r.t_us * 1000, &inputs[r.class], r.violation, &mut clock);
+        let image = plc.class_image(*ci);
+        for (name, i) in outputs {
+            let (want, got) = (expected[r.class][usize::from(*i)], image[usize::from(*i)]);
+            if !same(want, got) {
+                return Err(differs(name, show(want), show(got)));
+            }
+        }
+        let status = plc.app_status();
+        if let Some(state) = &r.state {
+            let got = status.map(|s| s.state).unwrap_or("(none)");
+            if got != state {
+                return Err(differs("state", state.clone(), got.to_string()));
+            }
+            let got = status.and_then(|s| s.reason);
+            if got != r.reason.as_deref() {
+                let show = |r: Option<&str>| r.map_or("(none)".to_string(), |r| format!("\"{r}\""));
+                return Err(differs("reason", show(r.reason.as_deref()), show(got)));
+            }
+        }
+        records += 1;
+        last_t = r.t_us;
+    }
+    Ok(ReplayReport {
+        records,
+        recorded_s: last_t as f64 * 1e-6,
+        wall: started.elapsed(),
+    })
+}
