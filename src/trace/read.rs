@@ -3,7 +3,7 @@
 use std::collections::HashMap;
 use std::fmt;
 use std::fs::File;
-use std::io::{BufRead, BufReader, Lines};
+use std::io::{BufRead, BufReader, Lines, Read};
 use std::path::Path;
 
 use serde::Deserialize;
@@ -77,7 +77,7 @@ pub struct Record {
 /// Reads a trace record by record.
 pub struct TraceReader {
     file: String,
-    lines: Lines<BufReader<File>>,
+    lines: Lines<BufReader<Box<dyn Read>>>,
     line: usize,
     header: Header,
     classes: HashMap<String, usize>,
@@ -95,7 +95,13 @@ impl TraceReader {
             message,
         };
         let file = File::open(path).map_err(|e| err(0, format!("cannot open: {e}")))?;
-        let mut lines = BufReader::new(file).lines();
+        // A name ending in .gz is a gzip-compressed trace.
+        let input: Box<dyn Read> = if path.extension().is_some_and(|e| e == "gz") {
+            Box::new(flate2::read::MultiGzDecoder::new(file))
+        } else {
+            Box::new(file)
+        };
+        let mut lines = BufReader::with_capacity(1 << 16, input).lines();
         let first = match lines.next() {
             None => return Err(err(0, "empty trace: no header".into())),
             Some(Err(e)) => return Err(err(1, format!("cannot read: {e}"))),

@@ -34,6 +34,39 @@ enum Msg {
     },
 }
 
+/// The trace file: plain, or gzip-compressed when its name ends in `.gz`.
+enum Output {
+    Plain(BufWriter<File>),
+    Gzip(flate2::write::GzEncoder<BufWriter<File>>),
+}
+
+impl Output {
+    fn create(path: &Path) -> io::Result<Output> {
+        let file = BufWriter::with_capacity(1 << 20, File::create(path)?);
+        Ok(if path.extension().is_some_and(|e| e == "gz") {
+            Output::Gzip(flate2::write::GzEncoder::new(file, flate2::Compression::default()))
+        } else {
+            Output::Plain(file)
+        })
+    }
+
+    fn write_line(&mut self, line: &[u8]) -> io::Result<()> {
+        let out: &mut dyn Write = match self {
+            Output::Plain(w) => w,
+            Output::Gzip(w) => w,
+        };
+        out.write_all(line)?;
+        out.write_all(b"\n")
+    }
+
+    fn finish(self) -> io::Result<()> {
+        match self {
+            Output::Plain(mut w) => w.flush(),
+            Output::Gzip(w) => w.finish()?.flush(),
+        }
+    }
+}
+
 /// What the writer reports when it is done.
 #[derive(Debug)]
 struct Written {
@@ -59,7 +92,7 @@ pub struct Recorder {
 impl Recorder {
     /// Creates the trace file, writes its header and starts the writer thread.
     pub fn create(path: &Path, plc: &Plc, config_digest: &str) -> io::Result<Recorder> {
-        let file = BufWriter::with_capacity(1 << 20, File::create(path)?);
+        let file = Output::create(path)?;
         let vars = plc.vars().vars();
         let name = |i: &VarIndex| vars[usize::from(*i)].name.clone();
         let header = Header {
@@ -185,7 +218,7 @@ impl CycleSink for Recorder {
                 self.path, written.records
             )),
             None => Ok(format!(
-                "trace {}: {} records, {:.1} MB; {} stalls, {} extra buffers",
+                "trace {}: {} records, {:.1} MB of JSON; {} stalls, {} extra buffers",
                 self.path,
                 written.records,
                 written.bytes as f64 / 1e6,
@@ -198,7 +231,7 @@ impl CycleSink for Recorder {
 
 /// The writer thread: formats every message as one JSON line.
 fn write_all(
-    mut out: BufWriter<File>,
+    mut out: Output,
     header: &Header,
     vars: &[String],
     classes: &[String],
@@ -211,9 +244,9 @@ fn write_all(
         error: None,
     };
     let mut names: Vec<String> = Vec::new();
-    let emit = |line: String, w: &mut Written, out: &mut BufWriter<File>| {
+    let emit = |line: String, w: &mut Written, out: &mut Output| {
         if w.error.is_none() {
-            match out.write_all(line.as_bytes()).and_then(|()| out.write_all(b"\n")) {
+            match out.write_line(line.as_bytes()) {
                 Ok(()) => w.bytes += line.len() as u64 + 1,
                 Err(e) => w.error = Some(e),
             }
@@ -269,10 +302,9 @@ fn write_all(
             }
         }
     }
-    if w.error.is_none()
-        && let Err(e) = out.flush()
-    {
-        w.error = Some(e);
+    match out.finish() {
+        Err(e) if w.error.is_none() => w.error = Some(e),
+        _ => {}
     }
     w
 }

@@ -1,0 +1,217 @@
+//! Traces: round trip, tampering, malformed files, configuration checks, golden traces.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn pkm(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_pkm-plc"))
+        .args(args)
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .env("RUST_LOG", "warn")
+        .output()
+        .expect("the binary runs")
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+fn stdout(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
+/// Records `seconds` of virtual time with `scenario` (events JSON) into `dir/name`.
+fn record(dir: &Path, name: &str, seconds: u32, events: &str) -> PathBuf {
+    let scenario = dir.join(format!("{name}.scenario.json"));
+    std::fs::write(&scenario, format!(r#"{{"events": {events}}}"#)).expect("write scenario");
+    let trace = dir.join(name);
+    let o = pkm(&[
+        "run",
+        "--virtual",
+        "--duration",
+        &seconds.to_string(),
+        "--scenario",
+        scenario.to_str().expect("utf-8"),
+        "--trace",
+        trace.to_str().expect("utf-8"),
+    ]);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    trace
+}
+
+#[test]
+fn a_recorded_run_replays_identically_and_a_tampered_one_names_cycle_and_variable() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let trace = record(
+        dir.path(),
+        "t.jsonl",
+        3,
+        r#"[{"at_ms": 1000, "input": "BUTTON_STOP", "value": true}]"#,
+    );
+    let path = trace.to_str().expect("utf-8");
+    let o = pkm(&["replay", path]);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    assert!(
+        stdout(&o).starts_with(&format!("{path}: identical: 390 records over 3.0 s of recorded time")),
+        "{}",
+        stdout(&o)
+    );
+
+    // Change one output of one cycle: the replay names that line, cycle and variable.
+    let text = std::fs::read_to_string(&trace).expect("trace");
+    let mut lines: Vec<String> = text.lines().map(str::to_string).collect();
+    let (n, line) = lines
+        .iter()
+        .enumerate()
+        .find(|(_, l)| {
+            l.contains(r#""task":"fast""#) && l.contains(r#""velocity_left_set":"#) && l.contains(r#""t_us":500000"#)
+        })
+        .map(|(n, l)| (n, l.clone()))
+        .expect("a fast record at 0.5 s that sets velocity_left_set");
+    let record: serde_json::Value = serde_json::from_str(&line).expect("json");
+    let recorded = record["out"]["velocity_left_set"].as_i64().expect("INT");
+    let mut tampered = record.clone();
+    tampered["out"]["velocity_left_set"] = serde_json::json!(recorded + 1);
+    lines[n] = tampered.to_string();
+    std::fs::write(&trace, lines.join("\n") + "\n").expect("write");
+    let o = pkm(&["replay", path]);
+    assert_eq!(o.status.code(), Some(1));
+    assert_eq!(
+        stderr(&o),
+        format!(
+            "error: {path}: replay differs at line {} (task fast, cycle 50, t = 0.500 s): velocity_left_set recorded {}, replayed {recorded}\n",
+            n + 1,
+            recorded + 1
+        )
+    );
+}
+
+#[test]
+fn malformed_traces_are_clear_errors_with_line_numbers() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let trace = record(dir.path(), "ok.jsonl", 1, "[]");
+    let text = std::fs::read_to_string(&trace).expect("trace");
+    let header = text.lines().next().expect("header").to_string();
+    let good = text.lines().nth(1).expect("record").to_string();
+    let check = |name: &str, content: &str, expected: &str| {
+        let path = dir.path().join(name);
+        std::fs::write(&path, content).expect("write");
+        let o = pkm(&["replay", path.to_str().expect("utf-8")]);
+        assert_eq!(o.status.code(), Some(2), "{name}: {}", stderr(&o));
+        assert_eq!(stderr(&o), format!("error: {}{expected}\n", path.display()), "{name}");
+    };
+    check("empty.jsonl", "", ": empty trace: no header");
+    check(
+        "header.jsonl",
+        "{\"format\": \"csv\"}\n",
+        ":1: bad header: missing field `version` at line 1 column 17",
+    );
+    check(
+        "format.jsonl",
+        &header.replace("pkm-plc trace", "other trace"),
+        ":1: bad header: format \"other trace\" is not \"pkm-plc trace\"",
+    );
+    check(
+        "truncated.jsonl",
+        &format!("{header}\n{}", &good[..good.len() / 2]),
+        &format!(
+            ":2: malformed record: EOF while parsing a string at line 1 column {}",
+            good.len() / 2
+        ),
+    );
+    check(
+        "unknown-var.jsonl",
+        &format!("{header}\n{}\n", good.replace("\"BUTTON_STOP\"", "\"BUTTON_GO\"")),
+        ":2: variable \"BUTTON_GO\" is not an input of task class \"fast\" in the header",
+    );
+    check(
+        "wrong-type.jsonl",
+        &format!(
+            "{header}\n{}\n",
+            good.replace("\"BUTTON_STOP\":false", "\"BUTTON_STOP\":3")
+        ),
+        ":2: variable \"BUTTON_STOP\": expected BOOL (true or false), got 3",
+    );
+    check(
+        "task.jsonl",
+        &format!(
+            "{header}\n{}\n",
+            good.replace("\"task\":\"fast\"", "\"task\":\"turbo\"")
+        ),
+        ":2: unknown task class \"turbo\" (the header has fast, main, spare)",
+    );
+    check("missing.jsonl", "", ": empty trace: no header");
+    let o = pkm(&["replay", "/nonexistent/t.jsonl"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(
+        stderr(&o).starts_with("error: /nonexistent/t.jsonl: cannot open: "),
+        "{}",
+        stderr(&o)
+    );
+}
+
+#[test]
+fn a_trace_from_another_configuration_is_refused_unless_forced() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let trace = record(dir.path(), "t.jsonl", 1, "[]");
+    let mut config: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("config.json")).expect("config"),
+    )
+    .expect("json");
+    config["io_map"] = serde_json::json!(concat!(env!("CARGO_MANIFEST_DIR"), "/io-map/trijoint.json"));
+    config["task_classes"][2]["tolerance_us"] = serde_json::json!(90000);
+    let other = dir.path().join("other.json");
+    std::fs::write(&other, config.to_string()).expect("write");
+    let args = [
+        "replay",
+        trace.to_str().expect("utf-8"),
+        "--config",
+        other.to_str().expect("utf-8"),
+    ];
+    let o = pkm(&args);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(
+        stderr(&o).contains("recorded with another configuration or I/O map"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(stderr(&o).contains("use --force to replay anyway"), "{}", stderr(&o));
+    let o = pkm(&[args[0], args[1], args[2], args[3], "--force"]);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    assert!(stdout(&o).contains(": identical: "));
+}
+
+#[derive(serde::Deserialize)]
+struct Golden {
+    traces: Vec<GoldenTrace>,
+}
+
+#[derive(serde::Deserialize)]
+struct GoldenTrace {
+    name: String,
+    duration_s: u32,
+    events: serde_json::Value,
+}
+
+#[test]
+fn golden_traces_replay_identically() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/traces");
+    let golden: Golden = serde_json::from_str(&std::fs::read_to_string(dir.join("golden.json")).expect("golden.json"))
+        .expect("golden.json");
+    let bless = std::env::var_os("PKM_PLC_BLESS").is_some();
+    let scratch = tempfile::tempdir().expect("tempdir");
+    for g in &golden.traces {
+        let trace = dir.join(format!("{}.jsonl.gz", g.name));
+        if bless {
+            let recorded = record(
+                scratch.path(),
+                &format!("{}.jsonl.gz", g.name),
+                g.duration_s,
+                &g.events.to_string(),
+            );
+            std::fs::copy(recorded, &trace).expect("bless");
+        }
+        let o = pkm(&["replay", trace.to_str().expect("utf-8")]);
+        assert_eq!(o.status.code(), Some(0), "golden trace {}: {}", g.name, stderr(&o));
+    }
+}
