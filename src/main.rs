@@ -41,6 +41,35 @@ enum Command {
     Kin(kin_cmd::KinArgs),
     /// Replay a trace: feed its inputs to the programs, compare every output and state.
     Replay(ReplayArgs),
+    /// Export a trace: VCD for GTKWave, or SVG time plots.
+    Trace(TraceArgs),
+}
+
+#[derive(Args, Debug)]
+struct TraceArgs {
+    #[command(subcommand)]
+    op: TraceOp,
+}
+
+#[derive(Subcommand, Debug)]
+enum TraceOp {
+    /// Convert to VCD (timescale 1 µs), every variable plus the main state and reason.
+    Vcd {
+        /// The trace.
+        trace: PathBuf,
+        /// The VCD file to write.
+        out: PathBuf,
+    },
+    /// Plot variables and the main state against time (SVG).
+    Plot {
+        /// The trace.
+        trace: PathBuf,
+        /// The SVG file to write.
+        out: PathBuf,
+        /// The variables to plot.
+        #[arg(long, value_delimiter = ',', default_values_t = ["position_left_mm".to_string(), "position_right_mm".to_string(), "M_x".to_string(), "M_y".to_string()])]
+        vars: Vec<String>,
+    },
 }
 
 #[derive(Args, Debug)]
@@ -165,6 +194,7 @@ fn main() -> ExitCode {
         Command::Check(args) => cmd_check(args),
         Command::Bench(args) => cmd_bench(args),
         Command::Replay(args) => cmd_replay(args),
+        Command::Trace(args) => cmd_trace(args),
         Command::Kin(args) => kin_cmd::run(args, load_config).map_err(|e| Failure {
             code: e.code,
             message: e.message,
@@ -372,6 +402,22 @@ fn cmd_replay(args: ReplayArgs) -> Result<(), Failure> {
             Ok(())
         }
         Err(e @ ReplayError::Differs(_)) => Err(Failure::run(format!("{}: {e}", args.trace.display()))),
+        Err(e) => Err(Failure::usage(e.to_string())),
+    }
+}
+
+fn cmd_trace(args: TraceArgs) -> Result<(), Failure> {
+    use pkm_plc::trace::export::{ExportError, to_svg, to_vcd};
+    let (result, out) = match &args.op {
+        TraceOp::Vcd { trace, out } => (to_vcd(trace, out), out),
+        TraceOp::Plot { trace, out, vars } => (to_svg(trace, out, vars), out),
+    };
+    match result {
+        Ok(records) => {
+            println!("{}: {records} records written", out.display());
+            Ok(())
+        }
+        Err(e @ ExportError::Output { .. }) => Err(Failure::run(e.to_string())),
         Err(e) => Err(Failure::usage(e.to_string())),
     }
 }

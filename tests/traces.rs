@@ -215,3 +215,63 @@ fn golden_traces_replay_identically() {
         assert_eq!(o.status.code(), Some(0), "golden trace {}: {}", g.name, stderr(&o));
     }
 }
+
+#[test]
+fn traces_export_to_vcd_and_svg() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let trace = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/traces/limit-switch-fault.jsonl.gz");
+    let vcd = dir.path().join("t.vcd");
+    let o = pkm(&[
+        "trace",
+        "vcd",
+        trace.to_str().expect("utf-8"),
+        vcd.to_str().expect("utf-8"),
+    ]);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    let text = std::fs::read_to_string(&vcd).expect("vcd");
+    assert!(
+        text.starts_with("$timescale 1 us $end\n$scope module pkm_plc $end\n"),
+        "{}",
+        &text[..200]
+    );
+    assert!(text.contains("$var wire 1 $ BUTTON_STOP $end"));
+    assert!(text.contains("$var integer 16 "), "INT variables as 16-bit integers");
+    assert!(text.contains("\n#45000000\n"), "a timestamp at the fault");
+    assert!(
+        text.contains("limit_switch_SWITCH_RIGHT_UPPER"),
+        "the error reason as a string"
+    );
+
+    let svg = dir.path().join("t.svg");
+    let o = pkm(&[
+        "trace",
+        "plot",
+        trace.to_str().expect("utf-8"),
+        svg.to_str().expect("utf-8"),
+        "--vars",
+        "M_x,SWITCH_RIGHT_UPPER",
+    ]);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    let text = std::fs::read_to_string(&svg).expect("svg");
+    for caption in [
+        "M_x",
+        "SWITCH_RIGHT_UPPER",
+        "state (REBOOT / INIT / READY / MOTION / ERROR)",
+    ] {
+        assert!(text.contains(&format!("\n{caption}\n</text>")), "panel {caption}");
+    }
+    let o = pkm(&[
+        "trace",
+        "plot",
+        trace.to_str().expect("utf-8"),
+        svg.to_str().expect("utf-8"),
+        "--vars",
+        "NOPE",
+    ]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(
+        stderr(&o).contains("no variable \"NOPE\" in the trace"),
+        "{}",
+        stderr(&o)
+    );
+}

@@ -1,0 +1,240 @@
+//! Trace export: VCD for GTKWave and SVG time plots.
+
+use std::collections::HashMap;
+use std::fs::File;
+use std::io::{BufWriter, Write};
+use std::path::Path;
+
+use plotters::prelude::*;
+
+use super::read::{TraceError, TraceReader};
+use crate::image::{Value, VarType};
+
+/// Why an export failed.
+#[derive(Debug, thiserror::Error)]
+pub enum ExportError {
+    /// The trace is malformed.
+    #[error("{0}")]
+    Trace(#[from] TraceError),
+    /// The output could not be written.
+    #[error("{file}: {message}")]
+    Output {
+        /// The output file.
+        file: String,
+        /// What went wrong.
+        message: String,
+    },
+    /// A requested variable is not in the trace.
+    #[error("{trace}: no variable \"{name}\" in the trace (it has {known})")]
+    UnknownVariable {
+        /// The trace.
+        trace: String,
+        /// The variable asked for.
+        name: String,
+        /// Some of the variables it has.
+        known: String,
+    },
+}
+
+fn bits(v: u64, width: u32) -> Vec<vcd::Value> {
+    (0..width)
+        .rev()
+        .map(|i| {
+            if (v >> i) & 1 == 1 {
+                vcd::Value::V1
+            } else {
+                vcd::Value::V0
+            }
+        })
+        .collect()
+}
+
+/// Converts a trace to VCD (timescale 1 µs): every variable, plus the main state and reason as
+/// strings. Returns the number of records.
+pub fn to_vcd(trace: &Path, out: &Path) -> Result<u64, ExportError> {
+    let output = |e: std::io::Error| ExportError::Output {
+        file: out.display().to_string(),
+        message: e.to_string(),
+    };
+    let mut reader = TraceReader::open(trace)?;
+    let header = reader.header().clone();
+    let mut w = vcd::Writer::new(BufWriter::new(File::create(out).map_err(output)?));
+    w.timescale(1, vcd::TimescaleUnit::US).map_err(output)?;
+    w.add_module("pkm_plc").map_err(output)?;
+    let mut ids = HashMap::new();
+    for (name, ty) in &header.variables {
+        let (kind, width) = match ty {
+            VarType::Bool => (vcd::VarType::Wire, 1),
+            VarType::Int | VarType::Uint => (vcd::VarType::Integer, 16),
+            VarType::Dint => (vcd::VarType::Integer, 32),
+            VarType::Real => (vcd::VarType::Real, 64),
+        };
+        ids.insert(name.clone(), w.add_var(kind, width, name, None).map_err(output)?);
+    }
+    let state_id = w
+        .add_var(vcd::VarType::String, 1, "main_state_name", None)
+        .map_err(output)?;
+    let reason_id = w
+        .add_var(vcd::VarType::String, 1, "error_reason_text", None)
+        .map_err(output)?;
+    w.upscope().map_err(output)?;
+    w.enddefinitions().map_err(output)?;
+    let mut current: HashMap<String, Value> = HashMap::new();
+    let (mut state, mut reason) = (String::new(), String::new());
+    let mut time = None;
+    let mut records = 0;
+    while let Some(r) = reader.next_record()? {
+        records += 1;
+        let changes: Vec<&(String, Value)> = r
+            .inputs
+            .iter()
+            .chain(&r.outputs)
+            .filter(|(n, v)| current.get(n).is_none_or(|c| !super::same(*c, *v)))
+            .collect();
+        let new_state = r.state.clone().unwrap_or_default();
+        let new_reason = r.reason.clone().unwrap_or_default();
+        if changes.is_empty() && new_state == state && new_reason == reason {
+            continue;
+        }
+        if time != Some(r.t_us) {
+            w.timestamp(r.t_us).map_err(output)?;
+            time = Some(r.t_us);
+        }
+        for (name, v) in changes {
+            let id = ids[name];
+            match *v {
+                Value::Bool(b) => w.change_scalar(id, b).map_err(output)?,
+                Value::Int(i) => w.change_vector(id, bits(u64::from(i as u16), 16)).map_err(output)?,
+                Value::Uint(u) => w.change_vector(id, bits(u64::from(u), 16)).map_err(output)?,
+                Value::Dint(d) => w.change_vector(id, bits(u64::from(d as u32), 32)).map_err(output)?,
+                Value::Real(x) => w.change_real(id, x).map_err(output)?,
+            }
+            current.insert(name.clone(), *v);
+        }
+        if new_state != state {
+            // VCD strings cannot hold spaces.
+            w.change_string(state_id, &new_state.replace(' ', "_"))
+                .map_err(output)?;
+            state = new_state;
+        }
+        if new_reason != reason {
+            let text = if new_reason.is_empty() {
+                "-".to_string()
+            } else {
+                new_reason.replace(' ', "_")
+            };
+            w.change_string(reason_id, &text).map_err(output)?;
+            reason = new_reason;
+        }
+    }
+    w.flush().map_err(output)?;
+    w.writer().flush().map_err(output)?;
+    Ok(records)
+}
+
+/// Plots `vars` (and the main state) against time into an SVG file, one panel each. Returns
+/// the number of records.
+pub fn to_svg(trace: &Path, out: &Path, vars: &[String]) -> Result<u64, ExportError> {
+    let mut reader = TraceReader::open(trace)?;
+    let header = reader.header().clone();
+    for name in vars {
+        if !header.variables.contains_key(name) {
+            let known: Vec<&str> = header.variables.keys().take(12).map(String::as_str).collect();
+            return Err(ExportError::UnknownVariable {
+                trace: trace.display().to_string(),
+                name: name.clone(),
+                known: format!("{}, …", known.join(", ")),
+            });
+        }
+    }
+    let as_f64 = |v: Value| match v {
+        Value::Bool(b) => f64::from(u8::from(b)),
+        Value::Int(i) => f64::from(i),
+        Value::Uint(u) => f64::from(u),
+        Value::Dint(d) => f64::from(d),
+        Value::Real(x) => x,
+    };
+    // Step series: a point before and after every change.
+    let mut series: Vec<Vec<(f64, f64)>> = vec![Vec::new(); vars.len()];
+    let mut states: Vec<(f64, String)> = Vec::new();
+    let mut end = 0.0f64;
+    let mut records = 0;
+    while let Some(r) = reader.next_record()? {
+        records += 1;
+        let t = r.t_us as f64 * 1e-6;
+        end = end.max(t);
+        for (name, v) in r.inputs.iter().chain(&r.outputs) {
+            if let Some(k) = vars.iter().position(|n| n == name) {
+                let y = as_f64(*v);
+                let s = &mut series[k];
+                if s.last().is_none_or(|&(_, last)| last != y) {
+                    if let Some(&(_, last)) = s.last() {
+                        s.push((t, last));
+                    }
+                    s.push((t, y));
+                }
+            }
+        }
+        if let Some(state) = r.state
+            && states.last().is_none_or(|(_, s)| *s != state)
+        {
+            states.push((t, state));
+        }
+    }
+    let names: Vec<String> = {
+        let mut n: Vec<String> = Vec::new();
+        for (_, s) in &states {
+            if !n.contains(s) {
+                n.push(s.clone());
+            }
+        }
+        n
+    };
+    let mut state_series = Vec::new();
+    for (t, s) in &states {
+        let y = names.iter().position(|n| n == s).unwrap_or(0) as f64;
+        if let Some(&(_, last)) = state_series.last() {
+            state_series.push((*t, last));
+        }
+        state_series.push((*t, y));
+    }
+    let err = |e: String| ExportError::Output {
+        file: out.display().to_string(),
+        message: e,
+    };
+    let panels = vars.len() + 1;
+    let root = SVGBackend::new(out, (1000, 170 * panels as u32)).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| err(e.to_string()))?;
+    let areas = root.split_evenly((panels, 1));
+    let mut all: Vec<(String, Vec<(f64, f64)>)> = vars.iter().cloned().zip(series).collect();
+    all.push((format!("state ({})", names.join(" / ")), state_series));
+    for (area, (name, mut points)) in areas.iter().zip(all) {
+        if let Some(&(_, last)) = points.last() {
+            points.push((end, last));
+        }
+        let (lo, hi) = points
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &(_, y)| {
+                (lo.min(y), hi.max(y))
+            });
+        let (lo, hi) = if lo.is_finite() { (lo, hi) } else { (0.0, 1.0) };
+        let pad = ((hi - lo) * 0.1).max(0.5);
+        let mut chart = ChartBuilder::on(area)
+            .caption(&name, ("sans-serif", 14))
+            .margin(8)
+            .x_label_area_size(25)
+            .y_label_area_size(60)
+            .build_cartesian_2d(0.0..end.max(1e-3), (lo - pad)..(hi + pad))
+            .map_err(|e| err(e.to_string()))?;
+        chart
+            .configure_mesh()
+            .x_desc("t [s]")
+            .draw()
+            .map_err(|e| err(e.to_string()))?;
+        chart
+            .draw_series(LineSeries::new(points, &BLUE))
+            .map_err(|e| err(e.to_string()))?;
+    }
+    root.present().map_err(|e| err(e.to_string()))?;
+    Ok(records)
+}
