@@ -79,17 +79,18 @@ pub fn to_vcd(trace: &Path, out: &Path) -> Result<u64, ExportError> {
         .map_err(output)?;
     w.upscope().map_err(output)?;
     w.enddefinitions().map_err(output)?;
-    let mut current: HashMap<String, Value> = HashMap::new();
+    let names: Vec<String> = reader.variables().iter().map(|(n, _)| n.clone()).collect();
+    let mut current: HashMap<usize, Value> = HashMap::new();
     let (mut state, mut reason) = (String::new(), String::new());
     let mut time = None;
     let mut records = 0;
     while let Some(r) = reader.next_record()? {
         records += 1;
-        let changes: Vec<&(String, Value)> = r
+        let changes: Vec<&(usize, Value)> = r
             .inputs
             .iter()
             .chain(&r.outputs)
-            .filter(|(n, v)| current.get(n).is_none_or(|c| !super::same(*c, *v)))
+            .filter(|(k, v)| current.get(k).is_none_or(|c| !super::same(*c, *v)))
             .collect();
         let new_state = r.state.clone().unwrap_or_default();
         let new_reason = r.reason.clone().unwrap_or_default();
@@ -100,8 +101,8 @@ pub fn to_vcd(trace: &Path, out: &Path) -> Result<u64, ExportError> {
             w.timestamp(r.t_us).map_err(output)?;
             time = Some(r.t_us);
         }
-        for (name, v) in changes {
-            let id = ids[name];
+        for (k, v) in changes {
+            let id = ids[&names[*k]];
             match *v {
                 Value::Bool(b) => w.change_scalar(id, b).map_err(output)?,
                 Value::Int(i) => w.change_vector(id, bits(u64::from(i as u16), 16)).map_err(output)?,
@@ -109,7 +110,7 @@ pub fn to_vcd(trace: &Path, out: &Path) -> Result<u64, ExportError> {
                 Value::Dint(d) => w.change_vector(id, bits(u64::from(d as u32), 32)).map_err(output)?,
                 Value::Real(x) => w.change_real(id, x).map_err(output)?,
             }
-            current.insert(name.clone(), *v);
+            current.insert(*k, *v);
         }
         if new_state != state {
             // VCD strings cannot hold spaces.
@@ -154,6 +155,12 @@ pub fn to_svg(trace: &Path, out: &Path, vars: &[String]) -> Result<u64, ExportEr
         Value::Dint(d) => f64::from(d),
         Value::Real(x) => x,
     };
+    // Per header variable: its panel, if it is plotted.
+    let wanted: Vec<Option<usize>> = reader
+        .variables()
+        .iter()
+        .map(|(n, _)| vars.iter().position(|v| v == n))
+        .collect();
     // Step series: a point before and after every change.
     let mut series: Vec<Vec<(f64, f64)>> = vec![Vec::new(); vars.len()];
     let mut states: Vec<(f64, String)> = Vec::new();
@@ -163,8 +170,8 @@ pub fn to_svg(trace: &Path, out: &Path, vars: &[String]) -> Result<u64, ExportEr
         records += 1;
         let t = r.t_us as f64 * 1e-6;
         end = end.max(t);
-        for (name, v) in r.inputs.iter().chain(&r.outputs) {
-            if let Some(k) = vars.iter().position(|n| n == name) {
+        for (i, v) in r.inputs.iter().chain(&r.outputs) {
+            if let Some(k) = wanted[*i] {
                 let y = as_f64(*v);
                 let s = &mut series[k];
                 if s.last().is_none_or(|&(_, last)| last != y) {

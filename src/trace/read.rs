@@ -3,10 +3,11 @@
 use std::collections::HashMap;
 use std::fmt;
 use std::fs::File;
-use std::io::{BufRead, BufReader, Lines, Read};
+use std::io::{BufRead, BufReader, Read};
 use std::path::Path;
 
 use serde::Deserialize;
+use serde::de::{MapAccess, Visitor};
 
 use super::{FORMAT, Header, VERSION, value_from_json};
 use crate::image::Value;
@@ -34,21 +35,46 @@ impl fmt::Display for TraceError {
 
 impl std::error::Error for TraceError {}
 
+/// A record line, parsed without copying names out of the line.
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
-struct Line {
+struct Line<'a> {
     t_us: u64,
-    task: String,
+    task: &'a str,
     cycle: u64,
-    #[serde(rename = "in")]
-    inputs: serde_json::Map<String, serde_json::Value>,
-    out: serde_json::Map<String, serde_json::Value>,
+    #[serde(rename = "in", borrow)]
+    inputs: Pairs<'a>,
+    #[serde(borrow)]
+    out: Pairs<'a>,
     #[serde(default)]
     state: Option<String>,
     #[serde(default)]
     reason: Option<String>,
     #[serde(default)]
     violation: bool,
+}
+
+/// A JSON object as (key, value) pairs borrowing the keys from the line.
+struct Pairs<'a>(Vec<(&'a str, serde_json::Value)>);
+
+impl<'de: 'a, 'a> Deserialize<'de> for Pairs<'a> {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct V;
+        impl<'de> Visitor<'de> for V {
+            type Value = Pairs<'de>;
+            fn expecting(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+                f.write_str("an object of variable names and values")
+            }
+            fn visit_map<A: MapAccess<'de>>(self, mut map: A) -> Result<Self::Value, A::Error> {
+                let mut pairs = Vec::with_capacity(map.size_hint().unwrap_or(8));
+                while let Some(pair) = map.next_entry::<&'de str, serde_json::Value>()? {
+                    pairs.push(pair);
+                }
+                Ok(Pairs(pairs))
+            }
+        }
+        d.deserialize_map(V)
+    }
 }
 
 /// One class cycle of a trace, checked against the header.
@@ -62,10 +88,10 @@ pub struct Record {
     pub t_us: u64,
     /// The cycle's number in its class.
     pub cycle: u64,
-    /// Changed inputs.
-    pub inputs: Vec<(String, Value)>,
-    /// Changed outputs.
-    pub outputs: Vec<(String, Value)>,
+    /// Changed inputs: (index into [`TraceReader::variables`], value).
+    pub inputs: Vec<(usize, Value)>,
+    /// Changed outputs, the same way.
+    pub outputs: Vec<(usize, Value)>,
     /// The main state after the cycle.
     pub state: Option<String>,
     /// The error reason, if any.
@@ -77,12 +103,15 @@ pub struct Record {
 /// Reads a trace record by record.
 pub struct TraceReader {
     file: String,
-    lines: Lines<BufReader<Box<dyn Read>>>,
+    input: BufReader<Box<dyn Read>>,
+    buffer: String,
     line: usize,
     header: Header,
     classes: HashMap<String, usize>,
-    /// Per class: variable name → true for inputs, false for outputs.
-    roles: Vec<HashMap<String, bool>>,
+    /// The header's variables in order, with their types.
+    variables: Vec<(String, crate::image::VarType)>,
+    /// Per class: variable name → (true for inputs, false for outputs; index in `variables`).
+    roles: Vec<HashMap<String, (bool, usize)>>,
 }
 
 impl TraceReader {
@@ -101,12 +130,13 @@ impl TraceReader {
         } else {
             Box::new(file)
         };
-        let mut lines = BufReader::with_capacity(1 << 16, input).lines();
-        let first = match lines.next() {
-            None => return Err(err(0, "empty trace: no header".into())),
-            Some(Err(e)) => return Err(err(1, format!("cannot read: {e}"))),
-            Some(Ok(l)) => l,
-        };
+        let mut input = BufReader::with_capacity(1 << 16, input);
+        let mut first = String::new();
+        match input.read_line(&mut first) {
+            Ok(0) => return Err(err(0, "empty trace: no header".into())),
+            Err(e) => return Err(err(1, format!("cannot read: {e}"))),
+            Ok(_) => {}
+        }
         let header: Header = serde_json::from_str(&first).map_err(|e| err(1, format!("bad header: {e}")))?;
         if header.format != FORMAT {
             return Err(err(
@@ -123,18 +153,25 @@ impl TraceReader {
                 ),
             ));
         }
+        let variables: Vec<(String, crate::image::VarType)> =
+            header.variables.iter().map(|(n, t)| (n.clone(), *t)).collect();
+        let position: HashMap<&str, usize> = variables
+            .iter()
+            .enumerate()
+            .map(|(i, (n, _))| (n.as_str(), i))
+            .collect();
         let mut roles = Vec::new();
         for c in &header.task_classes {
             let mut m = HashMap::new();
-            for (list, input) in [(&c.inputs, true), (&c.outputs, false)] {
+            for (list, is_input) in [(&c.inputs, true), (&c.outputs, false)] {
                 for v in list {
-                    if !header.variables.contains_key(v) {
+                    let Some(&i) = position.get(v.as_str()) else {
                         return Err(err(
                             1,
                             format!("bad header: variable \"{v}\" of task class \"{}\" has no type", c.name),
                         ));
-                    }
-                    m.insert(v.clone(), input);
+                    };
+                    m.insert(v.clone(), (is_input, i));
                 }
             }
             roles.push(m);
@@ -147,10 +184,12 @@ impl TraceReader {
             .collect();
         Ok(TraceReader {
             file: name,
-            lines,
+            input,
+            buffer: String::new(),
             line: 1,
             header,
             classes,
+            variables,
             roles,
         })
     }
@@ -160,17 +199,33 @@ impl TraceReader {
         &self.header
     }
 
+    /// The header's variables in order (records refer to them by index).
+    pub fn variables(&self) -> &[(String, crate::image::VarType)] {
+        &self.variables
+    }
+
     /// The next record, or `None` at the end.
     pub fn next_record(&mut self) -> Result<Option<Record>, TraceError> {
-        let text = match self.lines.next() {
-            None => return Ok(None),
-            Some(r) => {
+        let mut buffer = std::mem::take(&mut self.buffer);
+        buffer.clear();
+        let result = match self.input.read_line(&mut buffer) {
+            Ok(0) => Ok(None),
+            Ok(_) => {
                 self.line += 1;
-                r.map_err(|e| self.err(format!("cannot read: {e}")))?
+                self.parse(&buffer).map(Some)
+            }
+            Err(e) => {
+                self.line += 1;
+                Err(self.err(format!("cannot read: {e}")))
             }
         };
-        let l: Line = serde_json::from_str(&text).map_err(|e| self.err(format!("malformed record: {e}")))?;
-        let Some(&class) = self.classes.get(&l.task) else {
+        self.buffer = buffer;
+        result
+    }
+
+    fn parse(&self, text: &str) -> Result<Record, TraceError> {
+        let l: Line<'_> = serde_json::from_str(text).map_err(|e| self.err(format!("malformed record: {e}")))?;
+        let Some(&class) = self.classes.get(l.task) else {
             let known: Vec<&str> = self.header.task_classes.iter().map(|c| c.name.as_str()).collect();
             return Err(self.err(format!(
                 "unknown task class \"{}\" (the header has {})",
@@ -178,11 +233,11 @@ impl TraceReader {
                 known.join(", ")
             )));
         };
-        let mut parts = [Vec::new(), Vec::new()];
-        for (k, (map, input)) in [(&l.inputs, true), (&l.out, false)].into_iter().enumerate() {
-            for (name, json) in map {
-                match self.roles[class].get(name) {
-                    Some(&role) if role == input => {}
+        let mut parts = [Vec::with_capacity(l.inputs.0.len()), Vec::with_capacity(l.out.0.len())];
+        for (k, (pairs, input)) in [(&l.inputs, true), (&l.out, false)].into_iter().enumerate() {
+            for (name, json) in &pairs.0 {
+                let i = match self.roles[class].get(*name) {
+                    Some(&(role, i)) if role == input => i,
                     _ => {
                         let what = if input { "input" } else { "output" };
                         return Err(self.err(format!(
@@ -190,14 +245,14 @@ impl TraceReader {
                             l.task
                         )));
                     }
-                }
-                let ty = self.header.variables[name];
-                let value = value_from_json(json, ty).map_err(|m| self.err(format!("variable \"{name}\": {m}")))?;
-                parts[k].push((name.clone(), value));
+                };
+                let value = value_from_json(json, self.variables[i].1)
+                    .map_err(|m| self.err(format!("variable \"{name}\": {m}")))?;
+                parts[k].push((i, value));
             }
         }
         let [inputs, outputs] = parts;
-        Ok(Some(Record {
+        Ok(Record {
             line: self.line,
             class,
             t_us: l.t_us,
@@ -207,7 +262,7 @@ impl TraceReader {
             state: l.state,
             reason: l.reason,
             violation: l.violation,
-        }))
+        })
     }
 
     fn err(&self, message: String) -> TraceError {

@@ -95,6 +95,7 @@ pub fn replay(trace: &Path, loaded: &LoadedConfig, force: bool) -> Result<Replay
     })?;
     let refused = |m: String| ReplayError::Refused(format!("{}: {m}", trace.display()));
     let mut index = std::collections::HashMap::new();
+    let mut by_position: Vec<VarIndex> = Vec::new();
     for (name, ty) in &header.variables {
         let i = plc
             .vars()
@@ -107,6 +108,7 @@ pub fn replay(trace: &Path, loaded: &LoadedConfig, force: bool) -> Result<Replay
             )));
         }
         index.insert(name.clone(), i);
+        by_position.push(i);
     }
     let mut classes = Vec::new();
     for c in &header.task_classes {
@@ -151,11 +153,11 @@ pub fn replay(trace: &Path, loaded: &LoadedConfig, force: bool) -> Result<Replay
             ));
         }
         cycles[r.class] += 1;
-        for (name, v) in &r.inputs {
-            inputs[r.class][usize::from(index[name])] = *v;
+        for &(k, v) in &r.inputs {
+            inputs[r.class][usize::from(by_position[k])] = v;
         }
-        for (name, v) in &r.outputs {
-            expected[r.class][usize::from(index[name])] = *v;
+        for &(k, v) in &r.outputs {
+            expected[r.class][usize::from(by_position[k])] = v;
         }
         clock.advance_to(r.t_us * 1000);
         plc.replay_cycle(*ci, r.t_us * 1000, &inputs[r.class], r.violation, &mut clock);
