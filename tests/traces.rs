@@ -275,3 +275,17 @@ fn traces_export_to_vcd_and_svg() {
         stderr(&o)
     );
 }
+
+#[test]
+fn a_trace_write_error_is_reported_with_exit_code_1() {
+    let o = pkm(&["run", "--virtual", "--duration", "2", "--trace", "/dev/full"]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert!(
+        stderr(&o).ends_with(
+            "error: /dev/full: writing the trace failed: No space left on device (os error 28); the trace is incomplete \
+             (260 records were formatted)\n"
+        ),
+        "{}",
+        stderr(&o)
+    );
+}

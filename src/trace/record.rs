@@ -214,7 +214,7 @@ impl CycleSink for Recorder {
         };
         match written.error {
             Some(e) => Err(format!(
-                "{}: writing the trace failed after {} records: {e}",
+                "{}: writing the trace failed: {e}; the trace is incomplete ({} records were formatted)",
                 self.path, written.records
             )),
             None => Ok(format!(
@@ -248,7 +248,11 @@ fn write_all(
         if w.error.is_none() {
             match out.write_line(line.as_bytes()) {
                 Ok(()) => w.bytes += line.len() as u64 + 1,
-                Err(e) => w.error = Some(e),
+                Err(e) => {
+                    // Said at once; the run goes on, and ends with this error (exit code 1).
+                    tracing::error!("trace: writing failed: {e}; recording stops, the run goes on");
+                    w.error = Some(e);
+                }
             }
         }
     };
@@ -303,7 +307,10 @@ fn write_all(
         }
     }
     match out.finish() {
-        Err(e) if w.error.is_none() => w.error = Some(e),
+        Err(e) if w.error.is_none() => {
+            tracing::error!("trace: writing failed: {e}");
+            w.error = Some(e);
+        }
         _ => {}
     }
     w
