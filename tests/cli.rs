@@ -1,19 +1,10 @@
 //! The command line as a user runs it: exit codes, messages, summaries.
 
-use std::process::{Command, Output};
+mod common;
 
-fn pkm(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_pkm-plc"))
-        .args(args)
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .env("RUST_LOG", "warn")
-        .output()
-        .expect("the binary runs")
-}
+use std::process::Command;
 
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
-}
+use common::{pkm, stderr};
 
 #[test]
 fn check_accepts_the_default_configuration() {

@@ -1,24 +1,10 @@
 //! Traces: round trip, tampering, malformed files, configuration checks, golden traces.
 
+mod common;
+
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
 
-fn pkm(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_pkm-plc"))
-        .args(args)
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .env("RUST_LOG", "warn")
-        .output()
-        .expect("the binary runs")
-}
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
-}
-
-fn stdout(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stdout).into_owned()
-}
+use common::{pkm, stderr, stdout};
 
 /// Records `seconds` of virtual time with `scenario` (events JSON) into `dir/name`.
 fn record(dir: &Path, name: &str, seconds: u32, events: &str) -> PathBuf {

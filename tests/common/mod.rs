@@ -84,3 +84,23 @@ pub fn run(plc: &mut Plc, until_ms: u64, mut each: impl FnMut(&Plc, u64)) {
         each(plc, t / 1_000_000);
     }
 }
+
+/// Runs the `pkm-plc` binary in the repository with `RUST_LOG=warn`.
+pub fn pkm(args: &[&str]) -> std::process::Output {
+    std::process::Command::new(env!("CARGO_BIN_EXE_pkm-plc"))
+        .args(args)
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .env("RUST_LOG", "warn")
+        .output()
+        .expect("the binary runs")
+}
+
+/// A command's standard error as text.
+pub fn stderr(o: &std::process::Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+/// A command's standard output as text.
+pub fn stdout(o: &std::process::Output) -> String {
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
