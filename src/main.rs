@@ -43,6 +43,8 @@ enum Command {
     Replay(ReplayArgs),
     /// Export a trace: VCD for GTKWave, or SVG time plots.
     Trace(TraceArgs),
+    /// Print the Modbus register map that the configuration's I/O map gives.
+    Registers(ConfigArg),
 }
 
 #[derive(Args, Debug)]
@@ -195,6 +197,7 @@ fn main() -> ExitCode {
         Command::Bench(args) => cmd_bench(args),
         Command::Replay(args) => cmd_replay(args),
         Command::Trace(args) => cmd_trace(args),
+        Command::Registers(args) => cmd_registers(args),
         Command::Kin(args) => kin_cmd::run(args, load_config).map_err(|e| Failure {
             code: e.code,
             message: e.message,
@@ -420,6 +423,25 @@ fn cmd_trace(args: TraceArgs) -> Result<(), Failure> {
         Err(e @ ExportError::Output { .. }) => Err(Failure::run(e.to_string())),
         Err(e) => Err(Failure::usage(e.to_string())),
     }
+}
+
+fn cmd_registers(args: ConfigArg) -> Result<(), Failure> {
+    let loaded = load_config(&args)?;
+    let Some((text, origin)) = pkm_plc::sim::io_map_text(&loaded)? else {
+        return Err(Failure::usage(format!(
+            "{}: the configuration names no I/O map",
+            loaded.origin
+        )));
+    };
+    let classes: Vec<String> = loaded.config.task_classes.iter().map(|c| c.name.clone()).collect();
+    let map = pkm_plc::io::map::IoMap::parse(&text, &origin, &classes)?;
+    let registers = pkm_plc::io::registers::RegisterMap::of(&map);
+    print!("{}", registers.describe(&map));
+    let [coils, discrete, input, holding] = registers.sizes();
+    println!(
+        "{origin}: {coils} coils, {discrete} discrete inputs, {input} input registers, {holding} holding registers"
+    );
+    Ok(())
 }
 
 fn cmd_bench(args: BenchArgs) -> Result<(), Failure> {

@@ -42,6 +42,8 @@ pub struct ModuleType {
     pub description: &'static str,
     /// Its channels.
     pub channels: &'static [Channel],
+    /// Whether it sits on the field bus (and so in the Modbus register map); the joystick does not.
+    pub field_bus: bool,
 }
 
 impl ModuleType {
@@ -122,27 +124,32 @@ pub const CATALOGUE: &[ModuleType] = &[
         name: "X20DI9371",
         description: "12 digital inputs, 24 V",
         channels: DI9371,
+        field_bus: true,
     },
     ModuleType {
         name: "X20DO9322",
         description: "12 digital outputs, 24 V / 0.5 A",
         channels: DO9322,
+        field_bus: true,
     },
     ModuleType {
         name: "X20DC1196",
         description: "1 ABR incremental counter, 16-bit signed, wraps; counter reset",
         channels: DC1196,
+        field_bus: true,
     },
     ModuleType {
         name: "X20MM2436",
         description: "2 PWM motor bridges 3 A (period µs, signed pulse width ±32767 = ±100 %, clear error, \
                       dither disable), 4 digital inputs, per-bridge error (overcurrent, overtemperature)",
         channels: MM2436,
+        field_bus: true,
     },
     ModuleType {
         name: "Joystick",
         description: "the operator's joystick: axes −1..1, buttons, connected (HID on the real machine)",
         channels: JOYSTICK,
+        field_bus: false,
     },
 ];
 

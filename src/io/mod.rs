@@ -1,4 +1,5 @@
-//! Field I/O: the module catalogue and I/O map files.
+//! Field I/O: the module catalogue, I/O map files and the Modbus register map derived from them.
 
 pub mod catalogue;
 pub mod map;
+pub mod registers;

@@ -1,0 +1,125 @@
+//! The Modbus register map derived from the I/O map, and its value encodings.
+
+mod common;
+
+use common::{pkm, stderr, stdout};
+use pkm_plc::image::{Value, VarType};
+use pkm_plc::io::map::IoMap;
+use pkm_plc::io::registers::{RegisterMap, Table, decode, encode};
+use proptest::prelude::*;
+
+fn map(text: &str) -> IoMap {
+    IoMap::parse(text, "map.json", &["fast".into(), "main".into()]).expect("valid map")
+}
+
+fn default_map() -> IoMap {
+    map(&std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/io-map/trijoint.json")).expect("map"))
+}
+
+/// (module, channel) → (table, address, count).
+fn find(m: &IoMap, r: &RegisterMap, module: &str, channel: &str) -> (Table, u16, u16) {
+    let e = r
+        .entries
+        .iter()
+        .find(|e| m.modules[e.module].name == module && m.modules[e.module].ty.channels[e.channel].name == channel)
+        .unwrap_or_else(|| panic!("{module}.{channel} not in the register map"));
+    (e.table, e.address, e.count)
+}
+
+#[test]
+fn the_trijoint_station_map() {
+    let m = default_map();
+    let r = RegisterMap::of(&m);
+    assert_eq!(
+        find(&m, &r, "DI", "DigitalInput01"),
+        (Table::DiscreteInput, 0, 1),
+        "BUTTON_STOP"
+    );
+    assert_eq!(
+        find(&m, &r, "DI", "DigitalInput06"),
+        (Table::DiscreteInput, 5, 1),
+        "SWITCH_LEFT_UPPER"
+    );
+    assert_eq!(find(&m, &r, "DC_LEFT", "Counter01"), (Table::InputRegister, 0, 1));
+    assert_eq!(find(&m, &r, "DC_RIGHT", "Counter01"), (Table::InputRegister, 1, 1));
+    assert_eq!(find(&m, &r, "DC_RIGHT", "CounterReset01"), (Table::Coil, 13, 1));
+    assert_eq!(
+        find(&m, &r, "MM", "PeriodDurationPWM01"),
+        (Table::HoldingRegister, 0, 1)
+    );
+    assert_eq!(
+        find(&m, &r, "MM", "PulseWidthCurrentPWM02"),
+        (Table::HoldingRegister, 2, 1),
+        "velocity_left_set"
+    );
+    assert_eq!(find(&m, &r, "MM", "Error02"), (Table::DiscreteInput, 17, 1));
+    assert_eq!(
+        r.sizes(),
+        [18, 18, 2, 3],
+        "coils, discrete inputs, input registers, holding registers"
+    );
+    assert!(
+        !r.entries.iter().any(|e| m.modules[e.module].name == "JOY"),
+        "the HID joystick is not on the field bus"
+    );
+}
+
+#[test]
+fn registers_follow_slots_not_bindings_or_file_order() {
+    let a = map(
+        r#"{"modules": [{"name": "A", "type": "X20DI9371", "slot": 1}, {"name": "B", "type": "X20DC1196", "slot": 2}, {"name": "C", "type": "X20DC1196", "slot": 3}],
+            "bindings": [{"module": "B", "channel": "Counter01", "variable": "x", "task_class": "fast"}]}"#,
+    );
+    let b = map(
+        r#"{"modules": [{"name": "C", "type": "X20DC1196", "slot": 3}, {"name": "A", "type": "X20DI9371", "slot": 1}, {"name": "B", "type": "X20DC1196", "slot": 2}],
+            "bindings": []}"#,
+    );
+    let (ra, rb) = (RegisterMap::of(&a), RegisterMap::of(&b));
+    for (module, channel) in [
+        ("A", "DigitalInput12"),
+        ("B", "Counter01"),
+        ("C", "Counter01"),
+        ("C", "CounterReset01"),
+    ] {
+        assert_eq!(
+            find(&a, &ra, module, channel),
+            find(&b, &rb, module, channel),
+            "{module}.{channel}"
+        );
+    }
+    assert_eq!(find(&a, &ra, "C", "Counter01"), (Table::InputRegister, 1, 1));
+}
+
+proptest! {
+    #[test]
+    fn integer_encodings_round_trip(i in any::<i16>(), u in any::<u16>(), d in any::<i32>(), b in any::<bool>()) {
+        for v in [Value::Int(i), Value::Uint(u), Value::Dint(d), Value::Bool(b)] {
+            let mut w = [0u16; 2];
+            encode(v, &mut w);
+            prop_assert_eq!(decode(v.ty(), &w), v);
+        }
+    }
+
+    #[test]
+    fn reals_travel_as_ieee_singles(x in -1e30f64..1e30) {
+        let mut w = [0u16; 2];
+        encode(Value::Real(x), &mut w);
+        prop_assert_eq!(decode(VarType::Real, &w), Value::Real(f64::from(x as f32)));
+        prop_assert_eq!(((u32::from(w[0]) << 16) | u32::from(w[1])), (x as f32).to_bits());
+    }
+}
+
+#[test]
+fn the_registers_command_prints_the_map() {
+    let o = pkm(&["registers"]);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    let out = stdout(&o);
+    assert!(
+        out.contains("MM            5  PulseWidthCurrentPWM02   INT   holding register        2\n"),
+        "{out}"
+    );
+    assert!(
+        out.ends_with("io-map/trijoint.json: 18 coils, 18 discrete inputs, 2 input registers, 3 holding registers\n"),
+        "{out}"
+    );
+}
