@@ -105,7 +105,7 @@ proptest! {
         let mut w = [0u16; 2];
         encode(Value::Real(x), &mut w);
         prop_assert_eq!(decode(VarType::Real, &w), Value::Real(f64::from(x as f32)));
-        prop_assert_eq!(((u32::from(w[0]) << 16) | u32::from(w[1])), (x as f32).to_bits());
+        prop_assert_eq!((u32::from(w[0]) << 16) | u32::from(w[1]), (x as f32).to_bits());
     }
 }
 
