@@ -45,6 +45,20 @@ enum Command {
     Trace(TraceArgs),
     /// Print the Modbus register map that the configuration's I/O map gives.
     Registers(ConfigArg),
+    /// Serve the I/O map's modules as a Modbus TCP slave, backed by the simulated machine.
+    IoSim(IoSimArgs),
+}
+
+#[derive(Args, Debug)]
+struct IoSimArgs {
+    /// Address to listen on (port 0: any free port; the address is printed first).
+    #[arg(long, value_name = "ADDR")]
+    tcp: std::net::SocketAddr,
+    #[command(flatten)]
+    config: ConfigArg,
+    /// A scenario for the simulated machine (panel inputs and faults).
+    #[arg(long, value_name = "FILE")]
+    scenario: Option<PathBuf>,
 }
 
 #[derive(Args, Debug)]
@@ -198,6 +212,7 @@ fn main() -> ExitCode {
         Command::Replay(args) => cmd_replay(args),
         Command::Trace(args) => cmd_trace(args),
         Command::Registers(args) => cmd_registers(args),
+        Command::IoSim(args) => cmd_io_sim(args),
         Command::Kin(args) => kin_cmd::run(args, load_config).map_err(|e| Failure {
             code: e.code,
             message: e.message,
@@ -442,6 +457,42 @@ fn cmd_registers(args: ConfigArg) -> Result<(), Failure> {
         "{origin}: {coils} coils, {discrete} discrete inputs, {input} input registers, {holding} holding registers"
     );
     Ok(())
+}
+
+fn cmd_io_sim(args: IoSimArgs) -> Result<(), Failure> {
+    use std::io::Write;
+    let loaded = load_config(&args.config)?;
+    let kinematics = pkm_plc::application_config(&loaded.config).map_err(|problems| ConfigError::Invalid {
+        file: loaded.origin.clone(),
+        problems,
+    })?;
+    let bus = pkm_plc::sim::build(&loaded, &kinematics.trijoint, args.scenario.as_deref())?;
+    let station = pkm_plc::sim::modbus::Station::new(bus);
+    let [coils, discrete, input, holding] = station.registers().sizes();
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .map_err(|e| Failure::run(format!("cannot start the tokio runtime: {e}")))?;
+    runtime.block_on(async move {
+        let listener = tokio::net::TcpListener::bind(args.tcp)
+            .await
+            .map_err(|e| Failure::run(format!("io-sim: cannot listen on {}: {e}", args.tcp)))?;
+        let address = listener.local_addr().map_err(|e| Failure::run(e.to_string()))?;
+        println!("{address}");
+        let _ = std::io::stdout().flush();
+        info!(
+            "io-sim: {} on {address} as Modbus TCP: {coils} coils, {discrete} discrete inputs, {input} input registers, \
+             {holding} holding registers; Ctrl-C stops",
+            loaded.origin
+        );
+        tokio::select! {
+            served = pkm_plc::sim::modbus::serve(listener, station) => {
+                served.map_err(|e| Failure::run(format!("io-sim: {e}")))
+            }
+            _ = tokio::signal::ctrl_c() => Ok(()),
+        }
+    })
 }
 
 fn cmd_bench(args: BenchArgs) -> Result<(), Failure> {

@@ -78,6 +78,29 @@ impl SimBus {
         }
     }
 
+    /// Channel-level access for a station that serves the modules itself (the Modbus I/O
+    /// simulator): advances the plant to `t_ns` and refreshes the input channels.
+    pub fn refresh(&mut self, t_ns: u64) {
+        self.advance_to(t_ns);
+        self.plant_to_channels();
+    }
+
+    /// The I/O map the station serves.
+    pub fn io_map(&self) -> &IoMap {
+        &self.map
+    }
+
+    /// A channel's current value.
+    pub fn channel(&self, module: usize, channel: usize) -> Value {
+        self.channels[module][channel]
+    }
+
+    /// Sets an output channel and applies the outputs to the plant.
+    pub fn set_output(&mut self, module: usize, channel: usize, value: Value) {
+        self.channels[module][channel] = value;
+        self.channels_to_plant();
+    }
+
     /// Copies the plant's signals into the input channels.
     fn plant_to_channels(&mut self) {
         for &(signal, (m, c)) in &self.wiring.signals {

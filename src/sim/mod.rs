@@ -3,6 +3,7 @@
 //! real machine's harness is. Scenario files drive the operator panel and inject faults.
 
 pub mod bus;
+pub mod modbus;
 pub mod plant;
 pub mod scenario;
 
