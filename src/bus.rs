@@ -24,7 +24,15 @@ pub trait Bus: Send {
     /// The bus as `Any`, so that callers who know its type can reach it (tests and status
     /// displays read the simulated machine's true state this way).
     fn as_any(&self) -> &dyn std::any::Any;
+    /// Whether the link is faulty beyond the configured bound: published every cycle as the
+    /// variable [`BUS_FAULT`], so the application can stop the drives and report it.
+    fn fault(&self) -> bool {
+        false
+    }
 }
+
+/// The variable every bus provides: its fault status.
+pub const BUS_FAULT: &str = "bus_fault";
 
 /// No field I/O: programs exchange variables among themselves only.
 #[derive(Debug, Default)]

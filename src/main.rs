@@ -120,9 +120,9 @@ struct RunArgs {
     /// Write a JSON summary (cycle statistics, final state) to FILE at exit.
     #[arg(long, value_name = "FILE")]
     summary: Option<PathBuf>,
-    /// The field bus: `sim`, the simulated TRIJOINT lab model behind the configured I/O map; or
-    /// `none`, no field I/O.
-    #[arg(long, value_enum, default_value_t = BusKind::Sim)]
+    /// The field bus: `sim` (the simulated TRIJOINT lab model behind the configured I/O map),
+    /// `tcp:HOST:PORT` (a Modbus TCP station serving the I/O map's register map), or `none`.
+    #[arg(long, default_value = "sim", value_parser = parse_bus)]
     bus: BusKind,
     /// A scenario for the simulated machine: timed operator actions and faults (JSON).
     #[arg(long, value_name = "FILE")]
@@ -158,12 +158,32 @@ struct BenchArgs {
 }
 
 /// The buses `run` can use.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum BusKind {
     /// The simulated machine.
     Sim,
     /// No field I/O.
     None,
+    /// A Modbus TCP station.
+    Tcp(std::net::SocketAddr),
+}
+
+fn parse_bus(s: &str) -> Result<BusKind, String> {
+    use std::net::ToSocketAddrs;
+    match s {
+        "sim" => Ok(BusKind::Sim),
+        "none" => Ok(BusKind::None),
+        _ if s.starts_with("tcp:") => s[4..]
+            .to_socket_addrs()
+            .ok()
+            .and_then(|mut a| a.next())
+            .map(BusKind::Tcp)
+            .ok_or_else(|| format!("\"{}\" is not HOST:PORT", &s[4..])),
+        _ if s.starts_with("serial:") => {
+            Err("Modbus RTU over a serial line is not implemented yet (use tcp:HOST:PORT)".into())
+        }
+        _ => Err(format!("\"{s}\" is not a bus: use sim, none or tcp:HOST:PORT")),
+    }
 }
 
 fn parse_seconds(s: &str) -> Result<f64, String> {
@@ -249,6 +269,20 @@ fn build(arg: &ConfigArg, bus: BusKind, scenario: Option<&Path>) -> Result<(Load
     let loaded = load_config(arg)?;
     let app = pkm_plc::application_config(&loaded.config);
     let bus: Box<dyn pkm_plc::bus::Bus> = match (bus, &loaded.config.io_map) {
+        (BusKind::Tcp(address), Some(_)) => {
+            if scenario.is_some() {
+                return Err(Failure::usage(
+                    "--scenario needs the simulated bus (give it to io-sim instead)",
+                ));
+            }
+            let Some((text, origin)) = pkm_plc::sim::io_map_text(&loaded)? else {
+                return Err(Failure::usage("a Modbus bus needs an io_map in the configuration"));
+            };
+            let classes: Vec<String> = loaded.config.task_classes.iter().map(|c| c.name.clone()).collect();
+            let map = pkm_plc::io::map::IoMap::parse(&text, &origin, &classes)?;
+            Box::new(pkm_plc::io::modbus::ModbusTcpBus::new(map, address, Default::default()))
+        }
+        (BusKind::Tcp(_), None) => return Err(Failure::usage("a Modbus bus needs an io_map in the configuration")),
         (BusKind::None, _) | (BusKind::Sim, None) => {
             if scenario.is_some() {
                 return Err(Failure::usage(

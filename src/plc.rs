@@ -79,6 +79,8 @@ pub struct Plc {
     violation_seq: u64,
     last_violation: Option<CycleViolation>,
     sink: Option<Box<dyn CycleSink>>,
+    /// Index of the `bus_fault` variable.
+    bus_fault: VarIndex,
 }
 
 /// A read-only view of one task class, for summaries and status lines.
@@ -105,6 +107,19 @@ impl Plc {
         let mut issues = config::check(config);
         let mut table = VarTable::new();
         bus.declare(&mut table);
+        // Every bus reports its fault status; the fastest class latches it (any class may read it).
+        let fastest = (0..config.task_classes.len())
+            .min_by_key(|&c| config.task_classes[c].cycle_us)
+            .unwrap_or(0);
+        let bus_fault = table.declare_writer(
+            crate::bus::BUS_FAULT,
+            crate::image::VarType::Bool,
+            Writer::Bus {
+                class: fastest,
+                at: "the runtime (bus status)".into(),
+            },
+            Value::Bool(false),
+        );
         let mut classes = Vec::with_capacity(config.task_classes.len());
         for (ci, tc) in config.task_classes.iter().enumerate() {
             let mut programs = Vec::with_capacity(tc.programs.len());
@@ -180,6 +195,7 @@ impl Plc {
             violation_seq: 0,
             last_violation: None,
             sink: None,
+            bus_fault,
         })
     }
 
@@ -378,6 +394,8 @@ impl Plc {
             class.image[usize::from(i)] = self.global[usize::from(i)];
         }
         let cycle = class.stats.cycles;
+        class.image[usize::from(self.bus_fault)] = Value::Bool(self.bus.fault());
+        self.global[usize::from(self.bus_fault)] = Value::Bool(self.bus.fault());
         let violation = self.execute(ci, release, clock, None);
         self.publish(ci);
         self.bus.write_outputs(ci, release, &self.global);

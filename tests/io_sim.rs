@@ -99,3 +99,100 @@ fn a_modbus_client_drives_the_simulated_machine_over_tcp() {
         assert_eq!(beyond, Err(ExceptionCode::IllegalDataAddress));
     });
 }
+
+/// Starts `pkm-plc io-sim` with a scenario file.
+fn start_with(scenario: &std::path::Path) -> (IoSim, SocketAddr) {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_pkm-plc"))
+        .args([
+            "io-sim",
+            "--tcp",
+            "127.0.0.1:0",
+            "--scenario",
+            scenario.to_str().expect("utf-8"),
+        ])
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .env("RUST_LOG", "warn")
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("io-sim starts");
+    let mut line = String::new();
+    BufReader::new(child.stdout.take().expect("stdout"))
+        .read_line(&mut line)
+        .expect("address line");
+    (IoSim(child), line.trim().parse().expect("address"))
+}
+
+fn summary(path: &std::path::Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(path).expect("summary")).expect("json")
+}
+
+/// Real time: referencing takes about 43 s, so this test takes about 48 s.
+#[test]
+fn the_soft_plc_references_and_jogs_over_modbus_tcp() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let scenario = dir.path().join("buttons.json");
+    std::fs::write(
+        &scenario,
+        r#"{"events": [{"at_ms": 45000, "input": "BUTTON_RIGHT", "value": true}, {"at_ms": 46000, "input": "BUTTON_RIGHT", "value": false}]}"#,
+    )
+    .expect("write");
+    let (_sim, address) = start_with(&scenario);
+    let (s, t) = (dir.path().join("summary.json"), dir.path().join("trace.jsonl"));
+    let o = Command::new(env!("CARGO_BIN_EXE_pkm-plc"))
+        .args([
+            "run",
+            "--bus",
+            &format!("tcp:{address}"),
+            "--duration",
+            "48",
+            "--summary",
+            s.to_str().expect("utf-8"),
+        ])
+        .args(["--trace", t.to_str().expect("utf-8")])
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .env("RUST_LOG", "warn")
+        .output()
+        .expect("run");
+    assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
+    let s = summary(&s);
+    assert_eq!(s["bus"], format!("tcp:{address}"));
+    assert_eq!(s["main"]["state"], "READY", "{s}");
+    // The direction button (on the station's digital inputs) moved the machine.
+    let trace = std::fs::read_to_string(&t).expect("trace");
+    assert!(trace.contains(r#""state":"MOTION""#), "no MOTION in the trace");
+    assert!(!trace.contains(r#""state":"ERROR""#), "an ERROR in the trace");
+}
+
+#[test]
+fn a_lost_link_is_a_bus_fault_without_hang() {
+    let (sim, address) = start();
+    let dir = tempfile::tempdir().expect("tempdir");
+    let s = dir.path().join("summary.json");
+    let run = Command::new(env!("CARGO_BIN_EXE_pkm-plc"))
+        .args([
+            "run",
+            "--bus",
+            &format!("tcp:{address}"),
+            "--duration",
+            "3",
+            "--summary",
+            s.to_str().expect("utf-8"),
+        ])
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .env("RUST_LOG", "warn")
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("run");
+    std::thread::sleep(Duration::from_millis(1500));
+    drop(sim); // the station disappears
+    let o = run.wait_with_output().expect("the run ends by itself");
+    assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
+    let s = summary(&s);
+    assert_eq!(s["main"]["state"], "ERROR", "{s}");
+    assert_eq!(s["main"]["error_reason"], "bus fault");
+    assert!(
+        String::from_utf8_lossy(&o.stderr).contains("bus fault after"),
+        "the fault is logged"
+    );
+}

@@ -2,4 +2,5 @@
 
 pub mod catalogue;
 pub mod map;
+pub mod modbus;
 pub mod registers;

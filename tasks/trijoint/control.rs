@@ -1,6 +1,6 @@
 //! The drive controller (10 ms class): a PI position regulator per drive, following-error
-//! supervision, and the fast interlock — STOP pressed, a limit switch outside INIT, a motor bridge
-//! or encoder fault, a following error, or a main state that does not drive: PWM zero in that same
+//! supervision, and the fast interlock — STOP pressed, a limit switch outside INIT, a bus fault, a
+//! motor bridge or encoder fault, a following error, or a main state that does not drive: PWM zero in that same
 //! cycle. (The
 //! original reacted only in its 50 ms task.)
 
@@ -75,6 +75,7 @@ pub struct Control {
     p: ControlParams,
     state: Input<i16>,
     enable: Input<bool>,
+    bus_fault: Input<bool>,
     setpoint_time: Input<f64>,
     stop: Input<bool>,
     interlock: Output<bool>,
@@ -119,6 +120,7 @@ impl Control {
             p,
             state: decl.input("main_state"),
             enable: decl.input("drives_enable"),
+            bus_fault: decl.input("bus_fault"),
             setpoint_time: decl.input("setpoint_time_s"),
             stop: decl.input("BUTTON_STOP"),
             interlock: decl.output("interlock", false),
@@ -135,7 +137,7 @@ impl Program for Control {
         let driving_state = matches!(state, Some(MainState::Init | MainState::Ready | MainState::Motion));
         let enabled = driving_state && ctx.get(self.enable);
         let switch = self.drives.iter().any(|d| d.switches.iter().any(|s| ctx.get(*s)));
-        let faults = self.drives.iter().any(|d| ctx.get(d.bridge_error) || ctx.get(d.fault));
+        let faults = ctx.get(self.bus_fault) || self.drives.iter().any(|d| ctx.get(d.bridge_error) || ctx.get(d.fault));
         let interlock = ctx.get(self.stop) || (switch && !in_init) || faults || !enabled;
         // The main program publishes set-points every 50 ms with their velocity and time; between
         // its cycles the set-point moves on at that velocity, so ramps reach the drives smoothly.

@@ -84,6 +84,8 @@ pub enum Reason {
     FollowingError(usize),
     /// A cycle time violation reported by the runtime.
     CycleTimeViolation,
+    /// The field bus failed beyond its error bound.
+    BusFault,
     /// A switch not reached during INIT — in time, or at all because the carriage was blocked
     /// (switch index as for `LimitSwitch`).
     InitTimeout(usize),
@@ -131,6 +133,7 @@ impl Reason {
             Reason::BridgeError(d) => SIDE[1][d.min(1)],
             Reason::FollowingError(d) => SIDE[2][d.min(1)],
             Reason::CycleTimeViolation => "cycle time violation",
+            Reason::BusFault => "bus fault",
             Reason::InitTimeout(i) => NOT_REACHED[i.min(3)],
             Reason::InitWrongSwitch(i) => WRONG[i.min(3)],
         }
@@ -145,6 +148,7 @@ impl Reason {
             Reason::BridgeError(d) => 30 + d as i16,
             Reason::FollowingError(d) => 40 + d as i16,
             Reason::CycleTimeViolation => 50,
+            Reason::BusFault => 55,
             Reason::InitTimeout(i) => 60 + i as i16,
             Reason::InitWrongSwitch(i) => 70 + i as i16,
         }
@@ -576,6 +580,7 @@ impl Automaton {
 
 struct Vars {
     stop: Input<bool>,
+    bus_fault: Input<bool>,
     switches: [Input<bool>; 4],
     buttons: [Input<bool>; 4],
     joystick: [Input<f64>; 2],
@@ -637,6 +642,7 @@ impl MainProgram {
         let side = |s: &str| [format!("{s}_lower"), format!("{s}_upper")];
         let vars = Vars {
             stop: decl.input("BUTTON_STOP"),
+            bus_fault: decl.input("bus_fault"),
             switches: SWITCH_NAMES.map(|n| decl.input(n)),
             buttons: ["BUTTON_LEFT", "BUTTON_RIGHT", "BUTTON_UP", "BUTTON_DOWN"].map(|n| decl.input(n)),
             joystick: [decl.input("JOYSTICK_X"), decl.input("JOYSTICK_Y")],
@@ -724,6 +730,9 @@ impl MainProgram {
         }
         if ctx.violation().is_some() {
             return Event::Fault(Reason::CycleTimeViolation);
+        }
+        if ctx.get(v.bus_fault) {
+            return Event::Fault(Reason::BusFault);
         }
         for d in 0..2 {
             if ctx.get(v.encoder_faults[d]) {
