@@ -1,0 +1,100 @@
+//! Interoperability with an independent Modbus implementation (pymodbus, from PyPI): its client
+//! drives `pkm-plc io-sim`, and the soft-PLC runs against its server. The test installs pymodbus
+//! with pip when it is missing.
+
+use std::io::{BufRead, BufReader};
+use std::process::{Command, Stdio};
+
+const PYMODBUS: &str = "pymodbus==3.8.6";
+
+fn python() -> &'static str {
+    static READY: std::sync::OnceLock<()> = std::sync::OnceLock::new();
+    READY.get_or_init(|| {
+        let have = Command::new("python3")
+            .args(["-c", "import pymodbus"])
+            .status()
+            .is_ok_and(|s| s.success());
+        if !have {
+            let status = Command::new("python3")
+                .args([
+                    "-m",
+                    "pip",
+                    "install",
+                    "--quiet",
+                    "--disable-pip-version-check",
+                    PYMODBUS,
+                ])
+                .status()
+                .expect("python3 runs");
+            assert!(status.success(), "pip install {PYMODBUS} failed");
+        }
+    });
+    "python3"
+}
+
+fn script(name: &str) -> String {
+    format!("{}/tests/interop/{name}", env!("CARGO_MANIFEST_DIR"))
+}
+
+#[test]
+fn a_pymodbus_client_drives_io_sim() {
+    let python = python();
+    let mut sim = Command::new(env!("CARGO_BIN_EXE_pkm-plc"))
+        .args(["io-sim", "--tcp", "127.0.0.1:0"])
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .env("RUST_LOG", "warn")
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("io-sim");
+    let mut address = String::new();
+    BufReader::new(sim.stdout.take().expect("stdout"))
+        .read_line(&mut address)
+        .expect("address");
+    let o = Command::new(python)
+        .arg(script("client.py"))
+        .arg(address.trim())
+        .output()
+        .expect("client.py");
+    let _ = sim.kill();
+    let _ = sim.wait();
+    assert!(
+        o.status.success(),
+        "{}{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert_eq!(String::from_utf8_lossy(&o.stdout), "ok\n");
+}
+
+#[test]
+fn the_soft_plc_runs_against_a_pymodbus_server() {
+    let python = python();
+    // A free port (a small window for another process to take it; the server would then fail
+    // to bind and the test says so).
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .expect("free port")
+        .port();
+    let mut server = Command::new(python)
+        .arg(script("server.py"))
+        .args([port.to_string(), "10".to_string()])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("server.py");
+    let mut lines = BufReader::new(server.stdout.take().expect("stdout")).lines();
+    assert_eq!(lines.next().and_then(Result::ok).as_deref(), Some("ready"));
+    std::thread::sleep(std::time::Duration::from_millis(500));
+    let run = Command::new(env!("CARGO_BIN_EXE_pkm-plc"))
+        .args(["run", "--bus", &format!("tcp:127.0.0.1:{port}"), "--duration", "2"])
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .env("RUST_LOG", "warn")
+        .output()
+        .expect("run");
+    assert_eq!(run.status.code(), Some(0), "{}", String::from_utf8_lossy(&run.stderr));
+    let verdict = lines.next().and_then(Result::ok);
+    let status = server.wait().expect("server ends");
+    assert_eq!(verdict.as_deref(), Some("period 50"), "server: {verdict:?}");
+    assert!(status.success());
+}
