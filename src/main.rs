@@ -51,9 +51,17 @@ enum Command {
 
 #[derive(Args, Debug)]
 struct IoSimArgs {
-    /// Address to listen on (port 0: any free port; the address is printed first).
-    #[arg(long, value_name = "ADDR")]
-    tcp: std::net::SocketAddr,
+    /// Serve Modbus TCP on this address (port 0: any free port; the address is printed first).
+    #[arg(
+        long,
+        value_name = "ADDR",
+        required_unless_present = "serial",
+        conflicts_with = "serial"
+    )]
+    tcp: Option<std::net::SocketAddr>,
+    /// Serve Modbus RTU on this serial device, `PATH[@BAUD]` (115 200 baud by default).
+    #[arg(long, value_name = "PATH[@BAUD]", value_parser = parse_serial)]
+    serial: Option<(String, u32)>,
     #[command(flatten)]
     config: ConfigArg,
     /// A scenario for the simulated machine (panel inputs and faults).
@@ -158,7 +166,7 @@ struct BenchArgs {
 }
 
 /// The buses `run` can use.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Debug, PartialEq, Eq)]
 enum BusKind {
     /// The simulated machine.
     Sim,
@@ -166,6 +174,21 @@ enum BusKind {
     None,
     /// A Modbus TCP station.
     Tcp(std::net::SocketAddr),
+    /// A Modbus RTU station on a serial line.
+    Serial(String, u32),
+}
+
+/// `PATH[@BAUD]`, 115 200 baud by default.
+fn parse_serial(s: &str) -> Result<(String, u32), String> {
+    match s.rsplit_once('@') {
+        Some((path, baud)) => baud
+            .parse::<u32>()
+            .ok()
+            .filter(|b| *b > 0)
+            .map(|b| (path.to_string(), b))
+            .ok_or_else(|| format!("\"{baud}\" is not a baud rate")),
+        None => Ok((s.to_string(), 115_200)),
+    }
 }
 
 fn parse_bus(s: &str) -> Result<BusKind, String> {
@@ -179,10 +202,10 @@ fn parse_bus(s: &str) -> Result<BusKind, String> {
             .and_then(|mut a| a.next())
             .map(BusKind::Tcp)
             .ok_or_else(|| format!("\"{}\" is not HOST:PORT", &s[4..])),
-        _ if s.starts_with("serial:") => {
-            Err("Modbus RTU over a serial line is not implemented yet (use tcp:HOST:PORT)".into())
-        }
-        _ => Err(format!("\"{s}\" is not a bus: use sim, none or tcp:HOST:PORT")),
+        _ if s.starts_with("serial:") => parse_serial(&s[7..]).map(|(p, b)| BusKind::Serial(p, b)),
+        _ => Err(format!(
+            "\"{s}\" is not a bus: use sim, none, tcp:HOST:PORT or serial:PATH[@BAUD]"
+        )),
     }
 }
 
@@ -269,7 +292,7 @@ fn build(arg: &ConfigArg, bus: BusKind, scenario: Option<&Path>) -> Result<(Load
     let loaded = load_config(arg)?;
     let app = pkm_plc::application_config(&loaded.config);
     let bus: Box<dyn pkm_plc::bus::Bus> = match (bus, &loaded.config.io_map) {
-        (BusKind::Tcp(address), Some(_)) => {
+        (kind @ (BusKind::Tcp(_) | BusKind::Serial(..)), Some(_)) => {
             if scenario.is_some() {
                 return Err(Failure::usage(
                     "--scenario needs the simulated bus (give it to io-sim instead)",
@@ -280,9 +303,16 @@ fn build(arg: &ConfigArg, bus: BusKind, scenario: Option<&Path>) -> Result<(Load
             };
             let classes: Vec<String> = loaded.config.task_classes.iter().map(|c| c.name.clone()).collect();
             let map = pkm_plc::io::map::IoMap::parse(&text, &origin, &classes)?;
-            Box::new(pkm_plc::io::modbus::ModbusTcpBus::new(map, address, Default::default()))
+            let transport = match kind {
+                BusKind::Serial(path, baud) => pkm_plc::io::modbus::Transport::Serial { path, baud },
+                BusKind::Tcp(address) => pkm_plc::io::modbus::Transport::Tcp(address),
+                _ => unreachable!("matched above"),
+            };
+            Box::new(pkm_plc::io::modbus::ModbusBus::new(map, transport, Default::default()))
         }
-        (BusKind::Tcp(_), None) => return Err(Failure::usage("a Modbus bus needs an io_map in the configuration")),
+        (BusKind::Tcp(_) | BusKind::Serial(..), None) => {
+            return Err(Failure::usage("a Modbus bus needs an io_map in the configuration"));
+        }
         (BusKind::None, _) | (BusKind::Sim, None) => {
             if scenario.is_some() {
                 return Err(Failure::usage(
@@ -509,9 +539,19 @@ fn cmd_io_sim(args: IoSimArgs) -> Result<(), Failure> {
         .build()
         .map_err(|e| Failure::run(format!("cannot start the tokio runtime: {e}")))?;
     runtime.block_on(async move {
-        let listener = tokio::net::TcpListener::bind(args.tcp)
+        if let Some((path, baud)) = &args.serial {
+            let stream = tokio_serial::SerialStream::open(&tokio_serial::new(path.as_str(), *baud))
+                .map_err(|e| Failure::run(format!("io-sim: cannot open {path}: {e}")))?;
+            info!("io-sim: {} on {path} at {baud} baud as Modbus RTU; Ctrl-C stops", loaded.origin);
+            return tokio::select! {
+                served = pkm_plc::sim::modbus::serve_rtu(stream, station) => served.map_err(|e| Failure::run(format!("io-sim: {e}"))),
+                _ = tokio::signal::ctrl_c() => Ok(()),
+            };
+        }
+        let tcp = args.tcp.ok_or_else(|| Failure::usage("io-sim needs --tcp or --serial"))?;
+        let listener = tokio::net::TcpListener::bind(tcp)
             .await
-            .map_err(|e| Failure::run(format!("io-sim: cannot listen on {}: {e}", args.tcp)))?;
+            .map_err(|e| Failure::run(format!("io-sim: cannot listen on {tcp}: {e}")))?;
         let address = listener.local_addr().map_err(|e| Failure::run(e.to_string()))?;
         println!("{address}");
         let _ = std::io::stdout().flush();

@@ -1,4 +1,5 @@
-//! The Modbus TCP bus driver: a station behind the register map of the I/O map.
+//! The Modbus bus driver (TCP, or RTU over a serial line): a station behind the register map of
+//! the I/O map.
 //!
 //! An exchange loop on its own thread reads the discrete inputs and input registers and writes the
 //! coils and holding registers, every request with a timeout. Complete input sets reach the cycle
@@ -14,7 +15,9 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::thread::JoinHandle;
 use std::time::Duration;
 
-use tokio_modbus::client::{self, Reader as _, Writer as _, tcp};
+use tokio_modbus::Slave;
+use tokio_modbus::client::{self, Reader as _, Writer as _, rtu, tcp};
+use tokio_serial::SerialStream;
 
 use super::catalogue::Direction;
 use super::map::IoMap;
@@ -70,11 +73,55 @@ struct Slot {
     var: VarIndex,
 }
 
-/// The Modbus TCP bus.
-pub struct ModbusTcpBus {
+/// How the driver reaches the station.
+pub enum Transport {
+    /// Modbus TCP.
+    Tcp(SocketAddr),
+    /// Modbus RTU on a serial device at a baud rate (unit 1).
+    Serial {
+        /// The device (`/dev/ttyUSB0`, a pty, ...).
+        path: String,
+        /// Baud rate.
+        baud: u32,
+    },
+    /// Modbus RTU on a serial port that is already open (one end of a pty pair, say); it cannot
+    /// be reopened after the link is lost.
+    Port(Option<serialport::TTYPort>),
+}
+
+impl Transport {
+    fn describe(&self) -> String {
+        match self {
+            Transport::Tcp(a) => format!("tcp:{a}"),
+            Transport::Serial { path, baud } => format!("serial:{path}@{baud}"),
+            Transport::Port(_) => "serial:port".into(),
+        }
+    }
+
+    async fn connect(&mut self) -> std::io::Result<client::Context> {
+        match self {
+            Transport::Tcp(a) => tcp::connect(*a).await,
+            Transport::Serial { path, baud } => {
+                let stream = SerialStream::open(&tokio_serial::new(path.as_str(), *baud))?;
+                Ok(rtu::attach_slave(stream, Slave(1)))
+            }
+            Transport::Port(p) => {
+                let port = p
+                    .take()
+                    .ok_or_else(|| std::io::Error::other("the serial port was lost and cannot be reopened"))?;
+                // Registered with the reactor here, in the exchange loop's runtime.
+                let stream = SerialStream::try_from(port).map_err(std::io::Error::other)?;
+                Ok(rtu::attach_slave(stream, Slave(1)))
+            }
+        }
+    }
+}
+
+/// The Modbus bus.
+pub struct ModbusBus {
     name: String,
     map: IoMap,
-    address: SocketAddr,
+    transport: Option<Transport>,
     options: ModbusOptions,
     inputs: Option<MailboxReader>,
     outputs: Option<MailboxWriter>,
@@ -86,14 +133,14 @@ pub struct ModbusTcpBus {
     thread: Option<JoinHandle<()>>,
 }
 
-impl ModbusTcpBus {
-    /// A bus to the station at `address` serving `map`'s modules. The exchange loop starts when
-    /// the variables are declared (the bus then knows which variable each channel is).
-    pub fn new(map: IoMap, address: SocketAddr, options: ModbusOptions) -> Self {
-        ModbusTcpBus {
-            name: format!("tcp:{address}"),
+impl ModbusBus {
+    /// A bus to the station reached by `transport`, serving `map`'s modules. The exchange loop
+    /// starts when the variables are declared (the bus then knows which variable each channel is).
+    pub fn new(map: IoMap, transport: Transport, options: ModbusOptions) -> Self {
+        ModbusBus {
+            name: transport.describe(),
             map,
-            address,
+            transport: Some(transport),
             options,
             inputs: None,
             outputs: None,
@@ -112,7 +159,7 @@ impl ModbusTcpBus {
     }
 }
 
-impl Bus for ModbusTcpBus {
+impl Bus for ModbusBus {
     fn name(&self) -> &str {
         &self.name
     }
@@ -175,8 +222,10 @@ impl Bus for ModbusTcpBus {
         self.output_vars = outputs.iter().map(|s| s.var).collect();
         self.output_values = outputs.iter().map(|s| Value::zero(s.ty)).collect();
         let sizes = registers.sizes();
+        let Some(transport) = self.transport.take() else { return };
         let link = Link {
-            address: self.address,
+            name: self.name.clone(),
+            transport,
             options: self.options,
             inputs,
             outputs,
@@ -186,7 +235,7 @@ impl Bus for ModbusTcpBus {
             stats: Arc::clone(&self.stats),
         };
         self.thread = std::thread::Builder::new()
-            .name("modbus-tcp".into())
+            .name("modbus".into())
             .spawn(move || link.run(in_writer, out_reader))
             .ok();
     }
@@ -238,7 +287,8 @@ impl Bus for ModbusTcpBus {
 
 /// The exchange loop's state.
 struct Link {
-    address: SocketAddr,
+    name: String,
+    transport: Transport,
     options: ModbusOptions,
     inputs: Vec<Slot>,
     outputs: Vec<Slot>,
@@ -256,7 +306,7 @@ enum Failure {
 }
 
 impl Link {
-    fn run(self, mut inputs: MailboxWriter, mut outputs: MailboxReader) {
+    fn run(mut self, mut inputs: MailboxWriter, mut outputs: MailboxReader) {
         let runtime = match tokio::runtime::Builder::new_current_thread().enable_all().build() {
             Ok(r) => r,
             Err(e) => {
@@ -268,13 +318,13 @@ impl Link {
         runtime.block_on(self.exchange_loop(&mut inputs, &mut outputs));
     }
 
-    async fn exchange_loop(&self, inputs: &mut MailboxWriter, outputs: &mut MailboxReader) {
+    async fn exchange_loop(&mut self, inputs: &mut MailboxWriter, outputs: &mut MailboxReader) {
         let mut failures = 0u32;
         let mut backoff = Duration::from_millis(50);
         let mut out_values: Vec<Value> = self.outputs.iter().map(|s| Value::zero(s.ty)).collect();
         let mut in_values: Vec<Value> = self.inputs.iter().map(|s| Value::zero(s.ty)).collect();
         while !self.stop.load(Ordering::Relaxed) {
-            let connected = tokio::time::timeout(self.options.timeout, tcp::connect(self.address)).await;
+            let connected = tokio::time::timeout(self.options.timeout, self.transport.connect()).await;
             let mut ctx = match connected {
                 Ok(Ok(ctx)) => {
                     backoff = Duration::from_millis(50);
@@ -323,7 +373,7 @@ impl Link {
     fn failed(&self, failures: &mut u32) {
         *failures += 1;
         if *failures > self.options.max_failures && !self.fault.swap(true, Ordering::Relaxed) {
-            tracing::warn!("modbus {}: bus fault after {failures} failed exchanges", self.address);
+            tracing::warn!("modbus {}: bus fault after {failures} failed exchanges", self.name);
         }
     }
 

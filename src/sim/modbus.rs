@@ -1,4 +1,4 @@
-//! The I/O simulator (`pkm-plc io-sim`): the modules of the I/O map served as a Modbus TCP slave
+//! The I/O simulator (`pkm-plc io-sim`): the modules of the I/O map served as a Modbus TCP or RTU slave
 //! through the register map, backed by the same plant as the simulated bus. The plant runs in
 //! real time: every request first advances it to the time since the server started.
 
@@ -163,6 +163,14 @@ impl tokio_modbus::server::Service for Service {
         };
         std::future::ready(result)
     }
+}
+
+/// Serves `station` as Modbus RTU (any unit) on a serial stream until the future is dropped.
+pub async fn serve_rtu(serial: tokio_serial::SerialStream, station: Station) -> std::io::Result<()> {
+    let service = Service(Arc::new(Mutex::new(station)));
+    tokio_modbus::server::rtu::Server::new(serial)
+        .serve_forever(service)
+        .await
 }
 
 /// Serves `station` on `listener` until the future is dropped.
