@@ -352,7 +352,12 @@ impl Link {
                         self.stats.exchange_ns_max.fetch_max(ns, Ordering::Relaxed);
                         self.stats.exchanges.fetch_add(1, Ordering::Relaxed);
                         failures = 0;
-                        self.fault.store(false, Ordering::Relaxed);
+                        if self.fault.swap(false, Ordering::Relaxed) {
+                            tracing::info!(
+                                "modbus {}: the link works again (the machine stays in ERROR until acknowledged)",
+                                self.name
+                            );
+                        }
                     }
                     Err(f) => {
                         match f {
