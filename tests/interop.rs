@@ -2,6 +2,8 @@
 //! drives `pkm-plc io-sim`, and the soft-PLC runs against its server. The test installs pymodbus
 //! with pip when it is missing.
 
+mod common;
+
 use std::io::{BufRead, BufReader};
 use std::process::{Command, Stdio};
 
@@ -39,25 +41,13 @@ fn script(name: &str) -> String {
 #[test]
 fn a_pymodbus_client_drives_io_sim() {
     let python = python();
-    let mut sim = Command::new(env!("CARGO_BIN_EXE_pkm-plc"))
-        .args(["io-sim", "--tcp", "127.0.0.1:0"])
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .env("RUST_LOG", "warn")
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .expect("io-sim");
-    let mut address = String::new();
-    BufReader::new(sim.stdout.take().expect("stdout"))
-        .read_line(&mut address)
-        .expect("address");
+    let (sim, address) = common::start_io_sim("127.0.0.1:0", &[]);
     let o = Command::new(python)
         .arg(script("client.py"))
-        .arg(address.trim())
+        .arg(address.to_string())
         .output()
         .expect("client.py");
-    let _ = sim.kill();
-    let _ = sim.wait();
+    drop(sim);
     assert!(
         o.status.success(),
         "{}{}",

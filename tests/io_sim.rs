@@ -1,37 +1,18 @@
 //! The I/O simulator as a Modbus TCP slave, driven by a Modbus client over loopback.
 
-use std::io::{BufRead, BufReader};
+mod common;
+
 use std::net::SocketAddr;
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::time::Duration;
+
+use common::IoSim;
 
 use tokio_modbus::prelude::*;
 
-struct IoSim(Child);
-
-impl Drop for IoSim {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-/// Starts `pkm-plc io-sim` on a free loopback port; returns it and its address.
+/// Starts `pkm-plc io-sim` on a free loopback port.
 fn start() -> (IoSim, SocketAddr) {
-    let mut child = Command::new(env!("CARGO_BIN_EXE_pkm-plc"))
-        .args(["io-sim", "--tcp", "127.0.0.1:0"])
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .env("RUST_LOG", "warn")
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .expect("io-sim starts");
-    let mut line = String::new();
-    BufReader::new(child.stdout.take().expect("stdout"))
-        .read_line(&mut line)
-        .expect("address line");
-    let address = line.trim().parse().unwrap_or_else(|e| panic!("{line:?}: {e}"));
-    (IoSim(child), address)
+    common::start_io_sim("127.0.0.1:0", &[])
 }
 
 #[test]
@@ -102,25 +83,7 @@ fn a_modbus_client_drives_the_simulated_machine_over_tcp() {
 
 /// Starts `pkm-plc io-sim` with a scenario file.
 fn start_with(scenario: &std::path::Path) -> (IoSim, SocketAddr) {
-    let mut child = Command::new(env!("CARGO_BIN_EXE_pkm-plc"))
-        .args([
-            "io-sim",
-            "--tcp",
-            "127.0.0.1:0",
-            "--scenario",
-            scenario.to_str().expect("utf-8"),
-        ])
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .env("RUST_LOG", "warn")
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .expect("io-sim starts");
-    let mut line = String::new();
-    BufReader::new(child.stdout.take().expect("stdout"))
-        .read_line(&mut line)
-        .expect("address line");
-    (IoSim(child), line.trim().parse().expect("address"))
+    common::start_io_sim("127.0.0.1:0", &["--scenario", scenario.to_str().expect("utf-8")])
 }
 
 fn summary(path: &std::path::Path) -> serde_json::Value {

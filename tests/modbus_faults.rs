@@ -4,9 +4,9 @@
 
 mod common;
 
-use std::io::{BufRead, BufReader, Read, Write};
+use std::io::{Read, Write};
 use std::net::{TcpListener, TcpStream};
-use std::process::{Command, Stdio};
+use std::process::Command;
 use std::time::Duration;
 
 use common::stderr;
@@ -109,39 +109,17 @@ fn garbage_slow_and_exceptional_stations_are_bus_faults() {
 
 #[test]
 fn the_link_comes_back_when_the_station_returns_but_error_stays_until_acknowledged() {
-    let start = |port: u16| {
-        let mut child = Command::new(env!("CARGO_BIN_EXE_pkm-plc"))
-            .args(["io-sim", "--tcp", &format!("127.0.0.1:{port}")])
-            .current_dir(env!("CARGO_MANIFEST_DIR"))
-            .env("RUST_LOG", "warn")
-            .stdout(Stdio::piped())
-            .stderr(Stdio::null())
-            .spawn()
-            .expect("io-sim");
-        let mut line = String::new();
-        BufReader::new(child.stdout.take().expect("stdout"))
-            .read_line(&mut line)
-            .expect("address");
-        let port: u16 = line
-            .trim()
-            .rsplit(':')
-            .next()
-            .and_then(|p| p.parse().ok())
-            .expect("port");
-        (child, port)
-    };
-    let (mut first, port) = start(0);
+    let start = |port: u16| common::start_io_sim(&format!("127.0.0.1:{port}"), &[]);
+    let (first, address) = start(0);
+    let port = address.port();
     let restart = std::thread::spawn(move || {
         std::thread::sleep(Duration::from_millis(1500));
-        let _ = first.kill();
-        let _ = first.wait();
+        drop(first); // the station disappears...
         std::thread::sleep(Duration::from_millis(1500));
-        start(port).0
+        start(port).0 // ...and comes back on the same port
     });
     let (s, log) = run_against(port, "6");
-    let mut second = restart.join().expect("restart");
-    let _ = second.kill();
-    let _ = second.wait();
+    drop(restart.join().expect("restart"));
     assert!(log.contains("bus fault after"), "{log}");
     assert!(log.contains("the link works again"), "{log}");
     assert_eq!(s["main"]["state"], "ERROR");

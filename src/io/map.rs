@@ -7,7 +7,7 @@ use serde::Deserialize;
 
 use super::catalogue::{self, Direction, ModuleType};
 use crate::config::{self, ConfigError};
-use crate::image::{DeclIssue, VarType};
+use crate::image::{DeclIssue, Reader, Value, VarIndex, VarTable, VarType, Writer};
 
 /// The file as written.
 #[derive(Clone, Debug, Deserialize)]
@@ -74,6 +74,35 @@ pub struct Binding {
     pub ty: VarType,
     /// Where it is written, for messages: `FILE: bindings[i] (MODULE.Channel)`.
     pub at: String,
+}
+
+impl Binding {
+    /// Declares the bound variable for a bus: an input channel makes the bus its writer; an
+    /// output channel makes the bus a reader that needs no writer (an output nobody writes keeps
+    /// its safe value, as an unwritten I/O-mapped variable does on a B&R controller).
+    pub fn declare(&self, table: &mut VarTable) -> VarIndex {
+        match self.direction {
+            Direction::Input => table.declare_writer(
+                &self.variable,
+                self.ty,
+                Writer::Bus {
+                    class: self.class,
+                    at: self.at.clone(),
+                },
+                Value::zero(self.ty),
+            ),
+            Direction::Output => table.declare_reader(
+                &self.variable,
+                self.ty,
+                Reader {
+                    class: self.class,
+                    who: "the bus".into(),
+                    at: self.at.clone(),
+                    needs_writer: false,
+                },
+            ),
+        }
+    }
 }
 
 /// A validated I/O map.

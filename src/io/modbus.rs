@@ -23,7 +23,7 @@ use super::catalogue::Direction;
 use super::map::IoMap;
 use super::registers::{RegisterMap, Table, decode, encode};
 use crate::bus::{Bus, MailboxReader, MailboxWriter, image_mailbox};
-use crate::image::{Reader, Value, VarIndex, VarTable, Writer};
+use crate::image::{Value, VarIndex, VarTable};
 
 /// Settings of the exchange loop.
 #[derive(Clone, Copy, Debug)]
@@ -173,27 +173,7 @@ impl Bus for ModbusBus {
                 .entries
                 .iter()
                 .find(|e| e.module == b.module && e.channel == b.channel);
-            let var = match b.direction {
-                Direction::Input => table.declare_writer(
-                    &b.variable,
-                    b.ty,
-                    Writer::Bus {
-                        class: b.class,
-                        at: b.at.clone(),
-                    },
-                    Value::zero(b.ty),
-                ),
-                Direction::Output => table.declare_reader(
-                    &b.variable,
-                    b.ty,
-                    Reader {
-                        class: b.class,
-                        who: "the bus".into(),
-                        at: b.at.clone(),
-                        needs_writer: false,
-                    },
-                ),
-            };
+            let var = b.declare(table);
             // A channel off the field bus (the HID joystick) is declared but stays at its zero
             // value here: "not connected" until the joystick driver provides it.
             let Some(e) = entry else { continue };

@@ -5,7 +5,7 @@
 //! on its configuration and scenario.
 
 use crate::bus::Bus;
-use crate::image::{Reader, Value, VarIndex, VarTable, Writer};
+use crate::image::{Value, VarIndex, VarTable};
 use crate::io::catalogue::Direction;
 use crate::io::map::IoMap;
 
@@ -140,29 +140,7 @@ impl Bus for SimBus {
 
     fn declare(&mut self, table: &mut VarTable) {
         for (i, b) in self.map.bindings.iter().enumerate() {
-            self.vars[i] = match b.direction {
-                Direction::Input => table.declare_writer(
-                    &b.variable,
-                    b.ty,
-                    Writer::Bus {
-                        class: b.class,
-                        at: b.at.clone(),
-                    },
-                    Value::zero(b.ty),
-                ),
-                // An output nobody writes keeps its safe value, as an unwritten I/O-mapped
-                // variable does on a B&R controller.
-                Direction::Output => table.declare_reader(
-                    &b.variable,
-                    b.ty,
-                    Reader {
-                        class: b.class,
-                        who: "the bus".into(),
-                        at: b.at.clone(),
-                        needs_writer: false,
-                    },
-                ),
-            };
+            self.vars[i] = b.declare(table);
         }
     }
 

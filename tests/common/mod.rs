@@ -104,3 +104,37 @@ pub fn stderr(o: &std::process::Output) -> String {
 pub fn stdout(o: &std::process::Output) -> String {
     String::from_utf8_lossy(&o.stdout).into_owned()
 }
+
+/// A running `pkm-plc io-sim`, killed when dropped.
+pub struct IoSim(pub std::process::Child);
+
+impl Drop for IoSim {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+/// Starts `pkm-plc io-sim --tcp ADDR` (port 0: a free one) with extra `args`; returns it and the
+/// address it printed.
+pub fn start_io_sim(address: &str, args: &[&str]) -> (IoSim, std::net::SocketAddr) {
+    use std::io::BufRead;
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_pkm-plc"))
+        .args(["io-sim", "--tcp", address])
+        .args(args)
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .env("RUST_LOG", "warn")
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .expect("io-sim starts");
+    let mut line = String::new();
+    std::io::BufReader::new(child.stdout.take().expect("stdout"))
+        .read_line(&mut line)
+        .expect("the address line");
+    let address = line
+        .trim()
+        .parse()
+        .unwrap_or_else(|e| panic!("io-sim printed {line:?}: {e}"));
+    (IoSim(child), address)
+}
