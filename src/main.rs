@@ -298,11 +298,9 @@ fn build(arg: &ConfigArg, bus: BusKind, scenario: Option<&Path>) -> Result<(Load
                     "--scenario needs the simulated bus (give it to io-sim instead)",
                 ));
             }
-            let Some((text, origin)) = pkm_plc::sim::io_map_text(&loaded)? else {
+            let Some(map) = pkm_plc::io::map::IoMap::load(&loaded)? else {
                 return Err(Failure::usage("a Modbus bus needs an io_map in the configuration"));
             };
-            let classes: Vec<String> = loaded.config.task_classes.iter().map(|c| c.name.clone()).collect();
-            let map = pkm_plc::io::map::IoMap::parse(&text, &origin, &classes)?;
             let transport = match kind {
                 BusKind::Serial(path, baud) => pkm_plc::io::modbus::Transport::Serial { path, baud },
                 BusKind::Tcp(address) => pkm_plc::io::modbus::Transport::Tcp(address),
@@ -506,19 +504,18 @@ fn cmd_trace(args: TraceArgs) -> Result<(), Failure> {
 
 fn cmd_registers(args: ConfigArg) -> Result<(), Failure> {
     let loaded = load_config(&args)?;
-    let Some((text, origin)) = pkm_plc::sim::io_map_text(&loaded)? else {
+    let Some(map) = pkm_plc::io::map::IoMap::load(&loaded)? else {
         return Err(Failure::usage(format!(
             "{}: the configuration names no I/O map",
             loaded.origin
         )));
     };
-    let classes: Vec<String> = loaded.config.task_classes.iter().map(|c| c.name.clone()).collect();
-    let map = pkm_plc::io::map::IoMap::parse(&text, &origin, &classes)?;
     let registers = pkm_plc::io::registers::RegisterMap::of(&map);
     print!("{}", registers.describe(&map));
     let [coils, discrete, input, holding] = registers.sizes();
     println!(
-        "{origin}: {coils} coils, {discrete} discrete inputs, {input} input registers, {holding} holding registers"
+        "{}: {coils} coils, {discrete} discrete inputs, {input} input registers, {holding} holding registers",
+        map.origin
     );
     Ok(())
 }

@@ -390,12 +390,12 @@ impl Plc {
         let release = class.next_release;
         let start = clock.now_ns();
         self.bus.read_inputs(ci, release, &mut self.global);
+        // The bus's fault status is an input like any other: latched below by the classes that read it.
+        self.global[usize::from(self.bus_fault)] = Value::Bool(self.bus.fault());
         for &i in &class.inputs {
             class.image[usize::from(i)] = self.global[usize::from(i)];
         }
         let cycle = class.stats.cycles;
-        class.image[usize::from(self.bus_fault)] = Value::Bool(self.bus.fault());
-        self.global[usize::from(self.bus_fault)] = Value::Bool(self.bus.fault());
         let violation = self.execute(ci, release, clock, None);
         self.publish(ci);
         self.bus.write_outputs(ci, release, &self.global);

@@ -34,9 +34,7 @@ fn the_application_runs_over_modbus_rtu_on_a_pty_pair() {
             let _ = serve_rtu(stream, station).await;
         });
     });
-    let (text, origin) = pkm_plc::sim::io_map_text(&loaded).expect("map").expect("an io_map");
-    let classes: Vec<String> = loaded.config.task_classes.iter().map(|c| c.name.clone()).collect();
-    let map = IoMap::parse(&text, &origin, &classes).expect("valid map");
+    let map = IoMap::load(&loaded).expect("valid map").expect("an io_map");
     let bus = ModbusBus::new(map, Transport::Port(Some(plc_end)), Default::default());
     let mut plc = Plc::build(&loaded.config, &pkm_plc::registry(), Box::new(bus)).expect("valid");
     let trace = dir.path().join("trace.jsonl");

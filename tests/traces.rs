@@ -125,7 +125,6 @@ fn malformed_traces_are_clear_errors_with_line_numbers() {
         ),
         ":2: unknown task class \"turbo\" (the header has fast, main, spare)",
     );
-    check("missing.jsonl", "", ": empty trace: no header");
     let o = pkm(&["replay", "/nonexistent/t.jsonl"]);
     assert_eq!(o.status.code(), Some(2));
     assert!(

@@ -6,7 +6,7 @@ use std::collections::HashMap;
 use serde::Deserialize;
 
 use super::catalogue::{self, Direction, ModuleType};
-use crate::config::{self, ConfigError};
+use crate::config::{self, ConfigError, LoadedConfig};
 use crate::image::{DeclIssue, Reader, Value, VarIndex, VarTable, VarType, Writer};
 
 /// The file as written.
@@ -276,4 +276,48 @@ impl IoMap {
         }
         Ok((mi, ci))
     }
+}
+
+impl IoMap {
+    /// Loads and validates the configuration's I/O map; `None` when it names none.
+    pub fn load(loaded: &LoadedConfig) -> Result<Option<IoMap>, ConfigError> {
+        let Some((text, origin)) = io_map_text(loaded)? else {
+            return Ok(None);
+        };
+        let classes: Vec<String> = loaded.config.task_classes.iter().map(|c| c.name.clone()).collect();
+        IoMap::parse(&text, &origin, &classes).map(Some)
+    }
+}
+
+/// The text of the configuration's I/O map and the name to report it by: the file relative to
+/// the configuration's directory, or the built-in map for the built-in configuration. `None` when
+/// the configuration names no I/O map.
+pub fn io_map_text(loaded: &LoadedConfig) -> Result<Option<(String, String)>, ConfigError> {
+    let Some(map_name) = &loaded.config.io_map else {
+        return Ok(None);
+    };
+    Ok(Some(match &loaded.dir {
+        Some(dir) => {
+            let path = dir.join(map_name);
+            let origin = path.display().to_string();
+            let text = std::fs::read_to_string(&path).map_err(|source| ConfigError::Read {
+                file: origin.clone(),
+                source,
+            })?;
+            (text, origin)
+        }
+        None if map_name == "io-map/trijoint.json" => (
+            crate::io::map::BUILTIN_TRIJOINT.to_string(),
+            "<built-in io-map/trijoint.json>".to_string(),
+        ),
+        None => {
+            return Err(ConfigError::Invalid {
+                file: loaded.origin.clone(),
+                problems: vec![DeclIssue {
+                    at: "io_map".into(),
+                    message: format!("the built-in configuration has no I/O map \"{map_name}\""),
+                }],
+            });
+        }
+    }))
 }

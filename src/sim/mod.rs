@@ -353,14 +353,12 @@ pub fn build(
             })
             .collect(),
     };
-    let Some((text, origin)) = io_map_text(loaded)? else {
+    let Some(map) = IoMap::load(loaded)? else {
         return Err(invalid(
             vec![("io_map".into(), "the simulated bus needs an I/O map".into())],
             "",
         ));
     };
-    let classes: Vec<String> = config.task_classes.iter().map(|c| c.name.clone()).collect();
-    let map = IoMap::parse(&text, &origin, &classes)?;
     let problems = config.plant.check();
     if !problems.is_empty() {
         return Err(invalid(problems, "plant."));
@@ -393,37 +391,4 @@ pub fn build(
         scenario,
         u64::from(config.plant.step_us) * 1000,
     ))
-}
-
-/// The text of the configuration's I/O map and the name to report it by: the file relative to
-/// the configuration's directory, or the built-in map for the built-in configuration. `None` when
-/// the configuration names no I/O map.
-pub fn io_map_text(loaded: &LoadedConfig) -> Result<Option<(String, String)>, ConfigError> {
-    let Some(map_name) = &loaded.config.io_map else {
-        return Ok(None);
-    };
-    Ok(Some(match &loaded.dir {
-        Some(dir) => {
-            let path = dir.join(map_name);
-            let origin = path.display().to_string();
-            let text = std::fs::read_to_string(&path).map_err(|source| ConfigError::Read {
-                file: origin.clone(),
-                source,
-            })?;
-            (text, origin)
-        }
-        None if map_name == "io-map/trijoint.json" => (
-            crate::io::map::BUILTIN_TRIJOINT.to_string(),
-            "<built-in io-map/trijoint.json>".to_string(),
-        ),
-        None => {
-            return Err(ConfigError::Invalid {
-                file: loaded.origin.clone(),
-                problems: vec![DeclIssue {
-                    at: "io_map".into(),
-                    message: format!("the built-in configuration has no I/O map \"{map_name}\""),
-                }],
-            });
-        }
-    }))
 }

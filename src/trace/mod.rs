@@ -116,7 +116,7 @@ pub fn digest(parts: &[&serde_json::Value]) -> String {
 
 /// The digest of a loaded configuration together with its I/O map.
 pub fn config_digest(loaded: &crate::config::LoadedConfig) -> Result<String, crate::config::ConfigError> {
-    let map = match crate::sim::io_map_text(loaded)? {
+    let map = match crate::io::map::io_map_text(loaded)? {
         Some((text, _)) => serde_json::from_str(&text).unwrap_or(serde_json::Value::String(text)),
         None => serde_json::Value::Null,
     };
