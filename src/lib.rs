@@ -9,6 +9,7 @@ pub mod bus;
 pub mod config;
 pub mod image;
 pub mod io;
+pub mod link_bench;
 pub mod plc;
 pub mod program;
 pub mod run;
@@ -59,8 +60,8 @@ pub fn application_config(
     }
 }
 
-/// The program types this build knows: until the TRIJOINT application lands, only the runtime's
-/// self-test programs.
+/// The program types this build knows: the runtime's self-test programs and the TRIJOINT
+/// application's.
 pub fn registry() -> program::Registry {
     let mut registry = program::Registry::new();
     selftest::register(&mut registry);

@@ -14,6 +14,7 @@ use tracing_subscriber::EnvFilter;
 use pkm_plc::bench::{self, BenchOptions};
 use pkm_plc::bus::NoBus;
 use pkm_plc::config::{self, ConfigError, LoadedConfig, TimeSourceKind};
+use pkm_plc::io::modbus::ExchangeMode;
 use pkm_plc::plc::Plc;
 use pkm_plc::run::{self, RealTimeOptions};
 use pkm_plc::status;
@@ -45,8 +46,29 @@ enum Command {
     Trace(TraceArgs),
     /// Print the Modbus register map that the configuration's I/O map gives.
     Registers(ConfigArg),
-    /// Serve the I/O map's modules as a Modbus TCP slave, backed by the simulated machine.
+    /// Serve the I/O map's modules as a Modbus TCP or RTU slave, backed by the simulated machine.
     IoSim(IoSimArgs),
+    /// Measure the Modbus RTU exchange at a baud rate over an emulated RS-485 line (driver and
+    /// io-sim in this process, joined by pseudo-terminals paced at the baud rate).
+    LinkBench(LinkBenchArgs),
+}
+
+#[derive(Args, Debug)]
+struct LinkBenchArgs {
+    /// The line's baud rate.
+    #[arg(long, default_value_t = 115_200, value_parser = clap::value_parser!(u32).range(1200..=4_000_000))]
+    baud: u32,
+    /// Seconds per exchange mode.
+    #[arg(long, default_value_t = 10.0, value_parser = parse_seconds)]
+    seconds: f64,
+    /// The exchange modes to measure.
+    #[arg(long, value_enum, value_delimiter = ',', default_values_t = [ExchangeMode::Tables, ExchangeMode::Image])]
+    exchange: Vec<ExchangeMode>,
+    #[command(flatten)]
+    config: ConfigArg,
+    /// Also write the rows as JSON to FILE.
+    #[arg(long, value_name = "FILE")]
+    json: Option<PathBuf>,
 }
 
 #[derive(Args, Debug)]
@@ -129,9 +151,15 @@ struct RunArgs {
     #[arg(long, value_name = "FILE")]
     summary: Option<PathBuf>,
     /// The field bus: `sim` (the simulated TRIJOINT lab model behind the configured I/O map),
-    /// `tcp:HOST:PORT` (a Modbus TCP station serving the I/O map's register map), or `none`.
+    /// `tcp:HOST:PORT` (a Modbus TCP station serving the I/O map's register map),
+    /// `serial:PATH[@BAUD]` (the same over Modbus RTU, 115 200 baud by default), or `none`.
     #[arg(long, default_value = "sim", value_parser = parse_bus)]
     bus: BusKind,
+    /// How a Modbus bus exchanges the I/O each time: `tables` (four requests on the standard
+    /// tables, any server), `image` (one read/write-multiple-registers request on the packed
+    /// process image, as io-sim serves it), or `auto` (image on serial, tables on TCP).
+    #[arg(long, value_enum, default_value_t = ExchangeMode::Auto)]
+    exchange: ExchangeMode,
     /// A scenario for the simulated machine: timed operator actions and faults (JSON).
     #[arg(long, value_name = "FILE")]
     scenario: Option<PathBuf>,
@@ -256,6 +284,7 @@ fn main() -> ExitCode {
         Command::Trace(args) => cmd_trace(args),
         Command::Registers(args) => cmd_registers(args),
         Command::IoSim(args) => cmd_io_sim(args),
+        Command::LinkBench(args) => cmd_link_bench(args),
         Command::Kin(args) => kin_cmd::run(args, load_config).map_err(|e| Failure {
             code: e.code,
             message: e.message,
@@ -288,7 +317,12 @@ fn load_config(arg: &ConfigArg) -> Result<LoadedConfig, ConfigError> {
 }
 
 /// Loads and builds: every problem of the configuration is reported at once.
-fn build(arg: &ConfigArg, bus: BusKind, scenario: Option<&Path>) -> Result<(LoadedConfig, Plc), Failure> {
+fn build(
+    arg: &ConfigArg,
+    bus: BusKind,
+    exchange: ExchangeMode,
+    scenario: Option<&Path>,
+) -> Result<(LoadedConfig, Plc), Failure> {
     let loaded = load_config(arg)?;
     let app = pkm_plc::application_config(&loaded.config);
     let bus: Box<dyn pkm_plc::bus::Bus> = match (bus, &loaded.config.io_map) {
@@ -306,7 +340,13 @@ fn build(arg: &ConfigArg, bus: BusKind, scenario: Option<&Path>) -> Result<(Load
                 BusKind::Tcp(address) => pkm_plc::io::modbus::Transport::Tcp(address),
                 _ => unreachable!("matched above"),
             };
-            Box::new(pkm_plc::io::modbus::ModbusBus::new(map, transport, Default::default()))
+            let options = pkm_plc::io::modbus::ModbusOptions {
+                exchange,
+                ..Default::default()
+            };
+            let bus = pkm_plc::io::modbus::ModbusBus::new(map, transport, options)
+                .map_err(|e| Failure::usage(format!("--bus: {e}")))?;
+            Box::new(bus)
         }
         (BusKind::Tcp(_) | BusKind::Serial(..), None) => {
             return Err(Failure::usage("a Modbus bus needs an io_map in the configuration"));
@@ -340,7 +380,7 @@ fn build(arg: &ConfigArg, bus: BusKind, scenario: Option<&Path>) -> Result<(Load
 }
 
 fn cmd_check(args: ConfigArg) -> Result<(), Failure> {
-    let (loaded, plc) = build(&args, BusKind::Sim, None)?;
+    let (loaded, plc) = build(&args, BusKind::Sim, ExchangeMode::Auto, None)?;
     let classes: Vec<String> = plc
         .classes()
         .map(|c| format!("{} ({} ms)", c.name, c.period_ns as f64 / 1e6))
@@ -357,7 +397,7 @@ fn cmd_check(args: ConfigArg) -> Result<(), Failure> {
 }
 
 fn cmd_run(args: RunArgs) -> Result<(), Failure> {
-    let (loaded, mut plc) = build(&args.config, args.bus, args.scenario.as_deref())?;
+    let (loaded, mut plc) = build(&args.config, args.bus, args.exchange, args.scenario.as_deref())?;
     if let Some(path) = &args.trace {
         let digest = pkm_plc::trace::config_digest(&loaded)?;
         let recorder = pkm_plc::trace::record::Recorder::create(path, &plc, &digest)
@@ -517,6 +557,15 @@ fn cmd_registers(args: ConfigArg) -> Result<(), Failure> {
         "{}: {coils} coils, {discrete} discrete inputs, {input} input registers, {holding} holding registers",
         map.origin
     );
+    let image = pkm_plc::io::registers::ImageLayout::of(registers.sizes());
+    println!(
+        "packed process image (holding registers): inputs at {} ({} packed discrete inputs + {input}), \
+         outputs at {} ({} packed coils + {holding})",
+        pkm_plc::io::registers::INPUT_IMAGE,
+        image.input_bits,
+        pkm_plc::io::registers::OUTPUT_IMAGE,
+        image.output_bits,
+    );
     Ok(())
 }
 
@@ -583,6 +632,28 @@ fn cmd_bench(args: BenchArgs) -> Result<(), Failure> {
     }
     let rows = bench::run(&options, |row| info!("measuring {row}")).map_err(|e| Failure::run(e.to_string()))?;
     print!("{}", bench::table(&rows));
+    if let Some(path) = &args.json {
+        let json = serde_json::to_string_pretty(&rows).map_err(|e| Failure::run(e.to_string()))?;
+        write_file(path, &json)?;
+    }
+    Ok(())
+}
+
+fn cmd_link_bench(args: LinkBenchArgs) -> Result<(), Failure> {
+    if args.exchange.contains(&ExchangeMode::Auto) {
+        return Err(Failure::usage("--exchange: name the modes to measure (tables, image)"));
+    }
+    let loaded = load_config(&args.config)?;
+    let options = pkm_plc::link_bench::LinkBenchOptions {
+        baud: args.baud,
+        seconds: args.seconds,
+        modes: args.exchange,
+    };
+    let rows = pkm_plc::link_bench::run(&loaded, &options, |row| info!("measuring {row}")).map_err(|e| match e {
+        pkm_plc::link_bench::LinkBenchError::Setup(_) => Failure::run(e.to_string()),
+        _ => Failure::usage(e.to_string()),
+    })?;
+    print!("{}", pkm_plc::link_bench::table(&rows));
     if let Some(path) = &args.json {
         let json = serde_json::to_string_pretty(&rows).map_err(|e| Failure::run(e.to_string()))?;
         write_file(path, &json)?;

@@ -81,6 +81,66 @@ fn a_modbus_client_drives_the_simulated_machine_over_tcp() {
     });
 }
 
+#[test]
+fn the_packed_process_image_exchanges_everything_in_one_transaction() {
+    let (_sim, address) = start();
+    let runtime = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .expect("runtime");
+    runtime.block_on(async {
+        let mut ctx = tcp::connect(address).await.expect("connect");
+        // Output image at 8192: coils 0–15, coils 16–17, then holding registers 0–2. Set
+        // CounterReset01 of the left counter (coil 12) and the PWM period (50); read the input
+        // image at 4096: discrete inputs 0–15, 16–17, then both counters.
+        let written = [1 << 12, 0, 50, 0, 0];
+        let image = ctx
+            .read_write_multiple_registers(4096, 4, 8192, &written)
+            .await
+            .expect("io")
+            .expect("no exception");
+        assert_eq!(image, [0, 0, 23032, 23032], "power-on: no switch, STOP or bridge error");
+        // The modules act on the outputs when they next sample: the next exchange sees the reset.
+        let image = ctx
+            .read_write_multiple_registers(4096, 4, 8192, &written)
+            .await
+            .expect("io")
+            .expect("no exception");
+        assert!(
+            (image[2] as i16).abs() < 100,
+            "left counter reset, reads {}",
+            image[2] as i16
+        );
+        assert_eq!(image[3], 23032, "the right counter untouched");
+        // The same data through the standard tables.
+        let holding = ctx
+            .read_holding_registers(0, 3)
+            .await
+            .expect("io")
+            .expect("no exception");
+        assert_eq!(holding, [50, 0, 0]);
+        let coils = ctx.read_coils(0, 18).await.expect("io").expect("no exception");
+        let set: Vec<usize> = (0..coils.len()).filter(|&i| coils[i]).collect();
+        assert_eq!(set, [12]);
+        let counters = ctx.read_input_registers(0, 2).await.expect("io").expect("no exception");
+        assert_eq!(counters[1], image[3]);
+        // The output image reads back as written; the input image is read-only; neither
+        // reaches past its end.
+        let back = ctx
+            .read_holding_registers(8192, 5)
+            .await
+            .expect("io")
+            .expect("no exception");
+        assert_eq!(back, written);
+        let refused = ctx.write_single_register(4096, 1).await.expect("io");
+        assert_eq!(refused, Err(ExceptionCode::IllegalDataAddress));
+        let refused = ctx.read_holding_registers(4096, 5).await.expect("io");
+        assert_eq!(refused, Err(ExceptionCode::IllegalDataAddress));
+        let refused = ctx.write_multiple_registers(8192 + 4, &[0, 0]).await.expect("io");
+        assert_eq!(refused, Err(ExceptionCode::IllegalDataAddress));
+    });
+}
+
 /// Starts `pkm-plc io-sim` with a scenario file.
 fn start_with(scenario: &std::path::Path) -> (IoSim, SocketAddr) {
     common::start_io_sim("127.0.0.1:0", &["--scenario", scenario.to_str().expect("utf-8")])

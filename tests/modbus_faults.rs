@@ -87,7 +87,7 @@ fn garbage_slow_and_exceptional_stations_are_bus_faults() {
         assert!(log.contains("bus fault after"), "{name}: {log}");
         let counts = log
             .lines()
-            .find(|l| l.contains(" exchanges (read inputs, write outputs)"))
+            .find(|l| l.contains(" exchanges (tables)"))
             .expect("link report");
         let wanted = match how {
             Misbehaviour::Garbage => " disconnects",

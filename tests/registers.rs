@@ -119,7 +119,48 @@ fn the_registers_command_prints_the_map() {
         "{out}"
     );
     assert!(
-        out.ends_with("io-map/trijoint.json: 18 coils, 18 discrete inputs, 2 input registers, 3 holding registers\n"),
+        out.ends_with(
+            "io-map/trijoint.json: 18 coils, 18 discrete inputs, 2 input registers, 3 holding registers\n\
+             packed process image (holding registers): inputs at 4096 (2 packed discrete inputs + 2), \
+             outputs at 8192 (2 packed coils + 3)\n"
+        ),
         "{out}"
+    );
+}
+
+proptest! {
+    /// Packing bits into the image's registers and reading them back is lossless.
+    #[test]
+    fn packed_bits_round_trip(bits in proptest::collection::vec(any::<bool>(), 0..300)) {
+        let mut words = vec![0u16; bits.len().div_ceil(16)];
+        pkm_plc::io::registers::pack_bits(&bits, &mut words);
+        for (i, b) in bits.iter().enumerate() {
+            prop_assert_eq!(pkm_plc::io::registers::packed_bit(&words, i), *b);
+        }
+    }
+}
+
+#[test]
+fn link_bench_measures_both_exchanges_over_an_emulated_line() {
+    // One second per mode at 115 200 baud: the figures vary with the machine, the frame sizes and
+    // a clean link do not.
+    let o = pkm(&["link-bench", "--seconds", "1"]);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    let out = stdout(&o);
+    let rows: Vec<Vec<&str>> = out.lines().skip(1).map(|l| l.split_whitespace().collect()).collect();
+    assert_eq!(rows.len(), 2, "{out}");
+    // exchange, baud, transactions, bytes, computed ms, ..., timeouts.
+    assert_eq!(rows[0][..5], ["tables", "115200", "4", "76", "21.26"], "{out}");
+    assert_eq!(rows[1][..5], ["image", "115200", "1", "36", "6.94"], "{out}");
+    for row in &rows {
+        assert!(row[5].parse::<u64>().is_ok_and(|n| n > 0), "no exchange: {out}");
+        assert_eq!(row[10], "0", "timeouts: {out}");
+    }
+    let o = pkm(&["link-bench", "--exchange", "auto"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(
+        stderr(&o).contains("--exchange: name the modes to measure (tables, image)"),
+        "{}",
+        stderr(&o)
     );
 }

@@ -2,6 +2,7 @@
 
 pub mod catalogue;
 pub mod joystick;
+pub mod line;
 pub mod map;
 pub mod modbus;
 pub mod registers;

@@ -2,7 +2,10 @@
 //! the I/O map.
 //!
 //! An exchange loop on its own thread reads the discrete inputs and input registers and writes the
-//! coils and holding registers, every request with a timeout. Complete input sets reach the cycle
+//! coils and holding registers — four requests on the standard tables, or one
+//! read/write-multiple-registers request on the packed process image ([`ExchangeMode`]) — every
+//! request with a timeout. The first cycle waits for the first complete input image (or a bus
+//! fault), so programs never see inputs the station did not send. Complete input sets reach the cycle
 //! through a wait-free mailbox, the cycle's outputs reach the loop the same way, so a cycle never
 //! waits on the wire. Failed exchanges (timeouts, exceptions, a lost connection) are counted; more
 //! consecutive failures than the bound is a bus fault, which the runtime publishes as `bus_fault`.
@@ -21,13 +24,48 @@ use tokio_serial::SerialStream;
 
 use super::catalogue::Direction;
 use super::map::IoMap;
-use super::registers::{RegisterMap, Table, decode, encode};
+use super::registers::{
+    INPUT_IMAGE, ImageLayout, MAX_IMAGE_READ, MAX_IMAGE_WRITE, OUTPUT_IMAGE, RegisterMap, Table, decode, encode,
+    pack_bits, packed_bit,
+};
 use crate::bus::{Bus, MailboxReader, MailboxWriter, image_mailbox};
 use crate::image::{Value, VarIndex, VarTable};
+
+/// How one exchange talks to the station.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
+pub enum ExchangeMode {
+    /// `image` on a serial line, `tables` over TCP.
+    #[default]
+    Auto,
+    /// Four requests on the standard tables: read discrete inputs (2), read input registers
+    /// (4), write coils (15), write holding registers (16). Any Modbus server with the
+    /// register map will do.
+    Tables,
+    /// One read/write-multiple-registers transaction (23) on the packed process image. Needs a
+    /// station that mirrors it (io-sim does); 36 bytes on the wire for the TRIJOINT station
+    /// against 76 for `tables`, which is what makes a 10 ms cycle at 115 200 baud.
+    Image,
+}
+
+impl ExchangeMode {
+    /// The mode's name on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            ExchangeMode::Auto => "auto",
+            ExchangeMode::Tables => "tables",
+            ExchangeMode::Image => "image",
+        }
+    }
+}
+
+/// The longest the bus waits for the station's first input image before the first cycle.
+pub const STARTUP_WAIT: Duration = Duration::from_secs(5);
 
 /// Settings of the exchange loop.
 #[derive(Clone, Copy, Debug)]
 pub struct ModbusOptions {
+    /// How each exchange talks to the station.
+    pub exchange: ExchangeMode,
     /// Time between exchanges.
     pub period: Duration,
     /// Timeout of each request (and of connecting).
@@ -39,6 +77,7 @@ pub struct ModbusOptions {
 impl Default for ModbusOptions {
     fn default() -> Self {
         ModbusOptions {
+            exchange: ExchangeMode::Auto,
             period: Duration::from_millis(5),
             timeout: Duration::from_millis(100),
             max_failures: 3,
@@ -47,7 +86,7 @@ impl Default for ModbusOptions {
 }
 
 /// Counters of the exchange loop.
-#[derive(Debug, Default)]
+#[derive(Debug)]
 pub struct LinkStats {
     /// Successful exchanges.
     pub exchanges: AtomicU64,
@@ -61,6 +100,64 @@ pub struct LinkStats {
     pub exchange_ns_total: AtomicU64,
     /// Longest successful exchange (ns).
     pub exchange_ns_max: AtomicU64,
+    /// Shortest successful exchange (ns; `u64::MAX` before the first).
+    pub exchange_ns_min: AtomicU64,
+}
+
+impl Default for LinkStats {
+    fn default() -> Self {
+        LinkStats {
+            exchanges: AtomicU64::new(0),
+            timeouts: AtomicU64::new(0),
+            exceptions: AtomicU64::new(0),
+            disconnects: AtomicU64::new(0),
+            exchange_ns_total: AtomicU64::new(0),
+            exchange_ns_max: AtomicU64::new(0),
+            exchange_ns_min: AtomicU64::new(u64::MAX),
+        }
+    }
+}
+
+/// What one exchange puts on the wire.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct WireLoad {
+    /// Request/response transactions.
+    pub transactions: u32,
+    /// Bytes of all RTU frames, both directions (address, function, data, CRC).
+    pub bytes: u32,
+}
+
+impl WireLoad {
+    /// The load of one exchange in `mode` (not `Auto`) for table sizes `[coils, discrete inputs,
+    /// input registers, holding registers]`, as Modbus RTU frames.
+    pub fn of(mode: ExchangeMode, sizes: [u16; 4]) -> WireLoad {
+        let [coils, discrete, input, holding] = sizes.map(u32::from);
+        // Address, function and CRC: 4 bytes around every PDU.
+        let read_bits = |n: u32| (n > 0).then(|| (4 + 4) + (4 + 1 + n.div_ceil(8)));
+        let read_regs = |n: u32| (n > 0).then(|| (4 + 4) + (4 + 1 + 2 * n));
+        let write_bits = |n: u32| (n > 0).then(|| (4 + 5 + n.div_ceil(8)) + (4 + 4));
+        let write_regs = |n: u32| (n > 0).then(|| (4 + 5 + 2 * n) + (4 + 4));
+        let frames: Vec<u32> = match mode {
+            ExchangeMode::Image => {
+                let layout = ImageLayout::of(sizes);
+                let (i, o) = (u32::from(layout.input_len), u32::from(layout.output_len));
+                vec![(4 + 9 + 2 * o) + (4 + 1 + 2 * i)]
+            }
+            ExchangeMode::Tables | ExchangeMode::Auto => [
+                read_bits(discrete),
+                read_regs(input),
+                write_bits(coils),
+                write_regs(holding),
+            ]
+            .into_iter()
+            .flatten()
+            .collect(),
+        };
+        WireLoad {
+            transactions: frames.len() as u32,
+            bytes: frames.iter().sum(),
+        }
+    }
 }
 
 /// A binding as the driver sees it: where its channel lives and which variable it is.
@@ -117,6 +214,26 @@ impl Transport {
     }
 }
 
+/// Why a Modbus bus cannot be set up.
+#[derive(Debug, thiserror::Error)]
+pub enum ModbusSetupError {
+    /// The packed image is too large (or empty) for one function-code-23 transaction.
+    #[error(
+        "the packed process image ({input} input and {output} output registers) does not fit one \
+         read/write-multiple-registers request (1–{max_read} read, 1–{max_write} written): use --exchange tables"
+    )]
+    ImageTooLarge {
+        /// Registers in the input image.
+        input: u16,
+        /// Registers in the output image.
+        output: u16,
+        /// The request's read limit.
+        max_read: u16,
+        /// The request's write limit.
+        max_write: u16,
+    },
+}
+
 /// The Modbus bus.
 pub struct ModbusBus {
     name: String,
@@ -129,15 +246,34 @@ pub struct ModbusBus {
     output_values: Vec<Value>,
     fault: Arc<AtomicBool>,
     stop: Arc<AtomicBool>,
+    /// Set by the exchange loop when the first complete input image has been published.
+    first_image: Arc<AtomicBool>,
     stats: Arc<LinkStats>,
     thread: Option<JoinHandle<()>>,
 }
 
 impl ModbusBus {
     /// A bus to the station reached by `transport`, serving `map`'s modules. The exchange loop
-    /// starts when the variables are declared (the bus then knows which variable each channel is).
-    pub fn new(map: IoMap, transport: Transport, options: ModbusOptions) -> Self {
-        ModbusBus {
+    /// starts when the variables are declared (the bus then knows which variable each channel
+    /// is). `ExchangeMode::Auto` in `options` is resolved here: the packed image on a serial
+    /// line, the standard tables over TCP.
+    pub fn new(map: IoMap, transport: Transport, mut options: ModbusOptions) -> Result<Self, ModbusSetupError> {
+        if options.exchange == ExchangeMode::Auto {
+            options.exchange = match transport {
+                Transport::Tcp(_) => ExchangeMode::Tables,
+                Transport::Serial { .. } | Transport::Port(_) => ExchangeMode::Image,
+            };
+        }
+        let layout = ImageLayout::of(RegisterMap::of(&map).sizes());
+        if options.exchange == ExchangeMode::Image && !layout.fits_one_transaction() {
+            return Err(ModbusSetupError::ImageTooLarge {
+                input: layout.input_len,
+                output: layout.output_len,
+                max_read: MAX_IMAGE_READ,
+                max_write: MAX_IMAGE_WRITE,
+            });
+        }
+        Ok(ModbusBus {
             name: transport.describe(),
             map,
             transport: Some(transport),
@@ -148,9 +284,35 @@ impl ModbusBus {
             output_values: Vec::new(),
             fault: Arc::new(AtomicBool::new(false)),
             stop: Arc::new(AtomicBool::new(false)),
+            first_image: Arc::new(AtomicBool::new(false)),
             stats: Arc::new(LinkStats::default()),
             thread: None,
+        })
+    }
+
+    /// Blocks until the first complete input image has arrived or the link has failed (a bus
+    /// fault), at most [`STARTUP_WAIT`]: the first cycle must see the station's inputs, not the
+    /// mailbox's initial zeros (an encoder counter jumping from 0 to its true value would be an
+    /// encoder fault).
+    fn await_first_image(&self) {
+        let deadline = std::time::Instant::now() + STARTUP_WAIT;
+        while !self.first_image.load(Ordering::Acquire) && !self.fault.load(Ordering::Relaxed) {
+            if std::time::Instant::now() >= deadline || self.thread.is_none() {
+                self.fault.store(true, Ordering::Relaxed);
+                tracing::warn!(
+                    "modbus {}: bus fault: no input image within {} s",
+                    self.name,
+                    STARTUP_WAIT.as_secs()
+                );
+                return;
+            }
+            std::thread::sleep(Duration::from_millis(1));
         }
+    }
+
+    /// The exchange in use (never `Auto`).
+    pub fn exchange(&self) -> ExchangeMode {
+        self.options.exchange
     }
 
     /// The link's counters.
@@ -212,12 +374,14 @@ impl Bus for ModbusBus {
             sizes,
             fault: Arc::clone(&self.fault),
             stop: Arc::clone(&self.stop),
+            first_image: Arc::clone(&self.first_image),
             stats: Arc::clone(&self.stats),
         };
         self.thread = std::thread::Builder::new()
             .name("modbus".into())
             .spawn(move || link.run(in_writer, out_reader))
             .ok();
+        self.await_first_image();
     }
 
     fn read_inputs(&mut self, _class: usize, _t_ns: u64, image: &mut [Value]) {
@@ -246,8 +410,9 @@ impl Bus for ModbusBus {
         let s = &self.stats;
         let n = s.exchanges.load(Ordering::Relaxed);
         tracing::info!(
-            "modbus {}: {n} exchanges (read inputs, write outputs), mean {:.0} µs, max {:.0} µs; {} timeouts, {} exceptions, {} disconnects",
+            "modbus {}: {n} exchanges ({}), mean {:.0} µs, max {:.0} µs; {} timeouts, {} exceptions, {} disconnects",
             self.name,
+            self.options.exchange.name(),
             s.exchange_ns_total.load(Ordering::Relaxed) as f64 / n.max(1) as f64 / 1e3,
             s.exchange_ns_max.load(Ordering::Relaxed) as f64 / 1e3,
             s.timeouts.load(Ordering::Relaxed),
@@ -275,6 +440,7 @@ struct Link {
     sizes: [u16; 4],
     fault: Arc<AtomicBool>,
     stop: Arc<AtomicBool>,
+    first_image: Arc<AtomicBool>,
     stats: Arc<LinkStats>,
 }
 
@@ -327,9 +493,11 @@ impl Link {
                 match self.exchange(&mut ctx, &mut in_values, &out_values).await {
                     Ok(()) => {
                         inputs.publish(&in_values);
+                        self.first_image.store(true, Ordering::Release);
                         let ns = started.elapsed().as_nanos() as u64;
                         self.stats.exchange_ns_total.fetch_add(ns, Ordering::Relaxed);
                         self.stats.exchange_ns_max.fetch_max(ns, Ordering::Relaxed);
+                        self.stats.exchange_ns_min.fetch_min(ns, Ordering::Relaxed);
                         self.stats.exchanges.fetch_add(1, Ordering::Relaxed);
                         failures = 0;
                         if self.fault.swap(false, Ordering::Relaxed) {
@@ -362,25 +530,51 @@ impl Link {
         }
     }
 
-    /// One exchange: read every input table, write every output table.
+    /// One exchange: every input read, every output written.
     async fn exchange(
         &self,
         ctx: &mut client::Context,
         in_values: &mut [Value],
         out_values: &[Value],
     ) -> Result<(), Failure> {
-        let t = self.options.timeout;
-        async fn within<T, E>(
-            t: Duration,
-            f: impl std::future::Future<Output = Result<Result<T, E>, tokio_modbus::Error>>,
-        ) -> Result<T, Failure> {
-            match tokio::time::timeout(t, f).await {
-                Err(_) => Err(Failure::Timeout),
-                Ok(Err(_)) => Err(Failure::Disconnected),
-                Ok(Ok(Err(_))) => Err(Failure::Exception),
-                Ok(Ok(Ok(v))) => Ok(v),
-            }
+        match self.options.exchange {
+            ExchangeMode::Image => self.exchange_image(ctx, in_values, out_values).await,
+            ExchangeMode::Tables | ExchangeMode::Auto => self.exchange_tables(ctx, in_values, out_values).await,
         }
+    }
+
+    /// The packed process image in one read/write-multiple-registers transaction.
+    async fn exchange_image(
+        &self,
+        ctx: &mut client::Context,
+        in_values: &mut [Value],
+        out_values: &[Value],
+    ) -> Result<(), Failure> {
+        let layout = ImageLayout::of(self.sizes);
+        let (coil_bits, mut holding) = self.output_tables(out_values);
+        let mut out_image = vec![0u16; usize::from(layout.output_bits)];
+        pack_bits(&coil_bits, &mut out_image);
+        out_image.append(&mut holding);
+        let image = within(
+            self.options.timeout,
+            ctx.read_write_multiple_registers(INPUT_IMAGE, layout.input_len, OUTPUT_IMAGE, &out_image),
+        )
+        .await?;
+        if image.len() != usize::from(layout.input_len) {
+            return Err(Failure::Exception);
+        }
+        let (bits, regs) = image.split_at(usize::from(layout.input_bits));
+        self.decode_inputs(in_values, |a| packed_bit(bits, a), regs)
+    }
+
+    /// The four standard tables, one request each.
+    async fn exchange_tables(
+        &self,
+        ctx: &mut client::Context,
+        in_values: &mut [Value],
+        out_values: &[Value],
+    ) -> Result<(), Failure> {
+        let t = self.options.timeout;
         let [coils, discrete, input_regs, holding] = self.sizes;
         let bits = if discrete > 0 {
             within(t, ctx.read_discrete_inputs(0, discrete)).await?
@@ -392,16 +586,35 @@ impl Link {
         } else {
             Vec::new()
         };
+        self.decode_inputs(in_values, |a| bits.get(a).copied().unwrap_or(false), &regs)?;
+        let (coil_bits, words) = self.output_tables(out_values);
+        if coils > 0 {
+            within(t, ctx.write_multiple_coils(0, &coil_bits)).await?;
+        }
+        if holding > 0 {
+            within(t, ctx.write_multiple_registers(0, &words)).await?;
+        }
+        Ok(())
+    }
+
+    /// The input values from the discrete inputs (by address) and the input registers.
+    fn decode_inputs(&self, in_values: &mut [Value], bit: impl Fn(usize) -> bool, regs: &[u16]) -> Result<(), Failure> {
         for (slot, value) in self.inputs.iter().zip(in_values.iter_mut()) {
             let a = usize::from(slot.address);
             *value = match slot.table {
-                Table::DiscreteInput => Value::Bool(bits.get(a).copied().unwrap_or(false)),
+                Table::DiscreteInput => Value::Bool(bit(a)),
                 _ => match regs.get(a..a + usize::from(slot.count)) {
                     Some(words) => decode(slot.ty, words),
                     None => return Err(Failure::Exception),
                 },
             };
         }
+        Ok(())
+    }
+
+    /// The coils and holding registers that carry the output values.
+    fn output_tables(&self, out_values: &[Value]) -> (Vec<bool>, Vec<u16>) {
+        let [coils, _, _, holding] = self.sizes;
         let mut coil_bits = vec![false; usize::from(coils)];
         let mut words = vec![0u16; usize::from(holding)];
         for (slot, value) in self.outputs.iter().zip(out_values) {
@@ -411,12 +624,45 @@ impl Link {
                 _ => encode(*value, &mut words[a..a + usize::from(slot.count)]),
             }
         }
-        if coils > 0 {
-            within(t, ctx.write_multiple_coils(0, &coil_bits)).await?;
-        }
-        if holding > 0 {
-            within(t, ctx.write_multiple_registers(0, &words)).await?;
-        }
-        Ok(())
+        (coil_bits, words)
+    }
+}
+
+/// A request under a timeout, its outcome sorted into what the loop counts.
+async fn within<T, E>(
+    t: Duration,
+    f: impl std::future::Future<Output = Result<Result<T, E>, tokio_modbus::Error>>,
+) -> Result<T, Failure> {
+    match tokio::time::timeout(t, f).await {
+        Err(_) => Err(Failure::Timeout),
+        Ok(Err(_)) => Err(Failure::Disconnected),
+        Ok(Ok(Err(_))) => Err(Failure::Exception),
+        Ok(Ok(Ok(v))) => Ok(v),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn wire_load_of_the_trijoint_station() {
+        // 18 coils, 18 discrete inputs, 2 input registers, 3 holding registers.
+        let sizes = [18, 18, 2, 3];
+        assert_eq!(
+            WireLoad::of(ExchangeMode::Tables, sizes),
+            WireLoad {
+                transactions: 4,
+                bytes: 76
+            }
+        );
+        assert_eq!(
+            WireLoad::of(ExchangeMode::Image, sizes),
+            WireLoad {
+                transactions: 1,
+                bytes: 36
+            }
+        );
+        assert_eq!(WireLoad::of(ExchangeMode::Tables, [0, 0, 2, 0]).transactions, 1);
     }
 }

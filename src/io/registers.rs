@@ -6,6 +6,9 @@
 //! Encodings: BOOL inputs are discrete inputs, BOOL outputs coils; INT and UINT take one register
 //! (INT as two's complement); DINT two registers, high word first; REAL two registers holding an
 //! IEEE-754 single (f32), high word first. Inputs are input registers, outputs holding registers.
+//!
+//! The same data is also mirrored as a packed process image in two blocks of holding registers
+//! ([`ImageLayout`]), so that a slow serial line can exchange everything in one transaction.
 
 use std::fmt;
 
@@ -140,6 +143,65 @@ impl RegisterMap {
     }
 }
 
+/// First holding register of the packed input image (read with function code 3 or 23).
+pub const INPUT_IMAGE: u16 = 0x1000;
+/// First holding register of the packed output image (written with function code 16 or 23).
+pub const OUTPUT_IMAGE: u16 = 0x2000;
+/// The most registers one read/write-multiple-registers request (function code 23) may read.
+pub const MAX_IMAGE_READ: u16 = 125;
+/// The most registers one read/write-multiple-registers request (function code 23) may write.
+pub const MAX_IMAGE_WRITE: u16 = 121;
+
+/// The packed process image: the station's inputs and outputs mirrored into two blocks of
+/// holding registers, so that a single read/write-multiple-registers transaction (function
+/// code 23) exchanges everything. Each block holds its bits first, packed 16 to a register
+/// (bit *i* of the block's register *k* is bit 16*k*+*i* of the table, least significant bit
+/// first), then its registers in table order.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ImageLayout {
+    /// Registers holding the packed discrete inputs (the input image starts with them).
+    pub input_bits: u16,
+    /// Length of the input image: packed discrete inputs, then the input registers.
+    pub input_len: u16,
+    /// Registers holding the packed coils (the output image starts with them).
+    pub output_bits: u16,
+    /// Length of the output image: packed coils, then the holding registers.
+    pub output_len: u16,
+}
+
+impl ImageLayout {
+    /// The layout for table sizes `[coils, discrete inputs, input registers, holding registers]`.
+    pub fn of(sizes: [u16; 4]) -> ImageLayout {
+        let [coils, discrete, input, holding] = sizes;
+        let input_bits = discrete.div_ceil(16);
+        let output_bits = coils.div_ceil(16);
+        ImageLayout {
+            input_bits,
+            input_len: input_bits + input,
+            output_bits,
+            output_len: output_bits + holding,
+        }
+    }
+
+    /// Whether one function-code-23 transaction can carry both images.
+    pub fn fits_one_transaction(&self) -> bool {
+        (1..=MAX_IMAGE_READ).contains(&self.input_len) && (1..=MAX_IMAGE_WRITE).contains(&self.output_len)
+    }
+}
+
+/// Packs bits 16 to a register, least significant bit first.
+pub fn pack_bits(bits: &[bool], out: &mut [u16]) {
+    out.fill(0);
+    for (i, _) in bits.iter().enumerate().filter(|(_, b)| **b) {
+        out[i / 16] |= 1 << (i % 16);
+    }
+}
+
+/// Bit `i` of registers packed by [`pack_bits`].
+pub fn packed_bit(words: &[u16], i: usize) -> bool {
+    words.get(i / 16).is_some_and(|w| w & (1 << (i % 16)) != 0)
+}
+
 /// Encodes a numeric value into registers (1 or 2; high word first).
 pub fn encode(v: Value, out: &mut [u16]) {
     match v {
@@ -195,5 +257,40 @@ mod tests {
         assert_eq!(decode(VarType::Real, &w), Value::Real(-0.25));
         encode(Value::Dint(0x1234_5678), &mut w);
         assert_eq!(w, [0x1234, 0x5678]);
+    }
+
+    #[test]
+    fn bits_pack_sixteen_to_a_register_lsb_first() {
+        let mut bits = vec![false; 18];
+        bits[0] = true;
+        bits[15] = true;
+        bits[17] = true;
+        let mut words = [0xFFFF; 2];
+        pack_bits(&bits, &mut words);
+        assert_eq!(words, [0x8001, 0x0002]);
+        let back: Vec<bool> = (0..18).map(|i| packed_bit(&words, i)).collect();
+        assert_eq!(back, bits);
+        assert!(!packed_bit(&words, 40), "beyond the image reads false");
+    }
+
+    #[test]
+    fn image_layout_of_the_trijoint_station() {
+        // 18 coils, 18 discrete inputs, 2 input registers, 3 holding registers.
+        let layout = ImageLayout::of([18, 18, 2, 3]);
+        assert_eq!(
+            layout,
+            ImageLayout {
+                input_bits: 2,
+                input_len: 4,
+                output_bits: 2,
+                output_len: 5
+            }
+        );
+        assert!(layout.fits_one_transaction());
+        assert!(!ImageLayout::of([0, 0, 126, 1]).fits_one_transaction());
+        assert!(
+            !ImageLayout::of([0, 1, 0, 0]).fits_one_transaction(),
+            "nothing to write"
+        );
     }
 }

@@ -1,6 +1,11 @@
 //! The I/O simulator (`pkm-plc io-sim`): the modules of the I/O map served as a Modbus TCP or RTU slave
 //! through the register map, backed by the same plant as the simulated bus. The plant runs in
 //! real time: every request first advances it to the time since the server started.
+//!
+//! Besides the four standard tables the station serves the packed process image
+//! ([`ImageLayout`]): the input image from holding register [`INPUT_IMAGE`] (read-only), the
+//! output image from [`OUTPUT_IMAGE`], and read/write-multiple-registers (function code 23) to
+//! exchange both in one transaction.
 
 use std::net::SocketAddr;
 use std::sync::{Arc, Mutex};
@@ -12,7 +17,9 @@ use tokio_modbus::{ExceptionCode, Request, Response};
 
 use super::bus::SimBus;
 use crate::image::Value;
-use crate::io::registers::{Entry, RegisterMap, Table, decode, encode};
+use crate::io::registers::{
+    Entry, INPUT_IMAGE, ImageLayout, OUTPUT_IMAGE, RegisterMap, Table, decode, encode, pack_bits, packed_bit,
+};
 
 /// The station: the simulated machine behind its register map.
 pub struct Station {
@@ -23,6 +30,8 @@ pub struct Station {
     /// The last words written to each holding register (a two-register value is decoded once
     /// both words have been written, in one request or two).
     holding: Vec<u16>,
+    /// The packed process image's layout (inputs and outputs mirrored into holding registers).
+    layout: ImageLayout,
     started: Instant,
 }
 
@@ -42,11 +51,13 @@ impl Station {
             }
         }
         let holding = vec![0; lookup[Table::HoldingRegister as usize].len()];
+        let layout = ImageLayout::of(registers.sizes());
         Station {
             bus,
             registers,
             lookup,
             holding,
+            layout,
             started: Instant::now(),
         }
     }
@@ -113,6 +124,72 @@ impl Station {
         Ok(())
     }
 
+    /// The packed input image: discrete inputs 16 to a register, then the input registers.
+    fn input_image(&self) -> Result<Vec<u16>, ExceptionCode> {
+        let [_, discrete, input, _] = self.registers.sizes();
+        let mut image = vec![0u16; usize::from(self.layout.input_bits)];
+        pack_bits(&self.bits(Table::DiscreteInput, 0, discrete)?, &mut image);
+        image.extend(self.words(Table::InputRegister, 0, input)?);
+        Ok(image)
+    }
+
+    /// The packed output image as last written: coils 16 to a register, then the holding registers.
+    fn output_image(&self) -> Result<Vec<u16>, ExceptionCode> {
+        let [coils, ..] = self.registers.sizes();
+        let mut image = vec![0u16; usize::from(self.layout.output_bits)];
+        pack_bits(&self.bits(Table::Coil, 0, coils)?, &mut image);
+        image.extend(&self.holding);
+        Ok(image)
+    }
+
+    /// Reads holding registers: the holding register table, or a part of either image block.
+    fn read_holding(&self, address: u16, count: u16) -> Result<Vec<u16>, ExceptionCode> {
+        let part = |base: u16, image: fn(&Self) -> Result<Vec<u16>, ExceptionCode>| {
+            let start = usize::from(address - base);
+            let image = image(self)?;
+            image
+                .get(start..start + usize::from(count))
+                .map(<[u16]>::to_vec)
+                .ok_or(ExceptionCode::IllegalDataAddress)
+        };
+        match address {
+            OUTPUT_IMAGE.. => part(OUTPUT_IMAGE, Self::output_image),
+            INPUT_IMAGE.. => part(INPUT_IMAGE, Self::input_image),
+            _ => self.words(Table::HoldingRegister, address, count),
+        }
+    }
+
+    /// Writes holding registers: the holding register table, or a part of the output image.
+    fn write_holding(&mut self, address: u16, values: &[u16]) -> Result<(), ExceptionCode> {
+        if address < INPUT_IMAGE {
+            return self.write_registers(address, values);
+        }
+        let start = usize::from(
+            address
+                .checked_sub(OUTPUT_IMAGE)
+                .ok_or(ExceptionCode::IllegalDataAddress)?,
+        );
+        if start + values.len() > usize::from(self.layout.output_len) {
+            return Err(ExceptionCode::IllegalDataAddress);
+        }
+        let bit_words = usize::from(self.layout.output_bits);
+        let [coils, ..] = self.registers.sizes();
+        // The packed coils this write covers, then its register part in one piece, so that a
+        // two-register value is decoded from both of its new words.
+        let covered = start..(start + values.len()).min(bit_words);
+        if !covered.is_empty() {
+            let first = covered.start * 16;
+            let last = (covered.end * 16).min(usize::from(coils));
+            let bits: Vec<bool> = (first..last).map(|i| packed_bit(values, i - start * 16)).collect();
+            self.write_coils(first as u16, &bits)?;
+        }
+        let registers_from = bit_words.max(start);
+        if registers_from < start + values.len() {
+            self.write_registers((registers_from - bit_words) as u16, &values[registers_from - start..])?;
+        }
+        Ok(())
+    }
+
     /// Serves one request.
     pub fn handle(&mut self, request: Request<'_>) -> Result<Response, ExceptionCode> {
         self.bus.refresh(self.started.elapsed().as_nanos() as u64);
@@ -122,9 +199,7 @@ impl Station {
             Request::ReadInputRegisters(a, n) => {
                 Response::ReadInputRegisters(self.words(Table::InputRegister, a, n)?)
             }
-            Request::ReadHoldingRegisters(a, n) => {
-                Response::ReadHoldingRegisters(self.words(Table::HoldingRegister, a, n)?)
-            }
+            Request::ReadHoldingRegisters(a, n) => Response::ReadHoldingRegisters(self.read_holding(a, n)?),
             Request::WriteSingleCoil(a, v) => {
                 self.write_coils(a, &[v])?;
                 Response::WriteSingleCoil(a, v)
@@ -134,12 +209,17 @@ impl Station {
                 Response::WriteMultipleCoils(a, v.len() as u16)
             }
             Request::WriteSingleRegister(a, v) => {
-                self.write_registers(a, &[v])?;
+                self.write_holding(a, &[v])?;
                 Response::WriteSingleRegister(a, v)
             }
             Request::WriteMultipleRegisters(a, v) => {
-                self.write_registers(a, &v)?;
+                self.write_holding(a, &v)?;
                 Response::WriteMultipleRegisters(a, v.len() as u16)
+            }
+            // Write first, then read, as the Modbus specification orders it.
+            Request::ReadWriteMultipleRegisters(read, n, write, v) => {
+                self.write_holding(write, &v)?;
+                Response::ReadWriteMultipleRegisters(self.read_holding(read, n)?)
             }
             _ => return Err(ExceptionCode::IllegalFunction),
         })

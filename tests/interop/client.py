@@ -33,6 +33,15 @@ check(not client.write_coils(12, [True]).isError(), "counter reset coil")
 ir = client.read_input_registers(0, count=1)
 value = ir.registers[0] - 65536 if ir.registers[0] >= 32768 else ir.registers[0]
 check(abs(value) < 100, f"the reset counter reads {value}")
+# The packed process image in one read/write-multiple-registers request (function code 23):
+# outputs at 8192 (coils 0-15, 16-17, holding registers 0-2), inputs at 4096 (discrete inputs
+# 0-15, 16-17, input registers 0-1).
+rw = client.readwrite_registers(read_address=4096, read_count=4, write_address=8192, values=[0, 0, 50, 0, 0])
+check(not rw.isError() and rw.registers[:2] == [0, 0] and len(rw.registers) == 4, f"packed image: {rw}")
+ir = client.read_input_registers(0, count=2)
+check(rw.registers[3] == ir.registers[1], f"the image's right counter {rw.registers[3]} is input register 1 {ir.registers[1]}")
+co = client.read_coils(12, count=1)
+check(not co.isError() and not co.bits[0], f"the image cleared the counter reset coil: {co}")
 err = client.read_input_registers(2, count=1)
 check(err.isError() and err.exception_code == 2, f"an unmapped address is exception 2: {err}")
 client.close()
