@@ -39,6 +39,9 @@ pub struct Config {
     /// (`tasks::kinematics::KinematicsConfig`), defaults from the spec.
     #[serde(default)]
     pub kinematics: Option<serde_json::Value>,
+    /// How the HID joystick's events map to the operator's commands (`--joystick`).
+    #[serde(default)]
+    pub joystick: crate::io::joystick::JoystickMapping,
 }
 
 /// One task class (B&R: a "cyclic" task class).
@@ -407,6 +410,9 @@ pub fn check(config: &Config) -> Vec<DeclIssue> {
                 );
             }
         }
+    }
+    for (at, message) in config.joystick.check() {
+        push(format!("joystick.{at}"), message);
     }
     if config.timing.realtime_priority > 99 {
         push(

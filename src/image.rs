@@ -400,11 +400,22 @@ impl<'a> Declare<'a> {
 
     /// Declares that this program reads `name` of type `T`.
     pub fn input<T: PlcType>(&mut self, name: &str) -> Input<T> {
+        self.reader(name, true)
+    }
+
+    /// Declares that this program reads `name` of type `T` if something writes it: unlike
+    /// [`Declare::input`], an unwritten variable is no error and reads as zero (for additions
+    /// such as a joystick's STOP button that an I/O map may leave out).
+    pub fn optional_input<T: PlcType>(&mut self, name: &str) -> Input<T> {
+        self.reader(name, false)
+    }
+
+    fn reader<T: PlcType>(&mut self, name: &str, needs_writer: bool) -> Input<T> {
         let reader = Reader {
             class: self.class,
             who: self.program.clone(),
             at: self.at.clone(),
-            needs_writer: true,
+            needs_writer,
         };
         let index = self.table.declare_reader(name, T::TYPE, reader);
         Input {

@@ -14,11 +14,14 @@ use tracing_subscriber::EnvFilter;
 use pkm_plc::bench::{self, BenchOptions};
 use pkm_plc::bus::NoBus;
 use pkm_plc::config::{self, ConfigError, LoadedConfig, TimeSourceKind};
+use pkm_plc::io::hid::{JoystickBus, JoystickFeed, JoystickSpec, LatencyProbe};
 use pkm_plc::io::modbus::ExchangeMode;
 use pkm_plc::plc::Plc;
 use pkm_plc::run::{self, RealTimeOptions};
 use pkm_plc::status;
 use pkm_plc::summary::Summary;
+use std::sync::Arc;
+use std::sync::atomic::AtomicBool;
 
 mod kin_cmd;
 
@@ -163,6 +166,11 @@ struct RunArgs {
     /// A scenario for the simulated machine: timed operator actions and faults (JSON).
     #[arg(long, value_name = "FILE")]
     scenario: Option<PathBuf>,
+    /// The HID joystick: an input device (`/dev/input/eventN`), a FIFO or capture file of raw
+    /// `struct input_event` records, `auto` (the first device with absolute X/Y axes; none: panel
+    /// buttons only), or `none` (the bus's own joystick channels, e.g. the simulated machine's).
+    #[arg(long, value_name = "DEVICE|FILE|auto|none", default_value = "auto")]
+    joystick: JoystickSpec,
     /// Record every class cycle (inputs, outputs, main state) to FILE (JSON Lines).
     #[arg(long, value_name = "FILE")]
     trace: Option<PathBuf>,
@@ -317,12 +325,21 @@ fn load_config(arg: &ConfigArg) -> Result<LoadedConfig, ConfigError> {
 }
 
 /// Loads and builds: every problem of the configuration is reported at once.
+/// The HID joystick of a built PLC: its reader is started once the PLC is valid.
+struct Joystick {
+    spec: JoystickSpec,
+    feed: JoystickFeed,
+    probe: LatencyProbe,
+    stop: Arc<AtomicBool>,
+}
+
 fn build(
     arg: &ConfigArg,
     bus: BusKind,
     exchange: ExchangeMode,
     scenario: Option<&Path>,
-) -> Result<(LoadedConfig, Plc), Failure> {
+    joystick: JoystickSpec,
+) -> Result<(LoadedConfig, Plc, Option<Joystick>), Failure> {
     let loaded = load_config(arg)?;
     let app = pkm_plc::application_config(&loaded.config);
     let bus: Box<dyn pkm_plc::bus::Bus> = match (bus, &loaded.config.io_map) {
@@ -364,9 +381,10 @@ fn build(
             Box::new(pkm_plc::sim::build(&loaded, &kinematics.trijoint, scenario)?)
         }
     };
+    let (bus, joystick) = with_joystick(&loaded, bus, joystick)?;
     let plc = Plc::build(&loaded.config, &pkm_plc::registry(), bus);
     match (plc, app) {
-        (Ok(plc), Ok(_)) => Ok((loaded, plc)),
+        (Ok(plc), Ok(_)) => Ok((loaded, plc, joystick)),
         (plc, app) => {
             let mut problems = plc.err().unwrap_or_default();
             problems.extend(app.err().unwrap_or_default());
@@ -379,8 +397,47 @@ fn build(
     }
 }
 
+/// Lays the HID joystick over `bus`'s joystick channels, unless `spec` is `none` or the I/O map
+/// binds none.
+fn with_joystick(
+    loaded: &LoadedConfig,
+    bus: Box<dyn pkm_plc::bus::Bus>,
+    spec: JoystickSpec,
+) -> Result<(Box<dyn pkm_plc::bus::Bus>, Option<Joystick>), Failure> {
+    if spec == JoystickSpec::None {
+        return Ok((bus, None));
+    }
+    let Some(map) = pkm_plc::io::map::IoMap::load(loaded)? else {
+        if let JoystickSpec::Path(p) = &spec {
+            warn!(
+                "--joystick {}: the configuration has no I/O map to bind it to; ignored",
+                p.display()
+            );
+        }
+        return Ok((bus, None));
+    };
+    let (joystick_bus, feed, probe) = JoystickBus::new(bus, &map);
+    if !joystick_bus.binds_anything() {
+        if let JoystickSpec::Path(p) = &spec {
+            warn!(
+                "--joystick {}: {} binds no channel of a Joystick module; ignored",
+                p.display(),
+                map.origin
+            );
+        }
+        return Ok((Box::new(joystick_bus), None));
+    }
+    let joystick = Joystick {
+        spec,
+        feed,
+        probe,
+        stop: Arc::new(AtomicBool::new(false)),
+    };
+    Ok((Box::new(joystick_bus), Some(joystick)))
+}
+
 fn cmd_check(args: ConfigArg) -> Result<(), Failure> {
-    let (loaded, plc) = build(&args, BusKind::Sim, ExchangeMode::Auto, None)?;
+    let (loaded, plc, _) = build(&args, BusKind::Sim, ExchangeMode::Auto, None, JoystickSpec::None)?;
     let classes: Vec<String> = plc
         .classes()
         .map(|c| format!("{} ({} ms)", c.name, c.period_ns as f64 / 1e6))
@@ -397,7 +454,23 @@ fn cmd_check(args: ConfigArg) -> Result<(), Failure> {
 }
 
 fn cmd_run(args: RunArgs) -> Result<(), Failure> {
-    let (loaded, mut plc) = build(&args.config, args.bus, args.exchange, args.scenario.as_deref())?;
+    let joystick = match (&args.joystick, args.virtual_time) {
+        (JoystickSpec::Path(p), true) => {
+            return Err(Failure::usage(format!(
+                "--joystick {}: a joystick needs real time (not --virtual)",
+                p.display()
+            )));
+        }
+        (_, true) => JoystickSpec::None,
+        (spec, false) => spec.clone(),
+    };
+    let (loaded, mut plc, joystick) = build(
+        &args.config,
+        args.bus,
+        args.exchange,
+        args.scenario.as_deref(),
+        joystick,
+    )?;
     if let Some(path) = &args.trace {
         let digest = pkm_plc::trace::config_digest(&loaded)?;
         let recorder = pkm_plc::trace::record::Recorder::create(path, &plc, &digest)
@@ -435,7 +508,30 @@ fn cmd_run(args: RunArgs) -> Result<(), Failure> {
             "real time, time source {}; Ctrl-C stops",
             options.source.resolve().name()
         );
+        let probe = match joystick {
+            Some(j) => {
+                let Joystick {
+                    spec,
+                    feed,
+                    probe,
+                    stop,
+                } = j;
+                pkm_plc::io::hid::spawn_reader(spec, loaded.config.joystick.clone(), feed, Arc::clone(&stop))
+                    .map_err(|e| Failure::run(format!("cannot start the joystick reader: {e}")))?;
+                Some((probe, stop))
+            }
+            None => None,
+        };
         let mut outcome = run_realtime(plc, options)?;
+        if let Some((probe, stop)) = probe {
+            stop.store(true, std::sync::atomic::Ordering::Relaxed);
+            if let Some(l) = probe.summary(outcome.epoch_ns) {
+                info!(
+                    "joystick: {} reports taken into the process image, {:.1} ms mean, {:.1} ms max from the event",
+                    l.count, l.mean_ms, l.max_ms
+                );
+            }
+        }
         finish_trace(&mut outcome.plc)?;
         let mut s = Summary::collect(&outcome.plc, "real-time", &loaded.origin, outcome.elapsed_ns);
         s.time_source = Some(outcome.source.name());

@@ -218,6 +218,8 @@ pub struct RealTimeOutcome {
     pub realtime_priority: bool,
     /// Time from the first release to the end (ns).
     pub elapsed_ns: u64,
+    /// CLOCK_MONOTONIC at cycle time 0 (ns): a cycle at time `t` was released at `epoch_ns + t`.
+    pub epoch_ns: u64,
 }
 
 /// A real-time run in progress.
@@ -312,6 +314,7 @@ pub fn start_realtime(mut plc: Plc, options: RealTimeOptions) -> Result<RealTime
                 source,
                 realtime_priority,
                 elapsed_ns,
+                epoch_ns: clock.epoch_ns(),
             })
         })
         .map_err(RunError::Thread)?;

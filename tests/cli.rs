@@ -12,7 +12,7 @@ fn check_accepts_the_default_configuration() {
     assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
     assert_eq!(
         String::from_utf8_lossy(&o.stdout),
-        "config.json: valid (3 task classes: fast (10 ms), main (50 ms), spare (100 ms); 57 process-image variables; I/O map: io-map/trijoint.json)\n"
+        "config.json: valid (3 task classes: fast (10 ms), main (50 ms), spare (100 ms); 58 process-image variables; I/O map: io-map/trijoint.json)\n"
     );
 }
 
@@ -344,5 +344,34 @@ fn run_takes_a_scenario_and_refuses_a_bad_one() {
     assert_eq!(
         stderr(&o),
         "error: --scenario needs the simulated bus (--bus sim and an io_map in the configuration)\n"
+    );
+}
+
+#[test]
+fn joystick_sources_that_cannot_work_are_said_clearly() {
+    // A joystick is a real-time device: refused in virtual time before anything starts.
+    let o = pkm(&["run", "--virtual", "--duration", "1", "--joystick", "/dev/input/event7"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert_eq!(
+        stderr(&o),
+        "error: --joystick /dev/input/event7: a joystick needs real time (not --virtual)\n"
+    );
+    // A missing device is no reason to stop the machine: a warning, panel buttons, exit 0.
+    let o = pkm(&["run", "--duration", "0.3", "--joystick", "/nonexistent/event0"]);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains(
+            "joystick: /nonexistent/event0: No such file or directory (os error 2) (trying again every second)"
+        ),
+        "{}",
+        stderr(&o)
+    );
+    // Neither a device, a FIFO nor a file.
+    let o = pkm(&["run", "--duration", "0.3", "--joystick", "/tmp"]);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("joystick: /tmp: not an input device, FIFO or capture file"),
+        "{}",
+        stderr(&o)
     );
 }

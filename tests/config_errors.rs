@@ -83,7 +83,7 @@ fn syntax_errors_give_line_and_column() {
 fn unknown_fields_are_refused_with_the_expected_ones() {
     assert_eq!(
         error(r#"{"tasks": []}"#),
-        "cfg.json: at tasks: unknown field `tasks`, expected one of `task_classes`, `timing`, `io_map`, `plant`, `kinematics`"
+        "cfg.json: at tasks: unknown field `tasks`, expected one of `task_classes`, `timing`, `io_map`, `plant`, `kinematics`, `joystick`"
     );
     assert_eq!(
         error(&format!(r#"{{"task_classes": [{}]}}"#, class(r#"{"cycle_ms": 10}"#))),
@@ -186,6 +186,23 @@ fn task_class_checks() {
         "cfg.json: at task_classes[1].priority: task class \"fast\" (10000 µs, priority 2) is faster than \"main\" \
          (50000 µs, priority 1) but has the lower priority; a faster class must have the higher priority \
          (a smaller number)"
+    );
+}
+
+#[test]
+fn joystick_section_is_strict_and_checked() {
+    assert_eq!(
+        error(r#"{"task_classes": [], "joystick": {"deadzone": 0.1}}"#),
+        "cfg.json: at joystick.deadzone: unknown field `deadzone`, expected one of `x_axis`, `y_axis`, \
+         `invert_x`, `invert_y`, `dead_zone`, `axis_range`, `stop_button`, `deadman_button`, `buttons`"
+    );
+    assert_eq!(
+        error(&format!(
+            r#"{{"task_classes": [{}], "joystick": {{"dead_zone": 0.95, "x_axis": 1}}}}"#,
+            class("{}")
+        )),
+        "cfg.json: 2 problems:\n  at joystick.dead_zone: must be at least 0 and below 0.9, got 0.95\n  \
+         at joystick.y_axis: must differ from x_axis (1)"
     );
 }
 

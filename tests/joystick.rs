@@ -50,7 +50,8 @@ fn dead_zone_scaling_inversion_and_centre_drift() {
         [Command {
             x: 0.0,
             y: 0.0,
-            stop: false
+            stop: false,
+            buttons: [false; 4]
         }]
     );
     // Full deflection right and away from the operator: x = 1, y = +1 (y is inverted by default).

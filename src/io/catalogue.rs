@@ -111,6 +111,7 @@ const MM2436: &[Channel] = &[
 const JOYSTICK: &[Channel] = &[
     ch("AxisX", I, Real),
     ch("AxisY", I, Real),
+    ch("Stop", I, B),
     ch("Button01", I, B),
     ch("Button02", I, B),
     ch("Button03", I, B),
@@ -147,7 +148,7 @@ pub const CATALOGUE: &[ModuleType] = &[
     },
     ModuleType {
         name: "Joystick",
-        description: "the operator's joystick: axes −1..1, buttons, connected (HID on the real machine)",
+        description: "the operator's joystick: axes −1..1, its STOP button, buttons, connected (HID on the real machine)",
         channels: JOYSTICK,
         field_bus: false,
     },

@@ -32,6 +32,10 @@ pub mod codes {
     pub const BTN_TRIGGER: u16 = 0x120;
     /// The thumb button of a joystick.
     pub const BTN_THUMB: u16 = 0x121;
+    /// The second thumb button of a joystick.
+    pub const BTN_THUMB2: u16 = 0x122;
+    /// The top button of a joystick.
+    pub const BTN_TOP: u16 = 0x123;
 }
 
 use codes::*;
@@ -99,8 +103,7 @@ pub fn parse_events(bytes: &[u8]) -> (Vec<InputEvent>, usize) {
     (events, used)
 }
 
-/// How the joystick maps to the operator's commands (to become config.json's `joystick` section
-/// with the device driver).
+/// How the joystick maps to the operator's commands: config.json's `joystick` section.
 #[derive(Clone, Debug, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct JoystickMapping {
@@ -123,6 +126,8 @@ pub struct JoystickMapping {
     pub stop_button: Option<u16>,
     /// A dead-man button that must be held for the axes to count.
     pub deadman_button: Option<u16>,
+    /// The buttons reported as the joystick module's Button01…04 (event codes).
+    pub buttons: [u16; 4],
 }
 
 impl Default for JoystickMapping {
@@ -136,6 +141,7 @@ impl Default for JoystickMapping {
             axis_range: [-32768, 32767],
             stop_button: None,
             deadman_button: None,
+            buttons: [BTN_TRIGGER, BTN_THUMB, BTN_THUMB2, BTN_TOP],
         }
     }
 }
@@ -172,6 +178,8 @@ pub struct Command {
     pub y: f64,
     /// The joystick's STOP button is pressed.
     pub stop: bool,
+    /// The mapping's `buttons` are pressed.
+    pub buttons: [bool; 4],
 }
 
 /// Decodes an event stream into [`Command`]s.
@@ -184,6 +192,7 @@ pub struct Decoder {
     pending_buttons: Vec<(u16, bool)>,
     stop: bool,
     deadman: bool,
+    buttons: [bool; 4],
     dropped: bool,
     command: Command,
 }
@@ -202,6 +211,7 @@ impl Decoder {
             pending_buttons: Vec::new(),
             stop: false,
             deadman: false,
+            buttons: [false; 4],
             dropped: false,
             command: Command::default(),
         }
@@ -237,6 +247,7 @@ impl Decoder {
                 x: 0.0,
                 y: 0.0,
                 stop: self.stop,
+                buttons: self.buttons,
             };
             return self.command;
         }
@@ -251,6 +262,9 @@ impl Decoder {
             }
             if Some(code) == self.mapping.deadman_button {
                 self.deadman = pressed;
+            }
+            for (i, _) in self.mapping.buttons.iter().enumerate().filter(|(_, b)| **b == code) {
+                self.buttons[i] = pressed;
             }
         }
         let enabled = self.mapping.deadman_button.is_none() || self.deadman;
@@ -272,7 +286,12 @@ impl Decoder {
         } else {
             (0.0, 0.0)
         };
-        self.command = Command { x, y, stop: self.stop };
+        self.command = Command {
+            x,
+            y,
+            stop: self.stop,
+            buttons: self.buttons,
+        };
         self.command
     }
 }

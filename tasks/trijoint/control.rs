@@ -78,6 +78,7 @@ pub struct Control {
     bus_fault: Input<bool>,
     setpoint_time: Input<f64>,
     stop: Input<bool>,
+    joystick_stop: Input<bool>,
     interlock: Output<bool>,
     drives: [Drive; 2],
     pi: [Pi; 2],
@@ -123,6 +124,7 @@ impl Control {
             bus_fault: decl.input("bus_fault"),
             setpoint_time: decl.input("setpoint_time_s"),
             stop: decl.input("BUTTON_STOP"),
+            joystick_stop: decl.optional_input("JOYSTICK_STOP"),
             interlock: decl.output("interlock", false),
             drives,
             pi: [Pi::default(); 2],
@@ -138,7 +140,9 @@ impl Program for Control {
         let enabled = driving_state && ctx.get(self.enable);
         let switch = self.drives.iter().any(|d| d.switches.iter().any(|s| ctx.get(*s)));
         let faults = ctx.get(self.bus_fault) || self.drives.iter().any(|d| ctx.get(d.bridge_error) || ctx.get(d.fault));
-        let interlock = ctx.get(self.stop) || (switch && !in_init) || faults || !enabled;
+        // The joystick's STOP acts in addition to the panel's, never instead of it.
+        let stop = ctx.get(self.stop) || ctx.get(self.joystick_stop);
+        let interlock = stop || (switch && !in_init) || faults || !enabled;
         // The main program publishes set-points every 50 ms with their velocity and time; between
         // its cycles the set-point moves on at that velocity, so ramps reach the drives smoothly.
         let since = (ctx.time_ns() as f64 * 1e-9 - ctx.get(self.setpoint_time)).max(0.0);

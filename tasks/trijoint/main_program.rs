@@ -226,6 +226,7 @@ pub struct Io {
     captures: [[f64; 2]; 2],
     capture_counts: [[i32; 2]; 2],
     joystick: [f64; 2],
+    joystick_connected: bool,
     buttons: [bool; 4],
     // Outputs. A set-point is published with its velocity: the 10 ms controller moves it on at
     // that velocity until the next main cycle.
@@ -409,10 +410,11 @@ impl Automaton {
         }
     }
 
-    /// The operator's command as a velocity of M (mm/s): joystick, else direction buttons.
+    /// The operator's command as a velocity of M (mm/s): joystick, else direction buttons. A
+    /// joystick that is not connected commands nothing, whatever its axes read.
     fn command(&self, io: &Io) -> [f64; 2] {
         let dz = self.p.dead_zone;
-        let [jx, jy] = io.joystick;
+        let [jx, jy] = if io.joystick_connected { io.joystick } else { [0.0; 2] };
         let (mut x, mut y) = (
             if jx.abs() > dz { jx } else { 0.0 },
             if jy.abs() > dz { jy } else { 0.0 },
@@ -580,10 +582,12 @@ impl Automaton {
 
 struct Vars {
     stop: Input<bool>,
+    joystick_stop: Input<bool>,
     bus_fault: Input<bool>,
     switches: [Input<bool>; 4],
     buttons: [Input<bool>; 4],
     joystick: [Input<f64>; 2],
+    joystick_connected: Input<bool>,
     positions: [Input<f64>; 2],
     captures: [[Input<f64>; 2]; 2],
     capture_counts: [[Input<i32>; 2]; 2],
@@ -642,10 +646,12 @@ impl MainProgram {
         let side = |s: &str| [format!("{s}_lower"), format!("{s}_upper")];
         let vars = Vars {
             stop: decl.input("BUTTON_STOP"),
+            joystick_stop: decl.optional_input("JOYSTICK_STOP"),
             bus_fault: decl.input("bus_fault"),
             switches: SWITCH_NAMES.map(|n| decl.input(n)),
             buttons: ["BUTTON_LEFT", "BUTTON_RIGHT", "BUTTON_UP", "BUTTON_DOWN"].map(|n| decl.input(n)),
             joystick: [decl.input("JOYSTICK_X"), decl.input("JOYSTICK_Y")],
+            joystick_connected: decl.input("JOYSTICK_CONNECTED"),
             positions: [decl.input("position_left_mm"), decl.input("position_right_mm")],
             captures: ["left", "right"].map(|s| side(s).map(|n| decl.input(&format!("capture_{n}_mm")))),
             capture_counts: ["left", "right"].map(|s| side(s).map(|n| decl.input(&format!("captures_{n}")))),
@@ -705,6 +711,7 @@ impl MainProgram {
         io.switches = v.switches.map(|s| ctx.get(s));
         io.buttons = v.buttons.map(|b| ctx.get(b));
         io.joystick = v.joystick.map(|j| ctx.get(j));
+        io.joystick_connected = ctx.get(v.joystick_connected);
         io.captures = v.captures.map(|c| c.map(|x| ctx.get(x)));
         io.capture_counts = v.capture_counts.map(|c| c.map(|x| ctx.get(x)));
         for i in 0..2 {
@@ -717,7 +724,8 @@ impl MainProgram {
         let v = &self.vars;
         let state = self.machine.inner().state;
         let now = self.io.now_s;
-        let pressed = ctx.get(v.stop);
+        // The joystick's STOP acts in addition to the panel's, never instead of it.
+        let pressed = ctx.get(v.stop) || ctx.get(v.joystick_stop);
         let press = pressed && !self.stop_was_pressed;
         self.stop_was_pressed = pressed;
         let enabled = self.stop_accepted_at.is_none_or(|t| now - t >= self.lockout_s);
