@@ -15,8 +15,8 @@ fn start() -> (IoSim, SocketAddr) {
     common::start_io_sim("127.0.0.1:0", &[])
 }
 
-#[test]
-fn a_modbus_client_drives_the_simulated_machine_over_tcp() {
+/// Starts io-sim and runs `body` with a Modbus TCP client connected to it.
+fn with_client(body: impl AsyncFnOnce(&mut client::Context)) {
     let (_sim, address) = start();
     let runtime = tokio::runtime::Builder::new_current_thread()
         .enable_all()
@@ -24,6 +24,13 @@ fn a_modbus_client_drives_the_simulated_machine_over_tcp() {
         .expect("runtime");
     runtime.block_on(async {
         let mut ctx = tcp::connect(address).await.expect("connect");
+        body(&mut ctx).await;
+    });
+}
+
+#[test]
+fn a_modbus_client_drives_the_simulated_machine_over_tcp() {
+    with_client(async |ctx| {
         // Power-on: no switch, STOP or bridge error; both counters at 125 mm × 7000 counts/mm,
         // wrapped to 16 bits.
         let inputs = ctx
@@ -83,13 +90,7 @@ fn a_modbus_client_drives_the_simulated_machine_over_tcp() {
 
 #[test]
 fn the_packed_process_image_exchanges_everything_in_one_transaction() {
-    let (_sim, address) = start();
-    let runtime = tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()
-        .expect("runtime");
-    runtime.block_on(async {
-        let mut ctx = tcp::connect(address).await.expect("connect");
+    with_client(async |ctx| {
         // Output image at 8192: coils 0–15, coils 16–17, then holding registers 0–2. Set
         // CounterReset01 of the left counter (coil 12) and the PWM period (50); read the input
         // image at 4096: discrete inputs 0–15, 16–17, then both counters.
