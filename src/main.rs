@@ -5,6 +5,8 @@
 
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
+use std::sync::Arc;
+use std::sync::atomic::AtomicBool;
 use std::time::Duration;
 
 use clap::{Args, Parser, Subcommand};
@@ -20,8 +22,6 @@ use pkm_plc::plc::Plc;
 use pkm_plc::run::{self, RealTimeOptions};
 use pkm_plc::status;
 use pkm_plc::summary::Summary;
-use std::sync::Arc;
-use std::sync::atomic::AtomicBool;
 
 mod kin_cmd;
 
@@ -324,7 +324,6 @@ fn load_config(arg: &ConfigArg) -> Result<LoadedConfig, ConfigError> {
     config::load(path.as_deref())
 }
 
-/// Loads and builds: every problem of the configuration is reported at once.
 /// The HID joystick of a built PLC: its reader is started once the PLC is valid.
 struct Joystick {
     spec: JoystickSpec,
@@ -333,6 +332,7 @@ struct Joystick {
     stop: Arc<AtomicBool>,
 }
 
+/// Loads and builds: every problem of the configuration is reported at once.
 fn build(
     arg: &ConfigArg,
     bus: BusKind,
@@ -527,7 +527,7 @@ fn cmd_run(args: RunArgs) -> Result<(), Failure> {
             stop.store(true, std::sync::atomic::Ordering::Relaxed);
             if let Some(l) = probe.summary(outcome.epoch_ns) {
                 info!(
-                    "joystick: {} reports taken into the process image, {:.1} ms mean, {:.1} ms max from the event",
+                    "joystick: {} reports taken into the process image, {:.1} ms mean, {:.1} ms max after the reader handed them over",
                     l.count, l.mean_ms, l.max_ms
                 );
             }
