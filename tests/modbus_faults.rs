@@ -1,4 +1,4 @@
-//! Link faults on Modbus TCP: garbage bytes, slow responses, exception responses and a station
+//! Link faults on Modbus TCP and RTU: garbage bytes, bad CRCs, slow responses, exception responses, a station
 //! that disappears and comes back. Each must become a bus fault (ERROR "bus fault", PWM zero),
 //! never a hang or a panic; a returning station brings the link back.
 
@@ -90,7 +90,7 @@ fn garbage_slow_and_exceptional_stations_are_bus_faults() {
             .find(|l| l.contains(" exchanges (tables)"))
             .expect("link report");
         let wanted = match how {
-            Misbehaviour::Garbage => " disconnects",
+            Misbehaviour::Garbage => " corrupt",
             Misbehaviour::Slow => " timeouts",
             Misbehaviour::Exception => " exceptions",
         };
@@ -124,4 +124,104 @@ fn the_link_comes_back_when_the_station_returns_but_error_stays_until_acknowledg
     assert!(log.contains("the link works again"), "{log}");
     assert_eq!(s["main"]["state"], "ERROR");
     assert_eq!(s["main"]["error_reason"], "bus fault");
+}
+
+/// A station on a pseudo-terminal that answers every request with `reply(request)`, for
+/// `answers` requests, then closes its end (the port vanishes).
+fn rtu_station(answers: usize, reply: fn(&[u8]) -> Vec<u8>) -> serialport::TTYPort {
+    use serialport::SerialPort as _;
+    let (mut station, plc_end) = serialport::TTYPort::pair().expect("a pseudo-terminal pair");
+    station.set_timeout(Duration::from_secs(5)).expect("timeout");
+    std::thread::spawn(move || {
+        let mut buf = [0u8; 256];
+        for _ in 0..answers {
+            let Ok(n) = station.read(&mut buf) else { return };
+            if station.write_all(&reply(&buf[..n])).is_err() {
+                return;
+            }
+        }
+        // Closing a pty's master end hangs the other end up at once, unread bytes and all.
+        std::thread::sleep(Duration::from_millis(300));
+    });
+    plc_end
+}
+
+/// A Modbus RTU frame: unit, PDU, CRC-16/MODBUS (little endian).
+fn rtu_frame(pdu: &[u8]) -> Vec<u8> {
+    let mut frame = vec![1];
+    frame.extend_from_slice(pdu);
+    let mut crc: u16 = 0xFFFF;
+    for b in &frame {
+        crc ^= u16::from(*b);
+        for _ in 0..8 {
+            crc = if crc & 1 != 0 { (crc >> 1) ^ 0xA001 } else { crc >> 1 };
+        }
+    }
+    frame.extend_from_slice(&crc.to_le_bytes());
+    frame
+}
+
+/// Runs the Modbus driver alone (no application) against `port` until it reports a bus fault.
+fn driver_against(port: serialport::TTYPort) -> pkm_plc::io::modbus::ModbusBus {
+    use pkm_plc::bus::Bus as _;
+    let loaded = common::loaded(&common::repo_config());
+    let map = pkm_plc::io::map::IoMap::load(&loaded)
+        .expect("valid map")
+        .expect("an io_map");
+    let mut bus = pkm_plc::io::modbus::ModbusBus::new(
+        map,
+        pkm_plc::io::modbus::Transport::Port(Some(port)),
+        Default::default(),
+    )
+    .expect("the image fits");
+    let mut table = pkm_plc::image::VarTable::new();
+    // Returns once the first image arrived or the link failed.
+    bus.declare(&mut table);
+    bus
+}
+
+#[test]
+fn rtu_corrupt_frames_and_a_vanished_port_are_counted_bus_faults() {
+    use pkm_plc::bus::Bus as _;
+    use std::sync::atomic::Ordering::Relaxed;
+    // A well-formed response to the packed-image request (23) whose CRC is wrong.
+    let bad_crc = |_: &[u8]| {
+        let mut frame = rtu_frame(&[0x17, 8, 0, 0, 0, 0, 0x59, 0xF8, 0x59, 0xF8]);
+        let last = frame.len() - 1;
+        frame[last] ^= 0xFF;
+        frame
+    };
+    let bus = driver_against(rtu_station(20, bad_crc));
+    assert!(bus.fault(), "a station answering with bad CRCs is a bus fault");
+    let stats = bus.stats();
+    assert!(
+        stats.corrupt.load(Relaxed) > 3,
+        "corrupt: {}",
+        stats.corrupt.load(Relaxed)
+    );
+    assert_eq!(stats.exchanges.load(Relaxed), 0);
+    assert_eq!(stats.timeouts.load(Relaxed), 0, "bytes arrived: not a silent station");
+
+    // Garbage bytes.
+    let bus = driver_against(rtu_station(20, |_| vec![0xde, 0xad, 0xbe, 0xef, 0x00, 0x01]));
+    assert!(bus.fault());
+    assert!(bus.stats().corrupt.load(Relaxed) > 3);
+
+    // A station that answers correctly once, then its port vanishes: the driver cannot reopen
+    // a pty it was handed, so every reconnection fails — counted, a bus fault, no hang.
+    let good = |_: &[u8]| rtu_frame(&[0x17, 8, 0, 0, 0, 0, 0x59, 0xF8, 0x59, 0xF8]);
+    let bus = driver_against(rtu_station(1, good));
+    assert!(!bus.fault(), "the first image arrived");
+    let stats = bus.stats();
+    let deadline = std::time::Instant::now() + Duration::from_secs(10);
+    while !bus.fault() && std::time::Instant::now() < deadline {
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    assert!(bus.fault(), "no bus fault after the port vanished");
+    assert_eq!(stats.exchanges.load(Relaxed), 1);
+    assert!(
+        stats.disconnects.load(Relaxed) > 0,
+        "disconnects: {}",
+        stats.disconnects.load(Relaxed)
+    );
 }

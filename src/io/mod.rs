@@ -7,3 +7,4 @@ pub mod line;
 pub mod map;
 pub mod modbus;
 pub mod registers;
+pub mod rx_counter;

@@ -7,7 +7,8 @@
 //! request with a timeout. The first cycle waits for the first complete input image (or a bus
 //! fault), so programs never see inputs the station did not send. Complete input sets reach the cycle
 //! through a wait-free mailbox, the cycle's outputs reach the loop the same way, so a cycle never
-//! waits on the wire. Failed exchanges (timeouts, exceptions, a lost connection) are counted; more
+//! waits on the wire. Failed exchanges (timeouts, corrupt responses such as a bad CRC, exceptions,
+//! a lost connection) are counted; more
 //! consecutive failures than the bound is a bus fault, which the runtime publishes as `bus_fault`.
 //! The loop reconnects with backoff; the fault clears when exchanges succeed again (the
 //! application keeps its ERROR until it is acknowledged).
@@ -28,6 +29,7 @@ use super::registers::{
     INPUT_IMAGE, ImageLayout, MAX_IMAGE_READ, MAX_IMAGE_WRITE, OUTPUT_IMAGE, RegisterMap, Table, decode, encode,
     pack_bits, packed_bit,
 };
+use super::rx_counter::RxCounter;
 use crate::bus::{Bus, MailboxReader, MailboxWriter, image_mailbox};
 use crate::image::{Value, VarIndex, VarTable};
 
@@ -90,8 +92,10 @@ impl Default for ModbusOptions {
 pub struct LinkStats {
     /// Successful exchanges.
     pub exchanges: AtomicU64,
-    /// Requests that timed out.
+    /// Requests that timed out with nothing received.
     pub timeouts: AtomicU64,
+    /// Responses that arrived damaged: a bad CRC or bytes no valid frame could be made of.
+    pub corrupt: AtomicU64,
     /// Exception responses.
     pub exceptions: AtomicU64,
     /// Lost or refused connections.
@@ -109,6 +113,7 @@ impl Default for LinkStats {
         LinkStats {
             exchanges: AtomicU64::new(0),
             timeouts: AtomicU64::new(0),
+            corrupt: AtomicU64::new(0),
             exceptions: AtomicU64::new(0),
             disconnects: AtomicU64::new(0),
             exchange_ns_total: AtomicU64::new(0),
@@ -195,12 +200,19 @@ impl Transport {
         }
     }
 
-    async fn connect(&mut self) -> std::io::Result<client::Context> {
+    /// Connects; every byte received on the link is added to `received`.
+    async fn connect(&mut self, received: &Arc<AtomicU64>) -> std::io::Result<client::Context> {
+        let counted = |stream| RxCounter::new(stream, Arc::clone(received));
         match self {
-            Transport::Tcp(a) => tcp::connect(*a).await,
+            Transport::Tcp(a) => {
+                let stream = tokio::net::TcpStream::connect(*a).await?;
+                // Requests are small and each waits for its response: send at once.
+                stream.set_nodelay(true)?;
+                Ok(tcp::attach(RxCounter::new(stream, Arc::clone(received))))
+            }
             Transport::Serial { path, baud } => {
                 let stream = SerialStream::open(&tokio_serial::new(path.as_str(), *baud))?;
-                Ok(rtu::attach_slave(stream, Slave(1)))
+                Ok(rtu::attach_slave(counted(stream), Slave(1)))
             }
             Transport::Port(p) => {
                 let port = p
@@ -208,7 +220,7 @@ impl Transport {
                     .ok_or_else(|| std::io::Error::other("the serial port was lost and cannot be reopened"))?;
                 // Registered with the reactor here, in the exchange loop's runtime.
                 let stream = SerialStream::try_from(port).map_err(std::io::Error::other)?;
-                Ok(rtu::attach_slave(stream, Slave(1)))
+                Ok(rtu::attach_slave(counted(stream), Slave(1)))
             }
         }
     }
@@ -376,6 +388,7 @@ impl Bus for ModbusBus {
             stop: Arc::clone(&self.stop),
             first_image: Arc::clone(&self.first_image),
             stats: Arc::clone(&self.stats),
+            received: Arc::new(AtomicU64::new(0)),
         };
         self.thread = std::thread::Builder::new()
             .name("modbus".into())
@@ -410,12 +423,13 @@ impl Bus for ModbusBus {
         let s = &self.stats;
         let n = s.exchanges.load(Ordering::Relaxed);
         tracing::info!(
-            "modbus {}: {n} exchanges ({}), mean {:.0} µs, max {:.0} µs; {} timeouts, {} exceptions, {} disconnects",
+            "modbus {}: {n} exchanges ({}), mean {:.0} µs, max {:.0} µs; {} timeouts, {} corrupt, {} exceptions, {} disconnects",
             self.name,
             self.options.exchange.name(),
             s.exchange_ns_total.load(Ordering::Relaxed) as f64 / n.max(1) as f64 / 1e3,
             s.exchange_ns_max.load(Ordering::Relaxed) as f64 / 1e3,
             s.timeouts.load(Ordering::Relaxed),
+            s.corrupt.load(Ordering::Relaxed),
             s.exceptions.load(Ordering::Relaxed),
             s.disconnects.load(Ordering::Relaxed)
         );
@@ -442,12 +456,19 @@ struct Link {
     stop: Arc<AtomicBool>,
     first_image: Arc<AtomicBool>,
     stats: Arc<LinkStats>,
+    /// Bytes received on the link so far (tells a corrupt response from a silent station).
+    received: Arc<AtomicU64>,
 }
 
 /// Why one exchange failed.
 enum Failure {
+    /// No response in time, nothing received.
     Timeout,
+    /// A response that could not be decoded: bytes arrived, no valid frame (a bad CRC, garbage).
+    Corrupt,
+    /// An exception response.
     Exception,
+    /// The connection or port is gone.
     Disconnected,
 }
 
@@ -470,7 +491,7 @@ impl Link {
         let mut out_values: Vec<Value> = self.outputs.iter().map(|s| Value::zero(s.ty)).collect();
         let mut in_values: Vec<Value> = self.inputs.iter().map(|s| Value::zero(s.ty)).collect();
         while !self.stop.load(Ordering::Relaxed) {
-            let connected = tokio::time::timeout(self.options.timeout, self.transport.connect()).await;
+            let connected = tokio::time::timeout(self.options.timeout, self.transport.connect(&self.received)).await;
             let mut ctx = match connected {
                 Ok(Ok(ctx)) => {
                     backoff = Duration::from_millis(50);
@@ -510,12 +531,22 @@ impl Link {
                     Err(f) => {
                         match f {
                             Failure::Timeout => self.stats.timeouts.fetch_add(1, Ordering::Relaxed),
+                            Failure::Corrupt => self.stats.corrupt.fetch_add(1, Ordering::Relaxed),
                             Failure::Exception => self.stats.exceptions.fetch_add(1, Ordering::Relaxed),
                             Failure::Disconnected => self.stats.disconnects.fetch_add(1, Ordering::Relaxed),
                         };
                         self.failed(&mut failures);
-                        if matches!(f, Failure::Disconnected | Failure::Timeout) {
-                            break; // reconnect
+                        // A lost link is opened again. Over TCP a timeout or a damaged response
+                        // leaves the stream out of step, so it is opened again too; an RTU
+                        // decoder finds the next frame by itself, and a serial port handed over
+                        // open could not be reopened.
+                        let reconnect = match f {
+                            Failure::Disconnected => true,
+                            Failure::Timeout | Failure::Corrupt => matches!(self.transport, Transport::Tcp(_)),
+                            Failure::Exception => false,
+                        };
+                        if reconnect {
+                            break;
                         }
                     }
                 }
@@ -557,11 +588,12 @@ impl Link {
         out_image.append(&mut holding);
         let image = within(
             self.options.timeout,
+            &self.received,
             ctx.read_write_multiple_registers(INPUT_IMAGE, layout.input_len, OUTPUT_IMAGE, &out_image),
         )
         .await?;
         if image.len() != usize::from(layout.input_len) {
-            return Err(Failure::Exception);
+            return Err(Failure::Corrupt);
         }
         let (bits, regs) = image.split_at(usize::from(layout.input_bits));
         self.decode_inputs(in_values, |a| packed_bit(bits, a), regs)
@@ -577,22 +609,22 @@ impl Link {
         let t = self.options.timeout;
         let [coils, discrete, input_regs, holding] = self.sizes;
         let bits = if discrete > 0 {
-            within(t, ctx.read_discrete_inputs(0, discrete)).await?
+            within(t, &self.received, ctx.read_discrete_inputs(0, discrete)).await?
         } else {
             Vec::new()
         };
         let regs = if input_regs > 0 {
-            within(t, ctx.read_input_registers(0, input_regs)).await?
+            within(t, &self.received, ctx.read_input_registers(0, input_regs)).await?
         } else {
             Vec::new()
         };
         self.decode_inputs(in_values, |a| bits.get(a).copied().unwrap_or(false), &regs)?;
         let (coil_bits, words) = self.output_tables(out_values);
         if coils > 0 {
-            within(t, ctx.write_multiple_coils(0, &coil_bits)).await?;
+            within(t, &self.received, ctx.write_multiple_coils(0, &coil_bits)).await?;
         }
         if holding > 0 {
-            within(t, ctx.write_multiple_registers(0, &words)).await?;
+            within(t, &self.received, ctx.write_multiple_registers(0, &words)).await?;
         }
         Ok(())
     }
@@ -628,13 +660,21 @@ impl Link {
     }
 }
 
-/// A request under a timeout, its outcome sorted into what the loop counts.
+/// A request under a timeout, its outcome sorted into what the loop counts; `received` counts
+/// the bytes received on the link.
 async fn within<T, E>(
     t: Duration,
+    received: &AtomicU64,
     f: impl std::future::Future<Output = Result<Result<T, E>, tokio_modbus::Error>>,
 ) -> Result<T, Failure> {
+    let before = received.load(Ordering::Relaxed);
     match tokio::time::timeout(t, f).await {
+        // The RTU decoder drops bytes with a bad CRC and waits on: bytes but no frame.
+        Err(_) if received.load(Ordering::Relaxed) != before => Err(Failure::Corrupt),
         Err(_) => Err(Failure::Timeout),
+        Ok(Err(tokio_modbus::Error::Transport(e))) if e.kind() == std::io::ErrorKind::InvalidData => {
+            Err(Failure::Corrupt)
+        }
         Ok(Err(_)) => Err(Failure::Disconnected),
         Ok(Ok(Err(_))) => Err(Failure::Exception),
         Ok(Ok(Ok(v))) => Ok(v),
