@@ -2,8 +2,8 @@
 //! fabricated raw event capture (the documented 24-byte `struct input_event` layout) through a
 //! FIFO. After referencing (43 s) the stick goes full right — M moves in +x — then the writer
 //! closes the FIFO in the middle of the motion (an unplugged device): axes at zero, a warning,
-//! READY. The writer comes back and pulls the stick towards the operator — M moves down. The run
-//! takes 56 s.
+//! READY. The writer comes back and pulls the stick towards the operator — M moves down. The
+//! trace of the run replays identically. The run takes 56 s.
 
 mod common;
 
@@ -168,4 +168,13 @@ fn a_capture_through_a_fifo_drives_m_and_an_unplug_stops_it() {
     let dy = value(&cycles[centred], "M_y") - value(&cycles[pulled - 1], "M_y");
     assert!(dy < -10.0, "M_y moved {dy} mm");
     assert_eq!(cycles.last().map(|c| c.state.as_str()), Some("READY"));
+
+    // The joystick's values are inputs like any other: the run replays identically from its trace.
+    let replay = common::pkm(&["replay", trace.to_str().expect("utf-8")]);
+    assert_eq!(replay.status.code(), Some(0), "{}", common::stderr(&replay));
+    assert!(
+        common::stdout(&replay).contains(": identical: "),
+        "{}",
+        common::stdout(&replay)
+    );
 }

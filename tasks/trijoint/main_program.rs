@@ -618,7 +618,7 @@ pub struct MainProgram {
     lockout_s: f64,
     display: Trijoint,
     /// M and the carriage positions, for the status line.
-    shown: [(&'static str, f64); 4],
+    shown: [(&'static str, f64); 6],
 }
 
 impl MainProgram {
@@ -697,7 +697,14 @@ impl MainProgram {
             stop_accepted_at: None,
             lockout_s,
             display,
-            shown: [("Mx", f64::NAN), ("My", f64::NAN), ("h1", f64::NAN), ("h2", f64::NAN)],
+            shown: [
+                ("Mx", f64::NAN),
+                ("My", f64::NAN),
+                ("h1", f64::NAN),
+                ("h2", f64::NAN),
+                ("jx", f64::NAN),
+                ("jy", f64::NAN),
+            ],
         })
     }
 
@@ -793,6 +800,23 @@ impl MainProgram {
             ("My", m[1]),
             ("h1", io.positions[0]),
             ("h2", io.positions[1]),
+            // The joystick's axes; "-" while it is not connected.
+            (
+                "jx",
+                if io.joystick_connected {
+                    io.joystick[0]
+                } else {
+                    f64::NAN
+                },
+            ),
+            (
+                "jy",
+                if io.joystick_connected {
+                    io.joystick[1]
+                } else {
+                    f64::NAN
+                },
+            ),
         ];
     }
 }
