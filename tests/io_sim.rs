@@ -220,3 +220,30 @@ fn a_lost_link_is_a_bus_fault_without_hang() {
         "the fault is logged"
     );
 }
+
+#[test]
+fn the_soft_plc_exchanges_the_packed_image_over_tcp_too() {
+    let (_sim, address) = start();
+    let o = Command::new(env!("CARGO_BIN_EXE_pkm-plc"))
+        .args(["run", "--bus", &format!("tcp:{address}"), "--exchange", "image"])
+        .args(["--duration", "1", "--joystick", "none"])
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .env("RUST_LOG", "info")
+        .stdout(Stdio::null())
+        .output()
+        .expect("run");
+    let log = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(0), "{log}");
+    let report = log
+        .lines()
+        .find(|l| l.contains(" exchanges (image)"))
+        .unwrap_or_else(|| panic!("no link report: {log}"));
+    assert!(
+        report.ends_with("0 timeouts, 0 corrupt, 0 exceptions, 0 disconnects"),
+        "{report}"
+    );
+    assert!(
+        log.contains("final state INIT"),
+        "referencing runs over the image exchange: {log}"
+    );
+}
