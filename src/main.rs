@@ -167,7 +167,7 @@ struct RunArgs {
     #[arg(long, value_name = "FILE")]
     scenario: Option<PathBuf>,
     /// The HID joystick: an input device (`/dev/input/eventN`), a FIFO or capture file of raw
-    /// `struct input_event` records, `auto` (the first device with absolute X/Y axes; none: panel
+    /// `struct input_event` records, `auto` (the first joystick or gamepad; none: panel
     /// buttons only), or `none` (the bus's own joystick channels, e.g. the simulated machine's).
     #[arg(long, value_name = "DEVICE|FILE|auto|none", default_value = "auto")]
     joystick: JoystickSpec,

@@ -32,8 +32,8 @@ pub const MODULE_TYPE: &str = "Joystick";
 /// Where the joystick comes from (`run --joystick`).
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum JoystickSpec {
-    /// The first input device with the mapping's absolute X and Y axes, looked for again every
-    /// second while there is none.
+    /// The first joystick or gamepad (the mapping's absolute X and Y axes and joystick buttons),
+    /// looked for again every second while there is none.
     Auto,
     /// No joystick: the bus's own joystick channels (the simulated machine's) stay in use.
     None,
@@ -403,7 +403,10 @@ fn run_reader(spec: &JoystickSpec, mapping: &JoystickMapping, mut feed: Joystick
 fn find_device(mapping: &JoystickMapping) -> Result<(PathBuf, Source), String> {
     let opened: Vec<(PathBuf, evdev::raw_stream::RawDevice)> = evdev::raw_stream::enumerate().collect();
     let opened_count = opened.len();
-    let mut found: Vec<_> = opened.into_iter().filter(|(_, d)| has_axes(d, mapping)).collect();
+    let mut found: Vec<_> = opened
+        .into_iter()
+        .filter(|(_, d)| has_axes(d, mapping) && looks_like_joystick(d))
+        .collect();
     found.sort_by(|a, b| a.0.cmp(&b.0));
     let Some((path, device)) = found.into_iter().next() else {
         // Devices this user may not open are skipped by the scan: say so, it is the usual cause.
@@ -423,7 +426,7 @@ fn find_device(mapping: &JoystickMapping) -> Result<(PathBuf, Source), String> {
             String::new()
         };
         return Err(format!(
-            "no input device with absolute X and Y axes in /dev/input{hint}"
+            "no joystick or gamepad (absolute X and Y axes, joystick buttons) in /dev/input{hint}"
         ));
     };
     let ranges = axis_ranges(&device, mapping);
@@ -439,6 +442,17 @@ fn find_device(mapping: &JoystickMapping) -> Result<(PathBuf, Source), String> {
 fn has_axes(d: &evdev::raw_stream::RawDevice, mapping: &JoystickMapping) -> bool {
     d.supported_absolute_axes().is_some_and(|axes| {
         axes.contains(evdev::AbsoluteAxisCode(mapping.x_axis)) && axes.contains(evdev::AbsoluteAxisCode(mapping.y_axis))
+    })
+}
+
+/// Whether a device with absolute axes is a joystick or gamepad, not a touchpad, tablet or
+/// touchscreen (they report absolute X/Y too): it has a joystick or gamepad button (`BTN_JOYSTICK`
+/// … `BTN_THUMBR`, 0x120…0x13f) and no `BTN_TOUCH` — the test the kernel's joydev driver makes.
+/// Only `auto` applies it; a device named on the command line is taken as it is.
+fn looks_like_joystick(d: &evdev::raw_stream::RawDevice) -> bool {
+    const BTN_TOUCH: u16 = 0x14a;
+    d.supported_keys().is_some_and(|keys| {
+        keys.iter().any(|k| (0x120..=0x13f).contains(&k.0)) && !keys.contains(evdev::KeyCode(BTN_TOUCH))
     })
 }
 
