@@ -10,11 +10,11 @@ use serde::Serialize;
 
 use crate::config::{ConfigError, LoadedConfig};
 use crate::image::VarTable;
-use crate::io::line::{LineTiming, PacedLine};
+use crate::io::line::LineTiming;
 use crate::io::map::IoMap;
 use crate::io::modbus::{ExchangeMode, ModbusBus, ModbusOptions, Transport, WireLoad};
 use crate::io::registers::RegisterMap;
-use crate::sim::modbus::{Station, serve_rtu};
+use crate::sim::modbus::{Station, StationOnLine};
 
 /// What to measure.
 #[derive(Clone, Debug)]
@@ -104,27 +104,7 @@ fn measure(
     sizes: [u16; 4],
 ) -> Result<LinkBenchRow, LinkBenchError> {
     let setup = |e: &dyn std::fmt::Display| LinkBenchError::Setup(e.to_string());
-    let (station_end, line_a) = serialport::TTYPort::pair().map_err(|e| setup(&e))?;
-    let (line_b, plc_end) = serialport::TTYPort::pair().map_err(|e| setup(&e))?;
-    let (stop_station, stopped) = tokio::sync::oneshot::channel::<()>();
-    let station_thread = std::thread::Builder::new()
-        .name("link-bench-station".into())
-        .spawn(move || {
-            let Ok(runtime) = tokio::runtime::Builder::new_current_thread().enable_all().build() else {
-                return;
-            };
-            runtime.block_on(async move {
-                let Ok(stream) = tokio_serial::SerialStream::try_from(station_end) else {
-                    return;
-                };
-                tokio::select! {
-                    _ = serve_rtu(stream, station) => {}
-                    _ = stopped => {}
-                }
-            });
-        })
-        .map_err(|e| setup(&e))?;
-    let line = PacedLine::start(line_a, line_b, timing).map_err(|e| setup(&e))?;
+    let (station, plc_end) = StationOnLine::start(station, timing).map_err(|e| setup(&e))?;
     let bus_options = ModbusOptions {
         exchange: mode,
         ..Default::default()
@@ -134,9 +114,7 @@ fn measure(
     crate::bus::Bus::declare(&mut bus, &mut table);
     std::thread::sleep(Duration::from_secs_f64(options.seconds));
     crate::bus::Bus::write_safe(&mut bus, &table.initial_image());
-    drop(line);
-    let _ = stop_station.send(());
-    let _ = station_thread.join();
+    drop(station);
 
     let stats = bus.stats();
     let get = |a: &std::sync::atomic::AtomicU64| a.load(std::sync::atomic::Ordering::Relaxed);

@@ -155,12 +155,7 @@ fn summary(path: &std::path::Path) -> serde_json::Value {
 #[test]
 fn the_soft_plc_references_and_jogs_over_modbus_tcp() {
     let dir = tempfile::tempdir().expect("tempdir");
-    let scenario = dir.path().join("buttons.json");
-    std::fs::write(
-        &scenario,
-        r#"{"events": [{"at_ms": 45000, "input": "BUTTON_RIGHT", "value": true}, {"at_ms": 46000, "input": "BUTTON_RIGHT", "value": false}]}"#,
-    )
-    .expect("write");
+    let scenario = common::jog_right_after_referencing(dir.path());
     let (_sim, address) = start_with(&scenario);
     let (s, t) = (dir.path().join("summary.json"), dir.path().join("trace.jsonl"));
     let o = Command::new(env!("CARGO_BIN_EXE_pkm-plc"))

@@ -7,12 +7,12 @@
 
 mod common;
 
-use pkm_plc::io::line::{LineTiming, PacedLine};
+use pkm_plc::io::line::LineTiming;
 use pkm_plc::io::map::IoMap;
 use pkm_plc::io::modbus::{ExchangeMode, ModbusBus, Transport};
 use pkm_plc::plc::Plc;
 use pkm_plc::run::{self, RealTimeOptions};
-use pkm_plc::sim::modbus::{Station, serve_rtu};
+use pkm_plc::sim::modbus::{Station, StationOnLine};
 
 #[test]
 fn the_application_runs_over_modbus_rtu_on_a_pty_pair() {
@@ -20,26 +20,10 @@ fn the_application_runs_over_modbus_rtu_on_a_pty_pair() {
     let kinematics = pkm_plc::application_config(&loaded.config).expect("kinematics");
     // The station's panel presses the direction button "right" after referencing.
     let dir = tempfile::tempdir().expect("tempdir");
-    let scenario = dir.path().join("buttons.json");
-    std::fs::write(
-        &scenario,
-        r#"{"events": [{"at_ms": 45000, "input": "BUTTON_RIGHT", "value": true}, {"at_ms": 46000, "input": "BUTTON_RIGHT", "value": false}]}"#,
-    )
-    .expect("write");
+    let scenario = common::jog_right_after_referencing(dir.path());
     let station = Station::new(pkm_plc::sim::build(&loaded, &kinematics.trijoint, Some(&scenario)).expect("sim"));
-    let (station_end, line_a) = serialport::TTYPort::pair().expect("a pseudo-terminal pair");
-    let (line_b, plc_end) = serialport::TTYPort::pair().expect("a pseudo-terminal pair");
-    let _line = PacedLine::start(line_a, line_b, LineTiming::modbus_rtu(115_200)).expect("the line");
-    std::thread::spawn(move || {
-        let runtime = tokio::runtime::Builder::new_current_thread()
-            .enable_all()
-            .build()
-            .expect("runtime");
-        runtime.block_on(async move {
-            let stream = tokio_serial::SerialStream::try_from(station_end).expect("station end");
-            let _ = serve_rtu(stream, station).await;
-        });
-    });
+    let (_station, plc_end) =
+        StationOnLine::start(station, LineTiming::modbus_rtu(115_200)).expect("station on the line");
     let map = IoMap::load(&loaded).expect("valid map").expect("an io_map");
     let bus = ModbusBus::new(map, Transport::Port(Some(plc_end)), Default::default()).expect("the image fits");
     assert_eq!(bus.exchange(), ExchangeMode::Image);

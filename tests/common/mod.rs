@@ -85,6 +85,18 @@ pub fn run(plc: &mut Plc, until_ms: u64, mut each: impl FnMut(&Plc, u64)) {
     }
 }
 
+/// Writes a scenario to `dir` that presses the direction button "right" from 45 s to 46 s, just
+/// after referencing (READY at 42.6 s); returns its path.
+pub fn jog_right_after_referencing(dir: &Path) -> PathBuf {
+    let path = dir.join("jog-right.json");
+    std::fs::write(
+        &path,
+        r#"{"events": [{"at_ms": 45000, "input": "BUTTON_RIGHT", "value": true}, {"at_ms": 46000, "input": "BUTTON_RIGHT", "value": false}]}"#,
+    )
+    .expect("write the scenario");
+    path
+}
+
 /// Runs the `pkm-plc` binary in the repository with `RUST_LOG=warn`.
 pub fn pkm(args: &[&str]) -> std::process::Output {
     std::process::Command::new(env!("CARGO_BIN_EXE_pkm-plc"))
