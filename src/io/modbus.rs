@@ -202,27 +202,26 @@ impl Transport {
 
     /// Connects; every byte received on the link is added to `received`.
     async fn connect(&mut self, received: &Arc<AtomicU64>) -> std::io::Result<client::Context> {
-        let counted = |stream| RxCounter::new(stream, Arc::clone(received));
-        match self {
+        let serial = match self {
             Transport::Tcp(a) => {
                 let stream = tokio::net::TcpStream::connect(*a).await?;
                 // Requests are small and each waits for its response: send at once.
                 stream.set_nodelay(true)?;
-                Ok(tcp::attach(RxCounter::new(stream, Arc::clone(received))))
+                return Ok(tcp::attach(RxCounter::new(stream, Arc::clone(received))));
             }
-            Transport::Serial { path, baud } => {
-                let stream = SerialStream::open(&tokio_serial::new(path.as_str(), *baud))?;
-                Ok(rtu::attach_slave(counted(stream), Slave(1)))
-            }
+            Transport::Serial { path, baud } => SerialStream::open(&tokio_serial::new(path.as_str(), *baud))?,
             Transport::Port(p) => {
                 let port = p
                     .take()
                     .ok_or_else(|| std::io::Error::other("the serial port was lost and cannot be reopened"))?;
                 // Registered with the reactor here, in the exchange loop's runtime.
-                let stream = SerialStream::try_from(port).map_err(std::io::Error::other)?;
-                Ok(rtu::attach_slave(counted(stream), Slave(1)))
+                SerialStream::try_from(port).map_err(std::io::Error::other)?
             }
-        }
+        };
+        Ok(rtu::attach_slave(
+            RxCounter::new(serial, Arc::clone(received)),
+            Slave(1),
+        ))
     }
 }
 
