@@ -187,11 +187,17 @@ fn capture() -> Vec<u8> {
     .concat()
 }
 
-/// The joystick channels' values after a source read `bytes`.
-fn image_after(bytes: Vec<u8>, paced: bool) -> (End, [Value; 4]) {
+/// The joystick laid over no bus, with the repository's I/O map.
+fn joystick_alone() -> (JoystickBus, JoystickFeed) {
     let loaded = common::loaded(&common::repo_config());
     let map = IoMap::load(&loaded).expect("valid map").expect("an io_map");
-    let (mut bus, mut feed, _probe) = JoystickBus::new(Box::new(NoBus), &map);
+    let (bus, feed, _probe) = JoystickBus::new(Box::new(NoBus), &map);
+    (bus, feed)
+}
+
+/// The joystick channels' values after a source read `bytes`.
+fn image_after(bytes: Vec<u8>, paced: bool) -> (End, [Value; 4]) {
+    let (mut bus, mut feed) = joystick_alone();
     let mut table = VarTable::new();
     pkm_plc::bus::Bus::declare(&mut bus, &mut table);
     let mut image = table.initial_image();
@@ -253,9 +259,7 @@ fn a_fifo_whose_writer_closes_and_a_failing_device_are_lost_links() {
             }
         }
     }
-    let loaded = common::loaded(&common::repo_config());
-    let map = IoMap::load(&loaded).expect("valid map").expect("an io_map");
-    let (_bus, mut feed, _probe) = JoystickBus::new(Box::new(NoBus), &map);
+    let (_bus, mut feed) = joystick_alone();
     let end = read_records(
         Unplugged(Cursor::new(capture()[..2 * 24].to_vec())),
         &JoystickMapping::default(),
