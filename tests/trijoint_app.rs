@@ -211,6 +211,49 @@ fn stop_during_motion_lockout_and_acknowledgement() {
     assert_eq!(after[2].0, t0 + 1000);
 }
 
+/// Regression (issue 12): when one drive found its switches first, INIT used to hold *both*
+/// drives every cycle, so re-referencing from an asymmetric pose ended in "INIT timeout".
+#[test]
+fn acknowledgement_from_an_asymmetric_pose_references_again() {
+    let (jog_end, ack) = (READY_MS + 15_000, READY_MS + 16_000);
+    let scenario = format!(
+        r#"{{"events": [
+            {{"at_ms": {READY_MS}, "joystick": [-1.0, 1.0]}},
+            {{"at_ms": {jog_end}, "input": "BUTTON_STOP", "value": true}},
+            {{"at_ms": {r1}, "input": "BUTTON_STOP", "value": false}},
+            {{"at_ms": {r1}, "joystick": [0.0, 0.0]}},
+            {{"at_ms": {ack}, "input": "BUTTON_STOP", "value": true}},
+            {{"at_ms": {r2}, "input": "BUTTON_STOP", "value": false}}
+        ]}}"#,
+        r1 = jog_end + 100,
+        r2 = ack + 100,
+    );
+    let mut plc = build(Some(&scenario));
+    let mut seen: Vec<(u64, String, Option<String>)> = Vec::new();
+    let mut at_stop = [0.0; 2];
+    run(&mut plc, ack + 60_000, |plc, t| {
+        if t == jog_end {
+            at_stop = [plant(plc).position_mm(0), plant(plc).position_mm(1)];
+        }
+        let s = plc.app_status().expect("status");
+        if seen.last().is_none_or(|(_, st, _)| st != s.state) {
+            seen.push((t, s.state.to_string(), s.reason.map(str::to_string)));
+        }
+    });
+    // The jog left the carriages far apart: one drive reaches its switches well before the other.
+    assert!((at_stop[0] - at_stop[1]).abs() > 50.0, "carriages at {at_stop:?}");
+    let after: Vec<(&str, Option<&str>)> = seen
+        .iter()
+        .filter(|(t, ..)| *t >= jog_end)
+        .map(|(_, s, r)| (s.as_str(), r.as_deref()))
+        .collect();
+    assert_eq!(
+        after,
+        [("ERROR", Some("STOP")), ("REBOOT", None), ("INIT", None), ("READY", None)],
+        "{seen:?}"
+    );
+}
+
 fn fault_scenario(fault: &str) -> String {
     let at = READY_MS + 500;
     format!(r#"{{"events": [{{"at_ms": {READY_MS}, "joystick": [0.3, 0.3]}}, {{"at_ms": {at}, {fault}}}]}}"#)

@@ -543,7 +543,9 @@ impl Automaton {
                     }
                 }
             }
-            Search::Found => io.hold(),
+            // Only this drive waits: holding both here would freeze the other drive's search
+            // every cycle whenever this one finished first (an asymmetric start).
+            Search::Found => io.velocities[i] = 0.0,
             Search::ToStart { target } => {
                 if io.ramp_to(i, target, p.init_speed_mm_s) && (io.positions[i] - target).abs() < 0.01 {
                     self.searches[i] = Search::Done;
