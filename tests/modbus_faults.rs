@@ -16,6 +16,9 @@ enum Misbehaviour {
     Garbage,
     Slow,
     Exception,
+    /// Well-formed frames, but a read-discrete-inputs response of 1 byte for any quantity; the
+    /// other requests answered correctly (input registers zero).
+    Short,
 }
 
 /// A station that answers every request wrongly, on a free loopback port.
@@ -52,6 +55,18 @@ fn serve_badly(mut s: TcpStream, how: Misbehaviour) {
                 // Exception 4 (server device failure) for the request's function.
                 vec![header[0], header[1], 0, 0, 0, 3, header[6], pdu[0] | 0x80, 4]
             }
+            Misbehaviour::Short => {
+                let quantity = usize::from(u16::from_be_bytes([pdu[3], pdu[4]]));
+                let body: Vec<u8> = match pdu[0] {
+                    // 1 byte of inputs, whatever was asked for: all eight true.
+                    2 => vec![2, 1, 0xff],
+                    4 => [vec![4, (2 * quantity) as u8], vec![0; 2 * quantity]].concat(),
+                    // Writes: echo address and quantity.
+                    f => vec![f, pdu[1], pdu[2], pdu[3], pdu[4]],
+                };
+                let len = (body.len() + 1) as u16;
+                [vec![header[0], header[1], 0, 0], len.to_be_bytes().to_vec(), vec![header[6]], body].concat()
+            }
         };
         if s.write_all(&reply).is_err() {
             return;
@@ -80,6 +95,8 @@ fn garbage_slow_and_exceptional_stations_are_bus_faults() {
         (Misbehaviour::Garbage, "garbage"),
         (Misbehaviour::Slow, "slow"),
         (Misbehaviour::Exception, "exception"),
+        // Regression (issue 12): a short response was read as "the rest are false".
+        (Misbehaviour::Short, "short"),
     ] {
         let (s, log) = run_against(bad_station(how), "2");
         assert_eq!(s["main"]["state"], "ERROR", "{name}: {s}");
@@ -90,7 +107,7 @@ fn garbage_slow_and_exceptional_stations_are_bus_faults() {
             .find(|l| l.contains(" exchanges (tables)"))
             .expect("link report");
         let wanted = match how {
-            Misbehaviour::Garbage => " corrupt",
+            Misbehaviour::Garbage | Misbehaviour::Short => " corrupt",
             Misbehaviour::Slow => " timeouts",
             Misbehaviour::Exception => " exceptions",
         };

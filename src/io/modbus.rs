@@ -19,8 +19,9 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::thread::JoinHandle;
 use std::time::Duration;
 
-use tokio_modbus::Slave;
-use tokio_modbus::client::{self, Reader as _, Writer as _, rtu, tcp};
+use tokio_modbus::client::Client as _;
+use tokio_modbus::{Request, Response, Slave};
+use tokio_modbus::client::{self, Writer as _, rtu, tcp};
 use tokio_serial::SerialStream;
 
 use super::catalogue::Direction;
@@ -585,15 +586,10 @@ impl Link {
         let mut out_image = vec![0u16; usize::from(layout.output_bits)];
         pack_bits(&coil_bits, &mut out_image);
         out_image.append(&mut holding);
-        let image = within(
-            self.options.timeout,
-            &self.received,
-            ctx.read_write_multiple_registers(INPUT_IMAGE, layout.input_len, OUTPUT_IMAGE, &out_image),
-        )
-        .await?;
-        if image.len() != usize::from(layout.input_len) {
-            return Err(Failure::Corrupt);
-        }
+        let request = Request::ReadWriteMultipleRegisters(INPUT_IMAGE, layout.input_len, OUTPUT_IMAGE, out_image.into());
+        let image = read_exactly(self.options.timeout, &self.received, ctx, request, layout.input_len)
+            .await?
+            .words()?;
         let (bits, regs) = image.split_at(usize::from(layout.input_bits));
         self.decode_inputs(in_values, |a| packed_bit(bits, a), regs)
     }
@@ -607,17 +603,19 @@ impl Link {
     ) -> Result<(), Failure> {
         let t = self.options.timeout;
         let [coils, discrete, input_regs, holding] = self.sizes;
-        let bits = if discrete > 0 {
-            within(t, &self.received, ctx.read_discrete_inputs(0, discrete)).await?
-        } else {
-            Vec::new()
+        let bits = match discrete {
+            0 => Vec::new(),
+            n => read_exactly(t, &self.received, ctx, Request::ReadDiscreteInputs(0, n), n)
+                .await?
+                .bits()?,
         };
-        let regs = if input_regs > 0 {
-            within(t, &self.received, ctx.read_input_registers(0, input_regs)).await?
-        } else {
-            Vec::new()
+        let regs = match input_regs {
+            0 => Vec::new(),
+            n => read_exactly(t, &self.received, ctx, Request::ReadInputRegisters(0, n), n)
+                .await?
+                .words()?,
         };
-        self.decode_inputs(in_values, |a| bits.get(a).copied().unwrap_or(false), &regs)?;
+        self.decode_inputs(in_values, |a| bits[a], &regs)?;
         let (coil_bits, words) = self.output_tables(out_values);
         if coils > 0 {
             within(t, &self.received, ctx.write_multiple_coils(0, &coil_bits)).await?;
@@ -636,7 +634,9 @@ impl Link {
                 Table::DiscreteInput => Value::Bool(bit(a)),
                 _ => match regs.get(a..a + usize::from(slot.count)) {
                     Some(words) => decode(slot.ty, words),
-                    None => return Err(Failure::Exception),
+                    // Lengths were checked on receipt; a register map that does not cover its
+                    // own slots is a broken invariant, reported as a corrupt exchange anyway.
+                    None => return Err(Failure::Corrupt),
                 },
             };
         }
@@ -656,6 +656,59 @@ impl Link {
             }
         }
         (coil_bits, words)
+    }
+}
+
+/// What a read request returned, its length checked.
+enum Read {
+    /// Bits of a read-bits response (exactly the quantity asked for).
+    Bits(Vec<bool>),
+    /// Words of a read-registers or read/write-registers response (exactly the quantity asked for).
+    Words(Vec<u16>),
+}
+
+impl Read {
+    fn bits(self) -> Result<Vec<bool>, Failure> {
+        match self {
+            Read::Bits(b) => Ok(b),
+            Read::Words(_) => Err(Failure::Corrupt),
+        }
+    }
+
+    fn words(self) -> Result<Vec<u16>, Failure> {
+        match self {
+            Read::Words(w) => Ok(w),
+            Read::Bits(_) => Err(Failure::Corrupt),
+        }
+    }
+}
+
+/// Sends a read `request` for `quantity` bits or words and checks that the response carries
+/// exactly that many: a response of the wrong length is a corrupt exchange, never "the rest are
+/// false" (tokio-modbus's typed readers only `debug_assert` the length, which would panic a
+/// debug build and pass a short response in a release build).
+async fn read_exactly(
+    t: Duration,
+    received: &AtomicU64,
+    ctx: &mut client::Context,
+    request: Request<'_>,
+    quantity: u16,
+) -> Result<Read, Failure> {
+    let n = usize::from(quantity);
+    match within(t, received, ctx.call(request)).await? {
+        // Bits come packed: the response's byte count times 8, padding included.
+        Response::ReadCoils(mut bits) | Response::ReadDiscreteInputs(mut bits) if bits.len() == n.div_ceil(8) * 8 => {
+            bits.truncate(n);
+            Ok(Read::Bits(bits))
+        }
+        Response::ReadInputRegisters(words)
+        | Response::ReadHoldingRegisters(words)
+        | Response::ReadWriteMultipleRegisters(words)
+            if words.len() == n =>
+        {
+            Ok(Read::Words(words))
+        }
+        _ => Err(Failure::Corrupt),
     }
 }
 
