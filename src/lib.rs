@@ -14,6 +14,7 @@ pub mod plc;
 pub mod program;
 pub mod run;
 pub mod selftest;
+pub mod signals;
 pub mod sim;
 pub mod stats;
 pub mod status;

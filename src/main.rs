@@ -92,6 +92,16 @@ struct IoSimArgs {
     /// A scenario for the simulated machine (panel inputs and faults).
     #[arg(long, value_name = "FILE")]
     scenario: Option<PathBuf>,
+    /// Output watchdog: every output goes to its safe value (zero) when no write request arrives
+    /// for this long, as a real bus coupler's outputs do when the controller dies; 0 turns it off.
+    #[arg(long, value_name = "MS", default_value_t = 100)]
+    watchdog_ms: u64,
+    /// Modbus TCP clients served at once; more are closed as they connect.
+    #[arg(long, value_name = "N", default_value_t = 8, value_parser = clap::value_parser!(u16).range(1..))]
+    max_connections: u16,
+    /// A Modbus TCP client that sends no request for this long is disconnected (seconds).
+    #[arg(long, value_name = "S", default_value_t = 60, value_parser = clap::value_parser!(u64).range(1..))]
+    idle_timeout_s: u64,
 }
 
 #[derive(Args, Debug)]
@@ -548,8 +558,9 @@ fn cmd_run(args: RunArgs) -> Result<(), Failure> {
     Ok(())
 }
 
-/// Runs in real time on a tokio runtime that watches for Ctrl-C / SIGTERM and draws the status
-/// line, while the cyclic thread does the work.
+/// Runs in real time on a tokio runtime that watches for the terminating signals (Ctrl-C,
+/// SIGTERM, SIGHUP, …: [`pkm_plc::signals`]) and draws the status line, while the cyclic thread
+/// does the work.
 fn run_realtime(plc: Plc, options: RealTimeOptions) -> Result<run::RealTimeOutcome, Failure> {
     let runtime = tokio::runtime::Builder::new_current_thread()
         .enable_all()
@@ -560,17 +571,12 @@ fn run_realtime(plc: Plc, options: RealTimeOptions) -> Result<run::RealTimeOutco
     let snapshot = run.snapshot();
     let outcome = runtime.block_on(async move {
         let status_task = status::wanted().then(|| status::spawn(snapshot, Duration::from_millis(250)));
-        let mut sigterm = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()).ok();
+        let mut signals = pkm_plc::signals::Terminating::register();
         let mut poll = tokio::time::interval(Duration::from_millis(20));
         loop {
             tokio::select! {
-                _ = tokio::signal::ctrl_c() => {
-                    info!("Ctrl-C: stopping after the current cycle, outputs to safe values");
-                    stop.store(true, std::sync::atomic::Ordering::Relaxed);
-                    break;
-                }
-                Some(()) = async { match sigterm.as_mut() { Some(s) => s.recv().await, None => std::future::pending().await } } => {
-                    info!("SIGTERM: stopping after the current cycle, outputs to safe values");
+                name = signals.recv() => {
+                    info!("{name}: stopping after the current cycle, outputs to safe values");
                     stop.store(true, std::sync::atomic::Ordering::Relaxed);
                     break;
                 }
@@ -675,19 +681,33 @@ fn cmd_io_sim(args: IoSimArgs) -> Result<(), Failure> {
     let bus = pkm_plc::sim::build(&loaded, &kinematics.trijoint, args.scenario.as_deref())?;
     let station = pkm_plc::sim::modbus::Station::new(bus);
     let [coils, discrete, input, holding] = station.registers().sizes();
+    let options = pkm_plc::sim::server::ServerOptions {
+        watchdog: (args.watchdog_ms > 0).then(|| Duration::from_millis(args.watchdog_ms)),
+        max_connections: usize::from(args.max_connections),
+        idle_timeout: Duration::from_secs(args.idle_timeout_s),
+    };
+    let watchdog = match options.watchdog {
+        Some(w) => format!("output watchdog {} ms", w.as_millis()),
+        None => "output watchdog OFF".to_string(),
+    };
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()
         .build()
         .map_err(|e| Failure::run(format!("cannot start the tokio runtime: {e}")))?;
     runtime.block_on(async move {
+        let mut signals = pkm_plc::signals::Terminating::register();
+        let stopped = |name: &str| {
+            info!("io-sim: {name}: stopping");
+            Ok(())
+        };
         if let Some((path, baud)) = &args.serial {
             let stream = tokio_serial::SerialStream::open(&tokio_serial::new(path.as_str(), *baud))
                 .map_err(|e| Failure::run(format!("io-sim: cannot open {path}: {e}")))?;
-            info!("io-sim: {} on {path} at {baud} baud as Modbus RTU; Ctrl-C stops", loaded.origin);
+            info!("io-sim: {} on {path} at {baud} baud as Modbus RTU, {watchdog}; Ctrl-C stops", loaded.origin);
             return tokio::select! {
-                served = pkm_plc::sim::modbus::serve_rtu(stream, station) => served.map_err(|e| Failure::run(format!("io-sim: {e}"))),
-                _ = tokio::signal::ctrl_c() => Ok(()),
+                served = pkm_plc::sim::server::serve_rtu(stream, station, options) => served.map_err(|e| Failure::run(format!("io-sim: {e}"))),
+                name = signals.recv() => stopped(name),
             };
         }
         let tcp = args.tcp.ok_or_else(|| Failure::usage("io-sim needs --tcp or --serial"))?;
@@ -697,16 +717,23 @@ fn cmd_io_sim(args: IoSimArgs) -> Result<(), Failure> {
         let address = listener.local_addr().map_err(|e| Failure::run(e.to_string()))?;
         println!("{address}");
         let _ = std::io::stdout().flush();
+        if !address.ip().is_loopback() {
+            warn!(
+                "io-sim: listening on {address}, not on loopback: Modbus has no authentication, so anyone who \
+                 reaches this address can write the outputs (the drives). Use 127.0.0.1 unless a trusted, \
+                 separate network needs it."
+            );
+        }
         info!(
             "io-sim: {} on {address} as Modbus TCP: {coils} coils, {discrete} discrete inputs, {input} input registers, \
-             {holding} holding registers; Ctrl-C stops",
-            loaded.origin
+             {holding} holding registers; {watchdog}, at most {} clients; Ctrl-C stops",
+            loaded.origin, options.max_connections
         );
         tokio::select! {
-            served = pkm_plc::sim::modbus::serve(listener, station) => {
+            served = pkm_plc::sim::server::serve_tcp(listener, station, options) => {
                 served.map_err(|e| Failure::run(format!("io-sim: {e}")))
             }
-            _ = tokio::signal::ctrl_c() => Ok(()),
+            name = signals.recv() => stopped(name),
         }
     })
 }

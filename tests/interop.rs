@@ -41,7 +41,8 @@ fn script(name: &str) -> String {
 #[test]
 fn a_pymodbus_client_drives_io_sim() {
     let python = python();
-    let (sim, address) = common::start_io_sim("127.0.0.1:0", &[]);
+    // The client pauses between writes longer than a controller would: no output watchdog.
+    let (sim, address) = common::start_io_sim("127.0.0.1:0", &["--watchdog-ms", "0"]);
     let o = Command::new(python)
         .arg(script("client.py"))
         .arg(address.to_string())

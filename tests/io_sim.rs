@@ -10,9 +10,10 @@ use common::IoSim;
 
 use tokio_modbus::prelude::*;
 
-/// Starts `pkm-plc io-sim` on a free loopback port.
+/// Starts `pkm-plc io-sim` on a free loopback port, its output watchdog off: these clients pause
+/// between writes for longer than a controller would (the watchdog has tests of its own).
 fn start() -> (IoSim, SocketAddr) {
-    common::start_io_sim("127.0.0.1:0", &[])
+    common::start_io_sim("127.0.0.1:0", &["--watchdog-ms", "0"])
 }
 
 /// Starts io-sim and runs `body` with a Modbus TCP client connected to it.

@@ -65,7 +65,13 @@ fn serve_badly(mut s: TcpStream, how: Misbehaviour) {
                     f => vec![f, pdu[1], pdu[2], pdu[3], pdu[4]],
                 };
                 let len = (body.len() + 1) as u16;
-                [vec![header[0], header[1], 0, 0], len.to_be_bytes().to_vec(), vec![header[6]], body].concat()
+                [
+                    vec![header[0], header[1], 0, 0],
+                    len.to_be_bytes().to_vec(),
+                    vec![header[6]],
+                    body,
+                ]
+                .concat()
             }
         };
         if s.write_all(&reply).is_err() {

@@ -249,7 +249,12 @@ fn acknowledgement_from_an_asymmetric_pose_references_again() {
         .collect();
     assert_eq!(
         after,
-        [("ERROR", Some("STOP")), ("REBOOT", None), ("INIT", None), ("READY", None)],
+        [
+            ("ERROR", Some("STOP")),
+            ("REBOOT", None),
+            ("INIT", None),
+            ("READY", None)
+        ],
         "{seen:?}"
     );
 }

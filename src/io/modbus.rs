@@ -20,8 +20,8 @@ use std::thread::JoinHandle;
 use std::time::Duration;
 
 use tokio_modbus::client::Client as _;
-use tokio_modbus::{Request, Response, Slave};
 use tokio_modbus::client::{self, Writer as _, rtu, tcp};
+use tokio_modbus::{Request, Response, Slave};
 use tokio_serial::SerialStream;
 
 use super::catalogue::Direction;
@@ -586,7 +586,8 @@ impl Link {
         let mut out_image = vec![0u16; usize::from(layout.output_bits)];
         pack_bits(&coil_bits, &mut out_image);
         out_image.append(&mut holding);
-        let request = Request::ReadWriteMultipleRegisters(INPUT_IMAGE, layout.input_len, OUTPUT_IMAGE, out_image.into());
+        let request =
+            Request::ReadWriteMultipleRegisters(INPUT_IMAGE, layout.input_len, OUTPUT_IMAGE, out_image.into());
         let image = read_exactly(self.options.timeout, &self.received, ctx, request, layout.input_len)
             .await?
             .words()?;

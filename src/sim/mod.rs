@@ -4,8 +4,10 @@
 
 pub mod bus;
 pub mod modbus;
+pub mod pdu;
 pub mod plant;
 pub mod scenario;
+pub mod server;
 
 use serde::Deserialize;
 

@@ -7,15 +7,12 @@
 //! output image from [`OUTPUT_IMAGE`], and read/write-multiple-registers (function code 23) to
 //! exchange both in one transaction.
 
-use std::net::SocketAddr;
-use std::sync::{Arc, Mutex};
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
-use tokio::net::TcpListener;
-use tokio_modbus::server::tcp::{Server, accept_tcp_connection};
 use tokio_modbus::{ExceptionCode, Request, Response};
 
 use super::bus::SimBus;
+use super::server::{ServerOptions, serve_rtu};
 use crate::image::Value;
 use crate::io::registers::{
     Entry, INPUT_IMAGE, ImageLayout, OUTPUT_IMAGE, RegisterMap, Table, decode, encode, pack_bits, packed_bit,
@@ -33,6 +30,12 @@ pub struct Station {
     /// The packed process image's layout (inputs and outputs mirrored into holding registers).
     layout: ImageLayout,
     started: Instant,
+    /// The output watchdog's time, if it is on.
+    watchdog: Option<Duration>,
+    /// When the last write request arrived (the watchdog is armed by the first).
+    last_write: Option<Instant>,
+    /// Whether the watchdog has put the outputs to their safe values since the last write.
+    tripped: bool,
 }
 
 impl Station {
@@ -59,7 +62,61 @@ impl Station {
             holding,
             layout,
             started: Instant::now(),
+            watchdog: None,
+            last_write: None,
+            tripped: false,
         }
+    }
+
+    /// Turns the output watchdog on (`Some`) or off: see [`Station::watch`].
+    pub fn set_watchdog(&mut self, watchdog: Option<Duration>) {
+        self.watchdog = watchdog;
+    }
+
+    /// The output watchdog of a real bus coupler: when no write request has arrived for longer
+    /// than the watchdog time since the last one, every output goes to its safe value (coils
+    /// off, registers zero: PWM 0, bridges and steppers off). Called periodically; true when it
+    /// acted now. The next write request takes the outputs over again.
+    pub fn watch(&mut self) -> bool {
+        let (Some(limit), Some(last)) = (self.watchdog, self.last_write) else {
+            return false;
+        };
+        if self.tripped || last.elapsed() <= limit {
+            return false;
+        }
+        self.bus.refresh(self.started.elapsed().as_nanos() as u64);
+        self.safe_outputs();
+        self.tripped = true;
+        tracing::warn!(
+            "io-sim: output watchdog: no write for {} ms (limit {} ms); outputs set to their safe values",
+            last.elapsed().as_millis(),
+            limit.as_millis()
+        );
+        true
+    }
+
+    /// Whether the watchdog holds the outputs at their safe values.
+    pub fn watchdog_tripped(&self) -> bool {
+        self.tripped
+    }
+
+    /// Every output channel to zero, and the holding registers with them.
+    fn safe_outputs(&mut self) {
+        for e in &self.registers.entries {
+            if matches!(e.table, Table::Coil | Table::HoldingRegister) {
+                self.bus.set_output(e.module, e.channel, Value::zero(e.ty));
+            }
+        }
+        self.holding.fill(0);
+    }
+
+    /// Notes a write request for the watchdog.
+    fn written(&mut self) {
+        if self.tripped {
+            tracing::info!("io-sim: outputs written again after the watchdog acted");
+        }
+        self.last_write = Some(Instant::now());
+        self.tripped = false;
     }
 
     /// The register map served.
@@ -193,6 +250,16 @@ impl Station {
     /// Serves one request.
     pub fn handle(&mut self, request: Request<'_>) -> Result<Response, ExceptionCode> {
         self.bus.refresh(self.started.elapsed().as_nanos() as u64);
+        if matches!(
+            request,
+            Request::WriteSingleCoil(..)
+                | Request::WriteMultipleCoils(..)
+                | Request::WriteSingleRegister(..)
+                | Request::WriteMultipleRegisters(..)
+                | Request::ReadWriteMultipleRegisters(..)
+        ) {
+            self.written();
+        }
         Ok(match request {
             Request::ReadCoils(a, n) => Response::ReadCoils(self.bits(Table::Coil, a, n)?),
             Request::ReadDiscreteInputs(a, n) => Response::ReadDiscreteInputs(self.bits(Table::DiscreteInput, a, n)?),
@@ -223,25 +290,6 @@ impl Station {
             }
             _ => return Err(ExceptionCode::IllegalFunction),
         })
-    }
-}
-
-/// One connection's view of the shared station.
-#[derive(Clone)]
-struct Service(Arc<Mutex<Station>>);
-
-impl tokio_modbus::server::Service for Service {
-    type Request = Request<'static>;
-    type Response = Response;
-    type Exception = ExceptionCode;
-    type Future = std::future::Ready<Result<Response, ExceptionCode>>;
-
-    fn call(&self, request: Self::Request) -> Self::Future {
-        let result = match self.0.lock() {
-            Ok(mut station) => station.handle(request),
-            Err(_) => Err(ExceptionCode::ServerDeviceFailure),
-        };
-        std::future::ready(result)
     }
 }
 
@@ -276,7 +324,7 @@ impl StationOnLine {
                         return;
                     };
                     tokio::select! {
-                        _ = serve_rtu(stream, station) => {}
+                        _ = serve_rtu(stream, station, ServerOptions::default()) => {}
                         _ = stopped => {}
                     }
                 });
@@ -301,25 +349,4 @@ impl Drop for StationOnLine {
             let _ = thread.join();
         }
     }
-}
-
-/// Serves `station` as Modbus RTU (any unit) on a serial stream until the future is dropped.
-pub async fn serve_rtu(serial: tokio_serial::SerialStream, station: Station) -> std::io::Result<()> {
-    let service = Service(Arc::new(Mutex::new(station)));
-    tokio_modbus::server::rtu::Server::new(serial)
-        .serve_forever(service)
-        .await
-}
-
-/// Serves `station` on `listener` until the future is dropped.
-pub async fn serve(listener: TcpListener, station: Station) -> std::io::Result<()> {
-    let service = Service(Arc::new(Mutex::new(station)));
-    let server = Server::new(listener);
-    let new_service = move |_peer: SocketAddr| Ok(Some(service.clone()));
-    let on_connected = move |stream, peer| {
-        let new_service = new_service.clone();
-        async move { accept_tcp_connection(stream, peer, new_service) }
-    };
-    let on_process_error = |e| tracing::warn!("io-sim: connection error: {e}");
-    server.serve(&on_connected, on_process_error).await
 }

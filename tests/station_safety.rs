@@ -1,0 +1,286 @@
+//! What the station (io-sim) and the soft-PLC do when things go wrong (issue 12): malformed
+//! frames are answered, never fatal; the output watchdog stops the drives when the controller
+//! dies without a safe stop; terminating signals other than SIGINT/SIGTERM stop the PLC safely;
+//! io-sim bounds its clients and summarises repeated errors.
+
+mod common;
+
+use std::io::{BufRead, BufReader, Read, Write};
+use std::net::{SocketAddr, TcpStream};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use common::IoSim;
+
+/// Starts io-sim on a free loopback port with `args`; its log goes to `log`.
+fn io_sim(args: &[&str], log: &std::path::Path) -> (IoSim, SocketAddr) {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_pkm-plc"))
+        .args(["io-sim", "--tcp", "127.0.0.1:0"])
+        .args(args)
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .env("RUST_LOG", "info")
+        .stdout(Stdio::piped())
+        .stderr(std::fs::File::create(log).expect("log file"))
+        .spawn()
+        .expect("io-sim starts");
+    let mut line = String::new();
+    BufReader::new(child.stdout.take().expect("stdout"))
+        .read_line(&mut line)
+        .expect("the address line");
+    let address = line
+        .trim()
+        .parse()
+        .unwrap_or_else(|e| panic!("io-sim printed {line:?}: {e}"));
+    (IoSim(child), address)
+}
+
+/// One Modbus TCP request PDU on a raw connection; returns the response PDU.
+fn transact(s: &mut TcpStream, transaction: u16, pdu: &[u8]) -> Vec<u8> {
+    let mut frame = transaction.to_be_bytes().to_vec();
+    frame.extend([0, 0]);
+    frame.extend(((pdu.len() + 1) as u16).to_be_bytes());
+    frame.push(1);
+    frame.extend(pdu);
+    s.write_all(&frame).expect("send");
+    let mut header = [0u8; 7];
+    s.read_exact(&mut header).expect("response header");
+    assert_eq!(header[..2], transaction.to_be_bytes(), "transaction identifier echoed");
+    let len = usize::from(u16::from_be_bytes([header[4], header[5]])) - 1;
+    let mut response = vec![0u8; len];
+    s.read_exact(&mut response).expect("response PDU");
+    response
+}
+
+fn connect(address: SocketAddr) -> TcpStream {
+    let s = TcpStream::connect(address).expect("connect");
+    s.set_read_timeout(Some(Duration::from_secs(10))).expect("timeout");
+    s
+}
+
+/// The station's holding registers 0..3 (PWM period, PWM left, PWM right) through the image
+/// read-back, on a raw connection; reads never feed the watchdog.
+fn outputs(s: &mut TcpStream) -> [u16; 3] {
+    let r = transact(s, 7, &[0x03, 0, 0, 0, 3]);
+    assert_eq!(r[..2], [0x03, 6], "{r:?}");
+    [0, 1, 2].map(|i| u16::from_be_bytes([r[2 + 2 * i], r[3 + 2 * i]]))
+}
+
+/// Polls the station until `done(outputs)` or `limit` passes; returns the time it took.
+fn until(s: &mut TcpStream, limit: Duration, done: impl Fn([u16; 3]) -> bool) -> Option<Duration> {
+    let start = Instant::now();
+    while start.elapsed() < limit {
+        if done(outputs(s)) {
+            return Some(start.elapsed());
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    None
+}
+
+#[test]
+fn malformed_requests_are_answered_with_exceptions_and_io_sim_keeps_serving() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let log = dir.path().join("io-sim.log");
+    let (mut sim, address) = io_sim(&[], &log);
+    let mut s = connect(address);
+    // The frame that panicked tokio-modbus 0.17's decoder: write 16 coils with 1 byte of data.
+    assert_eq!(transact(&mut s, 1, &[0x0F, 0, 0, 0, 16, 1, 0xFF]), [0x8F, 0x03]);
+    // Quantities that overflow when doubled, an unknown function, a truncated read.
+    assert_eq!(transact(&mut s, 2, &[0x10, 0, 0, 0x80, 0, 0]), [0x90, 0x03]);
+    assert_eq!(transact(&mut s, 3, &[0x41, 1, 2]), [0xC1, 0x01]);
+    assert_eq!(transact(&mut s, 4, &[0x04, 0, 0]), [0x84, 0x03]);
+    // The same connection still serves a good request.
+    assert_eq!(transact(&mut s, 5, &[0x04, 0, 0, 0, 1])[..2], [0x04, 2]);
+
+    // 2000 random well-framed PDUs on 20 connections: every one answered.
+    let mut seed = 0x2545_f491_4f6c_dd1du64;
+    let mut random = move || {
+        seed ^= seed << 13;
+        seed ^= seed >> 7;
+        seed ^= seed << 17;
+        seed
+    };
+    for c in 0..20 {
+        let mut s = connect(address);
+        for i in 0..100 {
+            let len = 1 + (random() % 40) as usize;
+            let mut pdu: Vec<u8> = (0..len).map(|_| random() as u8).collect();
+            // Mostly the functions with counts, where decoders go wrong.
+            pdu[0] = [0x0F, 0x10, 0x17, 0x01, 0x03, random() as u8][(random() % 6) as usize];
+            let r = transact(&mut s, (c * 100 + i) as u16, &pdu);
+            assert!(r[0] == pdu[0] || r[0] == pdu[0] | 0x80, "{pdu:02x?} -> {r:02x?}");
+        }
+    }
+    assert!(sim.0.try_wait().expect("status").is_none(), "io-sim is still running");
+    drop(sim);
+    let log = std::fs::read_to_string(&log).expect("log");
+    // Repeats are summarised: a handful of lines, not one per frame.
+    assert!(log.lines().count() < 20, "{} log lines:\n{log}", log.lines().count());
+    assert!(log.contains("malformed request"), "{log}");
+    assert!(!log.contains("panicked"), "{log}");
+}
+
+#[test]
+fn a_malformed_rtu_frame_is_answered_and_io_sim_serial_keeps_serving() {
+    use serialport::SerialPort as _;
+    let (mut master, slave) = serialport::TTYPort::pair().expect("a pseudo-terminal pair");
+    let path = slave.name().expect("the pty's path");
+    master.set_timeout(Duration::from_secs(10)).expect("timeout");
+    let mut sim = IoSim(
+        Command::new(env!("CARGO_BIN_EXE_pkm-plc"))
+            .args(["io-sim", "--serial", &path])
+            .current_dir(env!("CARGO_MANIFEST_DIR"))
+            .env("RUST_LOG", "warn")
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("io-sim starts"),
+    );
+    let frame = |pdu: &[u8]| {
+        let mut f = vec![1];
+        f.extend(pdu);
+        let crc = pkm_plc::sim::pdu::crc16(&f);
+        f.extend(crc.to_le_bytes());
+        f
+    };
+    let ask = |master: &mut serialport::TTYPort, pdu: &[u8], answer_len: usize| {
+        master.write_all(&frame(pdu)).expect("send");
+        let mut answer = vec![0u8; answer_len];
+        master.read_exact(&mut answer).expect("answer");
+        answer
+    };
+    // io-sim opens the pty when it starts; a request before that is lost, so ask until answered.
+    let start = Instant::now();
+    master.set_timeout(Duration::from_millis(200)).expect("timeout");
+    loop {
+        master.write_all(&frame(&[0x04, 0, 0, 0, 1])).expect("send");
+        let mut answer = [0u8; 7];
+        if master.read_exact(&mut answer).is_ok() {
+            break;
+        }
+        assert!(
+            start.elapsed() < Duration::from_secs(20),
+            "io-sim --serial never answered"
+        );
+    }
+    // Late answers to the earlier attempts, if any.
+    let mut stale = [0u8; 64];
+    while master.read(&mut stale).is_ok_and(|n| n > 0) {}
+    master.set_timeout(Duration::from_secs(10)).expect("timeout");
+    assert_eq!(ask(&mut master, &[0x0F, 0, 0, 0, 16, 1, 0xFF], 5), frame(&[0x8F, 0x03]));
+    // Still serving: read one input register.
+    assert_eq!(ask(&mut master, &[0x04, 0, 0, 0, 1], 7)[..3], [1, 0x04, 2]);
+    assert!(
+        sim.0.try_wait().expect("status").is_none(),
+        "io-sim --serial is still running"
+    );
+}
+
+#[test]
+fn the_output_watchdog_zeroes_the_outputs_when_writes_stop() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (_sim, address) = io_sim(&["--watchdog-ms", "100"], &dir.path().join("log"));
+    let mut s = connect(address);
+    // A controller's write: bridges on, both motors at 10 %.
+    assert_eq!(
+        transact(&mut s, 1, &[0x10, 0, 0, 0, 3, 6, 0, 50, 0x0C, 0xCD, 0x0C, 0xCD])[0],
+        0x10
+    );
+    assert_eq!(outputs(&mut s), [50, 3277, 3277]);
+    // No more writes: the watchdog acts, reads do not keep the outputs alive.
+    let took = until(&mut s, Duration::from_secs(10), |o| o == [0, 0, 0]).expect("the watchdog acted");
+    eprintln!("outputs zero {} ms after the last write", took.as_millis());
+    // The next write takes the outputs over again.
+    assert_eq!(transact(&mut s, 2, &[0x06, 0, 0, 0, 50])[0], 0x06);
+    assert_eq!(outputs(&mut s)[0], 50);
+}
+
+/// Starts the soft-PLC against the station at `address` (real time), output to `log`.
+fn plc_against(address: SocketAddr, log: &std::path::Path) -> Child {
+    Command::new(env!("CARGO_BIN_EXE_pkm-plc"))
+        .args(["run", "--bus", &format!("tcp:{address}")])
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .env("RUST_LOG", "info")
+        .stdout(Stdio::null())
+        .stderr(std::fs::File::create(log).expect("log file"))
+        .spawn()
+        .expect("run starts")
+}
+
+/// Waits until the PLC drives a motor at the station (INIT's switch search starts at once).
+fn until_driving(s: &mut TcpStream) {
+    let driving = |o: [u16; 3]| o[0] != 0 && (o[1] != 0 || o[2] != 0);
+    until(s, Duration::from_secs(30), driving).expect("the PLC drives the motors");
+}
+
+#[test]
+fn a_killed_plc_leaves_the_drives_to_the_watchdog() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (_sim, address) = io_sim(&[], &dir.path().join("sim.log"));
+    let mut plc = plc_against(address, &dir.path().join("plc.log"));
+    let mut s = connect(address);
+    until_driving(&mut s);
+    plc.kill().expect("SIGKILL");
+    plc.wait().expect("reaped");
+    let took = until(&mut s, Duration::from_secs(10), |o| o == [0, 0, 0]).expect("outputs zero after SIGKILL");
+    // The watchdog's 100 ms, plus its check period and this poll; generous for a busy machine.
+    eprintln!("outputs zero {} ms after SIGKILL", took.as_millis());
+    assert!(took < Duration::from_secs(2), "{took:?}");
+}
+
+#[test]
+fn hangup_quit_and_user_signals_stop_the_plc_safely() {
+    for (signal, name) in [
+        (libc::SIGHUP, "SIGHUP"),
+        (libc::SIGQUIT, "SIGQUIT"),
+        (libc::SIGUSR1, "SIGUSR1"),
+    ] {
+        let dir = tempfile::tempdir().expect("tempdir");
+        // No watchdog: only the PLC's own safe stop can zero the outputs.
+        let (_sim, address) = io_sim(&["--watchdog-ms", "0"], &dir.path().join("sim.log"));
+        let log = dir.path().join("plc.log");
+        let mut plc = plc_against(address, &log);
+        let mut s = connect(address);
+        until_driving(&mut s);
+        // SAFETY: kill(2) on a child process we own and have not reaped.
+        assert_eq!(unsafe { libc::kill(plc.id() as i32, signal) }, 0);
+        let status = plc.wait().expect("the PLC exits");
+        let log = std::fs::read_to_string(&log).expect("log");
+        assert_eq!(status.code(), Some(0), "{name}: {log}");
+        assert!(log.contains(&format!("{name}: stopping")), "{name}: {log}");
+        assert_eq!(outputs(&mut s), [0, 0, 0], "{name}: outputs after the stop");
+    }
+}
+
+#[test]
+fn io_sim_bounds_its_clients_and_stops_on_sigterm() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let log = dir.path().join("log");
+    let (mut sim, address) = io_sim(&["--max-connections", "2", "--idle-timeout-s", "1"], &log);
+    let mut a = connect(address);
+    let _b = connect(address);
+    assert_eq!(transact(&mut a, 1, &[0x04, 0, 0, 0, 1])[0], 0x04);
+    // A third client is closed as it connects.
+    let mut c = connect(address);
+    let mut byte = [0u8; 1];
+    assert!(
+        matches!(c.read(&mut byte), Ok(0) | Err(_)),
+        "the third client was served"
+    );
+    // An idle client is disconnected after the idle time; the server goes on.
+    let mut buf = [0u8; 1];
+    assert!(
+        matches!(a.read(&mut buf), Ok(0) | Err(_)),
+        "the idle client stays connected"
+    );
+    let mut d = connect(address);
+    assert_eq!(transact(&mut d, 2, &[0x04, 0, 0, 0, 1])[0], 0x04);
+    // SAFETY: kill(2) on a child process we own and have not reaped.
+    assert_eq!(unsafe { libc::kill(sim.0.id() as i32, libc::SIGTERM) }, 0);
+    let status = sim.0.wait().expect("io-sim exits");
+    assert_eq!(status.code(), Some(0));
+    let log = std::fs::read_to_string(&log).expect("log");
+    assert!(log.contains("connection refused"), "{log}");
+    assert!(log.contains("idle client disconnected"), "{log}");
+    assert!(log.contains("SIGTERM: stopping"), "{log}");
+}
