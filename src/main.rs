@@ -173,6 +173,10 @@ struct RunArgs {
     /// process image, as io-sim serves it), or `auto` (image on serial, tables on TCP).
     #[arg(long, value_enum, default_value_t = ExchangeMode::Auto)]
     exchange: ExchangeMode,
+    /// A Modbus bus faults when its newest complete input image is older than this (ms), however
+    /// the exchanges fail: slow responses that never time out count too.
+    #[arg(long, value_name = "MS", default_value_t = 50, value_parser = clap::value_parser!(u64).range(1..))]
+    max_input_age_ms: u64,
     /// A scenario for the simulated machine: timed operator actions and faults (JSON).
     #[arg(long, value_name = "FILE")]
     scenario: Option<PathBuf>,
@@ -346,7 +350,7 @@ struct Joystick {
 fn build(
     arg: &ConfigArg,
     bus: BusKind,
-    exchange: ExchangeMode,
+    (exchange, max_input_age): (ExchangeMode, Option<Duration>),
     scenario: Option<&Path>,
     joystick: JoystickSpec,
 ) -> Result<(LoadedConfig, Plc, Option<Joystick>), Failure> {
@@ -369,6 +373,7 @@ fn build(
             };
             let options = pkm_plc::io::modbus::ModbusOptions {
                 exchange,
+                max_input_age: max_input_age.unwrap_or(pkm_plc::io::modbus::DEFAULT_MAX_INPUT_AGE),
                 ..Default::default()
             };
             let bus = pkm_plc::io::modbus::ModbusBus::new(map, transport, options)
@@ -447,7 +452,13 @@ fn with_joystick(
 }
 
 fn cmd_check(args: ConfigArg) -> Result<(), Failure> {
-    let (loaded, plc, _) = build(&args, BusKind::Sim, ExchangeMode::Auto, None, JoystickSpec::None)?;
+    let (loaded, plc, _) = build(
+        &args,
+        BusKind::Sim,
+        (ExchangeMode::Auto, None),
+        None,
+        JoystickSpec::None,
+    )?;
     let classes: Vec<String> = plc
         .classes()
         .map(|c| format!("{} ({} ms)", c.name, c.period_ns as f64 / 1e6))
@@ -477,7 +488,7 @@ fn cmd_run(args: RunArgs) -> Result<(), Failure> {
     let (loaded, mut plc, joystick) = build(
         &args.config,
         args.bus,
-        args.exchange,
+        (args.exchange, Some(Duration::from_millis(args.max_input_age_ms))),
         args.scenario.as_deref(),
         joystick,
     )?;

@@ -19,6 +19,9 @@ enum Misbehaviour {
     /// Well-formed frames, but a read-discrete-inputs response of 1 byte for any quantity; the
     /// other requests answered correctly (input registers zero).
     Short,
+    /// Correct answers (inputs all zero), each 60 ms late: below the request timeout, so no
+    /// exchange ever fails, but the inputs are always stale.
+    Late,
 }
 
 /// A station that answers every request wrongly, on a free loopback port.
@@ -55,11 +58,15 @@ fn serve_badly(mut s: TcpStream, how: Misbehaviour) {
                 // Exception 4 (server device failure) for the request's function.
                 vec![header[0], header[1], 0, 0, 0, 3, header[6], pdu[0] | 0x80, 4]
             }
-            Misbehaviour::Short => {
+            Misbehaviour::Short | Misbehaviour::Late => {
+                if matches!(how, Misbehaviour::Late) {
+                    std::thread::sleep(Duration::from_millis(60));
+                }
                 let quantity = usize::from(u16::from_be_bytes([pdu[3], pdu[4]]));
                 let body: Vec<u8> = match pdu[0] {
-                    // 1 byte of inputs, whatever was asked for: all eight true.
-                    2 => vec![2, 1, 0xff],
+                    // Short: 1 byte of inputs, whatever was asked for, all eight true.
+                    2 if matches!(how, Misbehaviour::Short) => vec![2, 1, 0xff],
+                    2 => [vec![2, quantity.div_ceil(8) as u8], vec![0; quantity.div_ceil(8)]].concat(),
                     4 => [vec![4, (2 * quantity) as u8], vec![0; 2 * quantity]].concat(),
                     // Writes: echo address and quantity.
                     f => vec![f, pdu[1], pdu[2], pdu[3], pdu[4]],
@@ -103,11 +110,17 @@ fn garbage_slow_and_exceptional_stations_are_bus_faults() {
         (Misbehaviour::Exception, "exception"),
         // Regression (issue 12): a short response was read as "the rest are false".
         (Misbehaviour::Short, "short"),
+        // Regression (issue 12): late answers never made a bus fault.
+        (Misbehaviour::Late, "late"),
     ] {
         let (s, log) = run_against(bad_station(how), "2");
         assert_eq!(s["main"]["state"], "ERROR", "{name}: {s}");
         assert_eq!(s["main"]["error_reason"], "bus fault", "{name}");
-        assert!(log.contains("bus fault after"), "{name}: {log}");
+        let logged = match how {
+            Misbehaviour::Late => "the newest input image is",
+            _ => "bus fault after",
+        };
+        assert!(log.contains(logged), "{name}: {log}");
         let counts = log
             .lines()
             .find(|l| l.contains(" exchanges (tables)"))
@@ -116,6 +129,7 @@ fn garbage_slow_and_exceptional_stations_are_bus_faults() {
             Misbehaviour::Garbage | Misbehaviour::Short => " corrupt",
             Misbehaviour::Slow => " timeouts",
             Misbehaviour::Exception => " exceptions",
+            Misbehaviour::Late => " stale",
         };
         let n: u64 = counts
             .split(", ")

@@ -64,6 +64,9 @@ impl ExchangeMode {
 /// The longest the bus waits for the station's first input image before the first cycle.
 pub const STARTUP_WAIT: Duration = Duration::from_secs(5);
 
+/// The default bound on the age of the newest input image: five 10 ms cycles, one main cycle.
+pub const DEFAULT_MAX_INPUT_AGE: Duration = Duration::from_millis(50);
+
 /// Settings of the exchange loop.
 #[derive(Clone, Copy, Debug)]
 pub struct ModbusOptions {
@@ -75,6 +78,10 @@ pub struct ModbusOptions {
     pub timeout: Duration,
     /// More consecutive failed exchanges than this is a bus fault.
     pub max_failures: u32,
+    /// The newest complete input image older than this is a bus fault, whatever the pattern of
+    /// failures behind it (slow responses that never time out, most exchanges failing but never
+    /// more than `max_failures` in a row): the programs must not act on stale inputs.
+    pub max_input_age: Duration,
 }
 
 impl Default for ModbusOptions {
@@ -84,6 +91,7 @@ impl Default for ModbusOptions {
             period: Duration::from_millis(5),
             timeout: Duration::from_millis(100),
             max_failures: 3,
+            max_input_age: DEFAULT_MAX_INPUT_AGE,
         }
     }
 }
@@ -101,6 +109,8 @@ pub struct LinkStats {
     pub exceptions: AtomicU64,
     /// Lost or refused connections.
     pub disconnects: AtomicU64,
+    /// Times the newest input image grew older than the bound (`max_input_age`).
+    pub stale: AtomicU64,
     /// Summed duration of the successful exchanges (ns).
     pub exchange_ns_total: AtomicU64,
     /// Longest successful exchange (ns).
@@ -117,6 +127,7 @@ impl Default for LinkStats {
             corrupt: AtomicU64::new(0),
             exceptions: AtomicU64::new(0),
             disconnects: AtomicU64::new(0),
+            stale: AtomicU64::new(0),
             exchange_ns_total: AtomicU64::new(0),
             exchange_ns_max: AtomicU64::new(0),
             exchange_ns_min: AtomicU64::new(u64::MAX),
@@ -260,6 +271,11 @@ pub struct ModbusBus {
     stop: Arc<AtomicBool>,
     /// Set by the exchange loop when the first complete input image has been published.
     first_image: Arc<AtomicBool>,
+    /// When the newest complete input image arrived, in ns since `epoch`.
+    image_at_ns: Arc<AtomicU64>,
+    epoch: std::time::Instant,
+    /// Whether the inputs are stale now (a fault while it lasts, logged once per episode).
+    stale: AtomicBool,
     stats: Arc<LinkStats>,
     thread: Option<JoinHandle<()>>,
 }
@@ -297,6 +313,9 @@ impl ModbusBus {
             fault: Arc::new(AtomicBool::new(false)),
             stop: Arc::new(AtomicBool::new(false)),
             first_image: Arc::new(AtomicBool::new(false)),
+            image_at_ns: Arc::new(AtomicU64::new(0)),
+            epoch: std::time::Instant::now(),
+            stale: AtomicBool::new(false),
             stats: Arc::new(LinkStats::default()),
             thread: None,
         })
@@ -387,6 +406,8 @@ impl Bus for ModbusBus {
             fault: Arc::clone(&self.fault),
             stop: Arc::clone(&self.stop),
             first_image: Arc::clone(&self.first_image),
+            image_at_ns: Arc::clone(&self.image_at_ns),
+            epoch: self.epoch,
             stats: Arc::clone(&self.stats),
             received: Arc::new(AtomicU64::new(0)),
         };
@@ -423,7 +444,7 @@ impl Bus for ModbusBus {
         let s = &self.stats;
         let n = s.exchanges.load(Ordering::Relaxed);
         tracing::info!(
-            "modbus {}: {n} exchanges ({}), mean {:.0} µs, max {:.0} µs; {} timeouts, {} corrupt, {} exceptions, {} disconnects",
+            "modbus {}: {n} exchanges ({}), mean {:.0} µs, max {:.0} µs; {} timeouts, {} corrupt, {} exceptions, {} disconnects, {} stale",
             self.name,
             self.options.exchange.name(),
             s.exchange_ns_total.load(Ordering::Relaxed) as f64 / n.max(1) as f64 / 1e3,
@@ -431,7 +452,8 @@ impl Bus for ModbusBus {
             s.timeouts.load(Ordering::Relaxed),
             s.corrupt.load(Ordering::Relaxed),
             s.exceptions.load(Ordering::Relaxed),
-            s.disconnects.load(Ordering::Relaxed)
+            s.disconnects.load(Ordering::Relaxed),
+            s.stale.load(Ordering::Relaxed)
         );
     }
 
@@ -440,7 +462,34 @@ impl Bus for ModbusBus {
     }
 
     fn fault(&self) -> bool {
-        self.fault.load(Ordering::Relaxed)
+        self.fault.load(Ordering::Relaxed) || self.inputs_stale()
+    }
+}
+
+impl ModbusBus {
+    /// Whether the newest complete input image is older than `max_input_age` (supervised from
+    /// the first image on; before it, the startup wait decides). The bus is the I/O layer, so it
+    /// may read the clock; what it decides reaches the programs as the `bus_fault` input, which
+    /// traces record and replays reproduce.
+    fn inputs_stale(&self) -> bool {
+        if !self.first_image.load(Ordering::Acquire) {
+            return false;
+        }
+        let now = self.epoch.elapsed().as_nanos() as u64;
+        let age = Duration::from_nanos(now.saturating_sub(self.image_at_ns.load(Ordering::Acquire)));
+        let stale = age > self.options.max_input_age;
+        if stale && !self.stale.swap(true, Ordering::Relaxed) {
+            self.stats.stale.fetch_add(1, Ordering::Relaxed);
+            tracing::warn!(
+                "modbus {}: bus fault: the newest input image is {} ms old (limit {} ms)",
+                self.name,
+                age.as_millis(),
+                self.options.max_input_age.as_millis()
+            );
+        } else if !stale {
+            self.stale.store(false, Ordering::Relaxed);
+        }
+        stale
     }
 }
 
@@ -455,6 +504,8 @@ struct Link {
     fault: Arc<AtomicBool>,
     stop: Arc<AtomicBool>,
     first_image: Arc<AtomicBool>,
+    image_at_ns: Arc<AtomicU64>,
+    epoch: std::time::Instant,
     stats: Arc<LinkStats>,
     /// Bytes received on the link so far (tells a corrupt response from a silent station).
     received: Arc<AtomicU64>,
@@ -514,6 +565,8 @@ impl Link {
                 match self.exchange(&mut ctx, &mut in_values, &out_values).await {
                     Ok(()) => {
                         inputs.publish(&in_values);
+                        self.image_at_ns
+                            .store(self.epoch.elapsed().as_nanos() as u64, Ordering::Release);
                         self.first_image.store(true, Ordering::Release);
                         let ns = started.elapsed().as_nanos() as u64;
                         self.stats.exchange_ns_total.fetch_add(ns, Ordering::Relaxed);
