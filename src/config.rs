@@ -261,43 +261,70 @@ pub fn default_path() -> Option<PathBuf> {
 
 /// Parses a configuration text strictly; `origin` names it in errors.
 pub fn parse(text: &str, origin: &str) -> Result<LoadedConfig, ConfigError> {
-    let config: Config = parse_strict(text, origin)?;
+    let json = parse_value(text, origin)?;
+    let config: Config = from_json(&json, origin)?;
     Ok(LoadedConfig {
         origin: origin.to_string(),
         config,
         dir: None,
-        // Parsed above already, so this cannot fail.
-        json: serde_json::from_str(text).unwrap_or_default(),
+        json,
     })
 }
 
-/// Parses any strict JSON document, turning serde's errors into [`ConfigError`]s that name the
-/// file, the JSON path and what was expected.
+/// Parses any strict JSON document (no duplicate keys, structs from objects only: see
+/// [`crate::strict_json`]), turning serde's errors into [`ConfigError`]s that name the file, the
+/// JSON path and what was expected.
 pub fn parse_strict<T: serde::de::DeserializeOwned>(text: &str, origin: &str) -> Result<T, ConfigError> {
+    from_json(&parse_value(text, origin)?, origin)
+}
+
+/// Reads a JSON document into a value, refusing duplicate keys.
+fn parse_value(text: &str, origin: &str) -> Result<serde_json::Value, ConfigError> {
     let mut de = serde_json::Deserializer::from_str(text);
-    let result: Result<T, (String, serde_json::Error)> = serde_path_to_error::deserialize(&mut de)
-        .map_err(|e| (e.path().to_string(), e.into_inner()))
-        .and_then(|v| de.end().map(|()| v).map_err(|e| (".".to_string(), e)));
-    result.map_err(|(path, inner)| {
-        let message = strip_position(&inner.to_string());
-        match inner.classify() {
-            serde_json::error::Category::Syntax
-            | serde_json::error::Category::Eof
-            | serde_json::error::Category::Io => ConfigError::Syntax {
+    let result: Result<serde_json::Value, (String, serde_json::Error)> =
+        serde_path_to_error::deserialize::<_, crate::strict_json::Unique>(&mut de)
+            .map(|u| u.0)
+            .map_err(|e| (e.path().to_string(), e.into_inner()))
+            .and_then(|v| de.end().map(|()| v).map_err(|e| (".".to_string(), e)));
+    result.map_err(|(path, inner)| json_error(origin, &path, &inner))
+}
+
+/// Takes a `T` from a parsed document.
+fn from_json<T: serde::de::DeserializeOwned>(json: &serde_json::Value, origin: &str) -> Result<T, ConfigError> {
+    crate::strict_json::from_value(json).map_err(|e| json_error(origin, &e.path().to_string(), e.inner()))
+}
+
+fn json_error(origin: &str, path: &str, inner: &serde_json::Error) -> ConfigError {
+    let message = shorten(&strip_position(&inner.to_string())).into_owned();
+    match inner.classify() {
+        // A value's problems (a duplicate key too) have a path; the text's have a position.
+        serde_json::error::Category::Syntax | serde_json::error::Category::Eof | serde_json::error::Category::Io
+            if inner.line() > 0 =>
+        {
+            ConfigError::Syntax {
                 file: origin.to_string(),
                 line: inner.line(),
                 column: inner.column(),
                 message,
-            },
-            serde_json::error::Category::Data => ConfigError::Invalid {
-                file: origin.to_string(),
-                problems: vec![DeclIssue {
-                    at: display_path(&path),
-                    message,
-                }],
-            },
+            }
         }
-    })
+        _ => ConfigError::Invalid {
+            file: origin.to_string(),
+            problems: vec![DeclIssue {
+                at: display_path(path),
+                message,
+            }],
+        },
+    }
+}
+
+/// A text cut to a readable length for a message: a 50 MB string value is not echoed whole.
+pub fn shorten(text: &str) -> std::borrow::Cow<'_, str> {
+    const MAX: usize = 200;
+    match text.char_indices().nth(MAX) {
+        None => std::borrow::Cow::Borrowed(text),
+        Some((cut, _)) => std::borrow::Cow::Owned(format!("{}… ({} bytes in all)", &text[..cut], text.len())),
+    }
 }
 
 /// serde_json appends " at line L column C" to its messages; the path says more, so drop it.
@@ -354,10 +381,15 @@ pub fn check(config: &Config) -> Vec<DeclIssue> {
                 ),
             );
         }
-        if tc.tolerance_us > MAX_CYCLE_US {
+        // (A cycle out of range is one problem, not two.)
+        if (MIN_CYCLE_US..=MAX_CYCLE_US).contains(&tc.cycle_us) && tc.tolerance_us > tc.cycle_us {
             push(
                 format!("{at}.tolerance_us"),
-                format!("tolerance must be at most {MAX_CYCLE_US} µs, got {}", tc.tolerance_us),
+                format!(
+                    "tolerance must be at most the cycle time ({} µs): a cycle that starts later than \
+                     that has missed its slot, got {}",
+                    tc.cycle_us, tc.tolerance_us
+                ),
             );
         }
         if tc.priority == 0 {

@@ -206,6 +206,9 @@ impl Writer {
     }
 }
 
+/// The name a bus reader (an output channel) goes by, as [`Reader::who`].
+pub const BUS_READER: &str = "the bus";
+
 /// A reader of a variable.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Reader {
@@ -348,6 +351,57 @@ impl VarTable {
         let i = self.intern(name, ty, &reader.at.clone());
         self.vars[usize::from(i)].readers.push(reader);
         i
+    }
+
+    /// Problems of I/O variables exchanged by a slower class than the programs that use them:
+    /// an input latched by a slower class than a program that reads it reaches that program late
+    /// (BUTTON_STOP in a 100 ms class delays the 10 ms interlock by up to 100 ms), and an output
+    /// exchanged by a slower class than the program that writes it reaches the module late (a
+    /// PWM set-point). `classes` gives each class's name and cycle (µs), by index.
+    pub fn exchange_problems(&self, classes: &[(&str, u32)]) -> Vec<DeclIssue> {
+        let class = |c: usize| classes.get(c).copied().unwrap_or(("?", 0));
+        let mut problems = Vec::new();
+        for var in &self.vars {
+            match &var.writer {
+                Some(Writer::Bus { class: c, at }) => {
+                    for r in var.readers.iter().filter(|r| class(r.class).1 < class(*c).1) {
+                        let ((bus_name, bus_cycle), (reader_name, reader_cycle)) = (class(*c), class(r.class));
+                        problems.push(DeclIssue {
+                            at: at.clone(),
+                            message: format!(
+                                "input \"{}\" is latched by class \"{bus_name}\" ({} ms) but read by \"{}\" in class \
+                                 \"{reader_name}\" ({} ms), which would see it up to {} ms late: bind it to \"{reader_name}\"",
+                                var.name,
+                                f64::from(bus_cycle) / 1000.0,
+                                r.who,
+                                f64::from(reader_cycle) / 1000.0,
+                                f64::from(bus_cycle) / 1000.0
+                            ),
+                        });
+                    }
+                }
+                Some(Writer::Program { class: w, program, .. }) => {
+                    let bus = var.readers.iter().filter(|r| r.who == BUS_READER);
+                    for r in bus.filter(|r| class(r.class).1 > class(*w).1) {
+                        let ((bus_name, bus_cycle), (writer_name, writer_cycle)) = (class(r.class), class(*w));
+                        problems.push(DeclIssue {
+                            at: r.at.clone(),
+                            message: format!(
+                                "output \"{}\" is written by \"{program}\" in class \"{writer_name}\" ({} ms) but \
+                                 exchanged by class \"{bus_name}\" ({} ms), so the module would see it up to {} ms \
+                                 late: bind it to \"{writer_name}\"",
+                                var.name,
+                                f64::from(writer_cycle) / 1000.0,
+                                f64::from(bus_cycle) / 1000.0,
+                                f64::from(bus_cycle) / 1000.0
+                            ),
+                        });
+                    }
+                }
+                None => {}
+            }
+        }
+        problems
     }
 
     /// Finishes the table: every variable that is read must have a writer.

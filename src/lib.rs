@@ -18,6 +18,7 @@ pub mod signals;
 pub mod sim;
 pub mod stats;
 pub mod status;
+pub mod strict_json;
 pub mod summary;
 pub mod timing;
 pub mod trace;
@@ -33,7 +34,7 @@ pub fn application_config(
 ) -> Result<tasks::kinematics::KinematicsConfig, Vec<image::DeclIssue>> {
     let kinematics = match &config.kinematics {
         None => tasks::kinematics::KinematicsConfig::default(),
-        Some(v) => serde_path_to_error::deserialize(v).map_err(|e| {
+        Some(v) => strict_json::from_value(v).map_err(|e| {
             let inner = e.path().to_string();
             let at = if inner == "." {
                 "kinematics".to_string()

@@ -141,6 +141,8 @@ impl Plc {
                 let args = ProgramArgs {
                     params: entry.params.as_ref(),
                     kinematics: config.kinematics.as_ref(),
+                    cycle_us: tc.cycle_us,
+                    fastest_class: config.task_classes.iter().all(|o| o.cycle_us >= tc.cycle_us),
                 };
                 let program = (info.factory)(&args, &mut decl);
                 programs.push(Slot {
@@ -163,6 +165,12 @@ impl Plc {
                 violation_logged: false,
             });
         }
+        let class_cycles: Vec<(&str, u32)> = config
+            .task_classes
+            .iter()
+            .map(|c| (c.name.as_str(), c.cycle_us))
+            .collect();
+        issues.extend(table.exchange_problems(&class_cycles));
         let table = match table.finish() {
             Ok(t) if issues.is_empty() => t,
             Ok(_) => return Err(issues),

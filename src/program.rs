@@ -121,6 +121,10 @@ pub struct ProgramArgs<'a> {
     /// The configuration's `kinematics` section (machine geometry), if there is one; checked
     /// separately, so programs may take it as valid.
     pub kinematics: Option<&'a serde_json::Value>,
+    /// The cycle time of the task class the program runs in (µs).
+    pub cycle_us: u32,
+    /// Whether that class is the fastest configured (no class has a shorter cycle).
+    pub fastest_class: bool,
 }
 
 impl ProgramArgs<'_> {
@@ -131,7 +135,7 @@ impl ProgramArgs<'_> {
         let Some(params) = self.params else {
             return P::default();
         };
-        match serde_path_to_error::deserialize::<_, P>(params) {
+        match crate::strict_json::from_value::<P>(params) {
             Ok(p) => p,
             Err(e) => {
                 let inner = e.path().to_string();

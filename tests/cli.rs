@@ -282,8 +282,8 @@ fn kinematic_parameters_are_checked_with_their_paths() {
     assert_eq!(
         stderr(&o),
         format!(
-            "error: {}: 2 problems:\n  at kinematics.trijoint.l3: must be a positive length in mm, got -4\n  \
-             at kinematics.trijoint.h1_travel: travel must be [min, max] with min < max, got [250, 0]\n",
+            "error: {}: 2 problems:\n  at kinematics.trijoint.l3: must be a positive length in mm, at most 10000, got -4.0\n  \
+             at kinematics.trijoint.h1_travel: travel must be [min, max] with min < max, within ±10000 mm, got [250.0, 0.0]\n",
             path.display()
         )
     );

@@ -154,7 +154,7 @@ fn task_class_checks() {
             r#"{{"task_classes": [{}]}}"#,
             class(r#"{"tolerance_us": 20000000}"#)
         )),
-        "cfg.json: at task_classes[0].tolerance_us: tolerance must be at most 10000000 µs, got 20000000"
+        "cfg.json: at task_classes[0].tolerance_us: tolerance must be at most the cycle time (10000 µs): a cycle that starts later than that has missed its slot, got 20000000"
     );
     assert_eq!(
         error(&format!(r#"{{"task_classes": [{}]}}"#, class(r#"{"priority": 0}"#))),
@@ -379,4 +379,152 @@ fn bus_declarations_take_part_in_the_checks() {
         issues[0].message,
         "variable \"PWM01\" read by \"bus\" has no writer: no program writes it and no bus input is bound to it"
     );
+}
+
+#[path = "common/mod.rs"]
+mod common;
+
+/// The repository's configuration changed by `change`, built on the simulated machine with the
+/// I/O map changed by `change_map`; the problems as displayed (empty when it is valid).
+fn problems_of(change: impl Fn(&mut serde_json::Value), change_map: impl Fn(&mut serde_json::Value)) -> String {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut map: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(common::root().join("io-map/trijoint.json")).expect("map"))
+            .expect("JSON");
+    change_map(&mut map);
+    let map_path = dir.path().join("map.json");
+    std::fs::write(&map_path, map.to_string()).expect("write the map");
+    let mut config = common::repo_config();
+    config["io_map"] = map_path.to_str().expect("utf-8").into();
+    change(&mut config);
+    let loaded = match config::parse(&config.to_string(), "cfg.json") {
+        Ok(mut l) => {
+            l.dir = Some(common::root().to_path_buf());
+            l
+        }
+        Err(e) => return e.to_string(),
+    };
+    if let Err(problems) = pkm_plc::application_config(&loaded.config) {
+        return ConfigError::Invalid {
+            file: loaded.origin,
+            problems,
+        }
+        .to_string();
+    }
+    match common::sim_plc(&loaded, &pkm_plc::registry(), None) {
+        Ok(_) => String::new(),
+        Err(e) => e.to_string(),
+    }
+}
+
+fn main_params(v: serde_json::Value) -> impl Fn(&mut serde_json::Value) {
+    move |c| c["task_classes"][1]["programs"][0]["params"] = v.clone()
+}
+
+fn no_change(_: &mut serde_json::Value) {}
+
+/// Regression (issue 12): each of these was accepted by `check`.
+#[test]
+fn safety_relevant_settings_are_refused_naming_the_key() {
+    let cases: Vec<(String, &str)> = vec![
+        // The fast interlock and the encoders moved into the 100 ms class.
+        (
+            problems_of(
+                |c| {
+                    let control = c["task_classes"][0]["programs"][1].take();
+                    c["task_classes"][0]["programs"] = serde_json::json!([c["task_classes"][0]["programs"][0].take()]);
+                    c["task_classes"][2]["programs"] = serde_json::json!([control]);
+                },
+                no_change,
+            ),
+            "at task_classes[2].programs[0].program: trijoint.control is the fast interlock (STOP and switches to PWM zero): it must run in the fastest task class, of at most 20 ms; it runs in one of 100 ms that is not the fastest",
+        ),
+        (
+            problems_of(
+                |c| {
+                    let encoders = c["task_classes"][0]["programs"][0].take();
+                    c["task_classes"][0]["programs"] = serde_json::json!([c["task_classes"][0]["programs"][1].take()]);
+                    c["task_classes"][2]["programs"] = serde_json::json!([encoders]);
+                },
+                no_change,
+            ),
+            "at task_classes[2].programs[0].program: trijoint.encoders is the encoder unwrap and touch probe: it must run in the fastest task class",
+        ),
+        // BUTTON_STOP and a PWM output exchanged by the 100 ms class.
+        (
+            problems_of(no_change, |m| m["bindings"][0]["task_class"] = "spare".into()),
+            "input \"BUTTON_STOP\" is latched by class \"spare\" (100 ms) but read by \"trijoint.control\" in class \"fast\" (10 ms), which would see it up to 100 ms late: bind it to \"fast\"",
+        ),
+        (
+            problems_of(no_change, |m| m["bindings"][13]["task_class"] = "spare".into()),
+            "output \"velocity_right_set\" is written by \"trijoint.control\" in class \"fast\" (10 ms) but exchanged by class \"spare\" (100 ms), so the module would see it up to 100 ms late: bind it to \"fast\"",
+        ),
+        (
+            problems_of(
+                |c| c["task_classes"][0]["programs"][1]["params"] = serde_json::json!({"max_following_error_mm": 0}),
+                no_change,
+            ),
+            "at task_classes[0].programs[1].params.max_following_error_mm: must be above 0 and at most 50 mm: 0 faults at once, a huge bound never does, got 0",
+        ),
+        (
+            problems_of(
+                |c| c["task_classes"][0]["programs"][1]["params"] = serde_json::json!({"max_following_error_mm": 1e12}),
+                no_change,
+            ),
+            "params.max_following_error_mm: must be above 0 and at most 50 mm: 0 faults at once, a huge bound never does, got 1000000000000",
+        ),
+        (
+            problems_of(main_params(serde_json::json!({"singularity_threshold": -1})), no_change),
+            "at task_classes[1].programs[0].params.singularity_threshold: must be between 0.01 and 0.99 (a ratio of singular values; 0 would let M reach a singularity), got -1",
+        ),
+        (
+            problems_of(main_params(serde_json::json!({"singularity_threshold": 2})), no_change),
+            "params.singularity_threshold: must be between 0.01 and 0.99 (a ratio of singular values; 0 would let M reach a singularity), got 2",
+        ),
+        (
+            problems_of(main_params(serde_json::json!({"soft_limit_margin_mm": -5})), no_change),
+            "params.soft_limit_margin_mm: must be between 0.1 and 62.5 mm (at most a quarter of the shorter travel), got -5",
+        ),
+        (
+            problems_of(
+                main_params(serde_json::json!({"soft_limit_margin_mm": 1000})),
+                no_change,
+            ),
+            "params.soft_limit_margin_mm: must be between 0.1 and 62.5 mm (at most a quarter of the shorter travel), got 1000",
+        ),
+        (
+            problems_of(main_params(serde_json::json!({"stop_lockout_ms": 0})), no_change),
+            "params.stop_lockout_ms: must be between 100 and 10000 ms: a shorter lockout lets a bouncing STOP contact acknowledge the error it caused, got 0",
+        ),
+        (
+            problems_of(main_params(serde_json::json!({"dead_zone": 1.5})), no_change),
+            "params.dead_zone: must be between 0 and 0.9 (a fraction of full deflection), got 1.5",
+        ),
+        (
+            problems_of(main_params(serde_json::json!({"pwm_period_us": 0})), no_change),
+            "params.pwm_period_us: must be between 10 and 10000 µs: 0 switches the motor bridges off, got 0",
+        ),
+        (
+            problems_of(|c| c["task_classes"][0]["tolerance_us"] = 10_000_000.into(), no_change),
+            "at task_classes[0].tolerance_us: tolerance must be at most the cycle time (10000 µs): a cycle that starts later than that has missed its slot, got 10000000",
+        ),
+        (
+            problems_of(|c| c["kinematics"]["trijoint"]["l2"] = 1e308.into(), no_change),
+            "at kinematics.trijoint.l2: must be a positive length in mm, at most 10000, got 1e308",
+        ),
+        // A struct given as a positional array, and a duplicate key.
+        (
+            problems_of(|c| c["kinematics"]["trijoint"] = serde_json::json!([1, 2]), no_change),
+            "cfg.json: at kinematics.trijoint: invalid type: sequence, expected struct TrijointParams",
+        ),
+    ];
+    for (shown, wanted) in &cases {
+        assert!(shown.contains(wanted), "wanted {wanted:?} in:\n{shown}");
+    }
+    let e = config::parse(
+        r#"{"io_map": "a.json", "io_map": "b.json", "task_classes": []}"#,
+        "cfg.json",
+    )
+    .unwrap_err();
+    assert_eq!(e.to_string(), "cfg.json: at (top level): duplicate key \"io_map\"");
 }

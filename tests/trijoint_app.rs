@@ -375,3 +375,60 @@ fn a_cycle_time_violation_sends_the_application_to_error() {
     let mut plc = common::sim_plc(&common::loaded(&c), &pkm_plc::registry(), None).expect("valid");
     assert_eq!(error_reason(&mut plc, 50_000).as_deref(), Some("cycle time violation"));
 }
+
+/// The repository's configuration with the main program's `params`.
+fn with_main_params(params: serde_json::Value) -> serde_json::Value {
+    let mut config = common::repo_config();
+    for class in config["task_classes"].as_array_mut().expect("classes") {
+        for program in class["programs"].as_array_mut().expect("programs") {
+            if program["program"] == "trijoint.main" {
+                program["params"] = params.clone();
+            }
+        }
+    }
+    config
+}
+
+/// Regression (issue 12): the jog stopped the set-point dead at the software limit, so the
+/// carriages overshot it (249.94 mm of a 248 mm limit in a 24 h soak) and 25 mm/s tripped a
+/// switch. Jog into every border and corner at full deflection, at the default speed and faster:
+/// each carriage stays within its software limit but for the braking tolerance, no switch.
+#[test]
+fn jogging_into_every_border_stops_inside_the_soft_limits() {
+    for max_speed in [20.0, 25.0, 60.0] {
+        let directions = [
+            [1.0, 0.0],
+            [-1.0, 0.0],
+            [0.0, 1.0],
+            [0.0, -1.0],
+            [1.0, 1.0],
+            [-1.0, -1.0],
+            [-1.0, 1.0],
+            [1.0, -1.0],
+        ];
+        let mut events = Vec::new();
+        for (k, d) in directions.iter().enumerate() {
+            let at = READY_MS + 20_000 * k as u64;
+            events.push(format!(r#"{{"at_ms": {at}, "joystick": [{}, {}]}}"#, d[0], d[1]));
+        }
+        let scenario = format!(r#"{{"events": [{}]}}"#, events.join(","));
+        let config = with_main_params(serde_json::json!({ "max_speed_mm_s": max_speed }));
+        let mut plc = common::sim_plc(&common::loaded(&config), &pkm_plc::registry(), Some(&scenario))
+            .unwrap_or_else(|e| panic!("{e}"));
+        let mut worst: f64 = 0.0;
+        run(&mut plc, READY_MS + 20_000 * directions.len() as u64, |plc, t| {
+            no_switch_ever(plc, t);
+            if t > READY_MS {
+                assert_ne!(state(plc), "ERROR", "{max_speed} mm/s at {t} ms");
+                let p = plant(plc);
+                for i in 0..2 {
+                    let x = p.position_mm(i);
+                    let e = (2.0 - x).max(x - 248.0);
+                    worst = worst.max(e);
+                }
+            }
+        });
+        eprintln!("{max_speed} mm/s: worst excursion beyond a soft limit {worst:.4} mm");
+        assert!(worst <= 0.5, "{max_speed} mm/s: {worst} mm beyond a soft limit");
+    }
+}

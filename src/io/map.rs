@@ -96,7 +96,7 @@ impl Binding {
                 self.ty,
                 Reader {
                     class: self.class,
-                    who: "the bus".into(),
+                    who: crate::image::BUS_READER.into(),
                     at: self.at.clone(),
                     needs_writer: false,
                 },

@@ -233,21 +233,28 @@ impl KinematicsConfig {
     }
 }
 
+/// The largest length or travel end a machine of the papers' scale has (mm): 10 m.
+pub const MAX_LENGTH_MM: f64 = 10_000.0;
+
 /// Helpers for parameter checks.
 pub(crate) fn positive(problems: &mut Vec<(String, String)>, path: &str, value: f64) {
-    if !(value.is_finite() && value > 0.0) {
+    if !(value.is_finite() && value > 0.0 && value <= MAX_LENGTH_MM) {
         problems.push((
             path.to_string(),
-            format!("must be a positive length in mm, got {value}"),
+            // Debug formatting: 1e308 reads "1e308", not 309 digits.
+            format!("must be a positive length in mm, at most {MAX_LENGTH_MM}, got {value:?}"),
         ));
     }
 }
 
 pub(crate) fn travel(problems: &mut Vec<(String, String)>, path: &str, t: [f64; 2]) {
-    if !(t[0].is_finite() && t[1].is_finite() && t[0] < t[1]) {
+    if !(t[0].is_finite() && t[1].is_finite() && t[0] < t[1] && t[0].abs().max(t[1].abs()) <= MAX_LENGTH_MM) {
         problems.push((
             path.to_string(),
-            format!("travel must be [min, max] with min < max, got [{}, {}]", t[0], t[1]),
+            format!(
+                "travel must be [min, max] with min < max, within ±{MAX_LENGTH_MM} mm, got [{:?}, {:?}]",
+                t[0], t[1]
+            ),
         ));
     }
 }

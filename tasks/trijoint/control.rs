@@ -10,6 +10,31 @@ use super::state::MainState;
 use crate::image::{Declare, Input, Output};
 use crate::program::{Cycle, Program, ProgramArgs};
 
+/// The longest cycle of the class that runs the drive programs (µs): the interlock's reaction,
+/// and the encoders' unwrap — at the lab model's 80 mm/s a 16-bit counter moves 11 200 counts in
+/// 20 ms, well within the ±32 768 that unwrapping can tell apart.
+pub const MAX_DRIVE_CYCLE_US: u32 = 20_000;
+
+/// Refuses a drive program (`what`) outside the fastest task class or in one slower than
+/// [`MAX_DRIVE_CYCLE_US`].
+pub fn fast_class_only(name: &str, what: &str, args: &ProgramArgs<'_>, decl: &mut Declare<'_>) {
+    if !args.fastest_class || args.cycle_us > MAX_DRIVE_CYCLE_US {
+        decl.issue(
+            "program",
+            format!(
+                "{name} is {what}: it must run in the fastest task class, of at most {} ms; it runs in one of {} ms{}",
+                MAX_DRIVE_CYCLE_US / 1000,
+                f64::from(args.cycle_us) / 1000.0,
+                if args.fastest_class {
+                    ""
+                } else {
+                    " that is not the fastest"
+                }
+            ),
+        );
+    }
+}
+
 /// Regulator parameters.
 #[derive(Clone, Debug, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -18,6 +43,11 @@ pub struct ControlParams {
     pub kp: f64,
     /// Integral gain: duty per mm·s.
     pub ki: f64,
+    /// Velocity feed-forward: duty per mm/s of set-point velocity (LinuxCNC's FF1). With it the
+    /// duty that moves the carriage at the set-point's speed comes from the set-point itself, so
+    /// the integral need not carry it — and need not unwind, overshooting, when the set-point
+    /// brakes. 1/80: the lab model's drive runs 80 mm/s at full duty.
+    pub velocity_ff: f64,
     /// Output limit (duty, 0…1).
     pub output_limit: f64,
     /// A following error above this (mm) is a fault.
@@ -29,6 +59,7 @@ impl Default for ControlParams {
         ControlParams {
             kp: 0.25,
             ki: 1.0,
+            velocity_ff: 1.0 / 80.0,
             output_limit: 1.0,
             max_following_error_mm: 5.0,
         }
@@ -42,9 +73,10 @@ pub struct Pi {
 }
 
 impl Pi {
-    /// One step: returns the duty for following error `e` (mm) over `dt` seconds.
-    pub fn step(&mut self, p: &ControlParams, e: f64, dt: f64) -> f64 {
-        let unclamped = p.kp * e + p.ki * (self.integral + e * dt);
+    /// One step: returns the duty for following error `e` (mm) over `dt` seconds at set-point
+    /// velocity `v` (mm/s).
+    pub fn step(&mut self, p: &ControlParams, e: f64, v: f64, dt: f64) -> f64 {
+        let unclamped = p.velocity_ff * v + p.kp * e + p.ki * (self.integral + e * dt);
         let out = unclamped.clamp(-p.output_limit, p.output_limit);
         // Integrate only while the output is not saturated, or when the error drives it back.
         if out == unclamped || unclamped.signum() != e.signum() {
@@ -91,12 +123,34 @@ impl Control {
         for (k, v) in [
             ("kp", p.kp),
             ("ki", p.ki),
+            ("velocity_ff", p.velocity_ff),
             ("max_following_error_mm", p.max_following_error_mm),
         ] {
             if !(v.is_finite() && v >= 0.0) {
                 decl.issue(&format!("params.{k}"), format!("must be zero or positive, got {v}"));
             }
         }
+        if !(p.max_following_error_mm > 0.0 && p.max_following_error_mm <= 50.0) {
+            decl.issue(
+                "params.max_following_error_mm",
+                format!(
+                    "must be above 0 and at most 50 mm: 0 faults at once, a huge bound never does, got {}",
+                    p.max_following_error_mm
+                ),
+            );
+        }
+        if !(p.velocity_ff.is_finite() && (0.0..=1.0).contains(&p.velocity_ff)) {
+            decl.issue(
+                "params.velocity_ff",
+                format!("must be between 0 and 1 duty per mm/s, got {}", p.velocity_ff),
+            );
+        }
+        fast_class_only(
+            "trijoint.control",
+            "the fast interlock (STOP and switches to PWM zero)",
+            args,
+            decl,
+        );
         if !(p.output_limit > 0.0 && p.output_limit <= 1.0) {
             decl.issue(
                 "params.output_limit",
@@ -165,7 +219,7 @@ impl Program for Control {
                 pi.reset();
                 0.0
             } else {
-                pi.step(&self.p, errors[i], dt)
+                pi.step(&self.p, errors[i], ctx.get(d.setpoint_velocity), dt)
             };
             ctx.set(d.pwm, (duty * 32767.0).round() as i16);
             ctx.set(d.following_error, following[i]);
@@ -182,10 +236,10 @@ mod tests {
         let p = ControlParams::default();
         let mut pi = Pi::default();
         for _ in 0..1000 {
-            assert_eq!(pi.step(&p, 100.0, 0.01), 1.0);
+            assert_eq!(pi.step(&p, 100.0, 0.0, 0.01), 1.0);
         }
         // After a long saturation the integral has not grown, so a small error gives a small duty.
-        let out = pi.step(&p, 0.1, 0.01);
+        let out = pi.step(&p, 0.1, 0.0, 0.01);
         assert!(out < 0.2, "{out}");
     }
 }

@@ -72,6 +72,7 @@ impl Encoders {
     /// Declares the program's variables (`*_left_*`, `*_right_*`).
     pub fn create(args: &ProgramArgs<'_>, decl: &mut Declare<'_>) -> Box<dyn Program> {
         let p: EncoderParams = args.parse(decl);
+        super::control::fast_class_only("trijoint.encoders", "the encoder unwrap and touch probe", args, decl);
         if !(p.counts_per_mm.is_finite() && p.counts_per_mm > 0.0) {
             decl.issue(
                 "params.counts_per_mm",

@@ -43,6 +43,14 @@ pub struct MainParams {
     pub soft_limit_margin_mm: f64,
     /// Speed of the spindle point M at full joystick deflection (mm/s).
     pub max_speed_mm_s: f64,
+    /// No carriage set-point moves faster than this while jogging (mm/s): near the ends of the
+    /// travel a modest speed of M asks the carriages for more, and a carriage that cannot
+    /// follow lags, then overshoots. The jog slows M down instead.
+    pub max_joint_speed_mm_s: f64,
+    /// Deceleration with which a jogging carriage set-point brakes towards its software limit
+    /// (mm/s²), so that the carriage stops inside the limit instead of overshooting a set-point
+    /// that stopped dead.
+    pub brake_decel_mm_s2: f64,
     /// Joystick deflections below this count as released.
     pub dead_zone: f64,
     /// M is never commanded where the singularity measure is below this.
@@ -63,10 +71,57 @@ impl Default for MainParams {
             start_position_mm: None,
             soft_limit_margin_mm: 2.0,
             max_speed_mm_s: 20.0,
+            max_joint_speed_mm_s: 40.0,
+            brake_decel_mm_s2: 100.0,
             dead_zone: 0.05,
             singularity_threshold: 0.3,
         }
     }
+}
+
+/// The longest cycle the main program may run in (µs).
+const MAX_MAIN_CYCLE_US: u32 = 100_000;
+
+/// The safety-relevant parameters' ranges: a value outside is refused by `check`, naming the key.
+fn check_ranges(p: &MainParams, geometry: &TrijointParams, decl: &mut Declare<'_>) {
+    let mut within = |key: &str, v: f64, range: std::ops::RangeInclusive<f64>, why: &str| {
+        if !(v.is_finite() && range.contains(&v)) {
+            decl.issue(
+                &format!("params.{key}"),
+                format!("must be between {} and {}{why}, got {v}", range.start(), range.end()),
+            );
+        }
+    };
+    within(
+        "stop_lockout_ms",
+        p.stop_lockout_ms as f64,
+        100.0..=10_000.0,
+        " ms: a shorter lockout lets a bouncing STOP contact acknowledge the error it caused",
+    );
+    within(
+        "pwm_period_us",
+        f64::from(p.pwm_period_us),
+        10.0..=10_000.0,
+        " µs: 0 switches the motor bridges off",
+    );
+    within(
+        "singularity_threshold",
+        p.singularity_threshold,
+        0.01..=0.99,
+        " (a ratio of singular values; 0 would let M reach a singularity)",
+    );
+    within("dead_zone", p.dead_zone, 0.0..=0.9, " (a fraction of full deflection)");
+    let shorter = (geometry.h1_travel[1] - geometry.h1_travel[0]).min(geometry.h2_travel[1] - geometry.h2_travel[0]);
+    within(
+        "soft_limit_margin_mm",
+        p.soft_limit_margin_mm,
+        0.1..=(shorter / 4.0).max(0.1),
+        " mm (at most a quarter of the shorter travel)",
+    );
+    within("max_speed_mm_s", p.max_speed_mm_s, 0.1..=1000.0, " mm/s");
+    within("max_joint_speed_mm_s", p.max_joint_speed_mm_s, 0.1..=1000.0, " mm/s");
+    within("brake_decel_mm_s2", p.brake_decel_mm_s2, 1.0..=100_000.0, " mm/s²");
+    within("search_timeout_s", p.search_timeout_s, 1.0..=3600.0, " s");
 }
 
 /// Why the machine is in ERROR.
@@ -262,7 +317,11 @@ pub struct Automaton {
     reason: Option<Reason>,
     edges: [[f64; 2]; 2],
     limits: Option<Trijoint>,
+    /// The software limits of the carriages, [lower, upper] per drive (mm, referenced).
+    soft: [[f64; 2]; 2],
     m_setpoint: [f64; 2],
+    /// M's set-point at the end of the step being planned.
+    m_next: [f64; 2],
     searches: [Search; 2],
 }
 
@@ -405,7 +464,9 @@ impl Automaton {
             reason: None,
             edges: [[0.0; 2]; 2],
             limits: None,
+            soft: [[0.0; 2]; 2],
             m_setpoint: [0.0; 2],
+            m_next: [0.0; 2],
             searches: [Search::Done; 2],
         }
     }
@@ -436,8 +497,55 @@ impl Automaton {
                 .is_ok_and(|s| s >= self.p.singularity_threshold)
     }
 
-    /// Moves M's set-point by `v`·dt, stopping at the border of the allowed region.
+    /// Moves M's set-point by `v`·dt, slowed so that no carriage set-point exceeds the joint
+    /// speed limit or its braking curve towards its software limit, and stopping at the border
+    /// of the allowed region.
     fn jog(&mut self, io: &mut Io, v: [f64; 2]) {
+        let mut v = v;
+        self.step_m(io, v);
+        // The mechanism is smooth over one step, so scaling M's velocity scales the carriages'
+        // — unless the step was cut short at the border of the allowed region, where the scaled
+        // step may then go further: scale again until no carriage is too fast.
+        for _ in 0..8 {
+            let scale = self.joint_speed_scale(io);
+            if scale >= 1.0 - 1e-6 {
+                break;
+            }
+            v = v.map(|c| c * scale);
+            self.step_m(io, v);
+        }
+        self.m_setpoint = self.m_next;
+    }
+
+    /// The largest factor (at most 1) by which the carriage velocities of the planned step may
+    /// be taken: none faster than `max_joint_speed_mm_s`, and none faster than it can still stop
+    /// at its software limit with `brake_decel_mm_s2` — for a step of `dt` at speed `v` with `d`
+    /// left, v·dt + v²/(2a) ≤ d, so v ≤ a·(√(dt² + 2d/a) − dt): a carriage close to its limit
+    /// creeps onto it rather than arriving at speed.
+    fn joint_speed_scale(&self, io: &Io) -> f64 {
+        let (a, dt) = (self.p.brake_decel_mm_s2, io.dt_s);
+        let mut scale: f64 = 1.0;
+        for i in 0..2 {
+            let v = io.velocities[i];
+            if v == 0.0 {
+                continue;
+            }
+            let [lower, upper] = self.soft[i];
+            let d = if v > 0.0 {
+                upper - io.setpoints[i]
+            } else {
+                io.setpoints[i] - lower
+            }
+            .max(0.0);
+            let braking = a * ((dt * dt + 2.0 * d / a).sqrt() - dt);
+            scale = scale.min(self.p.max_joint_speed_mm_s.min(braking) / v.abs());
+        }
+        scale.max(0.0)
+    }
+
+    /// Plans M's step by `v`·dt, stopping at the border of the allowed region: the carriage
+    /// velocities into `io`, M's new set-point into `m_next`.
+    fn step_m(&mut self, io: &mut Io, v: [f64; 2]) {
         let from = self.m_setpoint;
         let at = |t: f64| [from[0] + v[0] * io.dt_s * t, from[1] + v[1] * io.dt_s * t];
         let mut joints = [0.0; 2];
@@ -456,11 +564,12 @@ impl Automaton {
             t = lo;
         }
         if self.allowed(at(t), &mut joints) {
-            self.m_setpoint = at(t);
+            self.m_next = at(t);
             for ((v, q), sp) in io.velocities.iter_mut().zip(joints).zip(io.setpoints) {
                 *v = (q - sp) / io.dt_s;
             }
         } else {
+            self.m_next = from;
             io.hold();
         }
     }
@@ -578,6 +687,7 @@ impl Automaton {
             self.m_setpoint = pose;
         }
         self.limits = Some(limits);
+        self.soft = travel.map(|t| [m, t - m]);
         self.searches = [0, 1].map(|i| Search::ToStart { target: start[i] });
     }
 }
@@ -635,6 +745,8 @@ impl MainProgram {
             ("creep_distance_mm", p.creep_distance_mm),
             ("search_timeout_s", p.search_timeout_s),
             ("max_speed_mm_s", p.max_speed_mm_s),
+            ("max_joint_speed_mm_s", p.max_joint_speed_mm_s),
+            ("brake_decel_mm_s2", p.brake_decel_mm_s2),
         ] {
             if !(v.is_finite() && v > 0.0) {
                 decl.issue(&format!("params.{k}"), format!("must be positive, got {v}"));
@@ -645,6 +757,18 @@ impl MainProgram {
             .and_then(|k| serde_json::from_value::<KinematicsConfig>(k.clone()).ok())
             .unwrap_or_default()
             .trijoint;
+        check_ranges(&p, &geometry, decl);
+        if args.cycle_us > MAX_MAIN_CYCLE_US {
+            decl.issue(
+                "program",
+                format!(
+                    "trijoint.main runs in a class of {} ms; at most {} ms: STOP, limit switches and faults \
+                     become ERROR in its cycle",
+                    args.cycle_us / 1000,
+                    MAX_MAIN_CYCLE_US / 1000
+                ),
+            );
+        }
         let side = |s: &str| [format!("{s}_lower"), format!("{s}_upper")];
         let vars = Vars {
             stop: decl.input("BUTTON_STOP"),
