@@ -237,7 +237,7 @@ fn the_soft_plc_exchanges_the_packed_image_over_tcp_too() {
         .find(|l| l.contains(" exchanges (image)"))
         .unwrap_or_else(|| panic!("no link report: {log}"));
     assert!(
-        report.ends_with("0 timeouts, 0 corrupt, 0 exceptions, 0 disconnects"),
+        report.ends_with("0 timeouts, 0 corrupt, 0 exceptions, 0 disconnects, 0 stale"),
         "{report}"
     );
     assert!(
