@@ -116,7 +116,6 @@ fn binding_errors() {
 /// A program for tests: drives the motors with constant outputs and reads whatever it is told to,
 /// so that direction and type conflicts with the I/O map can be provoked.
 struct Drive {
-    period: Output<u16>,
     left: Output<i16>,
     right: Output<i16>,
     params: DriveParams,
@@ -140,7 +139,6 @@ struct DriveParams {
 impl Program for Drive {
     fn cycle(&mut self, ctx: &mut Cycle<'_>) {
         let on = self.params.until_ms.is_none_or(|u| ctx.time_ns() < u * 1_000_000);
-        ctx.set(self.period, 50);
         ctx.set(self.left, if on { self.params.left } else { 0 });
         ctx.set(self.right, if on { self.params.right } else { 0 });
     }
@@ -160,14 +158,28 @@ fn registry() -> Registry {
                 let _: Input<i32> = decl.input(name);
             }
             Box::new(Drive {
-                period: decl.output("period_duration", 0),
                 left: decl.output("velocity_left_set", 0),
                 right: decl.output("velocity_right_set", 0),
                 params,
             })
         },
     });
+    // The bridges' PWM period, written by the class that exchanges it (the main class): an
+    // output written by a faster class than its exchange is refused.
+    r.register(ProgramInfo {
+        name: "test.period",
+        summary: "test",
+        factory: |_: &ProgramArgs<'_>, decl: &mut Declare<'_>| Box::new(Period(decl.output("period_duration", 0))),
+    });
     r
+}
+
+struct Period(Output<u16>);
+
+impl Program for Period {
+    fn cycle(&mut self, ctx: &mut Cycle<'_>) {
+        ctx.set(self.0, 50);
+    }
 }
 
 /// The repository's config.json with the fast class running `test.drive` with `params`, and
@@ -175,7 +187,7 @@ fn registry() -> Registry {
 fn loaded_config(params: &str, plant: &str) -> LoadedConfig {
     let mut c = common::repo_config();
     c["task_classes"][0]["programs"] = serde_json::json!([{"program": "test.drive", "params": serde_json::from_str::<serde_json::Value>(params).expect("params")}]);
-    c["task_classes"][1]["programs"] = serde_json::json!([]);
+    c["task_classes"][1]["programs"] = serde_json::json!([{"program": "test.period"}]);
     c["plant"] = serde_json::from_str(plant).expect("plant");
     common::loaded(&c)
 }
