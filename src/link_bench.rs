@@ -104,7 +104,7 @@ fn measure(
     sizes: [u16; 4],
 ) -> Result<LinkBenchRow, LinkBenchError> {
     let setup = |e: &dyn std::fmt::Display| LinkBenchError::Setup(e.to_string());
-    let (station, plc_end) = StationOnLine::start(station, timing).map_err(|e| setup(&e))?;
+    let (station, plc_end) = StationOnLine::start(station, timing, Default::default()).map_err(|e| setup(&e))?;
     let bus_options = ModbusOptions {
         exchange: mode,
         ..Default::default()

@@ -16,14 +16,26 @@ use pkm_plc::sim::modbus::{Station, StationOnLine};
 
 #[test]
 fn the_application_runs_over_modbus_rtu_on_a_pty_pair() {
-    let loaded = common::loaded(&common::repo_config());
+    // This tests the exchange, not the scheduler's timing: a late cycle on a busy machine is
+    // logged, not an ERROR (timing has its own benchmarks).
+    let mut config = common::repo_config();
+    for class in config["task_classes"].as_array_mut().expect("classes") {
+        class["on_violation"] = "log".into();
+    }
+    let loaded = common::loaded(&config);
     let kinematics = pkm_plc::application_config(&loaded.config).expect("kinematics");
     // The station's panel presses the direction button "right" after referencing.
     let dir = tempfile::tempdir().expect("tempdir");
     let scenario = common::jog_right_after_referencing(dir.path());
     let station = Station::new(pkm_plc::sim::build(&loaded, &kinematics.trijoint, Some(&scenario)).expect("sim"));
+    // This tests the exchange, not its timing: the station's watchdog waits longer than a busy
+    // machine may stall the test's threads.
+    let relaxed = pkm_plc::sim::server::ServerOptions {
+        watchdog: Some(std::time::Duration::from_secs(1)),
+        ..Default::default()
+    };
     let (_station, plc_end) =
-        StationOnLine::start(station, LineTiming::modbus_rtu(115_200)).expect("station on the line");
+        StationOnLine::start(station, LineTiming::modbus_rtu(115_200), relaxed).expect("station on the line");
     let map = IoMap::load(&loaded).expect("valid map").expect("an io_map");
     // This tests the exchange, not its timing: a busy machine may delay an image.
     let link = pkm_plc::io::modbus::ModbusOptions {

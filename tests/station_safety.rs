@@ -5,7 +5,7 @@
 
 mod common;
 
-use std::io::{BufRead, BufReader, Read, Write};
+use std::io::{Read, Write};
 use std::net::{SocketAddr, TcpStream};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
@@ -14,24 +14,12 @@ use common::IoSim;
 
 /// Starts io-sim on a free loopback port with `args`; its log goes to `log`.
 fn io_sim(args: &[&str], log: &std::path::Path) -> (IoSim, SocketAddr) {
-    let mut child = Command::new(env!("CARGO_BIN_EXE_pkm-plc"))
-        .args(["io-sim", "--tcp", "127.0.0.1:0"])
-        .args(args)
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .env("RUST_LOG", "info")
-        .stdout(Stdio::piped())
-        .stderr(std::fs::File::create(log).expect("log file"))
-        .spawn()
-        .expect("io-sim starts");
-    let mut line = String::new();
-    BufReader::new(child.stdout.take().expect("stdout"))
-        .read_line(&mut line)
-        .expect("the address line");
-    let address = line
-        .trim()
-        .parse()
-        .unwrap_or_else(|e| panic!("io-sim printed {line:?}: {e}"));
-    (IoSim(child), address)
+    common::start_io_sim_logging(
+        "127.0.0.1:0",
+        args,
+        std::fs::File::create(log).expect("log file"),
+        "info",
+    )
 }
 
 /// One Modbus TCP request PDU on a raw connection; returns the response PDU.

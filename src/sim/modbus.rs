@@ -303,11 +303,12 @@ pub struct StationOnLine {
 }
 
 impl StationOnLine {
-    /// Serves `station` behind a line with `timing`; returns it with the driver's end of the
-    /// line (to be handed to `Transport::Port`).
+    /// Serves `station` behind a line with `timing` and the server's `options`; returns it with
+    /// the driver's end of the line (to be handed to `Transport::Port`).
     pub fn start(
         station: Station,
         timing: crate::io::line::LineTiming,
+        options: ServerOptions,
     ) -> std::io::Result<(StationOnLine, serialport::TTYPort)> {
         let (station_end, line_a) = serialport::TTYPort::pair()?;
         let (line_b, driver_end) = serialport::TTYPort::pair()?;
@@ -324,7 +325,7 @@ impl StationOnLine {
                         return;
                     };
                     tokio::select! {
-                        _ = serve_rtu(stream, station, ServerOptions::default()) => {}
+                        _ = serve_rtu(stream, station, options) => {}
                         _ = stopped => {}
                     }
                 });

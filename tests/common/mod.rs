@@ -130,14 +130,24 @@ impl Drop for IoSim {
 /// Starts `pkm-plc io-sim --tcp ADDR` (port 0: a free one) with extra `args`; returns it and the
 /// address it printed.
 pub fn start_io_sim(address: &str, args: &[&str]) -> (IoSim, std::net::SocketAddr) {
+    start_io_sim_logging(address, args, std::process::Stdio::null(), "warn")
+}
+
+/// As [`start_io_sim`], its log (at `level`) going to `log`.
+pub fn start_io_sim_logging(
+    address: &str,
+    args: &[&str],
+    log: impl Into<std::process::Stdio>,
+    level: &str,
+) -> (IoSim, std::net::SocketAddr) {
     use std::io::BufRead;
     let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_pkm-plc"))
         .args(["io-sim", "--tcp", address])
         .args(args)
         .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .env("RUST_LOG", "warn")
+        .env("RUST_LOG", level)
         .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::null())
+        .stderr(log)
         .spawn()
         .expect("io-sim starts");
     let mut line = String::new();
