@@ -577,12 +577,18 @@ fn run_realtime(plc: Plc, options: RealTimeOptions) -> Result<run::RealTimeOutco
         .enable_all()
         .build()
         .map_err(|e| Failure::run(format!("cannot start the tokio runtime: {e}")))?;
+    // The handlers before the first cycle: a signal from then on stops the run safely.
+    let mut signals = {
+        let _inside = runtime.enter();
+        pkm_plc::signals::Terminating::register()
+    };
     let run = run::start_realtime(plc, options).map_err(|e| Failure::run(e.to_string()))?;
     let stop = run.stop_flag();
     let snapshot = run.snapshot();
     let outcome = runtime.block_on(async move {
-        let status_task = status::wanted().then(|| status::spawn(snapshot, Duration::from_millis(250)));
-        let mut signals = pkm_plc::signals::Terminating::register();
+        let status_task = status::wanted().then(|| status::spawn(Arc::clone(&snapshot), Duration::from_millis(250)));
+        // Said once every class has run a cycle: scripts and tests wait for this line.
+        let mut ready = false;
         let mut poll = tokio::time::interval(Duration::from_millis(20));
         loop {
             tokio::select! {
@@ -591,7 +597,15 @@ fn run_realtime(plc: Plc, options: RealTimeOptions) -> Result<run::RealTimeOutco
                     stop.store(true, std::sync::atomic::Ordering::Relaxed);
                     break;
                 }
-                _ = poll.tick() => if run.is_finished() { break },
+                _ = poll.tick() => {
+                    if run.is_finished() {
+                        break;
+                    }
+                    if !ready && snapshot.lock().is_ok_and(|s| s.classes.iter().all(|c| c.cycles > 0)) {
+                        ready = true;
+                        info!("running in real time; Ctrl-C, SIGTERM or SIGHUP stops it safely");
+                    }
+                }
             }
         }
         // The cyclic thread ends within one wait (at most the shortest cycle time) of the stop.

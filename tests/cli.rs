@@ -112,18 +112,31 @@ fn a_real_time_run_ends_after_its_duration_with_a_summary() {
 fn sigterm_stops_a_real_time_run_cleanly() {
     let dir = tempfile::tempdir().expect("tempdir");
     let path = dir.path().join("summary.json");
-    let child = Command::new(env!("CARGO_BIN_EXE_pkm-plc"))
+    let mut child = Command::new(env!("CARGO_BIN_EXE_pkm-plc"))
         .args(["run", "--summary", path.to_str().expect("utf-8 path")])
         .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .env("RUST_LOG", "warn")
+        .env("RUST_LOG", "info")
         .stderr(std::process::Stdio::piped())
         .spawn()
         .expect("spawn");
-    // Give the runtime time to install its signal handlers and run some cycles.
-    std::thread::sleep(std::time::Duration::from_millis(500));
+    // Wait for the readiness line (handlers installed, cycles started), not for a guessed time.
+    let mut log = std::io::BufReader::new(child.stderr.take().expect("stderr"));
+    let mut seen = String::new();
+    loop {
+        let mut line = String::new();
+        let n = std::io::BufRead::read_line(&mut log, &mut line).expect("read the log");
+        assert!(n > 0, "the run ended before it was ready:\n{seen}");
+        seen.push_str(&line);
+        if line.contains("running in real time") {
+            break;
+        }
+    }
     nix_kill(child.id());
-    let o = child.wait_with_output().expect("wait");
-    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    let mut rest = String::new();
+    std::io::Read::read_to_string(&mut log, &mut rest).expect("read the log");
+    let status = child.wait().expect("wait");
+    assert_eq!(status.code(), Some(0), "{seen}{rest}");
+    assert!(rest.contains("SIGTERM: stopping"), "{rest}");
     let s: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&path).expect("summary")).expect("json");
     assert!(s["task_classes"][0]["cycles"].as_u64().unwrap_or(0) > 0);
 }
