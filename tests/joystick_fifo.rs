@@ -1,9 +1,9 @@
 //! End to end, in real time: `pkm-plc run --joystick FIFO` on the simulated machine, fed a
 //! fabricated raw event capture (the documented 24-byte `struct input_event` layout) through a
-//! FIFO. After referencing (43 s) the stick goes full right — M moves in +x — then the writer
+//! FIFO. After referencing (13.6 s with the fast-referencing test configuration) the stick goes full right — M moves in +x — then the writer
 //! closes the FIFO in the middle of the motion (an unplugged device): axes at zero, a warning,
 //! READY. The writer comes back and pulls the stick towards the operator — M moves down. The
-//! trace of the run replays identically. The run takes 56 s.
+//! trace of the run replays identically. The run takes 27 s.
 
 mod common;
 
@@ -78,9 +78,13 @@ fn a_capture_through_a_fifo_drives_m_and_an_unplug_stops_it() {
     let made = Command::new("mkfifo").arg(&fifo).status().expect("mkfifo runs");
     assert!(made.success(), "mkfifo");
     let trace = dir.path().join("trace.jsonl");
+    let config = common::write_realtime_config(dir.path());
+    // The script's times, from the start: READY at 13.6 s, then as in the comments below.
+    let at = |s: f64| common::FAST_READY_S + s;
     let start = Instant::now();
     let child = Command::new(env!("CARGO_BIN_EXE_pkm-plc"))
-        .args(["run", "--duration", "56", "--joystick"])
+        .args(["run", "--config", config.to_str().expect("utf-8")])
+        .args(["--duration", &format!("{}", at(13.4)), "--joystick"])
         .arg(&fifo)
         .arg("--trace")
         .arg(&trace)
@@ -91,24 +95,24 @@ fn a_capture_through_a_fifo_drives_m_and_an_unplug_stops_it() {
         .spawn()
         .expect("pkm-plc runs");
 
-    // READY at 42.6 s; full right at 45 s.
-    sleep_until(start, 45.0);
+    // Full right 2.4 s after READY.
+    sleep_until(start, at(2.4));
     let mut writer = std::fs::OpenOptions::new()
         .write(true)
         .open(&fifo)
         .expect("open the FIFO");
     writer.write_all(&report(ABS_X, 32767)).expect("write");
     // Unplugged in the middle of the motion.
-    sleep_until(start, 48.0);
+    sleep_until(start, at(5.4));
     drop(writer);
     // Back, and pulled towards the operator (raw y positive; inverted by default: M moves down).
-    sleep_until(start, 49.5);
+    sleep_until(start, at(6.9));
     let mut writer = std::fs::OpenOptions::new()
         .write(true)
         .open(&fifo)
         .expect("reopen the FIFO");
     writer.write_all(&report(ABS_Y, 32767)).expect("write");
-    sleep_until(start, 51.5);
+    sleep_until(start, at(8.9));
     writer.write_all(&report(ABS_Y, 0)).expect("write");
     let out = child.wait_with_output().expect("the run ends");
     let log = String::from_utf8_lossy(&out.stderr).into_owned();
@@ -131,7 +135,7 @@ fn a_capture_through_a_fifo_drives_m_and_an_unplug_stops_it() {
         .position(|c| value(c, "JOYSTICK_X") == 1.0)
         .expect("the deflection reached the process image");
     assert_eq!(cycles[right].state, "MOTION", "at {} s", cycles[right].t_s);
-    assert!(cycles[right - 1].t_s >= 42.6, "referenced first");
+    assert!(cycles[right - 1].t_s >= common::FAST_READY_S, "referenced first");
     // Unplugged: READY in the cycle that saw it, after M went at least 10 mm right.
     let unplugged = right
         + cycles[right..]
@@ -170,7 +174,12 @@ fn a_capture_through_a_fifo_drives_m_and_an_unplug_stops_it() {
     assert_eq!(cycles.last().map(|c| c.state.as_str()), Some("READY"));
 
     // The joystick's values are inputs like any other: the run replays identically from its trace.
-    let replay = common::pkm(&["replay", trace.to_str().expect("utf-8")]);
+    let replay = common::pkm(&[
+        "replay",
+        trace.to_str().expect("utf-8"),
+        "--config",
+        config.to_str().expect("utf-8"),
+    ]);
     assert_eq!(replay.status.code(), Some(0), "{}", common::stderr(&replay));
     assert!(
         common::stdout(&replay).contains(": identical: "),
