@@ -1,8 +1,7 @@
-//! The drive controller (10 ms class): a PI position regulator per drive, following-error
-//! supervision, and the fast interlock — STOP pressed, a limit switch outside INIT, a bus fault, a
-//! motor bridge or encoder fault, a following error, or a main state that does not drive: PWM zero in that same
-//! cycle. (The
-//! original reacted only in its 50 ms task.)
+//! The drive controller (10 ms class): a PI position regulator with velocity feed-forward per
+//! drive, following-error supervision, and the fast interlock — STOP pressed, a limit switch
+//! outside INIT, a bus fault, a motor bridge or encoder fault, a following error, or a main state
+//! that does not drive: PWM zero in that same cycle. (The original reacted only in its 50 ms task.)
 
 use serde::Deserialize;
 

@@ -1,8 +1,6 @@
-//! The programs of the TRIJOINT application (application.md), on the runtime's program interface.
-//!
-//! Landed so far: the encoder program and the drive controller (10 ms class). The main automaton
-//! (50 ms class) is the next step; until it lands the default configuration runs the runtime's
-//! self-test programs.
+//! The programs of the TRIJOINT application (application.md), on the runtime's program interface:
+//! the encoder program and the drive controller with the fast interlock (10 ms class), and the
+//! main automaton with referencing and jogging (50 ms class), which config.json runs.
 
 pub mod control;
 pub mod encoders;
