@@ -152,13 +152,13 @@ fn summary(path: &std::path::Path) -> serde_json::Value {
     serde_json::from_str(&std::fs::read_to_string(path).expect("summary")).expect("json")
 }
 
-/// Real time, with the fast-referencing test configuration: READY after about 14 s (13.6 s and
+/// Real time, with the fast-referencing test configuration: READY after about 16 s (15.65 s and
 /// the link's latency), a jog by the station's direction button at 20 s; the test takes 24 s.
 #[test]
 fn the_soft_plc_references_and_jogs_over_modbus_tcp() {
     let dir = tempfile::tempdir().expect("tempdir");
     let config = common::write_realtime_config(dir.path());
-    let scenario = common::jog_right_at(dir.path(), common::FAST_READY_S + 6.4);
+    let scenario = common::jog_right_at(dir.path(), common::FAST_READY_S + 4.35);
     let (_sim, address) = start_with(&scenario);
     let (s, t) = (dir.path().join("summary.json"), dir.path().join("trace.jsonl"));
     let o = Command::new(env!("CARGO_BIN_EXE_pkm-plc"))

@@ -1,7 +1,7 @@
 //! Modbus RTU end to end over pseudo-terminals: the soft-PLC's driver on one end, the I/O
 //! simulator's station on the other, joined by an emulated RS-485 line at 115 200 baud (frames
 //! carried no faster than the baud rate, silent intervals kept), the TRIJOINT application running
-//! in real time — referencing (fast, with the real-time test configuration: about 15 s over this
+//! in real time — referencing (fast, with the real-time test configuration: about 17 s over this
 //! line) and a jog by direction button, so this test takes 24 s.
 //! The driver's default exchange on a serial line is the packed image, one transaction per
 //! exchange.
@@ -22,7 +22,7 @@ fn the_application_runs_over_modbus_rtu_on_a_pty_pair() {
     let kinematics = pkm_plc::application_config(&loaded.config).expect("kinematics");
     // The station's panel presses the direction button "right" after referencing.
     let dir = tempfile::tempdir().expect("tempdir");
-    let scenario = common::jog_right_at(dir.path(), common::FAST_READY_S + 6.4);
+    let scenario = common::jog_right_at(dir.path(), common::FAST_READY_S + 4.35);
     let station = Station::new(pkm_plc::sim::build(&loaded, &kinematics.trijoint, Some(&scenario)).expect("sim"));
     // This tests the exchange, not its timing: the station's watchdog waits longer than a busy
     // machine may stall the test's threads.
@@ -60,7 +60,7 @@ fn the_application_runs_over_modbus_rtu_on_a_pty_pair() {
         recorder.finish().expect("trace written");
     }
     let status = outcome.plc.app_status().expect("status");
-    // Referenced (about 15.6 s over this line: the approaches wait for inputs) and jogged by the direction button, without a bus fault or other error.
+    // Referenced (about 17 s over this line: the approaches wait for inputs) and jogged by the direction button, without a bus fault or other error.
     assert_eq!((status.state, status.reason), ("READY", None));
     let trace = std::fs::read_to_string(&trace).expect("trace");
     assert!(trace.contains(r#""state":"MOTION""#), "no MOTION in the trace");

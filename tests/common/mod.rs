@@ -85,14 +85,16 @@ pub fn run(plc: &mut Plc, until_ms: u64, mut each: impl FnMut(&Plc, u64)) {
     }
 }
 
-/// With [`realtime_config`], the machine is READY after this long (13.6 s of simulated time).
-pub const FAST_READY_S: f64 = 13.6;
+/// With [`realtime_config`], the machine is READY after this long (15.65 s of simulated time).
+pub const FAST_READY_S: f64 = 15.65;
 
 /// The repository's configuration for real-time end-to-end tests, which test an exchange (Modbus,
-/// a joystick), not the scheduler's timing: referencing at up to 70 mm/s with short, quicker
-/// approaches (READY after [`FAST_READY_S`] instead of 41.6 s), and cycle time violations logged
-/// rather than raising ERROR on a busy machine (timing has its own benchmarks). The I/O map's
-/// path is absolute, so the configuration can be written anywhere.
+/// a joystick), not the scheduler's timing: referencing at up to 50 mm/s with short, quicker
+/// approaches (READY after [`FAST_READY_S`] instead of 41.6 s); cycle time violations logged
+/// rather than raising ERROR on a busy machine (timing has its own benchmarks); and the encoder
+/// plausibility bound at 30 000 counts per cycle, so that inputs a busy machine delays by a few
+/// cycles at 50 mm/s (3500 counts per 10 ms) are not an encoder fault. The I/O map's path is
+/// absolute, so the configuration can be written anywhere.
 pub fn realtime_config() -> serde_json::Value {
     let mut config = repo_config();
     config["io_map"] = root().join("io-map/trijoint.json").to_str().expect("utf-8").into();
@@ -101,9 +103,12 @@ pub fn realtime_config() -> serde_json::Value {
         for program in class["programs"].as_array_mut().expect("programs") {
             if program["program"] == "trijoint.main" {
                 program["params"] = serde_json::json!({
-                    "init_speed_mm_s": 70, "approach_speed_mm_s": 4, "creep_speed_mm_s": 0.1,
+                    "init_speed_mm_s": 50, "approach_speed_mm_s": 4, "creep_speed_mm_s": 0.1,
                     "approach_distance_mm": 1.0, "creep_distance_mm": 0.1
                 });
+            }
+            if program["program"] == "trijoint.encoders" {
+                program["params"] = serde_json::json!({ "max_counts_per_cycle": 30000 });
             }
         }
     }
