@@ -350,7 +350,7 @@ struct Joystick {
 fn build(
     arg: &ConfigArg,
     bus: BusKind,
-    (exchange, max_input_age): (ExchangeMode, Option<Duration>),
+    link: pkm_plc::io::modbus::ModbusOptions,
     scenario: Option<&Path>,
     joystick: JoystickSpec,
 ) -> Result<(LoadedConfig, Plc, Option<Joystick>), Failure> {
@@ -371,12 +371,7 @@ fn build(
                 BusKind::Tcp(address) => pkm_plc::io::modbus::Transport::Tcp(address),
                 _ => unreachable!("matched above"),
             };
-            let options = pkm_plc::io::modbus::ModbusOptions {
-                exchange,
-                max_input_age: max_input_age.unwrap_or(pkm_plc::io::modbus::DEFAULT_MAX_INPUT_AGE),
-                ..Default::default()
-            };
-            let bus = pkm_plc::io::modbus::ModbusBus::new(map, transport, options)
+            let bus = pkm_plc::io::modbus::ModbusBus::new(map, transport, link)
                 .map_err(|e| Failure::usage(format!("--bus: {e}")))?;
             Box::new(bus)
         }
@@ -452,13 +447,7 @@ fn with_joystick(
 }
 
 fn cmd_check(args: ConfigArg) -> Result<(), Failure> {
-    let (loaded, plc, _) = build(
-        &args,
-        BusKind::Sim,
-        (ExchangeMode::Auto, None),
-        None,
-        JoystickSpec::None,
-    )?;
+    let (loaded, plc, _) = build(&args, BusKind::Sim, Default::default(), None, JoystickSpec::None)?;
     let classes: Vec<String> = plc
         .classes()
         .map(|c| format!("{} ({} ms)", c.name, c.period_ns as f64 / 1e6))
@@ -488,7 +477,11 @@ fn cmd_run(args: RunArgs) -> Result<(), Failure> {
     let (loaded, mut plc, joystick) = build(
         &args.config,
         args.bus,
-        (args.exchange, Some(Duration::from_millis(args.max_input_age_ms))),
+        pkm_plc::io::modbus::ModbusOptions {
+            exchange: args.exchange,
+            max_input_age: Duration::from_millis(args.max_input_age_ms),
+            ..Default::default()
+        },
         args.scenario.as_deref(),
         joystick,
     )?;

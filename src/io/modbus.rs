@@ -64,6 +64,9 @@ impl ExchangeMode {
 /// The longest the bus waits for the station's first input image before the first cycle.
 pub const STARTUP_WAIT: Duration = Duration::from_secs(5);
 
+/// `image_at_ns` before the first complete input image.
+const NO_IMAGE: u64 = u64::MAX;
+
 /// The default bound on the age of the newest input image: five 10 ms cycles, one main cycle.
 pub const DEFAULT_MAX_INPUT_AGE: Duration = Duration::from_millis(50);
 
@@ -269,9 +272,8 @@ pub struct ModbusBus {
     output_values: Vec<Value>,
     fault: Arc<AtomicBool>,
     stop: Arc<AtomicBool>,
-    /// Set by the exchange loop when the first complete input image has been published.
-    first_image: Arc<AtomicBool>,
-    /// When the newest complete input image arrived, in ns since `epoch`.
+    /// When the newest complete input image was published, in ns since `epoch`; [`NO_IMAGE`]
+    /// before the first.
     image_at_ns: Arc<AtomicU64>,
     epoch: std::time::Instant,
     /// Whether the inputs are stale now (a fault while it lasts, logged once per episode).
@@ -312,8 +314,7 @@ impl ModbusBus {
             output_values: Vec::new(),
             fault: Arc::new(AtomicBool::new(false)),
             stop: Arc::new(AtomicBool::new(false)),
-            first_image: Arc::new(AtomicBool::new(false)),
-            image_at_ns: Arc::new(AtomicU64::new(0)),
+            image_at_ns: Arc::new(AtomicU64::new(NO_IMAGE)),
             epoch: std::time::Instant::now(),
             stale: AtomicBool::new(false),
             stats: Arc::new(LinkStats::default()),
@@ -327,7 +328,7 @@ impl ModbusBus {
     /// encoder fault).
     fn await_first_image(&self) {
         let deadline = std::time::Instant::now() + STARTUP_WAIT;
-        while !self.first_image.load(Ordering::Acquire) && !self.fault.load(Ordering::Relaxed) {
+        while self.image_at_ns.load(Ordering::Acquire) == NO_IMAGE && !self.fault.load(Ordering::Relaxed) {
             if std::time::Instant::now() >= deadline || self.thread.is_none() {
                 self.fault.store(true, Ordering::Relaxed);
                 tracing::warn!(
@@ -405,7 +406,6 @@ impl Bus for ModbusBus {
             sizes,
             fault: Arc::clone(&self.fault),
             stop: Arc::clone(&self.stop),
-            first_image: Arc::clone(&self.first_image),
             image_at_ns: Arc::clone(&self.image_at_ns),
             epoch: self.epoch,
             stats: Arc::clone(&self.stats),
@@ -472,11 +472,12 @@ impl ModbusBus {
     /// may read the clock; what it decides reaches the programs as the `bus_fault` input, which
     /// traces record and replays reproduce.
     fn inputs_stale(&self) -> bool {
-        if !self.first_image.load(Ordering::Acquire) {
+        let image_at = self.image_at_ns.load(Ordering::Acquire);
+        if image_at == NO_IMAGE {
             return false;
         }
         let now = self.epoch.elapsed().as_nanos() as u64;
-        let age = Duration::from_nanos(now.saturating_sub(self.image_at_ns.load(Ordering::Acquire)));
+        let age = Duration::from_nanos(now.saturating_sub(image_at));
         let stale = age > self.options.max_input_age;
         if stale && !self.stale.swap(true, Ordering::Relaxed) {
             self.stats.stale.fetch_add(1, Ordering::Relaxed);
@@ -503,7 +504,6 @@ struct Link {
     sizes: [u16; 4],
     fault: Arc<AtomicBool>,
     stop: Arc<AtomicBool>,
-    first_image: Arc<AtomicBool>,
     image_at_ns: Arc<AtomicU64>,
     epoch: std::time::Instant,
     stats: Arc<LinkStats>,
@@ -567,7 +567,6 @@ impl Link {
                         inputs.publish(&in_values);
                         self.image_at_ns
                             .store(self.epoch.elapsed().as_nanos() as u64, Ordering::Release);
-                        self.first_image.store(true, Ordering::Release);
                         let ns = started.elapsed().as_nanos() as u64;
                         self.stats.exchange_ns_total.fetch_add(ns, Ordering::Relaxed);
                         self.stats.exchange_ns_max.fetch_max(ns, Ordering::Relaxed);
