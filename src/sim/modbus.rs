@@ -75,14 +75,14 @@ impl Station {
 
     /// The output watchdog of a real bus coupler: when no write request has arrived for longer
     /// than the watchdog time since the last one, every output goes to its safe value (coils
-    /// off, registers zero: PWM 0, bridges and steppers off). Called periodically; true when it
-    /// acted now. The next write request takes the outputs over again.
-    pub fn watch(&mut self) -> bool {
+    /// off, registers zero: PWM 0, bridges and steppers off). Called periodically. The next write
+    /// request takes the outputs over again.
+    pub fn watch(&mut self) {
         let (Some(limit), Some(last)) = (self.watchdog, self.last_write) else {
-            return false;
+            return;
         };
         if self.tripped || last.elapsed() <= limit {
-            return false;
+            return;
         }
         self.bus.refresh(self.started.elapsed().as_nanos() as u64);
         self.safe_outputs();
@@ -92,12 +92,6 @@ impl Station {
             last.elapsed().as_millis(),
             limit.as_millis()
         );
-        true
-    }
-
-    /// Whether the watchdog holds the outputs at their safe values.
-    pub fn watchdog_tripped(&self) -> bool {
-        self.tripped
     }
 
     /// Every output channel to zero, and the holding registers with them.

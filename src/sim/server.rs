@@ -158,8 +158,7 @@ impl Shared {
     }
 }
 
-fn shared(station: Station, options: &ServerOptions) -> (Arc<Shared>, Duration) {
-    let mut station = station;
+fn shared(mut station: Station, options: &ServerOptions) -> (Arc<Shared>, Duration) {
     station.set_watchdog(options.watchdog);
     // The watchdog acts within a quarter of its time (at least every 5 ms, at most every 50).
     let period = options.watchdog.map_or(Duration::from_millis(50), |w| {

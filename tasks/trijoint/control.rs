@@ -119,12 +119,7 @@ impl Control {
     /// Declares the program's variables.
     pub fn create(args: &ProgramArgs<'_>, decl: &mut Declare<'_>) -> Box<dyn Program> {
         let p: ControlParams = args.parse(decl);
-        for (k, v) in [
-            ("kp", p.kp),
-            ("ki", p.ki),
-            ("velocity_ff", p.velocity_ff),
-            ("max_following_error_mm", p.max_following_error_mm),
-        ] {
+        for (k, v) in [("kp", p.kp), ("ki", p.ki)] {
             if !(v.is_finite() && v >= 0.0) {
                 decl.issue(&format!("params.{k}"), format!("must be zero or positive, got {v}"));
             }

@@ -82,7 +82,8 @@ impl Default for MainParams {
 /// The longest cycle the main program may run in (µs).
 const MAX_MAIN_CYCLE_US: u32 = 100_000;
 
-/// The safety-relevant parameters' ranges: a value outside is refused by `check`, naming the key.
+/// The safety-relevant parameters' ranges (the other parameters need only be positive): a value
+/// outside is refused by `check`, naming the key.
 fn check_ranges(p: &MainParams, geometry: &TrijointParams, decl: &mut Declare<'_>) {
     let mut within = |key: &str, v: f64, range: std::ops::RangeInclusive<f64>, why: &str| {
         if !(v.is_finite() && range.contains(&v)) {
@@ -320,8 +321,6 @@ pub struct Automaton {
     /// The software limits of the carriages, [lower, upper] per drive (mm, referenced).
     soft: [[f64; 2]; 2],
     m_setpoint: [f64; 2],
-    /// M's set-point at the end of the step being planned.
-    m_next: [f64; 2],
     searches: [Search; 2],
 }
 
@@ -466,7 +465,6 @@ impl Automaton {
             limits: None,
             soft: [[0.0; 2]; 2],
             m_setpoint: [0.0; 2],
-            m_next: [0.0; 2],
             searches: [Search::Done; 2],
         }
     }
@@ -502,7 +500,7 @@ impl Automaton {
     /// of the allowed region.
     fn jog(&mut self, io: &mut Io, v: [f64; 2]) {
         let mut v = v;
-        self.step_m(io, v);
+        let mut next = self.step_m(io, v);
         // The mechanism is smooth over one step, so scaling M's velocity scales the carriages'
         // — unless the step was cut short at the border of the allowed region, where the scaled
         // step may then go further: scale again until no carriage is too fast.
@@ -512,9 +510,9 @@ impl Automaton {
                 break;
             }
             v = v.map(|c| c * scale);
-            self.step_m(io, v);
+            next = self.step_m(io, v);
         }
-        self.m_setpoint = self.m_next;
+        self.m_setpoint = next;
     }
 
     /// The largest factor (at most 1) by which the carriage velocities of the planned step may
@@ -544,8 +542,8 @@ impl Automaton {
     }
 
     /// Plans M's step by `v`·dt, stopping at the border of the allowed region: the carriage
-    /// velocities into `io`, M's new set-point into `m_next`.
-    fn step_m(&mut self, io: &mut Io, v: [f64; 2]) {
+    /// velocities into `io`; returns M's set-point at the end of the step.
+    fn step_m(&self, io: &mut Io, v: [f64; 2]) -> [f64; 2] {
         let from = self.m_setpoint;
         let at = |t: f64| [from[0] + v[0] * io.dt_s * t, from[1] + v[1] * io.dt_s * t];
         let mut joints = [0.0; 2];
@@ -564,13 +562,13 @@ impl Automaton {
             t = lo;
         }
         if self.allowed(at(t), &mut joints) {
-            self.m_next = at(t);
             for ((v, q), sp) in io.velocities.iter_mut().zip(joints).zip(io.setpoints) {
                 *v = (q - sp) / io.dt_s;
             }
+            at(t)
         } else {
-            self.m_next = from;
             io.hold();
+            from
         }
     }
 
@@ -743,10 +741,6 @@ impl MainProgram {
             ("creep_speed_mm_s", p.creep_speed_mm_s),
             ("approach_distance_mm", p.approach_distance_mm),
             ("creep_distance_mm", p.creep_distance_mm),
-            ("search_timeout_s", p.search_timeout_s),
-            ("max_speed_mm_s", p.max_speed_mm_s),
-            ("max_joint_speed_mm_s", p.max_joint_speed_mm_s),
-            ("brake_decel_mm_s2", p.brake_decel_mm_s2),
         ] {
             if !(v.is_finite() && v > 0.0) {
                 decl.issue(&format!("params.{k}"), format!("must be positive, got {v}"));
