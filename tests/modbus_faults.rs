@@ -183,21 +183,6 @@ fn rtu_station(answers: usize, reply: fn(&[u8]) -> Vec<u8>) -> serialport::TTYPo
     plc_end
 }
 
-/// A Modbus RTU frame: unit, PDU, CRC-16/MODBUS (little endian).
-fn rtu_frame(pdu: &[u8]) -> Vec<u8> {
-    let mut frame = vec![1];
-    frame.extend_from_slice(pdu);
-    let mut crc: u16 = 0xFFFF;
-    for b in &frame {
-        crc ^= u16::from(*b);
-        for _ in 0..8 {
-            crc = if crc & 1 != 0 { (crc >> 1) ^ 0xA001 } else { crc >> 1 };
-        }
-    }
-    frame.extend_from_slice(&crc.to_le_bytes());
-    frame
-}
-
 /// Runs the Modbus driver alone (no application) against `port` until it reports a bus fault.
 fn driver_against(port: serialport::TTYPort) -> pkm_plc::io::modbus::ModbusBus {
     use pkm_plc::bus::Bus as _;
@@ -223,7 +208,7 @@ fn rtu_corrupt_frames_and_a_vanished_port_are_counted_bus_faults() {
     use std::sync::atomic::Ordering::Relaxed;
     // A well-formed response to the packed-image request (23) whose CRC is wrong.
     let bad_crc = |_: &[u8]| {
-        let mut frame = rtu_frame(&[0x17, 8, 0, 0, 0, 0, 0x59, 0xF8, 0x59, 0xF8]);
+        let mut frame = common::rtu_frame(&[0x17, 8, 0, 0, 0, 0, 0x59, 0xF8, 0x59, 0xF8]);
         let last = frame.len() - 1;
         frame[last] ^= 0xFF;
         frame
@@ -246,7 +231,7 @@ fn rtu_corrupt_frames_and_a_vanished_port_are_counted_bus_faults() {
 
     // A station that answers correctly once, then its port vanishes: the driver cannot reopen
     // a pty it was handed, so every reconnection fails — counted, a bus fault, no hang.
-    let good = |_: &[u8]| rtu_frame(&[0x17, 8, 0, 0, 0, 0, 0x59, 0xF8, 0x59, 0xF8]);
+    let good = |_: &[u8]| common::rtu_frame(&[0x17, 8, 0, 0, 0, 0, 0x59, 0xF8, 0x59, 0xF8]);
     let bus = driver_against(rtu_station(1, good));
     assert!(!bus.fault(), "the first image arrived");
     let stats = bus.stats();

@@ -124,13 +124,7 @@ fn a_malformed_rtu_frame_is_answered_and_io_sim_serial_keeps_serving() {
             .spawn()
             .expect("io-sim starts"),
     );
-    let frame = |pdu: &[u8]| {
-        let mut f = vec![1];
-        f.extend(pdu);
-        let crc = pkm_plc::sim::pdu::crc16(&f);
-        f.extend(crc.to_le_bytes());
-        f
-    };
+    let frame = common::rtu_frame;
     let ask = |master: &mut serialport::TTYPort, pdu: &[u8], answer_len: usize| {
         master.write_all(&frame(pdu)).expect("send");
         let mut answer = vec![0u8; answer_len];

@@ -200,3 +200,12 @@ pub fn start_io_sim_logging(
         .unwrap_or_else(|e| panic!("io-sim printed {line:?}: {e}"));
     (IoSim(child), address)
 }
+
+/// A Modbus RTU frame to unit 1: unit, PDU, CRC-16/MODBUS (little endian).
+pub fn rtu_frame(pdu: &[u8]) -> Vec<u8> {
+    let mut frame = vec![1];
+    frame.extend_from_slice(pdu);
+    let crc = pkm_plc::sim::pdu::crc16(&frame);
+    frame.extend_from_slice(&crc.to_le_bytes());
+    frame
+}
