@@ -241,10 +241,11 @@ pub fn load(path: Option<&Path>) -> Result<LoadedConfig, ConfigError> {
     match path {
         Some(p) => {
             let origin = p.display().to_string();
-            let text = std::fs::read_to_string(p).map_err(|source| ConfigError::Read {
-                file: origin.clone(),
-                source,
-            })?;
+            let text =
+                crate::files::read_text(p, crate::files::MAX_TEXT_BYTES).map_err(|source| ConfigError::Read {
+                    file: origin.clone(),
+                    source,
+                })?;
             let mut loaded = parse(&text, &origin)?;
             loaded.dir = Some(p.parent().map(Path::to_path_buf).unwrap_or_default());
             Ok(loaded)

@@ -7,6 +7,7 @@
 pub mod bench;
 pub mod bus;
 pub mod config;
+pub mod files;
 pub mod image;
 pub mod io;
 pub mod link_bench;

@@ -485,6 +485,7 @@ fn cmd_run(args: RunArgs) -> Result<(), Failure> {
         args.scenario.as_deref(),
         joystick,
     )?;
+    let summary_file = args.summary.as_deref().map(OutputFile::create).transpose()?;
     if let Some(path) = &args.trace {
         let digest = pkm_plc::trace::config_digest(&loaded)?;
         let recorder = pkm_plc::trace::record::Recorder::create(path, &plc, &digest)
@@ -495,6 +496,8 @@ fn cmd_run(args: RunArgs) -> Result<(), Failure> {
     if plc.app_program().is_some_and(|p| p.starts_with("selftest.")) {
         warn!("running the runtime's built-in self-test programs, not the TRIJOINT application");
     }
+    // A trace that could not be written fails the run, but only after the summary.
+    let trace_failure;
     let summary = if args.virtual_time {
         let duration = args
             .duration
@@ -507,7 +510,7 @@ fn cmd_run(args: RunArgs) -> Result<(), Failure> {
             report.wall.as_secs_f64(),
             duration / report.wall.as_secs_f64().max(1e-9)
         );
-        finish_trace(&mut plc)?;
+        trace_failure = finish_trace(&mut plc);
         Summary::collect(&plc, "virtual", &loaded.origin, report.simulated_ns)
     } else {
         let timing = &loaded.config.timing;
@@ -546,7 +549,7 @@ fn cmd_run(args: RunArgs) -> Result<(), Failure> {
                 );
             }
         }
-        finish_trace(&mut outcome.plc)?;
+        trace_failure = finish_trace(&mut outcome.plc);
         let mut s = Summary::collect(&outcome.plc, "real-time", &loaded.origin, outcome.elapsed_ns);
         s.time_source = Some(outcome.source.name());
         s.realtime_priority = Some(outcome.realtime_priority);
@@ -555,11 +558,12 @@ fn cmd_run(args: RunArgs) -> Result<(), Failure> {
     for line in summary.lines() {
         info!("{line}");
     }
-    if let Some(path) = &args.summary {
-        write_file(path, &summary.to_json())?;
+    if let Some(file) = summary_file {
+        let path = file.path.clone();
+        file.write(&summary.to_json())?;
         info!("summary written to {}", path.display());
     }
-    Ok(())
+    trace_failure
 }
 
 /// Runs in real time on a tokio runtime that watches for the terminating signals (Ctrl-C,
@@ -614,7 +618,8 @@ fn run_realtime(plc: Plc, options: RealTimeOptions) -> Result<run::RealTimeOutco
     outcome.map_err(|e| Failure::run(e.to_string()))
 }
 
-/// Flushes and closes the trace, if one is being recorded.
+/// Flushes and closes the trace, if one is being recorded; a write error is the run's failure,
+/// reported after the summary.
 fn finish_trace(plc: &mut Plc) -> Result<(), Failure> {
     match plc.take_recorder().map(|r| r.finish()) {
         Some(Ok(message)) => {
@@ -631,8 +636,12 @@ fn cmd_replay(args: ReplayArgs) -> Result<(), Failure> {
     let loaded = load_config(&args.config)?;
     match replay(&args.trace, &loaded, args.force) {
         Ok(r) => {
+            let (identical, cut) = match &r.cut {
+                None => ("identical", String::new()),
+                Some(cut) => ("identical up to the cut", format!("; {cut}")),
+            };
             println!(
-                "{}: identical: {} records over {:.1} s of recorded time, replayed in {:.3} s ({:.0}x)",
+                "{}: {identical}: {} records over {:.1} s of recorded time, replayed in {:.3} s ({:.0}x){cut}",
                 args.trace.display(),
                 r.records,
                 r.recorded_s,
@@ -653,8 +662,9 @@ fn cmd_trace(args: TraceArgs) -> Result<(), Failure> {
         TraceOp::Plot { trace, out, vars } => (to_svg(trace, out, vars), out),
     };
     match result {
-        Ok(records) => {
-            println!("{}: {records} records written", out.display());
+        Ok(done) => {
+            let cut = done.cut.map(|c| format!(" ({c})")).unwrap_or_default();
+            println!("{}: {} records written{cut}", out.display(), done.records);
             Ok(())
         }
         Err(e @ ExportError::Output { .. }) => Err(Failure::run(e.to_string())),
@@ -771,11 +781,12 @@ fn cmd_bench(args: BenchArgs) -> Result<(), Failure> {
             config::MAX_CYCLE_US
         )));
     }
+    let json_file = args.json.as_deref().map(OutputFile::create).transpose()?;
     let rows = bench::run(&options, |row| info!("measuring {row}")).map_err(|e| Failure::run(e.to_string()))?;
     print!("{}", bench::table(&rows));
-    if let Some(path) = &args.json {
+    if let Some(file) = json_file {
         let json = serde_json::to_string_pretty(&rows).map_err(|e| Failure::run(e.to_string()))?;
-        write_file(path, &json)?;
+        file.write(&json)?;
     }
     Ok(())
 }
@@ -790,21 +801,45 @@ fn cmd_link_bench(args: LinkBenchArgs) -> Result<(), Failure> {
         seconds: args.seconds,
         modes: args.exchange,
     };
+    let json_file = args.json.as_deref().map(OutputFile::create).transpose()?;
     let rows = pkm_plc::link_bench::run(&loaded, &options, |row| info!("measuring {row}")).map_err(|e| match e {
         pkm_plc::link_bench::LinkBenchError::Setup(_) => Failure::run(e.to_string()),
         _ => Failure::usage(e.to_string()),
     })?;
     print!("{}", pkm_plc::link_bench::table(&rows));
-    if let Some(path) = &args.json {
+    if let Some(file) = json_file {
         let json = serde_json::to_string_pretty(&rows).map_err(|e| Failure::run(e.to_string()))?;
-        write_file(path, &json)?;
+        file.write(&json)?;
     }
     Ok(())
 }
 
-fn write_file(path: &Path, text: &str) -> Result<(), Failure> {
-    std::fs::write(path, format!("{text}\n"))
-        .map_err(|e| Failure::run(format!("{}: cannot write: {e}", path.display())))
+/// An output file opened before the work that fills it, so that a path that cannot be written
+/// fails at once instead of after a run or a measurement.
+struct OutputFile {
+    path: PathBuf,
+    file: std::fs::File,
+}
+
+impl OutputFile {
+    /// Creates (or empties) the file at `path`: a usage error if that is not possible.
+    fn create(path: &Path) -> Result<OutputFile, Failure> {
+        let file = std::fs::File::create(path)
+            .map_err(|e| Failure::usage(format!("{}: cannot write: {e}", path.display())))?;
+        Ok(OutputFile {
+            path: path.to_path_buf(),
+            file,
+        })
+    }
+
+    /// Writes `text` and a newline, and closes the file.
+    fn write(mut self, text: &str) -> Result<(), Failure> {
+        use std::io::Write;
+        self.file
+            .write_all(format!("{text}\n").as_bytes())
+            .and_then(|()| self.file.sync_data())
+            .map_err(|e| Failure::run(format!("{}: cannot write: {e}", self.path.display())))
+    }
 }
 
 #[cfg(test)]

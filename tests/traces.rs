@@ -97,11 +97,12 @@ fn malformed_traces_are_clear_errors_with_line_numbers() {
         &header.replace("pkm-plc trace", "other trace"),
         ":1: bad header: format \"other trace\" is not \"pkm-plc trace\"",
     );
-    // Cut right after the opening brace of "in": the parser runs out inside an object.
+    // A record cut right after the opening brace of "in", with a whole one after it: not a
+    // crash's cut (that is the last line) but a damaged file.
     let cut = good.find(r#""in":{"#).expect("an in object") + r#""in":{"#.len();
     check(
         "truncated.jsonl",
-        &format!("{header}\n{}", &good[..cut]),
+        &format!("{header}\n{}\n{good}\n", &good[..cut]),
         &format!(":2: malformed record: EOF while parsing an object at line 1 column {cut}"),
     );
     check(
@@ -261,15 +262,30 @@ fn traces_export_to_vcd_and_svg() {
 }
 
 #[test]
-fn a_trace_write_error_is_reported_with_exit_code_1() {
-    let o = pkm(&["run", "--virtual", "--duration", "2", "--trace", "/dev/full"]);
+fn a_trace_write_error_is_reported_with_exit_code_1_after_the_summary() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let summary = dir.path().join("summary.json");
+    let o = pkm(&[
+        "run",
+        "--virtual",
+        "--duration",
+        "2",
+        "--trace",
+        "/dev/full",
+        "--summary",
+        summary.to_str().expect("utf-8"),
+    ]);
     assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
     assert!(
         stderr(&o).ends_with(
-            "error: /dev/full: writing the trace failed: No space left on device (os error 28); the trace is incomplete \
-             (260 records were formatted)\n"
+            "error: /dev/full: writing the trace failed: No space left on device (os error 28); recording stopped \
+             there, the run went on: the file holds no complete record\n"
         ),
         "{}",
         stderr(&o)
     );
+    // The run went on to its end, and its summary was written.
+    let s: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&summary).expect("the summary")).expect("json");
+    assert_eq!(s["task_classes"][0]["cycles"], 200, "{s}");
 }

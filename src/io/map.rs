@@ -300,10 +300,11 @@ pub fn io_map_text(loaded: &LoadedConfig) -> Result<Option<(String, String)>, Co
         Some(dir) => {
             let path = dir.join(map_name);
             let origin = path.display().to_string();
-            let text = std::fs::read_to_string(&path).map_err(|source| ConfigError::Read {
-                file: origin.clone(),
-                source,
-            })?;
+            let text =
+                crate::files::read_text(&path, crate::files::MAX_TEXT_BYTES).map_err(|source| ConfigError::Read {
+                    file: origin.clone(),
+                    source,
+                })?;
             (text, origin)
         }
         None if map_name == "io-map/trijoint.json" => (

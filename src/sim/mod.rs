@@ -374,10 +374,11 @@ pub fn build(
         None => scenario::Scenario::default(),
         Some(path) => {
             let origin = path.display().to_string();
-            let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
-                file: origin.clone(),
-                source,
-            })?;
+            let text =
+                crate::files::read_text(path, crate::files::MAX_TEXT_BYTES).map_err(|source| ConfigError::Read {
+                    file: origin.clone(),
+                    source,
+                })?;
             scenario::Scenario::parse(&text, &origin, &map, &wiring)?
         }
     };

@@ -7,7 +7,7 @@ use std::path::Path;
 
 use plotters::prelude::*;
 
-use super::read::{TraceError, TraceReader};
+use super::read::{Cut, ReadAhead, TraceError, TraceReader};
 use crate::image::{Value, VarType};
 
 /// Why an export failed.
@@ -36,6 +36,23 @@ pub enum ExportError {
     },
 }
 
+/// What an export read.
+#[derive(Debug, Clone)]
+pub struct Exported {
+    /// Records read.
+    pub records: u64,
+    /// Where the trace was cut short, if it was: the export holds every record before that.
+    pub cut: Option<Cut>,
+}
+
+/// Starts reading a trace's records ahead on a thread of its own.
+fn read_ahead(trace: &Path, reader: TraceReader) -> Result<ReadAhead, ExportError> {
+    ReadAhead::start(reader).map_err(|e| ExportError::Output {
+        file: trace.display().to_string(),
+        message: format!("cannot start reading: {e}"),
+    })
+}
+
 fn bits(v: u64, width: u32) -> Vec<vcd::Value> {
     (0..width)
         .rev()
@@ -50,14 +67,15 @@ fn bits(v: u64, width: u32) -> Vec<vcd::Value> {
 }
 
 /// Converts a trace to VCD (timescale 1 µs): every variable, plus the main state and reason as
-/// strings. Returns the number of records.
-pub fn to_vcd(trace: &Path, out: &Path) -> Result<u64, ExportError> {
+/// strings.
+pub fn to_vcd(trace: &Path, out: &Path) -> Result<Exported, ExportError> {
     let output = |e: std::io::Error| ExportError::Output {
         file: out.display().to_string(),
         message: e.to_string(),
     };
-    let mut reader = TraceReader::open(trace)?;
+    let reader = TraceReader::open(trace)?;
     let header = reader.header().clone();
+    let names: Vec<String> = reader.variables().iter().map(|(n, _)| n.clone()).collect();
     let mut w = vcd::Writer::new(BufWriter::new(File::create(out).map_err(output)?));
     w.timescale(1, vcd::TimescaleUnit::US).map_err(output)?;
     w.add_module("pkm_plc").map_err(output)?;
@@ -79,12 +97,12 @@ pub fn to_vcd(trace: &Path, out: &Path) -> Result<u64, ExportError> {
         .map_err(output)?;
     w.upscope().map_err(output)?;
     w.enddefinitions().map_err(output)?;
-    let names: Vec<String> = reader.variables().iter().map(|(n, _)| n.clone()).collect();
     let mut current: HashMap<usize, Value> = HashMap::new();
     let (mut state, mut reason) = (String::new(), String::new());
     let mut time = None;
     let mut records = 0;
-    while let Some(r) = reader.next_record()? {
+    let mut ahead = read_ahead(trace, reader)?;
+    while let Some(r) = ahead.next_record()? {
         records += 1;
         let changes: Vec<&(usize, Value)> = r
             .inputs
@@ -92,8 +110,8 @@ pub fn to_vcd(trace: &Path, out: &Path) -> Result<u64, ExportError> {
             .chain(&r.outputs)
             .filter(|(k, v)| current.get(k).is_none_or(|c| !super::same(*c, *v)))
             .collect();
-        let new_state = r.state.clone().unwrap_or_default();
-        let new_reason = r.reason.clone().unwrap_or_default();
+        let new_state = r.state.as_deref().unwrap_or_default().to_string();
+        let new_reason = r.reason.as_deref().unwrap_or_default().to_string();
         if changes.is_empty() && new_state == state && new_reason == reason {
             continue;
         }
@@ -130,13 +148,21 @@ pub fn to_vcd(trace: &Path, out: &Path) -> Result<u64, ExportError> {
     }
     w.flush().map_err(output)?;
     w.writer().flush().map_err(output)?;
-    Ok(records)
+    Ok(Exported {
+        records,
+        cut: ahead.cut().cloned(),
+    })
 }
 
-/// Plots `vars` (and the main state) against time into an SVG file, one panel each. Returns
-/// the number of records.
-pub fn to_svg(trace: &Path, out: &Path, vars: &[String]) -> Result<u64, ExportError> {
-    let mut reader = TraceReader::open(trace)?;
+/// Plots `vars` (and the main state) against time into an SVG file, one panel each.
+pub fn to_svg(trace: &Path, out: &Path, vars: &[String]) -> Result<Exported, ExportError> {
+    let err = |e: String| ExportError::Output {
+        file: out.display().to_string(),
+        message: e,
+    };
+    let reader = TraceReader::open(trace)?;
+    // Opened before the trace is read, so that a path that cannot be written fails at once.
+    let mut file = File::create(out).map_err(|e| err(e.to_string()))?;
     let header = reader.header().clone();
     for name in vars {
         if !header.variables.contains_key(name) {
@@ -166,7 +192,8 @@ pub fn to_svg(trace: &Path, out: &Path, vars: &[String]) -> Result<u64, ExportEr
     let mut states: Vec<(f64, String)> = Vec::new();
     let mut end = 0.0f64;
     let mut records = 0;
-    while let Some(r) = reader.next_record()? {
+    let mut ahead = read_ahead(trace, reader)?;
+    while let Some(r) = ahead.next_record()? {
         records += 1;
         let t = r.t_us as f64 * 1e-6;
         end = end.max(t);
@@ -182,10 +209,10 @@ pub fn to_svg(trace: &Path, out: &Path, vars: &[String]) -> Result<u64, ExportEr
                 }
             }
         }
-        if let Some(state) = r.state
-            && states.last().is_none_or(|(_, s)| *s != state)
+        if let Some(state) = &r.state
+            && states.last().is_none_or(|(_, s)| **s != **state)
         {
-            states.push((t, state));
+            states.push((t, state.to_string()));
         }
     }
     let names: Vec<String> = {
@@ -205,43 +232,60 @@ pub fn to_svg(trace: &Path, out: &Path, vars: &[String]) -> Result<u64, ExportEr
         }
         state_series.push((*t, y));
     }
-    let err = |e: String| ExportError::Output {
-        file: out.display().to_string(),
-        message: e,
-    };
     let panels = vars.len() + 1;
-    let root = SVGBackend::new(out, (1000, 170 * panels as u32)).into_drawing_area();
-    root.fill(&WHITE).map_err(|e| err(e.to_string()))?;
-    let areas = root.split_evenly((panels, 1));
-    let mut all: Vec<(String, Vec<(f64, f64)>)> = vars.iter().cloned().zip(series).collect();
-    all.push((format!("state ({})", names.join(" / ")), state_series));
-    for (area, (name, mut points)) in areas.iter().zip(all) {
-        if let Some(&(_, last)) = points.last() {
-            points.push((end, last));
+    let mut svg = String::new();
+    {
+        let root = SVGBackend::with_string(&mut svg, (1000, 170 * panels as u32)).into_drawing_area();
+        root.fill(&WHITE).map_err(|e| err(e.to_string()))?;
+        let areas = root.split_evenly((panels, 1));
+        let mut all: Vec<(String, Vec<(f64, f64)>)> = vars.iter().cloned().zip(series).collect();
+        all.push((format!("state ({})", names.join(" / ")), state_series));
+        for (area, (name, mut points)) in areas.iter().zip(all) {
+            if let Some(&(_, last)) = points.last() {
+                points.push((end, last));
+            }
+            // A REAL may hold NaN or ±inf (null in the trace): no point of the line.
+            points.retain(|(_, y)| y.is_finite());
+            let (lo, hi) = y_range(&points);
+            let mut chart = ChartBuilder::on(area)
+                .caption(&name, ("sans-serif", 14))
+                .margin(8)
+                .x_label_area_size(25)
+                .y_label_area_size(60)
+                .build_cartesian_2d(0.0..end.max(1e-3), lo..hi)
+                .map_err(|e| err(e.to_string()))?;
+            chart
+                .configure_mesh()
+                .x_desc("t [s]")
+                .draw()
+                .map_err(|e| err(e.to_string()))?;
+            chart
+                .draw_series(LineSeries::new(points, &BLUE))
+                .map_err(|e| err(e.to_string()))?;
         }
-        let (lo, hi) = points
-            .iter()
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &(_, y)| {
-                (lo.min(y), hi.max(y))
-            });
-        let (lo, hi) = if lo.is_finite() { (lo, hi) } else { (0.0, 1.0) };
-        let pad = ((hi - lo) * 0.1).max(0.5);
-        let mut chart = ChartBuilder::on(area)
-            .caption(&name, ("sans-serif", 14))
-            .margin(8)
-            .x_label_area_size(25)
-            .y_label_area_size(60)
-            .build_cartesian_2d(0.0..end.max(1e-3), (lo - pad)..(hi + pad))
-            .map_err(|e| err(e.to_string()))?;
-        chart
-            .configure_mesh()
-            .x_desc("t [s]")
-            .draw()
-            .map_err(|e| err(e.to_string()))?;
-        chart
-            .draw_series(LineSeries::new(points, &BLUE))
-            .map_err(|e| err(e.to_string()))?;
+        root.present().map_err(|e| err(e.to_string()))?;
     }
-    root.present().map_err(|e| err(e.to_string()))?;
-    Ok(records)
+    file.write_all(svg.as_bytes()).map_err(|e| err(e.to_string()))?;
+    Ok(Exported {
+        records,
+        cut: ahead.cut().cloned(),
+    })
+}
+
+/// The y axis of a panel: the values' range with a margin of a tenth (at least 0.5), kept within
+/// ±f64::MAX/4 so that its span stays finite (values of ±1e308 would make it infinite, and the
+/// axis ticks would never end).
+fn y_range(points: &[(f64, f64)]) -> (f64, f64) {
+    let (lo, hi) = points
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &(_, y)| {
+            (lo.min(y), hi.max(y))
+        });
+    if !(lo <= hi) {
+        return (-0.5, 1.5);
+    }
+    let limit = f64::MAX / 4.0;
+    let (lo, hi) = (lo.clamp(-limit, limit), hi.clamp(-limit, limit));
+    let pad = ((hi - lo) * 0.1).max(0.5);
+    ((lo - pad).max(-limit), (hi + pad).min(limit))
 }

@@ -9,6 +9,7 @@
 //! since that class's previous record; a class's first record holds all of them.
 
 pub mod export;
+mod fast;
 pub mod read;
 pub mod record;
 pub mod replay;

@@ -2,12 +2,17 @@
 //! and hands it to a writer thread through a preallocated bounded channel; the writer formats
 //! JSON Lines into a buffered file. Nothing is ever dropped: should the writer fall behind so far
 //! that the channel is full, the cycle waits for it (counted and reported as stalls).
+//!
+//! The writer flushes the file at least every [`FLUSH_EVERY`] (gzip: a sync flush, after which
+//! the compressed stream decodes up to there), so a crash, a power cut or SIGKILL loses at most
+//! about that much of the trace: the reader takes every complete record and says where it ends.
 
 use std::fs::File;
 use std::io::{self, BufWriter, Write};
 use std::path::Path;
-use std::sync::mpsc::{Receiver, SyncSender, TrySendError, sync_channel};
+use std::sync::mpsc::{Receiver, RecvTimeoutError, SyncSender, TrySendError, sync_channel};
 use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
 
 use super::{ClassHeader, FORMAT, Header, VERSION, same, value_to_json};
 use crate::image::{Value, VarIndex};
@@ -17,6 +22,8 @@ use crate::plc::{CycleRecord, CycleSink, Plc};
 const CHANNEL: usize = 16_384;
 /// Buffers made up front.
 const POOL: usize = 1024;
+/// The longest the writer keeps formatted records in memory before it writes them to the file.
+pub const FLUSH_EVERY: Duration = Duration::from_millis(500);
 
 enum Msg {
     /// A state or reason name, interned under this number.
@@ -59,6 +66,14 @@ impl Output {
         out.write_all(b"\n")
     }
 
+    /// Writes out what is buffered (gzip: a sync flush, so the stream decodes up to here).
+    fn flush(&mut self) -> io::Result<()> {
+        match self {
+            Output::Plain(w) => w.flush(),
+            Output::Gzip(w) => w.flush(),
+        }
+    }
+
     fn finish(self) -> io::Result<()> {
         match self {
             Output::Plain(mut w) => w.flush(),
@@ -72,6 +87,9 @@ impl Output {
 struct Written {
     records: u64,
     bytes: u64,
+    /// Records in the file as of the last successful flush, and the time of the newest (µs).
+    flushed: u64,
+    flushed_t_us: Option<u64>,
     error: Option<io::Error>,
 }
 
@@ -214,8 +232,16 @@ impl CycleSink for Recorder {
         };
         match written.error {
             Some(e) => Err(format!(
-                "{}: writing the trace failed: {e}; the trace is incomplete ({} records were formatted)",
-                self.path, written.records
+                "{}: writing the trace failed: {e}; recording stopped there, the run went on: the file holds {}",
+                self.path,
+                match written.flushed_t_us {
+                    Some(t) => format!(
+                        "the first {} records (up to t = {:.3} s) and perhaps part of the next",
+                        written.flushed,
+                        t as f64 * 1e-6
+                    ),
+                    None => "no complete record".to_string(),
+                }
             )),
             None => Ok(format!(
                 "trace {}: {} records, {:.1} MB of JSON; {} stalls, {} extra buffers",
@@ -241,8 +267,11 @@ fn write_all(
     let mut w = Written {
         records: 0,
         bytes: 0,
+        flushed: 0,
+        flushed_t_us: None,
         error: None,
     };
+    let mut last_t_us = None;
     let mut names: Vec<String> = Vec::new();
     let emit = |line: String, w: &mut Written, out: &mut Output| {
         if w.error.is_none() {
@@ -250,7 +279,7 @@ fn write_all(
                 Ok(()) => w.bytes += line.len() as u64 + 1,
                 Err(e) => {
                     // Said at once; the run goes on, and ends with this error (exit code 1).
-                    tracing::error!("trace: writing failed: {e}; recording stops, the run goes on");
+                    tracing::error!("trace: writing failed: {e}; recording stops here, the run goes on");
                     w.error = Some(e);
                 }
             }
@@ -260,7 +289,29 @@ fn write_all(
         Ok(line) => emit(line, &mut w, &mut out),
         Err(e) => w.error = Some(io::Error::other(e)),
     }
-    for msg in rx {
+    let mut flushed_at = Instant::now();
+    loop {
+        let msg = match rx.recv_timeout(FLUSH_EVERY.saturating_sub(flushed_at.elapsed())) {
+            Ok(msg) => Some(msg),
+            Err(RecvTimeoutError::Timeout) => None,
+            Err(RecvTimeoutError::Disconnected) => break,
+        };
+        if flushed_at.elapsed() >= FLUSH_EVERY {
+            flushed_at = Instant::now();
+            if w.error.is_none() {
+                match out.flush() {
+                    Ok(()) => {
+                        w.flushed = w.records;
+                        w.flushed_t_us = last_t_us;
+                    }
+                    Err(e) => {
+                        tracing::error!("trace: writing failed: {e}; recording stops here, the run goes on");
+                        w.error = Some(e);
+                    }
+                }
+            }
+        }
+        let Some(msg) = msg else { continue };
         match msg {
             Msg::Name(i, name) => {
                 let i = usize::from(i);
@@ -300,18 +351,26 @@ fn write_all(
                     line.insert("violation".into(), true.into());
                 }
                 emit(serde_json::Value::Object(line).to_string(), &mut w, &mut out);
-                w.records += 1;
+                if w.error.is_none() {
+                    w.records += 1;
+                    last_t_us = Some(t_ns / 1000);
+                }
                 // Back to the pool; if it is full, this buffer is simply freed.
                 let _ = pool.try_send(changes);
             }
         }
     }
-    match out.finish() {
-        Err(e) if w.error.is_none() => {
-            tracing::error!("trace: writing failed: {e}");
-            w.error = Some(e);
+    if w.error.is_none() {
+        match out.finish() {
+            Ok(()) => {
+                w.flushed = w.records;
+                w.flushed_t_us = last_t_us;
+            }
+            Err(e) => {
+                tracing::error!("trace: writing failed: {e}");
+                w.error = Some(e);
+            }
         }
-        _ => {}
     }
     w
 }

@@ -4,7 +4,7 @@
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-use super::read::{TraceError, TraceReader};
+use super::read::{Cut, ReadAhead, TraceError, TraceReader};
 use super::same;
 use crate::bus::{Bus, NoBus};
 use crate::config::{ConfigError, LoadedConfig};
@@ -60,6 +60,9 @@ pub struct ReplayReport {
     pub recorded_s: f64,
     /// Wall-clock time of the replay.
     pub wall: Duration,
+    /// Where the trace was cut short (a crash during the recording): the replay compared every
+    /// record up to there.
+    pub cut: Option<Cut>,
 }
 
 fn show(v: Value) -> String {
@@ -70,7 +73,7 @@ fn show(v: Value) -> String {
 /// or I/O map is refused unless `force`.
 pub fn replay(trace: &Path, loaded: &LoadedConfig, force: bool) -> Result<ReplayReport, ReplayError> {
     let started = Instant::now();
-    let mut reader = TraceReader::open(trace)?;
+    let reader = TraceReader::open(trace)?;
     let header = reader.header().clone();
     let digest = super::config_digest(loaded)?;
     if header.config_digest != digest && !force {
@@ -131,7 +134,9 @@ pub fn replay(trace: &Path, loaded: &LoadedConfig, force: bool) -> Result<Replay
     let mut clock = VirtualClock::default();
     plc.init(0, &mut clock);
     let (mut records, mut last_t) = (0u64, 0u64);
-    while let Some(r) = reader.next_record()? {
+    let mut ahead = ReadAhead::start(reader)
+        .map_err(|e| ReplayError::Refused(format!("{}: cannot start reading: {e}", trace.display())))?;
+    while let Some(r) = ahead.next_record()? {
         let (ci, outputs) = &classes[r.class];
         let task = &header.task_classes[r.class].name;
         let differs = |what: &str, recorded: String, replayed: String| {
@@ -171,8 +176,8 @@ pub fn replay(trace: &Path, loaded: &LoadedConfig, force: bool) -> Result<Replay
         let status = plc.app_status();
         if let Some(state) = &r.state {
             let got = status.map(|s| s.state).unwrap_or("(none)");
-            if got != state {
-                return Err(differs("state", state.clone(), got.to_string()));
+            if got != &**state {
+                return Err(differs("state", state.to_string(), got.to_string()));
             }
             let got = status.and_then(|s| s.reason);
             if got != r.reason.as_deref() {
@@ -187,5 +192,6 @@ pub fn replay(trace: &Path, loaded: &LoadedConfig, force: bool) -> Result<Replay
         records,
         recorded_s: last_t as f64 * 1e-6,
         wall: started.elapsed(),
+        cut: ahead.cut().cloned(),
     })
 }

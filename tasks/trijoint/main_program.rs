@@ -82,6 +82,10 @@ impl Default for MainParams {
 /// The longest cycle the main program may run in (µs).
 const MAX_MAIN_CYCLE_US: u32 = 100_000;
 
+/// How close to the border of the allowed region a jog step that crosses it stops (mm, along
+/// the step): 1 nm, far below the encoders' resolution, in about 21 halvings of a 2 mm step.
+const BORDER_TOLERANCE_MM: f64 = 1e-6;
+
 /// The safety-relevant parameters' ranges (the other parameters need only be positive): a value
 /// outside is refused by `check`, naming the key.
 fn check_ranges(p: &MainParams, geometry: &TrijointParams, decl: &mut Declare<'_>) {
@@ -549,9 +553,20 @@ impl Automaton {
         let mut joints = [0.0; 2];
         let mut t = 1.0;
         if !self.allowed(at(1.0), &mut joints) {
-            // The border lies on this step: bisect for the farthest allowed point.
+            // The border lies on this step: bisect for the farthest allowed point, to
+            // BORDER_TOLERANCE_MM along the step. An operator holding the joystick against the
+            // border is the common case: M is on it already, and one check says so.
+            let length = v[0].hypot(v[1]) * io.dt_s;
+            let tolerance = if length > 0.0 {
+                BORDER_TOLERANCE_MM / length
+            } else {
+                1.0
+            };
             let (mut lo, mut hi) = (0.0, 1.0);
-            for _ in 0..30 {
+            if !self.allowed(at(tolerance), &mut joints) {
+                hi = 0.0;
+            }
+            while hi - lo > tolerance {
                 let mid = (lo + hi) / 2.0;
                 if self.allowed(at(mid), &mut joints) {
                     lo = mid;

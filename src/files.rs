@@ -1,0 +1,115 @@
+//! Opening the files a user names (configuration, I/O map, scenario, trace) safely: only regular
+//! files, opened so that a FIFO cannot block the open, and text read up to a bound, so that a
+//! device like `/dev/zero` or a file of gigabytes is a clear error rather than a hang or an
+//! out-of-memory abort.
+
+use std::fs::{File, OpenOptions};
+use std::io::{self, Read};
+use std::os::unix::fs::{FileTypeExt, OpenOptionsExt};
+use std::path::Path;
+
+/// The most a configuration, I/O map or scenario file may hold (16 MiB; the shipped ones are a
+/// few kB).
+pub const MAX_TEXT_BYTES: u64 = 16 << 20;
+
+/// What a non-regular file is, for messages.
+fn kind(t: std::fs::FileType) -> &'static str {
+    if t.is_dir() {
+        "a directory"
+    } else if t.is_fifo() {
+        "a FIFO"
+    } else if t.is_char_device() {
+        "a character device"
+    } else if t.is_block_device() {
+        "a block device"
+    } else if t.is_socket() {
+        "a socket"
+    } else {
+        "not a regular file"
+    }
+}
+
+/// Opens `path` for reading if it is a regular file. The open does not block on a FIFO
+/// (`O_NONBLOCK`, which a regular file ignores); anything else is refused with what it is.
+pub fn open_regular(path: &Path) -> io::Result<File> {
+    let file = OpenOptions::new()
+        .read(true)
+        .custom_flags(libc::O_NONBLOCK)
+        .open(path)?;
+    let t = file.metadata()?.file_type();
+    if t.is_file() {
+        Ok(file)
+    } else {
+        Err(io::Error::new(
+            io::ErrorKind::InvalidInput,
+            format!("{}: only a regular file can be read here", kind(t)),
+        ))
+    }
+}
+
+/// The text of the regular file `path`, refused if it holds more than `limit` bytes.
+pub fn read_text(path: &Path, limit: u64) -> io::Result<String> {
+    let file = open_regular(path)?;
+    let too_large = |size: String| {
+        io::Error::new(
+            io::ErrorKind::InvalidData,
+            format!("{size} is more than the {} MiB such a file may hold", limit >> 20),
+        )
+    };
+    let size = file.metadata()?.len();
+    if size > limit {
+        return Err(too_large(format!("{size} bytes")));
+    }
+    let mut text = String::new();
+    // The bound holds even if the file grows while it is read.
+    file.take(limit + 1).read_to_string(&mut text)?;
+    if text.len() as u64 > limit {
+        return Err(too_large("the file".into()));
+    }
+    Ok(text)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn devices_directories_and_fifos_are_refused_without_blocking() {
+        let dir = tempfile::tempdir().unwrap();
+        let fifo = dir.path().join("fifo");
+        assert!(
+            std::process::Command::new("mkfifo")
+                .arg(&fifo)
+                .status()
+                .unwrap()
+                .success()
+        );
+        for (path, what) in [
+            (Path::new("/dev/zero"), "a character device"),
+            (dir.path(), "a directory"),
+            (fifo.as_path(), "a FIFO"),
+        ] {
+            let e = read_text(path, MAX_TEXT_BYTES).unwrap_err();
+            assert_eq!(
+                e.to_string(),
+                format!("{what}: only a regular file can be read here"),
+                "{}",
+                path.display()
+            );
+        }
+    }
+
+    #[test]
+    fn a_file_over_the_bound_is_refused_and_one_within_it_is_read() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("big.json");
+        std::fs::write(&path, vec![b' '; (2 << 20) + 1]).unwrap();
+        let e = read_text(&path, 2 << 20).unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "2097153 bytes is more than the 2 MiB such a file may hold"
+        );
+        std::fs::write(&path, "{}").unwrap();
+        assert_eq!(read_text(&path, 2 << 20).unwrap(), "{}");
+    }
+}
