@@ -378,7 +378,24 @@ fn build(
         (BusKind::Tcp(_) | BusKind::Serial(..), None) => {
             return Err(Failure::usage("a Modbus bus needs an io_map in the configuration"));
         }
-        (BusKind::None, _) | (BusKind::Sim, None) => {
+        (BusKind::None, Some(_)) => {
+            if scenario.is_some() {
+                return Err(Failure::usage(
+                    "--scenario needs the simulated bus (--bus sim and an io_map in the configuration)",
+                ));
+            }
+            let Some(map) = pkm_plc::io::map::IoMap::load(&loaded)? else {
+                return Err(Failure::usage("the configuration's I/O map could not be loaded"));
+            };
+            let bus = pkm_plc::io::dry::DryBus::new(map);
+            warn!(
+                "--bus none: a dry run of the programs without field I/O: the inputs of the I/O map ({}) hold zero / \
+                 false, the outputs go nowhere",
+                bus.held_inputs().join(", ")
+            );
+            Box::new(bus)
+        }
+        (BusKind::None, None) | (BusKind::Sim, None) => {
             if scenario.is_some() {
                 return Err(Failure::usage(
                     "--scenario needs the simulated bus (--bus sim and an io_map in the configuration)",

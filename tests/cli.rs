@@ -85,6 +85,60 @@ fn a_virtual_run_writes_its_summary() {
 }
 
 #[test]
+fn an_output_path_that_cannot_be_written_fails_before_the_run() {
+    // Exit 2 at once: not after the run's hour.
+    let o = pkm(&[
+        "run",
+        "--virtual",
+        "--duration",
+        "3600",
+        "--summary",
+        "/nonexistent/x.json",
+    ]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert_eq!(
+        stderr(&o),
+        "error: /nonexistent/x.json: cannot write: No such file or directory (os error 2)\n"
+    );
+    assert!(!stderr(&o).contains("virtual time"), "the run did not start");
+}
+
+#[test]
+fn bus_none_is_a_dry_run_of_the_programs_with_one_warning() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("summary.json");
+    let o = pkm(&[
+        "run",
+        "--virtual",
+        "--duration",
+        "2",
+        "--bus",
+        "none",
+        "--summary",
+        path.to_str().expect("utf-8 path"),
+    ]);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    let log = stderr(&o);
+    let warnings: Vec<&str> = log.lines().filter(|l| l.contains("WARN")).collect();
+    assert!(
+        warnings[0].contains(
+            "--bus none: a dry run of the programs without field I/O: the inputs of the I/O map (BUTTON_STOP, \
+             BUTTON_LEFT,"
+        ),
+        "{warnings:?}"
+    );
+    assert!(
+        warnings[0].ends_with("JOYSTICK_CONNECTED) hold zero / false, the outputs go nowhere"),
+        "{warnings:?}"
+    );
+    let s: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&path).expect("summary")).expect("json");
+    assert_eq!(s["bus"], "none");
+    assert_eq!(s["task_classes"][0]["cycles"], 200);
+    // No machine behind it: the referencing finds no switch, as on a machine with no power.
+    assert_eq!(s["main"]["state"], "ERROR");
+}
+
+#[test]
 fn a_real_time_run_ends_after_its_duration_with_a_summary() {
     let dir = tempfile::tempdir().expect("tempdir");
     let path = dir.path().join("summary.json");

@@ -133,7 +133,10 @@ fn replay_vcd_and_plot_use_every_record_before_a_cut_and_say_where() {
     let t = read_all(&plain).1;
     for (path, why) in [
         (&plain, "the last line is incomplete (40 bytes, no end of line)"),
-        (&gz, "the gzip stream ends without its trailer, 40 bytes into the next line"),
+        (
+            &gz,
+            "the gzip stream ends without its trailer, 40 bytes into the next line",
+        ),
     ] {
         let cut = format!("the trace is cut after line 100 (t = {t:.3} s): {why}");
         let o = pkm(&["replay", path.to_str().expect("utf-8")]);
@@ -148,11 +151,21 @@ fn replay_vcd_and_plot_use_every_record_before_a_cut_and_say_where() {
         );
         assert!(stdout(&o).trim_end().ends_with(&cut), "{}", stdout(&o));
         let vcd = dir.path().join("t.vcd");
-        let o = pkm(&["trace", "vcd", path.to_str().expect("utf-8"), vcd.to_str().expect("utf-8")]);
+        let o = pkm(&[
+            "trace",
+            "vcd",
+            path.to_str().expect("utf-8"),
+            vcd.to_str().expect("utf-8"),
+        ]);
         assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
         assert_eq!(stdout(&o), format!("{}: 99 records written ({cut})\n", vcd.display()));
         let svg = dir.path().join("t.svg");
-        let o = pkm(&["trace", "plot", path.to_str().expect("utf-8"), svg.to_str().expect("utf-8")]);
+        let o = pkm(&[
+            "trace",
+            "plot",
+            path.to_str().expect("utf-8"),
+            svg.to_str().expect("utf-8"),
+        ]);
         assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
         assert_eq!(stdout(&o), format!("{}: 99 records written ({cut})\n", svg.display()));
     }
@@ -162,7 +175,11 @@ fn replay_vcd_and_plot_use_every_record_before_a_cut_and_say_where() {
     std::fs::write(&plain, tampered).expect("write");
     let o = pkm(&["replay", plain.to_str().expect("utf-8")]);
     assert_eq!(o.status.code(), Some(1), "{}", stdout(&o));
-    assert!(stderr(&o).contains("state recorded READY, replayed REBOOT"), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("state recorded READY, replayed REBOOT"),
+        "{}",
+        stderr(&o)
+    );
 }
 
 #[test]
@@ -181,12 +198,19 @@ fn records_at_impossible_times_are_refused() {
     // The second fast cycle claims t = 0 again.
     check(
         "backwards.jsonl",
-        format!("{header}\n{}\n{}\n", fast[0], fast[1].replace("\"t_us\":10000,", "\"t_us\":0,")),
+        format!(
+            "{header}\n{}\n{}\n",
+            fast[0],
+            fast[1].replace("\"t_us\":10000,", "\"t_us\":0,")
+        ),
         ":3: t_us 0 is not after the previous cycle of task class \"fast\" (t_us 0)",
     );
     check(
         "max.jsonl",
-        format!("{header}\n{}\n", fast[0].replace("\"t_us\":0,", &format!("\"t_us\":{},", u64::MAX))),
+        format!(
+            "{header}\n{}\n",
+            fast[0].replace("\"t_us\":0,", &format!("\"t_us\":{},", u64::MAX))
+        ),
         &format!(
             ":2: t_us {} is beyond the latest time a trace can hold ({})",
             u64::MAX,
@@ -222,7 +246,9 @@ fn oversized_lines_fifos_and_devices_are_refused() {
     // A line of 64 MiB in a gzip stream of 64 kB: read no further than 4 MiB of it.
     let bomb = dir.path().join("bomb.jsonl.gz");
     let mut encoder = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::best());
-    encoder.write_all(format!("{}\n", lines[0]).as_bytes()).expect("compress");
+    encoder
+        .write_all(format!("{}\n", lines[0]).as_bytes())
+        .expect("compress");
     let chunk = vec![b'a'; 1 << 20];
     for _ in 0..64 {
         encoder.write_all(&chunk).expect("compress");

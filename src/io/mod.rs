@@ -1,6 +1,7 @@
 //! Field I/O: the module catalogue, I/O map files and the Modbus register map derived from them.
 
 pub mod catalogue;
+pub mod dry;
 pub mod hid;
 pub mod joystick;
 pub mod line;
