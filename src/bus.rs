@@ -51,6 +51,27 @@ impl Bus for NoBus {
     }
 }
 
+/// Stands in for a bus whose I/O map is invalid while the rest of the configuration is checked,
+/// so that one run of `check` reports the problems of both files. Its inputs are unknown: a
+/// variable nobody writes is not reported. A PLC built on it is never run.
+#[derive(Debug, Default)]
+pub struct UnknownBus;
+
+impl Bus for UnknownBus {
+    fn name(&self) -> &str {
+        "unknown"
+    }
+    fn declare(&mut self, table: &mut VarTable) {
+        table.set_inputs_unknown();
+    }
+    fn read_inputs(&mut self, _class: usize, _t_ns: u64, _image: &mut [Value]) {}
+    fn write_outputs(&mut self, _class: usize, _t_ns: u64, _image: &[Value]) {}
+    fn write_safe(&mut self, _image: &[Value]) {}
+    fn as_any(&self) -> &dyn std::any::Any {
+        self
+    }
+}
+
 /// Creates a mailbox that hands complete input sets from a bus's exchange thread to the cyclic
 /// thread, for the variables `slots` (initially `initial`, one value per slot).
 ///

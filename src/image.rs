@@ -256,12 +256,21 @@ pub struct VarTable {
     vars: Vec<VarInfo>,
     by_name: HashMap<String, VarIndex>,
     issues: Vec<DeclIssue>,
+    /// The bus's inputs are unknown (its I/O map is invalid): a variable nobody writes may be
+    /// one of them, so it is not reported.
+    inputs_unknown: bool,
 }
 
 impl VarTable {
     /// An empty table.
     pub fn new() -> Self {
         Self::default()
+    }
+
+    /// Says that the bus's inputs are unknown (its I/O map could not be loaded): the table is
+    /// then only checked, never run, and a variable nobody writes is not a problem of its own.
+    pub fn set_inputs_unknown(&mut self) {
+        self.inputs_unknown = true;
     }
 
     /// All variables, indexed by [`VarIndex`].
@@ -406,7 +415,7 @@ impl VarTable {
 
     /// Finishes the table: every variable that is read must have a writer.
     pub fn finish(mut self) -> Result<VarTable, Vec<DeclIssue>> {
-        for var in &self.vars {
+        for var in self.vars.iter().filter(|_| !self.inputs_unknown) {
             if var.writer.is_none() {
                 for r in var.readers.iter().filter(|r| r.needs_writer) {
                     self.issues.push(DeclIssue {

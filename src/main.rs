@@ -346,25 +346,43 @@ struct Joystick {
     stop: Arc<AtomicBool>,
 }
 
-/// Loads and builds: every problem of the configuration is reported at once.
-fn build(
-    arg: &ConfigArg,
-    bus: BusKind,
+/// Why the bus could not be made.
+enum BusFailure {
+    /// A problem of the configuration or its I/O map: reported with the rest of the checks.
+    Config(ConfigError),
+    /// Anything else (a usage error): reported alone.
+    Other(Failure),
+}
+
+impl From<ConfigError> for BusFailure {
+    fn from(e: ConfigError) -> Self {
+        BusFailure::Config(e)
+    }
+}
+
+impl From<Failure> for BusFailure {
+    fn from(f: Failure) -> Self {
+        BusFailure::Other(f)
+    }
+}
+
+/// The bus `kind` for a loaded configuration.
+fn make_bus(
+    loaded: &LoadedConfig,
+    app: &Result<pkm_plc::tasks::kinematics::KinematicsConfig, Vec<pkm_plc::image::DeclIssue>>,
+    kind: BusKind,
     link: pkm_plc::io::modbus::ModbusOptions,
     scenario: Option<&Path>,
-    joystick: JoystickSpec,
-) -> Result<(LoadedConfig, Plc, Option<Joystick>), Failure> {
-    let loaded = load_config(arg)?;
-    let app = pkm_plc::application_config(&loaded.config);
-    let bus: Box<dyn pkm_plc::bus::Bus> = match (bus, &loaded.config.io_map) {
+) -> Result<Box<dyn pkm_plc::bus::Bus>, BusFailure> {
+    let needs_sim =
+        |what: &str| BusFailure::Other(Failure::usage(format!("--scenario needs the simulated bus ({what})")));
+    Ok(match (kind, &loaded.config.io_map) {
         (kind @ (BusKind::Tcp(_) | BusKind::Serial(..)), Some(_)) => {
             if scenario.is_some() {
-                return Err(Failure::usage(
-                    "--scenario needs the simulated bus (give it to io-sim instead)",
-                ));
+                return Err(needs_sim("give it to io-sim instead"));
             }
-            let Some(map) = pkm_plc::io::map::IoMap::load(&loaded)? else {
-                return Err(Failure::usage("a Modbus bus needs an io_map in the configuration"));
+            let Some(map) = pkm_plc::io::map::IoMap::load(loaded)? else {
+                return Err(Failure::usage("a Modbus bus needs an io_map in the configuration").into());
             };
             let transport = match kind {
                 BusKind::Serial(path, baud) => pkm_plc::io::modbus::Transport::Serial { path, baud },
@@ -376,16 +394,14 @@ fn build(
             Box::new(bus)
         }
         (BusKind::Tcp(_) | BusKind::Serial(..), None) => {
-            return Err(Failure::usage("a Modbus bus needs an io_map in the configuration"));
+            return Err(Failure::usage("a Modbus bus needs an io_map in the configuration").into());
         }
         (BusKind::None, Some(_)) => {
             if scenario.is_some() {
-                return Err(Failure::usage(
-                    "--scenario needs the simulated bus (--bus sim and an io_map in the configuration)",
-                ));
+                return Err(needs_sim("--bus sim and an io_map in the configuration"));
             }
-            let Some(map) = pkm_plc::io::map::IoMap::load(&loaded)? else {
-                return Err(Failure::usage("the configuration's I/O map could not be loaded"));
+            let Some(map) = pkm_plc::io::map::IoMap::load(loaded)? else {
+                unreachable!("the configuration names an I/O map")
             };
             let bus = pkm_plc::io::dry::DryBus::new(map);
             warn!(
@@ -397,29 +413,62 @@ fn build(
         }
         (BusKind::None, None) | (BusKind::Sim, None) => {
             if scenario.is_some() {
-                return Err(Failure::usage(
-                    "--scenario needs the simulated bus (--bus sim and an io_map in the configuration)",
-                ));
+                return Err(needs_sim("--bus sim and an io_map in the configuration"));
             }
             Box::new(NoBus)
         }
         (BusKind::Sim, Some(_)) => {
             let kinematics = app.clone().unwrap_or_default();
-            Box::new(pkm_plc::sim::build(&loaded, &kinematics.trijoint, scenario)?)
+            Box::new(pkm_plc::sim::build(loaded, &kinematics.trijoint, scenario)?)
         }
+    })
+}
+
+/// Loads and builds: every problem of the configuration and its I/O map is reported at once.
+fn build(
+    arg: &ConfigArg,
+    bus: BusKind,
+    link: pkm_plc::io::modbus::ModbusOptions,
+    scenario: Option<&Path>,
+    joystick: JoystickSpec,
+) -> Result<(LoadedConfig, Plc, Option<Joystick>), Failure> {
+    let loaded = load_config(arg)?;
+    let app = pkm_plc::application_config(&loaded.config);
+    // A bus that cannot be made for a problem of the files (the I/O map, the plant section) does
+    // not hide the configuration's other problems: they are checked on a stand-in bus.
+    let (bus, bus_problem) = match make_bus(&loaded, &app, bus, link, scenario) {
+        Ok(bus) => (bus, None),
+        Err(BusFailure::Config(e)) => (
+            Box::new(pkm_plc::bus::UnknownBus) as Box<dyn pkm_plc::bus::Bus>,
+            Some(e),
+        ),
+        Err(BusFailure::Other(f)) => return Err(f),
     };
-    let (bus, joystick) = with_joystick(&loaded, bus, joystick)?;
+    let (bus, joystick) = match bus_problem {
+        None => with_joystick(&loaded, bus, joystick)?,
+        Some(_) => (bus, None),
+    };
     let plc = Plc::build(&loaded.config, &pkm_plc::registry(), bus);
-    match (plc, app) {
-        (Ok(plc), Ok(_)) => Ok((loaded, plc, joystick)),
-        (plc, app) => {
+    match (plc, app, bus_problem) {
+        (Ok(plc), Ok(_), None) => Ok((loaded, plc, joystick)),
+        (plc, app, bus_problem) => {
             let mut problems = plc.err().unwrap_or_default();
             problems.extend(app.err().unwrap_or_default());
-            Err(ConfigError::Invalid {
-                file: loaded.origin.clone(),
-                problems,
+            let mut reports: Vec<String> = Vec::new();
+            // The plant section's problems are the configuration's own: one list.
+            match bus_problem {
+                Some(ConfigError::Invalid { file, problems: more }) if file == loaded.origin => problems.extend(more),
+                Some(other) => reports.push(other.to_string()),
+                None => {}
             }
-            .into())
+            if !problems.is_empty() {
+                let own = ConfigError::Invalid {
+                    file: loaded.origin.clone(),
+                    problems,
+                };
+                reports.insert(0, own.to_string());
+            }
+            Err(Failure::usage(reports.join("\n")))
         }
     }
 }

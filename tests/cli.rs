@@ -37,6 +37,54 @@ fn check_refuses_a_bad_configuration_with_exit_code_2() {
 }
 
 #[test]
+fn check_reports_the_problems_of_the_configuration_and_its_io_map_together() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut config = common::repo_config();
+    config["task_classes"][1]["programs"][0]["params"] = serde_json::json!({"dead_zone": 5});
+    config["io_map"] = "map.json".into();
+    let config_path = dir.path().join("config.json");
+    std::fs::write(&config_path, config.to_string()).expect("write");
+    let mut map: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(common::root().join("io-map/trijoint.json")).expect("map"))
+            .expect("json");
+    map["bindings"][0]["module"] = "NOPE".into();
+    std::fs::write(dir.path().join("map.json"), map.to_string()).expect("write");
+    let o = pkm(&["check", "--config", config_path.to_str().expect("utf-8")]);
+    assert_eq!(o.status.code(), Some(2));
+    let (c, m) = (config_path.display(), dir.path().join("map.json").display().to_string());
+    assert_eq!(
+        stderr(&o),
+        format!(
+            "error: {c}: at task_classes[1].programs[0].params.dead_zone: must be between 0 and 0.9 (a fraction of \
+             full deflection), got 5\n{m}: at bindings[0].module: unknown module \"NOPE\"; modules in this map: DI, DO, \
+             DC_LEFT, DC_RIGHT, MM, JOY\n"
+        )
+    );
+}
+
+#[test]
+fn an_io_map_that_is_a_device_or_a_fifo_is_refused_at_once() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let fifo = dir.path().join("fifo.json");
+    assert!(Command::new("mkfifo").arg(&fifo).status().expect("mkfifo").success());
+    for (map, what) in [
+        ("/dev/zero", "a character device"),
+        (fifo.to_str().expect("utf-8"), "a FIFO"),
+    ] {
+        let mut config = common::repo_config();
+        config["io_map"] = map.into();
+        let path = dir.path().join("config.json");
+        std::fs::write(&path, config.to_string()).expect("write");
+        let o = pkm(&["check", "--config", path.to_str().expect("utf-8")]);
+        assert_eq!(o.status.code(), Some(2));
+        assert_eq!(
+            stderr(&o),
+            format!("error: {map}: cannot read the file: {what}: only a regular file can be read here\n")
+        );
+    }
+}
+
+#[test]
 fn a_missing_configuration_file_is_a_clear_error() {
     let o = pkm(&["run", "--config", "/nonexistent.json", "--virtual", "--duration", "1"]);
     assert_eq!(o.status.code(), Some(2));

@@ -126,6 +126,28 @@ fn wrong_types_and_missing_fields() {
         error(r#"{"task_classes": [], "timing": {"source": "hpet"}}"#),
         "cfg.json: at timing.source: unknown variant `hpet`, expected one of `auto`, `tokio`, `timerfd`, `nanosleep`"
     );
+    // Regression (issue 13): these were JSON syntax errors without a path.
+    assert_eq!(
+        error(&format!(
+            r#"{{"task_classes": [{}]}}"#,
+            class(r#"{"on_violation": 42}"#)
+        )),
+        "cfg.json: at task_classes[0].on_violation: invalid type: integer `42`, expected enum Reaction"
+    );
+    assert_eq!(
+        error(r#"{"task_classes": [], "timing": [1, 2]}"#),
+        "cfg.json: at timing: invalid type: sequence, expected struct TimingConfig"
+    );
+    // A value of megabytes is cut in the message, which says how long it was.
+    let long = error(&format!(
+        r#"{{"task_classes": [], "timing": {{"source": "{}"}}}}"#,
+        "y".repeat(1 << 20)
+    ));
+    assert!(long.len() < 400, "{} bytes", long.len());
+    assert!(
+        long.starts_with("cfg.json: at timing.source: unknown variant `yyyy") && long.contains("(1048"),
+        "{long}"
+    );
     assert_eq!(
         error(r#"{"task_classes": [], "timing": {"realtime_priority": 300}}"#),
         "cfg.json: at timing.realtime_priority: invalid value: integer `300`, expected u8"

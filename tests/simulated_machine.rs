@@ -100,16 +100,45 @@ fn binding_errors() {
             r#"{"module": "MM", "channel": "PulseWidthCurrentPWM01", "variable": "v", "task_class": "fast"},
                {"module": "MM", "channel": "PulseWidthCurrentPWM02", "variable": "v", "task_class": "fast"}"#
         ),
-        "map.json: at bindings[1].variable: variable \"v\" is bound to two outputs: map.json: bindings[0] \
-         (MM.PulseWidthCurrentPWM01) and MM.PulseWidthCurrentPWM02"
+        "map.json: at bindings[1].variable: variable \"v\" is bound to 2 outputs: bindings[0] \
+         (MM.PulseWidthCurrentPWM01), bindings[1] (MM.PulseWidthCurrentPWM02); a variable is bound to one channel"
     );
     assert_eq!(
         binding_error(
             r#"{"module": "DI", "channel": "DigitalInput01", "variable": "s", "task_class": "fast"},
                {"module": "MM", "channel": "ClearError01", "variable": "s", "task_class": "fast"}"#
         ),
-        "map.json: at bindings[1].variable: variable \"s\" is bound to both an input and an output: map.json: \
-         bindings[0] (DI.DigitalInput01) and MM.ClearError01"
+        "map.json: at bindings[1].variable: variable \"s\" is bound to 2 channels (inputs and outputs): \
+         bindings[0] (DI.DigitalInput01), bindings[1] (MM.ClearError01); a variable is bound to one channel"
+    );
+}
+
+#[test]
+fn thousands_of_bindings_of_one_variable_are_one_problem() {
+    // 4000 channels on 334 input modules, all bound to "A": one line, not 4000²/2.
+    let modules: Vec<String> = (0..334)
+        .map(|i| format!(r#"{{"name": "DI{i}", "type": "X20DI9371", "slot": {}}}"#, i + 1))
+        .collect();
+    let bindings: Vec<String> = (0..4000)
+        .map(|k| {
+            format!(
+                r#"{{"module": "DI{}", "channel": "DigitalInput{:02}", "variable": "A", "task_class": "fast"}}"#,
+                k / 12,
+                k % 12 + 1
+            )
+        })
+        .collect();
+    let map = format!(
+        r#"{{"modules": [{}], "bindings": [{}]}}"#,
+        modules.join(","),
+        bindings.join(",")
+    );
+    assert_eq!(
+        map_error(&map),
+        "map.json: at bindings[1].variable: variable \"A\" is bound to 4000 inputs: bindings[0] (DI0.DigitalInput01), \
+         bindings[1] (DI0.DigitalInput02), bindings[2] (DI0.DigitalInput03), bindings[3] (DI0.DigitalInput04), \
+         bindings[4] (DI0.DigitalInput05), bindings[5] (DI0.DigitalInput06), bindings[6] (DI0.DigitalInput07), \
+         bindings[7] (DI0.DigitalInput08), and 3992 more; a variable is bound to one channel"
     );
 }
 
@@ -282,6 +311,15 @@ fn scenario_errors_name_the_event() {
     let e = bad(r#"{"at_ms": 5, "joystick": [0.5, 0.5], "input": "BUTTON_STOP", "value": true}"#);
     assert!(
         e.contains("at events[0]: an event has exactly one of \"input\", \"joystick\" or \"fault\""),
+        "{e}"
+    );
+    // Regression (issue 13): this wrapped to t ≈ 0 and fired at once.
+    let e = bad(r#"{"at_ms": 18446744073710, "input": "BUTTON_STOP", "value": true}"#);
+    assert!(
+        e.ends_with(
+            "scenario.json: at events[0].at_ms: 18446744073710 ms is beyond the latest time the runtime's clock holds \
+             (18446744073709 ms, 584 years)"
+        ),
         "{e}"
     );
     let e = bad(r#"{"at_ms": 5, "fault": "bridge_error"}"#);

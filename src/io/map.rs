@@ -126,15 +126,21 @@ impl IoMap {
         let mut problems = Vec::new();
         let mut push = |at: String, message: String| problems.push(DeclIssue { at, message });
         let mut modules = Vec::new();
+        // Names and slots seen so far: each check is a lookup, so a map of thousands of entries
+        // is checked in linear time.
+        let mut names: HashMap<&str, usize> = HashMap::new();
+        let mut slots: HashMap<u16, usize> = HashMap::new();
         for (i, m) in file.modules.iter().enumerate() {
             let at = format!("modules[{i}]");
-            if let Some(j) = file.modules[..i].iter().position(|o| o.name == m.name) {
+            if let Some(&j) = names.get(m.name.as_str()) {
                 push(
                     format!("{at}.name"),
                     format!("module name \"{}\" is already used by modules[{j}]", m.name),
                 );
+            } else {
+                names.insert(&m.name, i);
             }
-            if let Some(j) = file.modules[..i].iter().position(|o| o.slot == m.slot) {
+            if let Some(&j) = slots.get(&m.slot) {
                 push(
                     format!("{at}.slot"),
                     format!(
@@ -142,6 +148,8 @@ impl IoMap {
                         m.slot, file.modules[j].name
                     ),
                 );
+            } else {
+                slots.insert(m.slot, i);
             }
             match catalogue::module_type(&m.module_type) {
                 Some(ty) => modules.push(Module {
@@ -164,9 +172,17 @@ impl IoMap {
         }
         let mut bindings: Vec<Binding> = Vec::new();
         let mut by_channel: HashMap<(usize, usize), usize> = HashMap::new();
+        let module_index: HashMap<&str, usize> = modules
+            .iter()
+            .enumerate()
+            .rev()
+            .map(|(i, m)| (m.name.as_str(), i))
+            .collect();
+        // Per variable, the bindings (indices into `bindings`) that bind it, in file order.
+        let mut by_variable: HashMap<&str, Vec<usize>> = HashMap::new();
         for (i, b) in file.bindings.iter().enumerate() {
             let at = format!("bindings[{i}]");
-            let Some(mi) = modules.iter().position(|m| m.name == b.module) else {
+            let Some(&mi) = module_index.get(b.module.as_str()) else {
                 let known: Vec<&str> = modules.iter().map(|m| m.name.as_str()).collect();
                 push(
                     format!("{at}.module"),
@@ -212,20 +228,7 @@ impl IoMap {
                 continue;
             }
             by_channel.insert((mi, ci), i);
-            for other in bindings.iter().filter(|o| o.variable == b.variable) {
-                let what = match (other.direction, channel.direction) {
-                    (Direction::Output, Direction::Output) => "two outputs",
-                    (Direction::Input, Direction::Input) => "two inputs",
-                    _ => "both an input and an output",
-                };
-                push(
-                    format!("{at}.variable"),
-                    format!(
-                        "variable \"{}\" is bound to {what}: {} and {}.{}",
-                        b.variable, other.at, b.module, b.channel
-                    ),
-                );
-            }
+            by_variable.entry(&b.variable).or_default().push(bindings.len());
             bindings.push(Binding {
                 module: mi,
                 channel: ci,
@@ -235,6 +238,41 @@ impl IoMap {
                 ty: channel.ty,
                 at: format!("{origin}: {at} ({}.{})", b.module, b.channel),
             });
+        }
+        // One problem per variable bound more than once, at its second binding, naming them all.
+        let mut shared: Vec<&Vec<usize>> = by_variable.values().filter(|v| v.len() > 1).collect();
+        shared.sort();
+        for list in shared {
+            let first = &bindings[list[0]];
+            let directions: Vec<Direction> = list.iter().map(|&k| bindings[k].direction).collect();
+            let what = if directions.iter().all(|d| *d == Direction::Input) {
+                "inputs"
+            } else if directions.iter().all(|d| *d == Direction::Output) {
+                "outputs"
+            } else {
+                "channels (inputs and outputs)"
+            };
+            let channel = |k: usize| {
+                let b = &bindings[k];
+                let index = b.at.rsplit_once(": ").map_or(b.at.as_str(), |(_, rest)| rest);
+                index.to_string()
+            };
+            const SHOWN: usize = 8;
+            let mut named: Vec<String> = list.iter().take(SHOWN).map(|&k| channel(k)).collect();
+            if list.len() > SHOWN {
+                named.push(format!("and {} more", list.len() - SHOWN));
+            }
+            let second = channel(list[1]);
+            let at = second.split_once(' ').map_or(second.as_str(), |(at, _)| at);
+            push(
+                format!("{at}.variable"),
+                format!(
+                    "variable \"{}\" is bound to {} {what}: {}; a variable is bound to one channel",
+                    first.variable,
+                    list.len(),
+                    named.join(", ")
+                ),
+            );
         }
         if problems.is_empty() {
             Ok(IoMap {

@@ -147,8 +147,19 @@ impl Scenario {
                 });
                 continue;
             }
+            let Some(t_ns) = e.at_ms.checked_mul(1_000_000) else {
+                problems.push(DeclIssue {
+                    at: format!("{at}.at_ms"),
+                    message: format!(
+                        "{} ms is beyond the latest time the runtime's clock holds ({} ms, 584 years)",
+                        e.at_ms,
+                        u64::MAX / 1_000_000
+                    ),
+                });
+                continue;
+            };
             match event_action(e, map, wiring) {
-                Ok(action) => events.push((e.at_ms * 1_000_000, action)),
+                Ok(action) => events.push((t_ns, action)),
                 Err((field, message)) => problems.push(DeclIssue {
                     at: if field.is_empty() { at } else { format!("{at}.{field}") },
                     message,

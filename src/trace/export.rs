@@ -281,7 +281,8 @@ fn y_range(points: &[(f64, f64)]) -> (f64, f64) {
         .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &(_, y)| {
             (lo.min(y), hi.max(y))
         });
-    if !(lo <= hi) {
+    if lo > hi {
+        // No finite value at all.
         return (-0.5, 1.5);
     }
     let limit = f64::MAX / 4.0;

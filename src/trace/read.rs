@@ -382,18 +382,18 @@ impl TraceReader {
                 "t_us {} is beyond the latest time a trace can hold ({MAX_T_US})",
                 r.t_us
             ))
-        } else if r.t_us % c.cycle_us != 0 {
+        } else if !r.t_us.is_multiple_of(c.cycle_us) {
             Some(format!(
                 "t_us {} is not a release of task class \"{}\" (a multiple of its cycle time, {} µs)",
                 r.t_us, c.name, c.cycle_us
             ))
-        } else if let Some(last) = self.last_t[r.class].filter(|&last| r.t_us <= last) {
-            Some(format!(
-                "t_us {} is not after the previous cycle of task class \"{}\" (t_us {last})",
-                r.t_us, c.name
-            ))
         } else {
-            None
+            self.last_t[r.class].filter(|&last| r.t_us <= last).map(|last| {
+                format!(
+                    "t_us {} is not after the previous cycle of task class \"{}\" (t_us {last})",
+                    r.t_us, c.name
+                )
+            })
         };
         if let Some(message) = problem {
             return Err(self.err(message));
