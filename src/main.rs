@@ -338,6 +338,14 @@ fn load_config(arg: &ConfigArg) -> Result<LoadedConfig, ConfigError> {
     config::load(path.as_deref())
 }
 
+/// What `run --joystick` asks for.
+enum JoystickChoice {
+    /// A live source read by a thread (real time), or none.
+    Live(JoystickSpec),
+    /// A capture file played on the simulated clock (virtual time).
+    Capture(PathBuf),
+}
+
 /// The HID joystick of a built PLC: its reader is started once the PLC is valid.
 struct Joystick {
     spec: JoystickSpec,
@@ -430,7 +438,7 @@ fn build(
     bus: BusKind,
     link: pkm_plc::io::modbus::ModbusOptions,
     scenario: Option<&Path>,
-    joystick: JoystickSpec,
+    joystick: JoystickChoice,
 ) -> Result<(LoadedConfig, Plc, Option<Joystick>), Failure> {
     let loaded = load_config(arg)?;
     let app = pkm_plc::application_config(&loaded.config);
@@ -478,11 +486,32 @@ fn build(
 fn with_joystick(
     loaded: &LoadedConfig,
     bus: Box<dyn pkm_plc::bus::Bus>,
-    spec: JoystickSpec,
+    choice: JoystickChoice,
 ) -> Result<(Box<dyn pkm_plc::bus::Bus>, Option<Joystick>), Failure> {
-    if spec == JoystickSpec::None {
-        return Ok((bus, None));
-    }
+    let spec = match choice {
+        JoystickChoice::Live(JoystickSpec::None) => return Ok((bus, None)),
+        JoystickChoice::Live(spec) => spec,
+        JoystickChoice::Capture(path) => {
+            let states = pkm_plc::io::hid::load_capture(&path, &loaded.config.joystick)
+                .map_err(|e| Failure::usage(format!("--joystick {e}")))?;
+            let Some(map) = pkm_plc::io::map::IoMap::load(loaded)? else {
+                return Err(Failure::usage(format!(
+                    "--joystick {}: the configuration has no I/O map to bind it to",
+                    path.display()
+                )));
+            };
+            let bus = JoystickBus::with_capture(bus, &map, states);
+            if !bus.binds_anything() {
+                return Err(Failure::usage(format!(
+                    "--joystick {}: {} binds no channel of a Joystick module",
+                    path.display(),
+                    map.origin
+                )));
+            }
+            info!("joystick: playing capture {} on the simulated clock", path.display());
+            return Ok((Box::new(bus), None));
+        }
+    };
     let Some(map) = pkm_plc::io::map::IoMap::load(loaded)? else {
         if let JoystickSpec::Path(p) = &spec {
             warn!(
@@ -513,7 +542,13 @@ fn with_joystick(
 }
 
 fn cmd_check(args: ConfigArg) -> Result<(), Failure> {
-    let (loaded, plc, _) = build(&args, BusKind::Sim, Default::default(), None, JoystickSpec::None)?;
+    let (loaded, plc, _) = build(
+        &args,
+        BusKind::Sim,
+        Default::default(),
+        None,
+        JoystickChoice::Live(JoystickSpec::None),
+    )?;
     let classes: Vec<String> = plc
         .classes()
         .map(|c| format!("{} ({} ms)", c.name, c.period_ns as f64 / 1e6))
@@ -530,15 +565,12 @@ fn cmd_check(args: ConfigArg) -> Result<(), Failure> {
 }
 
 fn cmd_run(args: RunArgs) -> Result<(), Failure> {
+    // In virtual time a joystick path is a capture file, played on the simulated clock;
+    // `auto` (a live device) is off.
     let joystick = match (&args.joystick, args.virtual_time) {
-        (JoystickSpec::Path(p), true) => {
-            return Err(Failure::usage(format!(
-                "--joystick {}: a joystick needs real time (not --virtual)",
-                p.display()
-            )));
-        }
-        (_, true) => JoystickSpec::None,
-        (spec, false) => spec.clone(),
+        (JoystickSpec::Path(p), true) => JoystickChoice::Capture(p.clone()),
+        (_, true) => JoystickChoice::Live(JoystickSpec::None),
+        (spec, false) => JoystickChoice::Live(spec.clone()),
     };
     let (loaded, mut plc, joystick) = build(
         &args.config,

@@ -1,7 +1,8 @@
 //! The HID joystick in the process image: its states reach the TRIJOINT application through
 //! `JoystickBus` like any input (virtual time, the simulated machine), a disconnect in the middle of
 //! a motion stops M and returns to READY, a reconnect drives again, and its STOP button acts in
-//! addition to the panel's. Also the raw-record reader on fabricated captures.
+//! addition to the panel's. Also the raw-record reader on fabricated captures, and a capture played on
+//! the simulated clock by `run --virtual --joystick FILE`.
 
 mod common;
 
@@ -268,4 +269,83 @@ fn a_fifo_whose_writer_closes_and_a_failing_device_are_lost_links() {
         &AtomicBool::new(false),
     );
     assert_eq!(end, End::Lost("No such device (os error 19)".into()));
+}
+
+/// The value of `var` in the last record of `trace` at or before `t_s`.
+fn traced(trace: &std::path::Path, var: &str, t_s: f64) -> f64 {
+    let mut reader = pkm_plc::trace::read::TraceReader::open(trace).expect("trace");
+    let index = reader
+        .variables()
+        .iter()
+        .position(|(n, _)| n == var)
+        .expect("variable in the trace");
+    let mut value = f64::NAN;
+    while let Some(r) = reader.next_record().expect("record") {
+        if r.t_us as f64 * 1e-6 > t_s {
+            break;
+        }
+        if let Some((_, Value::Real(x))) = r.outputs.iter().chain(&r.inputs).find(|(k, _)| *k == index) {
+            value = *x;
+        }
+    }
+    value
+}
+
+#[test]
+fn a_capture_file_plays_on_the_simulated_clock_in_virtual_time() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    // Once READY (41.6 s), the stick full right from 45 s to 47 s of the capture's time.
+    let capture = dir.path().join("session.bin");
+    std::fs::write(
+        &capture,
+        [
+            ev(0, EV_ABS, ABS_X, 0),
+            ev(0, EV_SYN, SYN_REPORT, 0),
+            ev(45_000, EV_ABS, ABS_X, 32767),
+            ev(45_000, EV_SYN, SYN_REPORT, 0),
+            ev(47_000, EV_ABS, ABS_X, 0),
+            ev(47_000, EV_SYN, SYN_REPORT, 0),
+            ev(60_000, EV_SYN, SYN_REPORT, 0),
+        ]
+        .concat(),
+    )
+    .expect("write the capture");
+    let run = |name: &str| {
+        let trace = dir.path().join(name);
+        let o = common::pkm(&[
+            "run",
+            "--virtual",
+            "--duration",
+            "50",
+            "--joystick",
+            capture.to_str().expect("utf-8"),
+            "--trace",
+            trace.to_str().expect("utf-8"),
+        ]);
+        assert_eq!(o.status.code(), Some(0), "{}", common::stderr(&o));
+        trace
+    };
+    let (first, second) = (run("1.jsonl"), run("2.jsonl"));
+    // Deterministic: the same session gives the same run, record for record.
+    assert!(
+        std::fs::read(&first).expect("trace") == std::fs::read(&second).expect("trace"),
+        "two runs of one capture differ"
+    );
+    let (before, after) = (traced(&first, "M_x", 44.95), traced(&first, "M_x", 50.0));
+    assert!(after - before > 20.0, "M_x {before:.3} → {after:.3} mm");
+    // The stick's deflection is in the trace at its capture time, and the run replays.
+    assert_eq!(traced(&first, "JOYSTICK_X", 44.99), 0.0);
+    assert_eq!(traced(&first, "JOYSTICK_X", 45.0), 1.0);
+    assert_eq!(traced(&first, "JOYSTICK_X", 47.0), 0.0);
+    let o = common::pkm(&["replay", first.to_str().expect("utf-8")]);
+    assert_eq!(o.status.code(), Some(0), "{}", common::stderr(&o));
+
+    // A live source needs real time.
+    let o = common::pkm(&["run", "--virtual", "--duration", "1", "--joystick", "/dev/null"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert_eq!(
+        common::stderr(&o),
+        "error: --joystick /dev/null: a character device: only a regular file can be read here (in virtual time \
+         --joystick plays a capture file; a device or FIFO needs real time)\n"
+    );
 }

@@ -10,7 +10,10 @@
 //! An unplugged device, a read error or a FIFO whose writer went away publishes "disconnected"
 //! with the axes at zero (the machine stops: MOTION → READY) and a warning; the thread then looks
 //! for the device again and carries on when it is back (hot-plug). A capture file is played at
-//! the pace of its timestamps and is "disconnected" at its end.
+//! the pace of its timestamps and is "disconnected" at its end. In virtual time a capture file is
+//! played on the simulated clock instead ([`JoystickBus::with_capture`], [`load_capture`]): its
+//! first event at t = 0, each further one at its timestamp's distance from the first — the same
+//! recorded operator session gives the same run every time, as fast as the CPU allows.
 
 use std::fs::File;
 use std::io::{self, Read};
@@ -204,13 +207,26 @@ struct Bound {
     var: VarIndex,
 }
 
+/// Where the joystick's states come from.
+enum Feed {
+    /// A reader thread, live (real time).
+    Live(triple_buffer::Output<Published>),
+    /// A capture played on the simulated clock: (time in ns, state) in time order, the next
+    /// one to take, and the state taken last.
+    Capture {
+        states: Vec<(u64, JoystickState)>,
+        next: usize,
+        current: Published,
+    },
+}
+
 /// A field bus with the HID joystick's channels laid over its own.
 pub struct JoystickBus {
     inner: Box<dyn Bus>,
     bound: Vec<Bound>,
     /// The task class that latches the axes: where the latency is taken.
     axes_class: Option<usize>,
-    output: triple_buffer::Output<Published>,
+    feed: Feed,
     last_seq: u64,
     probe: LatencyProbe,
 }
@@ -242,11 +258,23 @@ impl JoystickBus {
             inner,
             bound,
             axes_class,
-            output,
+            feed: Feed::Live(output),
             last_seq: 0,
             probe: probe.clone(),
         };
         (bus, JoystickFeed { input, seq: 0 }, probe)
+    }
+
+    /// Wraps `inner` with the joystick module's bindings in `map` playing `states` (from
+    /// [`load_capture`]) on the simulated clock: deterministic, for virtual time.
+    pub fn with_capture(inner: Box<dyn Bus>, map: &IoMap, states: Vec<(u64, JoystickState)>) -> JoystickBus {
+        let (mut bus, _feed, _probe) = JoystickBus::new(inner, map);
+        bus.feed = Feed::Capture {
+            states,
+            next: 0,
+            current: Published::default(),
+        };
+        bus
     }
 
     /// Whether the I/O map binds any joystick channel.
@@ -274,14 +302,29 @@ impl Bus for JoystickBus {
 
     fn read_inputs(&mut self, class: usize, t_ns: u64, image: &mut [Value]) {
         self.inner.read_inputs(class, t_ns, image);
-        let p = *self.output.read();
+        let p = match &mut self.feed {
+            Feed::Live(output) => *output.read(),
+            Feed::Capture { states, next, current } => {
+                while let Some(&(at, state)) = states.get(*next).filter(|(at, _)| *at <= t_ns) {
+                    *next += 1;
+                    current.seq += 1;
+                    *current = Published {
+                        state,
+                        seq: current.seq,
+                        published_ns: at,
+                        active: true,
+                    };
+                }
+                *current
+            }
+        };
         if !p.active {
             return;
         }
         for b in &self.bound {
             image[usize::from(b.var)] = b.field.value(&p.state);
         }
-        if Some(class) == self.axes_class && p.seq != self.last_seq {
+        if Some(class) == self.axes_class && p.seq != self.last_seq && matches!(self.feed, Feed::Live(_)) {
             self.last_seq = p.seq;
             // Never waits: the probe is only read after the run; a full probe stops recording.
             if let Ok(mut pairs) = self.probe.0.try_lock()
@@ -569,4 +612,53 @@ pub fn read_records(
         filled -= used;
     }
     End::Lost("stopped".into())
+}
+
+/// The most a capture file may hold for virtual time (256 MiB: 11 million events, days of
+/// operator input).
+pub const MAX_CAPTURE_BYTES: u64 = 256 << 20;
+
+/// Reads a capture file (raw `struct input_event` records) into the joystick's states on the
+/// simulated clock: connected and at rest at t = 0; each report at its timestamp's distance from
+/// the first event's (a timestamp earlier than the one before counts as that one); disconnected
+/// right after the last. Only a regular file is a capture: a device or FIFO needs real time.
+pub fn load_capture(path: &Path, mapping: &JoystickMapping) -> Result<Vec<(u64, JoystickState)>, String> {
+    let shown = path.display();
+    let file = crate::files::open_regular(path).map_err(|e| {
+        format!("{shown}: {e} (in virtual time --joystick plays a capture file; a device or FIFO needs real time)")
+    })?;
+    let size = file.metadata().map_err(|e| format!("{shown}: {e}"))?.len();
+    if size > MAX_CAPTURE_BYTES {
+        return Err(format!(
+            "{shown}: {size} bytes is more than the {} MiB a capture may hold",
+            MAX_CAPTURE_BYTES >> 20
+        ));
+    }
+    let mut bytes = Vec::new();
+    file.take(MAX_CAPTURE_BYTES)
+        .read_to_end(&mut bytes)
+        .map_err(|e| format!("{shown}: {e}"))?;
+    if bytes.len() % super::joystick::EVENT_SIZE != 0 {
+        return Err(format!(
+            "{shown}: {} bytes is not a whole number of {}-byte input_event records",
+            bytes.len(),
+            super::joystick::EVENT_SIZE
+        ));
+    }
+    let (events, _) = parse_events(&bytes);
+    let mut decoder = Decoder::new(mapping.clone(), None);
+    let mut states = vec![(0, JoystickState::connected(decoder.command()))];
+    let first_us = events.first().map_or(0, |e| e.time_us);
+    let mut t_ns = 0u64;
+    for e in &events {
+        let since = u64::try_from(e.time_us.saturating_sub(first_us)).unwrap_or(0);
+        t_ns = t_ns.max(since.saturating_mul(1000));
+        if let Some(c) = decoder.apply(e) {
+            states.push((t_ns, JoystickState::connected(c)));
+        }
+    }
+    // Disconnected at its end, as a capture played in real time is; a cycle later than the
+    // last report, so that report is seen.
+    states.push((t_ns.saturating_add(1), JoystickState::DISCONNECTED));
+    Ok(states)
 }
