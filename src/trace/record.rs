@@ -93,6 +93,26 @@ struct Written {
     error: Option<io::Error>,
 }
 
+impl Written {
+    /// Takes the outcome of writing the buffer out to the file: on success every record so far
+    /// is on disk, up to `last_t_us`.
+    fn settle(&mut self, result: io::Result<()>, last_t_us: Option<u64>) {
+        match result {
+            Ok(()) => {
+                self.flushed = self.records;
+                self.flushed_t_us = last_t_us;
+            }
+            Err(e) => self.fail(e),
+        }
+    }
+
+    /// Stops the recording at a write error (said at once; the run goes on).
+    fn fail(&mut self, e: io::Error) {
+        tracing::error!("trace: writing failed: {e}; recording stops here, the run goes on");
+        self.error = Some(e);
+    }
+}
+
 /// Records a run's class cycles to a trace file.
 pub struct Recorder {
     path: String,
@@ -277,11 +297,8 @@ fn write_all(
         if w.error.is_none() {
             match out.write_line(line.as_bytes()) {
                 Ok(()) => w.bytes += line.len() as u64 + 1,
-                Err(e) => {
-                    // Said at once; the run goes on, and ends with this error (exit code 1).
-                    tracing::error!("trace: writing failed: {e}; recording stops here, the run goes on");
-                    w.error = Some(e);
-                }
+                // Said at once; the run goes on, and ends with this error (exit code 1).
+                Err(e) => w.fail(e),
             }
         }
     };
@@ -299,16 +316,7 @@ fn write_all(
         if flushed_at.elapsed() >= FLUSH_EVERY {
             flushed_at = Instant::now();
             if w.error.is_none() {
-                match out.flush() {
-                    Ok(()) => {
-                        w.flushed = w.records;
-                        w.flushed_t_us = last_t_us;
-                    }
-                    Err(e) => {
-                        tracing::error!("trace: writing failed: {e}; recording stops here, the run goes on");
-                        w.error = Some(e);
-                    }
-                }
+                w.settle(out.flush(), last_t_us);
             }
         }
         let Some(msg) = msg else { continue };
@@ -361,16 +369,7 @@ fn write_all(
         }
     }
     if w.error.is_none() {
-        match out.finish() {
-            Ok(()) => {
-                w.flushed = w.records;
-                w.flushed_t_us = last_t_us;
-            }
-            Err(e) => {
-                tracing::error!("trace: writing failed: {e}");
-                w.error = Some(e);
-            }
-        }
+        w.settle(out.finish(), last_t_us);
     }
     w
 }
