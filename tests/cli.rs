@@ -464,12 +464,14 @@ fn run_takes_a_scenario_and_refuses_a_bad_one() {
 
 #[test]
 fn joystick_sources_that_cannot_work_are_said_clearly() {
-    // A joystick is a real-time device: refused in virtual time before anything starts.
+    // In virtual time a joystick path is a capture file: anything else is refused before
+    // anything starts.
     let o = pkm(&["run", "--virtual", "--duration", "1", "--joystick", "/dev/input/event7"]);
     assert_eq!(o.status.code(), Some(2));
     assert_eq!(
         stderr(&o),
-        "error: --joystick /dev/input/event7: a joystick needs real time (not --virtual)\n"
+        "error: --joystick /dev/input/event7: No such file or directory (os error 2) (in virtual time --joystick \
+         plays a capture file; a device or FIFO needs real time)\n"
     );
     // A missing device is no reason to stop the machine: a warning, panel buttons, exit 0.
     let o = pkm(&["run", "--duration", "0.3", "--joystick", "/nonexistent/event0"]);

@@ -264,3 +264,33 @@ fn oversized_lines_fifos_and_devices_are_refused() {
         ": cannot open: a character device: only a regular file can be read here",
     );
 }
+
+#[test]
+fn a_plot_of_values_near_the_limits_of_f64_ends() {
+    // Regression (issue 13): a value of ±1e308 made the axis span infinite and the plot spin.
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (_, lines) = recorded(dir.path(), "t.jsonl");
+    let mut out = vec![lines[0].clone()];
+    let mut main = 0;
+    for line in &lines[1..] {
+        let mut record: serde_json::Value = serde_json::from_str(line).expect("json");
+        if record["task"] == "main" && main < 3 {
+            record["out"]["M_x"] = serde_json::json!([1e308, -1e308, f64::MAX][main]);
+            main += 1;
+        }
+        out.push(record.to_string());
+    }
+    let trace = dir.path().join("huge.jsonl");
+    std::fs::write(&trace, out.join("\n") + "\n").expect("write");
+    let svg = dir.path().join("huge.svg");
+    let o = pkm(&[
+        "trace",
+        "plot",
+        trace.to_str().expect("utf-8"),
+        svg.to_str().expect("utf-8"),
+        "--vars",
+        "M_x",
+    ]);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    assert!(std::fs::read_to_string(&svg).expect("svg").contains("M_x"));
+}
