@@ -20,16 +20,14 @@ impl DryBus {
     }
 
     /// The variables of the map's input channels: they hold zero / false for the whole run.
+    /// (A valid map binds each variable to one channel, so each is named once.)
     pub fn held_inputs(&self) -> Vec<&str> {
-        let mut names: Vec<&str> = self
-            .map
+        self.map
             .bindings
             .iter()
             .filter(|b| b.direction == Direction::Input)
             .map(|b| b.variable.as_str())
-            .collect();
-        names.dedup();
-        names
+            .collect()
     }
 }
 
