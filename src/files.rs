@@ -47,9 +47,14 @@ pub fn open_regular(path: &Path) -> io::Result<File> {
     }
 }
 
-/// The text of the regular file `path`, refused if it holds more than `limit` bytes.
+/// The contents of the regular file `path`, refused if it holds more than `limit` bytes.
 pub fn read_text(path: &Path, limit: u64) -> io::Result<String> {
-    let file = open_regular(path)?;
+    String::from_utf8(read_to_limit(open_regular(path)?, limit)?)
+        .map_err(|_| io::Error::new(io::ErrorKind::InvalidData, "stream did not contain valid UTF-8"))
+}
+
+/// The bytes of an opened file (see [`open_regular`]), refused if it holds more than `limit`.
+pub fn read_to_limit(file: File, limit: u64) -> io::Result<Vec<u8>> {
     let too_large = |size: String| {
         io::Error::new(
             io::ErrorKind::InvalidData,
@@ -60,13 +65,13 @@ pub fn read_text(path: &Path, limit: u64) -> io::Result<String> {
     if size > limit {
         return Err(too_large(format!("{size} bytes")));
     }
-    let mut text = String::new();
+    let mut bytes = Vec::new();
     // The bound holds even if the file grows while it is read.
-    file.take(limit + 1).read_to_string(&mut text)?;
-    if text.len() as u64 > limit {
+    file.take(limit + 1).read_to_end(&mut bytes)?;
+    if bytes.len() as u64 > limit {
         return Err(too_large("the file".into()));
     }
-    Ok(text)
+    Ok(bytes)
 }
 
 #[cfg(test)]

@@ -14,16 +14,7 @@ use pkm_plc::trace::read::TraceReader;
 
 /// Records one second of virtual time into `dir/name`; returns its path and its lines.
 fn recorded(dir: &Path, name: &str) -> (PathBuf, Vec<String>) {
-    let trace = dir.join(name);
-    let o = pkm(&[
-        "run",
-        "--virtual",
-        "--duration",
-        "1",
-        "--trace",
-        trace.to_str().expect("utf-8"),
-    ]);
-    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    let trace = common::record_trace(dir, name, 1, "[]");
     let text = std::fs::read_to_string(&trace).expect("trace");
     (trace, text.lines().map(str::to_string).collect())
 }

@@ -2,28 +2,9 @@
 
 mod common;
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
-use common::{pkm, stderr, stdout};
-
-/// Records `seconds` of virtual time with `scenario` (events JSON) into `dir/name`.
-fn record(dir: &Path, name: &str, seconds: u32, events: &str) -> PathBuf {
-    let scenario = dir.join(format!("{name}.scenario.json"));
-    std::fs::write(&scenario, format!(r#"{{"events": {events}}}"#)).expect("write scenario");
-    let trace = dir.join(name);
-    let o = pkm(&[
-        "run",
-        "--virtual",
-        "--duration",
-        &seconds.to_string(),
-        "--scenario",
-        scenario.to_str().expect("utf-8"),
-        "--trace",
-        trace.to_str().expect("utf-8"),
-    ]);
-    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
-    trace
-}
+use common::{pkm, record_trace as record, stderr, stdout};
 
 #[test]
 fn a_recorded_run_replays_identically_and_a_tampered_one_names_cycle_and_variable() {

@@ -627,17 +627,7 @@ pub fn load_capture(path: &Path, mapping: &JoystickMapping) -> Result<Vec<(u64, 
     let file = crate::files::open_regular(path).map_err(|e| {
         format!("{shown}: {e} (in virtual time --joystick plays a capture file; a device or FIFO needs real time)")
     })?;
-    let size = file.metadata().map_err(|e| format!("{shown}: {e}"))?.len();
-    if size > MAX_CAPTURE_BYTES {
-        return Err(format!(
-            "{shown}: {size} bytes is more than the {} MiB a capture may hold",
-            MAX_CAPTURE_BYTES >> 20
-        ));
-    }
-    let mut bytes = Vec::new();
-    file.take(MAX_CAPTURE_BYTES)
-        .read_to_end(&mut bytes)
-        .map_err(|e| format!("{shown}: {e}"))?;
+    let bytes = crate::files::read_to_limit(file, MAX_CAPTURE_BYTES).map_err(|e| format!("{shown}: {e}"))?;
     if bytes.len() % super::joystick::EVENT_SIZE != 0 {
         return Err(format!(
             "{shown}: {} bytes is not a whole number of {}-byte input_event records",

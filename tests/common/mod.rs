@@ -137,6 +137,26 @@ pub fn jog_right_at(dir: &Path, at_s: f64) -> PathBuf {
     path
 }
 
+/// Records `seconds` of virtual time of the repository's configuration with the scenario
+/// `events` (a JSON array) into `dir/name`; returns the trace's path.
+pub fn record_trace(dir: &Path, name: &str, seconds: u32, events: &str) -> PathBuf {
+    let scenario = dir.join(format!("{name}.scenario.json"));
+    std::fs::write(&scenario, format!(r#"{{"events": {events}}}"#)).expect("write scenario");
+    let trace = dir.join(name);
+    let o = pkm(&[
+        "run",
+        "--virtual",
+        "--duration",
+        &seconds.to_string(),
+        "--scenario",
+        scenario.to_str().expect("utf-8"),
+        "--trace",
+        trace.to_str().expect("utf-8"),
+    ]);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    trace
+}
+
 /// Runs the `pkm-plc` binary in the repository with `RUST_LOG=warn`.
 pub fn pkm(args: &[&str]) -> std::process::Output {
     std::process::Command::new(env!("CARGO_BIN_EXE_pkm-plc"))
