@@ -55,6 +55,7 @@ pub fn run(options: &BenchOptions, mut progress: impl FnMut(&str)) -> Result<Vec
     let mut registry = Registry::new();
     selftest::register(&mut registry);
     let config = Config {
+        machine: None,
         task_classes: vec![TaskClassConfig {
             name: "bench".into(),
             cycle_us: options.cycle_us,

@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 
 use serde::Deserialize;
 
-use crate::image::DeclIssue;
+use crate::image::Problem;
 
 /// The configuration built into the binary: the repository's top-level config.json.
 pub const BUILTIN_CONFIG: &str = include_str!("../config.json");
@@ -23,6 +23,11 @@ pub const MAX_CYCLE_US: u32 = 10_000_000;
 #[derive(Clone, Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Config {
+    /// The machine the configuration runs (`trijoint`): it brings the programs, the check of the
+    /// `kinematics` and `plant` sections, the default I/O map and the simulated plant. Without
+    /// one, only the runtime's own (self-test) programs can run.
+    #[serde(default)]
+    pub machine: Option<String>,
     /// The task classes, each with its programs.
     pub task_classes: Vec<TaskClassConfig>,
     /// How real time is kept.
@@ -32,11 +37,11 @@ pub struct Config {
     /// built-in io-map/trijoint.json). Without it there is no field I/O.
     #[serde(default)]
     pub io_map: Option<String>,
-    /// The simulated machine (used with `--bus sim`).
+    /// The simulated machine (used with `--bus sim`); checked by the machine.
     #[serde(default)]
-    pub plant: crate::sim::PlantConfig,
-    /// Kinematic parameters of the machine models; checked by the application
-    /// (`tasks::kinematics::KinematicsConfig`), defaults from the spec.
+    pub plant: Option<serde_json::Value>,
+    /// Kinematic parameters of the machine models; checked by the machine, defaults from the
+    /// spec.
     #[serde(default)]
     pub kinematics: Option<serde_json::Value>,
     /// How the HID joystick's events map to the operator's commands (`--joystick`).
@@ -202,13 +207,13 @@ pub enum ConfigError {
         /// The file.
         file: String,
         /// Every problem found, in document order.
-        problems: Vec<DeclIssue>,
+        problems: Vec<Problem>,
     },
 }
 
 impl ConfigError {
     /// The problems of an `Invalid` error (empty for the others).
-    pub fn problems(&self) -> &[DeclIssue] {
+    pub fn problems(&self) -> &[Problem] {
         match self {
             ConfigError::Invalid { problems, .. } => problems,
             _ => &[],
@@ -218,7 +223,7 @@ impl ConfigError {
 
 struct Problems<'a> {
     file: &'a str,
-    problems: &'a [DeclIssue],
+    problems: &'a [Problem],
 }
 
 impl fmt::Display for Problems<'_> {
@@ -311,7 +316,7 @@ fn json_error(origin: &str, path: &str, inner: &serde_json::Error) -> ConfigErro
         }
         _ => ConfigError::Invalid {
             file: origin.to_string(),
-            problems: vec![DeclIssue {
+            problems: vec![Problem {
                 at: display_path(path),
                 message,
             }],
@@ -319,14 +324,7 @@ fn json_error(origin: &str, path: &str, inner: &serde_json::Error) -> ConfigErro
     }
 }
 
-/// A text cut to a readable length for a message: a 50 MB string value is not echoed whole.
-pub fn shorten(text: &str) -> std::borrow::Cow<'_, str> {
-    const MAX: usize = 200;
-    match text.char_indices().nth(MAX) {
-        None => std::borrow::Cow::Borrowed(text),
-        Some((cut, _)) => std::borrow::Cow::Owned(format!("{}… ({} bytes in all)", &text[..cut], text.len())),
-    }
-}
+pub use pkm_api::strict_json::shorten;
 
 /// serde_json appends " at line L column C" to its messages; the path says more, so drop it.
 fn strip_position(message: &str) -> String {
@@ -345,9 +343,9 @@ fn display_path(path: &str) -> String {
 }
 
 /// The checks of the configuration that need no knowledge of programs or the I/O map.
-pub fn check(config: &Config) -> Vec<DeclIssue> {
+pub fn check(config: &Config) -> Vec<Problem> {
     let mut issues = Vec::new();
-    let mut push = |at: String, message: String| issues.push(DeclIssue { at, message });
+    let mut push = |at: String, message: String| issues.push(Problem { at, message });
     if config.task_classes.is_empty() {
         push("task_classes".into(), "at least one task class is required".into());
     }

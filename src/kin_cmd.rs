@@ -7,15 +7,15 @@ use std::time::Instant;
 use clap::{Args, Subcommand};
 use serde_json::{Map, Value, json};
 
+use pkm_kinematics::hexapod::Hexapod;
+use pkm_kinematics::{Kinematics, KinematicsConfig, Machine, workspace};
 use pkm_plc::config::{ConfigError, LoadedConfig};
-use pkm_plc::tasks::kinematics::hexapod::Hexapod;
-use pkm_plc::tasks::kinematics::{Kinematics, KinematicsConfig, Machine, workspace};
 
 /// Arguments of `pkm-plc kin`.
 #[derive(Args, Debug)]
 pub struct KinArgs {
-    /// The machine model.
-    #[arg(value_enum)]
+    /// The machine model: trijoint, pn101, ox-x, ox-o or hexapod.
+    #[arg(value_parser = parse_model)]
     machine: Machine,
     #[command(subcommand)]
     op: KinOp,
@@ -77,6 +77,14 @@ enum KinOp {
     },
 }
 
+/// A kinematic model by its name on the command line.
+fn parse_model(s: &str) -> Result<Machine, String> {
+    Machine::ALL.into_iter().find(|m| m.name() == s).ok_or_else(|| {
+        let names: Vec<&str> = Machine::ALL.iter().map(|m| m.name()).collect();
+        format!("\"{s}\" is not a machine model: use {}", names.join(", "))
+    })
+}
+
 /// A failure with its exit code.
 pub struct KinFailure {
     pub code: u8,
@@ -99,7 +107,7 @@ pub fn run(
         config: args.config.clone(),
     })
     .map_err(|e| fail(2, e.to_string()))?;
-    let config = pkm_plc::application_config(&loaded.config).map_err(|problems| {
+    let config = KinematicsConfig::from_section(loaded.config.kinematics.as_ref()).map_err(|problems| {
         fail(
             2,
             ConfigError::Invalid {
@@ -133,8 +141,8 @@ pub fn run(
             threshold,
         } => {
             let ws = workspace::sample(&config, args.machine, samples, threshold);
-            let picture =
-                workspace::svg(&ws, kin.pose_keys()).map_err(|e| fail(1, format!("drawing the workspace: {e}")))?;
+            let picture = crate::kin_svg::draw(&ws, kin.pose_keys())
+                .map_err(|e| fail(1, format!("drawing the workspace: {e}")))?;
             std::fs::write(&svg, picture).map_err(|e| fail(1, format!("{}: cannot write: {e}", svg.display())))?;
             if let Some(path) = json {
                 let text = serde_json::to_string(&ws).map_err(|e| fail(1, e.to_string()))?;

@@ -8,7 +8,8 @@ use std::time::Duration;
 
 use serde::Serialize;
 
-use crate::config::{ConfigError, LoadedConfig};
+use crate::compose::Setup;
+use crate::config::ConfigError;
 use crate::image::VarTable;
 use crate::io::line::LineTiming;
 use crate::io::map::IoMap;
@@ -74,21 +75,19 @@ pub enum LinkBenchError {
 
 /// Runs one row per exchange mode, calling `progress` before each.
 pub fn run(
-    loaded: &LoadedConfig,
+    setup: &Setup,
     options: &LinkBenchOptions,
     mut progress: impl FnMut(&str),
 ) -> Result<Vec<LinkBenchRow>, LinkBenchError> {
-    let map = IoMap::load(loaded)?.ok_or_else(|| LinkBenchError::NoIoMap(loaded.origin.clone()))?;
-    let kinematics = crate::application_config(&loaded.config).map_err(|problems| ConfigError::Invalid {
-        file: loaded.origin.clone(),
-        problems,
-    })?;
+    let map = setup
+        .io_map()?
+        .ok_or_else(|| LinkBenchError::NoIoMap(setup.origin().to_string()))?;
     let timing = LineTiming::modbus_rtu(options.baud);
     let sizes = RegisterMap::of(&map).sizes();
     let mut rows = Vec::new();
     for &mode in &options.modes {
         progress(&format!("{} at {} baud", mode.name(), options.baud));
-        let station = Station::new(crate::sim::build(loaded, &kinematics.trijoint, None)?);
+        let station = Station::new(setup.sim_bus(None)?);
         rows.push(measure(map.clone(), station, mode, options, timing, sizes)?);
     }
     Ok(rows)

@@ -6,7 +6,6 @@
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::Arc;
-use std::sync::atomic::AtomicBool;
 use std::time::Duration;
 
 use clap::{Args, Parser, Subcommand};
@@ -14,9 +13,9 @@ use tracing::{info, warn};
 use tracing_subscriber::EnvFilter;
 
 use pkm_plc::bench::{self, BenchOptions};
-use pkm_plc::bus::NoBus;
+use pkm_plc::compose::{self, Built, BusChoice, JoystickChoice, Options, Setup};
 use pkm_plc::config::{self, ConfigError, LoadedConfig, TimeSourceKind};
-use pkm_plc::io::hid::{JoystickBus, JoystickFeed, JoystickSpec, LatencyProbe};
+use pkm_plc::io::hid::JoystickSpec;
 use pkm_plc::io::modbus::ExchangeMode;
 use pkm_plc::plc::Plc;
 use pkm_plc::run::{self, RealTimeOptions};
@@ -24,6 +23,7 @@ use pkm_plc::status;
 use pkm_plc::summary::Summary;
 
 mod kin_cmd;
+mod kin_svg;
 
 /// A soft-PLC for parallel-kinematic machine models.
 #[derive(Parser, Debug)]
@@ -163,11 +163,11 @@ struct RunArgs {
     /// Write a JSON summary (cycle statistics, final state) to FILE at exit.
     #[arg(long, value_name = "FILE")]
     summary: Option<PathBuf>,
-    /// The field bus: `sim` (the simulated TRIJOINT lab model behind the configured I/O map),
+    /// The field bus: `sim` (the configured machine's simulated plant behind its I/O map),
     /// `tcp:HOST:PORT` (a Modbus TCP station serving the I/O map's register map),
     /// `serial:PATH[@BAUD]` (the same over Modbus RTU, 115 200 baud by default), or `none`.
     #[arg(long, default_value = "sim", value_parser = parse_bus)]
-    bus: BusKind,
+    bus: BusChoice,
     /// How a Modbus bus exchanges the I/O each time: `tables` (four requests on the standard
     /// tables, any server), `image` (one read/write-multiple-registers request on the packed
     /// process image, as io-sim serves it), or `auto` (image on serial, tables on TCP).
@@ -215,19 +215,6 @@ struct BenchArgs {
     json: Option<PathBuf>,
 }
 
-/// The buses `run` can use.
-#[derive(Clone, Debug, PartialEq, Eq)]
-enum BusKind {
-    /// The simulated machine.
-    Sim,
-    /// No field I/O.
-    None,
-    /// A Modbus TCP station.
-    Tcp(std::net::SocketAddr),
-    /// A Modbus RTU station on a serial line.
-    Serial(String, u32),
-}
-
 /// `PATH[@BAUD]`, 115 200 baud by default.
 fn parse_serial(s: &str) -> Result<(String, u32), String> {
     match s.rsplit_once('@') {
@@ -241,18 +228,18 @@ fn parse_serial(s: &str) -> Result<(String, u32), String> {
     }
 }
 
-fn parse_bus(s: &str) -> Result<BusKind, String> {
+fn parse_bus(s: &str) -> Result<BusChoice, String> {
     use std::net::ToSocketAddrs;
     match s {
-        "sim" => Ok(BusKind::Sim),
-        "none" => Ok(BusKind::None),
+        "sim" => Ok(BusChoice::Sim),
+        "none" => Ok(BusChoice::None),
         _ if s.starts_with("tcp:") => s[4..]
             .to_socket_addrs()
             .ok()
             .and_then(|mut a| a.next())
-            .map(BusKind::Tcp)
+            .map(BusChoice::Tcp)
             .ok_or_else(|| format!("\"{}\" is not HOST:PORT", &s[4..])),
-        _ if s.starts_with("serial:") => parse_serial(&s[7..]).map(|(p, b)| BusKind::Serial(p, b)),
+        _ if s.starts_with("serial:") => parse_serial(&s[7..]).map(|(p, b)| BusChoice::Serial(p, b)),
         _ => Err(format!(
             "\"{s}\" is not a bus: use sim, none, tcp:HOST:PORT or serial:PATH[@BAUD]"
         )),
@@ -338,217 +325,20 @@ fn load_config(arg: &ConfigArg) -> Result<LoadedConfig, ConfigError> {
     config::load(path.as_deref())
 }
 
-/// What `run --joystick` asks for.
-enum JoystickChoice {
-    /// A live source read by a thread (real time), or none.
-    Live(JoystickSpec),
-    /// A capture file played on the simulated clock (virtual time).
-    Capture(PathBuf),
+/// Loads the configuration named on the command line (or the default one) and resolves its
+/// machine.
+fn load_setup(arg: &ConfigArg) -> Result<Setup, ConfigError> {
+    Setup::new(load_config(arg)?)
 }
 
-/// The HID joystick of a built PLC: its reader is started once the PLC is valid.
-struct Joystick {
-    spec: JoystickSpec,
-    feed: JoystickFeed,
-    probe: LatencyProbe,
-    stop: Arc<AtomicBool>,
-}
-
-/// Why the bus could not be made.
-enum BusFailure {
-    /// A problem of the configuration or its I/O map: reported with the rest of the checks.
-    Config(ConfigError),
-    /// Anything else (a usage error): reported alone.
-    Other(Failure),
-}
-
-impl From<ConfigError> for BusFailure {
-    fn from(e: ConfigError) -> Self {
-        BusFailure::Config(e)
-    }
-}
-
-impl From<Failure> for BusFailure {
-    fn from(f: Failure) -> Self {
-        BusFailure::Other(f)
-    }
-}
-
-/// The bus `kind` for a loaded configuration.
-fn make_bus(
-    loaded: &LoadedConfig,
-    app: &Result<pkm_plc::tasks::kinematics::KinematicsConfig, Vec<pkm_plc::image::DeclIssue>>,
-    kind: BusKind,
-    link: pkm_plc::io::modbus::ModbusOptions,
-    scenario: Option<&Path>,
-) -> Result<Box<dyn pkm_plc::bus::Bus>, BusFailure> {
-    let needs_sim =
-        |what: &str| BusFailure::Other(Failure::usage(format!("--scenario needs the simulated bus ({what})")));
-    Ok(match (kind, &loaded.config.io_map) {
-        (kind @ (BusKind::Tcp(_) | BusKind::Serial(..)), Some(_)) => {
-            if scenario.is_some() {
-                return Err(needs_sim("give it to io-sim instead"));
-            }
-            let Some(map) = pkm_plc::io::map::IoMap::load(loaded)? else {
-                return Err(Failure::usage("a Modbus bus needs an io_map in the configuration").into());
-            };
-            let transport = match kind {
-                BusKind::Serial(path, baud) => pkm_plc::io::modbus::Transport::Serial { path, baud },
-                BusKind::Tcp(address) => pkm_plc::io::modbus::Transport::Tcp(address),
-                _ => unreachable!("matched above"),
-            };
-            let bus = pkm_plc::io::modbus::ModbusBus::new(map, transport, link)
-                .map_err(|e| Failure::usage(format!("--bus: {e}")))?;
-            Box::new(bus)
-        }
-        (BusKind::Tcp(_) | BusKind::Serial(..), None) => {
-            return Err(Failure::usage("a Modbus bus needs an io_map in the configuration").into());
-        }
-        (BusKind::None, Some(_)) => {
-            if scenario.is_some() {
-                return Err(needs_sim("--bus sim and an io_map in the configuration"));
-            }
-            let Some(map) = pkm_plc::io::map::IoMap::load(loaded)? else {
-                unreachable!("the configuration names an I/O map")
-            };
-            let bus = pkm_plc::io::dry::DryBus::new(map);
-            warn!(
-                "--bus none: a dry run of the programs without field I/O: the inputs of the I/O map ({}) hold zero / \
-                 false, the outputs go nowhere",
-                bus.held_inputs().join(", ")
-            );
-            Box::new(bus)
-        }
-        (BusKind::None, None) | (BusKind::Sim, None) => {
-            if scenario.is_some() {
-                return Err(needs_sim("--bus sim and an io_map in the configuration"));
-            }
-            Box::new(NoBus)
-        }
-        (BusKind::Sim, Some(_)) => {
-            let kinematics = app.clone().unwrap_or_default();
-            Box::new(pkm_plc::sim::build(loaded, &kinematics.trijoint, scenario)?)
-        }
-    })
-}
-
-/// Loads and builds: every problem of the configuration and its I/O map is reported at once.
-fn build(
-    arg: &ConfigArg,
-    bus: BusKind,
-    link: pkm_plc::io::modbus::ModbusOptions,
-    scenario: Option<&Path>,
-    joystick: JoystickChoice,
-) -> Result<(LoadedConfig, Plc, Option<Joystick>), Failure> {
-    let loaded = load_config(arg)?;
-    let app = pkm_plc::application_config(&loaded.config);
-    // A bus that cannot be made for a problem of the files (the I/O map, the plant section) does
-    // not hide the configuration's other problems: they are checked on a stand-in bus.
-    let (bus, bus_problem) = match make_bus(&loaded, &app, bus, link, scenario) {
-        Ok(bus) => (bus, None),
-        Err(BusFailure::Config(e)) => (
-            Box::new(pkm_plc::bus::UnknownBus) as Box<dyn pkm_plc::bus::Bus>,
-            Some(e),
-        ),
-        Err(BusFailure::Other(f)) => return Err(f),
-    };
-    let (bus, joystick) = match bus_problem {
-        None => with_joystick(&loaded, bus, joystick)?,
-        Some(_) => (bus, None),
-    };
-    let plc = Plc::build(&loaded.config, &pkm_plc::registry(), bus);
-    match (plc, app, bus_problem) {
-        (Ok(plc), Ok(_), None) => Ok((loaded, plc, joystick)),
-        (plc, app, bus_problem) => {
-            let mut problems = plc.err().unwrap_or_default();
-            problems.extend(app.err().unwrap_or_default());
-            let mut reports: Vec<String> = Vec::new();
-            // The plant section's problems are the configuration's own: one list.
-            match bus_problem {
-                Some(ConfigError::Invalid { file, problems: more }) if file == loaded.origin => problems.extend(more),
-                Some(other) => reports.push(other.to_string()),
-                None => {}
-            }
-            if !problems.is_empty() {
-                let own = ConfigError::Invalid {
-                    file: loaded.origin.clone(),
-                    problems,
-                };
-                reports.insert(0, own.to_string());
-            }
-            Err(Failure::usage(reports.join("\n")))
-        }
-    }
-}
-
-/// Lays the HID joystick over `bus`'s joystick channels, unless `spec` is `none` or the I/O map
-/// binds none.
-fn with_joystick(
-    loaded: &LoadedConfig,
-    bus: Box<dyn pkm_plc::bus::Bus>,
-    choice: JoystickChoice,
-) -> Result<(Box<dyn pkm_plc::bus::Bus>, Option<Joystick>), Failure> {
-    let spec = match choice {
-        JoystickChoice::Live(JoystickSpec::None) => return Ok((bus, None)),
-        JoystickChoice::Live(spec) => spec,
-        JoystickChoice::Capture(path) => {
-            let states = pkm_plc::io::hid::load_capture(&path, &loaded.config.joystick)
-                .map_err(|e| Failure::usage(format!("--joystick {e}")))?;
-            let Some(map) = pkm_plc::io::map::IoMap::load(loaded)? else {
-                return Err(Failure::usage(format!(
-                    "--joystick {}: the configuration has no I/O map to bind it to",
-                    path.display()
-                )));
-            };
-            let bus = JoystickBus::with_capture(bus, &map, states);
-            if !bus.binds_anything() {
-                return Err(Failure::usage(format!(
-                    "--joystick {}: {} binds no channel of a Joystick module",
-                    path.display(),
-                    map.origin
-                )));
-            }
-            info!("joystick: playing capture {} on the simulated clock", path.display());
-            return Ok((Box::new(bus), None));
-        }
-    };
-    let Some(map) = pkm_plc::io::map::IoMap::load(loaded)? else {
-        if let JoystickSpec::Path(p) = &spec {
-            warn!(
-                "--joystick {}: the configuration has no I/O map to bind it to; ignored",
-                p.display()
-            );
-        }
-        return Ok((bus, None));
-    };
-    let (joystick_bus, feed, probe) = JoystickBus::new(bus, &map);
-    if !joystick_bus.binds_anything() {
-        if let JoystickSpec::Path(p) = &spec {
-            warn!(
-                "--joystick {}: {} binds no channel of a Joystick module; ignored",
-                p.display(),
-                map.origin
-            );
-        }
-        return Ok((Box::new(joystick_bus), None));
-    }
-    let joystick = Joystick {
-        spec,
-        feed,
-        probe,
-        stop: Arc::new(AtomicBool::new(false)),
-    };
-    Ok((Box::new(joystick_bus), Some(joystick)))
+/// Builds a PLC through the composition root.
+fn build(arg: &ConfigArg, options: Options) -> Result<Built, Failure> {
+    compose::build(load_setup(arg)?, options).map_err(|e| Failure::usage(e.0))
 }
 
 fn cmd_check(args: ConfigArg) -> Result<(), Failure> {
-    let (loaded, plc, _) = build(
-        &args,
-        BusKind::Sim,
-        Default::default(),
-        None,
-        JoystickChoice::Live(JoystickSpec::None),
-    )?;
+    let Built { setup, plc, .. } = build(&args, Options::default())?;
+    let loaded = &setup.loaded;
     let classes: Vec<String> = plc
         .classes()
         .map(|c| format!("{} ({} ms)", c.name, c.period_ns as f64 / 1e6))
@@ -572,27 +362,32 @@ fn cmd_run(args: RunArgs) -> Result<(), Failure> {
         (_, true) => JoystickChoice::Live(JoystickSpec::None),
         (spec, false) => JoystickChoice::Live(spec.clone()),
     };
-    let (loaded, mut plc, joystick) = build(
-        &args.config,
-        args.bus,
-        pkm_plc::io::modbus::ModbusOptions {
+    let options = Options {
+        bus: args.bus,
+        link: pkm_plc::io::modbus::ModbusOptions {
             exchange: args.exchange,
             max_input_age: Duration::from_millis(args.max_input_age_ms),
             ..Default::default()
         },
-        args.scenario.as_deref(),
+        scenario: args.scenario.clone(),
         joystick,
-    )?;
+    };
+    let Built {
+        setup,
+        mut plc,
+        joystick,
+    } = build(&args.config, options)?;
+    let loaded = &setup.loaded;
     let summary_file = args.summary.as_deref().map(OutputFile::create).transpose()?;
     if let Some(path) = &args.trace {
-        let digest = pkm_plc::trace::config_digest(&loaded)?;
+        let digest = setup.digest()?;
         let recorder = pkm_plc::trace::record::Recorder::create(path, &plc, &digest)
             .map_err(|e| Failure::run(format!("{}: cannot create the trace: {e}", path.display())))?;
         plc.set_recorder(Box::new(recorder));
     }
     info!("configuration: {}; bus: {}", loaded.origin, plc.bus_name());
     if plc.app_program().is_some_and(|p| p.starts_with("selftest.")) {
-        warn!("running the runtime's built-in self-test programs, not the TRIJOINT application");
+        warn!("running the runtime's built-in self-test programs, not a machine's application");
     }
     // A trace that could not be written fails the run, but only after the summary.
     let trace_failure;
@@ -625,7 +420,7 @@ fn cmd_run(args: RunArgs) -> Result<(), Failure> {
         );
         let probe = match joystick {
             Some(j) => {
-                let Joystick {
+                let compose::Joystick {
                     spec,
                     feed,
                     probe,
@@ -731,8 +526,8 @@ fn finish_trace(plc: &mut Plc) -> Result<(), Failure> {
 
 fn cmd_replay(args: ReplayArgs) -> Result<(), Failure> {
     use pkm_plc::trace::replay::{ReplayError, replay};
-    let loaded = load_config(&args.config)?;
-    match replay(&args.trace, &loaded, args.force) {
+    let setup = load_setup(&args.config)?;
+    match replay(&args.trace, &setup, args.force) {
         Ok(r) => {
             let (identical, cut) = match &r.cut {
                 None => ("identical", String::new()),
@@ -771,11 +566,11 @@ fn cmd_trace(args: TraceArgs) -> Result<(), Failure> {
 }
 
 fn cmd_registers(args: ConfigArg) -> Result<(), Failure> {
-    let loaded = load_config(&args)?;
-    let Some(map) = pkm_plc::io::map::IoMap::load(&loaded)? else {
+    let setup = load_setup(&args)?;
+    let Some(map) = setup.io_map()? else {
         return Err(Failure::usage(format!(
             "{}: the configuration names no I/O map",
-            loaded.origin
+            setup.origin()
         )));
     };
     let registers = pkm_plc::io::registers::RegisterMap::of(&map);
@@ -799,12 +594,8 @@ fn cmd_registers(args: ConfigArg) -> Result<(), Failure> {
 
 fn cmd_io_sim(args: IoSimArgs) -> Result<(), Failure> {
     use std::io::Write;
-    let loaded = load_config(&args.config)?;
-    let kinematics = pkm_plc::application_config(&loaded.config).map_err(|problems| ConfigError::Invalid {
-        file: loaded.origin.clone(),
-        problems,
-    })?;
-    let bus = pkm_plc::sim::build(&loaded, &kinematics.trijoint, args.scenario.as_deref())?;
+    let setup = load_setup(&args.config)?;
+    let bus = setup.sim_bus(args.scenario.as_deref())?;
     let station = pkm_plc::sim::modbus::Station::new(bus);
     let [coils, discrete, input, holding] = station.registers().sizes();
     let options = pkm_plc::sim::server::ServerOptions {
@@ -830,7 +621,7 @@ fn cmd_io_sim(args: IoSimArgs) -> Result<(), Failure> {
         if let Some((path, baud)) = &args.serial {
             let stream = tokio_serial::SerialStream::open(&tokio_serial::new(path.as_str(), *baud))
                 .map_err(|e| Failure::run(format!("io-sim: cannot open {path}: {e}")))?;
-            info!("io-sim: {} on {path} at {baud} baud as Modbus RTU, {watchdog}; Ctrl-C stops", loaded.origin);
+            info!("io-sim: {} on {path} at {baud} baud as Modbus RTU, {watchdog}; Ctrl-C stops", setup.origin());
             return tokio::select! {
                 served = pkm_plc::sim::server::serve_rtu(stream, station, options) => served.map_err(|e| Failure::run(format!("io-sim: {e}"))),
                 name = signals.recv() => stopped(name),
@@ -853,7 +644,7 @@ fn cmd_io_sim(args: IoSimArgs) -> Result<(), Failure> {
         info!(
             "io-sim: {} on {address} as Modbus TCP: {coils} coils, {discrete} discrete inputs, {input} input registers, \
              {holding} holding registers; {watchdog}, at most {} clients; Ctrl-C stops",
-            loaded.origin, options.max_connections
+            setup.origin(), options.max_connections
         );
         tokio::select! {
             served = pkm_plc::sim::server::serve_tcp(listener, station, options) => {
@@ -893,14 +684,14 @@ fn cmd_link_bench(args: LinkBenchArgs) -> Result<(), Failure> {
     if args.exchange.contains(&ExchangeMode::Auto) {
         return Err(Failure::usage("--exchange: name the modes to measure (tables, image)"));
     }
-    let loaded = load_config(&args.config)?;
+    let setup = load_setup(&args.config)?;
     let options = pkm_plc::link_bench::LinkBenchOptions {
         baud: args.baud,
         seconds: args.seconds,
         modes: args.exchange,
     };
     let json_file = args.json.as_deref().map(OutputFile::create).transpose()?;
-    let rows = pkm_plc::link_bench::run(&loaded, &options, |row| info!("measuring {row}")).map_err(|e| match e {
+    let rows = pkm_plc::link_bench::run(&setup, &options, |row| info!("measuring {row}")).map_err(|e| match e {
         pkm_plc::link_bench::LinkBenchError::Setup(_) => Failure::run(e.to_string()),
         _ => Failure::usage(e.to_string()),
     })?;

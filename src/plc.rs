@@ -9,8 +9,8 @@ use tracing::warn;
 
 use crate::bus::Bus;
 use crate::config::{self, Config, Reaction};
-use crate::image::{DeclIssue, Declare, Value, VarIndex, VarTable, Writer};
-use crate::program::{AppStatus, Clock, Cycle, CycleViolation, Program, ProgramArgs, Registry};
+use crate::image::{Declare, Problem, Value, VarIndex, VarTable, Writer};
+use crate::program::{AppStatus, Clock, Cycle, CycleInfo, CycleViolation, Program, ProgramArgs, Registry};
 use crate::stats::ClassStats;
 
 /// What a recorder sees of one class cycle.
@@ -103,7 +103,7 @@ pub struct ClassView<'a> {
 impl Plc {
     /// Builds the PLC from a configuration: checks it as a whole, lets the bus and every program
     /// declare their variables, and returns every problem found at once.
-    pub fn build(config: &Config, registry: &Registry, mut bus: Box<dyn Bus>) -> Result<Plc, Vec<DeclIssue>> {
+    pub fn build(config: &Config, registry: &Registry, mut bus: Box<dyn Bus>) -> Result<Plc, Vec<Problem>> {
         let mut issues = config::check(config);
         let mut table = VarTable::new();
         bus.declare(&mut table);
@@ -127,7 +127,7 @@ impl Plc {
                 let at = format!("task_classes[{ci}].programs[{pi}]");
                 let Some(info) = registry.get(&entry.program) else {
                     let known: Vec<&str> = registry.programs().iter().map(|p| p.name).collect();
-                    issues.push(DeclIssue {
+                    issues.push(Problem {
                         at: format!("{at}.program"),
                         message: format!(
                             "unknown program \"{}\"; known programs: {}",
@@ -266,14 +266,13 @@ impl Plc {
                 class.image[usize::from(i)] = self.global[usize::from(i)];
             }
             for slot in &mut class.programs {
-                let mut ctx = Cycle {
-                    image: &mut class.image,
+                let info = CycleInfo {
                     time_ns: start_ns,
                     cycle: 0,
                     period_ns: class.period_ns,
                     violation: None,
-                    clock: &mut *clock,
                 };
+                let mut ctx = Cycle::new(&mut class.image, info, &mut *clock);
                 slot.program.init(&mut ctx);
             }
             for &o in &class.outputs {
@@ -326,14 +325,13 @@ impl Plc {
                 None => None,
             };
             delivered |= violation.is_some();
-            let mut ctx = Cycle {
-                image: &mut class.image,
+            let info = CycleInfo {
                 time_ns: release,
                 cycle,
                 period_ns: class.period_ns,
                 violation,
-                clock: &mut *clock,
             };
+            let mut ctx = Cycle::new(&mut class.image, info, &mut *clock);
             slot.program.cycle(&mut ctx);
         }
         delivered

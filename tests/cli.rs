@@ -441,7 +441,7 @@ fn run_takes_a_scenario_and_refuses_a_bad_one() {
     assert_eq!(
         stderr(&o),
         format!(
-            "error: {}: at events[0].drive: unknown variant `middle`, expected `left` or `right`\n",
+            "error: {}: at events[0].drive: no drive \"middle\" on this machine: use \"left\" or \"right\"\n",
             path.display()
         )
     );

@@ -23,7 +23,7 @@ fn error_with(json: &str, registry: &Registry) -> String {
 }
 
 fn error(json: &str) -> String {
-    error_with(json, &pkm_plc::registry())
+    error_with(json, &pkm_plc::machines::all_programs())
 }
 
 /// One task class with the given fields replacing the defaults.
@@ -45,11 +45,10 @@ fn the_default_configuration_is_valid() {
     // `pkm-plc check` and `pkm-plc run` build them.
     let file = std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/config.json"));
     for loaded in [config::load(None), config::load(Some(file))] {
-        let loaded = loaded.expect("parses");
-        let kinematics = pkm_plc::application_config(&loaded.config).expect("kinematics");
-        let bus = pkm_plc::sim::build(&loaded, &kinematics.trijoint, None).expect("I/O map and plant");
-        if let Err(problems) = Plc::build(&loaded.config, &pkm_plc::registry(), Box::new(bus)) {
-            panic!("{}: {problems:#?}", loaded.origin);
+        let setup = pkm_plc::compose::Setup::new(loaded.expect("parses")).expect("known machine");
+        let bus = setup.sim_bus(None).expect("I/O map and plant");
+        if let Err(e) = setup.plc(Box::new(bus)) {
+            panic!("{e}");
         }
     }
 }
@@ -83,7 +82,7 @@ fn syntax_errors_give_line_and_column() {
 fn unknown_fields_are_refused_with_the_expected_ones() {
     assert_eq!(
         error(r#"{"tasks": []}"#),
-        "cfg.json: at tasks: unknown field `tasks`, expected one of `task_classes`, `timing`, `io_map`, `plant`, `kinematics`, `joystick`"
+        "cfg.json: at tasks: unknown field `tasks`, expected one of `machine`, `task_classes`, `timing`, `io_map`, `plant`, `kinematics`, `joystick`"
     );
     assert_eq!(
         error(&format!(r#"{{"task_classes": [{}]}}"#, class(r#"{"cycle_ms": 10}"#))),
@@ -426,14 +425,18 @@ fn problems_of(change: impl Fn(&mut serde_json::Value), change_map: impl Fn(&mut
         }
         Err(e) => return e.to_string(),
     };
-    if let Err(problems) = pkm_plc::application_config(&loaded.config) {
+    let problems = match pkm_plc::compose::Setup::new(loaded.clone()) {
+        Ok(setup) => setup.section_problems(),
+        Err(e) => return e.to_string(),
+    };
+    if !problems.is_empty() {
         return ConfigError::Invalid {
             file: loaded.origin,
             problems,
         }
         .to_string();
     }
-    match common::sim_plc(&loaded, &pkm_plc::registry(), None) {
+    match common::sim_plc(&loaded, &pkm_plc::machines::all_programs(), None) {
         Ok(_) => String::new(),
         Err(e) => e.to_string(),
     }

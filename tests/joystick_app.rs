@@ -16,7 +16,6 @@ use pkm_plc::image::{Value, VarTable};
 use pkm_plc::io::hid::{End, JoystickBus, JoystickFeed, JoystickState, read_records};
 use pkm_plc::io::joystick::codes::*;
 use pkm_plc::io::joystick::{InputEvent, JoystickMapping};
-use pkm_plc::io::map::IoMap;
 use pkm_plc::plc::Plc;
 use pkm_plc::run::VirtualClock;
 
@@ -26,12 +25,12 @@ const READY_MS: u64 = 44_000;
 /// The TRIJOINT application on the simulated machine with the HID joystick laid over it.
 fn build() -> (Plc, JoystickFeed) {
     let loaded = common::loaded(&common::repo_config());
-    let kinematics = pkm_plc::application_config(&loaded.config).expect("kinematics");
-    let sim = pkm_plc::sim::build(&loaded, &kinematics.trijoint, None).expect("sim");
-    let map = IoMap::load(&loaded).expect("valid map").expect("an io_map");
+    let setup = pkm_plc::compose::Setup::new(loaded.clone()).expect("known machine");
+    let sim = setup.sim_bus(None).expect("sim");
+    let map = setup.io_map().expect("valid map").expect("an io_map");
     let (bus, feed, _probe) = JoystickBus::new(Box::new(sim), &map);
     assert!(bus.binds_anything());
-    let plc = Plc::build(&loaded.config, &pkm_plc::registry(), Box::new(bus)).expect("valid");
+    let plc = Plc::build(&loaded.config, &pkm_plc::machines::all_programs(), Box::new(bus)).expect("valid");
     (plc, feed)
 }
 
@@ -190,8 +189,7 @@ fn capture() -> Vec<u8> {
 
 /// The joystick laid over no bus, with the repository's I/O map.
 fn joystick_alone() -> (JoystickBus, JoystickFeed) {
-    let loaded = common::loaded(&common::repo_config());
-    let map = IoMap::load(&loaded).expect("valid map").expect("an io_map");
+    let map = common::io_map(&common::loaded(&common::repo_config()));
     let (bus, feed, _probe) = JoystickBus::new(Box::new(NoBus), &map);
     (bus, feed)
 }

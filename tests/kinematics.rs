@@ -1,8 +1,8 @@
 //! Kinematics of the four machines: round trips, Jacobians, errors instead of NaN, hexapod
 //! convergence, and the TRIJOINT conditioning claim of the spec.
 
-use pkm_plc::tasks::kinematics::hexapod::Hexapod;
-use pkm_plc::tasks::kinematics::{KinError, Kinematics, KinematicsConfig, MAX_DOF, Machine};
+use pkm_kinematics::hexapod::Hexapod;
+use pkm_kinematics::{KinError, Kinematics, KinematicsConfig, MAX_DOF, Machine};
 use proptest::prelude::*;
 
 fn kin(machine: Machine) -> Box<dyn Kinematics> {

@@ -187,7 +187,9 @@ fn rtu_station(answers: usize, reply: fn(&[u8]) -> Vec<u8>) -> serialport::TTYPo
 fn driver_against(port: serialport::TTYPort) -> pkm_plc::io::modbus::ModbusBus {
     use pkm_plc::bus::Bus as _;
     let loaded = common::loaded(&common::repo_config());
-    let map = pkm_plc::io::map::IoMap::load(&loaded)
+    let map = pkm_plc::compose::Setup::new(loaded)
+        .expect("known machine")
+        .io_map()
         .expect("valid map")
         .expect("an io_map");
     let mut bus = pkm_plc::io::modbus::ModbusBus::new(

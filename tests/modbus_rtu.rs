@@ -9,7 +9,6 @@
 mod common;
 
 use pkm_plc::io::line::LineTiming;
-use pkm_plc::io::map::IoMap;
 use pkm_plc::io::modbus::{ExchangeMode, ModbusBus, Transport};
 use pkm_plc::plc::Plc;
 use pkm_plc::run::{self, RealTimeOptions};
@@ -19,11 +18,11 @@ use pkm_plc::sim::modbus::{Station, StationOnLine};
 fn the_application_runs_over_modbus_rtu_on_a_pty_pair() {
     // This tests the exchange, not the scheduler's timing: fast referencing, late cycles logged.
     let loaded = common::loaded(&common::realtime_config());
-    let kinematics = pkm_plc::application_config(&loaded.config).expect("kinematics");
     // The station's panel presses the direction button "right" after referencing.
     let dir = tempfile::tempdir().expect("tempdir");
     let scenario = common::jog_right_at(dir.path(), common::FAST_READY_S + 4.35);
-    let station = Station::new(pkm_plc::sim::build(&loaded, &kinematics.trijoint, Some(&scenario)).expect("sim"));
+    let setup = pkm_plc::compose::Setup::new(loaded.clone()).expect("known machine");
+    let station = Station::new(setup.sim_bus(Some(&scenario)).expect("sim"));
     // This tests the exchange, not its timing: the station's watchdog waits longer than a busy
     // machine may stall the test's threads.
     let relaxed = pkm_plc::sim::server::ServerOptions {
@@ -32,7 +31,7 @@ fn the_application_runs_over_modbus_rtu_on_a_pty_pair() {
     };
     let (_station, plc_end) =
         StationOnLine::start(station, LineTiming::modbus_rtu(115_200), relaxed).expect("station on the line");
-    let map = IoMap::load(&loaded).expect("valid map").expect("an io_map");
+    let map = setup.io_map().expect("valid map").expect("an io_map");
     // This tests the exchange, not its timing: a busy machine may delay an image.
     let link = pkm_plc::io::modbus::ModbusOptions {
         max_input_age: std::time::Duration::from_millis(500),
@@ -40,9 +39,9 @@ fn the_application_runs_over_modbus_rtu_on_a_pty_pair() {
     };
     let bus = ModbusBus::new(map, Transport::Port(Some(plc_end)), link).expect("the image fits");
     assert_eq!(bus.exchange(), ExchangeMode::Image);
-    let mut plc = Plc::build(&loaded.config, &pkm_plc::registry(), Box::new(bus)).expect("valid");
+    let mut plc = Plc::build(&loaded.config, &pkm_plc::machines::all_programs(), Box::new(bus)).expect("valid");
     let trace = dir.path().join("trace.jsonl");
-    let digest = pkm_plc::trace::config_digest(&loaded).expect("digest");
+    let digest = setup.digest().expect("digest");
     plc.set_recorder(Box::new(
         pkm_plc::trace::record::Recorder::create(&trace, &plc, &digest).expect("trace"),
     ));

@@ -97,7 +97,7 @@ impl Program for CheckSet {
 }
 
 fn registry() -> Registry {
-    let mut r = pkm_plc::registry();
+    let mut r = pkm_plc::machines::all_programs();
     for name in ["stamp.a", "stamp.b", "stamp.c"] {
         r.register(ProgramInfo {
             name,

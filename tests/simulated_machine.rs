@@ -6,12 +6,12 @@ mod common;
 use std::path::Path;
 
 use common::{plant, run, var};
+use pkm_kinematics::trijoint::TrijointParams;
 use pkm_plc::config::{ConfigError, LoadedConfig};
 use pkm_plc::image::{Declare, Input, Output, Value};
 use pkm_plc::io::map::IoMap;
 use pkm_plc::plc::Plc;
 use pkm_plc::program::{Cycle, Program, ProgramArgs, ProgramInfo, Registry};
-use pkm_plc::tasks::kinematics::trijoint::TrijointParams;
 
 const CLASSES: [&str; 3] = ["fast", "main", "spare"];
 
@@ -174,7 +174,7 @@ impl Program for Drive {
 }
 
 fn registry() -> Registry {
-    let mut r = pkm_plc::registry();
+    let mut r = pkm_plc::machines::all_programs();
     r.register(ProgramInfo {
         name: "test.drive",
         summary: "test",
@@ -304,7 +304,7 @@ fn scenario_errors_name_the_event() {
     let e = bad(r#"{"at_ms": 5, "input": "SWITCH_LEFT_UPPER", "value": true}"#);
     assert!(
         e.contains(
-            "at events[0].input: \"SWITCH_LEFT_UPPER\" is wired to Switch(0, Upper), not to an operator panel button"
+            "at events[0].input: \"SWITCH_LEFT_UPPER\" is wired to the machine's switch_left_upper, not to an operator panel button"
         ),
         "{e}"
     );

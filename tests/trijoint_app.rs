@@ -4,17 +4,21 @@
 mod common;
 
 use common::{plant, real, run, state, var};
+use pkm_kinematics::Kinematics;
+use pkm_kinematics::trijoint::{Trijoint, TrijointParams};
 use pkm_plc::image::Value;
 use pkm_plc::plc::Plc;
-use pkm_plc::tasks::kinematics::Kinematics;
-use pkm_plc::tasks::kinematics::trijoint::{Trijoint, TrijointParams};
 
 const COUNT_MM: f64 = 1.0 / 7000.0;
 
 /// The repository's config.json (the TRIJOINT application) with a scenario.
 fn build(scenario: Option<&str>) -> Plc {
-    common::sim_plc(&common::loaded(&common::repo_config()), &pkm_plc::registry(), scenario)
-        .unwrap_or_else(|e| panic!("{e}"))
+    common::sim_plc(
+        &common::loaded(&common::repo_config()),
+        &pkm_plc::machines::all_programs(),
+        scenario,
+    )
+    .unwrap_or_else(|e| panic!("{e}"))
 }
 
 /// State changes as (time ms, state, reason).
@@ -372,7 +376,7 @@ fn a_cycle_time_violation_sends_the_application_to_error() {
     c["task_classes"][2]["on_violation"] = serde_json::json!("error");
     c["task_classes"][2]["programs"] = serde_json::json!([{"program": "selftest.idle",
         "params": {"burn_us": 250000, "burn_from_cycle": 450, "burn_until_cycle": 451}}]);
-    let mut plc = common::sim_plc(&common::loaded(&c), &pkm_plc::registry(), None).expect("valid");
+    let mut plc = common::sim_plc(&common::loaded(&c), &pkm_plc::machines::all_programs(), None).expect("valid");
     assert_eq!(error_reason(&mut plc, 50_000).as_deref(), Some("cycle time violation"));
 }
 
@@ -413,8 +417,12 @@ fn jogging_into_every_border_stops_inside_the_soft_limits() {
         }
         let scenario = format!(r#"{{"events": [{}]}}"#, events.join(","));
         let config = with_main_params(serde_json::json!({ "max_speed_mm_s": max_speed }));
-        let mut plc = common::sim_plc(&common::loaded(&config), &pkm_plc::registry(), Some(&scenario))
-            .unwrap_or_else(|e| panic!("{e}"));
+        let mut plc = common::sim_plc(
+            &common::loaded(&config),
+            &pkm_plc::machines::all_programs(),
+            Some(&scenario),
+        )
+        .unwrap_or_else(|e| panic!("{e}"));
         let mut worst: f64 = 0.0;
         run(&mut plc, READY_MS + 20_000 * directions.len() as u64, |plc, t| {
             no_switch_ever(plc, t);

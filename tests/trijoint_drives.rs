@@ -8,8 +8,8 @@ use common::{plant, real, run, var};
 use pkm_plc::image::{Declare, Input, Output, Value};
 use pkm_plc::plc::Plc;
 use pkm_plc::program::{Cycle, Program, ProgramArgs, ProgramInfo, Registry};
-use pkm_plc::tasks::trijoint::encoders::unwrap;
-use pkm_plc::tasks::trijoint::state::MainState;
+use pkm_trijoint::encoders::unwrap;
+use pkm_trijoint::state::MainState;
 use proptest::prelude::*;
 
 proptest! {
@@ -85,7 +85,7 @@ impl Program for MainStandIn {
 }
 
 fn registry() -> Registry {
-    let mut r = pkm_plc::registry();
+    let mut r = pkm_plc::machines::all_programs();
     r.register(ProgramInfo {
         name: "test.main",
         summary: "test",

@@ -101,7 +101,7 @@ fn random_scenario(seed: u64) -> (String, usize, Vec<(u64, u64)>) {
 fn build(scenario: &str) -> Plc {
     common::sim_plc(
         &common::loaded(&common::repo_config()),
-        &pkm_plc::registry(),
+        &pkm_plc::machines::all_programs(),
         Some(scenario),
     )
     .unwrap_or_else(|e| panic!("{e}"))

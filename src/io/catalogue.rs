@@ -1,26 +1,8 @@
 //! The module catalogue: X20-like I/O modules and their channels, as in the original I/O mapping
 //! table, plus the operator's joystick (an HID device on the real machine, issue 8).
 
+pub use crate::image::Direction;
 use crate::image::VarType;
-
-/// Whether a channel carries data from the field to the PLC or back.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Direction {
-    /// Field → PLC.
-    Input,
-    /// PLC → field.
-    Output,
-}
-
-impl Direction {
-    /// "input" or "output".
-    pub fn name(self) -> &'static str {
-        match self {
-            Direction::Input => "input",
-            Direction::Output => "output",
-        }
-    }
-}
 
 /// One channel of a module type.
 #[derive(Clone, Copy, Debug)]

@@ -6,8 +6,10 @@ use std::collections::HashMap;
 use serde::Deserialize;
 
 use super::catalogue::{self, Direction, ModuleType};
+use pkm_api::machine::EmbeddedFile;
+
 use crate::config::{self, ConfigError, LoadedConfig};
-use crate::image::{DeclIssue, Reader, Value, VarIndex, VarTable, VarType, Writer};
+use crate::image::{Problem, Reader, Value, VarIndex, VarTable, VarType, Writer};
 
 /// The file as written.
 #[derive(Clone, Debug, Deserialize)]
@@ -116,15 +118,12 @@ pub struct IoMap {
     pub bindings: Vec<Binding>,
 }
 
-/// The I/O map built into the binary (used with the built-in configuration).
-pub const BUILTIN_TRIJOINT: &str = include_str!("../../io-map/trijoint.json");
-
 impl IoMap {
     /// Parses and validates a map; `classes` are the configured task class names.
     pub fn parse(text: &str, origin: &str, classes: &[String]) -> Result<IoMap, ConfigError> {
         let file: IoMapFile = config::parse_strict(text, origin)?;
         let mut problems = Vec::new();
-        let mut push = |at: String, message: String| problems.push(DeclIssue { at, message });
+        let mut push = |at: String, message: String| problems.push(Problem { at, message });
         let mut modules = Vec::new();
         // Names and slots seen so far: each check is a lookup, so a map of thousands of entries
         // is checked in linear time.
@@ -317,9 +316,10 @@ impl IoMap {
 }
 
 impl IoMap {
-    /// Loads and validates the configuration's I/O map; `None` when it names none.
-    pub fn load(loaded: &LoadedConfig) -> Result<Option<IoMap>, ConfigError> {
-        let Some((text, origin)) = io_map_text(loaded)? else {
+    /// Loads and validates the configuration's I/O map; `None` when it names none. `embedded` is
+    /// the machine's built-in map, which the built-in configuration names.
+    pub fn load(loaded: &LoadedConfig, embedded: Option<EmbeddedFile>) -> Result<Option<IoMap>, ConfigError> {
+        let Some((text, origin)) = io_map_text(loaded, embedded)? else {
             return Ok(None);
         };
         let classes: Vec<String> = loaded.config.task_classes.iter().map(|c| c.name.clone()).collect();
@@ -328,9 +328,12 @@ impl IoMap {
 }
 
 /// The text of the configuration's I/O map and the name to report it by: the file relative to
-/// the configuration's directory, or the built-in map for the built-in configuration. `None` when
-/// the configuration names no I/O map.
-pub fn io_map_text(loaded: &LoadedConfig) -> Result<Option<(String, String)>, ConfigError> {
+/// the configuration's directory, or for the built-in configuration the machine's built-in map
+/// (`embedded`). `None` when the configuration names no I/O map.
+pub fn io_map_text(
+    loaded: &LoadedConfig,
+    embedded: Option<EmbeddedFile>,
+) -> Result<Option<(String, String)>, ConfigError> {
     let Some(map_name) = &loaded.config.io_map else {
         return Ok(None);
     };
@@ -345,18 +348,17 @@ pub fn io_map_text(loaded: &LoadedConfig) -> Result<Option<(String, String)>, Co
                 })?;
             (text, origin)
         }
-        None if map_name == "io-map/trijoint.json" => (
-            crate::io::map::BUILTIN_TRIJOINT.to_string(),
-            "<built-in io-map/trijoint.json>".to_string(),
-        ),
-        None => {
-            return Err(ConfigError::Invalid {
-                file: loaded.origin.clone(),
-                problems: vec![DeclIssue {
-                    at: "io_map".into(),
-                    message: format!("the built-in configuration has no I/O map \"{map_name}\""),
-                }],
-            });
-        }
+        None => match embedded.filter(|e| e.name == map_name) {
+            Some(e) => (e.text.to_string(), format!("<built-in {}>", e.name)),
+            None => {
+                return Err(ConfigError::Invalid {
+                    file: loaded.origin.clone(),
+                    problems: vec![Problem {
+                        at: "io_map".into(),
+                        message: format!("the built-in configuration has no I/O map \"{map_name}\""),
+                    }],
+                });
+            }
+        },
     }))
 }

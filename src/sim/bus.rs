@@ -9,9 +9,10 @@ use crate::image::{Value, VarIndex, VarTable};
 use crate::io::catalogue::Direction;
 use crate::io::map::IoMap;
 
-use super::plant::Plant;
+use pkm_api::machine::Plant;
+
+use super::ResolvedWiring;
 use super::scenario::Scenario;
-use super::{ResolvedWiring, Signal};
 
 /// The simulated bus.
 pub struct SimBus {
@@ -20,8 +21,11 @@ pub struct SimBus {
     channels: Vec<Vec<Value>>,
     /// Per binding, the variable's index (set by `declare`).
     vars: Vec<VarIndex>,
-    plant: Plant,
-    wiring: ResolvedWiring,
+    plant: Box<dyn Plant>,
+    /// The wired input signals (plant → channel), in the plant's signal order.
+    inputs: Vec<(usize, (usize, usize))>,
+    /// The wired output signals (channel → plant), in the plant's signal order.
+    outputs: Vec<(usize, (usize, usize))>,
     scenario: Scenario,
     next_event: usize,
     time_ns: u64,
@@ -30,19 +34,24 @@ pub struct SimBus {
 
 impl SimBus {
     /// A simulated bus over `map`, wired by `wiring`, integrating every `step_ns`.
-    pub fn new(map: IoMap, plant: Plant, wiring: ResolvedWiring, scenario: Scenario, step_ns: u64) -> Self {
+    pub fn new(map: IoMap, plant: Box<dyn Plant>, wiring: ResolvedWiring, scenario: Scenario, step_ns: u64) -> Self {
         let channels = map
             .modules
             .iter()
             .map(|m| m.ty.channels.iter().map(|c| Value::zero(c.ty)).collect())
             .collect();
         let vars = vec![0; map.bindings.len()];
+        let (inputs, outputs) = wiring
+            .signals
+            .iter()
+            .partition(|(s, _)| plant.signals()[*s].direction == Direction::Input);
         SimBus {
             map,
             channels,
             vars,
             plant,
-            wiring,
+            inputs,
+            outputs,
             scenario,
             next_event: 0,
             time_ns: 0,
@@ -51,8 +60,8 @@ impl SimBus {
     }
 
     /// The plant (for tests and status displays: the machine's true state).
-    pub fn plant(&self) -> &Plant {
-        &self.plant
+    pub fn plant(&self) -> &dyn Plant {
+        self.plant.as_ref()
     }
 
     /// The simulated time the plant has reached (ns).
@@ -67,7 +76,7 @@ impl SimBus {
                 if at > self.time_ns {
                     break;
                 }
-                action.apply(&mut self.plant);
+                self.plant.apply(action);
                 self.next_event += 1;
             }
             if self.time_ns + self.step_ns > t_ns {
@@ -103,32 +112,15 @@ impl SimBus {
 
     /// Copies the plant's signals into the input channels.
     fn plant_to_channels(&mut self) {
-        for &(signal, (m, c)) in &self.wiring.signals {
-            let p = &self.plant;
-            let value = match signal {
-                Signal::Button(b) => Value::Bool(p.button(b)),
-                Signal::Switch(d, end) => Value::Bool(p.switch(d, end)),
-                Signal::Encoder(d) => Value::Int(p.counter(d)),
-                Signal::BridgeError(d) => Value::Bool(p.bridge_error(d)),
-                Signal::JoystickAxis(a) => Value::Real(p.joystick()[a]),
-                Signal::JoystickConnected => Value::Bool(p.joystick_connected()),
-                _ => continue,
-            };
-            self.channels[m][c] = value;
+        for &(signal, (m, c)) in &self.inputs {
+            self.channels[m][c] = self.plant.read(signal);
         }
     }
 
     /// Applies the output channels to the plant.
     fn channels_to_plant(&mut self) {
-        for &(signal, (m, c)) in &self.wiring.signals {
-            let value = self.channels[m][c];
-            match (signal, value) {
-                (Signal::Pwm(d), Value::Int(v)) => self.plant.set_pwm(d, v),
-                (Signal::PwmPeriod, Value::Uint(v)) => self.plant.set_period(v),
-                (Signal::ClearError(d), Value::Bool(v)) => self.plant.set_clear_error(d, v),
-                (Signal::CounterReset(d), Value::Bool(v)) => self.plant.set_counter_reset(d, v),
-                _ => {}
-            }
+        for &(signal, (m, c)) in &self.outputs {
+            self.plant.write(signal, self.channels[m][c]);
         }
     }
 }

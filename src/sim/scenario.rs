@@ -10,14 +10,16 @@
 //! ]}
 //! ```
 //!
-//! Inputs and switches are named by the process-image variable they are bound to in the I/O map.
+//! Inputs and switches are named by the process-image variable they are bound to in the I/O map;
+//! drives by the names the machine's plant gives them. The file format is the runtime's; what an
+//! action does is the plant's ([`Plant::apply`]).
 
+use pkm_api::machine::{Action, Plant, Role};
 use serde::Deserialize;
 
-use super::plant::{Button, DriveId, Plant, SwitchEnd};
-use super::{ResolvedWiring, Signal};
+use super::ResolvedWiring;
 use crate::config::{self, ConfigError};
-use crate::image::DeclIssue;
+use crate::image::Problem;
 use crate::io::catalogue::Direction;
 use crate::io::map::IoMap;
 
@@ -42,7 +44,7 @@ struct EventEntry {
     #[serde(default)]
     switch: Option<String>,
     #[serde(default)]
-    drive: Option<DriveName>,
+    drive: Option<String>,
     #[serde(default)]
     counts: Option<i64>,
 }
@@ -69,47 +71,6 @@ pub enum FaultKind {
     JoystickPlugged,
 }
 
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize)]
-#[serde(rename_all = "lowercase")]
-enum DriveName {
-    Left,
-    Right,
-}
-
-/// What an event does to the plant.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub enum Action {
-    /// Press (true) or release a panel button.
-    Button(Button, bool),
-    /// Set the joystick's axes.
-    Joystick(f64, f64),
-    /// Stick a switch (`Some`) or free it (`None`).
-    StickSwitch(DriveId, SwitchEnd, Option<bool>),
-    /// Encoder counter jump.
-    EncoderGlitch(DriveId, i64),
-    /// Bridge error.
-    BridgeError(DriveId),
-    /// Drive stops (true) or resumes (false) responding.
-    DriveDead(DriveId, bool),
-    /// Joystick plugged (true) or unplugged.
-    JoystickConnected(bool),
-}
-
-impl Action {
-    /// Applies the action to the plant.
-    pub fn apply(self, plant: &mut Plant) {
-        match self {
-            Action::Button(b, on) => plant.set_button(b, on),
-            Action::Joystick(x, y) => plant.set_joystick(x, y),
-            Action::StickSwitch(d, e, s) => plant.stick_switch(d, e, s),
-            Action::EncoderGlitch(d, n) => plant.encoder_glitch(d, n),
-            Action::BridgeError(d) => plant.bridge_fault(d),
-            Action::DriveDead(d, dead) => plant.set_dead(d, dead),
-            Action::JoystickConnected(c) => plant.set_joystick_connected(c),
-        }
-    }
-}
-
 /// A parsed scenario: actions in time order.
 #[derive(Clone, Debug, Default)]
 pub struct Scenario {
@@ -117,22 +78,24 @@ pub struct Scenario {
     pub events: Vec<(u64, Action)>,
 }
 
-/// The signal that the variable `name` is bound to through the I/O map and the wiring.
-fn signal_of(name: &str, map: &IoMap, wiring: &ResolvedWiring) -> Option<Signal> {
+/// The plant signal that the variable `name` is bound to through the I/O map and the wiring.
+fn signal_of(name: &str, map: &IoMap, wiring: &ResolvedWiring) -> Option<usize> {
     let b = map
         .bindings
         .iter()
         .find(|b| b.variable == name && b.direction == Direction::Input)?;
-    wiring
-        .signals
-        .iter()
-        .find(|(_, at)| *at == (b.module, b.channel))
-        .map(|(s, _)| *s)
+    wiring.signal_at(b.module, b.channel)
 }
 
 impl Scenario {
     /// Parses and checks a scenario against the I/O map and the wiring.
-    pub fn parse(text: &str, origin: &str, map: &IoMap, wiring: &ResolvedWiring) -> Result<Scenario, ConfigError> {
+    pub fn parse(
+        text: &str,
+        origin: &str,
+        map: &IoMap,
+        wiring: &ResolvedWiring,
+        plant: &dyn Plant,
+    ) -> Result<Scenario, ConfigError> {
         let file: ScenarioFile = config::parse_strict(text, origin)?;
         let mut problems = Vec::new();
         let mut events = Vec::new();
@@ -141,14 +104,14 @@ impl Scenario {
             let kinds =
                 usize::from(e.input.is_some()) + usize::from(e.joystick.is_some()) + usize::from(e.fault.is_some());
             if kinds != 1 {
-                problems.push(DeclIssue {
+                problems.push(Problem {
                     at: at.clone(),
                     message: "an event has exactly one of \"input\", \"joystick\" or \"fault\"".into(),
                 });
                 continue;
             }
             let Some(t_ns) = e.at_ms.checked_mul(1_000_000) else {
-                problems.push(DeclIssue {
+                problems.push(Problem {
                     at: format!("{at}.at_ms"),
                     message: format!(
                         "{} ms is beyond the latest time the runtime's clock holds ({} ms, 584 years)",
@@ -158,9 +121,9 @@ impl Scenario {
                 });
                 continue;
             };
-            match event_action(e, map, wiring) {
+            match event_action(e, map, wiring, plant) {
                 Ok(action) => events.push((t_ns, action)),
-                Err((field, message)) => problems.push(DeclIssue {
+                Err((field, message)) => problems.push(Problem {
                     at: if field.is_empty() { at } else { format!("{at}.{field}") },
                     message,
                 }),
@@ -177,22 +140,46 @@ impl Scenario {
     }
 }
 
-fn event_action(e: &EventEntry, map: &IoMap, wiring: &ResolvedWiring) -> Result<Action, (&'static str, String)> {
+fn event_action(
+    e: &EventEntry,
+    map: &IoMap,
+    wiring: &ResolvedWiring,
+    plant: &dyn Plant,
+) -> Result<Action, (&'static str, String)> {
     let need_value = || {
         e.value
             .ok_or(("value", "this event needs \"value\": true or false".to_string()))
     };
-    let need_drive = || match e.drive {
-        Some(DriveName::Left) => Ok(0),
-        Some(DriveName::Right) => Ok(1),
-        None => Err(("drive", "this fault needs \"drive\": \"left\" or \"right\"".to_string())),
+    let need_drive = || {
+        let names = plant.drives();
+        e.drive
+            .as_deref()
+            .and_then(|d| names.iter().position(|n| *n == d))
+            .ok_or_else(|| {
+                let quoted: Vec<String> = names.iter().map(|n| format!("\"{n}\"")).collect();
+                let message = match &e.drive {
+                    None => format!("this fault needs \"drive\": {}", or_list(&quoted)),
+                    Some(d) => format!(
+                        "no drive \"{}\" on this machine: use {}",
+                        crate::config::shorten(d),
+                        or_list(&quoted)
+                    ),
+                };
+                ("drive", message)
+            })
     };
     if let Some(name) = &e.input {
         return match signal_of(name, map, wiring) {
-            Some(Signal::Button(b)) => Ok(Action::Button(b, need_value()?)),
+            Some(signal) if plant.signals()[signal].role == Role::Button => Ok(Action::Press {
+                signal,
+                pressed: need_value()?,
+            }),
             Some(other) => Err((
                 "input",
-                format!("\"{name}\" is wired to {other:?}, not to an operator panel button; use a fault for switches"),
+                format!(
+                    "\"{name}\" is wired to the machine's {}, not to an operator panel button; use a fault for switches",
+                    plant.signals()[other].key
+                ),
             )),
             None => Err((
                 "input",
@@ -214,7 +201,7 @@ fn event_action(e: &EventEntry, map: &IoMap, wiring: &ResolvedWiring) -> Result<
             ));
         };
         match signal_of(name, map, wiring) {
-            Some(Signal::Switch(d, end)) => Ok((d, end)),
+            Some(signal) if plant.signals()[signal].role == Role::Switch => Ok(signal),
             _ => Err((
                 "switch",
                 format!("\"{name}\" is not a limit switch input of {}", map.origin),
@@ -222,28 +209,46 @@ fn event_action(e: &EventEntry, map: &IoMap, wiring: &ResolvedWiring) -> Result<
         }
     };
     match e.fault {
-        Some(FaultKind::SwitchStuck) => {
-            let (d, end) = switch()?;
-            Ok(Action::StickSwitch(d, end, Some(need_value()?)))
-        }
-        Some(FaultKind::SwitchFree) => {
-            let (d, end) = switch()?;
-            Ok(Action::StickSwitch(d, end, None))
-        }
+        Some(FaultKind::SwitchStuck) => Ok(Action::StickSwitch {
+            signal: switch()?,
+            stuck: Some(need_value()?),
+        }),
+        Some(FaultKind::SwitchFree) => Ok(Action::StickSwitch {
+            signal: switch()?,
+            stuck: None,
+        }),
         Some(FaultKind::EncoderGlitch) => {
             let counts = e
                 .counts
                 .ok_or(("counts", "an encoder glitch needs \"counts\"".to_string()))?;
-            Ok(Action::EncoderGlitch(need_drive()?, counts))
+            Ok(Action::EncoderGlitch {
+                drive: need_drive()?,
+                counts,
+            })
         }
-        Some(FaultKind::BridgeError) => Ok(Action::BridgeError(need_drive()?)),
-        Some(FaultKind::DriveDead) => Ok(Action::DriveDead(need_drive()?, true)),
-        Some(FaultKind::DriveAlive) => Ok(Action::DriveDead(need_drive()?, false)),
+        Some(FaultKind::BridgeError) => Ok(Action::BridgeError { drive: need_drive()? }),
+        Some(FaultKind::DriveDead) => Ok(Action::DriveDead {
+            drive: need_drive()?,
+            dead: true,
+        }),
+        Some(FaultKind::DriveAlive) => Ok(Action::DriveDead {
+            drive: need_drive()?,
+            dead: false,
+        }),
         Some(FaultKind::JoystickUnplugged) => Ok(Action::JoystickConnected(false)),
         Some(FaultKind::JoystickPlugged) => Ok(Action::JoystickConnected(true)),
         None => Err((
             "",
             "an event has exactly one of \"input\", \"joystick\" or \"fault\"".to_string(),
         )),
+    }
+}
+
+/// `"a"`, `"a" or "b"`, `"a", "b" or "c"`.
+fn or_list(items: &[String]) -> String {
+    match items {
+        [] => "the plant has no drives".to_string(),
+        [one] => one.clone(),
+        [init @ .., last] => format!("{} or {last}", init.join(", ")),
     }
 }

@@ -115,9 +115,13 @@ pub fn digest(parts: &[&serde_json::Value]) -> String {
     format!("fnv1a64:{h:016x}")
 }
 
-/// The digest of a loaded configuration together with its I/O map.
-pub fn config_digest(loaded: &crate::config::LoadedConfig) -> Result<String, crate::config::ConfigError> {
-    let map = match crate::io::map::io_map_text(loaded)? {
+/// The digest of a loaded configuration together with its I/O map (`embedded`: the machine's
+/// built-in map, which the built-in configuration names).
+pub fn config_digest(
+    loaded: &crate::config::LoadedConfig,
+    embedded: Option<pkm_api::machine::EmbeddedFile>,
+) -> Result<String, crate::config::ConfigError> {
+    let map = match crate::io::map::io_map_text(loaded, embedded)? {
         Some((text, _)) => serde_json::from_str(&text).unwrap_or(serde_json::Value::String(text)),
         None => serde_json::Value::Null,
     };

@@ -6,10 +6,9 @@ use std::time::{Duration, Instant};
 
 use super::read::{Cut, ReadAhead, TraceError, TraceReader};
 use super::same;
-use crate::bus::{Bus, NoBus};
-use crate::config::{ConfigError, LoadedConfig};
+use crate::compose::Setup;
+use crate::config::ConfigError;
 use crate::image::{Value, VarIndex};
-use crate::plc::Plc;
 use crate::run::VirtualClock;
 
 /// The first difference between a trace and its replay.
@@ -71,11 +70,11 @@ fn show(v: Value) -> String {
 
 /// Replays `trace` against the programs of `loaded`. A trace recorded with another configuration
 /// or I/O map is refused unless `force`.
-pub fn replay(trace: &Path, loaded: &LoadedConfig, force: bool) -> Result<ReplayReport, ReplayError> {
+pub fn replay(trace: &Path, setup: &Setup, force: bool) -> Result<ReplayReport, ReplayError> {
     let started = Instant::now();
     let reader = TraceReader::open(trace)?;
     let header = reader.header().clone();
-    let digest = super::config_digest(loaded)?;
+    let digest = setup.digest()?;
     if header.config_digest != digest && !force {
         return Err(ReplayError::Refused(format!(
             "{}: recorded with another configuration or I/O map (digest {}, this one {digest}); use --force to replay anyway",
@@ -83,19 +82,8 @@ pub fn replay(trace: &Path, loaded: &LoadedConfig, force: bool) -> Result<Replay
             header.config_digest
         )));
     }
-    let kinematics = crate::application_config(&loaded.config).map_err(|problems| ConfigError::Invalid {
-        file: loaded.origin.clone(),
-        problems,
-    })?;
-    // The bus only declares the variables here: replayed cycles never call it.
-    let bus: Box<dyn Bus> = match &loaded.config.io_map {
-        Some(_) => Box::new(crate::sim::build(loaded, &kinematics.trijoint, None)?),
-        None => Box::new(NoBus),
-    };
-    let mut plc = Plc::build(&loaded.config, &crate::registry(), bus).map_err(|problems| ConfigError::Invalid {
-        file: loaded.origin.clone(),
-        problems,
-    })?;
+    // The bus only declares the I/O map's variables: replayed cycles never call it.
+    let mut plc = setup.plc(setup.declaring_bus()?)?;
     let refused = |m: String| ReplayError::Refused(format!("{}: {m}", trace.display()));
     let mut index = std::collections::HashMap::new();
     let mut by_position: Vec<VarIndex> = Vec::new();

@@ -4,13 +4,14 @@
 
 use std::path::{Path, PathBuf};
 
+use pkm_plc::compose::Setup;
 use pkm_plc::config::{self, ConfigError, LoadedConfig};
 use pkm_plc::image::Value;
 use pkm_plc::plc::Plc;
 use pkm_plc::program::Registry;
 use pkm_plc::run::VirtualClock;
 use pkm_plc::sim::bus::SimBus;
-use pkm_plc::sim::plant::Plant;
+use pkm_trijoint::plant::Plant;
 
 /// The repository's directory.
 pub fn root() -> &'static Path {
@@ -38,12 +39,20 @@ pub fn sim_plc(loaded: &LoadedConfig, registry: &Registry, scenario: Option<&str
         std::fs::write(&p, s).expect("write the scenario");
         p
     });
-    let kinematics = pkm_plc::application_config(&loaded.config).expect("kinematics");
-    let bus = pkm_plc::sim::build(loaded, &kinematics.trijoint, path.as_deref())?;
+    let bus = Setup::new(loaded.clone())?.sim_bus(path.as_deref())?;
     Plc::build(&loaded.config, registry, Box::new(bus)).map_err(|problems| ConfigError::Invalid {
         file: loaded.origin.clone(),
         problems,
     })
+}
+
+/// The configuration's I/O map (it must name a valid one).
+pub fn io_map(loaded: &LoadedConfig) -> pkm_plc::io::map::IoMap {
+    Setup::new(loaded.clone())
+        .expect("known machine")
+        .io_map()
+        .expect("valid map")
+        .expect("an io_map")
 }
 
 /// The simulated machine's plant: the machine's true state.
@@ -53,6 +62,9 @@ pub fn plant(plc: &Plc) -> &Plant {
         .downcast_ref::<SimBus>()
         .expect("the simulated bus")
         .plant()
+        .as_any()
+        .downcast_ref::<Plant>()
+        .expect("the TRIJOINT plant")
 }
 
 /// A variable of the published image.

@@ -12,12 +12,13 @@ pub mod pn101;
 pub mod trijoint;
 pub mod workspace;
 
+use pkm_api::problem::Problem;
 use serde::Deserialize;
 
 pub use linalg::{MAX as MAX_DOF, Mat};
 
 /// The machine models.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Deserialize, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum Machine {
     /// TRIJOINT 900H lab model (planar, 2 joints): the machine of the B&R application.
@@ -210,8 +211,19 @@ impl Default for KinematicsConfig {
 }
 
 impl KinematicsConfig {
-    /// Checks every parameter; returns (JSON path below the section, message) per problem.
-    pub fn check(&self) -> Vec<(String, String)> {
+    /// Parses and checks the `kinematics` section of a configuration (`None`: the spec's
+    /// defaults); problems carry their full JSON path (`kinematics.trijoint.d`).
+    pub fn from_section(section: Option<&serde_json::Value>) -> Result<KinematicsConfig, Vec<Problem>> {
+        let config: KinematicsConfig = match section {
+            None => KinematicsConfig::default(),
+            Some(v) => pkm_api::strict_json::section(v, "kinematics").map_err(|p| vec![p])?,
+        };
+        let problems = pkm_api::problem::under("kinematics", config.check());
+        if problems.is_empty() { Ok(config) } else { Err(problems) }
+    }
+
+    /// Checks every parameter; problems have their JSON path below the section.
+    pub fn check(&self) -> Vec<Problem> {
         let mut problems = Vec::new();
         self.trijoint.check("trijoint", &mut problems);
         self.pn101.check("pn101", &mut problems);
@@ -237,9 +249,9 @@ impl KinematicsConfig {
 pub const MAX_LENGTH_MM: f64 = 10_000.0;
 
 /// Helpers for parameter checks.
-pub(crate) fn positive(problems: &mut Vec<(String, String)>, path: &str, value: f64) {
+pub(crate) fn positive(problems: &mut Vec<Problem>, path: &str, value: f64) {
     if !(value.is_finite() && value > 0.0 && value <= MAX_LENGTH_MM) {
-        problems.push((
+        problems.push(Problem::new(
             path.to_string(),
             // Debug formatting: 1e308 reads "1e308", not 309 digits.
             format!("must be a positive length in mm, at most {MAX_LENGTH_MM}, got {value:?}"),
@@ -247,9 +259,9 @@ pub(crate) fn positive(problems: &mut Vec<(String, String)>, path: &str, value: 
     }
 }
 
-pub(crate) fn travel(problems: &mut Vec<(String, String)>, path: &str, t: [f64; 2]) {
+pub(crate) fn travel(problems: &mut Vec<Problem>, path: &str, t: [f64; 2]) {
     if !(t[0].is_finite() && t[1].is_finite() && t[0] < t[1] && t[0].abs().max(t[1].abs()) <= MAX_LENGTH_MM) {
-        problems.push((
+        problems.push(Problem::new(
             path.to_string(),
             format!(
                 "travel must be [min, max] with min < max, within ±{MAX_LENGTH_MM} mm, got [{:?}, {:?}]",

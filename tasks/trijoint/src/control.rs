@@ -6,8 +6,8 @@
 use serde::Deserialize;
 
 use super::state::MainState;
-use crate::image::{Declare, Input, Output};
-use crate::program::{Cycle, Program, ProgramArgs};
+use pkm_api::image::{Declare, Input, Output};
+use pkm_api::program::{Cycle, Program, ProgramArgs};
 
 /// The longest cycle of the class that runs the drive programs (µs): the interlock's reaction,
 /// and the encoders' unwrap — at the lab model's 80 mm/s a 16-bit counter moves 11 200 counts in

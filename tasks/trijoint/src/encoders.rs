@@ -5,8 +5,8 @@
 
 use serde::Deserialize;
 
-use crate::image::{Declare, Input, Output};
-use crate::program::{Cycle, Program, ProgramArgs};
+use pkm_api::image::{Declare, Input, Output};
+use pkm_api::program::{Cycle, Program, ProgramArgs};
 
 /// Parameters of the encoder program.
 #[derive(Clone, Debug, Deserialize)]

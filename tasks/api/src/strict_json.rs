@@ -79,10 +79,7 @@ impl<'de> Visitor<'de> for UniqueVisitor {
         let mut object = Map::new();
         while let Some(key) = map.next_key::<String>()? {
             if object.contains_key(&key) {
-                return Err(de::Error::custom(format!(
-                    "duplicate key \"{}\"",
-                    crate::config::shorten(&key)
-                )));
+                return Err(de::Error::custom(format!("duplicate key \"{}\"", shorten(&key))));
             }
             let Unique(v) = map.next_value()?;
             object.insert(key, v);
@@ -196,6 +193,25 @@ fn unexpected(v: &Value) -> de::Unexpected<'_> {
 /// Takes a `T` from a value strictly, with the JSON path of the first problem.
 pub fn from_value<'a, T: de::Deserialize<'a>>(value: &'a Value) -> Result<T, serde_path_to_error::Error<Error>> {
     serde_path_to_error::deserialize(Strict(value))
+}
+
+/// Takes a `T` from the section of a document at JSON path `prefix` (`kinematics`,
+/// `task_classes[0].programs[1].params`), strictly; a problem names the full path of the element.
+pub fn section<T: de::DeserializeOwned>(value: &Value, prefix: &str) -> Result<T, crate::problem::Problem> {
+    from_value(value).map_err(|e| {
+        let inner = e.path().to_string();
+        let at = if inner == "." { String::new() } else { inner };
+        crate::problem::Problem::new(at, e.into_inner().to_string()).under(prefix)
+    })
+}
+
+/// A text cut to a readable length for a message: a 50 MB string value is not echoed whole.
+pub fn shorten(text: &str) -> std::borrow::Cow<'_, str> {
+    const MAX: usize = 200;
+    match text.char_indices().nth(MAX) {
+        None => std::borrow::Cow::Borrowed(text),
+        Some((cut, _)) => std::borrow::Cow::Owned(format!("{}… ({} bytes in all)", &text[..cut], text.len())),
+    }
 }
 
 #[cfg(test)]

@@ -5,6 +5,8 @@
 
 use serde::Deserialize;
 
+use pkm_api::problem::Problem;
+
 use super::{KinError, Kinematics, Machine, Mat, check_finite, check_limits, linalg::MAX, positive, travel};
 
 /// The two working configurations of the same hardware.
@@ -78,20 +80,23 @@ impl OxParams {
         }
     }
 
-    pub(crate) fn check(&self, at: &str, p: &mut Vec<(String, String)>) {
+    pub(crate) fn check(&self, at: &str, p: &mut Vec<Problem>) {
         for (k, v) in [("l1", self.l1), ("l2", self.l2), ("d", self.d)] {
             positive(p, &format!("{at}.{k}"), v);
         }
         for (k, v) in [("p1", self.p1), ("p2", self.p2), ("xr1", self.xr1), ("xr2", self.xr2)] {
             if !v.is_finite() {
-                p.push((format!("{at}.{k}"), format!("must be a finite number, got {v}")));
+                p.push(Problem::new(
+                    format!("{at}.{k}"),
+                    format!("must be a finite number, got {v}"),
+                ));
             }
         }
         for (i, t) in self.travel.iter().enumerate() {
             travel(p, &format!("{at}.travel[{i}]"), *t);
         }
         if !(0.0..90.0).contains(&self.min_rod_angle_deg) {
-            p.push((
+            p.push(Problem::new(
                 format!("{at}.min_rod_angle_deg"),
                 format!("must be between 0 and 90 degrees, got {}", self.min_rod_angle_deg),
             ));

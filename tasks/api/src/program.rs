@@ -8,6 +8,7 @@
 use serde::de::DeserializeOwned;
 
 use crate::image::{Declare, Input, Output, PlcType, Value};
+use crate::problem::Problem;
 
 /// A cycle time violation that the runtime reports to the application (reaction `error`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -32,15 +33,41 @@ pub trait Clock {
 
 /// What a program sees during one cycle (or its init part).
 pub struct Cycle<'a> {
-    pub(crate) image: &'a mut [Value],
-    pub(crate) time_ns: u64,
-    pub(crate) cycle: u64,
-    pub(crate) period_ns: u64,
-    pub(crate) violation: Option<CycleViolation>,
-    pub(crate) clock: &'a mut dyn Clock,
+    image: &'a mut [Value],
+    time_ns: u64,
+    cycle: u64,
+    period_ns: u64,
+    violation: Option<CycleViolation>,
+    clock: &'a mut dyn Clock,
 }
 
-impl Cycle<'_> {
+/// Where a cycle stands: its nominal start time, number and period, and the runtime's event.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct CycleInfo {
+    /// The cycle's nominal start time (ns since the start of the schedule).
+    pub time_ns: u64,
+    /// The class's cycle number, from 0.
+    pub cycle: u64,
+    /// The class's cycle time (ns).
+    pub period_ns: u64,
+    /// A cycle time violation to deliver, if there is one.
+    pub violation: Option<CycleViolation>,
+}
+
+impl<'a> Cycle<'a> {
+    /// A cycle over a task class's `image` (the runtime builds one per program per cycle; unit
+    /// tests of a program build their own).
+    pub fn new(image: &'a mut [Value], info: CycleInfo, clock: &'a mut dyn Clock) -> Self {
+        Cycle {
+            image,
+            time_ns: info.time_ns,
+            cycle: info.cycle,
+            period_ns: info.period_ns,
+            violation: info.violation,
+            clock,
+        }
+    }
+
     /// The latched value of an input.
     #[inline]
     pub fn get<T: PlcType>(&self, input: Input<T>) -> T {
@@ -135,16 +162,10 @@ impl ProgramArgs<'_> {
         let Some(params) = self.params else {
             return P::default();
         };
-        match crate::strict_json::from_value::<P>(params) {
+        match crate::strict_json::section::<P>(params, "params") {
             Ok(p) => p,
-            Err(e) => {
-                let inner = e.path().to_string();
-                let sub = if inner == "." {
-                    "params".to_string()
-                } else {
-                    format!("params.{inner}")
-                };
-                decl.issue(&sub, e.into_inner().to_string());
+            Err(Problem { at, message }) => {
+                decl.issue(&at, message);
                 P::default()
             }
         }

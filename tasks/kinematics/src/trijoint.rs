@@ -5,6 +5,8 @@
 
 use serde::Deserialize;
 
+use pkm_api::problem::Problem;
+
 use super::{KinError, Kinematics, Machine, Mat, check_finite, check_limits, linalg::MAX, positive, travel};
 
 /// Geometry of the TRIJOINT lab model (defaults: kinematics.md §1).
@@ -48,22 +50,22 @@ impl Default for TrijointParams {
 }
 
 impl TrijointParams {
-    pub(crate) fn check(&self, at: &str, p: &mut Vec<(String, String)>) {
+    pub(crate) fn check(&self, at: &str, p: &mut Vec<Problem>) {
         positive(p, &format!("{at}.d"), self.d);
         positive(p, &format!("{at}.l2"), self.l2);
         positive(p, &format!("{at}.l3"), self.l3);
         for (k, v) in [("alpha1_deg", self.alpha1_deg), ("alpha2_deg", self.alpha2_deg)] {
             if !(v.is_finite() && v > 0.0 && v < 180.0) {
-                p.push((
+                p.push(Problem::new(
                     format!("{at}.{k}"),
                     format!("must be an inclination between 0 and 180 degrees, got {v}"),
                 ));
             }
         }
         if !(self.m_along.is_finite() && self.m_perp.is_finite()) || self.m_along.hypot(self.m_perp) == 0.0 {
-            p.push((
+            p.push(Problem::new(
                 format!("{at}.m_along"),
-                "the spindle point M must not coincide with the pivot A".into(),
+                "the spindle point M must not coincide with the pivot A",
             ));
         }
         travel(p, &format!("{at}.h1_travel"), self.h1_travel);

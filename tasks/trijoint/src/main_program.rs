@@ -11,10 +11,10 @@ use serde::Deserialize;
 use statig::prelude::*;
 
 use super::state::MainState;
-use crate::image::{Declare, Input, Output};
-use crate::program::{AppStatus, Cycle, Program, ProgramArgs};
-use crate::tasks::kinematics::trijoint::{Trijoint, TrijointParams};
-use crate::tasks::kinematics::{Kinematics, KinematicsConfig};
+use pkm_api::image::{Declare, Input, Output};
+use pkm_api::program::{AppStatus, Cycle, Program, ProgramArgs};
+use pkm_kinematics::trijoint::{Trijoint, TrijointParams};
+use pkm_kinematics::{Kinematics, KinematicsConfig};
 
 /// Parameters of the main program.
 #[derive(Clone, Debug, Deserialize)]

@@ -4,6 +4,8 @@
 
 use serde::Deserialize;
 
+use pkm_api::problem::Problem;
+
 use super::{KinError, Kinematics, Machine, Mat, check_finite, check_limits, linalg, linalg::MAX, travel};
 
 const INCH: f64 = 25.4;
@@ -60,29 +62,35 @@ impl Default for HexapodParams {
 }
 
 impl HexapodParams {
-    pub(crate) fn check(&self, at: &str, p: &mut Vec<(String, String)>) {
+    pub(crate) fn check(&self, at: &str, p: &mut Vec<Problem>) {
         travel(p, &format!("{at}.strut_travel"), self.strut_travel);
         if self.strut_travel[0] <= 0.0 {
-            p.push((format!("{at}.strut_travel"), "strut lengths must be positive".into()));
+            p.push(Problem::new(
+                format!("{at}.strut_travel"),
+                "strut lengths must be positive",
+            ));
         }
         if self.max_iterations == 0 {
-            p.push((format!("{at}.max_iterations"), "must be at least 1".into()));
+            p.push(Problem::new(format!("{at}.max_iterations"), "must be at least 1"));
         }
         if !(self.tolerance_mm > 0.0 && self.tolerance_mm.is_finite()) {
-            p.push((
+            p.push(Problem::new(
                 format!("{at}.tolerance_mm"),
                 format!("must be positive, got {}", self.tolerance_mm),
             ));
         }
         if !(self.divergence_bound_mm > 0.0 && self.divergence_bound_mm.is_finite()) {
-            p.push((
+            p.push(Problem::new(
                 format!("{at}.divergence_bound_mm"),
                 format!("must be positive, got {}", self.divergence_bound_mm),
             ));
         }
         let finite = |v: &[[f64; 3]; 6]| v.iter().flatten().all(|c| c.is_finite());
         if !finite(&self.base) || !finite(&self.platform) || !self.home.iter().all(|c| c.is_finite()) {
-            p.push((at.to_string(), "base, platform and home must be finite numbers".into()));
+            p.push(Problem::new(
+                at.to_string(),
+                "base, platform and home must be finite numbers",
+            ));
         }
     }
 }

@@ -4,6 +4,8 @@
 
 use serde::Deserialize;
 
+use pkm_api::problem::Problem;
+
 use super::{KinError, Kinematics, Machine, Mat, check_finite, check_limits, linalg::MAX, positive, travel};
 
 /// Geometry of pn101 (defaults: the 1:5 physical model's controller, kinematics.md §2).
@@ -56,7 +58,7 @@ impl Default for Pn101Params {
 }
 
 impl Pn101Params {
-    pub(crate) fn check(&self, at: &str, p: &mut Vec<(String, String)>) {
+    pub(crate) fn check(&self, at: &str, p: &mut Vec<Problem>) {
         for (k, v) in [("c1", self.c1), ("c2", self.c2), ("c3", self.c3), ("c4", self.c4)] {
             positive(p, &format!("{at}.{k}"), v);
         }
@@ -69,7 +71,10 @@ impl Pn101Params {
             ("zz3", self.zz3),
         ] {
             if !v.is_finite() {
-                p.push((format!("{at}.{k}"), format!("must be a finite number, got {v}")));
+                p.push(Problem::new(
+                    format!("{at}.{k}"),
+                    format!("must be a finite number, got {v}"),
+                ));
             }
         }
         for (i, t) in self.travel.iter().enumerate() {

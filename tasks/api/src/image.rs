@@ -11,6 +11,8 @@ use std::marker::PhantomData;
 
 use serde::{Deserialize, Serialize};
 
+pub use crate::problem::Problem;
+
 /// The IEC 61131-3 types a process-image variable can have.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "UPPERCASE")]
@@ -133,6 +135,25 @@ plc_type!(u16, Uint);
 plc_type!(i32, Dint);
 plc_type!(f64, Real);
 
+/// Whether a channel (or a plant's signal) carries data from the field to the PLC or back.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Direction {
+    /// Field → PLC.
+    Input,
+    /// PLC → field.
+    Output,
+}
+
+impl Direction {
+    /// "input" or "output".
+    pub fn name(self) -> &'static str {
+        match self {
+            Direction::Input => "input",
+            Direction::Output => "output",
+        }
+    }
+}
+
 /// Index of a variable in the process image.
 pub type VarIndex = u16;
 
@@ -238,15 +259,6 @@ pub struct VarInfo {
     pub safe: Value,
 }
 
-/// A problem found while declaring variables: where (JSON path) and what.
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub struct DeclIssue {
-    /// JSON path of the configuration element that caused it.
-    pub at: String,
-    /// What is wrong.
-    pub message: String,
-}
-
 /// The variable table being built from the declarations of programs and the bus.
 ///
 /// Declaration problems are collected rather than returned one by one, so that a configuration is
@@ -255,7 +267,7 @@ pub struct DeclIssue {
 pub struct VarTable {
     vars: Vec<VarInfo>,
     by_name: HashMap<String, VarIndex>,
-    issues: Vec<DeclIssue>,
+    issues: Vec<Problem>,
     /// The bus's inputs are unknown (its I/O map is invalid): a variable nobody writes may be
     /// one of them, so it is not reported.
     inputs_unknown: bool,
@@ -284,7 +296,7 @@ impl VarTable {
     }
 
     /// The problems found so far.
-    pub fn issues(&self) -> &[DeclIssue] {
+    pub fn issues(&self) -> &[Problem] {
         &self.issues
     }
 
@@ -298,7 +310,7 @@ impl VarTable {
                     .map(Writer::describe)
                     .or_else(|| existing.readers.first().map(|r| format!("\"{}\" ({})", r.who, r.at)))
                     .unwrap_or_default();
-                self.issues.push(DeclIssue {
+                self.issues.push(Problem {
                     at: at.to_string(),
                     message: format!(
                         "variable \"{name}\" is used as {ty} here but as {} by {first}",
@@ -309,14 +321,14 @@ impl VarTable {
             return i;
         }
         let Ok(index) = VarIndex::try_from(self.vars.len()) else {
-            self.issues.push(DeclIssue {
+            self.issues.push(Problem {
                 at: at.to_string(),
                 message: format!("too many variables (the process image holds at most {})", VarIndex::MAX),
             });
             return 0;
         };
         if name.is_empty() || !name.chars().all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '.') {
-            self.issues.push(DeclIssue {
+            self.issues.push(Problem {
                 at: at.to_string(),
                 message: format!("variable name \"{name}\" is not valid: use letters, digits, '_' and '.'"),
             });
@@ -345,7 +357,7 @@ impl VarTable {
                 first.describe(),
                 writer.describe()
             );
-            self.issues.push(DeclIssue { at, message });
+            self.issues.push(Problem { at, message });
         } else {
             var.writer = Some(writer);
             if safe.ty() == ty {
@@ -367,7 +379,7 @@ impl VarTable {
     /// (BUTTON_STOP in a 100 ms class delays the 10 ms interlock by up to 100 ms), and an output
     /// exchanged by a slower class than the program that writes it reaches the module late (a
     /// PWM set-point). `classes` gives each class's name and cycle (µs), by index.
-    pub fn exchange_problems(&self, classes: &[(&str, u32)]) -> Vec<DeclIssue> {
+    pub fn exchange_problems(&self, classes: &[(&str, u32)]) -> Vec<Problem> {
         let class = |c: usize| classes.get(c).copied().unwrap_or(("?", 0));
         let mut problems = Vec::new();
         for var in &self.vars {
@@ -375,7 +387,7 @@ impl VarTable {
                 Some(Writer::Bus { class: c, at }) => {
                     for r in var.readers.iter().filter(|r| class(r.class).1 < class(*c).1) {
                         let ((bus_name, bus_cycle), (reader_name, reader_cycle)) = (class(*c), class(r.class));
-                        problems.push(DeclIssue {
+                        problems.push(Problem {
                             at: at.clone(),
                             message: format!(
                                 "input \"{}\" is latched by class \"{bus_name}\" ({} ms) but read by \"{}\" in class \
@@ -393,7 +405,7 @@ impl VarTable {
                     let bus = var.readers.iter().filter(|r| r.who == BUS_READER);
                     for r in bus.filter(|r| class(r.class).1 > class(*w).1) {
                         let ((bus_name, bus_cycle), (writer_name, writer_cycle)) = (class(r.class), class(*w));
-                        problems.push(DeclIssue {
+                        problems.push(Problem {
                             at: r.at.clone(),
                             message: format!(
                                 "output \"{}\" is written by \"{program}\" in class \"{writer_name}\" ({} ms) but \
@@ -414,11 +426,11 @@ impl VarTable {
     }
 
     /// Finishes the table: every variable that is read must have a writer.
-    pub fn finish(mut self) -> Result<VarTable, Vec<DeclIssue>> {
+    pub fn finish(mut self) -> Result<VarTable, Vec<Problem>> {
         for var in self.vars.iter().filter(|_| !self.inputs_unknown) {
             if var.writer.is_none() {
                 for r in var.readers.iter().filter(|r| r.needs_writer) {
-                    self.issues.push(DeclIssue {
+                    self.issues.push(Problem {
                         at: r.at.clone(),
                         message: format!(
                             "variable \"{}\" read by \"{}\" has no writer: no program writes it and no bus input is bound to it",
@@ -508,7 +520,7 @@ impl<'a> Declare<'a> {
         } else {
             format!("{}.{sub_path}", self.at)
         };
-        self.table.issues.push(DeclIssue {
+        self.table.issues.push(Problem {
             at,
             message: message.into(),
         });

@@ -1,0 +1,426 @@
+//! The composition root: resolved options → a built PLC with its handles.
+//!
+//! One place knows how to assemble a soft-PLC from a configuration: which machine it runs (and
+//! so which programs, configuration checks, I/O map and plant), which bus, which joystick. The
+//! command line (`run`, `check`, `replay`, `io-sim`, `link-bench`) and the tests all come here,
+//! so they cannot drift apart. Every problem of the configuration and its I/O map is reported
+//! at once, as one list per file.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::AtomicBool;
+
+use pkm_api::machine::{EmbeddedFile, Machine, Sections};
+use tracing::{info, warn};
+
+use crate::bus::{Bus, NoBus, UnknownBus};
+use crate::config::{self, ConfigError, LoadedConfig};
+use crate::image::Problem;
+use crate::io::hid::{JoystickBus, JoystickFeed, JoystickSpec, LatencyProbe};
+use crate::io::map::IoMap;
+use crate::io::modbus::{ModbusBus, ModbusOptions, Transport};
+use crate::plc::Plc;
+use crate::program::Registry;
+use crate::sim::bus::SimBus;
+
+/// A loaded configuration with the machine it names resolved.
+#[derive(Clone, Debug)]
+pub struct Setup {
+    /// The configuration.
+    pub loaded: LoadedConfig,
+    /// The machine it runs (`None`: the runtime's self-test programs only).
+    pub machine: Option<&'static dyn Machine>,
+}
+
+impl Setup {
+    /// Resolves the machine that `loaded` names among the machines of this build.
+    pub fn new(loaded: LoadedConfig) -> Result<Setup, ConfigError> {
+        let machine = match &loaded.config.machine {
+            None => None,
+            Some(name) => Some(crate::machines::find(name).ok_or_else(|| ConfigError::Invalid {
+                file: loaded.origin.clone(),
+                problems: vec![Problem::new(
+                    "machine",
+                    format!(
+                        "unknown machine \"{}\"; this build has: {}",
+                        config::shorten(name),
+                        crate::machines::names()
+                    ),
+                )],
+            })?),
+        };
+        Ok(Setup { loaded, machine })
+    }
+
+    /// Loads `path` (or the built-in configuration) and resolves its machine.
+    pub fn load(path: Option<&Path>) -> Result<Setup, ConfigError> {
+        Setup::new(config::load(path)?)
+    }
+
+    /// The configuration's file name, for messages.
+    pub fn origin(&self) -> &str {
+        &self.loaded.origin
+    }
+
+    /// The machine's sections of the configuration.
+    pub fn sections(&self) -> Sections<'_> {
+        Sections {
+            kinematics: self.loaded.config.kinematics.as_ref(),
+            plant: self.loaded.config.plant.as_ref(),
+        }
+    }
+
+    /// The program types this configuration can name: the runtime's self-test programs and the
+    /// machine's.
+    pub fn registry(&self) -> Registry {
+        let mut registry = Registry::new();
+        crate::selftest::register(&mut registry);
+        for info in self.machine.map(|m| m.programs()).unwrap_or_default() {
+            registry.register(*info);
+        }
+        registry
+    }
+
+    /// The problems of the machine's sections (`kinematics`, `plant`); without a machine, those
+    /// sections have nobody to check them and are refused.
+    pub fn section_problems(&self) -> Vec<Problem> {
+        match self.machine {
+            Some(m) => m.check(&self.sections()),
+            None => {
+                let sections = self.sections();
+                [("kinematics", sections.kinematics), ("plant", sections.plant)]
+                    .into_iter()
+                    .filter(|(_, s)| s.is_some())
+                    .map(|(at, _)| {
+                        Problem::new(
+                            at,
+                            format!(
+                                "the {at} section belongs to a machine, and the configuration names none: \
+                                 add \"machine\" ({})",
+                                crate::machines::names()
+                            ),
+                        )
+                    })
+                    .collect()
+            }
+        }
+    }
+
+    /// The machine's built-in I/O map, which the built-in configuration names.
+    pub fn embedded_io_map(&self) -> Option<EmbeddedFile> {
+        self.machine.map(|m| m.default_io_map())
+    }
+
+    /// Loads and validates the I/O map; `None` when the configuration names none.
+    pub fn io_map(&self) -> Result<Option<IoMap>, ConfigError> {
+        IoMap::load(&self.loaded, self.embedded_io_map())
+    }
+
+    /// The digest of the configuration with its I/O map (traces carry it).
+    pub fn digest(&self) -> Result<String, ConfigError> {
+        crate::trace::config_digest(&self.loaded, self.embedded_io_map())
+    }
+
+    /// The simulated machine behind the I/O map, with `scenario` if given.
+    pub fn sim_bus(&self, scenario: Option<&Path>) -> Result<SimBus, ConfigError> {
+        let invalid = |at: &str, message: &str| ConfigError::Invalid {
+            file: self.loaded.origin.clone(),
+            problems: vec![Problem::new(at, message)],
+        };
+        let Some(map) = self.io_map()? else {
+            return Err(invalid("io_map", "the simulated bus needs an I/O map"));
+        };
+        let Some(machine) = self.machine else {
+            return Err(invalid(
+                "machine",
+                "the simulated bus needs a machine to simulate: name one with \"machine\"",
+            ));
+        };
+        crate::sim::build(&self.loaded, machine, map, scenario)
+    }
+
+    /// A bus that only declares the I/O map's variables (inputs written by the bus, outputs read
+    /// by it) and exchanges nothing: replay feeds the recorded inputs itself.
+    pub fn declaring_bus(&self) -> Result<Box<dyn Bus>, ConfigError> {
+        Ok(match self.io_map()? {
+            Some(map) => Box::new(crate::io::dry::DryBus::new(map)),
+            None => Box::new(NoBus),
+        })
+    }
+
+    /// Builds the PLC on `bus`: declares every program's variables and checks the configuration
+    /// as a whole, the machine's sections included.
+    pub fn plc(&self, bus: Box<dyn Bus>) -> Result<Plc, ConfigError> {
+        let plc = Plc::build(&self.loaded.config, &self.registry(), bus);
+        let mut problems = self.section_problems();
+        match plc {
+            Ok(plc) if problems.is_empty() => Ok(plc),
+            plc => {
+                problems.splice(0..0, plc.err().unwrap_or_default());
+                Err(ConfigError::Invalid {
+                    file: self.loaded.origin.clone(),
+                    problems,
+                })
+            }
+        }
+    }
+}
+
+/// The buses a PLC can run on.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum BusChoice {
+    /// The simulated machine.
+    Sim,
+    /// No field I/O (with an I/O map: a dry run, inputs held at zero).
+    None,
+    /// A Modbus TCP station.
+    Tcp(std::net::SocketAddr),
+    /// A Modbus RTU station on a serial line (path, baud).
+    Serial(String, u32),
+}
+
+/// Where the operator's joystick comes from.
+#[derive(Clone, Debug)]
+pub enum JoystickChoice {
+    /// A live source read by a thread (real time), or none.
+    Live(JoystickSpec),
+    /// A capture file played on the simulated clock (virtual time).
+    Capture(PathBuf),
+}
+
+/// The resolved options of a PLC to build.
+#[derive(Clone, Debug)]
+pub struct Options {
+    /// The bus.
+    pub bus: BusChoice,
+    /// How a Modbus bus exchanges.
+    pub link: ModbusOptions,
+    /// A scenario for the simulated machine.
+    pub scenario: Option<PathBuf>,
+    /// The joystick.
+    pub joystick: JoystickChoice,
+}
+
+impl Default for Options {
+    /// The simulated machine, no scenario, no joystick reader.
+    fn default() -> Self {
+        Options {
+            bus: BusChoice::Sim,
+            link: ModbusOptions::default(),
+            scenario: None,
+            joystick: JoystickChoice::Live(JoystickSpec::None),
+        }
+    }
+}
+
+/// The HID joystick of a built PLC: its reader is started once the PLC runs.
+pub struct Joystick {
+    /// The source.
+    pub spec: JoystickSpec,
+    /// Where the reader hands its reports over.
+    pub feed: JoystickFeed,
+    /// How late reports reach the process image.
+    pub probe: LatencyProbe,
+    /// Stops the reader.
+    pub stop: Arc<AtomicBool>,
+}
+
+/// A built PLC with its handles.
+pub struct Built {
+    /// The configuration it was built from.
+    pub setup: Setup,
+    /// The PLC.
+    pub plc: Plc,
+    /// The joystick reader to start, if a live joystick is wanted.
+    pub joystick: Option<Joystick>,
+}
+
+/// Why a PLC could not be built: every problem of the files, or a usage error. The message is
+/// ready to show; the command line exits with code 2.
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct BuildError(pub String);
+
+impl From<ConfigError> for BuildError {
+    fn from(e: ConfigError) -> Self {
+        BuildError(e.to_string())
+    }
+}
+
+/// Why the bus could not be made.
+enum BusFailure {
+    /// A problem of the configuration or its I/O map: reported with the rest of the checks.
+    Config(ConfigError),
+    /// Anything else (a usage error): reported alone.
+    Other(BuildError),
+}
+
+impl From<ConfigError> for BusFailure {
+    fn from(e: ConfigError) -> Self {
+        BusFailure::Config(e)
+    }
+}
+
+fn usage(message: impl Into<String>) -> BusFailure {
+    BusFailure::Other(BuildError(message.into()))
+}
+
+/// The bus `options` ask for.
+fn make_bus(setup: &Setup, options: &Options) -> Result<Box<dyn Bus>, BusFailure> {
+    let scenario = options.scenario.as_deref();
+    let needs_sim = |what: &str| usage(format!("--scenario needs the simulated bus ({what})"));
+    let has_map = setup.loaded.config.io_map.is_some();
+    Ok(match (&options.bus, has_map) {
+        (kind @ (BusChoice::Tcp(_) | BusChoice::Serial(..)), true) => {
+            if scenario.is_some() {
+                return Err(needs_sim("give it to io-sim instead"));
+            }
+            let Some(map) = setup.io_map()? else {
+                return Err(usage("a Modbus bus needs an io_map in the configuration"));
+            };
+            let transport = match kind {
+                BusChoice::Serial(path, baud) => Transport::Serial {
+                    path: path.clone(),
+                    baud: *baud,
+                },
+                BusChoice::Tcp(address) => Transport::Tcp(*address),
+                BusChoice::Sim | BusChoice::None => unreachable!("matched above"),
+            };
+            let bus = ModbusBus::new(map, transport, options.link).map_err(|e| usage(format!("--bus: {e}")))?;
+            Box::new(bus)
+        }
+        (BusChoice::Tcp(_) | BusChoice::Serial(..), false) => {
+            return Err(usage("a Modbus bus needs an io_map in the configuration"));
+        }
+        (BusChoice::None, true) => {
+            if scenario.is_some() {
+                return Err(needs_sim("--bus sim and an io_map in the configuration"));
+            }
+            let Some(map) = setup.io_map()? else {
+                unreachable!("the configuration names an I/O map")
+            };
+            let bus = crate::io::dry::DryBus::new(map);
+            warn!(
+                "--bus none: a dry run of the programs without field I/O: the inputs of the I/O map ({}) hold zero / \
+                 false, the outputs go nowhere",
+                bus.held_inputs().join(", ")
+            );
+            Box::new(bus)
+        }
+        (BusChoice::None | BusChoice::Sim, false) => {
+            if scenario.is_some() {
+                return Err(needs_sim("--bus sim and an io_map in the configuration"));
+            }
+            Box::new(NoBus)
+        }
+        (BusChoice::Sim, true) => Box::new(setup.sim_bus(scenario)?),
+    })
+}
+
+/// Builds a PLC: every problem of the configuration and its I/O map is reported at once.
+pub fn build(setup: Setup, options: Options) -> Result<Built, BuildError> {
+    // A bus that cannot be made for a problem of the files (the I/O map, the plant section) does
+    // not hide the configuration's other problems: they are checked on a stand-in bus.
+    let (bus, bus_problem) = match make_bus(&setup, &options) {
+        Ok(bus) => (bus, None),
+        Err(BusFailure::Config(e)) => (Box::new(UnknownBus) as Box<dyn Bus>, Some(e)),
+        Err(BusFailure::Other(f)) => return Err(f),
+    };
+    let (bus, joystick) = match bus_problem {
+        None => with_joystick(&setup, bus, options.joystick)?,
+        Some(_) => (bus, None),
+    };
+    match (setup.plc(bus), bus_problem) {
+        (Ok(plc), None) => Ok(Built { setup, plc, joystick }),
+        (plc, bus_problem) => {
+            let mut problems = match plc {
+                Err(ConfigError::Invalid { problems, .. }) => problems,
+                Err(other) => return Err(other.into()),
+                Ok(_) => Vec::new(),
+            };
+            let mut reports: Vec<String> = Vec::new();
+            // The plant section's problems are the configuration's own: one list. (The machine
+            // reports them among the section problems too; each is said once.)
+            match bus_problem {
+                Some(ConfigError::Invalid { file, problems: more }) if file == setup.loaded.origin => {
+                    for p in more {
+                        if !problems.contains(&p) {
+                            problems.push(p);
+                        }
+                    }
+                }
+                Some(other) => reports.push(other.to_string()),
+                None => {}
+            }
+            if !problems.is_empty() {
+                let own = ConfigError::Invalid {
+                    file: setup.loaded.origin.clone(),
+                    problems,
+                };
+                reports.insert(0, own.to_string());
+            }
+            Err(BuildError(reports.join("\n")))
+        }
+    }
+}
+
+/// Lays the HID joystick over `bus`'s joystick channels, unless the choice is `none` or the I/O
+/// map binds none.
+fn with_joystick(
+    setup: &Setup,
+    bus: Box<dyn Bus>,
+    choice: JoystickChoice,
+) -> Result<(Box<dyn Bus>, Option<Joystick>), BuildError> {
+    let loaded = &setup.loaded;
+    let spec = match choice {
+        JoystickChoice::Live(JoystickSpec::None) => return Ok((bus, None)),
+        JoystickChoice::Live(spec) => spec,
+        JoystickChoice::Capture(path) => {
+            let states = crate::io::hid::load_capture(&path, &loaded.config.joystick)
+                .map_err(|e| BuildError(format!("--joystick {e}")))?;
+            let Some(map) = setup.io_map()? else {
+                return Err(BuildError(format!(
+                    "--joystick {}: the configuration has no I/O map to bind it to",
+                    path.display()
+                )));
+            };
+            let bus = JoystickBus::with_capture(bus, &map, states);
+            if !bus.binds_anything() {
+                return Err(BuildError(format!(
+                    "--joystick {}: {} binds no channel of a Joystick module",
+                    path.display(),
+                    map.origin
+                )));
+            }
+            info!("joystick: playing capture {} on the simulated clock", path.display());
+            return Ok((Box::new(bus), None));
+        }
+    };
+    let Some(map) = setup.io_map()? else {
+        if let JoystickSpec::Path(p) = &spec {
+            warn!(
+                "--joystick {}: the configuration has no I/O map to bind it to; ignored",
+                p.display()
+            );
+        }
+        return Ok((bus, None));
+    };
+    let (joystick_bus, feed, probe) = JoystickBus::new(bus, &map);
+    if !joystick_bus.binds_anything() {
+        if let JoystickSpec::Path(p) = &spec {
+            warn!(
+                "--joystick {}: {} binds no channel of a Joystick module; ignored",
+                p.display(),
+                map.origin
+            );
+        }
+        return Ok((Box::new(joystick_bus), None));
+    }
+    let joystick = Joystick {
+        spec,
+        feed,
+        probe,
+        stop: Arc::new(AtomicBool::new(false)),
+    };
+    Ok((Box::new(joystick_bus), Some(joystick)))
+}

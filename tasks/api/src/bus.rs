@@ -1,0 +1,35 @@
+//! Buses exchange process images with the outside world.
+//!
+//! A bus declares which variables it produces (physical inputs, each latched by one task class)
+//! and which it consumes (outputs). The runtime calls it around every cycle: `read_inputs` before
+//! the class's inputs are latched, `write_outputs` after its outputs are published. A simulated bus
+//! does its work right there (deterministic); a real bus runs its own exchange loop and hands
+//! complete images over, so a cycle never waits on a wire.
+
+use crate::image::{Value, VarTable};
+
+/// A field bus (or a simulated one).
+pub trait Bus: Send {
+    /// A short name for logs and summaries (`none`, `sim`, `serial:/dev/ttyUSB0`, ...).
+    fn name(&self) -> &str;
+    /// Declares the bus's inputs (as writers) and outputs (as readers) in the variable table.
+    fn declare(&mut self, table: &mut VarTable);
+    /// Called at the start of a cycle of task class `class` (nominal time `t_ns`), before its
+    /// inputs are latched: updates the global image with the bus inputs that class latches.
+    fn read_inputs(&mut self, class: usize, t_ns: u64, image: &mut [Value]);
+    /// Called after task class `class` published its outputs into the global image.
+    fn write_outputs(&mut self, class: usize, t_ns: u64, image: &[Value]);
+    /// Called once at shutdown with every output at its safe value, before the bus closes.
+    fn write_safe(&mut self, image: &[Value]);
+    /// The bus as `Any`, so that callers who know its type can reach it (tests and status
+    /// displays read the simulated machine's true state this way).
+    fn as_any(&self) -> &dyn std::any::Any;
+    /// Whether the link is faulty beyond the configured bound: published every cycle as the
+    /// variable [`BUS_FAULT`], so the application can stop the drives and report it.
+    fn fault(&self) -> bool {
+        false
+    }
+}
+
+/// The variable every bus provides: its fault status.
+pub const BUS_FAULT: &str = "bus_fault";

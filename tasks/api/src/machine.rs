@@ -1,0 +1,149 @@
+//! The machine plug-in interface: how a machine (TRIJOINT, pn101, O-X glide, hexapod) supplies
+//! its programs, the check of its own configuration sections, its default I/O map and its
+//! simulated plant. The runtime knows machines only through [`Machine`]; config.json names the
+//! machine it runs (`"machine": "trijoint"`).
+//!
+//! As in LinuxCNC, where a machine is configuration over generic components, the generic half of
+//! the simulated machine stays in the runtime: module channel images, the wiring of plant signals
+//! to channels through the I/O map, scenario files and fault injection. A machine's [`Plant`]
+//! supplies only the physics behind its signals.
+
+use std::any::Any;
+use std::fmt;
+
+use crate::image::{Direction, Value, VarType};
+use crate::problem::Problem;
+use crate::program::ProgramInfo;
+
+/// The configuration sections that belong to the machine (each `None` when config.json leaves it
+/// out: the machine's defaults apply).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Sections<'a> {
+    /// `kinematics`: the kinematic parameters.
+    pub kinematics: Option<&'a serde_json::Value>,
+    /// `plant`: the simulated machine (drives, wiring).
+    pub plant: Option<&'a serde_json::Value>,
+}
+
+/// A file built into the binary that the built-in configuration may name.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct EmbeddedFile {
+    /// The name a configuration uses for it (`io-map/trijoint.json`).
+    pub name: &'static str,
+    /// Its text.
+    pub text: &'static str,
+}
+
+/// A machine: its programs, its configuration checks, its default I/O map and its plant.
+pub trait Machine: Sync + fmt::Debug {
+    /// The name config.json uses (`"machine": NAME`).
+    fn name(&self) -> &'static str;
+    /// One line on the machine.
+    fn summary(&self) -> &'static str;
+    /// The program types it brings.
+    fn programs(&self) -> &'static [ProgramInfo];
+    /// Checks the machine's sections of the configuration; problems carry their full JSON path
+    /// (`kinematics.trijoint.d`, `plant.left.tau_s`).
+    fn check(&self, sections: &Sections<'_>) -> Vec<Problem>;
+    /// The I/O map of the machine's lab model, built into the binary.
+    fn default_io_map(&self) -> EmbeddedFile;
+    /// Builds the simulated plant from the (checked) sections; problems as in [`Machine::check`].
+    fn plant(&self, sections: &Sections<'_>) -> Result<PlantSetup, Vec<Problem>>;
+}
+
+/// A plant as its machine built it, with what the runtime needs to wire it.
+pub struct PlantSetup {
+    /// The plant.
+    pub plant: Box<dyn Plant>,
+    /// Its integration step (ns); cycles see the plant at their nominal start time.
+    pub step_ns: u64,
+    /// For each of the plant's [`Plant::signals`], in order: the channel it is wired to
+    /// (`MODULE.Channel`) and the JSON path that says so (`plant.wiring.stop_button`).
+    pub wiring: Vec<(String, String)>,
+}
+
+/// What a plant signal is to an operator or a scenario file.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Role {
+    /// An operator panel button: a scenario's `input` event presses and releases it.
+    Button,
+    /// A limit switch: a scenario's `switch_stuck` / `switch_free` faults name it.
+    Switch,
+    /// Anything else (encoders, bridges, PWM, the joystick's channels).
+    Other,
+}
+
+/// One signal of a plant, as its harness carries it to a module channel.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Signal {
+    /// The signal's key in the plant's wiring section (`stop_button`).
+    pub key: &'static str,
+    /// Field → PLC (input) or back (output).
+    pub direction: Direction,
+    /// The type of the channel it is wired to.
+    pub ty: VarType,
+    /// What it is to a scenario.
+    pub role: Role,
+}
+
+/// A scenario action, resolved by the runtime (signals by index into [`Plant::signals`], drives
+/// by index into [`Plant::drives`]) and applied to the plant at its time.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Action {
+    /// Press (true) or release a [`Role::Button`] signal.
+    Press {
+        /// The signal.
+        signal: usize,
+        /// Pressed or released.
+        pressed: bool,
+    },
+    /// Set the joystick's axes (each in −1 … 1).
+    Joystick(f64, f64),
+    /// Stick a [`Role::Switch`] signal on (`Some(true)`), off (`Some(false)`), or free it (`None`).
+    StickSwitch {
+        /// The signal.
+        signal: usize,
+        /// The stuck state.
+        stuck: Option<bool>,
+    },
+    /// A drive's encoder counter jumps.
+    EncoderGlitch {
+        /// The drive.
+        drive: usize,
+        /// By how many counts.
+        counts: i64,
+    },
+    /// A drive's motor bridge latches an error (overcurrent).
+    BridgeError {
+        /// The drive.
+        drive: usize,
+    },
+    /// A drive stops responding (true) or responds again (false), with no error shown.
+    DriveDead {
+        /// The drive.
+        drive: usize,
+        /// Dead or alive.
+        dead: bool,
+    },
+    /// The joystick is plugged in (true) or unplugged.
+    JoystickConnected(bool),
+}
+
+/// The physics behind a machine's signals. Time advances in fixed steps, so a run depends only on
+/// its inputs: no clock, no randomness.
+pub trait Plant: Send + Any {
+    /// The signals the plant's harness carries, in a fixed order (indices are stable).
+    fn signals(&self) -> &[Signal];
+    /// The drives' names as scenario files give them (`left`, `right`), by index.
+    fn drives(&self) -> &[&'static str];
+    /// Advances the plant by `dt_s` seconds.
+    fn step(&mut self, dt_s: f64);
+    /// The value of input signal `signal` now.
+    fn read(&self, signal: usize) -> Value;
+    /// Applies the value of output signal `signal` (a value of another type is ignored).
+    fn write(&mut self, signal: usize, value: Value);
+    /// Applies a scenario action.
+    fn apply(&mut self, action: Action);
+    /// The plant as `Any`, for tests and displays that know its type.
+    fn as_any(&self) -> &dyn Any;
+}
