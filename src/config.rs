@@ -130,7 +130,7 @@ impl Default for TimingConfig {
 }
 
 /// The timers the real-time scheduler can wait on (see the README's measurements).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum TimeSourceKind {
     /// The best measured on Linux: `nanosleep`.

@@ -12,6 +12,7 @@ use clap::{Args, Parser, Subcommand};
 use tracing::{info, warn};
 use tracing_subscriber::EnvFilter;
 
+use cli_enums::{Exchange, TimeSource};
 use pkm_plc::bench::{self, BenchOptions};
 use pkm_plc::compose::{self, Built, BusChoice, JoystickChoice, Options, Setup};
 use pkm_plc::config::{self, ConfigError, LoadedConfig, TimeSourceKind};
@@ -22,6 +23,7 @@ use pkm_plc::run::{self, RealTimeOptions};
 use pkm_plc::status;
 use pkm_plc::summary::Summary;
 
+mod cli_enums;
 mod kin_cmd;
 mod kin_svg;
 
@@ -65,8 +67,8 @@ struct LinkBenchArgs {
     #[arg(long, default_value_t = 10.0, value_parser = parse_seconds)]
     seconds: f64,
     /// The exchange modes to measure.
-    #[arg(long, value_enum, value_delimiter = ',', default_values_t = [ExchangeMode::Tables, ExchangeMode::Image])]
-    exchange: Vec<ExchangeMode>,
+    #[arg(long, value_enum, value_delimiter = ',', default_values_t = [Exchange::Tables, Exchange::Image])]
+    exchange: Vec<Exchange>,
     #[command(flatten)]
     config: ConfigArg,
     /// Also write the rows as JSON to FILE.
@@ -118,6 +120,15 @@ enum TraceOp {
         trace: PathBuf,
         /// The VCD file to write.
         out: PathBuf,
+    },
+    /// Print the state transitions and the main class's outputs sampled every few seconds: the
+    /// text a reviewer diffs (the golden traces keep one beside them, `NAME.expected`).
+    Summary {
+        /// The trace.
+        trace: PathBuf,
+        /// Seconds between samples of the outputs.
+        #[arg(long, default_value_t = 5.0, value_parser = parse_seconds)]
+        every: f64,
     },
     /// Plot variables and the main state against time (SVG).
     Plot {
@@ -171,8 +182,8 @@ struct RunArgs {
     /// How a Modbus bus exchanges the I/O each time: `tables` (four requests on the standard
     /// tables, any server), `image` (one read/write-multiple-registers request on the packed
     /// process image, as io-sim serves it), or `auto` (image on serial, tables on TCP).
-    #[arg(long, value_enum, default_value_t = ExchangeMode::Auto)]
-    exchange: ExchangeMode,
+    #[arg(long, value_enum, default_value_t = Exchange::Auto)]
+    exchange: Exchange,
     /// A Modbus bus faults when its newest complete input image is older than this (ms), however
     /// the exchanges fail: slow responses that never time out count too.
     #[arg(long, value_name = "MS", default_value_t = 50, value_parser = clap::value_parser!(u64).range(1..))]
@@ -190,7 +201,7 @@ struct RunArgs {
     trace: Option<PathBuf>,
     /// Override the configured time source (real time only).
     #[arg(long, value_enum, value_name = "SOURCE", conflicts_with = "virtual_time")]
-    time_source: Option<TimeSourceKind>,
+    time_source: Option<TimeSource>,
 }
 
 #[derive(Args, Debug)]
@@ -202,8 +213,8 @@ struct BenchArgs {
     #[arg(long, default_value_t = 10_000)]
     cycle_us: u32,
     /// The time sources to measure.
-    #[arg(long, value_enum, value_delimiter = ',', default_values_t = [TimeSourceKind::Tokio, TimeSourceKind::Timerfd, TimeSourceKind::Nanosleep])]
-    sources: Vec<TimeSourceKind>,
+    #[arg(long, value_enum, value_delimiter = ',', default_values_t = [TimeSource::Tokio, TimeSource::Timerfd, TimeSource::Nanosleep])]
+    sources: Vec<TimeSource>,
     /// SCHED_FIFO priority for the real-time rows (0 skips them).
     #[arg(long, default_value_t = 80)]
     realtime_priority: u8,
@@ -365,7 +376,7 @@ fn cmd_run(args: RunArgs) -> Result<(), Failure> {
     let options = Options {
         bus: args.bus,
         link: pkm_plc::io::modbus::ModbusOptions {
-            exchange: args.exchange,
+            exchange: args.exchange.into(),
             max_input_age: Duration::from_millis(args.max_input_age_ms),
             ..Default::default()
         },
@@ -408,7 +419,7 @@ fn cmd_run(args: RunArgs) -> Result<(), Failure> {
     } else {
         let timing = &loaded.config.timing;
         let options = RealTimeOptions {
-            source: args.time_source.unwrap_or(timing.source),
+            source: args.time_source.map_or(timing.source, TimeSourceKind::from),
             realtime_priority: timing.realtime_priority,
             lock_memory: timing.lock_memory,
             spin_ns: u64::from(timing.spin_us) * 1000,
@@ -550,9 +561,16 @@ fn cmd_replay(args: ReplayArgs) -> Result<(), Failure> {
 
 fn cmd_trace(args: TraceArgs) -> Result<(), Failure> {
     use pkm_plc::trace::export::{ExportError, to_svg, to_vcd};
+    if let TraceOp::Summary { trace, every } = &args.op {
+        let text = pkm_plc::trace::expected::summary(trace, (every * 1e6) as u64)
+            .map_err(|e| Failure::usage(e.to_string()))?;
+        print!("{text}");
+        return Ok(());
+    }
     let (result, out) = match &args.op {
         TraceOp::Vcd { trace, out } => (to_vcd(trace, out), out),
         TraceOp::Plot { trace, out, vars } => (to_svg(trace, out, vars), out),
+        TraceOp::Summary { .. } => unreachable!("handled above"),
     };
     match result {
         Ok(done) => {
@@ -659,7 +677,11 @@ fn cmd_bench(args: BenchArgs) -> Result<(), Failure> {
     let options = BenchOptions {
         seconds: args.seconds,
         cycle_us: args.cycle_us,
-        sources: args.sources.iter().map(|s| s.resolve()).collect(),
+        sources: args
+            .sources
+            .iter()
+            .map(|s| TimeSourceKind::from(*s).resolve())
+            .collect(),
         realtime_priority: args.realtime_priority,
         spin_us: args.spin_us,
     };
@@ -681,14 +703,14 @@ fn cmd_bench(args: BenchArgs) -> Result<(), Failure> {
 }
 
 fn cmd_link_bench(args: LinkBenchArgs) -> Result<(), Failure> {
-    if args.exchange.contains(&ExchangeMode::Auto) {
+    if args.exchange.contains(&Exchange::Auto) {
         return Err(Failure::usage("--exchange: name the modes to measure (tables, image)"));
     }
     let setup = load_setup(&args.config)?;
     let options = pkm_plc::link_bench::LinkBenchOptions {
         baud: args.baud,
         seconds: args.seconds,
-        modes: args.exchange,
+        modes: args.exchange.into_iter().map(ExchangeMode::from).collect(),
     };
     let json_file = args.json.as_deref().map(OutputFile::create).transpose()?;
     let rows = pkm_plc::link_bench::run(&setup, &options, |row| info!("measuring {row}")).map_err(|e| match e {

@@ -179,6 +179,30 @@ fn golden_traces_replay_identically() {
         }
         let o = pkm(&["replay", trace.to_str().expect("utf-8")]);
         assert_eq!(o.status.code(), Some(0), "golden trace {}: {}", g.name, stderr(&o));
+        // The reviewable form beside it: state transitions and sampled outputs as text.
+        let o = pkm(&["trace", "summary", trace.to_str().expect("utf-8")]);
+        assert_eq!(o.status.code(), Some(0), "summary of {}: {}", g.name, stderr(&o));
+        let summary = String::from_utf8(o.stdout).expect("utf-8");
+        let expected = dir.join(format!("{}.expected", g.name));
+        if bless {
+            std::fs::write(&expected, &summary).expect("bless the expected summary");
+        }
+        let want = std::fs::read_to_string(&expected)
+            .unwrap_or_else(|e| panic!("{}: {e} (PKM_PLC_BLESS=1 writes it)", expected.display()));
+        if want != summary {
+            let first = want
+                .lines()
+                .zip(summary.lines())
+                .position(|(a, b)| a != b)
+                .unwrap_or(want.lines().count().min(summary.lines().count()));
+            panic!(
+                "{}: the trace's summary differs from the expected one at line {}:\n  expected: {}\n  trace:    {}",
+                expected.display(),
+                first + 1,
+                want.lines().nth(first).unwrap_or("(end)"),
+                summary.lines().nth(first).unwrap_or("(end)")
+            );
+        }
     }
 }
 

@@ -35,7 +35,7 @@ use crate::bus::{Bus, MailboxReader, MailboxWriter, image_mailbox};
 use crate::image::{Value, VarIndex, VarTable};
 
 /// How one exchange talks to the station.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum ExchangeMode {
     /// `image` on a serial line, `tables` over TCP.
     #[default]

@@ -8,6 +8,7 @@
 //! VALUE}, "state", "reason"?, "violation"?}`. `in` and `out` hold the variables that changed
 //! since that class's previous record; a class's first record holds all of them.
 
+pub mod expected;
 pub mod export;
 mod fast;
 pub mod read;
