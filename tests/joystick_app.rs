@@ -6,11 +6,12 @@
 
 mod common;
 
+use pkm_trijoint::vars;
 use std::io::Cursor;
 use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
 
-use common::{real, state, var};
+use common::{get, real, state, var};
 use pkm_plc::bus::NoBus;
 use pkm_plc::image::{Value, VarTable};
 use pkm_plc::io::hid::{End, JoystickBus, JoystickFeed, JoystickState, read_records};
@@ -67,7 +68,7 @@ fn deflected(x: f64, y: f64) -> JoystickState {
 }
 
 fn m(plc: &Plc) -> [f64; 2] {
-    [real(plc, "M_x"), real(plc, "M_y")]
+    [get(plc, vars::M[0]), get(plc, vars::M[1])]
 }
 
 #[test]
@@ -108,7 +109,7 @@ fn the_joystick_drives_m_a_disconnect_stops_it_and_a_reconnect_drives_again() {
         "READY in the first main cycle after the disconnect"
     );
     assert_eq!(var(&run.plc, "JOYSTICK_CONNECTED"), Value::Bool(false));
-    assert_eq!(real(&run.plc, "JOYSTICK_X"), 0.0);
+    assert_eq!(get(&run.plc, vars::JOYSTICK[0]), 0.0);
     let stopped = m(&run.plc);
     run.advance(READY_MS + 4000, |plc, t| {
         for side in ["left", "right"] {

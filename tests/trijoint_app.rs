@@ -8,6 +8,7 @@ use pkm_kinematics::Kinematics;
 use pkm_kinematics::trijoint::{Trijoint, TrijointParams};
 use pkm_plc::image::Value;
 use pkm_plc::plc::Plc;
+use pkm_trijoint::vars;
 
 const COUNT_MM: f64 = 1.0 / 7000.0;
 
@@ -118,7 +119,7 @@ fn jogging_moves_m_in_the_commanded_direction_at_the_commanded_speed() {
         }
         if (READY_MS + 500..READY_MS + 2000).contains(&t) && t % 50 == 0 {
             // Steady motion: the displayed M (FK of the measured positions) matches the truth.
-            let shown = [real(plc, "M_x"), real(plc, "M_y")];
+            let shown = [common::get(plc, vars::M[0]), common::get(plc, vars::M[1])];
             let real_m = true_m(plc);
             assert!(
                 (shown[0] - real_m[0]).abs() < 0.01 && (shown[1] - real_m[1]).abs() < 0.01,

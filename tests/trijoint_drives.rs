@@ -4,12 +4,13 @@
 
 mod common;
 
-use common::{plant, real, run, var};
+use common::{get, plant, run, var};
 use pkm_plc::image::{Declare, Input, Output, Value};
 use pkm_plc::plc::Plc;
 use pkm_plc::program::{Cycle, Program, ProgramArgs, ProgramInfo, Registry};
 use pkm_trijoint::encoders::unwrap;
 use pkm_trijoint::state::MainState;
+use pkm_trijoint::vars;
 use proptest::prelude::*;
 
 proptest! {
@@ -134,7 +135,7 @@ fn positions_follow_the_plant_to_one_count() {
     let start = plant(&plc).position_mm(0);
     let mut checked = 0;
     run(&mut plc, 2000, |plc, _| {
-        let measured = real(plc, "position_left_mm");
+        let measured = get(plc, vars::POSITION_MM[0]);
         // Positions are relative to the counter at power-on (125 mm ↔ 23 032 counts).
         let truth = plant(plc).position_mm(0) - start + 23_032.0 / 7000.0;
         assert!(
@@ -153,8 +154,8 @@ fn the_regulator_follows_a_ramp_and_settles() {
     let mut worst_following = 0.0f64;
     run(&mut plc, 2500, |plc, _| {
         assert_eq!(var(plc, "following_error_left"), Value::Bool(false));
-        let sp = real(plc, "setpoint_left_mm");
-        worst_following = worst_following.max((sp - real(plc, "position_left_mm")).abs());
+        let sp = get(plc, vars::SETPOINT_MM[0]);
+        worst_following = worst_following.max((sp - get(plc, vars::POSITION_MM[0])).abs());
     });
     let end = plant(&plc).position_mm(0);
     assert!((end - start - 10.0).abs() < 0.01, "moved {} mm", end - start);

@@ -72,6 +72,11 @@ pub fn var(plc: &Plc, name: &str) -> Value {
     plc.global_image()[usize::from(plc.vars().index_of(name).expect("variable"))]
 }
 
+/// A variable of the published image, by its typed name.
+pub fn get<T: pkm_plc::image::PlcType>(plc: &Plc, var: pkm_plc::image::Var<T>) -> T {
+    T::from_value(self::var(plc, var.name()))
+}
+
 /// A REAL variable of the published image.
 pub fn real(plc: &Plc, name: &str) -> f64 {
     match var(plc, name) {

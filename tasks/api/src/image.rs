@@ -197,6 +197,38 @@ impl<T> Output<T> {
     }
 }
 
+/// A variable's name with its type. A machine declares one constant per variable of its
+/// programs (`pub const BUTTON_STOP: Var<bool> = Var::new("BUTTON_STOP");`); programs declare
+/// through it and tests read through it, so a misspelt name or a wrong type is a compile error,
+/// not a configuration problem found at start-up.
+#[derive(Debug)]
+pub struct Var<T> {
+    name: &'static str,
+    _type: PhantomData<fn() -> T>,
+}
+
+impl<T> Clone for Var<T> {
+    fn clone(&self) -> Self {
+        *self
+    }
+}
+impl<T> Copy for Var<T> {}
+
+impl<T> Var<T> {
+    /// The variable `name`.
+    pub const fn new(name: &'static str) -> Self {
+        Var {
+            name,
+            _type: PhantomData,
+        }
+    }
+
+    /// Its name in the process image.
+    pub const fn name(self) -> &'static str {
+        self.name
+    }
+}
+
 /// Who writes a variable.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum Writer {
@@ -511,6 +543,22 @@ impl<'a> Declare<'a> {
             index,
             _type: PhantomData,
         }
+    }
+
+    /// Declares that this program reads `var`.
+    pub fn read<T: PlcType>(&mut self, var: Var<T>) -> Input<T> {
+        self.input(var.name)
+    }
+
+    /// Declares that this program reads `var` if something writes it (see
+    /// [`Declare::optional_input`]).
+    pub fn read_optional<T: PlcType>(&mut self, var: Var<T>) -> Input<T> {
+        self.optional_input(var.name)
+    }
+
+    /// Declares that this program writes `var`; `safe` is its value on shutdown.
+    pub fn write<T: PlcType>(&mut self, var: Var<T>, safe: T) -> Output<T> {
+        self.output(var.name, safe)
     }
 
     /// Reports a problem with this program's configuration (its parameters, say).

@@ -6,6 +6,7 @@
 use serde::Deserialize;
 
 use super::state::MainState;
+use crate::vars;
 use pkm_api::image::{Declare, Input, Output};
 use pkm_api::program::{Cycle, Program, ProgramArgs};
 
@@ -151,29 +152,26 @@ impl Control {
                 format!("must be in (0, 1], got {}", p.output_limit),
             );
         }
-        let drive = |s: &str, upper: &str, lower: &str, decl: &mut Declare<'_>| Drive {
-            position: decl.input(&format!("position_{s}_mm")),
-            setpoint: decl.input(&format!("setpoint_{s}_mm")),
-            setpoint_velocity: decl.input(&format!("setpoint_{s}_mm_s")),
-            fault: decl.input(&format!("encoder_fault_{s}")),
-            bridge_error: decl.input(&format!("bridge_error_{s}")),
-            switches: [decl.input(lower), decl.input(upper)],
-            pwm: decl.output(&format!("velocity_{s}_set"), 0),
-            following_error: decl.output(&format!("following_error_{s}"), false),
+        let drive = |d: usize, decl: &mut Declare<'_>| Drive {
+            position: decl.read(vars::POSITION_MM[d]),
+            setpoint: decl.read(vars::SETPOINT_MM[d]),
+            setpoint_velocity: decl.read(vars::SETPOINT_MM_S[d]),
+            fault: decl.read(vars::ENCODER_FAULT[d]),
+            bridge_error: decl.read(vars::BRIDGE_ERROR[d]),
+            switches: vars::SWITCHES[d].map(|v| decl.read(v)),
+            pwm: decl.write(vars::VELOCITY_SET[d], 0),
+            following_error: decl.write(vars::FOLLOWING_ERROR[d], false),
         };
-        let drives = [
-            drive("left", "SWITCH_LEFT_UPPER", "SWITCH_LEFT_DOWN", decl),
-            drive("right", "SWITCH_RIGHT_UPPER", "SWITCH_RIGHT_DOWN", decl),
-        ];
+        let drives = [drive(0, decl), drive(1, decl)];
         Box::new(Control {
             p,
-            state: decl.input("main_state"),
-            enable: decl.input("drives_enable"),
-            bus_fault: decl.input("bus_fault"),
-            setpoint_time: decl.input("setpoint_time_s"),
-            stop: decl.input("BUTTON_STOP"),
-            joystick_stop: decl.optional_input("JOYSTICK_STOP"),
-            interlock: decl.output("interlock", false),
+            state: decl.read(vars::MAIN_STATE),
+            enable: decl.read(vars::DRIVES_ENABLE),
+            bus_fault: decl.read(vars::BUS_FAULT),
+            setpoint_time: decl.read(vars::SETPOINT_TIME_S),
+            stop: decl.read(vars::BUTTON_STOP),
+            joystick_stop: decl.read_optional(vars::JOYSTICK_STOP),
+            interlock: decl.write(vars::INTERLOCK, false),
             drives,
             pi: [Pi::default(); 2],
         })

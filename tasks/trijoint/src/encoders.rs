@@ -5,6 +5,7 @@
 
 use serde::Deserialize;
 
+use crate::vars;
 use pkm_api::image::{Declare, Input, Output};
 use pkm_api::program::{Cycle, Program, ProgramArgs};
 
@@ -88,40 +89,22 @@ impl Encoders {
                 ),
             );
         }
-        let side = |s: &str, decl: &mut Declare<'_>| {
-            let upper = if s == "left" {
-                "SWITCH_LEFT_UPPER"
-            } else {
-                "SWITCH_RIGHT_UPPER"
-            };
-            let lower = if s == "left" {
-                "SWITCH_LEFT_DOWN"
-            } else {
-                "SWITCH_RIGHT_DOWN"
-            };
-            Vars {
-                raw: decl.input(&format!("encoder_{s}_counter")),
-                switches: [decl.input(lower), decl.input(upper)],
-                counts: decl.output(&format!("counts_{s}"), 0),
-                position: decl.output(&format!("position_{s}_mm"), 0.0),
-                velocity: decl.output(&format!("velocity_{s}_mm_s"), 0.0),
-                fault: decl.output(&format!("encoder_fault_{s}"), false),
-                capture: [
-                    decl.output(&format!("capture_{s}_lower_mm"), 0.0),
-                    decl.output(&format!("capture_{s}_upper_mm"), 0.0),
-                ],
-                captured: [
-                    decl.output(&format!("captures_{s}_lower"), 0),
-                    decl.output(&format!("captures_{s}_upper"), 0),
-                ],
-            }
+        let side = |d: usize, decl: &mut Declare<'_>| Vars {
+            raw: decl.read(vars::ENCODER_COUNTER[d]),
+            switches: vars::SWITCHES[d].map(|v| decl.read(v)),
+            counts: decl.write(vars::COUNTS[d], 0),
+            position: decl.write(vars::POSITION_MM[d], 0.0),
+            velocity: decl.write(vars::VELOCITY_MM_S[d], 0.0),
+            fault: decl.write(vars::ENCODER_FAULT[d], false),
+            capture: vars::CAPTURE_MM[d].map(|v| decl.write(v, 0.0)),
+            captured: vars::CAPTURES[d].map(|v| decl.write(v, 0)),
         };
-        let vars = [side("left", decl), side("right", decl)];
+        let channels = [side(0, decl), side(1, decl)];
         Box::new(Encoders {
             p,
-            reference: [decl.input("reference_left_mm"), decl.input("reference_right_mm")],
-            ack: decl.input("encoder_fault_ack"),
-            vars,
+            reference: vars::REFERENCE_MM.map(|v| decl.read(v)),
+            ack: decl.read(vars::ENCODER_FAULT_ACK),
+            vars: channels,
             state: [Channel::default(); 2],
             last_ack: false,
         })

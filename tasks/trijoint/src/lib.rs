@@ -9,6 +9,7 @@ pub mod harness;
 pub mod main_program;
 pub mod plant;
 pub mod state;
+pub mod vars;
 
 use pkm_api::machine::{EmbeddedFile, Machine, PlantSetup, Sections};
 use pkm_api::problem::{self, Problem};

@@ -11,7 +11,9 @@ use serde::Deserialize;
 use statig::prelude::*;
 
 use super::state::MainState;
-use pkm_api::image::{Declare, Input, Output};
+use pkm_api::image::{Declare, Input, Output, Var};
+
+use crate::vars;
 use pkm_api::program::{AppStatus, Cycle, Program, ProgramArgs};
 use pkm_kinematics::trijoint::{Trijoint, TrijointParams};
 use pkm_kinematics::{Kinematics, KinematicsConfig};
@@ -153,11 +155,13 @@ pub enum Reason {
     InitWrongSwitch(usize),
 }
 
-const SWITCH_NAMES: [&str; 4] = [
-    "SWITCH_LEFT_UPPER",
-    "SWITCH_LEFT_DOWN",
-    "SWITCH_RIGHT_UPPER",
-    "SWITCH_RIGHT_DOWN",
+/// The limit switches in the original program's order: left upper, left lower, right upper,
+/// right lower.
+const SWITCHES: [Var<bool>; 4] = [
+    vars::SWITCHES[0][1],
+    vars::SWITCHES[0][0],
+    vars::SWITCHES[1][1],
+    vars::SWITCHES[1][0],
 ];
 
 impl Reason {
@@ -248,7 +252,7 @@ impl End {
         }
     }
 
-    /// Index of drive `i`'s switch at this end in [`SWITCH_NAMES`] order.
+    /// Index of drive `i`'s switch at this end in [`SWITCHES`] order.
     fn switch(self, drive: usize) -> usize {
         drive * 2 + if self == End::Upper { 0 } else { 1 }
     }
@@ -778,45 +782,32 @@ impl MainProgram {
                 ),
             );
         }
-        let side = |s: &str| [format!("{s}_lower"), format!("{s}_upper")];
         let vars = Vars {
-            stop: decl.input("BUTTON_STOP"),
-            joystick_stop: decl.optional_input("JOYSTICK_STOP"),
-            bus_fault: decl.input("bus_fault"),
-            switches: SWITCH_NAMES.map(|n| decl.input(n)),
-            buttons: ["BUTTON_LEFT", "BUTTON_RIGHT", "BUTTON_UP", "BUTTON_DOWN"].map(|n| decl.input(n)),
-            joystick: [decl.input("JOYSTICK_X"), decl.input("JOYSTICK_Y")],
-            joystick_connected: decl.input("JOYSTICK_CONNECTED"),
-            positions: [decl.input("position_left_mm"), decl.input("position_right_mm")],
-            captures: ["left", "right"].map(|s| side(s).map(|n| decl.input(&format!("capture_{n}_mm")))),
-            capture_counts: ["left", "right"].map(|s| side(s).map(|n| decl.input(&format!("captures_{n}")))),
-            encoder_faults: [decl.input("encoder_fault_left"), decl.input("encoder_fault_right")],
-            bridge_errors: [decl.input("bridge_error_left"), decl.input("bridge_error_right")],
-            following_errors: [decl.input("following_error_left"), decl.input("following_error_right")],
-            state: decl.output("main_state", MainState::Reboot.code()),
-            reason: decl.output("error_reason", 0),
-            enable: decl.output("drives_enable", false),
-            setpoints: [
-                decl.output("setpoint_left_mm", 0.0),
-                decl.output("setpoint_right_mm", 0.0),
-            ],
-            velocities: [
-                decl.output("setpoint_left_mm_s", 0.0),
-                decl.output("setpoint_right_mm_s", 0.0),
-            ],
-            setpoint_time: decl.output("setpoint_time_s", 0.0),
-            references: [
-                decl.output("reference_left_mm", 0.0),
-                decl.output("reference_right_mm", 0.0),
-            ],
-            acknowledge: decl.output("encoder_fault_ack", false),
-            clear_errors: [
-                decl.output("clear_error_left", false),
-                decl.output("clear_error_right", false),
-            ],
-            period: decl.output("period_duration", 0),
-            referenced: decl.output("referenced", false),
-            m: [decl.output("M_x", 0.0), decl.output("M_y", 0.0)],
+            stop: decl.read(vars::BUTTON_STOP),
+            joystick_stop: decl.read_optional(vars::JOYSTICK_STOP),
+            bus_fault: decl.read(vars::BUS_FAULT),
+            switches: SWITCHES.map(|v| decl.read(v)),
+            buttons: vars::BUTTONS.map(|v| decl.read(v)),
+            joystick: vars::JOYSTICK.map(|v| decl.read(v)),
+            joystick_connected: decl.read(vars::JOYSTICK_CONNECTED),
+            positions: vars::POSITION_MM.map(|v| decl.read(v)),
+            captures: vars::CAPTURE_MM.map(|d| d.map(|v| decl.read(v))),
+            capture_counts: vars::CAPTURES.map(|d| d.map(|v| decl.read(v))),
+            encoder_faults: vars::ENCODER_FAULT.map(|v| decl.read(v)),
+            bridge_errors: vars::BRIDGE_ERROR.map(|v| decl.read(v)),
+            following_errors: vars::FOLLOWING_ERROR.map(|v| decl.read(v)),
+            state: decl.write(vars::MAIN_STATE, MainState::Reboot.code()),
+            reason: decl.write(vars::ERROR_REASON, 0),
+            enable: decl.write(vars::DRIVES_ENABLE, false),
+            setpoints: vars::SETPOINT_MM.map(|v| decl.write(v, 0.0)),
+            velocities: vars::SETPOINT_MM_S.map(|v| decl.write(v, 0.0)),
+            setpoint_time: decl.write(vars::SETPOINT_TIME_S, 0.0),
+            references: vars::REFERENCE_MM.map(|v| decl.write(v, 0.0)),
+            acknowledge: decl.write(vars::ENCODER_FAULT_ACK, false),
+            clear_errors: vars::CLEAR_ERROR.map(|v| decl.write(v, false)),
+            period: decl.write(vars::PERIOD_DURATION, 0),
+            referenced: decl.write(vars::REFERENCED, false),
+            m: vars::M.map(|v| decl.write(v, 0.0)),
         };
         let lockout_s = p.stop_lockout_ms as f64 * 1e-3;
         let display = Trijoint::new(&TrijointParams {
