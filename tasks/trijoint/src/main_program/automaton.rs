@@ -1,0 +1,400 @@
+//! The REBOOT → INIT → READY ⇄ MOTION and ERROR automaton as a statig state machine: its
+//! events, the inputs and outputs of a cycle it works on (`Io`), and its shared storage.
+//! Referencing and jogging are the automaton's too, in their own modules.
+
+use pkm_kinematics::trijoint::{Trijoint, TrijointParams};
+use statig::prelude::*;
+
+use super::*;
+use crate::state::MainState;
+
+/// The events the automaton handles.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Event {
+    /// An accepted STOP press.
+    Stop,
+    /// A supervision fault.
+    Fault(Reason),
+    /// A cycle without either.
+    Tick,
+}
+
+/// Inputs and outputs of one cycle, shared with the states.
+#[derive(Clone, Debug, Default)]
+pub struct Io {
+    pub(super) now_s: f64,
+    pub(super) dt_s: f64,
+    pub(super) positions: [f64; 2],
+    pub(super) switches: [bool; 4],
+    pub(super) captures: [[f64; 2]; 2],
+    pub(super) capture_counts: [[i32; 2]; 2],
+    pub(super) joystick: [f64; 2],
+    pub(super) joystick_connected: bool,
+    pub(super) buttons: [bool; 4],
+    // Outputs. A set-point is published with its velocity: the 10 ms controller moves it on at
+    // that velocity until the next main cycle.
+    pub(super) enable: bool,
+    pub(super) setpoints: [f64; 2],
+    pub(super) velocities: [f64; 2],
+    pub(super) references: [f64; 2],
+    pub(super) acknowledge: bool,
+    pub(super) referenced: bool,
+}
+
+impl Io {
+    /// Holds both drives at their current set-points.
+    pub(super) fn hold(&mut self) {
+        self.velocities = [0.0; 2];
+    }
+
+    /// Moves set-point `i` towards `target` at up to `speed`; true once it is there.
+    pub(super) fn ramp_to(&mut self, i: usize, target: f64, speed: f64) -> bool {
+        let gap = target - self.setpoints[i];
+        self.velocities[i] = (gap / self.dt_s).clamp(-speed, speed);
+        gap.abs() < 1e-9
+    }
+}
+
+/// The automaton's shared storage.
+pub struct Automaton {
+    pub(super) p: MainParams,
+    pub(super) geometry: TrijointParams,
+    pub(super) state: MainState,
+    /// When the current state was entered (s); REBOOT lasts one cycle.
+    pub(super) entered_s: f64,
+    pub(super) reason: Option<Reason>,
+    pub(super) edges: [[f64; 2]; 2],
+    pub(super) limits: Option<Trijoint>,
+    /// The software limits of the carriages, [lower, upper] per drive (mm, referenced).
+    pub(super) soft: [[f64; 2]; 2],
+    pub(super) m_setpoint: [f64; 2],
+    pub(super) searches: [Search; 2],
+}
+
+#[state_machine(initial = "State::reboot()", context_identifier = "io")]
+impl Automaton {
+    #[state(entry_action = "enter_reboot")]
+    fn reboot(&mut self, io: &mut Io, event: &Event) -> Outcome<State> {
+        match event {
+            // The acknowledge pulses go out for the one cycle REBOOT lasts; then reference.
+            Event::Tick if io.now_s > self.entered_s => Transition(State::init()),
+            _ => Handled,
+        }
+    }
+
+    #[action]
+    fn enter_reboot(&mut self, io: &mut Io) {
+        self.state = MainState::Reboot;
+        self.entered_s = io.now_s;
+        self.reason = None;
+        self.limits = None;
+        io.enable = false;
+        io.acknowledge = true;
+        io.referenced = false;
+        io.references = [0.0; 2];
+        io.hold();
+    }
+
+    #[superstate]
+    fn operating(&mut self, event: &Event) -> Outcome<State> {
+        match event {
+            Event::Stop => Transition(State::error(Reason::Stop)),
+            Event::Fault(reason) => Transition(State::error(*reason)),
+            Event::Tick => Handled,
+        }
+    }
+
+    #[state(superstate = "operating", entry_action = "enter_init")]
+    fn init(&mut self, io: &mut Io, event: &Event) -> Outcome<State> {
+        if *event != Event::Tick {
+            return Super;
+        }
+        io.enable = true;
+        io.acknowledge = false;
+        for i in 0..2 {
+            if let Err(reason) = self.step_search(io, i) {
+                return Transition(State::error(reason));
+            }
+        }
+        if self.searches.iter().all(|s| *s == Search::Found) {
+            self.finish_referencing(io);
+        }
+        if self.searches.iter().all(|s| *s == Search::Done) {
+            return Transition(State::ready());
+        }
+        Handled
+    }
+
+    #[action]
+    fn enter_init(&mut self, io: &mut Io) {
+        self.state = MainState::Init;
+        io.setpoints = io.positions;
+        io.hold();
+        self.searches = [0, 1].map(|i| Search::Seek {
+            end: End::Upper,
+            stage: 0,
+            seen: io.capture_counts[i],
+            since_s: io.now_s,
+        });
+    }
+
+    #[state(superstate = "operating", entry_action = "enter_ready")]
+    fn ready(&mut self, io: &mut Io, event: &Event) -> Outcome<State> {
+        if *event != Event::Tick {
+            return Super;
+        }
+        io.hold();
+        if self.command(io) != [0.0; 2] {
+            return Transition(State::motion());
+        }
+        Handled
+    }
+
+    #[action]
+    fn enter_ready(&mut self, io: &mut Io) {
+        self.state = MainState::Ready;
+        io.hold();
+    }
+
+    #[state(superstate = "operating", entry_action = "enter_motion")]
+    fn motion(&mut self, io: &mut Io, event: &Event) -> Outcome<State> {
+        if *event != Event::Tick {
+            return Super;
+        }
+        let v = self.command(io);
+        if v == [0.0; 2] {
+            io.hold();
+            return Transition(State::ready());
+        }
+        self.jog(io, v);
+        Handled
+    }
+
+    #[action]
+    fn enter_motion(&mut self) {
+        self.state = MainState::Motion;
+    }
+
+    #[state(entry_action = "enter_error")]
+    fn error(reason: &mut Reason, io: &mut Io, event: &Event) -> Outcome<State> {
+        // The reason is kept in the state (and in shared storage for the status, on entry).
+        let _ = reason;
+        // Drives off; the set-points follow the carriages, so that re-enabling is bumpless.
+        io.enable = false;
+        io.setpoints = io.positions;
+        io.hold();
+        match event {
+            Event::Stop => Transition(State::reboot()),
+            _ => Handled,
+        }
+    }
+
+    #[action]
+    fn enter_error(&mut self, reason: &mut Reason, io: &mut Io) {
+        self.state = MainState::Error;
+        self.reason = Some(*reason);
+        io.enable = false;
+        io.setpoints = io.positions;
+        io.hold();
+    }
+}
+
+impl Automaton {
+    /// The automaton in REBOOT, with its parameters and the machine's geometry.
+    pub fn new(p: MainParams, geometry: TrijointParams) -> Self {
+        Automaton {
+            p,
+            geometry,
+            state: MainState::Reboot,
+            entered_s: 0.0,
+            reason: None,
+            edges: [[0.0; 2]; 2],
+            limits: None,
+            soft: [[0.0; 2]; 2],
+            m_setpoint: [0.0; 2],
+            searches: [Search::Done; 2],
+        }
+    }
+
+    /// The operator's command as a velocity of M (mm/s): joystick, else direction buttons. A
+    /// joystick that is not connected commands nothing, whatever its axes read.
+    pub(super) fn command(&self, io: &Io) -> [f64; 2] {
+        let dz = self.p.dead_zone;
+        let [jx, jy] = if io.joystick_connected { io.joystick } else { [0.0; 2] };
+        let (mut x, mut y) = (
+            if jx.abs() > dz { jx } else { 0.0 },
+            if jy.abs() > dz { jy } else { 0.0 },
+        );
+        if x == 0.0 && y == 0.0 {
+            let [left, right, up, down] = io.buttons.map(|b| f64::from(u8::from(b)));
+            x = right - left;
+            y = up - down;
+        }
+        [x * self.p.max_speed_mm_s, y * self.p.max_speed_mm_s]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    //! The automaton alone, as statig's own tests drive a machine: events in, the shared storage
+    //! and the context (`Io`) asserted on. No process image, no plant, no runtime.
+
+    use super::*;
+
+    const DT: f64 = 0.05;
+
+    /// A machine in REBOOT at t = 0, carriages at 125 mm, its context after the first tick.
+    fn machine() -> (StateMachine<Automaton>, Io) {
+        let mut io = Io {
+            dt_s: DT,
+            positions: [125.0; 2],
+            joystick_connected: true,
+            ..Io::default()
+        };
+        let mut m = Automaton::new(MainParams::default(), TrijointParams::default()).state_machine();
+        m.handle_with_context(&Event::Tick, &mut io);
+        (m, io)
+    }
+
+    /// One main cycle later, with `event`.
+    fn cycle(m: &mut StateMachine<Automaton>, io: &mut Io, event: Event) {
+        io.now_s += DT;
+        m.handle_with_context(&event, io);
+    }
+
+    /// A machine that has finished referencing (its storage set as `finish_referencing` leaves
+    /// it) and stands in READY.
+    fn ready() -> (StateMachine<Automaton>, Io) {
+        let (mut m, mut io) = machine();
+        cycle(&mut m, &mut io, Event::Tick);
+        assert_eq!(m.inner().state, MainState::Init);
+        // Both drives' switches found: the automaton references and sends them to the start.
+        // SAFETY: statig marks `inner_mut` unsafe because a change of the storage can break the
+        // machine's own invariants, not memory; this sets exactly what the switch searches of
+        // both drives leave behind (`Search::Found`, the switch edges) — the referencing module
+        // and the simulated machine's tests cover the searches themselves.
+        unsafe {
+            let a = m.inner_mut();
+            a.edges = [[0.0, 250.0]; 2];
+            a.searches = [Search::Found; 2];
+        }
+        for _ in 0..400 {
+            // The carriages follow their set-points exactly.
+            for i in 0..2 {
+                io.setpoints[i] += io.velocities[i] * DT;
+                io.positions[i] = io.setpoints[i];
+            }
+            cycle(&mut m, &mut io, Event::Tick);
+            if m.inner().state == MainState::Ready {
+                return (m, io);
+            }
+        }
+        panic!("not READY after referencing: {:?}", m.inner().searches);
+    }
+
+    #[test]
+    fn reboot_acknowledges_then_init_enables_and_seeks_the_upper_switches() {
+        let (mut m, mut io) = machine();
+        assert_eq!(m.inner().state, MainState::Reboot);
+        assert!(io.acknowledge && !io.enable && !io.referenced);
+        cycle(&mut m, &mut io, Event::Tick);
+        assert_eq!(m.inner().state, MainState::Init);
+        assert!(
+            io.acknowledge && !io.enable,
+            "the cycle that enters INIT still acknowledges, drives still off"
+        );
+        cycle(&mut m, &mut io, Event::Tick);
+        assert!(io.enable, "INIT's first tick enables the drives");
+        assert!(!io.acknowledge, "and ends the acknowledge pulse");
+        assert!(
+            m.inner().searches.iter().all(|s| matches!(
+                s,
+                Search::Seek {
+                    end: End::Upper,
+                    stage: 0,
+                    ..
+                }
+            )),
+            "both drives seek their upper switch first: {:?}",
+            m.inner().searches
+        );
+        assert!(io.velocities.iter().all(|v| *v > 0.0), "moving up: {:?}", io.velocities);
+    }
+
+    #[test]
+    fn stop_and_faults_in_operating_states_are_errors_with_their_reason() {
+        for (event, reason) in [
+            (Event::Stop, Reason::Stop),
+            (Event::Fault(Reason::BusFault), Reason::BusFault),
+            (Event::Fault(Reason::EncoderFault(1)), Reason::EncoderFault(1)),
+        ] {
+            let (mut m, mut io) = machine();
+            cycle(&mut m, &mut io, Event::Tick);
+            io.positions = [130.0, 120.0];
+            cycle(&mut m, &mut io, event);
+            assert_eq!(m.inner().state, MainState::Error, "{event:?}");
+            assert_eq!(m.inner().reason, Some(reason));
+            assert!(!io.enable, "drives off");
+            assert_eq!(io.setpoints, io.positions, "set-points follow the carriages (bumpless)");
+            assert_eq!(io.velocities, [0.0; 2]);
+        }
+    }
+
+    #[test]
+    fn in_error_only_a_stop_press_acknowledges() {
+        let (mut m, mut io) = machine();
+        cycle(&mut m, &mut io, Event::Tick);
+        cycle(&mut m, &mut io, Event::Fault(Reason::BridgeError(0)));
+        for event in [Event::Tick, Event::Fault(Reason::BusFault)] {
+            cycle(&mut m, &mut io, event);
+            assert_eq!(m.inner().state, MainState::Error);
+            assert_eq!(
+                m.inner().reason,
+                Some(Reason::BridgeError(0)),
+                "the first reason is kept"
+            );
+        }
+        cycle(&mut m, &mut io, Event::Stop);
+        assert_eq!(m.inner().state, MainState::Reboot);
+        assert_eq!(m.inner().reason, None);
+        assert!(io.acknowledge, "REBOOT acknowledges the drives' faults");
+    }
+
+    #[test]
+    fn referencing_ends_in_ready_at_the_start_position_with_references_and_limits() {
+        let (m, io) = ready();
+        assert!(io.referenced);
+        assert_eq!(io.references, [0.0; 2], "0 mm at the lower switches");
+        assert_eq!(m.inner().soft.len(), 2);
+        assert!(m.inner().limits.is_some(), "software limits known");
+        assert_eq!(io.velocities, [0.0; 2], "READY holds");
+    }
+
+    #[test]
+    fn a_command_starts_motion_and_releasing_it_returns_to_ready() {
+        let (mut m, mut io) = ready();
+        io.joystick = [0.5, 0.0];
+        cycle(&mut m, &mut io, Event::Tick);
+        assert_eq!(m.inner().state, MainState::Motion);
+        cycle(&mut m, &mut io, Event::Tick);
+        assert!(io.velocities.iter().any(|v| *v != 0.0), "jogging moves the set-points");
+        io.joystick = [0.0, 0.0];
+        cycle(&mut m, &mut io, Event::Tick);
+        assert_eq!(m.inner().state, MainState::Ready);
+        assert_eq!(io.velocities, [0.0; 2]);
+        // Within the dead zone is no command; an unplugged joystick commands nothing.
+        io.joystick = [0.01, 0.0];
+        cycle(&mut m, &mut io, Event::Tick);
+        assert_eq!(m.inner().state, MainState::Ready);
+        io.joystick = [0.8, 0.0];
+        io.joystick_connected = false;
+        cycle(&mut m, &mut io, Event::Tick);
+        assert_eq!(m.inner().state, MainState::Ready);
+        // The panel's direction buttons command too.
+        io.joystick_connected = true;
+        io.joystick = [0.0; 2];
+        io.buttons = [false, false, true, false];
+        cycle(&mut m, &mut io, Event::Tick);
+        assert_eq!(m.inner().state, MainState::Motion);
+    }
+}

@@ -1,0 +1,287 @@
+//! The main program (50 ms class, HW_obsluha of the original): the REBOOT → INIT → READY ⇄ MOTION
+//! and ERROR automaton of application.md, as a statig state machine.
+//!
+//! Every cycle dispatches one event: an accepted STOP press, else a supervision fault, else a tick.
+//! The superstate `operating` (INIT, READY, MOTION) turns STOP and faults into ERROR; ERROR turns
+//! an accepted STOP press into REBOOT (acknowledgement). STOP acts on the press (the rising edge),
+//! not the level: with the original's level semantics, holding STOP longer than the lockout would
+//! acknowledge the error and restart INIT while the button is still held.
+
+mod automaton;
+mod jog;
+mod params;
+mod reason;
+mod referencing;
+
+pub use automaton::{Automaton, Event, Io};
+pub use params::MainParams;
+pub use reason::Reason;
+
+use params::{MAX_MAIN_CYCLE_US, check_ranges};
+use reason::SWITCHES;
+use referencing::{End, Search};
+
+use pkm_api::image::{Declare, Input, Output};
+use pkm_api::program::{AppStatus, Cycle, Program, ProgramArgs};
+use pkm_kinematics::trijoint::{Trijoint, TrijointParams};
+use pkm_kinematics::{Kinematics, KinematicsConfig};
+
+use crate::state::MainState;
+use crate::vars;
+use statig::prelude::*;
+
+struct Vars {
+    stop: Input<bool>,
+    joystick_stop: Input<bool>,
+    bus_fault: Input<bool>,
+    switches: [Input<bool>; 4],
+    buttons: [Input<bool>; 4],
+    joystick: [Input<f64>; 2],
+    joystick_connected: Input<bool>,
+    positions: [Input<f64>; 2],
+    captures: [[Input<f64>; 2]; 2],
+    capture_counts: [[Input<i32>; 2]; 2],
+    encoder_faults: [Input<bool>; 2],
+    bridge_errors: [Input<bool>; 2],
+    following_errors: [Input<bool>; 2],
+    state: Output<i16>,
+    reason: Output<i16>,
+    enable: Output<bool>,
+    setpoints: [Output<f64>; 2],
+    velocities: [Output<f64>; 2],
+    setpoint_time: Output<f64>,
+    references: [Output<f64>; 2],
+    acknowledge: Output<bool>,
+    clear_errors: [Output<bool>; 2],
+    period: Output<u16>,
+    referenced: Output<bool>,
+    m: [Output<f64>; 2],
+}
+
+/// The main program.
+pub struct MainProgram {
+    machine: StateMachine<Automaton>,
+    io: Io,
+    vars: Vars,
+    stop_was_pressed: bool,
+    stop_accepted_at: Option<f64>,
+    lockout_s: f64,
+    display: Trijoint,
+    /// M and the carriage positions, for the status line.
+    shown: [(&'static str, f64); 6],
+}
+
+impl MainProgram {
+    /// Declares the program's variables.
+    pub fn create(args: &ProgramArgs<'_>, decl: &mut Declare<'_>) -> Box<dyn Program> {
+        let p: MainParams = args.parse(decl);
+        for (k, v) in [
+            ("init_speed_mm_s", p.init_speed_mm_s),
+            ("approach_speed_mm_s", p.approach_speed_mm_s),
+            ("creep_speed_mm_s", p.creep_speed_mm_s),
+            ("approach_distance_mm", p.approach_distance_mm),
+            ("creep_distance_mm", p.creep_distance_mm),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                decl.issue(&format!("params.{k}"), format!("must be positive, got {v}"));
+            }
+        }
+        let geometry = args
+            .kinematics
+            .and_then(|k| serde_json::from_value::<KinematicsConfig>(k.clone()).ok())
+            .unwrap_or_default()
+            .trijoint;
+        check_ranges(&p, &geometry, decl);
+        if args.cycle_us > MAX_MAIN_CYCLE_US {
+            decl.issue(
+                "program",
+                format!(
+                    "trijoint.main runs in a class of {} ms; at most {} ms: STOP, limit switches and faults \
+                     become ERROR in its cycle",
+                    args.cycle_us / 1000,
+                    MAX_MAIN_CYCLE_US / 1000
+                ),
+            );
+        }
+        let vars = Vars {
+            stop: decl.read(vars::BUTTON_STOP),
+            joystick_stop: decl.read_optional(vars::JOYSTICK_STOP),
+            bus_fault: decl.read(vars::BUS_FAULT),
+            switches: SWITCHES.map(|v| decl.read(v)),
+            buttons: vars::BUTTONS.map(|v| decl.read(v)),
+            joystick: vars::JOYSTICK.map(|v| decl.read(v)),
+            joystick_connected: decl.read(vars::JOYSTICK_CONNECTED),
+            positions: vars::POSITION_MM.map(|v| decl.read(v)),
+            captures: vars::CAPTURE_MM.map(|d| d.map(|v| decl.read(v))),
+            capture_counts: vars::CAPTURES.map(|d| d.map(|v| decl.read(v))),
+            encoder_faults: vars::ENCODER_FAULT.map(|v| decl.read(v)),
+            bridge_errors: vars::BRIDGE_ERROR.map(|v| decl.read(v)),
+            following_errors: vars::FOLLOWING_ERROR.map(|v| decl.read(v)),
+            state: decl.write(vars::MAIN_STATE, MainState::Reboot.code()),
+            reason: decl.write(vars::ERROR_REASON, 0),
+            enable: decl.write(vars::DRIVES_ENABLE, false),
+            setpoints: vars::SETPOINT_MM.map(|v| decl.write(v, 0.0)),
+            velocities: vars::SETPOINT_MM_S.map(|v| decl.write(v, 0.0)),
+            setpoint_time: decl.write(vars::SETPOINT_TIME_S, 0.0),
+            references: vars::REFERENCE_MM.map(|v| decl.write(v, 0.0)),
+            acknowledge: decl.write(vars::ENCODER_FAULT_ACK, false),
+            clear_errors: vars::CLEAR_ERROR.map(|v| decl.write(v, false)),
+            period: decl.write(vars::PERIOD_DURATION, 0),
+            referenced: decl.write(vars::REFERENCED, false),
+            m: vars::M.map(|v| decl.write(v, 0.0)),
+        };
+        let lockout_s = p.stop_lockout_ms as f64 * 1e-3;
+        let display = Trijoint::new(&TrijointParams {
+            h1_travel: [-1e6, 1e6],
+            h2_travel: [-1e6, 1e6],
+            ..geometry.clone()
+        });
+        Box::new(MainProgram {
+            machine: Automaton::new(p, geometry).state_machine(),
+            io: Io::default(),
+            vars,
+            stop_was_pressed: false,
+            stop_accepted_at: None,
+            lockout_s,
+            display,
+            shown: [
+                ("Mx", f64::NAN),
+                ("My", f64::NAN),
+                ("h1", f64::NAN),
+                ("h2", f64::NAN),
+                ("jx", f64::NAN),
+                ("jy", f64::NAN),
+            ],
+        })
+    }
+
+    /// Reads the inputs into `io` and advances the set-points to where the controller has taken
+    /// them since the last cycle.
+    fn read(&mut self, ctx: &Cycle<'_>) {
+        let (v, io) = (&self.vars, &mut self.io);
+        io.now_s = ctx.time_ns() as f64 * 1e-9;
+        io.dt_s = ctx.period_ns() as f64 * 1e-9;
+        io.positions = v.positions.map(|p| ctx.get(p));
+        io.switches = v.switches.map(|s| ctx.get(s));
+        io.buttons = v.buttons.map(|b| ctx.get(b));
+        io.joystick = v.joystick.map(|j| ctx.get(j));
+        io.joystick_connected = ctx.get(v.joystick_connected);
+        io.captures = v.captures.map(|c| c.map(|x| ctx.get(x)));
+        io.capture_counts = v.capture_counts.map(|c| c.map(|x| ctx.get(x)));
+        for i in 0..2 {
+            io.setpoints[i] += io.velocities[i] * io.dt_s;
+        }
+    }
+
+    /// The event of this cycle.
+    fn event(&mut self, ctx: &Cycle<'_>) -> Event {
+        let v = &self.vars;
+        let state = self.machine.inner().state;
+        let now = self.io.now_s;
+        // The joystick's STOP acts in addition to the panel's, never instead of it.
+        let pressed = ctx.get(v.stop) || ctx.get(v.joystick_stop);
+        let press = pressed && !self.stop_was_pressed;
+        self.stop_was_pressed = pressed;
+        let enabled = self.stop_accepted_at.is_none_or(|t| now - t >= self.lockout_s);
+        if press && enabled && state != MainState::Reboot {
+            self.stop_accepted_at = Some(now);
+            return Event::Stop;
+        }
+        if !matches!(state, MainState::Init | MainState::Ready | MainState::Motion) {
+            return Event::Tick;
+        }
+        if ctx.violation().is_some() {
+            return Event::Fault(Reason::CycleTimeViolation);
+        }
+        if ctx.get(v.bus_fault) {
+            return Event::Fault(Reason::BusFault);
+        }
+        for d in 0..2 {
+            if ctx.get(v.encoder_faults[d]) {
+                return Event::Fault(Reason::EncoderFault(d));
+            }
+            if ctx.get(v.bridge_errors[d]) {
+                return Event::Fault(Reason::BridgeError(d));
+            }
+            if ctx.get(v.following_errors[d]) {
+                // Blocked while seeking a switch in INIT (a switch stuck off, say, leaves the
+                // carriage at its hard stop): say which switch was not reached.
+                let seeking = match self.machine.inner().searches[d] {
+                    Search::Seek { end, .. } if state == MainState::Init => Some(end.switch(d)),
+                    _ => None,
+                };
+                return Event::Fault(seeking.map_or(Reason::FollowingError(d), Reason::InitTimeout));
+            }
+        }
+        if state != MainState::Init
+            && let Some(i) = self.io.switches.iter().position(|s| *s)
+        {
+            return Event::Fault(Reason::LimitSwitch(i));
+        }
+        Event::Tick
+    }
+
+    fn write(&mut self, ctx: &mut Cycle<'_>) {
+        let automaton = self.machine.inner();
+        let (v, io) = (&self.vars, &self.io);
+        ctx.set(v.state, automaton.state.code());
+        ctx.set(v.reason, automaton.reason.map_or(0, Reason::code));
+        ctx.set(v.enable, io.enable);
+        for i in 0..2 {
+            ctx.set(v.setpoints[i], io.setpoints[i]);
+            ctx.set(v.velocities[i], io.velocities[i]);
+            ctx.set(v.references[i], io.references[i]);
+            ctx.set(v.clear_errors[i], io.acknowledge);
+        }
+        ctx.set(v.setpoint_time, io.now_s);
+        ctx.set(v.acknowledge, io.acknowledge);
+        ctx.set(v.period, self.machine.inner().p.pwm_period_us);
+        ctx.set(v.referenced, io.referenced);
+        let mut m = [f64::NAN; 2];
+        if io.referenced && self.display.forward(&io.positions, None, &mut m).is_ok() {
+            ctx.set(v.m[0], m[0]);
+            ctx.set(v.m[1], m[1]);
+        }
+        self.shown = [
+            ("Mx", m[0]),
+            ("My", m[1]),
+            ("h1", io.positions[0]),
+            ("h2", io.positions[1]),
+            // The joystick's axes; "-" while it is not connected.
+            (
+                "jx",
+                if io.joystick_connected {
+                    io.joystick[0]
+                } else {
+                    f64::NAN
+                },
+            ),
+            (
+                "jy",
+                if io.joystick_connected {
+                    io.joystick[1]
+                } else {
+                    f64::NAN
+                },
+            ),
+        ];
+    }
+}
+
+impl Program for MainProgram {
+    fn cycle(&mut self, ctx: &mut Cycle<'_>) {
+        self.read(ctx);
+        let event = self.event(ctx);
+        self.machine.handle_with_context(&event, &mut self.io);
+        self.write(ctx);
+    }
+
+    fn status(&self) -> Option<AppStatus<'_>> {
+        let a = self.machine.inner();
+        Some(AppStatus {
+            state: a.state.name(),
+            reason: a.reason.map(Reason::text),
+            values: &self.shown,
+        })
+    }
+}

@@ -1,0 +1,93 @@
+//! Why the machine is in ERROR: the reasons, their texts and codes, and the switches they name.
+
+use pkm_api::image::Var;
+
+use crate::vars;
+
+/// Why the machine is in ERROR.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Reason {
+    /// The STOP button.
+    Stop,
+    /// A limit switch in READY or MOTION (index: left upper, left down, right upper, right down).
+    LimitSwitch(usize),
+    /// An implausible encoder change (drive 0 left, 1 right).
+    EncoderFault(usize),
+    /// A motor bridge error (drive).
+    BridgeError(usize),
+    /// A following error (drive).
+    FollowingError(usize),
+    /// A cycle time violation reported by the runtime.
+    CycleTimeViolation,
+    /// The field bus failed beyond its error bound.
+    BusFault,
+    /// A switch not reached during INIT — in time, or at all because the carriage was blocked
+    /// (switch index as for `LimitSwitch`).
+    InitTimeout(usize),
+    /// The wrong switch during INIT (switch index as for `LimitSwitch`).
+    InitWrongSwitch(usize),
+}
+
+/// The limit switches in the original program's order: left upper, left lower, right upper,
+/// right lower.
+pub(super) const SWITCHES: [Var<bool>; 4] = [
+    vars::SWITCHES[0][1],
+    vars::SWITCHES[0][0],
+    vars::SWITCHES[1][1],
+    vars::SWITCHES[1][0],
+];
+
+impl Reason {
+    /// The reason as users read it.
+    pub fn text(self) -> &'static str {
+        const LIMIT: [&str; 4] = [
+            "limit switch SWITCH_LEFT_UPPER",
+            "limit switch SWITCH_LEFT_DOWN",
+            "limit switch SWITCH_RIGHT_UPPER",
+            "limit switch SWITCH_RIGHT_DOWN",
+        ];
+        const WRONG: [&str; 4] = [
+            "INIT: wrong switch SWITCH_LEFT_UPPER",
+            "INIT: wrong switch SWITCH_LEFT_DOWN",
+            "INIT: wrong switch SWITCH_RIGHT_UPPER",
+            "INIT: wrong switch SWITCH_RIGHT_DOWN",
+        ];
+        const NOT_REACHED: [&str; 4] = [
+            "INIT timeout: SWITCH_LEFT_UPPER not reached",
+            "INIT timeout: SWITCH_LEFT_DOWN not reached",
+            "INIT timeout: SWITCH_RIGHT_UPPER not reached",
+            "INIT timeout: SWITCH_RIGHT_DOWN not reached",
+        ];
+        const SIDE: [[&str; 2]; 3] = [
+            ["encoder fault left", "encoder fault right"],
+            ["motor bridge error left", "motor bridge error right"],
+            ["following error left", "following error right"],
+        ];
+        match self {
+            Reason::Stop => "STOP",
+            Reason::LimitSwitch(i) => LIMIT[i.min(3)],
+            Reason::EncoderFault(d) => SIDE[0][d.min(1)],
+            Reason::BridgeError(d) => SIDE[1][d.min(1)],
+            Reason::FollowingError(d) => SIDE[2][d.min(1)],
+            Reason::CycleTimeViolation => "cycle time violation",
+            Reason::BusFault => "bus fault",
+            Reason::InitTimeout(i) => NOT_REACHED[i.min(3)],
+            Reason::InitWrongSwitch(i) => WRONG[i.min(3)],
+        }
+    }
+
+    /// A number for the process image (`error_reason`): 0 is no error.
+    pub fn code(self) -> i16 {
+        match self {
+            Reason::Stop => 1,
+            Reason::LimitSwitch(i) => 10 + i as i16,
+            Reason::EncoderFault(d) => 20 + d as i16,
+            Reason::BridgeError(d) => 30 + d as i16,
+            Reason::FollowingError(d) => 40 + d as i16,
+            Reason::CycleTimeViolation => 50,
+            Reason::BusFault => 55,
+            Reason::InitTimeout(i) => 60 + i as i16,
+            Reason::InitWrongSwitch(i) => 70 + i as i16,
+        }
+    }
+}
