@@ -138,10 +138,30 @@ pub trait Plant: Send + Any {
     fn drives(&self) -> &[&'static str];
     /// Advances the plant by `dt_s` seconds.
     fn step(&mut self, dt_s: f64);
+    /// Advances the plant by `n` steps of `dt_s` seconds each (the runtime's hot path: a
+    /// machine's implementation of this loop inlines its `step`).
+    fn steps(&mut self, dt_s: f64, n: u64) {
+        for _ in 0..n {
+            self.step(dt_s);
+        }
+    }
     /// The value of input signal `signal` now.
     fn read(&self, signal: usize) -> Value;
     /// Applies the value of output signal `signal` (a value of another type is ignored).
     fn write(&mut self, signal: usize, value: Value);
+    /// The values of the input signals `signals` into `values` (indexed by signal): one call per
+    /// exchange on the runtime's hot path, whose loop inlines the machine's `read`.
+    fn read_into(&self, signals: &[usize], values: &mut [Value]) {
+        for &s in signals {
+            values[s] = self.read(s);
+        }
+    }
+    /// Applies the output signals `signals` from `values` (indexed by signal), in order.
+    fn write_from(&mut self, signals: &[usize], values: &[Value]) {
+        for &s in signals {
+            self.write(s, values[s]);
+        }
+    }
     /// Applies a scenario action.
     fn apply(&mut self, action: Action);
     /// The plant as `Any`, for tests and displays that know its type.
