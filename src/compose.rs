@@ -123,11 +123,16 @@ impl Setup {
 
     /// The simulated machine behind the I/O map, with `scenario` if given.
     pub fn sim_bus(&self, scenario: Option<&Path>) -> Result<SimBus, ConfigError> {
+        self.sim_bus_over(self.io_map()?, scenario)
+    }
+
+    /// The simulated machine behind `map`, the configuration's I/O map as loaded.
+    fn sim_bus_over(&self, map: Option<IoMap>, scenario: Option<&Path>) -> Result<SimBus, ConfigError> {
         let invalid = |at: &str, message: &str| ConfigError::Invalid {
             file: self.loaded.origin.clone(),
             problems: vec![Problem::new(at, message)],
         };
-        let Some(map) = self.io_map()? else {
+        let Some(map) = map else {
             return Err(invalid("io_map", "the simulated bus needs an I/O map"));
         };
         let Some(machine) = self.machine else {
@@ -265,41 +270,35 @@ fn usage(message: impl Into<String>) -> BusFailure {
     BusFailure::Other(BuildError(message.into()))
 }
 
-/// The bus `options` ask for.
-fn make_bus(setup: &Setup, options: &Options) -> Result<Box<dyn Bus>, BusFailure> {
-    let scenario = options.scenario.as_deref();
+/// The bus `options` ask for, and the I/O map it was made over (loaded once, here).
+fn make_bus(setup: &Setup, options: &Options) -> Result<(Box<dyn Bus>, Option<IoMap>), BusFailure> {
     let needs_sim = |what: &str| usage(format!("--scenario needs the simulated bus ({what})"));
-    let has_map = setup.loaded.config.io_map.is_some();
-    Ok(match (&options.bus, has_map) {
-        (kind @ (BusChoice::Tcp(_) | BusChoice::Serial(..)), true) => {
-            if scenario.is_some() {
-                return Err(needs_sim("give it to io-sim instead"));
-            }
-            let Some(map) = setup.io_map()? else {
-                return Err(usage("a Modbus bus needs an io_map in the configuration"));
-            };
-            let transport = match kind {
-                BusChoice::Serial(path, baud) => Transport::Serial {
-                    path: path.clone(),
-                    baud: *baud,
-                },
-                BusChoice::Tcp(address) => Transport::Tcp(*address),
-                BusChoice::Sim | BusChoice::None => unreachable!("matched above"),
-            };
-            let bus = ModbusBus::new(map, transport, options.link).map_err(|e| usage(format!("--bus: {e}")))?;
-            Box::new(bus)
+    // The usage problems first: they need no file read.
+    let scenario = options.scenario.as_deref();
+    let modbus = matches!(options.bus, BusChoice::Tcp(_) | BusChoice::Serial(..));
+    match (modbus, setup.loaded.config.io_map.is_some(), scenario.is_some()) {
+        (true, false, _) => return Err(usage("a Modbus bus needs an io_map in the configuration")),
+        (true, true, true) => return Err(needs_sim("give it to io-sim instead")),
+        (false, has_map, true) if options.bus == BusChoice::None || !has_map => {
+            return Err(needs_sim("--bus sim and an io_map in the configuration"));
         }
-        (BusChoice::Tcp(_) | BusChoice::Serial(..), false) => {
-            return Err(usage("a Modbus bus needs an io_map in the configuration"));
-        }
-        (BusChoice::None, true) => {
-            if scenario.is_some() {
-                return Err(needs_sim("--bus sim and an io_map in the configuration"));
-            }
-            let Some(map) = setup.io_map()? else {
-                unreachable!("the configuration names an I/O map")
+        _ => {}
+    }
+    let map = setup.io_map()?;
+    let bus: Box<dyn Bus> = match (&options.bus, &map) {
+        (BusChoice::Serial(path, baud), Some(map)) => {
+            let transport = Transport::Serial {
+                path: path.clone(),
+                baud: *baud,
             };
-            let bus = crate::io::dry::DryBus::new(map);
+            Box::new(ModbusBus::new(map.clone(), transport, options.link).map_err(|e| usage(format!("--bus: {e}")))?)
+        }
+        (BusChoice::Tcp(address), Some(map)) => {
+            let transport = Transport::Tcp(*address);
+            Box::new(ModbusBus::new(map.clone(), transport, options.link).map_err(|e| usage(format!("--bus: {e}")))?)
+        }
+        (BusChoice::None, Some(map)) => {
+            let bus = crate::io::dry::DryBus::new(map.clone());
             warn!(
                 "--bus none: a dry run of the programs without field I/O: the inputs of the I/O map ({}) hold zero / \
                  false, the outputs go nowhere",
@@ -307,28 +306,24 @@ fn make_bus(setup: &Setup, options: &Options) -> Result<Box<dyn Bus>, BusFailure
             );
             Box::new(bus)
         }
-        (BusChoice::None | BusChoice::Sim, false) => {
-            if scenario.is_some() {
-                return Err(needs_sim("--bus sim and an io_map in the configuration"));
-            }
-            Box::new(NoBus)
-        }
-        (BusChoice::Sim, true) => Box::new(setup.sim_bus(scenario)?),
-    })
+        (BusChoice::Sim, Some(_)) => Box::new(setup.sim_bus_over(map.clone(), scenario)?),
+        (BusChoice::None | BusChoice::Sim, None) => Box::new(NoBus),
+        (BusChoice::Tcp(_) | BusChoice::Serial(..), None) => unreachable!("refused above: no io_map"),
+    };
+    Ok((bus, map))
 }
 
 /// Builds a PLC: every problem of the configuration and its I/O map is reported at once.
 pub fn build(setup: Setup, options: Options) -> Result<Built, BuildError> {
     // A bus that cannot be made for a problem of the files (the I/O map, the plant section) does
     // not hide the configuration's other problems: they are checked on a stand-in bus.
-    let (bus, bus_problem) = match make_bus(&setup, &options) {
-        Ok(bus) => (bus, None),
-        Err(BusFailure::Config(e)) => (Box::new(UnknownBus) as Box<dyn Bus>, Some(e)),
+    let (bus, joystick, bus_problem) = match make_bus(&setup, &options) {
+        Ok((bus, map)) => {
+            let (bus, joystick) = with_joystick(&setup, bus, map.as_ref(), options.joystick)?;
+            (bus, joystick, None)
+        }
+        Err(BusFailure::Config(e)) => (Box::new(UnknownBus) as Box<dyn Bus>, None, Some(e)),
         Err(BusFailure::Other(f)) => return Err(f),
-    };
-    let (bus, joystick) = match bus_problem {
-        None => with_joystick(&setup, bus, options.joystick)?,
-        Some(_) => (bus, None),
     };
     match (setup.plc(bus), bus_problem) {
         (Ok(plc), None) => Ok(Built { setup, plc, joystick }),
@@ -365,10 +360,11 @@ pub fn build(setup: Setup, options: Options) -> Result<Built, BuildError> {
 }
 
 /// Lays the HID joystick over `bus`'s joystick channels, unless the choice is `none` or the I/O
-/// map binds none.
+/// map (`map`, as the bus was made over it) binds none.
 fn with_joystick(
     setup: &Setup,
     bus: Box<dyn Bus>,
+    map: Option<&IoMap>,
     choice: JoystickChoice,
 ) -> Result<(Box<dyn Bus>, Option<Joystick>), BuildError> {
     let loaded = &setup.loaded;
@@ -378,13 +374,13 @@ fn with_joystick(
         JoystickChoice::Capture(path) => {
             let states = crate::io::hid::load_capture(&path, &loaded.config.joystick)
                 .map_err(|e| BuildError(format!("--joystick {e}")))?;
-            let Some(map) = setup.io_map()? else {
+            let Some(map) = map else {
                 return Err(BuildError(format!(
                     "--joystick {}: the configuration has no I/O map to bind it to",
                     path.display()
                 )));
             };
-            let bus = JoystickBus::with_capture(bus, &map, states);
+            let bus = JoystickBus::with_capture(bus, map, states);
             if !bus.binds_anything() {
                 return Err(BuildError(format!(
                     "--joystick {}: {} binds no channel of a Joystick module",
@@ -396,7 +392,7 @@ fn with_joystick(
             return Ok((Box::new(bus), None));
         }
     };
-    let Some(map) = setup.io_map()? else {
+    let Some(map) = map else {
         if let JoystickSpec::Path(p) = &spec {
             warn!(
                 "--joystick {}: the configuration has no I/O map to bind it to; ignored",
@@ -405,7 +401,7 @@ fn with_joystick(
         }
         return Ok((bus, None));
     };
-    let (joystick_bus, feed, probe) = JoystickBus::new(bus, &map);
+    let (joystick_bus, feed, probe) = JoystickBus::new(bus, map);
     if !joystick_bus.binds_anything() {
         if let JoystickSpec::Path(p) = &spec {
             warn!(

@@ -14,6 +14,25 @@ use pkm_api::machine::Plant;
 use super::ResolvedWiring;
 use super::scenario::Scenario;
 
+/// Wired plant signals of one direction, in the plant's signal order: the signal indices (as the
+/// plant's batch calls take them) and, by the same position, their (module, channel).
+struct Wired {
+    signals: Vec<usize>,
+    channels: Vec<(usize, usize)>,
+}
+
+impl Wired {
+    fn of(wiring: &ResolvedWiring, plant: &dyn Plant, direction: Direction) -> Wired {
+        let (signals, channels) = wiring
+            .signals
+            .iter()
+            .filter(|(s, _)| plant.signals()[*s].direction == direction)
+            .copied()
+            .unzip();
+        Wired { signals, channels }
+    }
+}
+
 /// The simulated bus.
 pub struct SimBus {
     map: IoMap,
@@ -22,13 +41,10 @@ pub struct SimBus {
     /// Per binding, the variable's index (set by `declare`).
     vars: Vec<VarIndex>,
     plant: Box<dyn Plant>,
-    /// The wired input signals (plant → channel), in the plant's signal order.
-    inputs: Vec<(usize, (usize, usize))>,
-    /// The wired output signals (channel → plant), in the plant's signal order.
-    outputs: Vec<(usize, (usize, usize))>,
-    /// The signal indices of `inputs` and of `outputs`, for the plant's batch calls.
-    input_signals: Vec<usize>,
-    output_signals: Vec<usize>,
+    /// The wired input signals (plant → channel).
+    inputs: Wired,
+    /// The wired output signals (channel → plant).
+    outputs: Wired,
     /// Every signal's value as last exchanged, indexed by signal (allocated once).
     signal_values: Vec<Value>,
     scenario: Scenario,
@@ -46,12 +62,8 @@ impl SimBus {
             .map(|m| m.ty.channels.iter().map(|c| Value::zero(c.ty)).collect())
             .collect();
         let vars = vec![0; map.bindings.len()];
-        let (inputs, outputs): (Vec<_>, Vec<_>) = wiring
-            .signals
-            .iter()
-            .partition(|(s, _)| plant.signals()[*s].direction == Direction::Input);
-        let input_signals = inputs.iter().map(|(s, _)| *s).collect();
-        let output_signals = outputs.iter().map(|(s, _)| *s).collect();
+        let inputs = Wired::of(&wiring, plant.as_ref(), Direction::Input);
+        let outputs = Wired::of(&wiring, plant.as_ref(), Direction::Output);
         let signal_values = plant.signals().iter().map(|s| Value::zero(s.ty)).collect();
         SimBus {
             map,
@@ -60,8 +72,6 @@ impl SimBus {
             plant,
             inputs,
             outputs,
-            input_signals,
-            output_signals,
             signal_values,
             scenario,
             next_event: 0,
@@ -129,18 +139,18 @@ impl SimBus {
 
     /// Copies the plant's signals into the input channels.
     fn plant_to_channels(&mut self) {
-        self.plant.read_into(&self.input_signals, &mut self.signal_values);
-        for &(signal, (m, c)) in &self.inputs {
+        self.plant.read_into(&self.inputs.signals, &mut self.signal_values);
+        for (&signal, &(m, c)) in self.inputs.signals.iter().zip(&self.inputs.channels) {
             self.channels[m][c] = self.signal_values[signal];
         }
     }
 
     /// Applies the output channels to the plant.
     fn channels_to_plant(&mut self) {
-        for &(signal, (m, c)) in &self.outputs {
+        for (&signal, &(m, c)) in self.outputs.signals.iter().zip(&self.outputs.channels) {
             self.signal_values[signal] = self.channels[m][c];
         }
-        self.plant.write_from(&self.output_signals, &self.signal_values);
+        self.plant.write_from(&self.outputs.signals, &self.signal_values);
     }
 }
 

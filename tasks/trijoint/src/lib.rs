@@ -50,11 +50,21 @@ pub const IO_MAP: EmbeddedFile = EmbeddedFile {
     text: include_str!("../../../io-map/trijoint.json"),
 };
 
-/// The `plant` section, parsed strictly (defaults when it is left out).
-fn plant_config(section: Option<&serde_json::Value>) -> Result<PlantConfig, Problem> {
-    match section {
+/// The machine's sections, parsed strictly and checked (defaults for a section left out); every
+/// problem of both, with its full path, kinematics first.
+fn sections(s: &Sections<'_>) -> Result<(KinematicsConfig, PlantConfig), Vec<Problem>> {
+    let kinematics = KinematicsConfig::from_section(s.kinematics);
+    let plant = match s.plant {
         None => Ok(PlantConfig::default()),
-        Some(v) => pkm_api::strict_json::section(v, "plant"),
+        Some(v) => pkm_api::strict_json::section(v, "plant").map_err(|p| vec![p]),
+    }
+    .and_then(|plant| {
+        let problems = problem::under("plant", plant.check());
+        if problems.is_empty() { Ok(plant) } else { Err(problems) }
+    });
+    match (kinematics, plant) {
+        (Ok(k), Ok(p)) => Ok((k, p)),
+        (k, p) => Err([k.err(), p.err()].into_iter().flatten().flatten().collect()),
     }
 }
 
@@ -71,32 +81,16 @@ impl Machine for Trijoint {
         &PROGRAMS
     }
 
-    fn check(&self, sections: &Sections<'_>) -> Vec<Problem> {
-        let mut problems = KinematicsConfig::from_section(sections.kinematics)
-            .err()
-            .unwrap_or_default();
-        match plant_config(sections.plant) {
-            Ok(plant) => problems.extend(problem::under("plant", plant.check())),
-            Err(p) => problems.push(p),
-        }
-        problems
+    fn check(&self, s: &Sections<'_>) -> Vec<Problem> {
+        sections(s).err().unwrap_or_default()
     }
 
     fn default_io_map(&self) -> EmbeddedFile {
         IO_MAP
     }
 
-    fn plant(&self, sections: &Sections<'_>) -> Result<PlantSetup, Vec<Problem>> {
-        let problems = self.check(sections);
-        let (Ok(kinematics), Ok(config)) = (
-            KinematicsConfig::from_section(sections.kinematics),
-            plant_config(sections.plant),
-        ) else {
-            return Err(problems);
-        };
-        if !problems.is_empty() {
-            return Err(problems);
-        }
+    fn plant(&self, s: &Sections<'_>) -> Result<PlantSetup, Vec<Problem>> {
+        let (kinematics, config) = sections(s)?;
         let plant = plant::Plant::new(
             &config.left,
             &config.right,
