@@ -111,6 +111,7 @@ fn measure(
     let mut bus = ModbusBus::new(map, Transport::Port(Some(plc_end)), bus_options).map_err(|e| setup(&e))?;
     let mut table = VarTable::new();
     crate::bus::Bus::declare(&mut bus, &mut table);
+    crate::bus::Bus::start(&mut bus);
     std::thread::sleep(Duration::from_secs_f64(options.seconds));
     crate::bus::Bus::write_safe(&mut bus, &table.initial_image());
     drop(station);

@@ -81,6 +81,8 @@ pub struct Plc {
     sink: Option<Box<dyn CycleSink>>,
     /// Index of the `bus_fault` variable.
     bus_fault: VarIndex,
+    /// Whether [`Plc::start_bus`] has run.
+    bus_started: bool,
 }
 
 /// A read-only view of one task class, for summaries and status lines.
@@ -204,6 +206,7 @@ impl Plc {
             last_violation: None,
             sink: None,
             bus_fault,
+            bus_started: false,
         })
     }
 
@@ -256,9 +259,20 @@ impl Plc {
             .map(|slot| slot.name.as_str())
     }
 
-    /// Runs every program's init part (classes in priority order) and sets the first release of
-    /// every class to `start_ns`.
+    /// Opens the bus's link ([`Bus::start`]): a real bus connects and waits, bounded, for its
+    /// first input image. A real-time driver calls this before it fixes its schedule's epoch, so
+    /// the wait does not make the first cycles late; [`Plc::init`] calls it if nobody did.
+    pub fn start_bus(&mut self) {
+        if !self.bus_started {
+            self.bus_started = true;
+            self.bus.start();
+        }
+    }
+
+    /// Starts the bus if that has not been done ([`Plc::start_bus`]), runs every program's init
+    /// part (classes in priority order) and sets the first release of every class to `start_ns`.
     pub fn init(&mut self, start_ns: u64, clock: &mut dyn Clock) {
+        self.start_bus();
         for ci in self.order.clone() {
             let class = &mut self.classes[ci];
             self.bus.read_inputs(ci, start_ns, &mut self.global);

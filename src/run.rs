@@ -277,6 +277,8 @@ pub fn start_realtime(mut plc: Plc, options: RealTimeOptions) -> Result<RealTime
             if options.spin_ns > 0 {
                 waiter = Box::new(timing::SpinningWaiter::new(waiter, options.spin_ns));
             }
+            // The link opens first: its wait for the first input image must not eat into the schedule.
+            plc.start_bus();
             // The schedule starts 2 ms from now, so the init parts finish before the first release.
             let mut clock = MonotonicClock::with_epoch(timing::monotonic_ns() + 2_000_000);
             plc.init(0, &mut clock);

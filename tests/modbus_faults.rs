@@ -199,8 +199,9 @@ fn driver_against(port: serialport::TTYPort) -> pkm_plc::io::modbus::ModbusBus {
     )
     .expect("the image fits");
     let mut table = pkm_plc::image::VarTable::new();
-    // Returns once the first image arrived or the link failed.
     bus.declare(&mut table);
+    // Returns once the first image arrived or the link failed.
+    bus.start();
     bus
 }
 
@@ -250,4 +251,36 @@ fn rtu_corrupt_frames_and_a_vanished_port_are_counted_bus_faults() {
         "disconnects: {}",
         stats.disconnects.load(Relaxed)
     );
+}
+
+#[test]
+fn declaring_the_variables_opens_nothing_starting_the_bus_opens_the_link() {
+    use pkm_plc::bus::Bus as _;
+    let listener = TcpListener::bind("127.0.0.1:0").expect("bind");
+    listener.set_nonblocking(true).expect("nonblocking");
+    let address = listener.local_addr().expect("address");
+    let loaded = common::loaded(&common::repo_config());
+    let map = pkm_plc::compose::Setup::new(loaded)
+        .expect("known machine")
+        .io_map()
+        .expect("valid map")
+        .expect("an io_map");
+    let mut bus =
+        pkm_plc::io::modbus::ModbusBus::new(map, pkm_plc::io::modbus::Transport::Tcp(address), Default::default())
+            .expect("tables fit");
+    let mut table = pkm_plc::image::VarTable::new();
+    bus.declare(&mut table);
+    // The configuration can still be refused at this point: nothing may have connected.
+    assert_eq!(
+        listener.accept().map(|_| ()).map_err(|e| e.kind()),
+        Err(std::io::ErrorKind::WouldBlock),
+        "declare connected to the station"
+    );
+    assert!(!bus.fault(), "a bus fault before the link was opened");
+    // The station accepts (the kernel completes the handshake) but never answers: start returns
+    // with a bus fault once the failures pass the bound, within the startup wait.
+    bus.start();
+    assert!(listener.accept().is_ok(), "start did not connect");
+    assert!(bus.fault(), "no bus fault from a station that never answers");
+    bus.write_safe(&table.initial_image());
 }

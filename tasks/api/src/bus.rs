@@ -14,6 +14,11 @@ pub trait Bus: Send {
     fn name(&self) -> &str;
     /// Declares the bus's inputs (as writers) and outputs (as readers) in the variable table.
     fn declare(&mut self, table: &mut VarTable);
+    /// Opens the link, once, after the configuration is accepted and the programs are built and
+    /// before the first cycle (the runtime calls it; declaring variables never opens anything).
+    /// A real bus connects here and may wait, bounded, for its first input image; a simulated
+    /// bus has nothing to do.
+    fn start(&mut self) {}
     /// Called at the start of a cycle of task class `class` (nominal time `t_ns`), before its
     /// inputs are latched: updates the global image with the bus inputs that class latches.
     fn read_inputs(&mut self, class: usize, t_ns: u64, image: &mut [Value]);

@@ -1,0 +1,45 @@
+//! A capture file read whole into the joystick's states on the simulated clock (virtual time).
+
+use std::path::Path;
+
+use super::JoystickState;
+use crate::io::joystick::{Decoder, EVENT_SIZE, JoystickMapping, parse_events};
+
+/// The most a capture file may hold for virtual time (256 MiB: 11 million events, days of
+/// operator input).
+pub const MAX_CAPTURE_BYTES: u64 = 256 << 20;
+
+/// Reads a capture file (raw `struct input_event` records) into the joystick's states on the
+/// simulated clock: connected and at rest at t = 0; each report at its timestamp's distance from
+/// the first event's (a timestamp earlier than the one before counts as that one); disconnected
+/// right after the last. Only a regular file is a capture: a device or FIFO needs real time.
+pub fn load_capture(path: &Path, mapping: &JoystickMapping) -> Result<Vec<(u64, JoystickState)>, String> {
+    let shown = path.display();
+    let file = crate::files::open_regular(path).map_err(|e| {
+        format!("{shown}: {e} (in virtual time --joystick plays a capture file; a device or FIFO needs real time)")
+    })?;
+    let bytes = crate::files::read_to_limit(file, MAX_CAPTURE_BYTES).map_err(|e| format!("{shown}: {e}"))?;
+    if bytes.len() % EVENT_SIZE != 0 {
+        return Err(format!(
+            "{shown}: {} bytes is not a whole number of {}-byte input_event records",
+            bytes.len(),
+            EVENT_SIZE
+        ));
+    }
+    let (events, _) = parse_events(&bytes);
+    let mut decoder = Decoder::new(mapping.clone(), None);
+    let mut states = vec![(0, JoystickState::connected(decoder.command()))];
+    let first_us = events.first().map_or(0, |e| e.time_us);
+    let mut t_ns = 0u64;
+    for e in &events {
+        let since = u64::try_from(e.time_us.saturating_sub(first_us)).unwrap_or(0);
+        t_ns = t_ns.max(since.saturating_mul(1000));
+        if let Some(c) = decoder.apply(e) {
+            states.push((t_ns, JoystickState::connected(c)));
+        }
+    }
+    // Disconnected at its end, as a capture played in real time is; a cycle later than the
+    // last report, so that report is seen.
+    states.push((t_ns.saturating_add(1), JoystickState::DISCONNECTED));
+    Ok(states)
+}

@@ -1,0 +1,341 @@
+//! The Modbus bus driver (TCP, or RTU over a serial line): a station behind the register map of
+//! the I/O map. [`ModbusBus`] is the cyclic side; `link` runs the exchange loop, `exchange` does
+//! one exchange, `stats` counts.
+//!
+//! Declaring the variables only lays out the slots; the link opens when the runtime starts the
+//! bus ([`Bus::start`]), after the configuration is accepted and before the first cycle.
+//! An exchange loop on its own thread reads the discrete inputs and input registers and writes the
+//! coils and holding registers — four requests on the standard tables, or one
+//! read/write-multiple-registers request on the packed process image ([`ExchangeMode`]) — every
+//! request with a timeout. The first cycle waits for the first complete input image (or a bus
+//! fault), so programs never see inputs the station did not send. Complete input sets reach the cycle
+//! through a wait-free mailbox, the cycle's outputs reach the loop the same way, so a cycle never
+//! waits on the wire. Failed exchanges (timeouts, corrupt responses such as a bad CRC, exceptions,
+//! a lost connection) are counted; more
+//! consecutive failures than the bound is a bus fault, which the runtime publishes as `bus_fault`.
+//! The loop reconnects with backoff; the fault clears when exchanges succeed again (the
+//! application keeps its ERROR until it is acknowledged).
+
+mod exchange;
+mod link;
+mod stats;
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::thread::JoinHandle;
+use std::time::Duration;
+
+pub use exchange::WireLoad;
+pub use link::Transport;
+pub use stats::LinkStats;
+
+use super::catalogue::Direction;
+use super::map::IoMap;
+use super::registers::{ImageLayout, MAX_IMAGE_READ, MAX_IMAGE_WRITE, RegisterMap};
+use crate::bus::{Bus, MailboxReader, MailboxWriter, image_mailbox};
+use crate::image::{Value, VarIndex, VarTable};
+use exchange::{Exchange, Slot};
+use link::{Link, NO_IMAGE, Shared};
+
+/// How one exchange talks to the station.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum ExchangeMode {
+    /// `image` on a serial line, `tables` over TCP.
+    #[default]
+    Auto,
+    /// Four requests on the standard tables: read discrete inputs (2), read input registers
+    /// (4), write coils (15), write holding registers (16). Any Modbus server with the
+    /// register map will do.
+    Tables,
+    /// One read/write-multiple-registers transaction (23) on the packed process image. Needs a
+    /// station that mirrors it (io-sim does); 36 bytes on the wire for the TRIJOINT station
+    /// against 76 for `tables`, which is what makes a 10 ms cycle at 115 200 baud.
+    Image,
+}
+
+impl ExchangeMode {
+    /// The mode's name on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            ExchangeMode::Auto => "auto",
+            ExchangeMode::Tables => "tables",
+            ExchangeMode::Image => "image",
+        }
+    }
+}
+
+/// The longest the bus waits for the station's first input image before the first cycle.
+pub const STARTUP_WAIT: Duration = Duration::from_secs(5);
+
+/// The default bound on the age of the newest input image: five 10 ms cycles, one main cycle.
+pub const DEFAULT_MAX_INPUT_AGE: Duration = Duration::from_millis(50);
+
+/// Settings of the exchange loop.
+#[derive(Clone, Copy, Debug)]
+pub struct ModbusOptions {
+    /// How each exchange talks to the station.
+    pub exchange: ExchangeMode,
+    /// Time between exchanges.
+    pub period: Duration,
+    /// Timeout of each request (and of connecting).
+    pub timeout: Duration,
+    /// More consecutive failed exchanges than this is a bus fault.
+    pub max_failures: u32,
+    /// The newest complete input image older than this is a bus fault, whatever the pattern of
+    /// failures behind it (slow responses that never time out, most exchanges failing but never
+    /// more than `max_failures` in a row): the programs must not act on stale inputs.
+    pub max_input_age: Duration,
+}
+
+impl Default for ModbusOptions {
+    fn default() -> Self {
+        ModbusOptions {
+            exchange: ExchangeMode::Auto,
+            period: Duration::from_millis(5),
+            timeout: Duration::from_millis(100),
+            max_failures: 3,
+            max_input_age: DEFAULT_MAX_INPUT_AGE,
+        }
+    }
+}
+
+/// Why a Modbus bus cannot be set up.
+#[derive(Debug, thiserror::Error)]
+pub enum ModbusSetupError {
+    /// The packed image is too large (or empty) for one function-code-23 transaction.
+    #[error(
+        "the packed process image ({input} input and {output} output registers) does not fit one \
+         read/write-multiple-registers request (1–{max_read} read, 1–{max_write} written): use --exchange tables"
+    )]
+    ImageTooLarge {
+        /// Registers in the input image.
+        input: u16,
+        /// Registers in the output image.
+        output: u16,
+        /// The request's read limit.
+        max_read: u16,
+        /// The request's write limit.
+        max_write: u16,
+    },
+}
+
+/// The Modbus bus.
+pub struct ModbusBus {
+    name: String,
+    map: IoMap,
+    options: ModbusOptions,
+    /// The exchange loop, laid out by `declare`, until `start` spawns it.
+    pending: Option<(Link, MailboxWriter, MailboxReader)>,
+    transport: Option<Transport>,
+    inputs: Option<MailboxReader>,
+    outputs: Option<MailboxWriter>,
+    output_vars: Vec<VarIndex>,
+    output_values: Vec<Value>,
+    shared: Arc<Shared>,
+    /// Whether the inputs are stale now (a fault while it lasts, logged once per episode).
+    stale: AtomicBool,
+    thread: Option<JoinHandle<()>>,
+}
+
+impl ModbusBus {
+    /// A bus to the station reached by `transport`, serving `map`'s modules. Nothing is opened
+    /// here: `declare` lays out which variable each channel is, `start` opens the link.
+    /// `ExchangeMode::Auto` in `options` is resolved here: the packed image on a serial line, the
+    /// standard tables over TCP.
+    pub fn new(map: IoMap, transport: Transport, mut options: ModbusOptions) -> Result<Self, ModbusSetupError> {
+        if options.exchange == ExchangeMode::Auto {
+            options.exchange = match transport {
+                Transport::Tcp(_) => ExchangeMode::Tables,
+                Transport::Serial { .. } | Transport::Port(_) => ExchangeMode::Image,
+            };
+        }
+        let layout = ImageLayout::of(RegisterMap::of(&map).sizes());
+        if options.exchange == ExchangeMode::Image && !layout.fits_one_transaction() {
+            return Err(ModbusSetupError::ImageTooLarge {
+                input: layout.input_len,
+                output: layout.output_len,
+                max_read: MAX_IMAGE_READ,
+                max_write: MAX_IMAGE_WRITE,
+            });
+        }
+        Ok(ModbusBus {
+            name: transport.describe(),
+            map,
+            options,
+            pending: None,
+            transport: Some(transport),
+            inputs: None,
+            outputs: None,
+            output_vars: Vec::new(),
+            output_values: Vec::new(),
+            shared: Arc::new(Shared::new()),
+            stale: AtomicBool::new(false),
+            thread: None,
+        })
+    }
+
+    /// Blocks until the first complete input image has arrived or the link has failed (a bus
+    /// fault), at most [`STARTUP_WAIT`]: the first cycle must see the station's inputs, not the
+    /// mailbox's initial zeros (an encoder counter jumping from 0 to its true value would be an
+    /// encoder fault).
+    fn await_first_image(&self) {
+        let deadline = std::time::Instant::now() + STARTUP_WAIT;
+        let shared = &self.shared;
+        while shared.image_at_ns.load(Ordering::Acquire) == NO_IMAGE && !shared.fault.load(Ordering::Relaxed) {
+            if std::time::Instant::now() >= deadline || self.thread.is_none() {
+                shared.fault.store(true, Ordering::Relaxed);
+                tracing::warn!(
+                    "modbus {}: bus fault: no input image within {} s",
+                    self.name,
+                    STARTUP_WAIT.as_secs()
+                );
+                return;
+            }
+            std::thread::sleep(Duration::from_millis(1));
+        }
+    }
+
+    /// The exchange in use (never `Auto`).
+    pub fn exchange(&self) -> ExchangeMode {
+        self.options.exchange
+    }
+
+    /// The link's counters.
+    pub fn stats(&self) -> Arc<LinkStats> {
+        Arc::clone(&self.shared.stats)
+    }
+
+    /// Whether the newest complete input image is older than `max_input_age` (supervised from
+    /// the first image on; before it, the startup wait decides). The bus is the I/O layer, so it
+    /// may read the clock; what it decides reaches the programs as the `bus_fault` input, which
+    /// traces record and replays reproduce.
+    fn inputs_stale(&self) -> bool {
+        let image_at = self.shared.image_at_ns.load(Ordering::Acquire);
+        if image_at == NO_IMAGE {
+            return false;
+        }
+        let age = Duration::from_nanos(self.shared.now_ns().saturating_sub(image_at));
+        let stale = age > self.options.max_input_age;
+        if stale && !self.stale.swap(true, Ordering::Relaxed) {
+            self.shared.stats.stale.fetch_add(1, Ordering::Relaxed);
+            tracing::warn!(
+                "modbus {}: bus fault: the newest input image is {} ms old (limit {} ms)",
+                self.name,
+                age.as_millis(),
+                self.options.max_input_age.as_millis()
+            );
+        } else if !stale {
+            self.stale.store(false, Ordering::Relaxed);
+        }
+        stale
+    }
+}
+
+impl Bus for ModbusBus {
+    fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// Lays out the slots and mailboxes; opens nothing (that is [`Bus::start`]).
+    fn declare(&mut self, table: &mut VarTable) {
+        let registers = RegisterMap::of(&self.map);
+        let mut inputs = Vec::new();
+        let mut outputs = Vec::new();
+        for b in &self.map.bindings {
+            let entry = registers
+                .entries
+                .iter()
+                .find(|e| e.module == b.module && e.channel == b.channel);
+            let var = b.declare(table);
+            // A channel off the field bus (the HID joystick) is declared but stays at its zero
+            // value here: "not connected" until the joystick driver provides it.
+            let Some(e) = entry else { continue };
+            let slot = Slot {
+                table: e.table,
+                address: e.address,
+                count: e.count,
+                ty: e.ty,
+                var,
+            };
+            match b.direction {
+                Direction::Input => inputs.push(slot),
+                Direction::Output => outputs.push(slot),
+            }
+        }
+        let (in_writer, in_reader) = image_mailbox(
+            inputs.iter().map(|s| s.var).collect(),
+            inputs.iter().map(|s| Value::zero(s.ty)).collect(),
+        );
+        let (out_writer, out_reader) = image_mailbox(
+            (0..outputs.len() as VarIndex).collect(),
+            outputs.iter().map(|s| Value::zero(s.ty)).collect(),
+        );
+        self.inputs = Some(in_reader);
+        self.outputs = Some(out_writer);
+        self.output_vars = outputs.iter().map(|s| s.var).collect();
+        self.output_values = outputs.iter().map(|s| Value::zero(s.ty)).collect();
+        let Some(transport) = self.transport.take() else { return };
+        let link = Link {
+            name: self.name.clone(),
+            transport,
+            exchange: Exchange {
+                mode: self.options.exchange,
+                timeout: self.options.timeout,
+                inputs,
+                outputs,
+                sizes: registers.sizes(),
+            },
+            period: self.options.period,
+            max_failures: self.options.max_failures,
+            shared: Arc::clone(&self.shared),
+        };
+        self.pending = Some((link, in_writer, out_reader));
+    }
+
+    /// Opens the link: spawns the exchange loop and waits for the first input image (at most
+    /// [`STARTUP_WAIT`]; a bus fault after that). Called once; a second call does nothing.
+    fn start(&mut self) {
+        let Some((link, in_writer, out_reader)) = self.pending.take() else {
+            return;
+        };
+        self.thread = link.spawn(in_writer, out_reader);
+        self.await_first_image();
+    }
+
+    fn read_inputs(&mut self, _class: usize, _t_ns: u64, image: &mut [Value]) {
+        if let Some(inputs) = &mut self.inputs {
+            inputs.take_latest(image);
+        }
+    }
+
+    fn write_outputs(&mut self, _class: usize, _t_ns: u64, image: &[Value]) {
+        for (value, var) in self.output_values.iter_mut().zip(&self.output_vars) {
+            *value = image[usize::from(*var)];
+        }
+        if let Some(outputs) = &mut self.outputs {
+            outputs.publish(&self.output_values);
+        }
+    }
+
+    fn write_safe(&mut self, image: &[Value]) {
+        self.write_outputs(0, 0, image);
+        let Some(thread) = self.thread.take() else { return };
+        // Give the loop a few exchanges to write the safe outputs, then stop it.
+        std::thread::sleep(self.options.period * 4 + self.options.timeout);
+        self.shared.stop.store(true, Ordering::Relaxed);
+        let _ = thread.join();
+        tracing::info!(
+            "modbus {}: {}",
+            self.name,
+            self.shared.stats.summary(self.options.exchange)
+        );
+    }
+
+    fn as_any(&self) -> &dyn std::any::Any {
+        self
+    }
+
+    fn fault(&self) -> bool {
+        self.shared.fault.load(Ordering::Relaxed) || self.inputs_stale()
+    }
+}
