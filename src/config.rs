@@ -442,8 +442,9 @@ pub fn check(config: &Config) -> Vec<Problem> {
             }
         }
     }
-    for (at, message) in config.joystick.check() {
-        push(format!("joystick.{at}"), message);
+    for problem in config.joystick.check() {
+        let Problem { at, message } = problem.under("joystick");
+        push(at, message);
     }
     if config.timing.realtime_priority > 99 {
         push(

@@ -136,7 +136,11 @@ fn mapping_checks() {
         y_axis: ABS_X,
         ..JoystickMapping::default()
     };
-    let problems: Vec<String> = bad.check().into_iter().map(|(at, m)| format!("{at}: {m}")).collect();
+    let problems: Vec<String> = bad
+        .check()
+        .into_iter()
+        .map(|p| format!("{}: {}", p.at, p.message))
+        .collect();
     assert_eq!(
         problems,
         [

@@ -8,6 +8,8 @@
 
 use serde::Deserialize;
 
+use crate::image::Problem;
+
 /// Size of one `struct input_event` on 64-bit Linux: a `timeval` (two i64), type (u16),
 /// code (u16), value (i32), native byte order.
 pub const EVENT_SIZE: usize = 24;
@@ -147,23 +149,26 @@ impl Default for JoystickMapping {
 }
 
 impl JoystickMapping {
-    /// Checks the mapping; problems as (path below `joystick`, message).
-    pub fn check(&self) -> Vec<(String, String)> {
+    /// Checks the mapping; the problems' paths are below the `joystick` section.
+    pub fn check(&self) -> Vec<Problem> {
         let mut p = Vec::new();
         if !(0.0..0.9).contains(&self.dead_zone) {
-            p.push((
-                "dead_zone".into(),
+            p.push(Problem::new(
+                "dead_zone",
                 format!("must be at least 0 and below 0.9, got {}", self.dead_zone),
             ));
         }
         if self.axis_range[0] >= self.axis_range[1] {
-            p.push((
-                "axis_range".into(),
+            p.push(Problem::new(
+                "axis_range",
                 format!("must be [min, max] with min < max, got {:?}", self.axis_range),
             ));
         }
         if self.x_axis == self.y_axis {
-            p.push(("y_axis".into(), format!("must differ from x_axis ({})", self.x_axis)));
+            p.push(Problem::new(
+                "y_axis",
+                format!("must differ from x_axis ({})", self.x_axis),
+            ));
         }
         p
     }

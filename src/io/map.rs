@@ -287,29 +287,37 @@ impl IoMap {
         }
     }
 
-    /// Resolves `MODULE.Channel` to (module index, channel index), checking direction and type.
-    pub fn resolve(&self, reference: &str, direction: Direction, ty: VarType) -> Result<(usize, usize), String> {
+    /// Resolves `MODULE.Channel` to (module index, channel index), checking direction and type;
+    /// a problem is reported at `at`, where the reference was written.
+    pub fn resolve(
+        &self,
+        reference: &str,
+        direction: Direction,
+        ty: VarType,
+        at: &str,
+    ) -> Result<(usize, usize), Problem> {
+        let problem = |message: String| Problem::new(at, message);
         let Some((module, channel)) = reference.split_once('.') else {
-            return Err(format!("\"{reference}\" is not of the form MODULE.Channel"));
+            return Err(problem(format!("\"{reference}\" is not of the form MODULE.Channel")));
         };
         let Some(mi) = self.modules.iter().position(|m| m.name == module) else {
-            return Err(format!("no module \"{module}\" in {}", self.origin));
+            return Err(problem(format!("no module \"{module}\" in {}", self.origin)));
         };
         let mt = self.modules[mi].ty;
         let Some((ci, c)) = mt.channel(channel) else {
-            return Err(format!(
+            return Err(problem(format!(
                 "module \"{module}\" ({}) has no channel \"{channel}\"",
                 mt.name
-            ));
+            )));
         };
         if c.direction != direction || c.ty != ty {
-            return Err(format!(
+            return Err(problem(format!(
                 "{reference} is a {} {} channel, but a {} {} channel is needed here",
                 c.ty,
                 c.direction.name(),
                 ty,
                 direction.name()
-            ));
+            )));
         }
         Ok((mi, ci))
     }

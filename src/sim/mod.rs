@@ -31,7 +31,7 @@ impl ResolvedWiring {
         let mut signals: Vec<(usize, (usize, usize))> = Vec::new();
         let mut problems = Vec::new();
         for (i, (signal, (reference, at))) in plant.signals().iter().zip(wiring).enumerate() {
-            match map.resolve(reference, signal.direction, signal.ty) {
+            match map.resolve(reference, signal.direction, signal.ty, at) {
                 Ok(channel) => {
                     if let Some((other, _)) = signals.iter().find(|(_, c)| *c == channel) {
                         let other = plant.signals()[*other].key;
@@ -39,7 +39,7 @@ impl ResolvedWiring {
                     }
                     signals.push((i, channel));
                 }
-                Err(message) => problems.push(Problem::new(at, message)),
+                Err(problem) => problems.push(problem),
             }
         }
         if problems.is_empty() {

@@ -28,7 +28,7 @@ use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
 
 pub use bus::JoystickBus;
-pub use capture::{MAX_CAPTURE_BYTES, load_capture};
+pub use capture::{CaptureError, MAX_CAPTURE_BYTES, load_capture};
 pub use device::{End, read_records, spawn_reader};
 
 use super::joystick::Command;
