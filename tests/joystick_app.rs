@@ -11,7 +11,7 @@ use std::io::Cursor;
 use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
 
-use common::{get, real, state, var};
+use common::{get, state, var};
 use pkm_plc::bus::NoBus;
 use pkm_plc::image::{Value, VarTable};
 use pkm_plc::io::hid::{End, JoystickBus, JoystickFeed, JoystickState, read_records};
@@ -78,7 +78,7 @@ fn the_joystick_drives_m_a_disconnect_stops_it_and_a_reconnect_drives_again() {
     run.advance(READY_MS, |_, _| {});
     assert_eq!(state(&run.plc), "READY");
     // Until the joystick has published, the simulated machine's own (connected, centred) stays.
-    assert_eq!(var(&run.plc, "JOYSTICK_CONNECTED"), Value::Bool(true));
+    assert_eq!(var(&run.plc, vars::JOYSTICK_CONNECTED), Value::Bool(true));
 
     // Full deflection to the right: MOTION, M moves in +x only.
     let start = m(&run.plc);
@@ -97,8 +97,8 @@ fn the_joystick_drives_m_a_disconnect_stops_it_and_a_reconnect_drives_again() {
             ready_at = Some(t);
         }
         if ready_at.is_some() {
-            for side in ["left", "right"] {
-                let v = real(plc, &format!("setpoint_{side}_mm_s"));
+            for (side, setpoint) in ["left", "right"].into_iter().zip(vars::SETPOINT_MM_S) {
+                let v = get(plc, setpoint);
                 assert_eq!(v, 0.0, "{side} set-point velocity at {t} ms");
             }
         }
@@ -108,12 +108,12 @@ fn the_joystick_drives_m_a_disconnect_stops_it_and_a_reconnect_drives_again() {
         Some(READY_MS + 2000),
         "READY in the first main cycle after the disconnect"
     );
-    assert_eq!(var(&run.plc, "JOYSTICK_CONNECTED"), Value::Bool(false));
+    assert_eq!(var(&run.plc, vars::JOYSTICK_CONNECTED), Value::Bool(false));
     assert_eq!(get(&run.plc, vars::JOYSTICK[0]), 0.0);
     let stopped = m(&run.plc);
     run.advance(READY_MS + 4000, |plc, t| {
-        for side in ["left", "right"] {
-            let v = real(plc, &format!("setpoint_{side}_mm_s"));
+        for (side, setpoint) in ["left", "right"].into_iter().zip(vars::SETPOINT_MM_S) {
+            let v = get(plc, setpoint);
             assert_eq!(v, 0.0, "{side} set-point velocity at {t} ms");
         }
     });
@@ -153,10 +153,10 @@ fn the_joystick_stop_acts_in_the_same_fast_cycle_in_addition_to_the_panel_stop()
         if first {
             first = false;
             assert_eq!(t, READY_MS + 1010);
-            assert_eq!(var(plc, "JOYSTICK_STOP"), Value::Bool(true));
-            assert_eq!(var(plc, "interlock"), Value::Bool(true), "interlock at {t} ms");
-            for side in ["left", "right"] {
-                assert_eq!(var(plc, &format!("velocity_{side}_set")), Value::Int(0));
+            assert_eq!(var(plc, vars::JOYSTICK_STOP), Value::Bool(true));
+            assert_eq!(var(plc, vars::INTERLOCK), Value::Bool(true), "interlock at {t} ms");
+            for pwm in vars::VELOCITY_SET {
+                assert_eq!(var(plc, pwm), Value::Int(0));
             }
         }
     });

@@ -12,6 +12,7 @@ use pkm_plc::image::{Declare, Input, Output, Value};
 use pkm_plc::io::map::IoMap;
 use pkm_plc::plc::Plc;
 use pkm_plc::program::{Cycle, Program, ProgramArgs, ProgramInfo, Registry};
+use pkm_trijoint::vars;
 
 const CLASSES: [&str; 3] = ["fast", "main", "spare"];
 
@@ -348,7 +349,7 @@ fn a_carriage_at_full_duty_reaches_its_switch_in_the_expected_time_and_stops_at_
     let mut plc = build(r#"{"right": 32767}"#, r#"{"mechanism": false}"#, None).expect("valid");
     let mut first_seen = None;
     run(&mut plc, 4000, |plc, t| {
-        if first_seen.is_none() && var(plc, "SWITCH_RIGHT_UPPER") == Value::Bool(true) {
+        if first_seen.is_none() && var(plc, vars::SWITCHES[1][1]) == Value::Bool(true) {
             first_seen = Some(t);
         }
     });
@@ -356,7 +357,7 @@ fn a_carriage_at_full_duty_reaches_its_switch_in_the_expected_time_and_stops_at_
     let p = plant(&plc);
     assert_eq!(p.position_mm(1), 253.0, "at the hard stop");
     assert_eq!(p.velocity_mm_s(1), 0.0);
-    assert_eq!(var(&plc, "SWITCH_RIGHT_UPPER"), Value::Bool(true));
+    assert_eq!(var(&plc, vars::SWITCHES[1][1]), Value::Bool(true));
     assert_eq!(p.position_mm(0), 125.0, "the left carriage did not move");
 }
 
@@ -369,7 +370,7 @@ fn the_counter_seen_by_the_plc_wraps_exactly() {
     run(&mut plc, 2000, |plc, _| {
         let counts = (plant(plc).position_mm(0) * 7000.0).round() as i64;
         let expected = (counts + 32_768).rem_euclid(65_536) - 32_768;
-        let Value::Int(seen) = var(plc, "encoder_left_counter") else {
+        let Value::Int(seen) = var(plc, vars::ENCODER_COUNTER[0]) else {
             panic!("INT")
         };
         assert_eq!(i64::from(seen), expected);
@@ -397,7 +398,7 @@ fn the_linkage_jams_where_it_cannot_assemble() {
     assert!(p.jams() > 0);
     let h1 = p.position_mm(0);
     assert!((h1 - 78.3).abs() < 0.5, "stopped where the linkage is stretched: {h1}");
-    assert_eq!(var(&jammed, "SWITCH_LEFT_DOWN"), Value::Bool(false));
+    assert_eq!(var(&jammed, vars::SWITCHES[0][0]), Value::Bool(false));
     // It stands where the linkage is just at full stretch: |AC| = l2 + l3.
     let g = TrijointParams::default();
     let (c, s) = (g.alpha1_deg.to_radians().cos(), g.alpha1_deg.to_radians().sin());
@@ -418,10 +419,10 @@ fn a_stuck_switch_stays_stuck_until_freed() {
     run(&mut plc, 3500, |plc, t| {
         let ms = t;
         let stuck = (100..500).contains(&ms);
-        assert_eq!(var(plc, "SWITCH_LEFT_UPPER"), Value::Bool(stuck), "at {ms} ms");
+        assert_eq!(var(plc, vars::SWITCHES[0][1]), Value::Bool(stuck), "at {ms} ms");
         if ms >= 600 {
             assert_eq!(
-                var(plc, "SWITCH_RIGHT_DOWN"),
+                var(plc, vars::SWITCHES[1][0]),
                 Value::Bool(false),
                 "stuck off at {ms} ms"
             );
@@ -453,27 +454,27 @@ fn panel_inputs_and_faults_from_a_scenario() {
     run(&mut plc, 1500, |plc, t| {
         let ms = t;
         assert_eq!(
-            var(plc, "BUTTON_STOP"),
+            var(plc, vars::BUTTON_STOP),
             Value::Bool((200..300).contains(&ms)),
             "at {ms} ms"
         );
         if ms == 490 {
-            let Value::Int(c) = var(plc, "encoder_right_counter") else {
+            let Value::Int(c) = var(plc, vars::ENCODER_COUNTER[1]) else {
                 panic!()
             };
             counter_before = i64::from(c);
         }
         if ms >= 600 {
-            assert_eq!(var(plc, "bridge_error_left"), Value::Bool(true), "latched at {ms} ms");
+            assert_eq!(var(plc, vars::BRIDGE_ERROR[0]), Value::Bool(true), "latched at {ms} ms");
         }
     });
     let p = plant(&plc);
     assert_eq!(p.joystick(), [0.5, -0.25]);
-    assert_eq!(var(&plc, "JOYSTICK_X"), Value::Real(0.5));
+    assert_eq!(var(&plc, vars::JOYSTICK[0]), Value::Real(0.5));
     assert!(p.velocity_mm_s(0).abs() < 1e-3, "no drive after the bridge error");
     assert!(p.velocity_mm_s(1).abs() < 1e-3, "the dead drive coasted to a stop");
     assert_eq!(
-        var(&plc, "bridge_error_right"),
+        var(&plc, vars::BRIDGE_ERROR[1]),
         Value::Bool(false),
         "a dead drive shows no error"
     );

@@ -3,7 +3,7 @@
 
 mod common;
 
-use common::{plant, real, run, state, var};
+use common::{get, plant, run, state, var};
 use pkm_kinematics::Kinematics;
 use pkm_kinematics::trijoint::{Trijoint, TrijointParams};
 use pkm_plc::image::Value;
@@ -45,7 +45,7 @@ fn power_on_references_the_machine_and_reaches_ready() {
     // Referenced positions are the plant's true positions from the lower switch (at 0 mm).
     let p = plant(&plc);
     for (i, side) in ["left", "right"].iter().enumerate() {
-        let measured = real(&plc, &format!("position_{side}_mm"));
+        let measured = get(&plc, vars::POSITION_MM[i]);
         assert!(
             (measured - p.position_mm(i)).abs() <= COUNT_MM + 1e-9,
             "{side}: {measured} vs {}",
@@ -82,13 +82,9 @@ const READY_MS: u64 = 43_000;
 
 fn no_switch_ever(plc: &Plc, t: u64) {
     if t > 1000 && state(plc) != "INIT" {
-        for s in [
-            "SWITCH_LEFT_UPPER",
-            "SWITCH_LEFT_DOWN",
-            "SWITCH_RIGHT_UPPER",
-            "SWITCH_RIGHT_DOWN",
-        ] {
-            assert_eq!(var(plc, s), Value::Bool(false), "{s} at {t} ms in {}", state(plc));
+        for s in vars::SWITCHES.into_iter().flatten() {
+            let name = s.name();
+            assert_eq!(var(plc, s), Value::Bool(false), "{name} at {t} ms in {}", state(plc));
         }
     }
 }
@@ -119,7 +115,7 @@ fn jogging_moves_m_in_the_commanded_direction_at_the_commanded_speed() {
         }
         if (READY_MS + 500..READY_MS + 2000).contains(&t) && t % 50 == 0 {
             // Steady motion: the displayed M (FK of the measured positions) matches the truth.
-            let shown = [common::get(plc, vars::M[0]), common::get(plc, vars::M[1])];
+            let shown = [get(plc, vars::M[0]), get(plc, vars::M[1])];
             let real_m = true_m(plc);
             assert!(
                 (shown[0] - real_m[0]).abs() < 0.01 && (shown[1] - real_m[1]).abs() < 0.01,
@@ -190,12 +186,8 @@ fn stop_during_motion_lockout_and_acknowledgement() {
     let mut seen: Vec<(u64, String, Option<String>)> = Vec::new();
     run(&mut plc, t0 + 50_000, |plc, t| {
         if t >= t0 && t < t0 + 1000 {
-            for side in ["left", "right"] {
-                assert_eq!(
-                    var(plc, &format!("velocity_{side}_set")),
-                    Value::Int(0),
-                    "PWM at {t} ms"
-                );
+            for pwm in vars::VELOCITY_SET {
+                assert_eq!(var(plc, pwm), Value::Int(0), "PWM at {t} ms");
             }
         }
         let s = plc.app_status().expect("status");
@@ -277,12 +269,8 @@ fn assert_fault(fault: &str, reason: &str) {
             error_at = Some(t);
         }
         if error_at.is_some() {
-            for side in ["left", "right"] {
-                assert_eq!(
-                    var(plc, &format!("velocity_{side}_set")),
-                    Value::Int(0),
-                    "PWM in ERROR at {t} ms"
-                );
+            for pwm in vars::VELOCITY_SET {
+                assert_eq!(var(plc, pwm), Value::Int(0), "PWM in ERROR at {t} ms");
             }
         }
         // (INIT runs onto the switches on purpose; from READY on no carriage passes one.)

@@ -153,7 +153,7 @@ fn the_regulator_follows_a_ramp_and_settles() {
     let start = plant(&plc).position_mm(0);
     let mut worst_following = 0.0f64;
     run(&mut plc, 2500, |plc, _| {
-        assert_eq!(var(plc, "following_error_left"), Value::Bool(false));
+        assert_eq!(var(plc, vars::FOLLOWING_ERROR[0]), Value::Bool(false));
         let sp = get(plc, vars::SETPOINT_MM[0]);
         worst_following = worst_following.max((sp - get(plc, vars::POSITION_MM[0])).abs());
     });
@@ -172,7 +172,7 @@ fn stop_zeroes_the_pwm_in_the_same_fast_cycle() {
     let mut plc = build(READY_RAMP, Some(scenario));
     let mut driving_before = false;
     run(&mut plc, 1000, |plc, t| {
-        let Value::Int(pwm) = var(plc, "velocity_left_set") else {
+        let Value::Int(pwm) = var(plc, vars::VELOCITY_SET[0]) else {
             panic!()
         };
         if t == 690 {
@@ -180,7 +180,7 @@ fn stop_zeroes_the_pwm_in_the_same_fast_cycle() {
         }
         if t >= 700 {
             assert_eq!(pwm, 0, "PWM at {t} ms");
-            assert_eq!(var(plc, "interlock"), Value::Bool(true));
+            assert_eq!(var(plc, vars::INTERLOCK), Value::Bool(true));
         }
     });
     assert!(driving_before, "the drive was moving before STOP");
@@ -194,7 +194,7 @@ fn a_limit_switch_interlocks_outside_init_only() {
     run(&mut plc, 800, |plc, t| {
         if t >= 600 {
             assert_eq!(
-                var(plc, "velocity_left_set"),
+                var(plc, vars::VELOCITY_SET[0]),
                 Value::Int(0),
                 "READY: interlocked at {t} ms"
             );
@@ -203,7 +203,7 @@ fn a_limit_switch_interlocks_outside_init_only() {
     let mut plc = build(&READY_RAMP.replace("READY", "INIT"), Some(scenario));
     let mut moving = false;
     run(&mut plc, 800, |plc, t| {
-        if t >= 650 && var(plc, "velocity_left_set") != Value::Int(0) {
+        if t >= 650 && var(plc, vars::VELOCITY_SET[0]) != Value::Int(0) {
             moving = true;
         }
     });
@@ -216,7 +216,7 @@ fn a_dead_drive_is_a_following_error_and_a_glitch_an_encoder_fault() {
     let mut plc = build(READY_RAMP, Some(scenario));
     let mut flagged_at = None;
     run(&mut plc, 1500, |plc, t| {
-        if flagged_at.is_none() && var(plc, "following_error_left") == Value::Bool(true) {
+        if flagged_at.is_none() && var(plc, vars::FOLLOWING_ERROR[0]) == Value::Bool(true) {
             flagged_at = Some(t);
         }
     });
@@ -227,10 +227,10 @@ fn a_dead_drive_is_a_following_error_and_a_glitch_an_encoder_fault() {
     let scenario = r#"{"events": [{"at_ms": 600, "fault": "encoder_glitch", "drive": "right", "counts": 20000}]}"#;
     let mut plc = build(READY_RAMP, Some(scenario));
     run(&mut plc, 800, |plc, t| {
-        let fault = var(plc, "encoder_fault_right") == Value::Bool(true);
+        let fault = var(plc, vars::ENCODER_FAULT[1]) == Value::Bool(true);
         assert_eq!(fault, t >= 600, "encoder fault at {t} ms");
         if t >= 600 {
-            assert_eq!(var(plc, "velocity_left_set"), Value::Int(0), "interlocked at {t} ms");
+            assert_eq!(var(plc, vars::VELOCITY_SET[0]), Value::Int(0), "interlocked at {t} ms");
         }
     });
 }

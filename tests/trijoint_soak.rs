@@ -135,10 +135,13 @@ fn one_simulated_hour_of_random_operation_keeps_every_invariant() {
         }
         // PWM zero whenever the state does not drive (from the first fast cycle that sees it).
         if !driving(&state) && !driving(&previous) {
-            for side in ["left", "right"] {
-                let name = format!("velocity_{side}_set");
-                let pwm = plc.global_image()[usize::from(plc.vars().index_of(&name).expect("var"))];
-                assert_eq!(pwm, Value::Int(0), "{name} in {state} at {t} ms");
+            for pwm in pkm_trijoint::vars::VELOCITY_SET {
+                assert_eq!(
+                    common::var(&plc, pwm),
+                    Value::Int(0),
+                    "{} in {state} at {t} ms",
+                    pwm.name()
+                );
             }
         }
         // Jogging brakes before the software limits (2 … 248 mm from the lower switches, at

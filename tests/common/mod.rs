@@ -67,22 +67,15 @@ pub fn plant(plc: &Plc) -> &Plant {
         .expect("the TRIJOINT plant")
 }
 
-/// A variable of the published image.
-pub fn var(plc: &Plc, name: &str) -> Value {
-    plc.global_image()[usize::from(plc.vars().index_of(name).expect("variable"))]
+/// A variable of the published image as a value, by its typed name.
+pub fn var<T>(plc: &Plc, var: pkm_plc::image::Var<T>) -> Value {
+    let index = plc.vars().index_of(var.name());
+    plc.global_image()[usize::from(index.unwrap_or_else(|| panic!("no variable {}", var.name())))]
 }
 
 /// A variable of the published image, by its typed name.
 pub fn get<T: pkm_plc::image::PlcType>(plc: &Plc, var: pkm_plc::image::Var<T>) -> T {
-    T::from_value(self::var(plc, var.name()))
-}
-
-/// A REAL variable of the published image.
-pub fn real(plc: &Plc, name: &str) -> f64 {
-    match var(plc, name) {
-        Value::Real(v) => v,
-        other => panic!("{name}: {other:?}"),
-    }
+    T::from_value(self::var(plc, var))
 }
 
 /// The main program's state.
