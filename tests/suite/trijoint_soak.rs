@@ -1,7 +1,7 @@
 //! Soak: one simulated hour of random joystick input, STOP presses and injected faults on the
 //! simulated machine, with the machine's invariants checked after every cycle.
 
-mod common;
+use crate::common;
 
 use std::time::Instant;
 

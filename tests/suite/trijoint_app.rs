@@ -1,7 +1,7 @@
 //! The TRIJOINT application on the simulated machine, in virtual time, driven by scenarios:
 //! referencing, jogging, STOP with lockout and acknowledgement, faults.
 
-mod common;
+use crate::common;
 
 use common::{get, plant, run, state, var};
 use pkm_kinematics::Kinematics;

@@ -4,7 +4,7 @@
 //! addition to the panel's. Also the raw-record reader on fabricated captures, and a capture played on
 //! the simulated clock by `run --virtual --joystick FILE`.
 
-mod common;
+use crate::common;
 
 use pkm_trijoint::vars;
 use std::io::Cursor;

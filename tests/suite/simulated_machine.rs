@@ -1,7 +1,7 @@
 //! The I/O map, the module catalogue and the simulated TRIJOINT lab model: every validation error
 //! with its message, and the plant's behaviour seen through the process image.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 

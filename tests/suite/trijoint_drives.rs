@@ -2,7 +2,7 @@
 //! the main program (which is not there yet): unwrap, position control, following error and the
 //! fast interlock.
 
-mod common;
+use crate::common;
 
 use common::{get, plant, run, var};
 use pkm_plc::image::{Declare, Input, Output, Value};

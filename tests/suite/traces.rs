@@ -1,6 +1,6 @@
 //! Traces: round trip, tampering, malformed files, configuration checks, golden traces.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 

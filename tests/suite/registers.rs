@@ -1,6 +1,6 @@
 //! The Modbus register map derived from the I/O map, and its value encodings.
 
-mod common;
+use crate::common;
 
 use common::{pkm, stderr, stdout};
 use pkm_plc::image::{Value, VarType};

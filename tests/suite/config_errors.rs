@@ -402,8 +402,7 @@ fn bus_declarations_take_part_in_the_checks() {
     );
 }
 
-#[path = "common/mod.rs"]
-mod common;
+use crate::common;
 
 /// The repository's configuration changed by `change`, built on the simulated machine with the
 /// I/O map changed by `change_map`; the problems as displayed (empty when it is valid).
