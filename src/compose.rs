@@ -19,6 +19,7 @@ use crate::image::Problem;
 use crate::io::hid::{JoystickBus, JoystickFeed, JoystickSpec, LatencyProbe};
 use crate::io::map::IoMap;
 use crate::io::modbus::{ModbusBus, ModbusOptions, Transport};
+use crate::machines;
 use crate::plc::Plc;
 use crate::program::Registry;
 use crate::sim::bus::SimBus;
@@ -79,6 +80,35 @@ impl Setup {
             registry.register(*info);
         }
         registry
+    }
+
+    /// Adds to each "unknown program" problem the machine that brings that program, where another
+    /// machine of this build does: the usual cause is a configuration copied from another machine,
+    /// or a missing or different `"machine"`.
+    fn hint_other_machines(&self, problems: &mut [Problem]) {
+        for (ci, tc) in self.loaded.config.task_classes.iter().enumerate() {
+            for (pi, entry) in tc.programs.iter().enumerate() {
+                let at = format!("task_classes[{ci}].programs[{pi}].program");
+                let Some(owner) = machines::owner_of(&entry.program) else {
+                    continue;
+                };
+                if self.machine.is_some_and(|m| m.name() == owner.name()) {
+                    continue;
+                }
+                let runs = match self.machine {
+                    Some(m) => format!("this configuration runs machine \"{}\"", m.name()),
+                    None => "this configuration names no machine".to_string(),
+                };
+                for problem in problems.iter_mut().filter(|p| p.at == at) {
+                    problem.message.push_str(&format!(
+                        " (\"{}\" is a program of machine \"{}\"; {runs}: set \"machine\": \"{}\")",
+                        entry.program,
+                        owner.name(),
+                        owner.name()
+                    ));
+                }
+            }
+        }
     }
 
     /// The problems of the machine's sections (`kinematics`, `plant`); without a machine, those
@@ -161,7 +191,9 @@ impl Setup {
         match plc {
             Ok(plc) if problems.is_empty() => Ok(plc),
             plc => {
-                problems.splice(0..0, plc.err().unwrap_or_default());
+                let mut build_problems = plc.err().unwrap_or_default();
+                self.hint_other_machines(&mut build_problems);
+                problems.splice(0..0, build_problems);
                 Err(ConfigError::Invalid {
                     file: self.loaded.origin.clone(),
                     problems,
@@ -256,6 +288,9 @@ impl From<ConfigError> for BuildError {
 enum BusFailure {
     /// A problem of the configuration or its I/O map: reported with the rest of the checks.
     Config(ConfigError),
+    /// The machine's own sections (`plant`, `kinematics`) have problems, so it cannot build its
+    /// plant: the configuration's check reports them, once.
+    Sections,
     /// Anything else (a usage error): reported alone.
     Other(BuildError),
 }
@@ -286,16 +321,14 @@ fn make_bus(setup: &Setup, options: &Options) -> Result<(Box<dyn Bus>, Option<Io
     }
     let map = setup.io_map()?;
     let bus: Box<dyn Bus> = match (&options.bus, &map) {
+        (BusChoice::Tcp(_) | BusChoice::Serial(..), None) => unreachable!("refused above: no io_map"),
+        (BusChoice::Tcp(address), Some(map)) => modbus_bus(map, Transport::Tcp(*address), options)?,
         (BusChoice::Serial(path, baud), Some(map)) => {
             let transport = Transport::Serial {
                 path: path.clone(),
                 baud: *baud,
             };
-            Box::new(ModbusBus::new(map.clone(), transport, options.link).map_err(|e| usage(format!("--bus: {e}")))?)
-        }
-        (BusChoice::Tcp(address), Some(map)) => {
-            let transport = Transport::Tcp(*address);
-            Box::new(ModbusBus::new(map.clone(), transport, options.link).map_err(|e| usage(format!("--bus: {e}")))?)
+            modbus_bus(map, transport, options)?
         }
         (BusChoice::None, Some(map)) => {
             let bus = crate::io::dry::DryBus::new(map.clone());
@@ -306,11 +339,18 @@ fn make_bus(setup: &Setup, options: &Options) -> Result<(Box<dyn Bus>, Option<Io
             );
             Box::new(bus)
         }
+        (BusChoice::Sim, Some(_)) if !setup.section_problems().is_empty() => return Err(BusFailure::Sections),
         (BusChoice::Sim, Some(_)) => Box::new(setup.sim_bus_over(map.clone(), scenario)?),
         (BusChoice::None | BusChoice::Sim, None) => Box::new(NoBus),
-        (BusChoice::Tcp(_) | BusChoice::Serial(..), None) => unreachable!("refused above: no io_map"),
     };
     Ok((bus, map))
+}
+
+/// A Modbus bus over `map` reached by `transport`; a map too large for the chosen exchange is a
+/// usage error (`--exchange`).
+fn modbus_bus(map: &IoMap, transport: Transport, options: &Options) -> Result<Box<dyn Bus>, BusFailure> {
+    let bus = ModbusBus::new(map.clone(), transport, options.link).map_err(|e| usage(format!("--bus: {e}")))?;
+    Ok(Box::new(bus))
 }
 
 /// Builds a PLC: every problem of the configuration and its I/O map is reported at once.
@@ -323,6 +363,7 @@ pub fn build(setup: Setup, options: Options) -> Result<Built, BuildError> {
             (bus, joystick, None)
         }
         Err(BusFailure::Config(e)) => (Box::new(UnknownBus) as Box<dyn Bus>, None, Some(e)),
+        Err(BusFailure::Sections) => (Box::new(UnknownBus) as Box<dyn Bus>, None, None),
         Err(BusFailure::Other(f)) => return Err(f),
     };
     match (setup.plc(bus), bus_problem) {
@@ -334,15 +375,11 @@ pub fn build(setup: Setup, options: Options) -> Result<Built, BuildError> {
                 Ok(_) => Vec::new(),
             };
             let mut reports: Vec<String> = Vec::new();
-            // The plant section's problems are the configuration's own: one list. (The machine
-            // reports them among the section problems too; each is said once.)
+            // The simulated bus's problems in the configuration's own file (its plant's wiring)
+            // join the configuration's list.
             match bus_problem {
                 Some(ConfigError::Invalid { file, problems: more }) if file == setup.loaded.origin => {
-                    for p in more {
-                        if !problems.contains(&p) {
-                            problems.push(p);
-                        }
-                    }
+                    problems.extend(more);
                 }
                 Some(other) => reports.push(other.to_string()),
                 None => {}

@@ -492,3 +492,56 @@ fn joystick_sources_that_cannot_work_are_said_clearly() {
         stderr(&o)
     );
 }
+
+#[test]
+fn a_program_of_a_machine_the_configuration_does_not_name_is_refused_with_its_machine() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut config = common::repo_config();
+    let object = config.as_object_mut().expect("an object");
+    for key in ["machine", "plant", "kinematics"] {
+        object.remove(key);
+    }
+    let path = dir.path().join("no-machine.json");
+    std::fs::write(&path, config.to_string()).expect("write");
+    let o = pkm(&["check", "--config", path.to_str().expect("utf-8")]);
+    assert_eq!(o.status.code(), Some(2));
+    let stderr = stderr(&o);
+    let lines: Vec<&str> = stderr.lines().collect();
+    assert_eq!(lines[0], format!("error: {}: 3 problems:", path.display()));
+    assert_eq!(
+        lines[1],
+        "  at task_classes[0].programs[0].program: unknown program \"trijoint.encoders\"; known programs: \
+         selftest.producer, selftest.consumer, selftest.idle (\"trijoint.encoders\" is a program of machine \
+         \"trijoint\"; this configuration names no machine: set \"machine\": \"trijoint\")"
+    );
+}
+
+#[test]
+fn a_plant_section_problem_is_reported_once_by_run() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut config = common::repo_config();
+    config["io_map"] = common::root()
+        .join("io-map/trijoint.json")
+        .to_str()
+        .expect("utf-8")
+        .into();
+    config["plant"] = serde_json::json!({"left": {"tau_s": -1}});
+    let path = dir.path().join("bad-plant.json");
+    std::fs::write(&path, config.to_string()).expect("write");
+    let o = pkm(&[
+        "run",
+        "--virtual",
+        "--duration",
+        "1",
+        "--config",
+        path.to_str().expect("utf-8"),
+    ]);
+    assert_eq!(o.status.code(), Some(2));
+    assert_eq!(
+        stderr(&o),
+        format!(
+            "error: {}: at plant.left.tau_s: must be positive, got -1\n",
+            path.display()
+        )
+    );
+}
