@@ -186,12 +186,7 @@ fn rtu_station(answers: usize, reply: fn(&[u8]) -> Vec<u8>) -> serialport::TTYPo
 /// Runs the Modbus driver alone (no application) against `port` until it reports a bus fault.
 fn driver_against(port: serialport::TTYPort) -> pkm_plc::io::modbus::ModbusBus {
     use pkm_plc::bus::Bus as _;
-    let loaded = common::loaded(&common::repo_config());
-    let map = pkm_plc::compose::Setup::new(loaded)
-        .expect("known machine")
-        .io_map()
-        .expect("valid map")
-        .expect("an io_map");
+    let map = common::io_map(&common::loaded(&common::repo_config()));
     let mut bus = pkm_plc::io::modbus::ModbusBus::new(
         map,
         pkm_plc::io::modbus::Transport::Port(Some(port)),
@@ -259,12 +254,7 @@ fn declaring_the_variables_opens_nothing_starting_the_bus_opens_the_link() {
     let listener = TcpListener::bind("127.0.0.1:0").expect("bind");
     listener.set_nonblocking(true).expect("nonblocking");
     let address = listener.local_addr().expect("address");
-    let loaded = common::loaded(&common::repo_config());
-    let map = pkm_plc::compose::Setup::new(loaded)
-        .expect("known machine")
-        .io_map()
-        .expect("valid map")
-        .expect("an io_map");
+    let map = common::io_map(&common::loaded(&common::repo_config()));
     let mut bus =
         pkm_plc::io::modbus::ModbusBus::new(map, pkm_plc::io::modbus::Transport::Tcp(address), Default::default())
             .expect("tables fit");
