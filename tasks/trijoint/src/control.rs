@@ -9,6 +9,8 @@ use super::state::MainState;
 use crate::vars;
 use pkm_api::image::{Declare, Input, Output};
 use pkm_api::program::{Cycle, Program, ProgramArgs};
+use pkm_drives::interlock::{InterlockInputs, following_error};
+use pkm_drives::pi::{Pi, PiGains};
 
 /// The longest cycle of the class that runs the drive programs (µs): the interlock's reaction,
 /// and the encoders' unwrap — at the lab model's 80 mm/s a 16-bit counter moves 11 200 counts in
@@ -66,28 +68,15 @@ impl Default for ControlParams {
     }
 }
 
-/// One drive's PI regulator with anti-windup by conditional integration.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct Pi {
-    integral: f64,
-}
-
-impl Pi {
-    /// One step: returns the duty for following error `e` (mm) over `dt` seconds at set-point
-    /// velocity `v` (mm/s).
-    pub fn step(&mut self, p: &ControlParams, e: f64, v: f64, dt: f64) -> f64 {
-        let unclamped = p.velocity_ff * v + p.kp * e + p.ki * (self.integral + e * dt);
-        let out = unclamped.clamp(-p.output_limit, p.output_limit);
-        // Integrate only while the output is not saturated, or when the error drives it back.
-        if out == unclamped || unclamped.signum() != e.signum() {
-            self.integral += e * dt;
+impl ControlParams {
+    /// The regulator's gains (duty per mm, per mm·s, per mm/s; duty limit).
+    pub fn gains(&self) -> PiGains {
+        PiGains {
+            kp: self.kp,
+            ki: self.ki,
+            velocity_ff: self.velocity_ff,
+            output_limit: self.output_limit,
         }
-        out
-    }
-
-    /// Forgets the integral (on enable and after a stop).
-    pub fn reset(&mut self) {
-        self.integral = 0.0;
     }
 }
 
@@ -105,6 +94,7 @@ struct Drive {
 /// The controller program.
 pub struct Control {
     p: ControlParams,
+    gains: PiGains,
     state: Input<i16>,
     enable: Input<bool>,
     bus_fault: Input<bool>,
@@ -164,6 +154,7 @@ impl Control {
         };
         let drives = [drive(0, decl), drive(1, decl)];
         Box::new(Control {
+            gains: p.gains(),
             p,
             state: decl.read(vars::MAIN_STATE),
             enable: decl.read(vars::DRIVES_ENABLE),
@@ -188,7 +179,14 @@ impl Program for Control {
         let faults = ctx.get(self.bus_fault) || self.drives.iter().any(|d| ctx.get(d.bridge_error) || ctx.get(d.fault));
         // The joystick's STOP acts in addition to the panel's, never instead of it.
         let stop = ctx.get(self.stop) || ctx.get(self.joystick_stop);
-        let interlock = stop || (switch && !in_init) || faults || !enabled;
+        let interlock = InterlockInputs {
+            stop,
+            limit_switch: switch,
+            switches_expected: in_init,
+            fault: faults,
+            enabled,
+        }
+        .engaged();
         // The main program publishes set-points every 50 ms with their velocity and time; between
         // its cycles the set-point moves on at that velocity, so ramps reach the drives smoothly.
         let since = (ctx.time_ns() as f64 * 1e-9 - ctx.get(self.setpoint_time)).max(0.0);
@@ -199,9 +197,8 @@ impl Program for Control {
         // A following error stays latched while the drives are enabled (the main program turns it
         // into ERROR, which disables them) and stops both drives in the cycle it is found.
         let following: [bool; 2] = std::array::from_fn(|i| {
-            enabled
-                && (ctx.output_value(self.drives[i].following_error)
-                    || (!interlock && errors[i].abs() > self.p.max_following_error_mm))
+            let latched = ctx.output_value(self.drives[i].following_error);
+            following_error(enabled, latched, interlock, errors[i], self.p.max_following_error_mm)
         });
         let interlock = interlock || following.iter().any(|f| *f);
         ctx.set(self.interlock, interlock);
@@ -211,27 +208,10 @@ impl Program for Control {
                 pi.reset();
                 0.0
             } else {
-                pi.step(&self.p, errors[i], ctx.get(d.setpoint_velocity), dt)
+                pi.step(&self.gains, errors[i], ctx.get(d.setpoint_velocity), dt)
             };
             ctx.set(d.pwm, (duty * 32767.0).round() as i16);
             ctx.set(d.following_error, following[i]);
         }
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn pi_saturates_without_winding_up() {
-        let p = ControlParams::default();
-        let mut pi = Pi::default();
-        for _ in 0..1000 {
-            assert_eq!(pi.step(&p, 100.0, 0.0, 0.01), 1.0);
-        }
-        // After a long saturation the integral has not grown, so a small error gives a small duty.
-        let out = pi.step(&p, 0.1, 0.0, 0.01);
-        assert!(out < 0.2, "{out}");
     }
 }

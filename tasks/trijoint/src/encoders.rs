@@ -30,13 +30,9 @@ impl Default for EncoderParams {
     }
 }
 
-/// Unwraps a wrapping 16-bit counter: the absolute count after `previous` (absolute) saw the raw
-/// counter go from `last_raw` to `raw`. Exact for any true change of less than half the counter
-/// range; returns the signed change as well.
-pub fn unwrap(previous: i64, last_raw: i16, raw: i16) -> (i64, i64) {
-    let delta = i64::from(raw.wrapping_sub(last_raw));
-    (previous + delta, delta)
-}
+/// The counter unwrap every joint-driven machine shares (re-exported where the TRIJOINT's tests
+/// and tools have always found it).
+pub use pkm_drives::counter::unwrap;
 
 /// One drive's encoder state.
 #[derive(Clone, Copy, Debug, Default)]
@@ -163,18 +159,5 @@ impl Program for Encoders {
                 s.last_switch[end] = on;
             }
         }
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::unwrap;
-
-    #[test]
-    fn unwrap_across_the_wrap_points() {
-        assert_eq!(unwrap(32_767, 32_767, -32_768), (32_768, 1));
-        assert_eq!(unwrap(-32_768, -32_768, 32_767), (-32_769, -1));
-        // A true change of +33 436 is more than half the range: it reads as −32 100.
-        assert_eq!(unwrap(100, 100, -32_000), (-32_000, -32_100));
     }
 }

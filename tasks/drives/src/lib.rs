@@ -1,0 +1,15 @@
+//! What every joint-driven machine shares, written once: the TRIJOINT application and the
+//! machine-agnostic application for the other machines both use it.
+//!
+//! - [`counter`]: absolute positions from 16-bit wrapping counters (encoder counts, emitted steps).
+//! - [`pi`]: the PI position regulator with velocity feed-forward and anti-windup.
+//! - [`interlock`]: the fast interlock rule (what zeroes the drive outputs in the same cycle).
+//! - [`sim`]: simulated drives for the plants: a stepper that loses steps beyond its pull-out
+//!   limits.
+//!
+//! Pure computation: no allocation in the cyclic functions, no clock, no I/O.
+
+pub mod counter;
+pub mod interlock;
+pub mod pi;
+pub mod sim;

@@ -1,0 +1,268 @@
+//! A stepper motor on a lead screw behind one channel of an X20-like stepper module: the module
+//! emits steps at the commanded rate and counts them (a 16-bit wrapping counter); the motor
+//! follows while the rate and its change stay within its pull-out limits, and **loses steps**
+//! beyond them — it stalls, the counter still counts, the carriage does not move. A stalled motor
+//! catches the step train again once the commanded rate is within its pull-in rate (the rate it
+//! can start at without a ramp). A carriage driven against a hard stop or a jammed mechanism
+//! stalls too. Open-loop control cannot see any of this; [`Stepper::lost_steps`] lets tests.
+
+use crate::counter::wrap;
+
+/// A stepper drive's parameters.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct StepperParams {
+    /// Steps per mm of carriage travel.
+    pub steps_per_mm: f64,
+    /// Above this speed (mm/s) the motor falls out of step.
+    pub pull_out_speed_mm_s: f64,
+    /// A change of the commanded speed faster than this (mm/s², between two set-points) makes
+    /// the motor fall out of step.
+    pub pull_out_accel_mm_s2: f64,
+    /// The start-stop speed (mm/s): the motor follows any change of the commanded speed between
+    /// rates at most this fast, and a stalled motor runs again once the commanded speed is at
+    /// most this.
+    pub pull_in_speed_mm_s: f64,
+}
+
+/// One stepper drive and its carriage.
+#[derive(Clone, Debug)]
+pub struct Stepper {
+    p: StepperParams,
+    enabled: bool,
+    /// Commanded step rate (steps/s) as last written.
+    commanded: f64,
+    /// Time since the set-point was last written (s).
+    since_command_s: f64,
+    /// Steps emitted by the module since power-on (the counter shows them, wrapped).
+    emitted: f64,
+    /// Steps the motor actually made since power-on.
+    moved: f64,
+    /// Carriage position at power-on (mm).
+    start_mm: f64,
+    stalled: bool,
+    stalls: u64,
+}
+
+impl Stepper {
+    /// A stepper whose carriage stands at `position_mm`, disabled, its counter at zero.
+    pub fn new(p: StepperParams, position_mm: f64) -> Stepper {
+        Stepper {
+            p,
+            enabled: false,
+            commanded: 0.0,
+            since_command_s: 0.0,
+            emitted: 0.0,
+            moved: 0.0,
+            start_mm: position_mm,
+            stalled: false,
+            stalls: 0,
+        }
+    }
+
+    /// The module's outputs as the cycle wrote them: the channel's enable and its speed set-point
+    /// (steps/s). Called at every write, so the time between calls is the set-point's period.
+    pub fn command(&mut self, enable: bool, rate_steps_s: i16) {
+        let rate = if enable { f64::from(rate_steps_s) } else { 0.0 };
+        let change = (rate - self.rate()).abs();
+        // Within the start-stop range (both rates at most the pull-in rate) a motor follows any
+        // change at once; beyond it, only changes within the pull-out acceleration.
+        let pull_in = self.p.pull_in_speed_mm_s * self.p.steps_per_mm;
+        let start_stop = rate.abs() <= pull_in && self.rate().abs() <= pull_in;
+        if change > 0.0 && !start_stop {
+            let accel_steps_s2 = if self.since_command_s > 0.0 {
+                change / self.since_command_s
+            } else {
+                f64::INFINITY
+            };
+            if accel_steps_s2 > self.p.pull_out_accel_mm_s2 * self.p.steps_per_mm {
+                self.stall();
+            }
+        }
+        self.enabled = enable;
+        self.commanded = f64::from(rate_steps_s);
+        self.since_command_s = 0.0;
+    }
+
+    /// Advances `dt` seconds. `travel` is the carriage's hard stops `[min, max]` (mm); `jammed`
+    /// says the mechanism blocks this joint's motion in the commanded direction.
+    pub fn step(&mut self, dt: f64, travel: [f64; 2], jammed: bool) {
+        self.since_command_s += dt;
+        let rate = self.rate();
+        if rate.abs() > self.p.pull_out_speed_mm_s * self.p.steps_per_mm {
+            self.stall();
+        } else if self.stalled && rate.abs() <= self.p.pull_in_speed_mm_s * self.p.steps_per_mm {
+            self.stalled = false;
+        }
+        let steps = rate * dt;
+        self.emitted += steps;
+        if self.stalled || jammed {
+            return;
+        }
+        // Counted in steps from power-on, as the emitted steps are, so a motor that never lost a
+        // step has made exactly the steps emitted.
+        let [min, max] = travel.map(|mm| (mm - self.start_mm) * self.p.steps_per_mm);
+        self.moved = (self.moved + steps).clamp(min, max);
+    }
+
+    /// The commanded rate in effect (steps/s): zero while disabled.
+    fn rate(&self) -> f64 {
+        if self.enabled { self.commanded } else { 0.0 }
+    }
+
+    fn stall(&mut self) {
+        if !self.stalled {
+            self.stalled = true;
+            self.stalls += 1;
+        }
+    }
+
+    /// The module's step counter: the steps emitted, 16-bit, wrapping.
+    pub fn counter(&self) -> i16 {
+        wrap(self.emitted.floor() as i64)
+    }
+
+    /// The carriage's true position (mm).
+    pub fn position_mm(&self) -> f64 {
+        self.start_mm + self.moved / self.p.steps_per_mm
+    }
+
+    /// Steps emitted that the motor did not make (stalls, hard stops, jams).
+    pub fn lost_steps(&self) -> f64 {
+        self.emitted - self.moved
+    }
+
+    /// Whether the motor is out of step now.
+    pub fn stalled(&self) -> bool {
+        self.stalled
+    }
+
+    /// How many times the motor fell out of step.
+    pub fn stalls(&self) -> u64 {
+        self.stalls
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// pn101's defaults (machines.md): 400 steps/mm, 8 mm/s, 40 mm/s²; pull-out at 1.25× the
+    /// speed and 2× the acceleration.
+    const PN101: StepperParams = StepperParams {
+        steps_per_mm: 400.0,
+        pull_out_speed_mm_s: 10.0,
+        pull_out_accel_mm_s2: 80.0,
+        pull_in_speed_mm_s: 2.0,
+    };
+    const TRAVEL: [f64; 2] = [-5.0, 305.0];
+
+    /// Runs a 10 ms set-point cycle of 1 ms plant steps at `rate` steps/s.
+    fn cycle(s: &mut Stepper, rate: i16) {
+        s.command(true, rate);
+        for _ in 0..10 {
+            s.step(0.001, TRAVEL, false);
+        }
+    }
+
+    /// Ramps from the current rate to `to` by `per_cycle` steps/s every 10 ms.
+    fn ramp(s: &mut Stepper, from: i16, to: i16, per_cycle: i16) -> i16 {
+        let mut rate = from;
+        while rate != to {
+            rate = if to > rate {
+                (rate + per_cycle).min(to)
+            } else {
+                (rate - per_cycle).max(to)
+            };
+            cycle(s, rate);
+        }
+        rate
+    }
+
+    #[test]
+    fn within_its_limits_it_follows_the_steps_exactly() {
+        let mut s = Stepper::new(PN101, 100.0);
+        // 8 mm/s reached at 40 mm/s² (160 steps/s per 10 ms), held 1 s, ramped down.
+        let rate = ramp(&mut s, 0, 3200, 160);
+        for _ in 0..100 {
+            cycle(&mut s, rate);
+        }
+        ramp(&mut s, rate, 0, 160);
+        assert_eq!(s.lost_steps(), 0.0);
+        assert_eq!(s.stalls(), 0);
+        let moved_mm = s.position_mm() - 100.0;
+        assert!((moved_mm - s.emitted / 400.0).abs() < 1e-9);
+        // Ramp up 336 steps, 1 s at 3200 steps/s, ramp down 304 steps: 3840 steps, 9.6 mm.
+        assert!((moved_mm - 9.6).abs() < 1e-9, "{moved_mm}");
+    }
+
+    #[test]
+    fn too_fast_a_speed_loses_steps_the_counter_still_counts() {
+        let mut s = Stepper::new(PN101, 100.0);
+        // 12 mm/s (4800 steps/s), above the 10 mm/s pull-out speed, reached gently.
+        let rate = ramp(&mut s, 0, 4800, 100);
+        for _ in 0..100 {
+            cycle(&mut s, rate);
+        }
+        assert!(s.stalled());
+        assert!(s.lost_steps() > 4000.0, "{}", s.lost_steps());
+        // The counter shows every emitted step: what open-loop control takes as the position.
+        let counted_mm = f64::from(s.counter()) / 400.0;
+        assert!(counted_mm - (s.position_mm() - 100.0) > 10.0);
+    }
+
+    #[test]
+    fn too_hard_a_start_loses_steps_and_a_slow_rate_catches_up() {
+        let mut s = Stepper::new(PN101, 100.0);
+        // Starting within the start-stop speed (2 mm/s) at once is fine.
+        cycle(&mut s, 800);
+        cycle(&mut s, 0);
+        assert!(!s.stalled());
+        // From standstill to 8 mm/s in one 10 ms set-point: 320 000 steps/s², far above pull-out.
+        cycle(&mut s, 3200);
+        assert!(s.stalled());
+        assert!((s.position_mm() - 100.02).abs() < 1e-9, "{}", s.position_mm());
+        // Down to 1 mm/s gently: within the pull-in rate, the motor runs again.
+        ramp(&mut s, 3200, 400, 160);
+        let before = s.position_mm();
+        cycle(&mut s, 400);
+        assert!(!s.stalled());
+        assert!((s.position_mm() - before - 0.01).abs() < 1e-9);
+        assert!(s.lost_steps() > 0.0);
+        assert_eq!(s.stalls(), 1);
+    }
+
+    #[test]
+    fn a_hard_stop_holds_the_carriage_and_the_steps_are_lost() {
+        let mut s = Stepper::new(PN101, 304.0);
+        let rate = ramp(&mut s, 0, 800, 160);
+        for _ in 0..100 {
+            cycle(&mut s, rate);
+        }
+        assert_eq!(s.position_mm(), 305.0);
+        assert!(s.lost_steps() > 300.0);
+    }
+
+    #[test]
+    fn disabled_it_emits_nothing_and_a_jam_moves_nothing() {
+        let mut s = Stepper::new(PN101, 50.0);
+        s.command(false, 3200);
+        s.step(0.01, TRAVEL, false);
+        assert_eq!((s.counter(), s.position_mm()), (0, 50.0));
+        s.command(true, 100);
+        s.step(0.01, TRAVEL, true);
+        assert_eq!((s.counter(), s.position_mm()), (1, 50.0));
+    }
+
+    #[test]
+    fn the_counter_wraps_at_16_bits() {
+        let mut s = Stepper::new(PN101, 0.0);
+        let rate = ramp(&mut s, 0, 3200, 160);
+        // 32 768 steps and more: 82 mm at 8 mm/s.
+        for _ in 0..1100 {
+            cycle(&mut s, rate);
+        }
+        assert!(s.emitted > 32_768.0);
+        assert_eq!(s.counter(), wrap(s.emitted.floor() as i64));
+        assert!(s.counter() < 0);
+    }
+}
