@@ -1,5 +1,6 @@
 //! The module catalogue: X20-like I/O modules and their channels, as in the original I/O mapping
-//! table, plus the operator's joystick (an HID device on the real machine, issue 8).
+//! table, an X20-like stepper module for the stepper-driven machines (pn101, O-X glide), plus the
+//! operator's joystick (an HID device on the real machine, issue 8).
 
 pub use crate::image::Direction;
 use crate::image::VarType;
@@ -90,6 +91,15 @@ const MM2436: &[Channel] = &[
     ch("Error02", I, B),
 ];
 
+const SM2436: &[Channel] = &[
+    ch("Enable01", O, B),
+    ch("SpeedSetpoint01", O, Int),
+    ch("StepCounter01", I, Int),
+    ch("Enable02", O, B),
+    ch("SpeedSetpoint02", O, Int),
+    ch("StepCounter02", I, Int),
+];
+
 const JOYSTICK: &[Channel] = &[
     ch("AxisX", I, Real),
     ch("AxisY", I, Real),
@@ -126,6 +136,13 @@ pub const CATALOGUE: &[ModuleType] = &[
         description: "2 PWM motor bridges 3 A (period µs, signed pulse width ±32767 = ±100 %, clear error, \
                       dither disable), 4 digital inputs, per-bridge error (overcurrent, overtemperature)",
         channels: MM2436,
+        field_bus: true,
+    },
+    ModuleType {
+        name: "X20SM2436",
+        description: "X20-like 2-channel stepper module (after B&R's X20SM modules): per channel an enable, \
+                      a speed set-point (INT, steps/s) and a 16-bit wrapping counter of the steps emitted",
+        channels: SM2436,
         field_bus: true,
     },
     ModuleType {

@@ -27,6 +27,20 @@ fn find(m: &IoMap, r: &RegisterMap, module: &str, channel: &str) -> (Table, u16,
 }
 
 #[test]
+fn a_stepper_module_has_its_enables_as_coils_its_set_points_as_holding_and_its_counters_as_input_registers() {
+    let m = map(
+        r#"{"modules": [{"name": "SM", "type": "X20SM2436", "slot": 1}, {"name": "SM2", "type": "X20SM2436", "slot": 2}],
+            "bindings": [{"variable": "steps_3", "module": "SM2", "channel": "StepCounter01", "task_class": "fast"}]}"#,
+    );
+    let r = RegisterMap::of(&m);
+    assert_eq!(find(&m, &r, "SM", "Enable02"), (Table::Coil, 1, 1));
+    assert_eq!(find(&m, &r, "SM", "SpeedSetpoint02"), (Table::HoldingRegister, 1, 1));
+    assert_eq!(find(&m, &r, "SM", "StepCounter02"), (Table::InputRegister, 1, 1));
+    assert_eq!(find(&m, &r, "SM2", "StepCounter01"), (Table::InputRegister, 2, 1));
+    assert_eq!(r.sizes(), [4, 0, 4, 4], "coils, discrete inputs, input registers, holding registers");
+}
+
+#[test]
 fn the_trijoint_station_map() {
     let m = default_map();
     let r = RegisterMap::of(&m);

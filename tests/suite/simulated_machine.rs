@@ -49,7 +49,7 @@ fn module_errors() {
     assert_eq!(
         map_error(r#"{"modules": [{"name": "A", "type": "X20AI4622", "slot": 1}], "bindings": []}"#),
         "map.json: at modules[0].type: unknown module type \"X20AI4622\"; known types: X20DI9371, X20DO9322, \
-         X20DC1196, X20MM2436, Joystick"
+         X20DC1196, X20MM2436, X20SM2436, Joystick"
     );
     assert_eq!(
         map_error(
