@@ -310,3 +310,73 @@ fn hexapod_fk_converges_from_home_in_few_iterations() {
         "more than 6 Newton steps needed: {histogram:?}"
     );
 }
+
+/// The machine frames of machines.md: pn101 and the O-X glide at home with every joint at its
+/// reference (FK(0, …)), the hexapod at its home pose.
+fn frame(machine: Machine) -> pkm_kinematics::frame::MachineFrame {
+    use pkm_kinematics::frame::{Home, MachineFrame};
+    let config = KinematicsConfig::default();
+    let home = config.hexapod.home;
+    let at = match machine {
+        Machine::Hexapod => Home::Pose(&home),
+        _ => Home::Joints(&[0.0; 6]),
+    };
+    MachineFrame::new(config.build(machine), at).expect("home is a pose of the machine")
+}
+
+const FRAMED: [Machine; 4] = [Machine::Pn101, Machine::OxX, Machine::OxO, Machine::Hexapod];
+
+#[test]
+fn home_is_the_origin_of_the_machine_frame() {
+    for machine in FRAMED {
+        let f = frame(machine);
+        let n = f.dof();
+        let mut pose = [1.0; 6];
+        f.forward(f.home_joints(), None, &mut pose[..n]).expect("FK at home");
+        assert!(pose[..n].iter().all(|c| c.abs() < 1e-9), "{machine:?}: {pose:?}");
+        let mut q = [1.0; 6];
+        f.inverse(&[0.0; 6][..n], &mut q[..n]).expect("IK at the origin");
+        for (a, b) in q[..n].iter().zip(f.home_joints()) {
+            assert!((a - b).abs() < 1e-9, "{machine:?}: {q:?} against {:?}", f.home_joints());
+        }
+        assert!(f.singularity_measure(&[0.0; 6][..n]).expect("measure") > 0.0);
+    }
+    // pn101 and the O-X glide reference every joint at 0; the hexapod's home struts lie inside
+    // their travel.
+    assert_eq!(frame(Machine::Pn101).home_joints(), [0.0; 3]);
+    let hexapod = frame(Machine::Hexapod);
+    let limits = hexapod.kinematics().joint_limits();
+    assert!(
+        hexapod
+            .home_joints()
+            .iter()
+            .zip(limits)
+            .all(|(l, [lo, hi])| (lo..=hi).contains(&l))
+    );
+}
+
+proptest! {
+    /// In the machine frame, FK then IK gives the joints back to 1e-9 mm wherever FK succeeds,
+    /// and the frame is the mechanism frame shifted by the home position.
+    #[test]
+    fn the_machine_frame_round_trips(u in unit6(), which in 0usize..4) {
+        let machine = FRAMED[which];
+        let f = frame(machine);
+        let n = f.dof();
+        let q = joints_at(f.kinematics(), &u);
+        let mut pose = [0.0; 6];
+        if f.forward(&q[..n], None, &mut pose[..n]).is_ok() {
+            let mut back = [0.0; 6];
+            f.inverse(&pose[..n], &mut back[..n]).map_err(|e| TestCaseError::fail(e.to_string()))?;
+            for i in 0..n {
+                prop_assert!((back[i] - q[i]).abs() < 1e-9, "{machine:?} joint {i}: {} vs {}", back[i], q[i]);
+            }
+            let mut mechanism = [0.0; 6];
+            f.kinematics().forward(&q[..n], None, &mut mechanism[..n]).map_err(|e| TestCaseError::fail(e.to_string()))?;
+            for (i, key) in f.kinematics().pose_keys().iter().enumerate() {
+                let shift = if matches!(*key, "x" | "y" | "z") { f.home_pose()[i] } else { 0.0 };
+                prop_assert!((pose[i] + shift - mechanism[i]).abs() < 1e-9);
+            }
+        }
+    }
+}

@@ -37,7 +37,11 @@ fn a_stepper_module_has_its_enables_as_coils_its_set_points_as_holding_and_its_c
     assert_eq!(find(&m, &r, "SM", "SpeedSetpoint02"), (Table::HoldingRegister, 1, 1));
     assert_eq!(find(&m, &r, "SM", "StepCounter02"), (Table::InputRegister, 1, 1));
     assert_eq!(find(&m, &r, "SM2", "StepCounter01"), (Table::InputRegister, 2, 1));
-    assert_eq!(r.sizes(), [4, 0, 4, 4], "coils, discrete inputs, input registers, holding registers");
+    assert_eq!(
+        r.sizes(),
+        [4, 0, 4, 4],
+        "coils, discrete inputs, input registers, holding registers"
+    );
 }
 
 #[test]

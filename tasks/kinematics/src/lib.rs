@@ -5,6 +5,7 @@
 //! per call, and every failure is an error value that says which condition failed — never NaN,
 //! never a panic.
 
+pub mod frame;
 pub mod hexapod;
 pub mod linalg;
 pub mod ox;
