@@ -153,14 +153,16 @@ impl Setup {
 
     /// The simulated machine behind the I/O map, with `scenario` if given.
     pub fn sim_bus(&self, scenario: Option<&Path>) -> Result<SimBus, ConfigError> {
-        self.sim_bus_over(self.io_map()?, scenario)
+        Ok(self.sim_bus_over(self.io_map()?, scenario)?)
     }
 
     /// The simulated machine behind `map`, the configuration's I/O map as loaded.
-    fn sim_bus_over(&self, map: Option<IoMap>, scenario: Option<&Path>) -> Result<SimBus, ConfigError> {
-        let invalid = |at: &str, message: &str| ConfigError::Invalid {
-            file: self.loaded.origin.clone(),
-            problems: vec![Problem::new(at, message)],
+    fn sim_bus_over(&self, map: Option<IoMap>, scenario: Option<&Path>) -> Result<SimBus, crate::sim::BuildError> {
+        let invalid = |at: &str, message: &str| {
+            crate::sim::BuildError::Other(ConfigError::Invalid {
+                file: self.loaded.origin.clone(),
+                problems: vec![Problem::new(at, message)],
+            })
         };
         let Some(map) = map else {
             return Err(invalid("io_map", "the simulated bus needs an I/O map"));
@@ -288,8 +290,8 @@ impl From<ConfigError> for BuildError {
 enum BusFailure {
     /// A problem of the configuration or its I/O map: reported with the rest of the checks.
     Config(ConfigError),
-    /// The machine's own sections (`plant`, `kinematics`) have problems, so it cannot build its
-    /// plant: the configuration's check reports them, once.
+    /// The machine could not build its plant from its own sections (`plant`, `kinematics`): the
+    /// configuration's check of those sections reports the same problems, once.
     Sections,
     /// Anything else (a usage error): reported alone.
     Other(BuildError),
@@ -339,8 +341,11 @@ fn make_bus(setup: &Setup, options: &Options) -> Result<(Box<dyn Bus>, Option<Io
             );
             Box::new(bus)
         }
-        (BusChoice::Sim, Some(_)) if !setup.section_problems().is_empty() => return Err(BusFailure::Sections),
-        (BusChoice::Sim, Some(_)) => Box::new(setup.sim_bus_over(map.clone(), scenario)?),
+        (BusChoice::Sim, Some(_)) => match setup.sim_bus_over(map.clone(), scenario) {
+            Ok(bus) => Box::new(bus),
+            Err(crate::sim::BuildError::Plant(_)) => return Err(BusFailure::Sections),
+            Err(crate::sim::BuildError::Other(e)) => return Err(BusFailure::Config(e)),
+        },
         (BusChoice::None | BusChoice::Sim, None) => Box::new(NoBus),
     };
     Ok((bus, map))

@@ -148,10 +148,6 @@ fn start_with(scenario: &std::path::Path) -> (IoSim, SocketAddr) {
     common::start_io_sim("127.0.0.1:0", &["--scenario", scenario.to_str().expect("utf-8")])
 }
 
-fn summary(path: &std::path::Path) -> serde_json::Value {
-    serde_json::from_str(&std::fs::read_to_string(path).expect("summary")).expect("json")
-}
-
 /// Real time, with the fast-referencing test configuration: READY after about 16 s (15.65 s and
 /// the link's latency), a jog by the station's direction button at 20 s; the test takes 24 s.
 #[test]
@@ -180,7 +176,7 @@ fn the_soft_plc_references_and_jogs_over_modbus_tcp() {
         .output()
         .expect("run");
     assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
-    let s = summary(&s);
+    let s = common::read_json(&s);
     assert_eq!(s["bus"], format!("tcp:{address}"));
     assert_eq!(s["main"]["state"], "READY", "{s}");
     // The direction button (on the station's digital inputs) moved the machine.
@@ -213,7 +209,7 @@ fn a_lost_link_is_a_bus_fault_without_hang() {
     drop(sim); // the station disappears
     let o = run.wait_with_output().expect("the run ends by itself");
     assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
-    let s = summary(&s);
+    let s = common::read_json(&s);
     assert_eq!(s["main"]["state"], "ERROR", "{s}");
     assert_eq!(s["main"]["error_reason"], "bus fault");
     assert!(

@@ -98,7 +98,7 @@ fn run_against(port: u16, seconds: &str) -> (serde_json::Value, String) {
         .output()
         .expect("run");
     assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
-    let s = serde_json::from_str(&std::fs::read_to_string(&summary).expect("summary")).expect("json");
+    let s = common::read_json(&summary);
     (s, stderr(&o))
 }
 

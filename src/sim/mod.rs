@@ -58,6 +58,30 @@ impl ResolvedWiring {
     }
 }
 
+/// Why the simulated machine could not be built.
+#[derive(Debug)]
+pub enum BuildError {
+    /// The machine could not build its plant from its sections: the problems its own check of
+    /// those sections reports (so a full configuration check need not report them again).
+    Plant(ConfigError),
+    /// The wiring to the I/O map or the scenario file.
+    Other(ConfigError),
+}
+
+impl From<BuildError> for ConfigError {
+    fn from(e: BuildError) -> Self {
+        match e {
+            BuildError::Plant(e) | BuildError::Other(e) => e,
+        }
+    }
+}
+
+impl From<ConfigError> for BuildError {
+    fn from(e: ConfigError) -> Self {
+        BuildError::Other(e)
+    }
+}
+
 /// Builds the simulated machine of `machine` for a loaded configuration over its I/O map `map`:
 /// the machine builds its plant from its sections, the runtime wires it to the map's channels and
 /// loads the scenario file if one is given.
@@ -66,7 +90,7 @@ pub fn build(
     machine: &dyn Machine,
     map: IoMap,
     scenario: Option<&std::path::Path>,
-) -> Result<bus::SimBus, ConfigError> {
+) -> Result<bus::SimBus, BuildError> {
     let config = &loaded.config;
     let invalid = |problems: Vec<Problem>| ConfigError::Invalid {
         file: loaded.origin.clone(),
@@ -76,7 +100,7 @@ pub fn build(
         kinematics: config.kinematics.as_ref(),
         plant: config.plant.as_ref(),
     };
-    let setup = machine.plant(&sections).map_err(invalid)?;
+    let setup = machine.plant(&sections).map_err(|p| BuildError::Plant(invalid(p)))?;
     let wiring = ResolvedWiring::resolve(setup.plant.as_ref(), &setup.wiring, &map).map_err(invalid)?;
     let scenario = match scenario {
         None => scenario::Scenario::default(),

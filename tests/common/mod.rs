@@ -18,10 +18,15 @@ pub fn root() -> &'static Path {
     Path::new(env!("CARGO_MANIFEST_DIR"))
 }
 
+/// A JSON file (a run's summary, a repository file) as JSON.
+pub fn read_json(path: &Path) -> serde_json::Value {
+    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    serde_json::from_str(&text).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+}
+
 /// The repository's config.json as JSON, to be modified by a test.
 pub fn repo_config() -> serde_json::Value {
-    let text = std::fs::read_to_string(root().join("config.json")).expect("config.json");
-    serde_json::from_str(&text).expect("config.json is JSON")
+    read_json(&root().join("config.json"))
 }
 
 /// A configuration from JSON, named `test-config.json`, with paths relative to the repository.

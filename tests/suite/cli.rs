@@ -44,9 +44,7 @@ fn check_reports_the_problems_of_the_configuration_and_its_io_map_together() {
     config["io_map"] = "map.json".into();
     let config_path = dir.path().join("config.json");
     std::fs::write(&config_path, config.to_string()).expect("write");
-    let mut map: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(common::root().join("io-map/trijoint.json")).expect("map"))
-            .expect("json");
+    let mut map = common::read_json(&common::root().join("io-map/trijoint.json"));
     map["bindings"][0]["module"] = "NOPE".into();
     std::fs::write(dir.path().join("map.json"), map.to_string()).expect("write");
     let o = pkm(&["check", "--config", config_path.to_str().expect("utf-8")]);
@@ -116,7 +114,7 @@ fn a_virtual_run_writes_its_summary() {
         path.to_str().expect("utf-8 path"),
     ]);
     assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
-    let s: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&path).expect("summary")).expect("json");
+    let s = common::read_json(&path);
     assert_eq!(s["mode"], "virtual");
     assert_eq!(s["duration_s"], 60.0);
     let cycles: Vec<u64> = s["task_classes"]
@@ -179,7 +177,7 @@ fn bus_none_is_a_dry_run_of_the_programs_with_one_warning() {
         warnings[0].ends_with("JOYSTICK_CONNECTED) hold zero / false, the outputs go nowhere"),
         "{warnings:?}"
     );
-    let s: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&path).expect("summary")).expect("json");
+    let s = common::read_json(&path);
     assert_eq!(s["bus"], "none");
     assert_eq!(s["task_classes"][0]["cycles"], 200);
     // No machine behind it: the referencing finds no switch, as on a machine with no power.
@@ -200,7 +198,7 @@ fn a_real_time_run_ends_after_its_duration_with_a_summary() {
         path.to_str().expect("utf-8 path"),
     ]);
     assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
-    let s: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&path).expect("summary")).expect("json");
+    let s = common::read_json(&path);
     assert_eq!(s["mode"], "real-time");
     assert_eq!(s["time_source"], "timerfd");
     let fast = &s["task_classes"][0];
@@ -239,7 +237,7 @@ fn sigterm_stops_a_real_time_run_cleanly() {
     let status = child.wait().expect("wait");
     assert_eq!(status.code(), Some(0), "{seen}{rest}");
     assert!(rest.contains("SIGTERM: stopping"), "{rest}");
-    let s: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&path).expect("summary")).expect("json");
+    let s = common::read_json(&path);
     assert!(s["task_classes"][0]["cycles"].as_u64().unwrap_or(0) > 0);
 }
 

@@ -408,9 +408,7 @@ use crate::common;
 /// I/O map changed by `change_map`; the problems as displayed (empty when it is valid).
 fn problems_of(change: impl Fn(&mut serde_json::Value), change_map: impl Fn(&mut serde_json::Value)) -> String {
     let dir = tempfile::tempdir().expect("tempdir");
-    let mut map: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(common::root().join("io-map/trijoint.json")).expect("map"))
-            .expect("JSON");
+    let mut map = common::read_json(&common::root().join("io-map/trijoint.json"));
     change_map(&mut map);
     let map_path = dir.path().join("map.json");
     std::fs::write(&map_path, map.to_string()).expect("write the map");

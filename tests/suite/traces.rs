@@ -120,10 +120,7 @@ fn malformed_traces_are_clear_errors_with_line_numbers() {
 fn a_trace_from_another_configuration_is_refused_unless_forced() {
     let dir = tempfile::tempdir().expect("tempdir");
     let trace = record(dir.path(), "t.jsonl", 1, "[]");
-    let mut config: serde_json::Value = serde_json::from_str(
-        &std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("config.json")).expect("config"),
-    )
-    .expect("json");
+    let mut config = common::repo_config();
     config["io_map"] = serde_json::json!(concat!(env!("CARGO_MANIFEST_DIR"), "/io-map/trijoint.json"));
     config["task_classes"][2]["tolerance_us"] = serde_json::json!(90000);
     let other = dir.path().join("other.json");
@@ -290,7 +287,6 @@ fn a_trace_write_error_is_reported_with_exit_code_1_after_the_summary() {
         stderr(&o)
     );
     // The run went on to its end, and its summary was written.
-    let s: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&summary).expect("the summary")).expect("json");
+    let s = common::read_json(&summary);
     assert_eq!(s["task_classes"][0]["cycles"], 200, "{s}");
 }
