@@ -145,6 +145,17 @@ impl SimBus {
         }
     }
 
+    /// Copies the output variables of task class `class` (every class: `None`) from `image` into
+    /// their channels and applies the output channels to the plant.
+    fn outputs_to_plant(&mut self, class: Option<usize>, image: &[Value]) {
+        for (b, &var) in self.map.bindings.iter().zip(&self.vars) {
+            if b.direction == Direction::Output && class.is_none_or(|c| c == b.class) {
+                self.channels[b.module][b.channel] = image[usize::from(var)];
+            }
+        }
+        self.channels_to_plant();
+    }
+
     /// Applies the output channels to the plant.
     fn channels_to_plant(&mut self) {
         for (&signal, &(m, c)) in self.outputs.signals.iter().zip(&self.outputs.channels) {
@@ -166,8 +177,7 @@ impl Bus for SimBus {
     }
 
     fn read_inputs(&mut self, class: usize, t_ns: u64, image: &mut [Value]) {
-        self.advance_to(t_ns);
-        self.plant_to_channels();
+        self.refresh(t_ns);
         for (b, &var) in self.map.bindings.iter().zip(&self.vars) {
             if b.class == class && b.direction == Direction::Input {
                 image[usize::from(var)] = self.channels[b.module][b.channel];
@@ -176,21 +186,11 @@ impl Bus for SimBus {
     }
 
     fn write_outputs(&mut self, class: usize, _t_ns: u64, image: &[Value]) {
-        for (b, &var) in self.map.bindings.iter().zip(&self.vars) {
-            if b.class == class && b.direction == Direction::Output {
-                self.channels[b.module][b.channel] = image[usize::from(var)];
-            }
-        }
-        self.channels_to_plant();
+        self.outputs_to_plant(Some(class), image);
     }
 
     fn write_safe(&mut self, image: &[Value]) {
-        for (b, &var) in self.map.bindings.iter().zip(&self.vars) {
-            if b.direction == Direction::Output {
-                self.channels[b.module][b.channel] = image[usize::from(var)];
-            }
-        }
-        self.channels_to_plant();
+        self.outputs_to_plant(None, image);
     }
 
     fn as_any(&self) -> &dyn std::any::Any {
