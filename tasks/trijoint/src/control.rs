@@ -94,7 +94,6 @@ struct Drive {
 /// The controller program.
 pub struct Control {
     p: ControlParams,
-    gains: PiGains,
     state: Input<i16>,
     enable: Input<bool>,
     bus_fault: Input<bool>,
@@ -154,7 +153,6 @@ impl Control {
         };
         let drives = [drive(0, decl), drive(1, decl)];
         Box::new(Control {
-            gains: p.gains(),
             p,
             state: decl.read(vars::MAIN_STATE),
             enable: decl.read(vars::DRIVES_ENABLE),
@@ -203,12 +201,13 @@ impl Program for Control {
         let interlock = interlock || following.iter().any(|f| *f);
         ctx.set(self.interlock, interlock);
         let dt = ctx.period_ns() as f64 * 1e-9;
+        let gains = self.p.gains();
         for (i, (d, pi)) in self.drives.iter().zip(self.pi.iter_mut()).enumerate() {
             let duty = if interlock {
                 pi.reset();
                 0.0
             } else {
-                pi.step(&self.gains, errors[i], ctx.get(d.setpoint_velocity), dt)
+                pi.step(&gains, errors[i], ctx.get(d.setpoint_velocity), dt)
             };
             ctx.set(d.pwm, (duty * 32767.0).round() as i16);
             ctx.set(d.following_error, following[i]);
