@@ -171,7 +171,7 @@ impl Program for Control {
     fn cycle(&mut self, ctx: &mut Cycle<'_>) {
         let state = MainState::from_code(ctx.get(self.state));
         let in_init = state == Some(MainState::Init);
-        let driving_state = matches!(state, Some(MainState::Init | MainState::Ready | MainState::Motion));
+        let driving_state = state.is_some_and(MainState::operating);
         let enabled = driving_state && ctx.get(self.enable);
         let switch = self.drives.iter().any(|d| d.switches.iter().any(|s| ctx.get(*s)));
         let faults = ctx.get(self.bus_fault) || self.drives.iter().any(|d| ctx.get(d.bridge_error) || ctx.get(d.fault));

@@ -27,6 +27,7 @@ use pkm_kinematics::trijoint::{Trijoint, TrijointParams};
 use pkm_kinematics::{Kinematics, KinematicsConfig};
 
 use crate::state::MainState;
+use pkm_drives::automaton::StopButton;
 use crate::vars;
 use statig::prelude::*;
 
@@ -63,9 +64,7 @@ pub struct MainProgram {
     machine: StateMachine<Automaton>,
     io: Io,
     vars: Vars,
-    stop_was_pressed: bool,
-    stop_accepted_at: Option<f64>,
-    lockout_s: f64,
+    stop: StopButton,
     display: Trijoint,
     /// M and the carriage positions, for the status line.
     shown: [(&'static str, f64); 6],
@@ -140,9 +139,7 @@ impl MainProgram {
             machine: Automaton::new(p, geometry).state_machine(),
             io: Io::default(),
             vars,
-            stop_was_pressed: false,
-            stop_accepted_at: None,
-            lockout_s,
+            stop: StopButton::new(lockout_s),
             display,
             shown: [
                 ("Mx", f64::NAN),
@@ -180,14 +177,10 @@ impl MainProgram {
         let now = self.io.now_s;
         // The joystick's STOP acts in addition to the panel's, never instead of it.
         let pressed = ctx.get(v.stop) || ctx.get(v.joystick_stop);
-        let press = pressed && !self.stop_was_pressed;
-        self.stop_was_pressed = pressed;
-        let enabled = self.stop_accepted_at.is_none_or(|t| now - t >= self.lockout_s);
-        if press && enabled && state != MainState::Reboot {
-            self.stop_accepted_at = Some(now);
+        if self.stop.press(pressed, now, state == MainState::Reboot) {
             return Event::Stop;
         }
-        if !matches!(state, MainState::Init | MainState::Ready | MainState::Motion) {
+        if !state.operating() {
             return Event::Tick;
         }
         if ctx.violation().is_some() {
