@@ -14,6 +14,7 @@ use serde::Deserialize;
 
 use crate::harness::{SIGNALS, WIRES, Wire};
 
+use pkm_drives::sim::dc::DcAxis;
 use pkm_kinematics::Kinematics;
 use pkm_kinematics::trijoint::{Trijoint, TrijointParams};
 
@@ -120,8 +121,7 @@ pub enum SwitchEnd {
 #[derive(Clone, Debug)]
 struct Drive {
     p: DriveParams,
-    position_mm: f64,
-    velocity_mm_s: f64,
+    axis: DcAxis,
     pwm: i16,
     /// Added to the counter (counter reset, glitches).
     counter_offset: i64,
@@ -142,8 +142,6 @@ pub struct Plant {
     joystick_connected: bool,
     mechanism: Option<Trijoint>,
     jams: u64,
-    /// The step the lag factors were computed for, and the factors (1 − e^(−dt/τ)) per drive.
-    lag: (f64, [f64; 2]),
 }
 
 /// Drive index: 0 = left (h1, guide 1), 1 = right (h2, guide 2).
@@ -155,8 +153,7 @@ impl Plant {
     pub fn new(left: &DriveParams, right: &DriveParams, mechanism: Option<&TrijointParams>) -> Self {
         let drive = |p: &DriveParams| Drive {
             p: p.clone(),
-            position_mm: p.start_mm,
-            velocity_mm_s: 0.0,
+            axis: DcAxis::new(p.v_max_mm_s, p.tau_s, [p.hard_stop_min_mm, p.hard_stop_max_mm], p.start_mm),
             pwm: 0,
             counter_offset: 0,
             counter_reset: false,
@@ -181,17 +178,12 @@ impl Plant {
             joystick_connected: true,
             mechanism,
             jams: 0,
-            lag: (f64::NAN, [0.0; 2]),
         }
     }
 
     /// Advances the plant by `dt_s` seconds.
     pub fn step(&mut self, dt_s: f64) {
         let enabled_period = self.period_us > 0;
-        if self.lag.0 != dt_s {
-            // Exact discretisation of the first-order lag over a step of dt.
-            self.lag = (dt_s, self.drives.each_ref().map(|d| 1.0 - (-dt_s / d.p.tau_s).exp()));
-        }
         let mut next = [0.0; 2];
         for (i, d) in self.drives.iter_mut().enumerate() {
             let duty = if enabled_period && !d.bridge_error && !d.dead {
@@ -199,31 +191,23 @@ impl Plant {
             } else {
                 0.0
             };
-            d.velocity_mm_s += (duty.clamp(-1.0, 1.0) * d.p.v_max_mm_s - d.velocity_mm_s) * self.lag.1[i];
-            next[i] = d.position_mm + d.velocity_mm_s * dt_s;
-            if next[i] <= d.p.hard_stop_min_mm {
-                next[i] = d.p.hard_stop_min_mm;
-                d.velocity_mm_s = d.velocity_mm_s.max(0.0);
-            } else if next[i] >= d.p.hard_stop_max_mm {
-                next[i] = d.p.hard_stop_max_mm;
-                d.velocity_mm_s = d.velocity_mm_s.min(0.0);
-            }
+            next[i] = d.axis.advance(duty, dt_s);
         }
         // Standing still cannot jam: skip the linkage check then (most of a run).
-        let moved = self.drives.iter().zip(next).any(|(d, n)| d.position_mm != n);
+        let moved = self.drives.iter().zip(next).any(|(d, n)| d.axis.position_mm() != n);
         if let Some(m) = self.mechanism.as_ref().filter(|_| moved) {
             let mut pose = [0.0; 2];
             if m.forward(&next, None, &mut pose).is_err() {
                 // The linkage cannot assemble there: the machine jams and stands still.
                 self.jams += 1;
                 for d in &mut self.drives {
-                    d.velocity_mm_s = 0.0;
+                    d.axis.halt();
                 }
                 return;
             }
         }
         for (d, n) in self.drives.iter_mut().zip(next) {
-            d.position_mm = n;
+            d.axis.commit(n);
         }
     }
 
@@ -250,7 +234,7 @@ impl Plant {
     pub fn set_counter_reset(&mut self, drive: DriveId, on: bool) {
         let d = &mut self.drives[drive];
         if on && !d.counter_reset {
-            d.counter_offset = -(d.position_mm * d.p.counts_per_mm).round() as i64;
+            d.counter_offset = -(d.axis.position_mm() * d.p.counts_per_mm).round() as i64;
         }
         d.counter_reset = on;
     }
@@ -258,7 +242,7 @@ impl Plant {
     /// The encoder counter: 16-bit signed, wrapping.
     pub fn counter(&self, drive: DriveId) -> i16 {
         let d = &self.drives[drive];
-        let counts = (d.position_mm * d.p.counts_per_mm).round() as i64 + d.counter_offset;
+        let counts = (d.axis.position_mm() * d.p.counts_per_mm).round() as i64 + d.counter_offset;
         // Two's-complement truncation to 16 bits is exactly the hardware's wrap.
         counts as i16
     }
@@ -268,8 +252,8 @@ impl Plant {
         let d = &self.drives[drive];
         let index = end as usize;
         d.stuck[index].unwrap_or(match end {
-            SwitchEnd::Lower => d.position_mm <= d.p.lower_switch_mm,
-            SwitchEnd::Upper => d.position_mm >= d.p.upper_switch_mm,
+            SwitchEnd::Lower => d.axis.position_mm() <= d.p.lower_switch_mm,
+            SwitchEnd::Upper => d.axis.position_mm() >= d.p.upper_switch_mm,
         })
     }
 
@@ -333,12 +317,12 @@ impl Plant {
 
     /// The carriage's true position (mm): for tests and the status line, not for the PLC.
     pub fn position_mm(&self, drive: DriveId) -> f64 {
-        self.drives[drive].position_mm
+        self.drives[drive].axis.position_mm()
     }
 
     /// The carriage's true velocity (mm/s).
     pub fn velocity_mm_s(&self, drive: DriveId) -> f64 {
-        self.drives[drive].velocity_mm_s
+        self.drives[drive].axis.velocity_mm_s()
     }
 
     /// How many steps the linkage jammed.

@@ -1,3 +1,4 @@
 //! Simulated drives, the parts the machines' simulated plants are built from.
 
+pub mod dc;
 pub mod stepper;
