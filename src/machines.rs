@@ -5,7 +5,13 @@
 use pkm_api::machine::Machine;
 
 /// Every machine this build links, by the name config.json gives (`"machine": NAME`).
-pub static BUILTIN: &[&dyn Machine] = &[&pkm_trijoint::MACHINE];
+pub static BUILTIN: &[&dyn Machine] = &[
+    &pkm_trijoint::MACHINE,
+    &pkm_joints::MACHINES[0],
+    &pkm_joints::MACHINES[1],
+    &pkm_joints::MACHINES[2],
+    &pkm_joints::MACHINES[3],
+];
 
 /// The machine named `name`, if this build has it.
 pub fn find(name: &str) -> Option<&'static dyn Machine> {

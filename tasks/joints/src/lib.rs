@@ -1,0 +1,238 @@
+//! The machine-agnostic application for joint-driven machines — pn101, the O-X glide in its X
+//! and O configurations, the hexapod (machines.md) — on the runtime's program interface: a drive
+//! program per machine (fast class: counters, regulation, the fast interlock) and a main program
+//! (the REBOOT/INIT/READY/MOTION/ERROR automaton, referencing, joint and world jog through the
+//! kinematics), the checks of their configuration sections, their I/O maps, configurations and
+//! simulated plants. What they share with the TRIJOINT (counter unwrap, PI, the interlock rule,
+//! the states and the STOP rule, the simulated drives) comes from pkm-drives.
+
+pub mod drives;
+pub mod main_program;
+pub mod params;
+pub mod plant;
+pub mod spec;
+pub mod switches;
+pub mod vars;
+
+use pkm_api::image::Declare;
+use pkm_api::machine::{EmbeddedFile, Machine, PlantSetup, Sections};
+use pkm_api::problem::{self, Problem};
+use pkm_api::program::{Program, ProgramArgs, ProgramInfo};
+use pkm_kinematics::KinematicsConfig;
+
+use plant::config::PlantConfig;
+use spec::{DriveKind, Spec, SwitchLayout};
+
+/// Declares a machine: its spec and its two programs' factories.
+macro_rules! machine {
+    ($spec:ident, $programs:ident, $drives:ident, $main:ident, $name:literal, $summary:literal, $model:expr, $drive:expr, $switches:expr) => {
+        fn $drives(args: &ProgramArgs<'_>, decl: &mut Declare<'_>) -> Box<dyn Program> {
+            drives::Drives::create(&$spec, args, decl)
+        }
+        fn $main(args: &ProgramArgs<'_>, decl: &mut Declare<'_>) -> Box<dyn Program> {
+            main_program::MainProgram::create(&$spec, args, decl)
+        }
+        static $programs: [ProgramInfo; 2] = [
+            ProgramInfo {
+                name: concat!($name, ".drives"),
+                summary: "10 ms: counters to joint positions, reference captures, regulation, following error, fast interlock",
+                factory: $drives,
+            },
+            ProgramInfo {
+                name: concat!($name, ".main"),
+                summary: "50 ms: REBOOT/INIT/READY/MOTION/ERROR, referencing, joint jog, world jog through the kinematics, tool pose",
+                factory: $main,
+            },
+        ];
+        /// The machine's spec.
+        pub static $spec: Spec = Spec {
+            name: $name,
+            summary: $summary,
+            model: $model,
+            drive: $drive,
+            switches: $switches,
+            io_map: EmbeddedFile {
+                name: concat!("../io-map/", $name, ".json"),
+                text: include_str!(concat!("../../../io-map/", $name, ".json")),
+            },
+            config: EmbeddedFile {
+                name: concat!("machines/", $name, ".json"),
+                text: include_str!(concat!("../../../machines/", $name, ".json")),
+            },
+            programs: &$programs,
+        };
+    };
+}
+
+machine!(
+    PN101,
+    PN101_PROGRAMS,
+    pn101_drives,
+    pn101_main,
+    "pn101",
+    "pn101: 3-DOF spatial parallel mechanism, three lead-screw carriages on open-loop steppers, shared limit and reference inputs",
+    pkm_kinematics::Machine::Pn101,
+    DriveKind::Stepper,
+    SwitchLayout::Shared
+);
+machine!(
+    OX_X,
+    OX_X_PROGRAMS,
+    ox_x_drives,
+    ox_x_main,
+    "ox-x",
+    "O-X glide, crossed X configuration: two sliders and a serial y axis on steppers, own switches per joint",
+    pkm_kinematics::Machine::OxX,
+    DriveKind::Stepper,
+    SwitchLayout::PerJoint
+);
+machine!(
+    OX_O,
+    OX_O_PROGRAMS,
+    ox_o_drives,
+    ox_o_main,
+    "ox-o",
+    "O-X glide, extended O configuration: two sliders and a serial y axis on steppers, own switches per joint",
+    pkm_kinematics::Machine::OxO,
+    DriveKind::Stepper,
+    SwitchLayout::PerJoint
+);
+machine!(
+    HEXAPOD,
+    HEXAPOD_PROGRAMS,
+    hexapod_drives,
+    hexapod_main,
+    "hexapod",
+    "Stewart-Gough hexapod: six struts on DC motors with encoders, own switches per strut",
+    pkm_kinematics::Machine::Hexapod,
+    DriveKind::Dc,
+    SwitchLayout::PerJoint
+);
+
+/// A joint-driven machine as the runtime sees it.
+#[derive(Debug)]
+pub struct JointMachine(pub &'static Spec);
+
+/// The machines, as the composition root lists them.
+pub static MACHINES: [JointMachine; 4] = [
+    JointMachine(&PN101),
+    JointMachine(&OX_X),
+    JointMachine(&OX_O),
+    JointMachine(&HEXAPOD),
+];
+
+impl JointMachine {
+    /// The machine's sections, parsed strictly and checked (defaults for a section or key left
+    /// out); every problem of both, with its full path, kinematics first.
+    fn sections(&self, s: &Sections<'_>) -> Result<(KinematicsConfig, PlantConfig), Vec<Problem>> {
+        let spec = self.0;
+        let kinematics = KinematicsConfig::from_section(s.kinematics);
+        let signals = plant::harness::signals(spec);
+        let keys: Vec<&str> = signals.iter().map(|(s, _, _)| s.key).collect();
+        let plant = plant_section(spec, s.plant).and_then(|plant| {
+            let problems = problem::under("plant", plant.check(spec.joints(), &keys, spec.drive == DriveKind::Stepper));
+            if problems.is_empty() { Ok(plant) } else { Err(problems) }
+        });
+        let (k, p) = match (kinematics, plant) {
+            (Ok(k), Ok(p)) => (k, p),
+            (k, p) => return Err([k.err(), p.err()].into_iter().flatten().flatten().collect()),
+        };
+        // The mechanism must assemble where the joints stand at power-on.
+        if p.mechanism {
+            let kin = k.build(spec.model);
+            let starts: Vec<f64> = p.joints.iter().map(|j| j.start_mm).collect();
+            let mut pose = [0.0; pkm_kinematics::MAX_DOF];
+            if let Err(e) = kin.forward(&starts, None, &mut pose[..starts.len()]) {
+                return Err(vec![Problem::new(
+                    "plant.joints",
+                    format!("the mechanism cannot assemble at the joints' start_mm {starts:?}: {e}"),
+                )]);
+            }
+        }
+        Ok((k, p))
+    }
+}
+
+/// The `plant` section laid over the machine's defaults and parsed strictly.
+fn plant_section(spec: &Spec, section: Option<&serde_json::Value>) -> Result<PlantConfig, Vec<Problem>> {
+    let defaults = spec.default_plant();
+    let Some(section) = section else {
+        return Ok(defaults);
+    };
+    let mut merged = serde_json::to_value(&defaults).map_err(|e| vec![Problem::new("plant", e.to_string())])?;
+    params::overlay(&mut merged, section);
+    pkm_api::strict_json::section(&merged, "plant").map_err(|p| vec![p])
+}
+
+impl Machine for JointMachine {
+    fn name(&self) -> &'static str {
+        self.0.name
+    }
+
+    fn summary(&self) -> &'static str {
+        self.0.summary
+    }
+
+    fn programs(&self) -> &'static [ProgramInfo] {
+        self.0.programs
+    }
+
+    fn check(&self, s: &Sections<'_>) -> Vec<Problem> {
+        self.sections(s).err().unwrap_or_default()
+    }
+
+    fn default_io_map(&self) -> EmbeddedFile {
+        self.0.io_map
+    }
+
+    fn plant(&self, s: &Sections<'_>) -> Result<PlantSetup, Vec<Problem>> {
+        let spec = self.0;
+        let (kinematics, config) = self.sections(s)?;
+        let signals = plant::harness::signals(spec);
+        let wiring = signals
+            .iter()
+            .map(|(s, _, default)| {
+                let channel = config.wiring.get(s.key).cloned().unwrap_or_else(|| default.clone());
+                (channel, format!("plant.wiring.{}", s.key))
+            })
+            .collect();
+        let mechanism = config.mechanism.then(|| {
+            // The mechanism is checked over the whole mechanical range, up to the hard stops.
+            let mut k = kinematics.clone();
+            widen_travel(&mut k, spec, &config);
+            k.build(spec.model)
+        });
+        let plant = plant::Plant::new(
+            &config,
+            signals.into_iter().map(|(s, w, _)| (s, w)).collect(),
+            mechanism,
+        );
+        Ok(PlantSetup {
+            plant: Box::new(plant),
+            step_ns: u64::from(config.step_us) * 1000,
+            wiring,
+        })
+    }
+}
+
+/// Sets the kinematics' joint travel to the plant's hard stops, so that the jam check refuses
+/// only what the linkage cannot assemble.
+fn widen_travel(k: &mut KinematicsConfig, spec: &Spec, config: &PlantConfig) {
+    let stops: Vec<[f64; 2]> = config.joints.iter().map(|j| j.hard_stops_mm).collect();
+    let copy3 = |t: &mut [[f64; 2]; 3]| {
+        for (t, s) in t.iter_mut().zip(&stops) {
+            *t = *s;
+        }
+    };
+    match spec.model {
+        pkm_kinematics::Machine::Pn101 => copy3(&mut k.pn101.travel),
+        pkm_kinematics::Machine::OxX => copy3(&mut k.ox_x.travel),
+        pkm_kinematics::Machine::OxO => copy3(&mut k.ox_o.travel),
+        pkm_kinematics::Machine::Hexapod => {
+            let lo = stops.iter().map(|s| s[0]).fold(f64::INFINITY, f64::min);
+            let hi = stops.iter().map(|s| s[1]).fold(f64::NEG_INFINITY, f64::max);
+            k.hexapod.strut_travel = [lo, hi];
+        }
+        pkm_kinematics::Machine::Trijoint => {}
+    }
+}

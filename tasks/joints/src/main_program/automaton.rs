@@ -1,0 +1,306 @@
+//! The REBOOT → INIT → READY ⇄ MOTION and ERROR automaton of a joint-driven machine as a statig
+//! state machine: its events, the inputs and outputs of a cycle (`Io`), its shared storage.
+//! INIT is joint mode (waiting while a limit input is active, the operator jogging single joints
+//! off it with the override held), then referencing group by group; READY and MOTION are world
+//! mode. Referencing and jogging have their own modules.
+
+use pkm_kinematics::MAX_DOF;
+use pkm_kinematics::frame::MachineFrame;
+use statig::prelude::*;
+
+use super::reason::Reason;
+use super::referencing::Search;
+use crate::params::MainParams;
+use pkm_drives::automaton::MainState;
+
+/// The events the automaton handles.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Event {
+    /// An accepted STOP press.
+    Stop,
+    /// A supervision fault.
+    Fault(Reason),
+    /// A cycle without either.
+    Tick,
+}
+
+/// Inputs and outputs of one main cycle, shared with the states.
+#[derive(Clone, Debug, Default)]
+pub struct Io {
+    pub(super) now_s: f64,
+    pub(super) dt_s: f64,
+    pub(super) positions: [f64; MAX_DOF],
+    pub(super) captures: [f64; MAX_DOF],
+    pub(super) capture_counts: [i32; MAX_DOF],
+    pub(super) reference_on: [bool; MAX_DOF],
+    /// Some limit input is active.
+    pub(super) limit_active: bool,
+    pub(super) stick: [f64; 2],
+    pub(super) stick_connected: bool,
+    pub(super) buttons: [bool; 4],
+    pub(super) override_held: bool,
+    /// The axis button was pressed this cycle (a rising edge).
+    pub(super) axes_pressed: bool,
+    // Outputs. A set-point is published with its velocity: the drive program moves it on at
+    // that velocity until the next main cycle.
+    pub(super) enable: bool,
+    pub(super) setpoints: [f64; MAX_DOF],
+    pub(super) velocities: [f64; MAX_DOF],
+    pub(super) offsets: [f64; MAX_DOF],
+    pub(super) acknowledge: bool,
+    pub(super) referenced: bool,
+    pub(super) limit_override: bool,
+}
+
+impl Io {
+    /// Stops every joint's set-point where it is.
+    pub(super) fn hold(&mut self) {
+        self.velocities = [0.0; MAX_DOF];
+    }
+
+    /// Changes joint `j`'s set-point velocity towards `v` by at most `accel`·dt.
+    pub(super) fn ramp_velocity(&mut self, j: usize, v: f64, accel: f64) {
+        let step = accel * self.dt_s;
+        self.velocities[j] = v.clamp(self.velocities[j] - step, self.velocities[j] + step);
+    }
+
+    /// Moves joint `j`'s set-point towards `target` at up to `speed`, accelerating and braking at
+    /// up to `accel`; true once it is there at rest.
+    pub(super) fn move_to(&mut self, j: usize, target: f64, speed: f64, accel: f64) -> bool {
+        let gap = target - self.setpoints[j];
+        let dt = self.dt_s;
+        // The fastest speed from which a step of dt and the braking still end at the target:
+        // v·dt + v²/(2a) ≤ d, so v ≤ a·(√(dt² + 2d/a) − dt).
+        let braking = accel * ((dt * dt + 2.0 * gap.abs() / accel).sqrt() - dt);
+        let wanted = gap.signum() * speed.min(braking).min(gap.abs() / dt);
+        let before = self.velocities[j];
+        self.ramp_velocity(j, wanted, accel);
+        gap.abs() < 1e-9 && before.abs() <= accel * dt
+    }
+}
+
+/// Where INIT stands.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Phase {
+    /// Joint mode: waiting for the limit inputs to clear (the operator jogs single joints).
+    Waiting,
+    /// Referencing the group of this index in the reference order.
+    Group(usize),
+}
+
+/// The automaton's shared storage.
+pub struct Automaton {
+    pub(super) p: MainParams,
+    pub(super) n: usize,
+    pub(super) frame: MachineFrame,
+    /// Joints at home (the reference positions), in joint coordinates.
+    pub(super) home: [f64; MAX_DOF],
+    /// Software limits per joint, [min, max] (mm).
+    pub(super) soft: [[f64; 2]; MAX_DOF],
+    /// Jog speed at full deflection per pose coordinate (mm/s or degrees/s).
+    pub(super) axis_speed: [f64; MAX_DOF],
+    /// The stick's pairs of pose coordinates, resolved to indices.
+    pub(super) pairs: Vec<[usize; 2]>,
+    pub(super) state: MainState,
+    /// When the current state was entered (s); REBOOT lasts one cycle.
+    pub(super) entered_s: f64,
+    pub(super) reason: Option<Reason>,
+    pub(super) phase: Phase,
+    pub(super) searches: [Search; MAX_DOF],
+    /// The tool pose set-point (machine frame) and its velocity, in world mode.
+    pub(super) pose: [f64; MAX_DOF],
+    pub(super) pose_velocity: [f64; MAX_DOF],
+    /// What the stick drives: a joint in joint mode, a pair of world axes in world mode.
+    pub(super) selection: usize,
+}
+
+#[state_machine(initial = "State::reboot()", context_identifier = "io")]
+impl Automaton {
+    #[state(entry_action = "enter_reboot")]
+    fn reboot(&mut self, io: &mut Io, event: &Event) -> Outcome<State> {
+        match event {
+            // The acknowledge pulse goes out for the one cycle REBOOT lasts; then reference.
+            Event::Tick if io.now_s > self.entered_s => Transition(State::init()),
+            _ => Handled,
+        }
+    }
+
+    #[action]
+    fn enter_reboot(&mut self, io: &mut Io) {
+        self.state = MainState::Reboot;
+        self.entered_s = io.now_s;
+        self.reason = None;
+        io.enable = false;
+        io.acknowledge = true;
+        io.referenced = false;
+        io.limit_override = false;
+        // Back to the counted frame: referencing finds the joints' zeros again.
+        for j in 0..self.n {
+            io.setpoints[j] += io.offsets[j];
+            io.positions[j] += io.offsets[j];
+        }
+        io.offsets = [0.0; MAX_DOF];
+        io.hold();
+    }
+
+    #[superstate]
+    fn operating(&mut self, event: &Event) -> Outcome<State> {
+        match event {
+            Event::Stop => Transition(State::error(Reason::Stop)),
+            Event::Fault(reason) => Transition(State::error(*reason)),
+            Event::Tick => Handled,
+        }
+    }
+
+    #[state(superstate = "operating", entry_action = "enter_init")]
+    fn init(&mut self, io: &mut Io, event: &Event) -> Outcome<State> {
+        if *event != Event::Tick {
+            return Super;
+        }
+        io.enable = true;
+        io.acknowledge = false;
+        match self.phase {
+            Phase::Waiting => {
+                if self.joint_jog(io) {
+                    self.start_group(io, 0);
+                }
+            }
+            Phase::Group(g) => {
+                io.limit_override = false;
+                match self.step_group(io, g) {
+                    Err(reason) => return Transition(State::error(reason)),
+                    Ok(false) => {}
+                    Ok(true) if g + 1 < self.p.reference_order.len() => self.start_group(io, g + 1),
+                    Ok(true) => {
+                        self.finish_referencing(io);
+                        return Transition(State::ready());
+                    }
+                }
+            }
+        }
+        Handled
+    }
+
+    #[action]
+    fn enter_init(&mut self, io: &mut Io) {
+        self.state = MainState::Init;
+        io.setpoints = io.positions;
+        io.hold();
+        self.phase = Phase::Waiting;
+        self.selection = 0;
+    }
+
+    #[state(superstate = "operating", entry_action = "enter_ready")]
+    fn ready(&mut self, io: &mut Io, event: &Event) -> Outcome<State> {
+        if *event != Event::Tick {
+            return Super;
+        }
+        io.hold();
+        if io.axes_pressed && !self.pairs.is_empty() {
+            self.selection = (self.selection + 1) % self.pairs.len();
+        }
+        if self.world_command(io) != [0.0; MAX_DOF] {
+            return Transition(State::motion());
+        }
+        Handled
+    }
+
+    #[action]
+    fn enter_ready(&mut self, io: &mut Io) {
+        self.state = MainState::Ready;
+        self.pose_velocity = [0.0; MAX_DOF];
+        io.hold();
+    }
+
+    #[state(superstate = "operating", entry_action = "enter_motion")]
+    fn motion(&mut self, io: &mut Io, event: &Event) -> Outcome<State> {
+        if *event != Event::Tick {
+            return Super;
+        }
+        let command = self.world_command(io);
+        if command == [0.0; MAX_DOF] && self.pose_velocity == [0.0; MAX_DOF] {
+            io.hold();
+            return Transition(State::ready());
+        }
+        self.jog(io, command);
+        Handled
+    }
+
+    #[action]
+    fn enter_motion(&mut self) {
+        self.state = MainState::Motion;
+    }
+
+    #[state(entry_action = "enter_error")]
+    fn error(reason: &mut Reason, io: &mut Io, event: &Event) -> Outcome<State> {
+        // The reason is kept in the state (and in shared storage for the status, on entry).
+        let _ = reason;
+        // Drives off; the set-points follow the joints, so that re-enabling is bumpless.
+        io.enable = false;
+        io.limit_override = false;
+        io.setpoints = io.positions;
+        io.hold();
+        match event {
+            Event::Stop => Transition(State::reboot()),
+            _ => Handled,
+        }
+    }
+
+    #[action]
+    fn enter_error(&mut self, reason: &mut Reason, io: &mut Io) {
+        self.state = MainState::Error;
+        self.reason = Some(*reason);
+        self.pose_velocity = [0.0; MAX_DOF];
+        io.enable = false;
+        io.limit_override = false;
+        io.setpoints = io.positions;
+        io.hold();
+    }
+}
+
+impl Automaton {
+    /// The automaton in REBOOT.
+    pub(super) fn new(p: MainParams, frame: MachineFrame, soft: [[f64; 2]; MAX_DOF], pairs: Vec<[usize; 2]>) -> Self {
+        let n = frame.dof();
+        let mut home = [0.0; MAX_DOF];
+        home[..n].copy_from_slice(frame.home_joints());
+        let mut axis_speed = [0.0; MAX_DOF];
+        for (s, key) in axis_speed.iter_mut().zip(frame.kinematics().pose_keys()) {
+            *s = if matches!(*key, "a" | "b" | "c") {
+                p.jog.angular_speed_deg_s
+            } else {
+                p.jog.linear_speed_mm_s
+            };
+        }
+        Automaton {
+            p,
+            n,
+            frame,
+            home,
+            soft,
+            axis_speed,
+            pairs,
+            state: MainState::Reboot,
+            entered_s: 0.0,
+            reason: None,
+            phase: Phase::Waiting,
+            searches: [Search::Done; MAX_DOF],
+            pose: [0.0; MAX_DOF],
+            pose_velocity: [0.0; MAX_DOF],
+            selection: 0,
+        }
+    }
+
+    /// The stick's deflection (x, y), dead zone applied; the panel's direction buttons when the
+    /// stick is at rest. A joystick that is not connected commands nothing.
+    pub(super) fn stick(&self, io: &Io) -> [f64; 2] {
+        let dz = self.p.jog.dead_zone;
+        let [jx, jy] = if io.stick_connected { io.stick } else { [0.0; 2] };
+        let [x, y] = [jx, jy].map(|v| if v.abs() > dz { v } else { 0.0 });
+        if x != 0.0 || y != 0.0 {
+            return [x, y];
+        }
+        let [left, right, up, down] = io.buttons.map(|b| f64::from(u8::from(b)));
+        [right - left, up - down]
+    }
+}

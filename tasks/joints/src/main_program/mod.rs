@@ -1,0 +1,443 @@
+//! The main program (50 ms class) of a joint-driven machine: the REBOOT/INIT/READY/MOTION/ERROR
+//! automaton with the STOP press-and-lockout rule and the limit-input rules of application.md,
+//! referencing, joint jog before it and world jog after it, and the tool pose (forward
+//! kinematics of the joint positions, machine frame) for traces and the status line.
+//!
+//! Every cycle dispatches one event: an accepted STOP press, else a supervision fault, else a
+//! tick. A limit input is a fault in every operating state but INIT's joint mode, where the
+//! operator jogs off it with the override held.
+
+mod automaton;
+mod jog;
+mod reason;
+mod referencing;
+
+pub use automaton::{Event, Io, Phase};
+pub use reason::Reason;
+
+use automaton::Automaton;
+use reason::ReasonTexts;
+use referencing::Search;
+
+use pkm_api::image::{Declare, Input, Output};
+use pkm_api::program::{AppStatus, Cycle, Program, ProgramArgs};
+use pkm_drives::automaton::{MainState, StopButton};
+use pkm_kinematics::frame::{Home, MachineFrame};
+use pkm_kinematics::{KinematicsConfig, MAX_DOF, Machine as Model};
+use statig::prelude::*;
+
+use crate::params::{self, MainParams};
+use crate::spec::Spec;
+use crate::switches::Switches;
+use crate::vars;
+
+/// The longest cycle the main program may run in (µs).
+pub const MAX_MAIN_CYCLE_US: u32 = 100_000;
+
+struct Vars {
+    stop: Input<bool>,
+    joystick_stop: Input<bool>,
+    bus_fault: Input<bool>,
+    limits: Vec<Input<bool>>,
+    buttons: [Input<bool>; 4],
+    axes: Input<bool>,
+    joystick_axes: Input<bool>,
+    override_button: Input<bool>,
+    stick: [Input<f64>; 2],
+    stick_connected: Input<bool>,
+    joints: Vec<JointVars>,
+    state: Output<i16>,
+    reason: Output<i16>,
+    enable: Output<bool>,
+    setpoint_time: Output<f64>,
+    acknowledge: Output<bool>,
+    referenced: Output<bool>,
+    limit_override: Output<bool>,
+    selection: Output<i16>,
+    tool: Vec<Output<f64>>,
+}
+
+/// One joint's variables.
+struct JointVars {
+    reference: Input<bool>,
+    position: Input<f64>,
+    capture: Input<f64>,
+    captures: Input<i32>,
+    encoder_fault: Input<bool>,
+    bridge_error: Option<Input<bool>>,
+    following_error: Input<bool>,
+    setpoint: Output<f64>,
+    velocity: Output<f64>,
+    offset: Output<f64>,
+}
+
+/// The main program.
+pub struct MainProgram {
+    machine: StateMachine<Automaton>,
+    io: Io,
+    vars: Vars,
+    n: usize,
+    stop: StopButton,
+    axes_was_pressed: bool,
+    texts: ReasonTexts,
+    /// The tool pose from the last cycle (machine frame), the Newton start of the next.
+    tool: [f64; MAX_DOF],
+    /// Tool pose and joints for the status line: at most 12 values.
+    shown: [(&'static str, f64); 12],
+    shown_len: usize,
+}
+
+/// The pose coordinates' names on the status line.
+const POSE_NAMES: [&str; 6] = ["x", "y", "z", "a", "b", "c"];
+/// The joints' names on the status line.
+const JOINT_NAMES: [&str; 6] = ["q1", "q2", "q3", "q4", "q5", "q6"];
+
+/// Checks the main parameters against the machine and its kinematics.
+fn check(spec: &Spec, p: &MainParams, keys: &[&str], travel: &[[f64; 2]], decl: &mut Declare<'_>) {
+    let n = spec.joints();
+    let positive = |decl: &mut Declare<'_>, at: &str, v: f64| {
+        if !(v.is_finite() && v > 0.0) {
+            decl.issue(at, format!("must be positive, got {v}"));
+        }
+    };
+    if p.joints.len() != n {
+        decl.issue("params.joints", format!("{} has {n} joints; got {}", spec.name, p.joints.len()));
+    }
+    for (i, j) in p.joints.iter().enumerate() {
+        let at = |k: &str| format!("params.joints[{i}].{k}");
+        positive(decl, &at("max_speed_mm_s"), j.max_speed_mm_s);
+        positive(decl, &at("max_accel_mm_s2"), j.max_accel_mm_s2);
+        positive(decl, &at("reference.search_speed_mm_s"), j.reference.search_speed_mm_s);
+        positive(decl, &at("reference.latch_speed_mm_s"), j.reference.latch_speed_mm_s);
+        positive(decl, &at("reference.back_off_mm"), j.reference.back_off_mm);
+        if j.reference.direction.abs() != 1.0 {
+            decl.issue(&at("reference.direction"), format!("must be 1 or -1, got {}", j.reference.direction));
+        }
+        if j.reference.latch_speed_mm_s > j.reference.search_speed_mm_s {
+            decl.issue(
+                &at("reference.latch_speed_mm_s"),
+                format!(
+                    "must not exceed search_speed_mm_s ({}), got {}",
+                    j.reference.search_speed_mm_s, j.reference.latch_speed_mm_s
+                ),
+            );
+        }
+        if let Some([lo, hi]) = travel.get(i)
+            && !(*lo..=*hi).contains(&j.reference.switch_mm)
+        {
+            decl.issue(
+                &at("reference.switch_mm"),
+                format!("must lie within the joint's travel {lo} … {hi} mm, got {}", j.reference.switch_mm),
+            );
+        }
+    }
+    let mut seen = vec![false; n];
+    for (g, group) in p.reference_order.iter().enumerate() {
+        for &joint in group {
+            if joint == 0 || joint > n {
+                decl.issue(&format!("params.reference_order[{g}]"), format!("joints are numbered 1 … {n}, got {joint}"));
+            } else if std::mem::replace(&mut seen[joint - 1], true) {
+                decl.issue(&format!("params.reference_order[{g}]"), format!("joint {joint} is referenced twice"));
+            }
+        }
+        if Switches::of(spec).shared() && group.len() > 1 {
+            decl.issue(
+                &format!("params.reference_order[{g}]"),
+                format!(
+                    "{}'s joints share one reference input: only one joint at a time can say it reached its switch, so each group holds one joint; got {group:?}",
+                    spec.name
+                ),
+            );
+        }
+    }
+    if let Some(missing) = seen.iter().position(|s| !s) {
+        decl.issue("params.reference_order", format!("joint {} is never referenced", missing + 1));
+    }
+    positive(decl, "params.search_timeout_s", p.search_timeout_s);
+    let shortest = travel.iter().map(|[lo, hi]| hi - lo).fold(f64::INFINITY, f64::min);
+    if !(p.soft_limit_margin_mm.is_finite() && p.soft_limit_margin_mm >= 0.0 && p.soft_limit_margin_mm < shortest / 4.0) {
+        decl.issue(
+            "params.soft_limit_margin_mm",
+            format!("must be at least 0 and below a quarter of the shortest travel ({} mm), got {}", shortest / 4.0, p.soft_limit_margin_mm),
+        );
+    }
+    if p.world_limits.len() != keys.len() {
+        decl.issue(
+            "params.world_limits",
+            format!("one [min, max] per pose coordinate ({}); got {}", keys.join(", "), p.world_limits.len()),
+        );
+    }
+    for (i, [lo, hi]) in p.world_limits.iter().enumerate() {
+        if !(lo.is_finite() && hi.is_finite() && lo < hi) {
+            decl.issue(&format!("params.world_limits[{i}]"), format!("must be [min, max] with min < max, got [{lo}, {hi}]"));
+        }
+    }
+    if !(p.singularity_threshold.is_finite() && (0.001..=0.99).contains(&p.singularity_threshold)) {
+        decl.issue(
+            "params.singularity_threshold",
+            format!("must be between 0.001 and 0.99 (a ratio of singular values; 0 would let the tool reach a singularity), got {}", p.singularity_threshold),
+        );
+    }
+    let jog = &p.jog;
+    positive(decl, "params.jog.linear_speed_mm_s", jog.linear_speed_mm_s);
+    positive(decl, "params.jog.accel_mm_s2", jog.accel_mm_s2);
+    positive(decl, "params.jog.joint_speed_mm_s", jog.joint_speed_mm_s);
+    if keys.iter().any(|k| matches!(*k, "a" | "b" | "c")) {
+        positive(decl, "params.jog.angular_speed_deg_s", jog.angular_speed_deg_s);
+    }
+    if !(jog.dead_zone.is_finite() && (0.0..=0.9).contains(&jog.dead_zone)) {
+        decl.issue("params.jog.dead_zone", format!("must be between 0 and 0.9 (a fraction of full deflection), got {}", jog.dead_zone));
+    }
+    if jog.axis_pairs.is_empty() {
+        decl.issue("params.jog.axis_pairs", "needs at least one pair of world axes for the stick");
+    }
+    for (i, pair) in jog.axis_pairs.iter().enumerate() {
+        for k in pair {
+            if !keys.contains(&k.as_str()) {
+                decl.issue(
+                    &format!("params.jog.axis_pairs[{i}]"),
+                    format!("\"{k}\" is not a world axis of {}; its axes are {}", spec.name, keys.join(", ")),
+                );
+            }
+        }
+        if pair[0] == pair[1] {
+            decl.issue(&format!("params.jog.axis_pairs[{i}]"), format!("names \"{}\" twice", pair[0]));
+        }
+    }
+}
+
+impl MainProgram {
+    /// Declares the program's variables for `spec`.
+    pub fn create(spec: &'static Spec, args: &ProgramArgs<'_>, decl: &mut Declare<'_>) -> Box<dyn Program> {
+        let p = params::parse(args, decl, spec.default_main());
+        let kinematics = args
+            .kinematics
+            .and_then(|k| serde_json::from_value::<KinematicsConfig>(k.clone()).ok())
+            .unwrap_or_default();
+        let kin = kinematics.build(spec.model);
+        let keys: &'static [&'static str] = kin.pose_keys();
+        let travel: Vec<[f64; 2]> = kin.joint_limits().to_vec();
+        check(spec, &p, keys, &travel, decl);
+        if args.cycle_us > MAX_MAIN_CYCLE_US {
+            decl.issue(
+                "program",
+                format!(
+                    "{} runs in a class of {} ms; at most {} ms: STOP, limit inputs and faults become ERROR in its cycle",
+                    spec.programs[1].name,
+                    args.cycle_us / 1000,
+                    MAX_MAIN_CYCLE_US / 1000
+                ),
+            );
+        }
+        let n = spec.joints();
+        let home = match spec.model {
+            Model::Hexapod => Home::Pose(&kinematics.hexapod.home),
+            _ => Home::Joints(&[0.0; MAX_DOF]),
+        };
+        let frame = MachineFrame::new(kin, home).unwrap_or_else(|e| {
+            decl.issue("program", format!("the machine's home is not a pose of its kinematics: {e}"));
+            default_frame(spec)
+        });
+        let margin = p.soft_limit_margin_mm;
+        let mut soft = [[0.0; 2]; MAX_DOF];
+        for (s, [lo, hi]) in soft.iter_mut().zip(&travel) {
+            *s = [lo + margin, hi - margin];
+        }
+        let pairs: Vec<[usize; 2]> = p
+            .jog
+            .axis_pairs
+            .iter()
+            .filter_map(|[a, b]| Some([keys.iter().position(|k| k == a)?, keys.iter().position(|k| k == b)?]))
+            .collect();
+        let switches = Switches::of(spec);
+        let texts = ReasonTexts::new(n, &switches);
+        let dc = spec.drive == crate::spec::DriveKind::Dc;
+        let joints = (0..n)
+            .map(|j| JointVars {
+                reference: decl.read(switches.reference(j)),
+                position: decl.read(vars::JOINT_POSITION[j]),
+                capture: decl.read(vars::CAPTURE[j]),
+                captures: decl.read(vars::CAPTURES[j]),
+                encoder_fault: decl.read(vars::ENCODER_FAULT[j]),
+                bridge_error: dc.then(|| decl.read(vars::BRIDGE_ERROR[j])),
+                following_error: decl.read(vars::FOLLOWING_ERROR[j]),
+                setpoint: decl.write(vars::SETPOINT[j], 0.0),
+                velocity: decl.write(vars::SETPOINT_VELOCITY[j], 0.0),
+                offset: decl.write(vars::OFFSET[j], 0.0),
+            })
+            .collect();
+        let vars = Vars {
+            stop: decl.read(vars::BUTTON_STOP),
+            joystick_stop: decl.read_optional(vars::JOYSTICK_STOP),
+            bus_fault: decl.read(vars::BUS_FAULT),
+            limits: switches.limits().iter().map(|l| decl.read(l.var)).collect(),
+            buttons: vars::BUTTONS.map(|b| decl.read(b)),
+            axes: decl.read(vars::BUTTON_AXES),
+            joystick_axes: decl.read_optional(vars::JOYSTICK_AXES),
+            override_button: decl.read(vars::BUTTON_OVERRIDE),
+            stick: vars::JOYSTICK.map(|v| decl.read(v)),
+            stick_connected: decl.read(vars::JOYSTICK_CONNECTED),
+            joints,
+            state: decl.write(vars::MAIN_STATE, MainState::Reboot.code()),
+            reason: decl.write(vars::ERROR_REASON, 0),
+            enable: decl.write(vars::DRIVES_ENABLE, false),
+            setpoint_time: decl.write(vars::SETPOINT_TIME_S, 0.0),
+            acknowledge: decl.write(vars::FAULT_ACK, false),
+            referenced: decl.write(vars::REFERENCED, false),
+            limit_override: decl.write(vars::LIMIT_OVERRIDE, false),
+            selection: decl.write(vars::JOG_SELECTION, 0),
+            tool: vars::TOOL[..keys.len()].iter().map(|v| decl.write(*v, 0.0)).collect(),
+        };
+        let stop = StopButton::new(p.stop_lockout_ms as f64 * 1e-3);
+        Box::new(MainProgram {
+            machine: Automaton::new(p, frame, soft, pairs).state_machine(),
+            io: Io::default(),
+            vars,
+            n,
+            stop,
+            axes_was_pressed: false,
+            texts,
+            tool: [0.0; MAX_DOF],
+            shown: [("", f64::NAN); 12],
+            shown_len: 0,
+        })
+    }
+}
+
+/// The machine frame of `spec` with the spec's default kinematics, whose home is a pose by
+/// construction (the kinematics tests check it).
+fn default_frame(spec: &Spec) -> MachineFrame {
+    let kinematics = KinematicsConfig::default();
+    let home = match spec.model {
+        Model::Hexapod => Home::Pose(&kinematics.hexapod.home),
+        _ => Home::Joints(&[0.0; MAX_DOF]),
+    };
+    MachineFrame::new(kinematics.build(spec.model), home)
+        .unwrap_or_else(|e| panic!("{}'s default home is not a pose of its default kinematics: {e}", spec.name))
+}
+
+impl MainProgram {
+    /// Reads the inputs into `io` and advances the set-points to where the drive program has
+    /// taken them since the last cycle.
+    fn read(&mut self, ctx: &Cycle<'_>) {
+        let (v, io) = (&self.vars, &mut self.io);
+        io.now_s = ctx.time_ns() as f64 * 1e-9;
+        io.dt_s = ctx.period_ns() as f64 * 1e-9;
+        for (j, jv) in v.joints.iter().enumerate() {
+            io.positions[j] = ctx.get(jv.position);
+            io.captures[j] = ctx.get(jv.capture);
+            io.capture_counts[j] = ctx.get(jv.captures);
+            io.reference_on[j] = ctx.get(jv.reference);
+            io.setpoints[j] += io.velocities[j] * io.dt_s;
+        }
+        io.limit_active = v.limits.iter().any(|l| ctx.get(*l));
+        io.stick = v.stick.map(|s| ctx.get(s));
+        io.stick_connected = ctx.get(v.stick_connected);
+        io.buttons = v.buttons.map(|b| ctx.get(b));
+        io.override_held = ctx.get(v.override_button);
+        let axes = ctx.get(v.axes) || ctx.get(v.joystick_axes);
+        io.axes_pressed = axes && !self.axes_was_pressed;
+        self.axes_was_pressed = axes;
+    }
+
+    /// The event of this cycle.
+    fn event(&mut self, ctx: &Cycle<'_>) -> Event {
+        let v = &self.vars;
+        let automaton = self.machine.inner();
+        let state = automaton.state;
+        // The joystick's STOP acts in addition to the panel's, never instead of it.
+        let pressed = ctx.get(v.stop) || ctx.get(v.joystick_stop);
+        if self.stop.press(pressed, self.io.now_s, state == MainState::Reboot) {
+            return Event::Stop;
+        }
+        if !state.operating() {
+            return Event::Tick;
+        }
+        if ctx.violation().is_some() {
+            return Event::Fault(Reason::CycleTimeViolation);
+        }
+        if ctx.get(v.bus_fault) {
+            return Event::Fault(Reason::BusFault);
+        }
+        for (j, jv) in v.joints.iter().enumerate() {
+            if ctx.get(jv.encoder_fault) {
+                return Event::Fault(Reason::EncoderFault(j));
+            }
+            if jv.bridge_error.is_some_and(|b| ctx.get(b)) {
+                return Event::Fault(Reason::BridgeError(j));
+            }
+            if ctx.get(jv.following_error) {
+                // Blocked while seeking its switch in INIT: say the reference was not reached.
+                let seeking = state == MainState::Init && matches!(automaton.searches[j], Search::Seek { .. });
+                return Event::Fault(if seeking {
+                    Reason::InitTimeout(j)
+                } else {
+                    Reason::FollowingError(j)
+                });
+            }
+        }
+        // A limit input is a fault except in INIT's joint mode, where the operator jogs off it.
+        let joint_mode = state == MainState::Init && automaton.phase == Phase::Waiting;
+        if !joint_mode && let Some(k) = v.limits.iter().position(|l| ctx.get(*l)) {
+            return Event::Fault(Reason::Limit(k));
+        }
+        Event::Tick
+    }
+
+    fn write(&mut self, ctx: &mut Cycle<'_>) {
+        let automaton = self.machine.inner();
+        let (v, io, n) = (&self.vars, &self.io, self.n);
+        ctx.set(v.state, automaton.state.code());
+        ctx.set(v.reason, automaton.reason.map_or(0, Reason::code));
+        ctx.set(v.enable, io.enable);
+        for (j, jv) in v.joints.iter().enumerate() {
+            ctx.set(jv.setpoint, io.setpoints[j]);
+            ctx.set(jv.velocity, io.velocities[j]);
+            ctx.set(jv.offset, io.offsets[j]);
+        }
+        ctx.set(v.setpoint_time, io.now_s);
+        ctx.set(v.acknowledge, io.acknowledge);
+        ctx.set(v.referenced, io.referenced);
+        ctx.set(v.limit_override, io.limit_override);
+        ctx.set(v.selection, automaton.selection as i16);
+        let coords = v.tool.len();
+        let mut shown = 0;
+        if io.referenced {
+            let mut pose = [0.0; MAX_DOF];
+            let hint = self.tool;
+            if automaton.frame.forward(&io.positions[..n], Some(&hint[..n]), &mut pose[..n]).is_ok() {
+                self.tool = pose;
+                for (c, out) in v.tool.iter().enumerate() {
+                    ctx.set(*out, pose[c]);
+                }
+            }
+            for c in 0..coords {
+                self.shown[shown] = (POSE_NAMES[c], self.tool[c]);
+                shown += 1;
+            }
+        }
+        for j in 0..n.min(12 - shown) {
+            self.shown[shown] = (JOINT_NAMES[j], io.positions[j]);
+            shown += 1;
+        }
+        self.shown_len = shown;
+    }
+}
+
+impl Program for MainProgram {
+    fn cycle(&mut self, ctx: &mut Cycle<'_>) {
+        self.read(ctx);
+        let event = self.event(ctx);
+        self.machine.handle_with_context(&event, &mut self.io);
+        self.write(ctx);
+    }
+
+    fn status(&self) -> Option<AppStatus<'_>> {
+        let a = self.machine.inner();
+        Some(AppStatus {
+            state: a.state.name(),
+            reason: a.reason.map(|r| self.texts.text(r)),
+            values: &self.shown[..self.shown_len],
+        })
+    }
+}

@@ -1,0 +1,106 @@
+//! Why a joint-driven machine is in ERROR: the reasons, their codes in the process image and
+//! their texts, which name the machine's own inputs (a shared limit input says which joints
+//! share it).
+
+use crate::switches::Switches;
+
+/// Why the machine is in ERROR.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Reason {
+    /// The STOP button.
+    Stop,
+    /// A limit input (index into the machine's limit inputs).
+    Limit(usize),
+    /// An implausible encoder change (joint).
+    EncoderFault(usize),
+    /// A motor bridge error (joint).
+    BridgeError(usize),
+    /// A following error (joint).
+    FollowingError(usize),
+    /// A cycle time violation reported by the runtime.
+    CycleTimeViolation,
+    /// The field bus failed beyond its error bound.
+    BusFault,
+    /// A joint's reference switch not found, or its reference position not reached, in time.
+    InitTimeout(usize),
+    /// A joint's reference input stays on while the joint backs off its switch (pn101: another
+    /// joint sits on its own switch, and the shared input cannot say which).
+    ReferenceStaysOn(usize),
+}
+
+impl Reason {
+    /// A number for the process image (`error_reason`): 0 is no error.
+    pub fn code(self) -> i16 {
+        let at = |base: i16, i: usize| base + i as i16;
+        match self {
+            Reason::Stop => 1,
+            Reason::EncoderFault(j) => at(20, j),
+            Reason::BridgeError(j) => at(30, j),
+            Reason::FollowingError(j) => at(40, j),
+            Reason::CycleTimeViolation => 50,
+            Reason::BusFault => 55,
+            Reason::InitTimeout(j) => at(60, j),
+            Reason::ReferenceStaysOn(j) => at(70, j),
+            Reason::Limit(k) => at(100, k),
+        }
+    }
+}
+
+/// The texts of every reason a machine can give, made once when the program is created so that
+/// entering ERROR allocates nothing.
+pub struct ReasonTexts {
+    texts: Vec<(Reason, String)>,
+}
+
+impl ReasonTexts {
+    /// The texts for a machine of `n` joints with `switches`.
+    pub fn new(n: usize, switches: &Switches) -> ReasonTexts {
+        let mut texts = vec![
+            (Reason::Stop, "STOP".to_string()),
+            (Reason::CycleTimeViolation, "cycle time violation".to_string()),
+            (Reason::BusFault, "bus fault".to_string()),
+        ];
+        for (k, l) in switches.limits().iter().enumerate() {
+            let text = match l.joint {
+                Some(_) => format!("limit switch {}", l.var.name()),
+                None => format!(
+                    "limit input {} (shared by joints {}: it does not say which; acknowledge, then jog off in joint mode with BUTTON_OVERRIDE held)",
+                    l.var.name(),
+                    (1..=n).map(|j| j.to_string()).collect::<Vec<_>>().join(", ")
+                ),
+            };
+            texts.push((Reason::Limit(k), text));
+        }
+        for j in 0..n {
+            let reference = switches.reference(j).name();
+            texts.push((Reason::EncoderFault(j), format!("encoder fault joint {}", j + 1)));
+            texts.push((Reason::BridgeError(j), format!("motor bridge error joint {}", j + 1)));
+            texts.push((Reason::FollowingError(j), format!("following error joint {}", j + 1)));
+            texts.push((
+                Reason::InitTimeout(j),
+                format!("INIT timeout: joint {} did not reach its reference ({reference})", j + 1),
+            ));
+            texts.push((
+                Reason::ReferenceStaysOn(j),
+                format!(
+                    "INIT: reference input {reference} stays on while joint {} backs off its switch{}",
+                    j + 1,
+                    if switches.shared() {
+                        ": another joint is on its switch (the shared input cannot say which)"
+                    } else {
+                        ""
+                    }
+                ),
+            ));
+        }
+        ReasonTexts { texts }
+    }
+
+    /// The text of `reason`.
+    pub fn text(&self, reason: Reason) -> &str {
+        self.texts
+            .iter()
+            .find(|(r, _)| *r == reason)
+            .map_or("unknown reason", |(_, t)| t.as_str())
+    }
+}

@@ -1,0 +1,175 @@
+//! INIT: joint mode while a limit input is active, then referencing (machines.md) group by group
+//! of the configured order — joints sharing a reference input one at a time, the others
+//! together. Each joint finds its reference switch twice (a search, then a slow approach whose
+//! captured edge is the reference) and goes to its reference position; the next group starts
+//! when the whole group is there.
+
+use pkm_kinematics::MAX_DOF;
+
+use super::automaton::{Automaton, Io, Phase};
+use super::reason::Reason;
+
+/// One joint's progress through referencing.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Search {
+    /// Started on the switch: moving against the search direction until the input is off.
+    Leave { since_s: f64 },
+    /// Moving towards the switch until its capture count moves past `seen`; stage 0 searches,
+    /// stage 1 approaches slowly and takes the reference.
+    Seek { stage: u8, seen: i32, since_s: f64 },
+    /// Backing off the switch to `target` before the slow approach.
+    Retreat { target: f64, since_s: f64 },
+    /// Referenced; moving to the reference (home) position.
+    ToHome { since_s: f64 },
+    /// At the reference position.
+    Done,
+}
+
+impl Automaton {
+    /// Joint mode (INIT, before referencing): the stick's x (or the left/right buttons) moves the
+    /// selected joint, the axis button selects the next joint. While a limit input is active
+    /// nothing moves unless the override is held — then the drive program lets the joints move
+    /// off it. True when referencing may start: no limit input, no command, every joint at rest.
+    pub(super) fn joint_jog(&mut self, io: &mut Io) -> bool {
+        if io.axes_pressed {
+            self.selection = (self.selection + 1) % self.n;
+        }
+        io.limit_override = io.override_held;
+        let x = self.stick(io)[0];
+        let movable = !io.limit_active || io.override_held;
+        for j in 0..self.n {
+            let v = if j == self.selection && movable {
+                x * self.p.jog.joint_speed_mm_s
+            } else {
+                0.0
+            };
+            io.ramp_velocity(j, v, self.p.joints[j].max_accel_mm_s2);
+        }
+        !io.limit_active && x == 0.0 && io.velocities[..self.n].iter().all(|v| *v == 0.0)
+    }
+
+    /// Starts referencing group `g`.
+    pub(super) fn start_group(&mut self, io: &mut Io, g: usize) {
+        io.limit_override = false;
+        self.phase = Phase::Group(g);
+        for &joint in &self.p.reference_order[g] {
+            let j = joint - 1;
+            self.searches[j] = if io.reference_on[j] {
+                Search::Leave { since_s: io.now_s }
+            } else {
+                Search::Seek {
+                    stage: 0,
+                    seen: io.capture_counts[j],
+                    since_s: io.now_s,
+                }
+            };
+        }
+    }
+
+    /// One cycle of group `g`; true when every joint of it is at its reference position.
+    pub(super) fn step_group(&mut self, io: &mut Io, g: usize) -> Result<bool, Reason> {
+        let mut done = true;
+        for k in 0..self.p.reference_order[g].len() {
+            let j = self.p.reference_order[g][k] - 1;
+            self.step_search(io, j)?;
+            done &= self.searches[j] == Search::Done;
+        }
+        Ok(done)
+    }
+
+    fn step_search(&mut self, io: &mut Io, j: usize) -> Result<(), Reason> {
+        let joint = &self.p.joints[j];
+        let r = &joint.reference;
+        let accel = joint.max_accel_mm_s2;
+        let timeout = self.p.search_timeout_s;
+        match self.searches[j] {
+            Search::Leave { since_s } => {
+                if !io.reference_on[j] {
+                    self.searches[j] = Search::Seek {
+                        stage: 0,
+                        seen: io.capture_counts[j],
+                        since_s: io.now_s,
+                    };
+                } else if io.now_s - since_s > timeout {
+                    return Err(Reason::ReferenceStaysOn(j));
+                } else {
+                    io.ramp_velocity(j, -r.direction * r.search_speed_mm_s, accel);
+                }
+            }
+            Search::Seek { stage, seen, since_s } => {
+                if io.capture_counts[j] != seen {
+                    let edge = io.captures[j];
+                    if stage == 0 {
+                        self.searches[j] = Search::Retreat {
+                            target: edge - r.direction * r.back_off_mm,
+                            since_s: io.now_s,
+                        };
+                    } else {
+                        // The reference: the switch's edge is the joint's `switch_mm`. The
+                        // set-points and positions move into the referenced frame with it.
+                        let offset = edge - r.switch_mm;
+                        io.offsets[j] = offset;
+                        io.setpoints[j] -= offset;
+                        io.positions[j] -= offset;
+                        self.searches[j] = Search::ToHome { since_s: io.now_s };
+                    }
+                } else if io.now_s - since_s > timeout {
+                    return Err(Reason::InitTimeout(j));
+                } else {
+                    let speed = if stage == 0 {
+                        r.search_speed_mm_s
+                    } else {
+                        r.latch_speed_mm_s
+                    };
+                    io.ramp_velocity(j, r.direction * speed, accel);
+                }
+            }
+            Search::Retreat { target, since_s } => {
+                if io.now_s - since_s > timeout {
+                    return Err(Reason::ReferenceStaysOn(j));
+                }
+                if io.move_to(j, target, r.search_speed_mm_s, accel) {
+                    self.searches[j] = if io.reference_on[j] {
+                        // Still on the switch: back off further.
+                        Search::Retreat {
+                            target: target - r.direction * r.back_off_mm,
+                            since_s,
+                        }
+                    } else {
+                        Search::Seek {
+                            stage: 1,
+                            seen: io.capture_counts[j],
+                            since_s: io.now_s,
+                        }
+                    };
+                }
+            }
+            Search::ToHome { since_s } => {
+                let home = self.home[j];
+                let there = io.move_to(j, home, joint.max_speed_mm_s.min(2.0 * r.search_speed_mm_s), accel);
+                if there && (io.positions[j] - home).abs() < 0.01 {
+                    self.searches[j] = Search::Done;
+                } else if io.now_s - since_s > timeout {
+                    return Err(Reason::InitTimeout(j));
+                }
+            }
+            Search::Done => io.velocities[j] = 0.0,
+        }
+        Ok(())
+    }
+
+    /// Every group is referenced and at home: world mode starts at the home pose.
+    pub(super) fn finish_referencing(&mut self, io: &mut Io) {
+        io.referenced = true;
+        io.hold();
+        let n = self.n;
+        let mut pose = [0.0; MAX_DOF];
+        // The set-points are the home joints exactly; their pose is the machine frame's origin
+        // (up to the angles of the home pose).
+        if self.frame.forward(&io.setpoints[..n], None, &mut pose[..n]).is_ok() {
+            self.pose = pose;
+        }
+        self.pose_velocity = [0.0; MAX_DOF];
+        self.selection = 0;
+    }
+}

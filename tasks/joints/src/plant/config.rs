@@ -1,0 +1,187 @@
+//! The `plant` section of a joint-driven machine's configuration: the integration step, each
+//! joint's mechanics (power-on position, hard stops, switches, motor) and the harness (which
+//! module channel each signal is wired to).
+
+use std::collections::BTreeMap;
+
+use pkm_api::problem::Problem;
+use serde::{Deserialize, Serialize};
+
+/// A stepper on an X20-like stepper module channel.
+#[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct StepperMotor {
+    /// Steps per mm of joint travel.
+    pub steps_per_mm: f64,
+    /// Above this speed the motor falls out of step (mm/s).
+    pub pull_out_speed_mm_s: f64,
+    /// A change of the commanded speed faster than this makes it fall out of step (mm/s²).
+    pub pull_out_accel_mm_s2: f64,
+    /// It follows any change between speeds at most this fast, and catches the step train
+    /// again below it (mm/s).
+    pub pull_in_speed_mm_s: f64,
+}
+
+/// A DC motor behind a PWM bridge, with an incremental encoder.
+#[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct DcMotor {
+    /// Speed at full duty, after the lag (mm/s).
+    pub v_max_mm_s: f64,
+    /// Time constant of the motor's first-order lag (s).
+    pub tau_s: f64,
+    /// Encoder counts per mm.
+    pub counts_per_mm: f64,
+}
+
+/// A joint's motor: exactly one of `stepper` and `dc`.
+#[derive(Clone, Copy, Debug, Default, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Motor {
+    /// A stepper.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stepper: Option<StepperMotor>,
+    /// A DC motor.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub dc: Option<DcMotor>,
+}
+
+/// One joint of the simulated machine (positions in the joint coordinates of the kinematics).
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct JointPlant {
+    /// Position at power-on (mm).
+    pub start_mm: f64,
+    /// The hard stops `[min, max]` (mm): the joint cannot pass them.
+    pub hard_stops_mm: [f64; 2],
+    /// The limit switches trip at or beyond `[negative, positive]` (mm).
+    pub limit_switches_mm: [f64; 2],
+    /// The reference switch trips here (mm) …
+    pub reference_switch_mm: f64,
+    /// … and stays on beyond it in this direction (+1 or −1).
+    pub reference_direction: f64,
+    /// The motor.
+    pub motor: Motor,
+}
+
+/// The `plant` section.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct PlantConfig {
+    /// Integration step (µs).
+    pub step_us: u32,
+    /// Whether the mechanism jams where the forward kinematics has no assembly.
+    pub mechanism: bool,
+    /// The joints, one per joint of the kinematics.
+    pub joints: Vec<JointPlant>,
+    /// Which module channel (`MODULE.Channel`) each signal is wired to, by signal key.
+    pub wiring: BTreeMap<String, String>,
+}
+
+impl PlantConfig {
+    /// Checks the parameters for a machine of `joints` joints whose signals have `keys`;
+    /// problems have their path below `plant`.
+    pub fn check(&self, joints: usize, keys: &[&str], steppers: bool) -> Vec<Problem> {
+        let mut problems = Vec::new();
+        if self.step_us == 0 || self.step_us > 10_000 {
+            problems.push(Problem::new(
+                "step_us",
+                format!("must be 1 … 10000 µs, got {}", self.step_us),
+            ));
+        }
+        if self.joints.len() != joints {
+            problems.push(Problem::new(
+                "joints",
+                format!("the machine has {joints} joints, the section gives {}", self.joints.len()),
+            ));
+        }
+        for (i, j) in self.joints.iter().enumerate() {
+            j.check(&format!("joints[{i}]"), &mut problems);
+            let (has, wants) = if steppers {
+                (j.motor.stepper.is_some(), "stepper")
+            } else {
+                (j.motor.dc.is_some(), "dc")
+            };
+            if !has {
+                problems.push(Problem::new(
+                    format!("joints[{i}].motor"),
+                    format!("this machine's drives are \"{wants}\" motors (its I/O map and drive program say so)"),
+                ));
+            }
+        }
+        for key in self.wiring.keys() {
+            if !keys.contains(&key.as_str()) {
+                problems.push(Problem::new(
+                    format!("wiring.{key}"),
+                    format!("the machine has no signal \"{key}\"; its signals are {}", keys.join(", ")),
+                ));
+            }
+        }
+        problems
+    }
+}
+
+impl JointPlant {
+    fn check(&self, at: &str, problems: &mut Vec<Problem>) {
+        let [min, max] = self.hard_stops_mm;
+        let [neg, pos] = self.limit_switches_mm;
+        let order = [min, neg, pos, max];
+        if !order.iter().all(|v| v.is_finite()) || !order.windows(2).all(|w| w[0] < w[1]) {
+            problems.push(Problem::new(
+                at.to_string(),
+                format!(
+                    "positions must satisfy hard_stops_mm[0] < limit_switches_mm[0] < limit_switches_mm[1] < hard_stops_mm[1], got {min} < {neg} < {pos} < {max}"
+                ),
+            ));
+        }
+        if !(min..=max).contains(&self.start_mm) {
+            problems.push(Problem::new(
+                format!("{at}.start_mm"),
+                format!("must lie between the hard stops, got {}", self.start_mm),
+            ));
+        }
+        if !(neg..=pos).contains(&self.reference_switch_mm) {
+            problems.push(Problem::new(
+                format!("{at}.reference_switch_mm"),
+                format!("must lie between the limit switches, got {}", self.reference_switch_mm),
+            ));
+        }
+        if self.reference_direction.abs() != 1.0 {
+            problems.push(Problem::new(
+                format!("{at}.reference_direction"),
+                format!("must be 1 or -1, got {}", self.reference_direction),
+            ));
+        }
+        let positive = |problems: &mut Vec<Problem>, k: &str, v: f64| {
+            if !(v.is_finite() && v > 0.0) {
+                problems.push(Problem::new(format!("{at}.motor.{k}"), format!("must be positive, got {v}")));
+            }
+        };
+        if self.motor.stepper.is_some() == self.motor.dc.is_some() {
+            problems.push(Problem::new(
+                format!("{at}.motor"),
+                "give exactly one of \"stepper\" and \"dc\"",
+            ));
+        }
+        if let Some(m) = &self.motor.stepper {
+            positive(problems, "stepper.steps_per_mm", m.steps_per_mm);
+            positive(problems, "stepper.pull_out_speed_mm_s", m.pull_out_speed_mm_s);
+            positive(problems, "stepper.pull_out_accel_mm_s2", m.pull_out_accel_mm_s2);
+            positive(problems, "stepper.pull_in_speed_mm_s", m.pull_in_speed_mm_s);
+            if m.pull_in_speed_mm_s > m.pull_out_speed_mm_s {
+                problems.push(Problem::new(
+                    format!("{at}.motor.stepper.pull_in_speed_mm_s"),
+                    format!(
+                        "must not exceed pull_out_speed_mm_s ({}), got {}",
+                        m.pull_out_speed_mm_s, m.pull_in_speed_mm_s
+                    ),
+                ));
+            }
+        }
+        if let Some(m) = &self.motor.dc {
+            positive(problems, "dc.v_max_mm_s", m.v_max_mm_s);
+            positive(problems, "dc.tau_s", m.tau_s);
+            positive(problems, "dc.counts_per_mm", m.counts_per_mm);
+        }
+    }
+}

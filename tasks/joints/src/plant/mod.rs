@@ -1,0 +1,427 @@
+//! The simulated joint-driven machine, built from the parts every plant shares (pkm-drives'
+//! stepper and DC-driven carriage): per joint a motor and a carriage between hard stops, limit
+//! and reference switches (each joint's own, or pn101's shared inputs, which say only that some
+//! joint tripped one), counters, the operator panel and joystick, and the mechanism's jam where
+//! the forward kinematics has no assembly. Time advances in fixed steps, so a run depends only on
+//! its inputs.
+
+pub mod config;
+pub mod harness;
+
+use pkm_api::image::Value;
+use pkm_api::machine::{Action, Signal};
+use pkm_drives::counter::wrap;
+use pkm_drives::sim::dc::DcAxis;
+use pkm_drives::sim::stepper::{Stepper, StepperParams};
+use pkm_kinematics::{Kinematics, MAX_DOF};
+
+use config::{DcMotor, JointPlant, PlantConfig};
+use harness::{PANEL, Wire};
+
+/// A joint's motor and what its module channel holds.
+#[derive(Clone, Debug)]
+enum Drive {
+    Stepper {
+        motor: Stepper,
+        enable: bool,
+        speed: i16,
+        /// Whether enable or speed was written since the motor last took them.
+        written: bool,
+    },
+    Dc {
+        axis: DcAxis,
+        counts_per_mm: f64,
+        pwm: i16,
+        clear_error: bool,
+        bridge_error: bool,
+    },
+}
+
+#[derive(Clone, Debug)]
+struct Joint {
+    p: JointPlant,
+    drive: Drive,
+    /// Added to the counter (glitches).
+    counter_offset: i64,
+    /// The motor stopped responding (a broken wire): DC gets no duty, a stepper loses every step.
+    dead: bool,
+}
+
+impl Joint {
+    fn position_mm(&self) -> f64 {
+        match &self.drive {
+            Drive::Stepper { motor, .. } => motor.position_mm(),
+            Drive::Dc { axis, .. } => axis.position_mm(),
+        }
+    }
+
+    fn counter(&self) -> i16 {
+        let raw = match &self.drive {
+            Drive::Stepper { motor, .. } => i64::from(motor.counter()),
+            Drive::Dc { axis, counts_per_mm, .. } => (axis.position_mm() * counts_per_mm).round() as i64,
+        };
+        wrap(raw + self.counter_offset)
+    }
+}
+
+/// The plant.
+pub struct Plant {
+    signals: Vec<Signal>,
+    wires: Vec<Wire>,
+    joints: Vec<Joint>,
+    /// Per signal: a switch stuck on (`Some(true)`), off (`Some(false)`), or working (`None`).
+    stuck: Vec<Option<bool>>,
+    buttons: [bool; PANEL.len()],
+    joystick: [f64; 2],
+    joystick_connected: bool,
+    pwm_period: [u16; 3],
+    mechanism: Option<Box<dyn Kinematics>>,
+    /// The last assembled pose, the Newton start of the next check.
+    pose: [f64; MAX_DOF],
+    jams: u64,
+}
+
+/// The drives' names in scenario files, by joint.
+const DRIVES: [&str; 6] = ["joint1", "joint2", "joint3", "joint4", "joint5", "joint6"];
+
+impl Plant {
+    /// A plant from its (checked) configuration; `mechanism` is the machine's kinematics, whose
+    /// forward transformation says where the mechanism jams (`None`: the joints are independent).
+    pub fn new(
+        config: &PlantConfig,
+        signals: Vec<(Signal, Wire)>,
+        mechanism: Option<Box<dyn Kinematics>>,
+    ) -> Plant {
+        let joints: Vec<Joint> = config
+            .joints
+            .iter()
+            .map(|p| Joint {
+                p: p.clone(),
+                drive: match (p.motor.stepper, p.motor.dc) {
+                    (Some(m), _) => Drive::Stepper {
+                        motor: Stepper::new(
+                            StepperParams {
+                                steps_per_mm: m.steps_per_mm,
+                                pull_out_speed_mm_s: m.pull_out_speed_mm_s,
+                                pull_out_accel_mm_s2: m.pull_out_accel_mm_s2,
+                                pull_in_speed_mm_s: m.pull_in_speed_mm_s,
+                            },
+                            p.start_mm,
+                        ),
+                        enable: false,
+                        speed: 0,
+                        written: false,
+                    },
+                    (None, dc) => {
+                        // The check allows exactly one motor; its default is the DC one.
+                        let m = dc.unwrap_or(DcMotor {
+                            v_max_mm_s: 40.0,
+                            tau_s: 0.05,
+                            counts_per_mm: 1000.0,
+                        });
+                        Drive::Dc {
+                            axis: DcAxis::new(m.v_max_mm_s, m.tau_s, p.hard_stops_mm, p.start_mm),
+                            counts_per_mm: m.counts_per_mm,
+                            pwm: 0,
+                            clear_error: false,
+                            bridge_error: false,
+                        }
+                    }
+                },
+                counter_offset: 0,
+                dead: false,
+            })
+            .collect();
+        let mut pose = [0.0; MAX_DOF];
+        let mechanism = mechanism.filter(|m| {
+            let starts: Vec<f64> = joints.iter().map(Joint::position_mm).collect();
+            // A mechanism that cannot assemble at power-on would jam at once: the check
+            // (`check_start`) refuses such a configuration before a plant is built.
+            m.forward(&starts, None, &mut pose[..m.dof()]).is_ok()
+        });
+        let (signals, wires): (Vec<Signal>, Vec<Wire>) = signals.into_iter().unzip();
+        Plant {
+            stuck: vec![None; signals.len()],
+            signals,
+            wires,
+            joints,
+            buttons: [false; PANEL.len()],
+            joystick: [0.0; 2],
+            joystick_connected: true,
+            pwm_period: [0; 3],
+            mechanism,
+            pose,
+            jams: 0,
+        }
+    }
+
+    /// Advances the plant by `dt_s` seconds.
+    pub fn step(&mut self, dt_s: f64) {
+        let mut next = [0.0; MAX_DOF];
+        let mut moved = false;
+        // Each motor's step, computed on a copy: the mechanism decides whether it is taken.
+        let mut stepped: [Option<Stepper>; MAX_DOF] = Default::default();
+        for (j, joint) in self.joints.iter_mut().enumerate() {
+            let travel = joint.p.hard_stops_mm;
+            next[j] = match &mut joint.drive {
+                Drive::Stepper { motor, .. } => {
+                    let mut m = motor.clone();
+                    m.step(dt_s, travel, joint.dead);
+                    let at = m.position_mm();
+                    stepped[j] = Some(m);
+                    at
+                }
+                Drive::Dc {
+                    axis, pwm, bridge_error, ..
+                } => {
+                    let period = self.pwm_period[j / 2];
+                    let duty = if period > 0 && !*bridge_error && !joint.dead {
+                        f64::from(*pwm) / 32767.0
+                    } else {
+                        0.0
+                    };
+                    axis.advance(duty, dt_s)
+                }
+            };
+            moved |= next[j] != joint.position_mm();
+        }
+        let n = self.joints.len();
+        let jammed = moved
+            && self.mechanism.as_ref().is_some_and(|m| {
+                let hint = self.pose;
+                m.forward(&next[..n], Some(&hint[..n]), &mut self.pose[..n]).is_err()
+            });
+        if jammed {
+            self.jams += 1;
+        }
+        for (j, joint) in self.joints.iter_mut().enumerate() {
+            let travel = joint.p.hard_stops_mm;
+            match &mut joint.drive {
+                Drive::Stepper { motor, .. } => {
+                    if jammed {
+                        // The motor runs into the jam: its steps are lost.
+                        motor.step(dt_s, travel, true);
+                    } else if let Some(m) = stepped[j].take() {
+                        *motor = m;
+                    }
+                }
+                Drive::Dc { axis, .. } => {
+                    if jammed {
+                        axis.halt();
+                    } else {
+                        axis.commit(next[j]);
+                    }
+                }
+            }
+        }
+    }
+
+    /// The value of limit or reference switch `wire` now (before a stuck fault).
+    fn switch(&self, wire: Wire) -> bool {
+        let limit = |j: &Joint, end: usize| {
+            let q = j.position_mm();
+            if end == 0 {
+                q <= j.p.limit_switches_mm[0]
+            } else {
+                q >= j.p.limit_switches_mm[1]
+            }
+        };
+        let reference = |j: &Joint| (j.position_mm() - j.p.reference_switch_mm) * j.p.reference_direction >= 0.0;
+        match wire {
+            Wire::Limit(Some(j), end) => limit(&self.joints[j], end),
+            Wire::Limit(None, end) => self.joints.iter().any(|j| limit(j, end)),
+            Wire::Reference(Some(j)) => reference(&self.joints[j]),
+            Wire::Reference(None) => self.joints.iter().any(reference),
+            _ => false,
+        }
+    }
+
+    /// Hands a stepper channel's enable and speed, as last written, to its motor.
+    fn command_steppers(&mut self) {
+        for joint in &mut self.joints {
+            if let Drive::Stepper {
+                motor,
+                enable,
+                speed,
+                written,
+            } = &mut joint.drive
+                && *written
+            {
+                motor.command(*enable, *speed);
+                *written = false;
+            }
+        }
+    }
+
+    /// Joint `j`'s true position (mm): for tests and displays, not for the PLC.
+    pub fn position_mm(&self, j: usize) -> f64 {
+        self.joints[j].position_mm()
+    }
+
+    /// Steps joint `j`'s stepper emitted but did not make (0 for a DC joint).
+    pub fn lost_steps(&self, j: usize) -> f64 {
+        match &self.joints[j].drive {
+            Drive::Stepper { motor, .. } => motor.lost_steps(),
+            Drive::Dc { .. } => 0.0,
+        }
+    }
+
+    /// How often joint `j`'s stepper fell out of step (0 for a DC joint).
+    pub fn stalls(&self, j: usize) -> u64 {
+        match &self.joints[j].drive {
+            Drive::Stepper { motor, .. } => motor.stalls(),
+            Drive::Dc { .. } => 0,
+        }
+    }
+
+    /// Joint `j`'s hard stops (mm).
+    pub fn hard_stops_mm(&self, j: usize) -> [f64; 2] {
+        self.joints[j].p.hard_stops_mm
+    }
+
+    /// How many steps the mechanism jammed.
+    pub fn jams(&self) -> u64 {
+        self.jams
+    }
+
+    /// The number of joints.
+    pub fn joints(&self) -> usize {
+        self.joints.len()
+    }
+
+    /// The value of input signal `signal` (as the PLC reads it).
+    pub fn input(&self, signal: usize) -> Value {
+        pkm_api::machine::Plant::read(self, signal)
+    }
+}
+
+impl pkm_api::machine::Plant for Plant {
+    fn signals(&self) -> &[Signal] {
+        &self.signals
+    }
+
+    fn drives(&self) -> &[&'static str] {
+        &DRIVES[..self.joints.len()]
+    }
+
+    fn step(&mut self, dt_s: f64) {
+        Plant::step(self, dt_s);
+    }
+
+    fn read(&self, signal: usize) -> Value {
+        let wire = self.wires[signal];
+        match wire {
+            Wire::Button(b) => Value::Bool(self.buttons[b]),
+            Wire::Limit(..) | Wire::Reference(_) => Value::Bool(self.stuck[signal].unwrap_or_else(|| self.switch(wire))),
+            Wire::Counter(j) => Value::Int(self.joints[j].counter()),
+            Wire::BridgeError(j) => Value::Bool(matches!(
+                self.joints[j].drive,
+                Drive::Dc {
+                    bridge_error: true,
+                    ..
+                }
+            )),
+            Wire::JoystickAxis(a) => Value::Real(self.joystick[a]),
+            Wire::JoystickConnected => Value::Bool(self.joystick_connected),
+            // Outputs read back as the bus's zero: the runtime reads input signals only.
+            Wire::Enable(_) | Wire::ClearError(_) => Value::Bool(false),
+            Wire::Speed(_) | Wire::Pwm(_) => Value::Int(0),
+            Wire::PwmPeriod(_) => Value::Uint(0),
+        }
+    }
+
+    fn write(&mut self, signal: usize, value: Value) {
+        self.apply_output(signal, value);
+        self.command_steppers();
+    }
+
+    fn write_from(&mut self, signals: &[usize], values: &[Value]) {
+        // Enable and speed of a channel are one command to the motor: apply every output of the
+        // exchange, then hand the steppers theirs once.
+        for &s in signals {
+            self.apply_output(s, values[s]);
+        }
+        self.command_steppers();
+    }
+
+    fn apply(&mut self, action: Action) {
+        match action {
+            Action::Press { signal, pressed } => {
+                if let Wire::Button(b) = self.wires[signal] {
+                    self.buttons[b] = pressed;
+                }
+            }
+            Action::Joystick(x, y) => self.joystick = [x.clamp(-1.0, 1.0), y.clamp(-1.0, 1.0)],
+            Action::StickSwitch { signal, stuck } => {
+                if matches!(self.wires[signal], Wire::Limit(..) | Wire::Reference(_)) {
+                    self.stuck[signal] = stuck;
+                }
+            }
+            Action::EncoderGlitch { drive, counts } => {
+                if let Some(j) = self.joints.get_mut(drive) {
+                    j.counter_offset += counts;
+                }
+            }
+            Action::BridgeError { drive } => {
+                if let Some(Drive::Dc { bridge_error, .. }) = self.joints.get_mut(drive).map(|j| &mut j.drive) {
+                    *bridge_error = true;
+                }
+            }
+            Action::DriveDead { drive, dead } => {
+                if let Some(j) = self.joints.get_mut(drive) {
+                    j.dead = dead;
+                }
+            }
+            Action::JoystickConnected(c) => {
+                self.joystick_connected = c;
+                if !c {
+                    self.joystick = [0.0; 2];
+                }
+            }
+        }
+    }
+
+    fn as_any(&self) -> &dyn std::any::Any {
+        self
+    }
+}
+
+impl Plant {
+    fn apply_output(&mut self, signal: usize, value: Value) {
+        match (self.wires[signal], value) {
+            (Wire::Enable(j), Value::Bool(v)) => {
+                if let Drive::Stepper { enable, written, .. } = &mut self.joints[j].drive {
+                    *enable = v;
+                    *written = true;
+                }
+            }
+            (Wire::Speed(j), Value::Int(v)) => {
+                if let Drive::Stepper { speed, written, .. } = &mut self.joints[j].drive {
+                    *speed = v;
+                    *written = true;
+                }
+            }
+            (Wire::Pwm(j), Value::Int(v)) => {
+                if let Drive::Dc { pwm, .. } = &mut self.joints[j].drive {
+                    *pwm = v;
+                }
+            }
+            (Wire::ClearError(j), Value::Bool(on)) => {
+                if let Drive::Dc {
+                    clear_error,
+                    bridge_error,
+                    ..
+                } = &mut self.joints[j].drive
+                {
+                    // A rising edge clears a latched bridge error.
+                    if on && !*clear_error {
+                        *bridge_error = false;
+                    }
+                    *clear_error = on;
+                }
+            }
+            (Wire::PwmPeriod(m), Value::Uint(v)) => self.pwm_period[m] = v,
+            _ => {}
+        }
+    }
+}
