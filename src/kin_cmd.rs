@@ -105,6 +105,7 @@ pub fn run(
 ) -> Result<(), KinFailure> {
     let loaded = load(&crate::ConfigArg {
         config: args.config.clone(),
+        machine: None,
     })
     .map_err(|e| fail(2, e.to_string()))?;
     let config = KinematicsConfig::from_section(loaded.config.kinematics.as_ref()).map_err(|problems| {

@@ -159,6 +159,11 @@ pub(crate) struct ConfigArg {
     /// Configuration file [default: ./config.json if present, else the built-in one].
     #[arg(long, value_name = "FILE")]
     pub(crate) config: Option<PathBuf>,
+    /// A machine's own configuration: short for `--config machines/NAME.json` (the TRIJOINT's is
+    /// config.json); the built-in copy when the file is not there.
+    #[arg(long, value_name = "NAME", conflicts_with = "config",
+          value_parser = clap::builder::PossibleValuesParser::new(pkm_plc::machines::BUILTIN.iter().map(|m| m.name())))]
+    pub(crate) machine: Option<String>,
 }
 
 #[derive(Args, Debug)]
@@ -332,6 +337,14 @@ fn init_logging() {
 
 /// Loads the configuration named on the command line, or the default one.
 fn load_config(arg: &ConfigArg) -> Result<LoadedConfig, ConfigError> {
+    if let Some(file) = arg.machine.as_deref().and_then(pkm_plc::machines::find).map(|m| m.configuration()) {
+        let path = PathBuf::from(file.name);
+        return if path.is_file() {
+            config::load(Some(&path))
+        } else {
+            config::parse(file.text, &format!("<built-in {}>", file.name))
+        };
+    }
     let path = arg.config.clone().or_else(config::default_path);
     config::load(path.as_deref())
 }

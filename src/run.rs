@@ -187,7 +187,7 @@ impl Snapshot {
 }
 
 /// How many of the main program's values a snapshot keeps (its capacity, so no allocation).
-const MAX_STATUS_VALUES: usize = 8;
+const MAX_STATUS_VALUES: usize = 12;
 
 /// Why a real-time run failed.
 #[derive(Debug, thiserror::Error)]

@@ -60,6 +60,9 @@ pub struct MainSummary {
     pub state: String,
     /// Why it is in its error state, if it is.
     pub error_reason: Option<String>,
+    /// The values it shows with its state at the end of the run (positions: the tool pose and
+    /// the joints), by name; a value it could not compute is null.
+    pub values: serde_json::Map<String, serde_json::Value>,
 }
 
 impl Summary {
@@ -83,6 +86,11 @@ impl Summary {
             program: plc.app_program().unwrap_or_default().to_string(),
             state: s.state.to_string(),
             error_reason: s.reason.map(str::to_string),
+            values: s
+                .values
+                .iter()
+                .map(|(name, v)| (name.to_string(), serde_json::Number::from_f64(*v).map_or(serde_json::Value::Null, Into::into)))
+                .collect(),
         });
         Summary {
             mode,
@@ -129,6 +137,17 @@ impl Summary {
             match &m.error_reason {
                 Some(r) => lines.push(format!("final state {} ({}): {r}", m.state, m.program)),
                 None => lines.push(format!("final state {} ({})", m.state, m.program)),
+            }
+            if !m.values.is_empty() {
+                let values: Vec<String> = m
+                    .values
+                    .iter()
+                    .map(|(k, v)| match v.as_f64() {
+                        Some(x) => format!("{k}={x:.3}"),
+                        None => format!("{k}=-"),
+                    })
+                    .collect();
+                lines.push(format!("final values {}", values.join(" ")));
             }
         }
         lines

@@ -47,6 +47,10 @@ pub trait Machine: Sync + fmt::Debug {
     fn check(&self, sections: &Sections<'_>) -> Vec<Problem>;
     /// The I/O map of the machine's lab model, built into the binary.
     fn default_io_map(&self) -> EmbeddedFile;
+    /// The machine's configuration file (`machines/NAME.json`; the TRIJOINT's `config.json`),
+    /// built into the binary: `--machine NAME` reads the file of that name where it exists and
+    /// takes this text where it does not.
+    fn configuration(&self) -> EmbeddedFile;
     /// Builds the simulated plant from the (checked) sections; problems as in [`Machine::check`].
     fn plant(&self, sections: &Sections<'_>) -> Result<PlantSetup, Vec<Problem>>;
 }

@@ -125,7 +125,7 @@ pub struct AppStatus<'a> {
     pub state: &'a str,
     /// Why the program is in its error state, if it is.
     pub reason: Option<&'a str>,
-    /// Values worth showing with the state (name, value), e.g. positions; at most 8 are shown.
+    /// Values worth showing with the state (name, value), e.g. positions; at most 12 are shown.
     pub values: &'a [(&'static str, f64)],
 }
 

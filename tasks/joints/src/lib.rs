@@ -185,6 +185,10 @@ impl Machine for JointMachine {
         self.0.io_map
     }
 
+    fn configuration(&self) -> EmbeddedFile {
+        self.0.config
+    }
+
     fn plant(&self, s: &Sections<'_>) -> Result<PlantSetup, Vec<Problem>> {
         let spec = self.0;
         let (kinematics, config) = self.sections(s)?;

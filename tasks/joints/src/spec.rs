@@ -134,11 +134,17 @@ impl Spec {
                 back_off_mm: 2.0,
             },
         };
+        let reversed = |mut j: JointParams| {
+            j.reference.direction = -1.0;
+            j
+        };
         let pairs = |p: &[[&str; 2]]| p.iter().map(|[a, b]| [a.to_string(), b.to_string()]).collect();
         match self.model {
             Model::Pn101 => MainParams {
                 stop_lockout_ms: 500,
-                joints: vec![joint(55.0, 4.0); 3],
+                // q3 assembles only up to about +17 mm with q1 = q2 = 0: its switch is at the
+                // negative end.
+                joints: vec![joint(55.0, 4.0), joint(55.0, 4.0), reversed(joint(-55.0, 4.0))],
                 reference_order: vec![vec![1], vec![2], vec![3]],
                 search_timeout_s: 60.0,
                 soft_limit_margin_mm: 2.0,
@@ -218,9 +224,14 @@ impl Spec {
         };
         let (speed, accel) = self.joint_limits();
         let joints = match self.model {
-            Model::Pn101 => [-10.0, 5.0, 12.0]
-                .map(|s| joint(s, [-60.0, 60.0], 55.0, stepper(speed, accel)))
-                .to_vec(),
+            Model::Pn101 => vec![
+                joint(-10.0, [-60.0, 60.0], 55.0, stepper(speed, accel)),
+                joint(5.0, [-60.0, 60.0], 55.0, stepper(speed, accel)),
+                JointPlant {
+                    reference_direction: -1.0,
+                    ..joint(12.0, [-60.0, 60.0], -55.0, stepper(speed, accel))
+                },
+            ],
             Model::Hexapod => vec![
                 joint(
                     745.0,

@@ -50,6 +50,12 @@ pub const IO_MAP: EmbeddedFile = EmbeddedFile {
     text: include_str!("../../../io-map/trijoint.json"),
 };
 
+/// The lab model's configuration (the repository's config.json), built into the binary.
+pub const CONFIG: EmbeddedFile = EmbeddedFile {
+    name: "config.json",
+    text: include_str!("../../../config.json"),
+};
+
 /// The machine's sections, parsed strictly and checked (defaults for a section left out); every
 /// problem of both, with its full path, kinematics first.
 fn sections(s: &Sections<'_>) -> Result<(KinematicsConfig, PlantConfig), Vec<Problem>> {
@@ -87,6 +93,10 @@ impl Machine for Trijoint {
 
     fn default_io_map(&self) -> EmbeddedFile {
         IO_MAP
+    }
+
+    fn configuration(&self) -> EmbeddedFile {
+        CONFIG
     }
 
     fn plant(&self, s: &Sections<'_>) -> Result<PlantSetup, Vec<Problem>> {
