@@ -72,6 +72,29 @@ pub fn plant(plc: &Plc) -> &Plant {
         .expect("the TRIJOINT plant")
 }
 
+/// A joint-driven machine's configuration (`machines/NAME.json`), with `edit` applied to its
+/// JSON first.
+pub fn machine_config(name: &str, edit: impl FnOnce(&mut serde_json::Value)) -> LoadedConfig {
+    let path = root().join("machines").join(format!("{name}.json"));
+    let mut json = read_json(&path);
+    edit(&mut json);
+    let mut loaded = config::parse(&json.to_string(), &path.display().to_string()).expect("the machine's configuration parses");
+    loaded.dir = Some(root().join("machines"));
+    loaded
+}
+
+/// A joint-driven machine's simulated plant: its true state.
+pub fn joint_plant(plc: &Plc) -> &pkm_joints::plant::Plant {
+    plc.bus()
+        .as_any()
+        .downcast_ref::<SimBus>()
+        .expect("the simulated bus")
+        .plant()
+        .as_any()
+        .downcast_ref::<pkm_joints::plant::Plant>()
+        .expect("a joint-driven machine's plant")
+}
+
 /// A variable of the published image as a value, by its typed name.
 pub fn var<T>(plc: &Plc, var: pkm_plc::image::Var<T>) -> Value {
     let index = plc.vars().index_of(var.name());

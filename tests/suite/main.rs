@@ -10,6 +10,7 @@ mod common;
 mod architecture;
 mod cli;
 mod config_errors;
+mod joint_machines;
 mod joystick;
 mod joystick_app;
 mod kinematics;

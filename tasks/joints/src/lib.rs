@@ -139,7 +139,9 @@ impl JointMachine {
         };
         // The mechanism must assemble where the joints stand at power-on.
         if p.mechanism {
-            let kin = k.build(spec.model);
+            let mut widened = k.clone();
+            widen_travel(&mut widened, spec, &p);
+            let kin = widened.build(spec.model);
             let starts: Vec<f64> = p.joints.iter().map(|j| j.start_mm).collect();
             let mut pose = [0.0; pkm_kinematics::MAX_DOF];
             if let Err(e) = kin.forward(&starts, None, &mut pose[..starts.len()]) {

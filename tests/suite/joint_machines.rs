@@ -1,0 +1,320 @@
+//! The joint-driven machines (pn101, O-X glide X and O, hexapod) on their simulated plants, in
+//! virtual time, driven by scenarios: power-up and referencing to READY, the tool pose at home,
+//! world jog along x, the workspace border, STOP with the drives zeroed in the same fast cycle
+//! and the acknowledgement; pn101's shared inputs and its steppers' pull-out.
+
+use crate::common;
+
+use common::{get, joint_plant, machine_config, run, state};
+use pkm_joints::vars;
+use pkm_kinematics::KinematicsConfig;
+use pkm_kinematics::frame::{Home, MachineFrame};
+use pkm_plc::plc::Plc;
+
+const MACHINES: [&str; 4] = ["pn101", "ox-x", "ox-o", "hexapod"];
+
+/// The machine's PLC on its simulated plant, its configuration edited by `edit`.
+fn build(name: &str, scenario: Option<&str>, edit: impl FnOnce(&mut serde_json::Value)) -> Plc {
+    common::sim_plc(&machine_config(name, edit), &pkm_plc::machines::all_programs(), scenario)
+        .unwrap_or_else(|e| panic!("{e}"))
+}
+
+/// Number of joints and of pose coordinates.
+fn dof(name: &str) -> usize {
+    if name == "hexapod" { 6 } else { 3 }
+}
+
+/// The machine frame of the machine's default kinematics.
+fn frame(name: &str) -> MachineFrame {
+    let k = KinematicsConfig::default();
+    let model = pkm_kinematics::Machine::ALL
+        .into_iter()
+        .find(|m| m.name() == name)
+        .expect("a model");
+    let home = if name == "hexapod" {
+        Home::Pose(&k.hexapod.home)
+    } else {
+        Home::Joints(&[0.0; 6])
+    };
+    MachineFrame::new(k.build(model), home).expect("home is a pose")
+}
+
+/// State changes as (time ms, state, reason).
+fn transitions(plc: &mut Plc, until_ms: u64, mut each: impl FnMut(&Plc, u64)) -> Vec<(u64, String, Option<String>)> {
+    let mut seen: Vec<(u64, String, Option<String>)> = Vec::new();
+    run(plc, until_ms, |plc, t| {
+        let s = plc.app_status().expect("status");
+        if seen.last().is_none_or(|(_, st, _)| st != s.state) {
+            seen.push((t, s.state.to_string(), s.reason.map(str::to_string)));
+        }
+        each(plc, t);
+    });
+    seen
+}
+
+/// When the machine reaches READY after power-on (ms of simulated time).
+fn ready_ms(name: &str) -> u64 {
+    let mut plc = build(name, None, |_| {});
+    let seen = transitions(&mut plc, 180_000, |_, _| {});
+    let names: Vec<&str> = seen.iter().map(|(_, s, _)| s.as_str()).collect();
+    assert_eq!(names, ["REBOOT", "INIT", "READY"], "{name}: {seen:?}");
+    seen[2].0
+}
+
+fn tool(plc: &Plc, n: usize) -> Vec<f64> {
+    vars::TOOL[..n].iter().map(|v| get(plc, *v)).collect()
+}
+
+fn joints(plc: &Plc, n: usize) -> Vec<f64> {
+    vars::JOINT_POSITION[..n].iter().map(|v| get(plc, *v)).collect()
+}
+
+#[test]
+fn every_machine_references_and_reaches_ready_at_the_forward_kinematics_of_its_reference_joints() {
+    for name in MACHINES {
+        let n = dof(name);
+        let mut plc = build(name, None, |_| {});
+        let seen = transitions(&mut plc, 180_000, |_, _| {});
+        let names: Vec<&str> = seen.iter().map(|(_, s, _)| s.as_str()).collect();
+        assert_eq!(names, ["REBOOT", "INIT", "READY"], "{name}: {seen:?}");
+        eprintln!("{name}: READY after {:.2} s", seen[2].0 as f64 / 1000.0);
+        let f = frame(name);
+        let mut expected = [0.0; 6];
+        f.forward(f.home_joints(), None, &mut expected[..n]).expect("fk of home");
+        let (q, x) = (joints(&plc, n), tool(&plc, n));
+        for j in 0..n {
+            assert!(
+                (q[j] - f.home_joints()[j]).abs() < 0.01,
+                "{name}: joint {} at {} (reference {})",
+                j + 1,
+                q[j],
+                f.home_joints()[j]
+            );
+            // The controller's joint position is the plant's true one (the reference switch
+            // defines it), to the capture's resolution.
+            let truth = joint_plant(&plc).position_mm(j);
+            assert!((q[j] - truth).abs() < 0.01, "{name}: joint {} reads {} true {truth}", j + 1, q[j]);
+        }
+        for c in 0..n {
+            assert!((x[c] - expected[c]).abs() < 0.01, "{name}: tool {x:?} vs FK of home {expected:?}");
+        }
+        // TOOL_* is the forward kinematics of the joint positions (of the last main cycle; the
+        // hexapod's regulators still settle by a micrometre since).
+        let mut fk = [0.0; 6];
+        f.forward(&q, None, &mut fk[..n]).expect("fk");
+        for c in 0..n {
+            assert!((x[c] - fk[c]).abs() < 0.005, "{name}: {x:?} vs {fk:?}");
+        }
+    }
+}
+
+/// A scenario: the stick at `(x, y)` from `at_ms` for `for_ms`.
+fn stick(at_ms: u64, x: f64, y: f64, for_ms: u64) -> String {
+    format!(
+        r#"{{"events": [{{"at_ms": {at_ms}, "joystick": [{x}, {y}]}}, {{"at_ms": {}, "joystick": [0, 0]}}]}}"#,
+        at_ms + for_ms
+    )
+}
+
+#[test]
+fn a_world_jog_along_x_moves_only_x() {
+    for name in MACHINES {
+        let n = dof(name);
+        let start = ready_ms(name) + 1000;
+        let mut plc = build(name, Some(&stick(start, 0.7, 0.0, 3000)), |_| {});
+        let mut home: Option<Vec<f64>> = None;
+        let mut worst = 0.0f64;
+        let mut moved = 0.0f64;
+        let seen = transitions(&mut plc, start + 6000, |plc, t| {
+            if t < start {
+                return;
+            }
+            let x = tool(plc, n);
+            let h = home.get_or_insert_with(|| x.clone());
+            moved = moved.max((x[0] - h[0]).abs());
+            for c in 1..n {
+                worst = worst.max((x[c] - h[c]).abs());
+            }
+        });
+        let names: Vec<&str> = seen.iter().map(|(_, s, _)| s.as_str()).collect();
+        assert_eq!(names, ["REBOOT", "INIT", "READY", "MOTION", "READY"], "{name}: {seen:?}");
+        eprintln!("{name}: x moved {moved:.3} mm, other coordinates at most {worst:.4}");
+        assert!(moved > 5.0, "{name}: the tool moved {moved} mm along x");
+        assert!(worst <= 0.05, "{name}: another coordinate moved {worst} mm");
+    }
+}
+
+#[test]
+fn a_jog_into_the_workspace_border_stops_there_without_an_error() {
+    for name in MACHINES {
+        let n = dof(name);
+        let start = ready_ms(name) + 1000;
+        // World limits far away: the border is the mechanism's (joint software limits, no
+        // assembly, the singularity threshold).
+        let far = |c: &mut serde_json::Value| {
+            c["task_classes"][1]["programs"][0]["params"]["world_limits"] = serde_json::json!(vec![[-1000.0, 1000.0]; n]);
+        };
+        let mut plc = build(name, Some(&stick(start, 1.0, 0.0, 120_000)), far);
+        let mut last: Vec<f64> = Vec::new();
+        let mut still_from = 0;
+        let seen = transitions(&mut plc, start + 120_000, |plc, t| {
+            let x = tool(plc, n);
+            if last.is_empty() || (x[0] - last[0]).abs() > 0.01 {
+                still_from = t;
+            }
+            last = x;
+            let p = joint_plant(plc);
+            for j in 0..n {
+                let [lo, hi] = p.hard_stops_mm(j);
+                assert!((lo..=hi).contains(&p.position_mm(j)));
+            }
+        });
+        let names: Vec<&str> = seen.iter().map(|(_, s, _)| s.as_str()).collect();
+        assert_eq!(names, ["REBOOT", "INIT", "READY", "MOTION"], "{name}: {seen:?}");
+        assert!(still_from < start + 110_000, "{name}: the tool still moves at {still_from} ms, x = {}", last[0]);
+        let p = joint_plant(&plc);
+        for j in 0..n {
+            assert_eq!(p.lost_steps(j), 0.0, "{name}: joint {} lost steps", j + 1);
+        }
+        eprintln!("{name}: stopped at the border at x = {:.3} mm after {} ms", last[0], still_from - start);
+    }
+}
+
+/// Whether every drive output of the machine is zero now.
+fn drives_zero(plc: &Plc, name: &str) -> bool {
+    (0..dof(name)).all(|j| {
+        if name == "hexapod" {
+            get(plc, vars::PWM[j]) == 0
+        } else {
+            get(plc, vars::SPEED[j]) == 0 && !get(plc, vars::ENABLE[j])
+        }
+    })
+}
+
+#[test]
+fn stop_zeroes_the_drives_in_the_same_fast_cycle_and_the_acknowledgement_references_again() {
+    for name in MACHINES {
+        let ready = ready_ms(name);
+        let jog = ready + 1000;
+        let stop = jog + 1500;
+        let scenario = format!(
+            r#"{{"events": [
+                {{"at_ms": {jog}, "joystick": [0.8, 0]}},
+                {{"at_ms": {stop}, "input": "BUTTON_STOP", "value": true}},
+                {{"at_ms": {}, "input": "BUTTON_STOP", "value": false}},
+                {{"at_ms": {}, "joystick": [0, 0]}},
+                {{"at_ms": {}, "input": "BUTTON_STOP", "value": true}},
+                {{"at_ms": {}, "input": "BUTTON_STOP", "value": false}}
+            ]}}"#,
+            stop + 200,
+            stop + 300,
+            stop + 1000,
+            stop + 1200
+        );
+        let mut plc = build(name, Some(&scenario), |_| {});
+        let mut moving_before = false;
+        let mut checked = false;
+        let seen = transitions(&mut plc, stop + 1000 + ready + 2000, |plc, t| {
+            if t < stop {
+                moving_before |= !drives_zero(plc, name) && state(plc) == "MOTION";
+            } else if !checked && get(plc, vars::BUTTON_STOP) {
+                checked = true;
+                assert!(drives_zero(plc, name), "{name}: drive outputs at {t} ms, the cycle STOP is seen");
+            }
+        });
+        assert!(moving_before && checked, "{name}");
+        let names: Vec<&str> = seen.iter().map(|(_, s, _)| s.as_str()).collect();
+        assert_eq!(
+            names,
+            ["REBOOT", "INIT", "READY", "MOTION", "ERROR", "REBOOT", "INIT", "READY"],
+            "{name}: {seen:?}"
+        );
+        assert_eq!(seen[4].2.as_deref(), Some("STOP"));
+    }
+}
+
+#[test]
+fn pn101_references_one_joint_at_a_time_in_order() {
+    let mut plc = build("pn101", None, |_| {});
+    let mut order: Vec<usize> = Vec::new();
+    run(&mut plc, 120_000, |plc, _| {
+        if state(plc) != "INIT" {
+            return;
+        }
+        let moving: Vec<usize> = (0..3)
+            .filter(|j| get(plc, vars::SETPOINT_VELOCITY[*j]) != 0.0)
+            .collect();
+        assert!(moving.len() <= 1, "joints {moving:?} move together on the shared reference input");
+        if let Some(&j) = moving.first()
+            && order.last() != Some(&j)
+        {
+            order.push(j);
+        }
+    });
+    assert_eq!(order, [0, 1, 2], "joint 1, then 2, then 3");
+    assert_eq!(state(&plc), "READY");
+}
+
+#[test]
+fn pn101_a_shared_limit_input_trips_error_naming_it() {
+    let at = ready_ms("pn101") + 1000;
+    let scenario = format!(
+        r#"{{"events": [{{"at_ms": {at}, "fault": "switch_stuck", "switch": "LIMIT_POS", "value": true}}]}}"#
+    );
+    let mut plc = build("pn101", Some(&scenario), |_| {});
+    let seen = transitions(&mut plc, at + 500, |_, _| {});
+    let last = seen.last().expect("states");
+    assert_eq!(last.1, "ERROR");
+    assert_eq!(
+        last.2.as_deref(),
+        Some(
+            "limit input LIMIT_POS (shared by joints 1, 2, 3: it does not say which; acknowledge, then jog off in joint mode with BUTTON_OVERRIDE held)"
+        )
+    );
+}
+
+#[test]
+fn pn101_on_a_shared_limit_at_power_on_joint_jog_with_the_override_moves_off_it() {
+    // Joint 1 stands past its positive limit switch (60 mm) at power-on.
+    let edit = |c: &mut serde_json::Value| c["plant"]["joints"][0]["start_mm"] = serde_json::json!(60.5);
+    let scenario = r#"{"events": [
+        {"at_ms": 1000, "joystick": [-0.5, 0]},
+        {"at_ms": 2000, "input": "BUTTON_OVERRIDE", "value": true},
+        {"at_ms": 4000, "joystick": [0, 0]},
+        {"at_ms": 4500, "input": "BUTTON_OVERRIDE", "value": false}
+    ]}"#;
+    let mut plc = build("pn101", Some(scenario), edit);
+    let mut at_2s = f64::NAN;
+    let seen = transitions(&mut plc, 120_000, |plc, t| {
+        if t == 1990 {
+            at_2s = joint_plant(plc).position_mm(0);
+        }
+    });
+    assert_eq!(at_2s, 60.5, "without the override the joint stays on the limit");
+    let names: Vec<&str> = seen.iter().map(|(_, s, _)| s.as_str()).collect();
+    assert_eq!(names, ["REBOOT", "INIT", "READY"], "{seen:?}");
+    assert_eq!(joint_plant(&plc).lost_steps(0), 0.0);
+}
+
+#[test]
+fn pn101_a_stepper_driven_past_its_pull_out_limit_loses_steps_that_open_loop_cannot_see() {
+    // Referencing searches at 12 mm/s, above the motors' 10 mm/s pull-out speed.
+    let edit = |c: &mut serde_json::Value| {
+        let classes = c["task_classes"].as_array_mut().expect("classes");
+        classes[0]["programs"][0]["params"]["steppers"][0]["max_speed_mm_s"] = serde_json::json!(12.0);
+        classes[1]["programs"][0]["params"]["joints"][0]["max_speed_mm_s"] = serde_json::json!(12.0);
+        classes[1]["programs"][0]["params"]["joints"][0]["reference"]["search_speed_mm_s"] = serde_json::json!(12.0);
+    };
+    let mut plc = build("pn101", None, edit);
+    run(&mut plc, 3000, |_, _| {});
+    let p = joint_plant(&plc);
+    let counted = get(&plc, vars::JOINT_POSITION[0]);
+    let truth = p.position_mm(0) - (-10.0);
+    eprintln!(
+        "after 3 s: counted {counted:.3} mm, moved {truth:.3} mm, lost {} steps",
+        p.lost_steps(0)
+    );
+    assert!(p.lost_steps(0) > 400.0, "lost {}", p.lost_steps(0));
+    assert!(counted - truth > 1.0, "the counter says {counted}, the carriage moved {truth}");
+    assert_eq!(state(&plc), "INIT", "open loop: the controller does not see it");
+}
