@@ -337,7 +337,12 @@ fn init_logging() {
 
 /// Loads the configuration named on the command line, or the default one.
 fn load_config(arg: &ConfigArg) -> Result<LoadedConfig, ConfigError> {
-    if let Some(file) = arg.machine.as_deref().and_then(pkm_plc::machines::find).map(|m| m.configuration()) {
+    if let Some(file) = arg
+        .machine
+        .as_deref()
+        .and_then(pkm_plc::machines::find)
+        .map(|m| m.configuration())
+    {
         let path = PathBuf::from(file.name);
         return if path.is_file() {
             config::load(Some(&path))

@@ -89,7 +89,12 @@ impl Summary {
             values: s
                 .values
                 .iter()
-                .map(|(name, v)| (name.to_string(), serde_json::Number::from_f64(*v).map_or(serde_json::Value::Null, Into::into)))
+                .map(|(name, v)| {
+                    (
+                        name.to_string(),
+                        serde_json::Number::from_f64(*v).map_or(serde_json::Value::Null, Into::into),
+                    )
+                })
                 .collect(),
         });
         Summary {

@@ -78,7 +78,8 @@ pub fn machine_config(name: &str, edit: impl FnOnce(&mut serde_json::Value)) -> 
     let path = root().join("machines").join(format!("{name}.json"));
     let mut json = read_json(&path);
     edit(&mut json);
-    let mut loaded = config::parse(&json.to_string(), &path.display().to_string()).expect("the machine's configuration parses");
+    let mut loaded =
+        config::parse(&json.to_string(), &path.display().to_string()).expect("the machine's configuration parses");
     loaded.dir = Some(root().join("machines"));
     loaded
 }
@@ -178,19 +179,27 @@ pub fn jog_right_at(dir: &Path, at_s: f64) -> PathBuf {
 /// Records `seconds` of virtual time of the repository's configuration with the scenario
 /// `events` (a JSON array) into `dir/name`; returns the trace's path.
 pub fn record_trace(dir: &Path, name: &str, seconds: u32, events: &str) -> PathBuf {
+    record_machine_trace(dir, name, seconds, events, &[])
+}
+
+/// As [`record_trace`], with more arguments for `run` (`--machine pn101`).
+pub fn record_machine_trace(dir: &Path, name: &str, seconds: u32, events: &str, more: &[&str]) -> PathBuf {
     let scenario = dir.join(format!("{name}.scenario.json"));
     std::fs::write(&scenario, format!(r#"{{"events": {events}}}"#)).expect("write scenario");
     let trace = dir.join(name);
-    let o = pkm(&[
+    let seconds = seconds.to_string();
+    let mut args = vec![
         "run",
         "--virtual",
         "--duration",
-        &seconds.to_string(),
+        &seconds,
         "--scenario",
         scenario.to_str().expect("utf-8"),
         "--trace",
         trace.to_str().expect("utf-8"),
-    ]);
+    ];
+    args.extend_from_slice(more);
+    let o = pkm(&args);
     assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
     trace
 }

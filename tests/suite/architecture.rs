@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 /// The application crates.
-const APPLICATION_CRATES: &[&str] = &["pkm-api", "pkm-drives", "pkm-kinematics", "pkm-trijoint"];
+const APPLICATION_CRATES: &[&str] = &["pkm-api", "pkm-drives", "pkm-joints", "pkm-kinematics", "pkm-trijoint"];
 
 /// Crates that touch a wire, a clock, a thread or a terminal, or belong to the command line.
 const RUNTIME_CRATES: &[&str] = &[

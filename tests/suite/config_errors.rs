@@ -253,7 +253,8 @@ fn program_checks() {
             class(r#"{"programs": [{"program": "encoder"}]}"#)
         )),
         "cfg.json: at task_classes[0].programs[0].program: unknown program \"encoder\"; known programs: \
-         selftest.producer, selftest.consumer, selftest.idle, trijoint.encoders, trijoint.main, trijoint.control"
+         selftest.producer, selftest.consumer, selftest.idle, trijoint.encoders, trijoint.main, trijoint.control, pn101.drives, pn101.main, \
+         ox-x.drives, ox-x.main, ox-o.drives, ox-o.main, hexapod.drives, hexapod.main"
     );
     assert_eq!(
         error(&format!(

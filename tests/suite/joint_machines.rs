@@ -15,8 +15,12 @@ const MACHINES: [&str; 4] = ["pn101", "ox-x", "ox-o", "hexapod"];
 
 /// The machine's PLC on its simulated plant, its configuration edited by `edit`.
 fn build(name: &str, scenario: Option<&str>, edit: impl FnOnce(&mut serde_json::Value)) -> Plc {
-    common::sim_plc(&machine_config(name, edit), &pkm_plc::machines::all_programs(), scenario)
-        .unwrap_or_else(|e| panic!("{e}"))
+    common::sim_plc(
+        &machine_config(name, edit),
+        &pkm_plc::machines::all_programs(),
+        scenario,
+    )
+    .unwrap_or_else(|e| panic!("{e}"))
 }
 
 /// Number of joints and of pose coordinates.
@@ -80,23 +84,29 @@ fn every_machine_references_and_reaches_ready_at_the_forward_kinematics_of_its_r
         eprintln!("{name}: READY after {:.2} s", seen[2].0 as f64 / 1000.0);
         let f = frame(name);
         let mut expected = [0.0; 6];
-        f.forward(f.home_joints(), None, &mut expected[..n]).expect("fk of home");
+        f.forward(f.home_joints(), None, &mut expected[..n])
+            .expect("fk of home");
         let (q, x) = (joints(&plc, n), tool(&plc, n));
-        for j in 0..n {
+        for (j, (q, home)) in q.iter().zip(f.home_joints()).enumerate() {
             assert!(
-                (q[j] - f.home_joints()[j]).abs() < 0.01,
-                "{name}: joint {} at {} (reference {})",
-                j + 1,
-                q[j],
-                f.home_joints()[j]
+                (q - home).abs() < 0.01,
+                "{name}: joint {} at {q} (reference {home})",
+                j + 1
             );
             // The controller's joint position is the plant's true one (the reference switch
             // defines it), to the capture's resolution.
             let truth = joint_plant(&plc).position_mm(j);
-            assert!((q[j] - truth).abs() < 0.01, "{name}: joint {} reads {} true {truth}", j + 1, q[j]);
+            assert!(
+                (q - truth).abs() < 0.01,
+                "{name}: joint {} reads {q} true {truth}",
+                j + 1
+            );
         }
         for c in 0..n {
-            assert!((x[c] - expected[c]).abs() < 0.01, "{name}: tool {x:?} vs FK of home {expected:?}");
+            assert!(
+                (x[c] - expected[c]).abs() < 0.01,
+                "{name}: tool {x:?} vs FK of home {expected:?}"
+            );
         }
         // TOOL_* is the forward kinematics of the joint positions (of the last main cycle; the
         // hexapod's regulators still settle by a micrometre since).
@@ -137,7 +147,11 @@ fn a_world_jog_along_x_moves_only_x() {
             }
         });
         let names: Vec<&str> = seen.iter().map(|(_, s, _)| s.as_str()).collect();
-        assert_eq!(names, ["REBOOT", "INIT", "READY", "MOTION", "READY"], "{name}: {seen:?}");
+        assert_eq!(
+            names,
+            ["REBOOT", "INIT", "READY", "MOTION", "READY"],
+            "{name}: {seen:?}"
+        );
         eprintln!("{name}: x moved {moved:.3} mm, other coordinates at most {worst:.4}");
         assert!(moved > 5.0, "{name}: the tool moved {moved} mm along x");
         assert!(worst <= 0.05, "{name}: another coordinate moved {worst} mm");
@@ -152,7 +166,8 @@ fn a_jog_into_the_workspace_border_stops_there_without_an_error() {
         // World limits far away: the border is the mechanism's (joint software limits, no
         // assembly, the singularity threshold).
         let far = |c: &mut serde_json::Value| {
-            c["task_classes"][1]["programs"][0]["params"]["world_limits"] = serde_json::json!(vec![[-1000.0, 1000.0]; n]);
+            c["task_classes"][1]["programs"][0]["params"]["world_limits"] =
+                serde_json::json!(vec![[-1000.0, 1000.0]; n]);
         };
         let mut plc = build(name, Some(&stick(start, 1.0, 0.0, 120_000)), far);
         let mut last: Vec<f64> = Vec::new();
@@ -171,12 +186,20 @@ fn a_jog_into_the_workspace_border_stops_there_without_an_error() {
         });
         let names: Vec<&str> = seen.iter().map(|(_, s, _)| s.as_str()).collect();
         assert_eq!(names, ["REBOOT", "INIT", "READY", "MOTION"], "{name}: {seen:?}");
-        assert!(still_from < start + 110_000, "{name}: the tool still moves at {still_from} ms, x = {}", last[0]);
+        assert!(
+            still_from < start + 110_000,
+            "{name}: the tool still moves at {still_from} ms, x = {}",
+            last[0]
+        );
         let p = joint_plant(&plc);
         for j in 0..n {
             assert_eq!(p.lost_steps(j), 0.0, "{name}: joint {} lost steps", j + 1);
         }
-        eprintln!("{name}: stopped at the border at x = {:.3} mm after {} ms", last[0], still_from - start);
+        eprintln!(
+            "{name}: stopped at the border at x = {:.3} mm after {} ms",
+            last[0],
+            still_from - start
+        );
     }
 }
 
@@ -219,7 +242,10 @@ fn stop_zeroes_the_drives_in_the_same_fast_cycle_and_the_acknowledgement_referen
                 moving_before |= !drives_zero(plc, name) && state(plc) == "MOTION";
             } else if !checked && get(plc, vars::BUTTON_STOP) {
                 checked = true;
-                assert!(drives_zero(plc, name), "{name}: drive outputs at {t} ms, the cycle STOP is seen");
+                assert!(
+                    drives_zero(plc, name),
+                    "{name}: drive outputs at {t} ms, the cycle STOP is seen"
+                );
             }
         });
         assert!(moving_before && checked, "{name}");
@@ -244,7 +270,10 @@ fn pn101_references_one_joint_at_a_time_in_order() {
         let moving: Vec<usize> = (0..3)
             .filter(|j| get(plc, vars::SETPOINT_VELOCITY[*j]) != 0.0)
             .collect();
-        assert!(moving.len() <= 1, "joints {moving:?} move together on the shared reference input");
+        assert!(
+            moving.len() <= 1,
+            "joints {moving:?} move together on the shared reference input"
+        );
         if let Some(&j) = moving.first()
             && order.last() != Some(&j)
         {
@@ -258,9 +287,8 @@ fn pn101_references_one_joint_at_a_time_in_order() {
 #[test]
 fn pn101_a_shared_limit_input_trips_error_naming_it() {
     let at = ready_ms("pn101") + 1000;
-    let scenario = format!(
-        r#"{{"events": [{{"at_ms": {at}, "fault": "switch_stuck", "switch": "LIMIT_POS", "value": true}}]}}"#
-    );
+    let scenario =
+        format!(r#"{{"events": [{{"at_ms": {at}, "fault": "switch_stuck", "switch": "LIMIT_POS", "value": true}}]}}"#);
     let mut plc = build("pn101", Some(&scenario), |_| {});
     let seen = transitions(&mut plc, at + 500, |_, _| {});
     let last = seen.last().expect("states");
@@ -315,6 +343,9 @@ fn pn101_a_stepper_driven_past_its_pull_out_limit_loses_steps_that_open_loop_can
         p.lost_steps(0)
     );
     assert!(p.lost_steps(0) > 400.0, "lost {}", p.lost_steps(0));
-    assert!(counted - truth > 1.0, "the counter says {counted}, the carriage moved {truth}");
+    assert!(
+        counted - truth > 1.0,
+        "the counter says {counted}, the carriage moved {truth}"
+    );
     assert_eq!(state(&plc), "INIT", "open loop: the controller does not see it");
 }

@@ -152,6 +152,10 @@ struct Golden {
 #[derive(serde::Deserialize)]
 struct GoldenTrace {
     name: String,
+    /// The machine whose configuration records and replays it (`--machine`); the repository's
+    /// config.json (the TRIJOINT) when left out.
+    #[serde(default)]
+    machine: Option<String>,
     duration_s: u32,
     events: serde_json::Value,
 }
@@ -165,16 +169,20 @@ fn golden_traces_replay_identically() {
     let scratch = tempfile::tempdir().expect("tempdir");
     for g in &golden.traces {
         let trace = dir.join(format!("{}.jsonl.gz", g.name));
+        let machine: Vec<&str> = g.machine.iter().flat_map(|m| ["--machine", m.as_str()]).collect();
         if bless {
-            let recorded = record(
+            let recorded = common::record_machine_trace(
                 scratch.path(),
                 &format!("{}.jsonl.gz", g.name),
                 g.duration_s,
                 &g.events.to_string(),
+                &machine,
             );
             std::fs::copy(recorded, &trace).expect("bless");
         }
-        let o = pkm(&["replay", trace.to_str().expect("utf-8")]);
+        let mut replay = vec!["replay", trace.to_str().expect("utf-8")];
+        replay.extend_from_slice(&machine);
+        let o = pkm(&replay);
         assert_eq!(o.status.code(), Some(0), "golden trace {}: {}", g.name, stderr(&o));
         // The reviewable form beside it: state transitions and sampled outputs as text.
         let o = pkm(&["trace", "summary", trace.to_str().expect("utf-8")]);

@@ -104,7 +104,10 @@ fn check(spec: &Spec, p: &DrivesParams, decl: &mut Declare<'_>) {
         DriveKind::Dc => (!p.steppers.is_empty()).then_some(("steppers", "DC")),
     };
     if let Some((key, kind)) = other {
-        decl.issue(&format!("params.{key}"), format!("{} has {kind} drives only", spec.name));
+        decl.issue(
+            &format!("params.{key}"),
+            format!("{} has {kind} drives only", spec.name),
+        );
     }
     for (i, s) in p.steppers.iter().enumerate() {
         let at = |k: &str| format!("params.steppers[{i}].{k}");
@@ -113,7 +116,10 @@ fn check(spec: &Spec, p: &DrivesParams, decl: &mut Declare<'_>) {
         positive(decl, at("max_accel_mm_s2"), s.max_accel_mm_s2);
         positive(decl, at("max_following_error_mm"), s.max_following_error_mm);
         if !(s.kp_per_s.is_finite() && (0.0..=100.0).contains(&s.kp_per_s)) {
-            decl.issue(&at("kp_per_s"), format!("must be between 0 and 100 /s, got {}", s.kp_per_s));
+            decl.issue(
+                &at("kp_per_s"),
+                format!("must be between 0 and 100 /s, got {}", s.kp_per_s),
+            );
         }
         if s.max_speed_mm_s * s.steps_per_mm > f64::from(i16::MAX) {
             decl.issue(
@@ -135,24 +141,41 @@ fn check(spec: &Spec, p: &DrivesParams, decl: &mut Declare<'_>) {
             }
         }
         if !(d.velocity_ff.is_finite() && (0.0..=1.0).contains(&d.velocity_ff)) {
-            decl.issue(&at("velocity_ff"), format!("must be between 0 and 1 duty per mm/s, got {}", d.velocity_ff));
+            decl.issue(
+                &at("velocity_ff"),
+                format!("must be between 0 and 1 duty per mm/s, got {}", d.velocity_ff),
+            );
         }
         if !(d.output_limit > 0.0 && d.output_limit <= 1.0) {
-            decl.issue(&at("output_limit"), format!("must be in (0, 1], got {}", d.output_limit));
+            decl.issue(
+                &at("output_limit"),
+                format!("must be in (0, 1], got {}", d.output_limit),
+            );
         }
         if d.max_counts_per_cycle == 0 || d.max_counts_per_cycle >= 32_768 {
             decl.issue(
                 &at("max_counts_per_cycle"),
-                format!("must be 1 … 32767 (half the counter range), got {}", d.max_counts_per_cycle),
+                format!(
+                    "must be 1 … 32767 (half the counter range), got {}",
+                    d.max_counts_per_cycle
+                ),
             );
         }
     }
     match (spec.drive, p.pwm_period_us) {
         (DriveKind::Dc, Some(us)) if !(10..=10_000).contains(&us) => {
-            decl.issue("params.pwm_period_us", format!("must be between 10 and 10000 µs: 0 switches the bridges off, got {us}"));
+            decl.issue(
+                "params.pwm_period_us",
+                format!("must be between 10 and 10000 µs: 0 switches the bridges off, got {us}"),
+            );
         }
-        (DriveKind::Dc, None) => decl.issue("params.pwm_period_us", "a DC machine needs the bridges' PWM period (µs)"),
-        (DriveKind::Stepper, Some(_)) => decl.issue("params.pwm_period_us", format!("{} has no motor bridges", spec.name)),
+        (DriveKind::Dc, None) => decl.issue(
+            "params.pwm_period_us",
+            "a DC machine needs the bridges' PWM period (µs)",
+        ),
+        (DriveKind::Stepper, Some(_)) => {
+            decl.issue("params.pwm_period_us", format!("{} has no motor bridges", spec.name))
+        }
         _ => {}
     }
 }
@@ -180,7 +203,11 @@ impl Drives {
             .map(|j| {
                 let (outputs, units_per_mm) = match spec.drive {
                     DriveKind::Stepper => {
-                        let s = p.steppers.get(j).cloned().unwrap_or_else(|| spec.default_drives().steppers[j].clone());
+                        let s = p
+                            .steppers
+                            .get(j)
+                            .cloned()
+                            .unwrap_or_else(|| spec.default_drives().steppers[j].clone());
                         let units = s.steps_per_mm;
                         (
                             Outputs::Stepper {
@@ -193,7 +220,10 @@ impl Drives {
                         )
                     }
                     DriveKind::Dc => {
-                        let d = p.dc.get(j).cloned().unwrap_or_else(|| spec.default_drives().dc[j].clone());
+                        let d =
+                            p.dc.get(j)
+                                .cloned()
+                                .unwrap_or_else(|| spec.default_drives().dc[j].clone());
                         let units = d.counts_per_mm;
                         (
                             Outputs::Dc {
@@ -235,7 +265,10 @@ impl Drives {
             })
             .collect();
         let periods = match spec.drive {
-            DriveKind::Dc => vars::PWM_PERIOD[..n.div_ceil(2)].iter().map(|v| decl.write(*v, 0)).collect(),
+            DriveKind::Dc => vars::PWM_PERIOD[..n.div_ceil(2)]
+                .iter()
+                .map(|v| decl.write(*v, 0))
+                .collect(),
             DriveKind::Stepper => Vec::new(),
         };
         Box::new(Drives {

@@ -130,7 +130,10 @@ impl JointMachine {
         let signals = plant::harness::signals(spec);
         let keys: Vec<&str> = signals.iter().map(|(s, _, _)| s.key).collect();
         let plant = plant_section(spec, s.plant).and_then(|plant| {
-            let problems = problem::under("plant", plant.check(spec.joints(), &keys, spec.drive == DriveKind::Stepper));
+            let problems = problem::under(
+                "plant",
+                plant.check(spec.joints(), &keys, spec.drive == DriveKind::Stepper),
+            );
             if problems.is_empty() { Ok(plant) } else { Err(problems) }
         });
         let (k, p) = match (kinematics, plant) {

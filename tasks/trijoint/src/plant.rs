@@ -153,7 +153,12 @@ impl Plant {
     pub fn new(left: &DriveParams, right: &DriveParams, mechanism: Option<&TrijointParams>) -> Self {
         let drive = |p: &DriveParams| Drive {
             p: p.clone(),
-            axis: DcAxis::new(p.v_max_mm_s, p.tau_s, [p.hard_stop_min_mm, p.hard_stop_max_mm], p.start_mm),
+            axis: DcAxis::new(
+                p.v_max_mm_s,
+                p.tau_s,
+                [p.hard_stop_min_mm, p.hard_stop_max_mm],
+                p.start_mm,
+            ),
             pwm: 0,
             counter_offset: 0,
             counter_reset: false,

@@ -36,7 +36,10 @@ impl Automaton {
             .all(|(c, [lo, hi])| (*lo..=*hi).contains(c));
         inside_world
             && self.frame.inverse(&pose[..n], &mut joints[..n]).is_ok()
-            && joints[..n].iter().zip(&self.soft).all(|(q, [lo, hi])| (*lo..=*hi).contains(q))
+            && joints[..n]
+                .iter()
+                .zip(&self.soft)
+                .all(|(q, [lo, hi])| (*lo..=*hi).contains(q))
             && self
                 .frame
                 .singularity_measure(&pose[..n])
@@ -120,8 +123,8 @@ impl Automaton {
         let step = self.free_distance(&u, speed * dt).min(speed * dt);
         let next = self.along(&u, step);
         if step > 0.0 && self.allowed(&next, &mut joints) {
-            for j in 0..n {
-                io.velocities[j] = (joints[j] - io.setpoints[j]) / dt;
+            for ((v, q), sp) in io.velocities[..n].iter_mut().zip(&joints).zip(&io.setpoints) {
+                *v = (q - sp) / dt;
             }
             self.pose = next;
             for (v, d) in self.pose_velocity.iter_mut().zip(&u) {

@@ -101,7 +101,10 @@ fn check(spec: &Spec, p: &MainParams, keys: &[&str], travel: &[[f64; 2]], decl: 
         }
     };
     if p.joints.len() != n {
-        decl.issue("params.joints", format!("{} has {n} joints; got {}", spec.name, p.joints.len()));
+        decl.issue(
+            "params.joints",
+            format!("{} has {n} joints; got {}", spec.name, p.joints.len()),
+        );
     }
     for (i, j) in p.joints.iter().enumerate() {
         let at = |k: &str| format!("params.joints[{i}].{k}");
@@ -111,7 +114,10 @@ fn check(spec: &Spec, p: &MainParams, keys: &[&str], travel: &[[f64; 2]], decl: 
         positive(decl, &at("reference.latch_speed_mm_s"), j.reference.latch_speed_mm_s);
         positive(decl, &at("reference.back_off_mm"), j.reference.back_off_mm);
         if j.reference.direction.abs() != 1.0 {
-            decl.issue(&at("reference.direction"), format!("must be 1 or -1, got {}", j.reference.direction));
+            decl.issue(
+                &at("reference.direction"),
+                format!("must be 1 or -1, got {}", j.reference.direction),
+            );
         }
         if j.reference.latch_speed_mm_s > j.reference.search_speed_mm_s {
             decl.issue(
@@ -127,7 +133,10 @@ fn check(spec: &Spec, p: &MainParams, keys: &[&str], travel: &[[f64; 2]], decl: 
         {
             decl.issue(
                 &at("reference.switch_mm"),
-                format!("must lie within the joint's travel {lo} … {hi} mm, got {}", j.reference.switch_mm),
+                format!(
+                    "must lie within the joint's travel {lo} … {hi} mm, got {}",
+                    j.reference.switch_mm
+                ),
             );
         }
     }
@@ -135,9 +144,15 @@ fn check(spec: &Spec, p: &MainParams, keys: &[&str], travel: &[[f64; 2]], decl: 
     for (g, group) in p.reference_order.iter().enumerate() {
         for &joint in group {
             if joint == 0 || joint > n {
-                decl.issue(&format!("params.reference_order[{g}]"), format!("joints are numbered 1 … {n}, got {joint}"));
+                decl.issue(
+                    &format!("params.reference_order[{g}]"),
+                    format!("joints are numbered 1 … {n}, got {joint}"),
+                );
             } else if std::mem::replace(&mut seen[joint - 1], true) {
-                decl.issue(&format!("params.reference_order[{g}]"), format!("joint {joint} is referenced twice"));
+                decl.issue(
+                    &format!("params.reference_order[{g}]"),
+                    format!("joint {joint} is referenced twice"),
+                );
             }
         }
         if Switches::of(spec).shared() && group.len() > 1 {
@@ -151,25 +166,40 @@ fn check(spec: &Spec, p: &MainParams, keys: &[&str], travel: &[[f64; 2]], decl: 
         }
     }
     if let Some(missing) = seen.iter().position(|s| !s) {
-        decl.issue("params.reference_order", format!("joint {} is never referenced", missing + 1));
+        decl.issue(
+            "params.reference_order",
+            format!("joint {} is never referenced", missing + 1),
+        );
     }
     positive(decl, "params.search_timeout_s", p.search_timeout_s);
     let shortest = travel.iter().map(|[lo, hi]| hi - lo).fold(f64::INFINITY, f64::min);
-    if !(p.soft_limit_margin_mm.is_finite() && p.soft_limit_margin_mm >= 0.0 && p.soft_limit_margin_mm < shortest / 4.0) {
+    if !(p.soft_limit_margin_mm.is_finite() && p.soft_limit_margin_mm >= 0.0 && p.soft_limit_margin_mm < shortest / 4.0)
+    {
         decl.issue(
             "params.soft_limit_margin_mm",
-            format!("must be at least 0 and below a quarter of the shortest travel ({} mm), got {}", shortest / 4.0, p.soft_limit_margin_mm),
+            format!(
+                "must be at least 0 and below a quarter of the shortest travel ({} mm), got {}",
+                shortest / 4.0,
+                p.soft_limit_margin_mm
+            ),
         );
     }
     if p.world_limits.len() != keys.len() {
         decl.issue(
             "params.world_limits",
-            format!("one [min, max] per pose coordinate ({}); got {}", keys.join(", "), p.world_limits.len()),
+            format!(
+                "one [min, max] per pose coordinate ({}); got {}",
+                keys.join(", "),
+                p.world_limits.len()
+            ),
         );
     }
     for (i, [lo, hi]) in p.world_limits.iter().enumerate() {
         if !(lo.is_finite() && hi.is_finite() && lo < hi) {
-            decl.issue(&format!("params.world_limits[{i}]"), format!("must be [min, max] with min < max, got [{lo}, {hi}]"));
+            decl.issue(
+                &format!("params.world_limits[{i}]"),
+                format!("must be [min, max] with min < max, got [{lo}, {hi}]"),
+            );
         }
     }
     if !(p.singularity_threshold.is_finite() && (0.001..=0.99).contains(&p.singularity_threshold)) {
@@ -186,22 +216,38 @@ fn check(spec: &Spec, p: &MainParams, keys: &[&str], travel: &[[f64; 2]], decl: 
         positive(decl, "params.jog.angular_speed_deg_s", jog.angular_speed_deg_s);
     }
     if !(jog.dead_zone.is_finite() && (0.0..=0.9).contains(&jog.dead_zone)) {
-        decl.issue("params.jog.dead_zone", format!("must be between 0 and 0.9 (a fraction of full deflection), got {}", jog.dead_zone));
+        decl.issue(
+            "params.jog.dead_zone",
+            format!(
+                "must be between 0 and 0.9 (a fraction of full deflection), got {}",
+                jog.dead_zone
+            ),
+        );
     }
     if jog.axis_pairs.is_empty() {
-        decl.issue("params.jog.axis_pairs", "needs at least one pair of world axes for the stick");
+        decl.issue(
+            "params.jog.axis_pairs",
+            "needs at least one pair of world axes for the stick",
+        );
     }
     for (i, pair) in jog.axis_pairs.iter().enumerate() {
         for k in pair {
             if !keys.contains(&k.as_str()) {
                 decl.issue(
                     &format!("params.jog.axis_pairs[{i}]"),
-                    format!("\"{k}\" is not a world axis of {}; its axes are {}", spec.name, keys.join(", ")),
+                    format!(
+                        "\"{k}\" is not a world axis of {}; its axes are {}",
+                        spec.name,
+                        keys.join(", ")
+                    ),
                 );
             }
         }
         if pair[0] == pair[1] {
-            decl.issue(&format!("params.jog.axis_pairs[{i}]"), format!("names \"{}\" twice", pair[0]));
+            decl.issue(
+                &format!("params.jog.axis_pairs[{i}]"),
+                format!("names \"{}\" twice", pair[0]),
+            );
         }
     }
 }
@@ -235,7 +281,10 @@ impl MainProgram {
             _ => Home::Joints(&[0.0; MAX_DOF]),
         };
         let frame = MachineFrame::new(kin, home).unwrap_or_else(|e| {
-            decl.issue("program", format!("the machine's home is not a pose of its kinematics: {e}"));
+            decl.issue(
+                "program",
+                format!("the machine's home is not a pose of its kinematics: {e}"),
+            );
             default_frame(spec)
         });
         let margin = p.soft_limit_margin_mm;
@@ -312,8 +361,12 @@ fn default_frame(spec: &Spec) -> MachineFrame {
         Model::Hexapod => Home::Pose(&kinematics.hexapod.home),
         _ => Home::Joints(&[0.0; MAX_DOF]),
     };
-    MachineFrame::new(kinematics.build(spec.model), home)
-        .unwrap_or_else(|e| panic!("{}'s default home is not a pose of its default kinematics: {e}", spec.name))
+    MachineFrame::new(kinematics.build(spec.model), home).unwrap_or_else(|e| {
+        panic!(
+            "{}'s default home is not a pose of its default kinematics: {e}",
+            spec.name
+        )
+    })
 }
 
 impl MainProgram {
@@ -405,19 +458,23 @@ impl MainProgram {
         if io.referenced {
             let mut pose = [0.0; MAX_DOF];
             let hint = self.tool;
-            if automaton.frame.forward(&io.positions[..n], Some(&hint[..n]), &mut pose[..n]).is_ok() {
+            if automaton
+                .frame
+                .forward(&io.positions[..n], Some(&hint[..n]), &mut pose[..n])
+                .is_ok()
+            {
                 self.tool = pose;
                 for (c, out) in v.tool.iter().enumerate() {
                     ctx.set(*out, pose[c]);
                 }
             }
-            for c in 0..coords {
-                self.shown[shown] = (POSE_NAMES[c], self.tool[c]);
+            for (name, value) in POSE_NAMES.iter().zip(&self.tool).take(coords) {
+                self.shown[shown] = (name, *value);
                 shown += 1;
             }
         }
-        for j in 0..n.min(12 - shown) {
-            self.shown[shown] = (JOINT_NAMES[j], io.positions[j]);
+        for (name, value) in JOINT_NAMES.iter().zip(&io.positions).take(n.min(12 - shown)) {
+            self.shown[shown] = (name, *value);
             shown += 1;
         }
         self.shown_len = shown;

@@ -78,7 +78,10 @@ impl ReasonTexts {
             texts.push((Reason::FollowingError(j), format!("following error joint {}", j + 1)));
             texts.push((
                 Reason::InitTimeout(j),
-                format!("INIT timeout: joint {} did not reach its reference ({reference})", j + 1),
+                format!(
+                    "INIT timeout: joint {} did not reach its reference ({reference})",
+                    j + 1
+                ),
             ));
             texts.push((
                 Reason::ReferenceStaysOn(j),

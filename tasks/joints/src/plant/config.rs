@@ -92,7 +92,10 @@ impl PlantConfig {
         if self.joints.len() != joints {
             problems.push(Problem::new(
                 "joints",
-                format!("the machine has {joints} joints, the section gives {}", self.joints.len()),
+                format!(
+                    "the machine has {joints} joints, the section gives {}",
+                    self.joints.len()
+                ),
             ));
         }
         for (i, j) in self.joints.iter().enumerate() {
@@ -113,7 +116,10 @@ impl PlantConfig {
             if !keys.contains(&key.as_str()) {
                 problems.push(Problem::new(
                     format!("wiring.{key}"),
-                    format!("the machine has no signal \"{key}\"; its signals are {}", keys.join(", ")),
+                    format!(
+                        "the machine has no signal \"{key}\"; its signals are {}",
+                        keys.join(", ")
+                    ),
                 ));
             }
         }
@@ -154,7 +160,10 @@ impl JointPlant {
         }
         let positive = |problems: &mut Vec<Problem>, k: &str, v: f64| {
             if !(v.is_finite() && v > 0.0) {
-                problems.push(Problem::new(format!("{at}.motor.{k}"), format!("must be positive, got {v}")));
+                problems.push(Problem::new(
+                    format!("{at}.motor.{k}"),
+                    format!("must be positive, got {v}"),
+                ));
             }
         };
         if self.motor.stepper.is_some() == self.motor.dc.is_some() {

@@ -98,15 +98,39 @@ pub fn signals(spec: &Spec) -> Vec<(Signal, Wire, String)> {
     let n = spec.joints();
     match spec.switches {
         SwitchLayout::Shared => {
-            out.push((signal("limit_neg", I, Bool, Role::Switch), Wire::Limit(None, 0), next_input()));
-            out.push((signal("limit_pos", I, Bool, Role::Switch), Wire::Limit(None, 1), next_input()));
-            out.push((signal("reference", I, Bool, Role::Switch), Wire::Reference(None), next_input()));
+            out.push((
+                signal("limit_neg", I, Bool, Role::Switch),
+                Wire::Limit(None, 0),
+                next_input(),
+            ));
+            out.push((
+                signal("limit_pos", I, Bool, Role::Switch),
+                Wire::Limit(None, 1),
+                next_input(),
+            ));
+            out.push((
+                signal("reference", I, Bool, Role::Switch),
+                Wire::Reference(None),
+                next_input(),
+            ));
         }
         SwitchLayout::PerJoint => {
             for j in 0..n {
-                out.push((signal(LIMIT_NEG[j], I, Bool, Role::Switch), Wire::Limit(Some(j), 0), next_input()));
-                out.push((signal(LIMIT_POS[j], I, Bool, Role::Switch), Wire::Limit(Some(j), 1), next_input()));
-                out.push((signal(REFERENCE[j], I, Bool, Role::Switch), Wire::Reference(Some(j)), next_input()));
+                out.push((
+                    signal(LIMIT_NEG[j], I, Bool, Role::Switch),
+                    Wire::Limit(Some(j), 0),
+                    next_input(),
+                ));
+                out.push((
+                    signal(LIMIT_POS[j], I, Bool, Role::Switch),
+                    Wire::Limit(Some(j), 1),
+                    next_input(),
+                ));
+                out.push((
+                    signal(REFERENCE[j], I, Bool, Role::Switch),
+                    Wire::Reference(Some(j)),
+                    next_input(),
+                ));
             }
         }
     }
@@ -114,30 +138,77 @@ pub fn signals(spec: &Spec) -> Vec<(Signal, Wire, String)> {
         let (module, channel) = (j / 2 + 1, j % 2 + 1);
         match spec.drive {
             DriveKind::Stepper => {
-                out.push((signal(ENABLE[j], O, Bool, Role::Other), Wire::Enable(j), format!("SM{module}.Enable{channel:02}")));
-                out.push((signal(SPEED[j], O, Int, Role::Other), Wire::Speed(j), format!("SM{module}.SpeedSetpoint{channel:02}")));
-                out.push((signal(COUNTER[j], I, Int, Role::Other), Wire::Counter(j), format!("SM{module}.StepCounter{channel:02}")));
+                out.push((
+                    signal(ENABLE[j], O, Bool, Role::Other),
+                    Wire::Enable(j),
+                    format!("SM{module}.Enable{channel:02}"),
+                ));
+                out.push((
+                    signal(SPEED[j], O, Int, Role::Other),
+                    Wire::Speed(j),
+                    format!("SM{module}.SpeedSetpoint{channel:02}"),
+                ));
+                out.push((
+                    signal(COUNTER[j], I, Int, Role::Other),
+                    Wire::Counter(j),
+                    format!("SM{module}.StepCounter{channel:02}"),
+                ));
             }
             DriveKind::Dc => {
-                out.push((signal(COUNTER[j], I, Int, Role::Other), Wire::Counter(j), format!("DC{}.Counter01", j + 1)));
-                out.push((signal(PWM[j], O, Int, Role::Other), Wire::Pwm(j), format!("MM{module}.PulseWidthCurrentPWM{channel:02}")));
-                out.push((signal(CLEAR_ERROR[j], O, Bool, Role::Other), Wire::ClearError(j), format!("MM{module}.ClearError{channel:02}")));
-                out.push((signal(BRIDGE_ERROR[j], I, Bool, Role::Other), Wire::BridgeError(j), format!("MM{module}.Error{channel:02}")));
+                out.push((
+                    signal(COUNTER[j], I, Int, Role::Other),
+                    Wire::Counter(j),
+                    format!("DC{}.Counter01", j + 1),
+                ));
+                out.push((
+                    signal(PWM[j], O, Int, Role::Other),
+                    Wire::Pwm(j),
+                    format!("MM{module}.PulseWidthCurrentPWM{channel:02}"),
+                ));
+                out.push((
+                    signal(CLEAR_ERROR[j], O, Bool, Role::Other),
+                    Wire::ClearError(j),
+                    format!("MM{module}.ClearError{channel:02}"),
+                ));
+                out.push((
+                    signal(BRIDGE_ERROR[j], I, Bool, Role::Other),
+                    Wire::BridgeError(j),
+                    format!("MM{module}.Error{channel:02}"),
+                ));
             }
         }
     }
     if spec.drive == DriveKind::Dc {
         for (m, key) in PWM_PERIOD.iter().enumerate().take(n.div_ceil(2)) {
-            out.push((signal(key, O, Uint, Role::Other), Wire::PwmPeriod(m), format!("MM{}.PeriodDurationPWM01", m + 1)));
+            out.push((
+                signal(key, O, Uint, Role::Other),
+                Wire::PwmPeriod(m),
+                format!("MM{}.PeriodDurationPWM01", m + 1),
+            ));
         }
     }
-    out.push((signal("joystick_x", I, Real, Role::Other), Wire::JoystickAxis(0), "JOY.AxisX".into()));
-    out.push((signal("joystick_y", I, Real, Role::Other), Wire::JoystickAxis(1), "JOY.AxisY".into()));
-    out.push((signal("joystick_connected", I, Bool, Role::Other), Wire::JoystickConnected, "JOY.Connected".into()));
+    out.push((
+        signal("joystick_x", I, Real, Role::Other),
+        Wire::JoystickAxis(0),
+        "JOY.AxisX".into(),
+    ));
+    out.push((
+        signal("joystick_y", I, Real, Role::Other),
+        Wire::JoystickAxis(1),
+        "JOY.AxisY".into(),
+    ));
+    out.push((
+        signal("joystick_connected", I, Bool, Role::Other),
+        Wire::JoystickConnected,
+        "JOY.Connected".into(),
+    ));
     out
 }
 
 /// The default wiring: every signal to its channel in the machine's I/O map.
 pub fn default_wiring(spec: &Spec) -> BTreeMap<String, String> {
-    signals(spec).into_iter().map(|(s, _, channel)| (s.key.to_string(), channel)).collect()
+    signals(spec)
+        .into_iter()
+        .map(|(s, _, channel)| (s.key.to_string(), channel))
+        .collect()
 }

@@ -58,7 +58,9 @@ impl Joint {
     fn counter(&self) -> i16 {
         let raw = match &self.drive {
             Drive::Stepper { motor, .. } => i64::from(motor.counter()),
-            Drive::Dc { axis, counts_per_mm, .. } => (axis.position_mm() * counts_per_mm).round() as i64,
+            Drive::Dc {
+                axis, counts_per_mm, ..
+            } => (axis.position_mm() * counts_per_mm).round() as i64,
         };
         wrap(raw + self.counter_offset)
     }
@@ -87,11 +89,7 @@ const DRIVES: [&str; 6] = ["joint1", "joint2", "joint3", "joint4", "joint5", "jo
 impl Plant {
     /// A plant from its (checked) configuration; `mechanism` is the machine's kinematics, whose
     /// forward transformation says where the mechanism jams (`None`: the joints are independent).
-    pub fn new(
-        config: &PlantConfig,
-        signals: Vec<(Signal, Wire)>,
-        mechanism: Option<Box<dyn Kinematics>>,
-    ) -> Plant {
+    pub fn new(config: &PlantConfig, signals: Vec<(Signal, Wire)>, mechanism: Option<Box<dyn Kinematics>>) -> Plant {
         let joints: Vec<Joint> = config
             .joints
             .iter()
@@ -172,7 +170,10 @@ impl Plant {
                     at
                 }
                 Drive::Dc {
-                    axis, pwm, bridge_error, ..
+                    axis,
+                    pwm,
+                    bridge_error,
+                    ..
                 } => {
                     let period = self.pwm_period[j / 2];
                     let duty = if period > 0 && !*bridge_error && !joint.dead {
@@ -312,15 +313,11 @@ impl pkm_api::machine::Plant for Plant {
         let wire = self.wires[signal];
         match wire {
             Wire::Button(b) => Value::Bool(self.buttons[b]),
-            Wire::Limit(..) | Wire::Reference(_) => Value::Bool(self.stuck[signal].unwrap_or_else(|| self.switch(wire))),
+            Wire::Limit(..) | Wire::Reference(_) => {
+                Value::Bool(self.stuck[signal].unwrap_or_else(|| self.switch(wire)))
+            }
             Wire::Counter(j) => Value::Int(self.joints[j].counter()),
-            Wire::BridgeError(j) => Value::Bool(matches!(
-                self.joints[j].drive,
-                Drive::Dc {
-                    bridge_error: true,
-                    ..
-                }
-            )),
+            Wire::BridgeError(j) => Value::Bool(matches!(self.joints[j].drive, Drive::Dc { bridge_error: true, .. })),
             Wire::JoystickAxis(a) => Value::Real(self.joystick[a]),
             Wire::JoystickConnected => Value::Bool(self.joystick_connected),
             // Outputs read back as the bus's zero: the runtime reads input signals only.

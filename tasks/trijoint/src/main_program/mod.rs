@@ -27,8 +27,8 @@ use pkm_kinematics::trijoint::{Trijoint, TrijointParams};
 use pkm_kinematics::{Kinematics, KinematicsConfig};
 
 use crate::state::MainState;
-use pkm_drives::automaton::StopButton;
 use crate::vars;
+use pkm_drives::automaton::StopButton;
 use statig::prelude::*;
 
 struct Vars {
