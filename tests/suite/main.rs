@@ -11,6 +11,7 @@ mod architecture;
 mod cli;
 mod config_errors;
 mod joint_machines;
+mod joint_machines_soak;
 mod joystick;
 mod joystick_app;
 mod kinematics;

@@ -67,23 +67,32 @@ impl Io {
     /// Moves joint `j`'s set-point towards `target` at up to `speed`, accelerating and braking at
     /// up to `accel`; true once it is there at rest.
     pub(super) fn move_to(&mut self, j: usize, target: f64, speed: f64, accel: f64) -> bool {
-        let gap = target - self.setpoints[j];
-        let dt = self.dt_s;
-        // The fastest speed from which a step of dt and the braking still end at the target:
-        // v·dt + v²/(2a) ≤ d, so v ≤ a·(√(dt² + 2d/a) − dt).
-        let braking = accel * ((dt * dt + 2.0 * gap.abs() / accel).sqrt() - dt);
-        let wanted = gap.signum() * speed.min(braking).min(gap.abs() / dt);
         let before = self.velocities[j];
-        self.ramp_velocity(j, wanted, accel);
-        gap.abs() < 1e-9 && before.abs() <= accel * dt
+        self.velocities[j] = profile(self.setpoints[j], before, target, speed, accel, self.dt_s);
+        (target - self.setpoints[j]).abs() < 1e-9 && before.abs() <= accel * self.dt_s
     }
+}
+
+/// The next velocity of a quantity at `at` moving at `v` towards `target`: at most `speed`,
+/// changed by at most `accel`·dt, and slow enough to stop at the target — after a step of dt
+/// and braking, v·dt + v²/(2a) ≤ d, so v ≤ a·(√(dt² + 2d/a) − dt).
+pub(super) fn profile(at: f64, v: f64, target: f64, speed: f64, accel: f64, dt: f64) -> f64 {
+    let gap = target - at;
+    let braking = accel * ((dt * dt + 2.0 * gap.abs() / accel).sqrt() - dt);
+    let wanted = gap.signum() * speed.min(braking).min(gap.abs() / dt);
+    wanted.clamp(v - accel * dt, v + accel * dt)
 }
 
 /// Where INIT stands.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Phase {
-    /// Joint mode: waiting for the limit inputs to clear (the operator jogs single joints).
+    /// Joint mode: waiting for the limit inputs to clear and the override to be released (the
+    /// operator jogs single joints).
     Waiting,
+    /// Re-referencing: all joints return together, on a straight line in joint space, to the
+    /// reference positions they know from the last referencing before searching their switches
+    /// again — a mechanism whose joints search one at a time from an arbitrary pose could jam.
+    Returning,
     /// Referencing the group of this index in the reference order.
     Group(usize),
 }
@@ -112,6 +121,14 @@ pub struct Automaton {
     pub(super) pose_velocity: [f64; MAX_DOF],
     /// What the stick drives: a joint in joint mode, a pair of world axes in world mode.
     pub(super) selection: usize,
+    /// The joints' references are known from an earlier referencing (kept through REBOOT).
+    pub(super) known: bool,
+    /// The return to the reference positions: where it started, its progress (0 … 1), the
+    /// progress's rate (1/s), and when it started (s).
+    pub(super) ret_from: [f64; MAX_DOF],
+    pub(super) ret_s: f64,
+    pub(super) ret_rate: f64,
+    pub(super) ret_since_s: f64,
 }
 
 #[state_machine(initial = "State::reboot()", context_identifier = "io")]
@@ -134,12 +151,8 @@ impl Automaton {
         io.acknowledge = true;
         io.referenced = false;
         io.limit_override = false;
-        // Back to the counted frame: referencing finds the joints' zeros again.
-        for j in 0..self.n {
-            io.setpoints[j] += io.offsets[j];
-            io.positions[j] += io.offsets[j];
-        }
-        io.offsets = [0.0; MAX_DOF];
+        // The offsets stay: INIT returns to the reference positions by them before it finds
+        // the joints' zeros again.
         io.hold();
     }
 
@@ -162,9 +175,18 @@ impl Automaton {
         match self.phase {
             Phase::Waiting => {
                 if self.joint_jog(io) {
-                    self.start_group(io, 0);
+                    if self.known {
+                        self.start_return(io);
+                    } else {
+                        self.start_group(io, 0);
+                    }
                 }
             }
+            Phase::Returning => match self.step_return(io) {
+                Err(reason) => return Transition(State::error(reason)),
+                Ok(true) => self.start_group(io, 0),
+                Ok(false) => {}
+            },
             Phase::Group(g) => {
                 io.limit_override = false;
                 match self.step_group(io, g) {
@@ -250,6 +272,11 @@ impl Automaton {
     fn enter_error(&mut self, reason: &mut Reason, io: &mut Io) {
         self.state = MainState::Error;
         self.reason = Some(*reason);
+        // After STOP or a limit input the counted positions still hold: re-referencing returns
+        // by them first. A drive, counter, bus or timing fault may have falsified them.
+        if !matches!(reason, Reason::Stop | Reason::Limit(_)) {
+            self.known = false;
+        }
         self.pose_velocity = [0.0; MAX_DOF];
         io.enable = false;
         io.limit_override = false;
@@ -288,6 +315,11 @@ impl Automaton {
             pose: [0.0; MAX_DOF],
             pose_velocity: [0.0; MAX_DOF],
             selection: 0,
+            known: false,
+            ret_from: [0.0; MAX_DOF],
+            ret_s: 0.0,
+            ret_rate: 0.0,
+            ret_since_s: 0.0,
         }
     }
 

@@ -26,31 +26,93 @@ pub enum Search {
 }
 
 impl Automaton {
-    /// Joint mode (INIT, before referencing): the stick's x (or the left/right buttons) moves the
-    /// selected joint, the axis button selects the next joint. While a limit input is active
-    /// nothing moves unless the override is held — then the drive program lets the joints move
-    /// off it. True when referencing may start: no limit input, no command, every joint at rest.
+    /// Joint mode (INIT, before referencing): while a limit input is active or the override is
+    /// held, INIT waits and the stick's x (or the left/right buttons) moves the selected joint;
+    /// the axis button selects the next joint. On an active limit input nothing moves unless the
+    /// override is held — then the drive program lets the joints move off it. True when
+    /// referencing may start: no limit input, the override released, every joint at rest.
     pub(super) fn joint_jog(&mut self, io: &mut Io) -> bool {
         if io.axes_pressed {
             self.selection = (self.selection + 1) % self.n;
         }
         io.limit_override = io.override_held;
-        let x = self.stick(io)[0];
-        let movable = !io.limit_active || io.override_held;
+        let x = if io.override_held { self.stick(io)[0] } else { 0.0 };
         for j in 0..self.n {
-            let v = if j == self.selection && movable {
+            let v = if j == self.selection {
                 x * self.p.jog.joint_speed_mm_s
             } else {
                 0.0
             };
             io.ramp_velocity(j, v, self.p.joints[j].max_accel_mm_s2);
         }
-        !io.limit_active && x == 0.0 && io.velocities[..self.n].iter().all(|v| *v == 0.0)
+        !io.limit_active && !io.override_held && io.velocities[..self.n].iter().all(|v| *v == 0.0)
     }
 
-    /// Starts referencing group `g`.
+    /// Starts the return to the reference positions known from the last referencing.
+    pub(super) fn start_return(&mut self, io: &mut Io) {
+        io.limit_override = false;
+        self.phase = Phase::Returning;
+        self.ret_from = io.setpoints;
+        self.ret_s = 0.0;
+        self.ret_rate = 0.0;
+        self.ret_since_s = io.now_s;
+    }
+
+    /// One cycle of the return; true once every joint is at its reference position. The joints
+    /// move on one straight line in joint space (all arrive together), at no joint's speed or
+    /// acceleration beyond its limit.
+    pub(super) fn step_return(&mut self, io: &mut Io) -> Result<bool, Reason> {
+        let (n, dt) = (self.n, io.dt_s);
+        // The set-points moved on by rate·dt since the last cycle (`read`); so does the progress.
+        self.ret_s += self.ret_rate * dt;
+        let (mut speed, mut accel) = (f64::INFINITY, f64::INFINITY);
+        for j in 0..n {
+            let d = (self.home[j] - self.ret_from[j]).abs();
+            if d > 0.0 {
+                let r = &self.p.joints[j];
+                speed = speed.min(r.max_speed_mm_s.min(2.0 * r.reference.search_speed_mm_s) / d);
+                accel = accel.min(r.max_accel_mm_s2 / d);
+            }
+        }
+        if speed.is_finite() {
+            self.ret_rate = super::automaton::profile(self.ret_s, self.ret_rate, 1.0, speed, accel, dt);
+        } else {
+            (self.ret_s, self.ret_rate) = (1.0, 0.0);
+        }
+        for j in 0..n {
+            io.velocities[j] = self.ret_rate * (self.home[j] - self.ret_from[j]);
+        }
+        let arrived = (1.0 - self.ret_s).abs() < 1e-9
+            && self.ret_rate == 0.0
+            && (0..n).all(|j| (io.positions[j] - self.home[j]).abs() < 0.05);
+        if arrived {
+            io.hold();
+            return Ok(true);
+        }
+        if io.now_s - self.ret_since_s > self.p.search_timeout_s {
+            let worst = (0..n)
+                .max_by(|a, b| {
+                    let gap = |j: usize| (io.positions[j] - self.home[j]).abs();
+                    gap(*a).total_cmp(&gap(*b))
+                })
+                .unwrap_or(0);
+            return Err(Reason::InitTimeout(worst));
+        }
+        Ok(false)
+    }
+
+    /// Starts referencing group `g`; the first group starts from the counted frame, where
+    /// referencing finds the joints' zeros again (a referencing cut short by an error may have
+    /// set some of them).
     pub(super) fn start_group(&mut self, io: &mut Io, g: usize) {
         io.limit_override = false;
+        if g == 0 {
+            for j in 0..self.n {
+                io.setpoints[j] += io.offsets[j];
+                io.positions[j] += io.offsets[j];
+                io.offsets[j] = 0.0;
+            }
+        }
         self.phase = Phase::Group(g);
         for &joint in &self.p.reference_order[g] {
             let j = joint - 1;
@@ -161,6 +223,7 @@ impl Automaton {
     /// Every group is referenced and at home: world mode starts at the home pose.
     pub(super) fn finish_referencing(&mut self, io: &mut Io) {
         io.referenced = true;
+        self.known = true;
         io.hold();
         let n = self.n;
         let mut pose = [0.0; MAX_DOF];
