@@ -136,8 +136,10 @@ enum TraceOp {
         trace: PathBuf,
         /// The SVG file to write.
         out: PathBuf,
-        /// The variables to plot.
-        #[arg(long, value_delimiter = ',', default_values_t = ["position_left_mm".to_string(), "position_right_mm".to_string(), "M_x".to_string(), "M_y".to_string()])]
+        /// The variables to plot [default: the positions the trace has: the TRIJOINT's
+        /// position_left_mm, position_right_mm, M_x, M_y; the other machines' JOINTn_POSITION and
+        /// TOOL_X …].
+        #[arg(long, value_delimiter = ',')]
         vars: Vec<String>,
     },
 }

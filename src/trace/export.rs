@@ -154,7 +154,29 @@ pub fn to_vcd(trace: &Path, out: &Path) -> Result<Exported, ExportError> {
     })
 }
 
-/// Plots `vars` (and the main state) against time into an SVG file, one panel each.
+/// What `to_svg` plots when it is given no variables: those of these the trace has — the
+/// TRIJOINT's carriages and spindle point, the other machines' joints and tool pose.
+const DEFAULT_PLOT: [&str; 16] = [
+    "position_left_mm",
+    "position_right_mm",
+    "M_x",
+    "M_y",
+    "JOINT1_POSITION",
+    "JOINT2_POSITION",
+    "JOINT3_POSITION",
+    "JOINT4_POSITION",
+    "JOINT5_POSITION",
+    "JOINT6_POSITION",
+    "TOOL_X",
+    "TOOL_Y",
+    "TOOL_Z",
+    "TOOL_A",
+    "TOOL_B",
+    "TOOL_C",
+];
+
+/// Plots `vars` (none given: [`DEFAULT_PLOT`]) and the main state against time into an SVG
+/// file, one panel each.
 pub fn to_svg(trace: &Path, out: &Path, vars: &[String]) -> Result<Exported, ExportError> {
     let err = |e: String| ExportError::Output {
         file: out.display().to_string(),
@@ -164,6 +186,17 @@ pub fn to_svg(trace: &Path, out: &Path, vars: &[String]) -> Result<Exported, Exp
     // Opened before the trace is read, so that a path that cannot be written fails at once.
     let mut file = File::create(out).map_err(|e| err(e.to_string()))?;
     let header = reader.header().clone();
+    let defaults: Vec<String>;
+    let vars = if vars.is_empty() {
+        defaults = DEFAULT_PLOT
+            .iter()
+            .filter(|n| header.variables.contains_key(**n))
+            .map(|n| n.to_string())
+            .collect();
+        &defaults[..]
+    } else {
+        vars
+    };
     for name in vars {
         if !header.variables.contains_key(name) {
             let known: Vec<&str> = header.variables.keys().take(12).map(String::as_str).collect();

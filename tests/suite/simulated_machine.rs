@@ -490,7 +490,10 @@ fn the_shipped_scenarios_are_valid() {
         let text = std::fs::read_to_string(&path).expect("readable");
         let file = path.file_name().and_then(|n| n.to_str()).unwrap_or_default();
         // `NAME-….json` is a scenario of machine NAME; the others are the TRIJOINT's.
-        match ["pn101", "ox-x", "ox-o", "hexapod"].iter().find(|m| file.starts_with(&format!("{m}-"))) {
+        match ["pn101", "ox-x", "ox-o", "hexapod"]
+            .iter()
+            .find(|m| file.starts_with(&format!("{m}-")))
+        {
             Some(machine) => common::sim_plc(
                 &common::machine_config(machine, |_| {}),
                 &pkm_plc::machines::all_programs(),

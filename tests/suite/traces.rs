@@ -272,6 +272,39 @@ fn traces_export_to_vcd_and_svg() {
 }
 
 #[test]
+fn a_joint_machine_trace_plots_its_joints_and_tool_pose_by_default_and_exports_to_vcd() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let trace = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/traces/hexapod-jog-bridge-fault.jsonl.gz");
+    let svg = dir.path().join("h.svg");
+    let o = pkm(&[
+        "trace",
+        "plot",
+        trace.to_str().expect("utf-8"),
+        svg.to_str().expect("utf-8"),
+    ]);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    let text = std::fs::read_to_string(&svg).expect("svg");
+    for caption in ["JOINT1_POSITION", "JOINT6_POSITION", "TOOL_X", "TOOL_C"] {
+        assert!(text.contains(&format!("\n{caption}\n</text>")), "panel {caption}");
+    }
+    assert!(!text.contains("M_x"), "no TRIJOINT panel");
+    let vcd = dir.path().join("h.vcd");
+    let o = pkm(&[
+        "trace",
+        "vcd",
+        trace.to_str().expect("utf-8"),
+        vcd.to_str().expect("utf-8"),
+    ]);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    let text = std::fs::read_to_string(&vcd).expect("vcd");
+    assert!(text.contains(" TOOL_Z $end"), "the tool pose in the VCD");
+    assert!(
+        text.contains("motor_bridge_error_joint_3"),
+        "the error reason as a string"
+    );
+}
+
+#[test]
 fn a_trace_write_error_is_reported_with_exit_code_1_after_the_summary() {
     let dir = tempfile::tempdir().expect("tempdir");
     let summary = dir.path().join("summary.json");
