@@ -1,7 +1,11 @@
-//! The rules of the main automaton that every machine shares (application.md): the states as the
-//! process image carries them, which of them drive, and the STOP button's press-and-lockout rule.
-//! Each machine's main program builds its own REBOOT → INIT → READY ⇄ MOTION / ERROR automaton
-//! (its referencing and jogging differ) on these.
+//! The main automaton every machine shares (application.md), written once: the states as the
+//! process image carries them, the STOP button's press-and-lockout rule, which event a cycle
+//! dispatches, and the REBOOT → INIT → READY ⇄ MOTION / ERROR state machine (statig) with its
+//! rules — REBOOT lasts one cycle; in INIT, READY and MOTION a STOP press or a supervision fault is
+//! ERROR with its reason; ERROR is left only by an accepted STOP press, to REBOOT. What a machine
+//! does in each state (its referencing, its jog) is its [`Application`].
+
+use statig::prelude::*;
 
 /// The states of the main automaton (application.md).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -91,6 +95,192 @@ impl StopButton {
         } else {
             false
         }
+    }
+}
+
+/// The events the automaton handles.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Event<R> {
+    /// An accepted STOP press.
+    Stop,
+    /// A supervision fault, with its reason.
+    Fault(R),
+    /// A cycle without either.
+    Tick,
+}
+
+/// The event of a cycle: an accepted STOP press first; outside INIT, READY and MOTION nothing
+/// else; else the first supervision fault `faults` finds (the machine's checks, in its order),
+/// else a tick.
+pub fn event<R>(
+    stop: &mut StopButton,
+    pressed: bool,
+    now_s: f64,
+    state: MainState,
+    faults: impl FnOnce() -> Option<R>,
+) -> Event<R> {
+    if stop.press(pressed, now_s, state == MainState::Reboot) {
+        return Event::Stop;
+    }
+    if !state.operating() {
+        return Event::Tick;
+    }
+    faults().map_or(Event::Tick, Event::Fault)
+}
+
+/// What a machine does in each state of the shared automaton, which decides when.
+pub trait Application: 'static {
+    /// Why the machine is in ERROR.
+    type Reason: Copy + PartialEq + 'static;
+    /// The inputs and outputs of one cycle.
+    type Io: 'static;
+    /// The reason an accepted STOP press gives.
+    const STOP: Self::Reason;
+    /// The cycle's time (s).
+    fn now_s(io: &Self::Io) -> f64;
+    /// REBOOT entered (power-on, acknowledgement): drives off, the acknowledge pulse.
+    fn enter_reboot(&mut self, io: &mut Self::Io);
+    /// INIT entered.
+    fn enter_init(&mut self, io: &mut Self::Io);
+    /// One cycle of INIT: `Ok(true)` when the machine is referenced (→ READY), an error reason
+    /// when referencing failed (→ ERROR).
+    fn init(&mut self, io: &mut Self::Io) -> Result<bool, Self::Reason>;
+    /// READY entered.
+    fn enter_ready(&mut self, io: &mut Self::Io);
+    /// One cycle of READY: true when the operator commands motion (→ MOTION).
+    fn ready(&mut self, io: &mut Self::Io) -> bool;
+    /// MOTION entered.
+    fn enter_motion(&mut self, io: &mut Self::Io);
+    /// One cycle of MOTION: false when the motion has ended (→ READY).
+    fn motion(&mut self, io: &mut Self::Io) -> bool;
+    /// ERROR entered with `reason`: drives off.
+    fn enter_error(&mut self, reason: Self::Reason, io: &mut Self::Io);
+    /// One cycle of ERROR: drives stay off.
+    fn error(&mut self, io: &mut Self::Io);
+}
+
+/// The shared automaton's storage: the machine's application, the state and the reason.
+pub struct Automaton<A: Application> {
+    /// The machine's application.
+    pub app: A,
+    /// The state, as the process image and the status show it.
+    pub state: MainState,
+    /// Why the machine is in ERROR, while it is.
+    pub reason: Option<A::Reason>,
+    /// When the current state was entered (s); REBOOT lasts one cycle.
+    entered_s: f64,
+}
+
+impl<A: Application> Automaton<A> {
+    /// The automaton of `app`, in REBOOT once it handles its first event.
+    pub fn new(app: A) -> Automaton<A> {
+        Automaton {
+            app,
+            state: MainState::Reboot,
+            reason: None,
+            entered_s: 0.0,
+        }
+    }
+}
+
+#[state_machine(initial = "State::reboot()", context_identifier = "io")]
+impl<A: Application> Automaton<A> {
+    #[state(entry_action = "enter_reboot")]
+    fn reboot(&mut self, io: &mut A::Io, event: &Event<A::Reason>) -> Outcome<State<A>> {
+        match event {
+            // The acknowledge pulse goes out for the one cycle REBOOT lasts; then reference.
+            Event::Tick if A::now_s(io) > self.entered_s => Transition(State::init()),
+            _ => Handled,
+        }
+    }
+
+    #[action]
+    fn enter_reboot(&mut self, io: &mut A::Io) {
+        self.state = MainState::Reboot;
+        self.entered_s = A::now_s(io);
+        self.reason = None;
+        self.app.enter_reboot(io);
+    }
+
+    #[superstate]
+    fn operating(event: &Event<A::Reason>) -> Outcome<State<A>> {
+        match event {
+            Event::Stop => Transition(State::error(A::STOP)),
+            Event::Fault(reason) => Transition(State::error(*reason)),
+            Event::Tick => Handled,
+        }
+    }
+
+    #[state(superstate = "operating", entry_action = "enter_init")]
+    fn init(&mut self, io: &mut A::Io, event: &Event<A::Reason>) -> Outcome<State<A>> {
+        if *event != Event::Tick {
+            return Super;
+        }
+        match self.app.init(io) {
+            Err(reason) => Transition(State::error(reason)),
+            Ok(true) => Transition(State::ready()),
+            Ok(false) => Handled,
+        }
+    }
+
+    #[action]
+    fn enter_init(&mut self, io: &mut A::Io) {
+        self.state = MainState::Init;
+        self.app.enter_init(io);
+    }
+
+    #[state(superstate = "operating", entry_action = "enter_ready")]
+    fn ready(&mut self, io: &mut A::Io, event: &Event<A::Reason>) -> Outcome<State<A>> {
+        if *event != Event::Tick {
+            return Super;
+        }
+        if self.app.ready(io) {
+            Transition(State::motion())
+        } else {
+            Handled
+        }
+    }
+
+    #[action]
+    fn enter_ready(&mut self, io: &mut A::Io) {
+        self.state = MainState::Ready;
+        self.app.enter_ready(io);
+    }
+
+    #[state(superstate = "operating", entry_action = "enter_motion")]
+    fn motion(&mut self, io: &mut A::Io, event: &Event<A::Reason>) -> Outcome<State<A>> {
+        if *event != Event::Tick {
+            return Super;
+        }
+        if self.app.motion(io) {
+            Handled
+        } else {
+            Transition(State::ready())
+        }
+    }
+
+    #[action]
+    fn enter_motion(&mut self, io: &mut A::Io) {
+        self.state = MainState::Motion;
+        self.app.enter_motion(io);
+    }
+
+    #[state(entry_action = "enter_error")]
+    fn error(&mut self, reason: &mut A::Reason, io: &mut A::Io, event: &Event<A::Reason>) -> Outcome<State<A>> {
+        // The reason is kept in the state (and in shared storage for the status, on entry).
+        let _ = reason;
+        self.app.error(io);
+        match event {
+            Event::Stop => Transition(State::reboot()),
+            _ => Handled,
+        }
+    }
+
+    #[action]
+    fn enter_error(&mut self, reason: &mut A::Reason, io: &mut A::Io) {
+        self.state = MainState::Error;
+        self.reason = Some(*reason);
+        self.app.enter_error(*reason, io);
     }
 }
 

@@ -1,23 +1,18 @@
-//! The REBOOT → INIT → READY ⇄ MOTION and ERROR automaton as a statig state machine: its
-//! events, the inputs and outputs of a cycle it works on (`Io`), and its shared storage.
-//! Referencing and jogging are the automaton's too, in their own modules.
+//! The TRIJOINT's main automaton: the shared REBOOT → INIT → READY ⇄ MOTION and ERROR state
+//! machine of pkm-drives with what the TRIJOINT does in each state (`Main`), the inputs and
+//! outputs of a cycle it works on (`Io`). Referencing and jogging are `Main`'s, in their own
+//! modules.
 
+use pkm_drives::automaton::Application;
 use pkm_kinematics::trijoint::{Trijoint, TrijointParams};
-use statig::prelude::*;
 
 use super::*;
-use crate::state::MainState;
 
-/// The events the automaton handles.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub enum Event {
-    /// An accepted STOP press.
-    Stop,
-    /// A supervision fault.
-    Fault(Reason),
-    /// A cycle without either.
-    Tick,
-}
+/// The events the automaton handles: the shared automaton's, with the TRIJOINT's reasons.
+pub type Event = pkm_drives::automaton::Event<Reason>;
+
+/// The TRIJOINT's main automaton: the shared one with the TRIJOINT's referencing and jog.
+pub type Automaton = pkm_drives::automaton::Automaton<Main>;
 
 /// Inputs and outputs of one cycle, shared with the states.
 #[derive(Clone, Debug, Default)]
@@ -55,14 +50,10 @@ impl Io {
     }
 }
 
-/// The automaton's shared storage.
-pub struct Automaton {
+/// What the TRIJOINT does in each state of the shared automaton, and what it keeps.
+pub struct Main {
     pub(super) p: MainParams,
     pub(super) geometry: TrijointParams,
-    pub(super) state: MainState,
-    /// When the current state was entered (s); REBOOT lasts one cycle.
-    pub(super) entered_s: f64,
-    pub(super) reason: Option<Reason>,
     pub(super) edges: [[f64; 2]; 2],
     pub(super) limits: Option<Trijoint>,
     /// The software limits of the carriages, [lower, upper] per drive (mm, referenced).
@@ -71,22 +62,16 @@ pub struct Automaton {
     pub(super) searches: [Search; 2],
 }
 
-#[state_machine(initial = "State::reboot()", context_identifier = "io")]
-impl Automaton {
-    #[state(entry_action = "enter_reboot")]
-    fn reboot(&mut self, io: &mut Io, event: &Event) -> Outcome<State> {
-        match event {
-            // The acknowledge pulses go out for the one cycle REBOOT lasts; then reference.
-            Event::Tick if io.now_s > self.entered_s => Transition(State::init()),
-            _ => Handled,
-        }
+impl Application for Main {
+    type Reason = Reason;
+    type Io = Io;
+    const STOP: Reason = Reason::Stop;
+
+    fn now_s(io: &Io) -> f64 {
+        io.now_s
     }
 
-    #[action]
     fn enter_reboot(&mut self, io: &mut Io) {
-        self.state = MainState::Reboot;
-        self.entered_s = io.now_s;
-        self.reason = None;
         self.limits = None;
         io.enable = false;
         io.acknowledge = true;
@@ -95,39 +80,7 @@ impl Automaton {
         io.hold();
     }
 
-    #[superstate]
-    fn operating(&mut self, event: &Event) -> Outcome<State> {
-        match event {
-            Event::Stop => Transition(State::error(Reason::Stop)),
-            Event::Fault(reason) => Transition(State::error(*reason)),
-            Event::Tick => Handled,
-        }
-    }
-
-    #[state(superstate = "operating", entry_action = "enter_init")]
-    fn init(&mut self, io: &mut Io, event: &Event) -> Outcome<State> {
-        if *event != Event::Tick {
-            return Super;
-        }
-        io.enable = true;
-        io.acknowledge = false;
-        for i in 0..2 {
-            if let Err(reason) = self.step_search(io, i) {
-                return Transition(State::error(reason));
-            }
-        }
-        if self.searches.iter().all(|s| *s == Search::Found) {
-            self.finish_referencing(io);
-        }
-        if self.searches.iter().all(|s| *s == Search::Done) {
-            return Transition(State::ready());
-        }
-        Handled
-    }
-
-    #[action]
     fn enter_init(&mut self, io: &mut Io) {
-        self.state = MainState::Init;
         io.setpoints = io.positions;
         io.hold();
         self.searches = [0, 1].map(|i| Search::Seek {
@@ -138,76 +91,59 @@ impl Automaton {
         });
     }
 
-    #[state(superstate = "operating", entry_action = "enter_ready")]
-    fn ready(&mut self, io: &mut Io, event: &Event) -> Outcome<State> {
-        if *event != Event::Tick {
-            return Super;
+    fn init(&mut self, io: &mut Io) -> Result<bool, Reason> {
+        io.enable = true;
+        io.acknowledge = false;
+        for i in 0..2 {
+            self.step_search(io, i)?;
         }
-        io.hold();
-        if self.command(io) != [0.0; 2] {
-            return Transition(State::motion());
+        if self.searches.iter().all(|s| *s == Search::Found) {
+            self.finish_referencing(io);
         }
-        Handled
+        Ok(self.searches.iter().all(|s| *s == Search::Done))
     }
 
-    #[action]
     fn enter_ready(&mut self, io: &mut Io) {
-        self.state = MainState::Ready;
         io.hold();
     }
 
-    #[state(superstate = "operating", entry_action = "enter_motion")]
-    fn motion(&mut self, io: &mut Io, event: &Event) -> Outcome<State> {
-        if *event != Event::Tick {
-            return Super;
-        }
+    fn ready(&mut self, io: &mut Io) -> bool {
+        io.hold();
+        self.command(io) != [0.0; 2]
+    }
+
+    fn enter_motion(&mut self, _io: &mut Io) {}
+
+    fn motion(&mut self, io: &mut Io) -> bool {
         let v = self.command(io);
         if v == [0.0; 2] {
             io.hold();
-            return Transition(State::ready());
+            return false;
         }
         self.jog(io, v);
-        Handled
+        true
     }
 
-    #[action]
-    fn enter_motion(&mut self) {
-        self.state = MainState::Motion;
-    }
-
-    #[state(entry_action = "enter_error")]
-    fn error(reason: &mut Reason, io: &mut Io, event: &Event) -> Outcome<State> {
-        // The reason is kept in the state (and in shared storage for the status, on entry).
-        let _ = reason;
-        // Drives off; the set-points follow the carriages, so that re-enabling is bumpless.
+    fn enter_error(&mut self, _reason: Reason, io: &mut Io) {
         io.enable = false;
         io.setpoints = io.positions;
         io.hold();
-        match event {
-            Event::Stop => Transition(State::reboot()),
-            _ => Handled,
-        }
     }
 
-    #[action]
-    fn enter_error(&mut self, reason: &mut Reason, io: &mut Io) {
-        self.state = MainState::Error;
-        self.reason = Some(*reason);
+    fn error(&mut self, io: &mut Io) {
+        // Drives off; the set-points follow the carriages, so that re-enabling is bumpless.
         io.enable = false;
         io.setpoints = io.positions;
         io.hold();
     }
 }
 
-impl Automaton {
-    /// The automaton in REBOOT, with its parameters and the machine's geometry.
+impl Main {
+    /// The TRIJOINT's part of the automaton, with its parameters and the machine's geometry.
     pub fn new(p: MainParams, geometry: TrijointParams) -> Self {
-        Automaton {
+        Main {
             p,
             geometry,
-            state: MainState::Reboot,
-            entered_s: 0.0,
-            reason: None,
             edges: [[0.0; 2]; 2],
             limits: None,
             soft: [[0.0; 2]; 2],
@@ -251,7 +187,7 @@ mod tests {
             joystick_connected: true,
             ..Io::default()
         };
-        let mut m = Automaton::new(MainParams::default(), TrijointParams::default()).state_machine();
+        let mut m = Automaton::new(Main::new(MainParams::default(), TrijointParams::default())).state_machine();
         m.handle_with_context(&Event::Tick, &mut io);
         (m, io)
     }
@@ -274,7 +210,7 @@ mod tests {
         // both drives leave behind (`Search::Found`, the switch edges) — the referencing module
         // and the simulated machine's tests cover the searches themselves.
         unsafe {
-            let a = m.inner_mut();
+            let a = &mut m.inner_mut().app;
             a.edges = [[0.0, 250.0]; 2];
             a.searches = [Search::Found; 2];
         }
@@ -289,7 +225,7 @@ mod tests {
                 return (m, io);
             }
         }
-        panic!("not READY after referencing: {:?}", m.inner().searches);
+        panic!("not READY after referencing: {:?}", m.inner().app.searches);
     }
 
     #[test]
@@ -307,7 +243,7 @@ mod tests {
         assert!(io.enable, "INIT's first tick enables the drives");
         assert!(!io.acknowledge, "and ends the acknowledge pulse");
         assert!(
-            m.inner().searches.iter().all(|s| matches!(
+            m.inner().app.searches.iter().all(|s| matches!(
                 s,
                 Search::Seek {
                     end: End::Upper,
@@ -316,7 +252,7 @@ mod tests {
                 }
             )),
             "both drives seek their upper switch first: {:?}",
-            m.inner().searches
+            m.inner().app.searches
         );
         assert!(io.velocities.iter().all(|v| *v > 0.0), "moving up: {:?}", io.velocities);
     }
@@ -365,8 +301,8 @@ mod tests {
         let (m, io) = ready();
         assert!(io.referenced);
         assert_eq!(io.references, [0.0; 2], "0 mm at the lower switches");
-        assert_eq!(m.inner().soft.len(), 2);
-        assert!(m.inner().limits.is_some(), "software limits known");
+        assert_eq!(m.inner().app.soft.len(), 2);
+        assert!(m.inner().app.limits.is_some(), "software limits known");
         assert_eq!(io.velocities, [0.0; 2], "READY holds");
     }
 

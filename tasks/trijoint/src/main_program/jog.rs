@@ -6,7 +6,7 @@ use pkm_kinematics::Kinematics;
 use super::params::BORDER_TOLERANCE_MM;
 use super::*;
 
-impl Automaton {
+impl Main {
     /// Whether M may be commanded to `m`: reachable inside the software limits and not near a
     /// singularity. Writes the carriage positions for it into `joints`.
     pub(super) fn allowed(&self, m: [f64; 2], joints: &mut [f64; 2]) -> bool {

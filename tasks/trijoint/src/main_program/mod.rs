@@ -13,7 +13,7 @@ mod params;
 mod reason;
 mod referencing;
 
-pub use automaton::{Automaton, Event, Io};
+pub use automaton::{Automaton, Event, Io, Main};
 pub use params::MainParams;
 pub use reason::Reason;
 
@@ -28,7 +28,7 @@ use pkm_kinematics::{Kinematics, KinematicsConfig};
 
 use crate::state::MainState;
 use crate::vars;
-use pkm_drives::automaton::StopButton;
+use pkm_drives::automaton::{StopButton, event as automaton_event};
 use statig::prelude::*;
 
 struct Vars {
@@ -136,7 +136,7 @@ impl MainProgram {
             ..geometry.clone()
         });
         Box::new(MainProgram {
-            machine: Automaton::new(p, geometry).state_machine(),
+            machine: Automaton::new(Main::new(p, geometry)).state_machine(),
             io: Io::default(),
             vars,
             stop: StopButton::new(lockout_s),
@@ -170,48 +170,42 @@ impl MainProgram {
         }
     }
 
-    /// The event of this cycle.
+    /// The event of this cycle (the shared rule; the TRIJOINT's supervision faults in order).
     fn event(&mut self, ctx: &Cycle<'_>) -> Event {
-        let v = &self.vars;
+        let (v, io) = (&self.vars, &self.io);
         let state = self.machine.inner().state;
-        let now = self.io.now_s;
+        let searches = &self.machine.inner().app.searches;
         // The joystick's STOP acts in addition to the panel's, never instead of it.
         let pressed = ctx.get(v.stop) || ctx.get(v.joystick_stop);
-        if self.stop.press(pressed, now, state == MainState::Reboot) {
-            return Event::Stop;
-        }
-        if !state.operating() {
-            return Event::Tick;
-        }
-        if ctx.violation().is_some() {
-            return Event::Fault(Reason::CycleTimeViolation);
-        }
-        if ctx.get(v.bus_fault) {
-            return Event::Fault(Reason::BusFault);
-        }
-        for d in 0..2 {
-            if ctx.get(v.encoder_faults[d]) {
-                return Event::Fault(Reason::EncoderFault(d));
+        automaton_event(&mut self.stop, pressed, io.now_s, state, || {
+            if ctx.violation().is_some() {
+                return Some(Reason::CycleTimeViolation);
             }
-            if ctx.get(v.bridge_errors[d]) {
-                return Event::Fault(Reason::BridgeError(d));
+            if ctx.get(v.bus_fault) {
+                return Some(Reason::BusFault);
             }
-            if ctx.get(v.following_errors[d]) {
-                // Blocked while seeking a switch in INIT (a switch stuck off, say, leaves the
-                // carriage at its hard stop): say which switch was not reached.
-                let seeking = match self.machine.inner().searches[d] {
-                    Search::Seek { end, .. } if state == MainState::Init => Some(end.switch(d)),
-                    _ => None,
-                };
-                return Event::Fault(seeking.map_or(Reason::FollowingError(d), Reason::InitTimeout));
+            for d in 0..2 {
+                if ctx.get(v.encoder_faults[d]) {
+                    return Some(Reason::EncoderFault(d));
+                }
+                if ctx.get(v.bridge_errors[d]) {
+                    return Some(Reason::BridgeError(d));
+                }
+                if ctx.get(v.following_errors[d]) {
+                    // Blocked while seeking a switch in INIT (a switch stuck off, say, leaves the
+                    // carriage at its hard stop): say which switch was not reached.
+                    let seeking = match searches[d] {
+                        Search::Seek { end, .. } if state == MainState::Init => Some(end.switch(d)),
+                        _ => None,
+                    };
+                    return Some(seeking.map_or(Reason::FollowingError(d), Reason::InitTimeout));
+                }
             }
-        }
-        if state != MainState::Init
-            && let Some(i) = self.io.switches.iter().position(|s| *s)
-        {
-            return Event::Fault(Reason::LimitSwitch(i));
-        }
-        Event::Tick
+            if state != MainState::Init {
+                return io.switches.iter().position(|s| *s).map(Reason::LimitSwitch);
+            }
+            None
+        })
     }
 
     fn write(&mut self, ctx: &mut Cycle<'_>) {
@@ -228,7 +222,7 @@ impl MainProgram {
         }
         ctx.set(v.setpoint_time, io.now_s);
         ctx.set(v.acknowledge, io.acknowledge);
-        ctx.set(v.period, self.machine.inner().p.pwm_period_us);
+        ctx.set(v.period, self.machine.inner().app.p.pwm_period_us);
         ctx.set(v.referenced, io.referenced);
         let mut m = [f64::NAN; 2];
         if io.referenced && self.display.forward(&io.positions, None, &mut m).is_ok() {

@@ -56,7 +56,7 @@ pub(super) enum Search {
     Done,
 }
 
-impl Automaton {
+impl Main {
     /// One cycle of drive `i`'s referencing.
     pub(super) fn step_search(&mut self, io: &mut Io, i: usize) -> Result<(), Reason> {
         let p = &self.p;
