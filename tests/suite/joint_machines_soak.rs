@@ -168,7 +168,7 @@ fn soak(name: &str, seed: u64) {
         let status = plc.app_status().expect("status");
         let state = status.state.to_string();
         let plant = joint_plant(&plc);
-        for j in 0..n {
+        for (j, lost) in lost.iter_mut().enumerate() {
             let [lo, hi] = plant.hard_stops_mm(j);
             assert!(
                 (lo..=hi).contains(&plant.position_mm(j)),
@@ -177,14 +177,14 @@ fn soak(name: &str, seed: u64) {
             );
             // A stepper loses steps only to a fault (a dead motor, a counter that jumped).
             let now = plant.lost_steps(j);
-            if (now - lost[j]).abs() > 1e-6 {
+            if (now - *lost).abs() > 1e-6 {
                 assert!(
                     tainted || in_window(t, 0),
                     "{name}: joint {} lost {} steps at {t} ms in {state}",
                     j + 1,
-                    now - lost[j]
+                    now - *lost
                 );
-                lost[j] = now;
+                *lost = now;
             }
         }
         if !driving(&state) && !driving(&previous) {

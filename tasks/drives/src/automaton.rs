@@ -288,6 +288,139 @@ impl<A: Application> Automaton<A> {
 mod tests {
     use super::*;
 
+    /// An application that records what the automaton asked of it, and answers as told.
+    #[derive(Default)]
+    struct Probe {
+        calls: Vec<&'static str>,
+        referenced: bool,
+        commanded: bool,
+    }
+
+    #[derive(Default)]
+    struct Clock {
+        now_s: f64,
+    }
+
+    impl Application for Probe {
+        type Reason = u8;
+        type Io = Clock;
+        const STOP: u8 = 1;
+        fn now_s(io: &Clock) -> f64 {
+            io.now_s
+        }
+        fn enter_reboot(&mut self, _: &mut Clock) {
+            self.calls.push("enter_reboot");
+        }
+        fn enter_init(&mut self, _: &mut Clock) {
+            self.calls.push("enter_init");
+        }
+        fn init(&mut self, _: &mut Clock) -> Result<bool, u8> {
+            self.calls.push("init");
+            Ok(self.referenced)
+        }
+        fn enter_ready(&mut self, _: &mut Clock) {
+            self.calls.push("enter_ready");
+        }
+        fn ready(&mut self, _: &mut Clock) -> bool {
+            self.calls.push("ready");
+            self.commanded
+        }
+        fn enter_motion(&mut self, _: &mut Clock) {
+            self.calls.push("enter_motion");
+        }
+        fn motion(&mut self, _: &mut Clock) -> bool {
+            self.calls.push("motion");
+            self.commanded
+        }
+        fn enter_error(&mut self, _: u8, _: &mut Clock) {
+            self.calls.push("enter_error");
+        }
+        fn error(&mut self, _: &mut Clock) {
+            self.calls.push("error");
+        }
+    }
+
+    fn step(m: &mut StateMachine<Automaton<Probe>>, io: &mut Clock, event: Event<u8>) -> MainState {
+        io.now_s += 0.05;
+        m.handle_with_context(&event, io);
+        m.inner().state
+    }
+
+    #[test]
+    fn the_automaton_runs_reboot_init_ready_motion_and_back() {
+        let mut io = Clock::default();
+        let mut m = Automaton::new(Probe::default()).state_machine();
+        m.handle_with_context(&Event::Tick, &mut io);
+        assert_eq!(
+            m.inner().state,
+            MainState::Reboot,
+            "REBOOT for the cycle it is entered in"
+        );
+        assert_eq!(step(&mut m, &mut io, Event::Tick), MainState::Init);
+        assert_eq!(
+            step(&mut m, &mut io, Event::Tick),
+            MainState::Init,
+            "not referenced yet"
+        );
+        // SAFETY: the probe's answers are not part of the automaton's invariants.
+        unsafe { m.inner_mut().app.referenced = true };
+        assert_eq!(step(&mut m, &mut io, Event::Tick), MainState::Ready);
+        unsafe { m.inner_mut().app.commanded = true };
+        assert_eq!(step(&mut m, &mut io, Event::Tick), MainState::Motion);
+        assert_eq!(step(&mut m, &mut io, Event::Tick), MainState::Motion);
+        unsafe { m.inner_mut().app.commanded = false };
+        assert_eq!(step(&mut m, &mut io, Event::Tick), MainState::Ready);
+        assert_eq!(
+            m.inner().app.calls,
+            [
+                "enter_reboot",
+                "enter_init",
+                "init",
+                "init",
+                "enter_ready",
+                "ready",
+                "enter_motion",
+                "motion",
+                "motion",
+                "enter_ready"
+            ]
+        );
+    }
+
+    #[test]
+    fn stop_and_faults_are_errors_in_operating_states_and_only_stop_leaves_error() {
+        for fault in [Event::Stop, Event::Fault(7)] {
+            let mut io = Clock::default();
+            let mut m = Automaton::new(Probe::default()).state_machine();
+            m.handle_with_context(&Event::Tick, &mut io);
+            step(&mut m, &mut io, Event::Tick);
+            assert_eq!(step(&mut m, &mut io, fault), MainState::Error);
+            let reason = if fault == Event::Stop { 1 } else { 7 };
+            assert_eq!(m.inner().reason, Some(reason));
+            assert_eq!(step(&mut m, &mut io, Event::Fault(9)), MainState::Error);
+            assert_eq!(m.inner().reason, Some(reason), "the first reason is kept");
+            assert_eq!(step(&mut m, &mut io, Event::Stop), MainState::Reboot);
+            assert_eq!(m.inner().reason, None);
+        }
+    }
+
+    #[test]
+    fn the_event_is_stop_first_and_faults_only_while_operating() {
+        let mut stop = StopButton::new(0.5);
+        assert_eq!(event(&mut stop, true, 0.0, MainState::Ready, || Some(3)), Event::Stop);
+        assert_eq!(event(&mut stop, true, 0.05, MainState::Error, || Some(3)), Event::Tick);
+        assert_eq!(
+            event(&mut stop, false, 0.1, MainState::Ready, || Some(3)),
+            Event::Fault(3)
+        );
+        assert_eq!(
+            event::<u8>(&mut stop, false, 0.15, MainState::Ready, || None),
+            Event::Tick
+        );
+        assert_eq!(event(&mut stop, false, 0.2, MainState::Error, || Some(3)), Event::Tick);
+        assert_eq!(event(&mut stop, false, 0.2, MainState::Reboot, || Some(3)), Event::Tick);
+    }
+
     #[test]
     fn codes_round_trip_and_only_init_ready_motion_operate() {
         for s in MainState::ALL {

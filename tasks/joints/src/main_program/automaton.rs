@@ -1,28 +1,22 @@
-//! The REBOOT → INIT → READY ⇄ MOTION and ERROR automaton of a joint-driven machine as a statig
-//! state machine: its events, the inputs and outputs of a cycle (`Io`), its shared storage.
-//! INIT is joint mode (waiting while a limit input is active, the operator jogging single joints
+//! The main automaton of a joint-driven machine: the shared REBOOT → INIT → READY ⇄ MOTION and
+//! ERROR state machine of pkm-drives with what these machines do in each state (`Main`), and the
+//! inputs and outputs of a cycle (`Io`). INIT is joint mode (waiting while a limit input is active, the operator jogging single joints
 //! off it with the override held), then referencing group by group; READY and MOTION are world
 //! mode. Referencing and jogging have their own modules.
 
+use pkm_drives::automaton::Application;
 use pkm_kinematics::MAX_DOF;
 use pkm_kinematics::frame::MachineFrame;
-use statig::prelude::*;
 
 use super::reason::Reason;
 use super::referencing::Search;
 use crate::params::MainParams;
-use pkm_drives::automaton::MainState;
 
-/// The events the automaton handles.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub enum Event {
-    /// An accepted STOP press.
-    Stop,
-    /// A supervision fault.
-    Fault(Reason),
-    /// A cycle without either.
-    Tick,
-}
+/// The events the automaton handles: the shared automaton's, with these machines' reasons.
+pub type Event = pkm_drives::automaton::Event<Reason>;
+
+/// The main automaton: the shared one with the joint-driven machines' referencing and jog.
+pub type Automaton = pkm_drives::automaton::Automaton<Main>;
 
 /// Inputs and outputs of one main cycle, shared with the states.
 #[derive(Clone, Debug, Default)]
@@ -97,8 +91,8 @@ pub enum Phase {
     Group(usize),
 }
 
-/// The automaton's shared storage.
-pub struct Automaton {
+/// What a joint-driven machine does in each state of the shared automaton, and what it keeps.
+pub struct Main {
     pub(super) p: MainParams,
     pub(super) n: usize,
     pub(super) frame: MachineFrame,
@@ -110,10 +104,6 @@ pub struct Automaton {
     pub(super) axis_speed: [f64; MAX_DOF],
     /// The stick's pairs of pose coordinates, resolved to indices.
     pub(super) pairs: Vec<[usize; 2]>,
-    pub(super) state: MainState,
-    /// When the current state was entered (s); REBOOT lasts one cycle.
-    pub(super) entered_s: f64,
-    pub(super) reason: Option<Reason>,
     pub(super) phase: Phase,
     pub(super) searches: [Search; MAX_DOF],
     /// The tool pose set-point (machine frame) and its velocity, in world mode.
@@ -131,22 +121,16 @@ pub struct Automaton {
     pub(super) ret_since_s: f64,
 }
 
-#[state_machine(initial = "State::reboot()", context_identifier = "io")]
-impl Automaton {
-    #[state(entry_action = "enter_reboot")]
-    fn reboot(&mut self, io: &mut Io, event: &Event) -> Outcome<State> {
-        match event {
-            // The acknowledge pulse goes out for the one cycle REBOOT lasts; then reference.
-            Event::Tick if io.now_s > self.entered_s => Transition(State::init()),
-            _ => Handled,
-        }
+impl Application for Main {
+    type Reason = Reason;
+    type Io = Io;
+    const STOP: Reason = Reason::Stop;
+
+    fn now_s(io: &Io) -> f64 {
+        io.now_s
     }
 
-    #[action]
     fn enter_reboot(&mut self, io: &mut Io) {
-        self.state = MainState::Reboot;
-        self.entered_s = io.now_s;
-        self.reason = None;
         io.enable = false;
         io.acknowledge = true;
         io.referenced = false;
@@ -156,20 +140,14 @@ impl Automaton {
         io.hold();
     }
 
-    #[superstate]
-    fn operating(&mut self, event: &Event) -> Outcome<State> {
-        match event {
-            Event::Stop => Transition(State::error(Reason::Stop)),
-            Event::Fault(reason) => Transition(State::error(*reason)),
-            Event::Tick => Handled,
-        }
+    fn enter_init(&mut self, io: &mut Io) {
+        io.setpoints = io.positions;
+        io.hold();
+        self.phase = Phase::Waiting;
+        self.selection = 0;
     }
 
-    #[state(superstate = "operating", entry_action = "enter_init")]
-    fn init(&mut self, io: &mut Io, event: &Event) -> Outcome<State> {
-        if *event != Event::Tick {
-            return Super;
-        }
+    fn init(&mut self, io: &mut Io) -> Result<bool, Reason> {
         io.enable = true;
         io.acknowledge = false;
         match self.phase {
@@ -182,102 +160,63 @@ impl Automaton {
                     }
                 }
             }
-            Phase::Returning => match self.step_return(io) {
-                Err(reason) => return Transition(State::error(reason)),
-                Ok(true) => self.start_group(io, 0),
-                Ok(false) => {}
-            },
+            Phase::Returning => {
+                if self.step_return(io)? {
+                    self.start_group(io, 0);
+                }
+            }
             Phase::Group(g) => {
                 io.limit_override = false;
-                match self.step_group(io, g) {
-                    Err(reason) => return Transition(State::error(reason)),
-                    Ok(false) => {}
-                    Ok(true) if g + 1 < self.p.reference_order.len() => self.start_group(io, g + 1),
-                    Ok(true) => {
+                if self.step_group(io, g)? {
+                    if g + 1 < self.p.reference_order.len() {
+                        self.start_group(io, g + 1);
+                    } else {
                         self.finish_referencing(io);
-                        return Transition(State::ready());
+                        return Ok(true);
                     }
                 }
             }
         }
-        Handled
+        Ok(false)
     }
 
-    #[action]
-    fn enter_init(&mut self, io: &mut Io) {
-        self.state = MainState::Init;
-        io.setpoints = io.positions;
-        io.hold();
-        self.phase = Phase::Waiting;
-        self.selection = 0;
-    }
-
-    #[state(superstate = "operating", entry_action = "enter_ready")]
-    fn ready(&mut self, io: &mut Io, event: &Event) -> Outcome<State> {
-        if *event != Event::Tick {
-            return Super;
-        }
-        io.hold();
-        if io.axes_pressed && !self.pairs.is_empty() {
-            self.selection = (self.selection + 1) % self.pairs.len();
-        }
-        if self.world_command(io) != [0.0; MAX_DOF] {
-            return Transition(State::motion());
-        }
-        Handled
-    }
-
-    #[action]
     fn enter_ready(&mut self, io: &mut Io) {
-        self.state = MainState::Ready;
         self.pose_velocity = [0.0; MAX_DOF];
         io.hold();
     }
 
-    #[state(superstate = "operating", entry_action = "enter_motion")]
-    fn motion(&mut self, io: &mut Io, event: &Event) -> Outcome<State> {
-        if *event != Event::Tick {
-            return Super;
+    fn ready(&mut self, io: &mut Io) -> bool {
+        io.hold();
+        if io.axes_pressed && !self.pairs.is_empty() {
+            self.selection = (self.selection + 1) % self.pairs.len();
         }
+        self.world_command(io) != [0.0; MAX_DOF]
+    }
+
+    fn enter_motion(&mut self, _io: &mut Io) {}
+
+    fn motion(&mut self, io: &mut Io) -> bool {
         let command = self.world_command(io);
         if command == [0.0; MAX_DOF] && self.pose_velocity == [0.0; MAX_DOF] {
             io.hold();
-            return Transition(State::ready());
+            return false;
         }
         self.jog(io, command);
-        Handled
+        true
     }
 
-    #[action]
-    fn enter_motion(&mut self) {
-        self.state = MainState::Motion;
-    }
-
-    #[state(entry_action = "enter_error")]
-    fn error(reason: &mut Reason, io: &mut Io, event: &Event) -> Outcome<State> {
-        // The reason is kept in the state (and in shared storage for the status, on entry).
-        let _ = reason;
-        // Drives off; the set-points follow the joints, so that re-enabling is bumpless.
-        io.enable = false;
-        io.limit_override = false;
-        io.setpoints = io.positions;
-        io.hold();
-        match event {
-            Event::Stop => Transition(State::reboot()),
-            _ => Handled,
-        }
-    }
-
-    #[action]
-    fn enter_error(&mut self, reason: &mut Reason, io: &mut Io) {
-        self.state = MainState::Error;
-        self.reason = Some(*reason);
+    fn enter_error(&mut self, reason: Reason, io: &mut Io) {
         // After STOP or a limit input the counted positions still hold: re-referencing returns
         // by them first. A drive, counter, bus or timing fault may have falsified them.
         if !matches!(reason, Reason::Stop | Reason::Limit(_)) {
             self.known = false;
         }
         self.pose_velocity = [0.0; MAX_DOF];
+        self.error(io);
+    }
+
+    fn error(&mut self, io: &mut Io) {
+        // Drives off; the set-points follow the joints, so that re-enabling is bumpless.
         io.enable = false;
         io.limit_override = false;
         io.setpoints = io.positions;
@@ -285,8 +224,8 @@ impl Automaton {
     }
 }
 
-impl Automaton {
-    /// The automaton in REBOOT.
+impl Main {
+    /// A machine's part of the automaton.
     pub(super) fn new(p: MainParams, frame: MachineFrame, soft: [[f64; 2]; MAX_DOF], pairs: Vec<[usize; 2]>) -> Self {
         let n = frame.dof();
         let mut home = [0.0; MAX_DOF];
@@ -299,7 +238,7 @@ impl Automaton {
                 p.jog.linear_speed_mm_s
             };
         }
-        Automaton {
+        Main {
             p,
             n,
             frame,
@@ -307,9 +246,6 @@ impl Automaton {
             soft,
             axis_speed,
             pairs,
-            state: MainState::Reboot,
-            entered_s: 0.0,
-            reason: None,
             phase: Phase::Waiting,
             searches: [Search::Done; MAX_DOF],
             pose: [0.0; MAX_DOF],

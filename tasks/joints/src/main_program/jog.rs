@@ -6,12 +6,12 @@
 
 use pkm_kinematics::MAX_DOF;
 
-use super::automaton::{Automaton, Io};
+use super::automaton::{Io, Main};
 
 /// How close to the border of the allowed region a jog stops (mm or degrees along its path).
 const BORDER_TOLERANCE: f64 = 1e-6;
 
-impl Automaton {
+impl Main {
     /// The operator's command as a velocity of the tool (per pose coordinate, mm/s or
     /// degrees/s): the stick's x and y on the selected pair of axes.
     pub(super) fn world_command(&self, io: &Io) -> [f64; MAX_DOF] {

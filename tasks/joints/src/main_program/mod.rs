@@ -12,16 +12,15 @@ mod jog;
 mod reason;
 mod referencing;
 
-pub use automaton::{Event, Io, Phase};
+pub use automaton::{Automaton, Event, Io, Main, Phase};
 pub use reason::Reason;
 
-use automaton::Automaton;
 use reason::ReasonTexts;
 use referencing::Search;
 
 use pkm_api::image::{Declare, Input, Output};
 use pkm_api::program::{AppStatus, Cycle, Program, ProgramArgs};
-use pkm_drives::automaton::{MainState, StopButton};
+use pkm_drives::automaton::{MainState, StopButton, event as automaton_event};
 use pkm_kinematics::frame::{Home, MachineFrame};
 use pkm_kinematics::{KinematicsConfig, MAX_DOF, Machine as Model};
 use statig::prelude::*;
@@ -339,7 +338,7 @@ impl MainProgram {
         };
         let stop = StopButton::new(p.stop_lockout_ms as f64 * 1e-3);
         Box::new(MainProgram {
-            machine: Automaton::new(p, frame, soft, pairs).state_machine(),
+            machine: Automaton::new(Main::new(p, frame, soft, pairs)).state_machine(),
             io: Io::default(),
             vars,
             n,
@@ -393,52 +392,50 @@ impl MainProgram {
         self.axes_was_pressed = axes;
     }
 
-    /// The event of this cycle.
+    /// The event of this cycle (the shared rule; this machine's supervision faults in order).
     fn event(&mut self, ctx: &Cycle<'_>) -> Event {
         let v = &self.vars;
         let automaton = self.machine.inner();
         let state = automaton.state;
+        let app = &automaton.app;
         // The joystick's STOP acts in addition to the panel's, never instead of it.
         let pressed = ctx.get(v.stop) || ctx.get(v.joystick_stop);
-        if self.stop.press(pressed, self.io.now_s, state == MainState::Reboot) {
-            return Event::Stop;
-        }
-        if !state.operating() {
-            return Event::Tick;
-        }
-        if ctx.violation().is_some() {
-            return Event::Fault(Reason::CycleTimeViolation);
-        }
-        if ctx.get(v.bus_fault) {
-            return Event::Fault(Reason::BusFault);
-        }
-        for (j, jv) in v.joints.iter().enumerate() {
-            if ctx.get(jv.encoder_fault) {
-                return Event::Fault(Reason::EncoderFault(j));
+        automaton_event(&mut self.stop, pressed, self.io.now_s, state, || {
+            if ctx.violation().is_some() {
+                return Some(Reason::CycleTimeViolation);
             }
-            if jv.bridge_error.is_some_and(|b| ctx.get(b)) {
-                return Event::Fault(Reason::BridgeError(j));
+            if ctx.get(v.bus_fault) {
+                return Some(Reason::BusFault);
             }
-            if ctx.get(jv.following_error) {
-                // Blocked while seeking its switch in INIT: say the reference was not reached.
-                let seeking = state == MainState::Init && matches!(automaton.searches[j], Search::Seek { .. });
-                return Event::Fault(if seeking {
-                    Reason::InitTimeout(j)
-                } else {
-                    Reason::FollowingError(j)
-                });
+            for (j, jv) in v.joints.iter().enumerate() {
+                if ctx.get(jv.encoder_fault) {
+                    return Some(Reason::EncoderFault(j));
+                }
+                if jv.bridge_error.is_some_and(|b| ctx.get(b)) {
+                    return Some(Reason::BridgeError(j));
+                }
+                if ctx.get(jv.following_error) {
+                    // Blocked while seeking its switch in INIT: the reference was not reached.
+                    let seeking = state == MainState::Init && matches!(app.searches[j], Search::Seek { .. });
+                    return Some(if seeking {
+                        Reason::InitTimeout(j)
+                    } else {
+                        Reason::FollowingError(j)
+                    });
+                }
             }
-        }
-        // A limit input is a fault except in INIT's joint mode, where the operator jogs off it.
-        let joint_mode = state == MainState::Init && automaton.phase == Phase::Waiting;
-        if !joint_mode && let Some(k) = v.limits.iter().position(|l| ctx.get(*l)) {
-            return Event::Fault(Reason::Limit(k));
-        }
-        Event::Tick
+            // A limit input is a fault except in INIT's joint mode, where the operator jogs off it.
+            let joint_mode = state == MainState::Init && app.phase == Phase::Waiting;
+            if joint_mode {
+                return None;
+            }
+            v.limits.iter().position(|l| ctx.get(*l)).map(Reason::Limit)
+        })
     }
 
     fn write(&mut self, ctx: &mut Cycle<'_>) {
         let automaton = self.machine.inner();
+        let app = &automaton.app;
         let (v, io, n) = (&self.vars, &self.io, self.n);
         ctx.set(v.state, automaton.state.code());
         ctx.set(v.reason, automaton.reason.map_or(0, Reason::code));
@@ -452,13 +449,13 @@ impl MainProgram {
         ctx.set(v.acknowledge, io.acknowledge);
         ctx.set(v.referenced, io.referenced);
         ctx.set(v.limit_override, io.limit_override);
-        ctx.set(v.selection, automaton.selection as i16);
+        ctx.set(v.selection, app.selection as i16);
         let coords = v.tool.len();
         let mut shown = 0;
         if io.referenced {
             let mut pose = [0.0; MAX_DOF];
             let hint = self.tool;
-            if automaton
+            if app
                 .frame
                 .forward(&io.positions[..n], Some(&hint[..n]), &mut pose[..n])
                 .is_ok()

@@ -6,7 +6,7 @@
 
 use pkm_kinematics::MAX_DOF;
 
-use super::automaton::{Automaton, Io, Phase};
+use super::automaton::{Io, Main, Phase};
 use super::reason::Reason;
 
 /// One joint's progress through referencing.
@@ -25,7 +25,7 @@ pub enum Search {
     Done,
 }
 
-impl Automaton {
+impl Main {
     /// Joint mode (INIT, before referencing): while a limit input is active or the override is
     /// held, INIT waits and the stick's x (or the left/right buttons) moves the selected joint;
     /// the axis button selects the next joint. On an active limit input nothing moves unless the

@@ -184,7 +184,7 @@ impl MainProgram {
             if ctx.get(v.bus_fault) {
                 return Some(Reason::BusFault);
             }
-            for d in 0..2 {
+            for (d, search) in searches.iter().enumerate() {
                 if ctx.get(v.encoder_faults[d]) {
                     return Some(Reason::EncoderFault(d));
                 }
@@ -194,7 +194,7 @@ impl MainProgram {
                 if ctx.get(v.following_errors[d]) {
                     // Blocked while seeking a switch in INIT (a switch stuck off, say, leaves the
                     // carriage at its hard stop): say which switch was not reached.
-                    let seeking = match searches[d] {
+                    let seeking = match search {
                         Search::Seek { end, .. } if state == MainState::Init => Some(end.switch(d)),
                         _ => None,
                     };
