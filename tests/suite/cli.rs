@@ -4,7 +4,7 @@ use crate::common;
 
 use std::process::Command;
 
-use common::{pkm, stderr};
+use common::{pkm, stderr, stdout};
 
 #[test]
 fn check_accepts_the_default_configuration() {
@@ -541,5 +541,41 @@ fn a_plant_section_problem_is_reported_once_by_run() {
             "error: {}: at plant.left.tau_s: must be positive, got -1\n",
             path.display()
         )
+    );
+}
+
+#[test]
+fn machine_names_a_machines_configuration_file_or_its_built_in_copy() {
+    for name in ["pn101", "ox-x", "ox-o", "hexapod"] {
+        let o = pkm(&["check", "--machine", name]);
+        assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+        assert!(
+            stdout(&o).starts_with(&format!("machines/{name}.json: valid (2 task classes")),
+            "{}",
+            stdout(&o)
+        );
+    }
+    // Elsewhere, without the file: the copy built into the binary, with its built-in I/O map.
+    let dir = tempfile::tempdir().expect("tempdir");
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_pkm-plc"))
+        .args(["check", "--machine", "hexapod"])
+        .current_dir(dir.path())
+        .output()
+        .expect("runs");
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    assert!(
+        stdout(&o).starts_with("<built-in machines/hexapod.json>: valid (2 task classes: fast (10 ms), main (50 ms); 121 process-image variables; I/O map: ../io-map/hexapod.json)"),
+        "{}",
+        stdout(&o)
+    );
+    let o = pkm(&["check", "--machine", "pn101", "--config", "config.json"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(stderr(&o).contains("cannot be used with"), "{}", stderr(&o));
+    let o = pkm(&["check", "--machine", "pn102"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(
+        stderr(&o).contains("[possible values: trijoint, pn101, ox-x, ox-o, hexapod]"),
+        "{}",
+        stderr(&o)
     );
 }

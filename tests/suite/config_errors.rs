@@ -551,3 +551,48 @@ fn safety_relevant_settings_are_refused_naming_the_key() {
     .unwrap_err();
     assert_eq!(e.to_string(), "cfg.json: at (top level): duplicate key \"io_map\"");
 }
+
+#[test]
+fn a_joint_machine_configuration_is_checked_as_a_whole_with_paths() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut c = common::read_json(&common::root().join("machines/pn101.json"));
+    c["io_map"] = common::root().join("io-map/pn101.json").to_str().expect("utf-8").into();
+    let main = &mut c["task_classes"][1]["programs"][0]["params"];
+    main["reference_order"] = serde_json::json!([[1, 2], [3]]);
+    main["jog"]["axis_pairs"] = serde_json::json!([["x", "q"]]);
+    main["world_limits"] = serde_json::json!([[0, 1]]);
+    c["task_classes"][0]["programs"][0]["params"]["steppers"][0]["max_speed_mm_s"] = 100.into();
+    c["plant"]["joints"][1]["motor"] = serde_json::json!({"dc": {"v_max_mm_s": 1, "tau_s": 1, "counts_per_mm": 1}});
+    c["plant"]["wiring"]["joint9_speed"] = "SM1.Enable01".into();
+    let path = dir.path().join("pn101.json");
+    std::fs::write(&path, c.to_string()).expect("write");
+    let o = common::pkm(&["check", "--config", path.to_str().expect("utf-8")]);
+    assert_eq!(o.status.code(), Some(2));
+    let p = path.display();
+    assert_eq!(
+        common::stderr(&o),
+        format!(
+            "error: {p}: 6 problems:
+  at task_classes[0].programs[0].params.steppers[0].max_speed_mm_s: 100 mm/s at 400 steps/mm is more than the module's 32767 steps/s
+  at task_classes[1].programs[0].params.reference_order[0]: pn101's joints share one reference input: only one joint at a time can say it reached its switch, so each group holds one joint; got [1, 2]
+  at task_classes[1].programs[0].params.world_limits: one [min, max] per pose coordinate (x, y, z); got 1
+  at task_classes[1].programs[0].params.jog.axis_pairs[0]: \"q\" is not a world axis of pn101; its axes are x, y, z
+  at plant.joints[1].motor: this machine's drives are \"stepper\" motors (its I/O map and drive program say so)
+  at plant.wiring.joint9_speed: the machine has no signal \"joint9_speed\"; its signals are stop_button, button_left, button_right, button_up, button_down, button_axes, button_override, limit_neg, limit_pos, reference, joint1_enable, joint1_speed, joint1_counter, joint2_enable, joint2_speed, joint2_counter, joint3_enable, joint3_speed, joint3_counter, joystick_x, joystick_y, joystick_connected
+"
+        )
+    );
+    // A misspelt key inside a machine's params is refused with its path, over the defaults.
+    let mut c = common::read_json(&common::root().join("machines/ox-x.json"));
+    c["io_map"] = common::root().join("io-map/ox-x.json").to_str().expect("utf-8").into();
+    c["task_classes"][1]["programs"][0]["params"] = serde_json::json!({"jog": {"dead_zon": 0.1}});
+    std::fs::write(&path, c.to_string()).expect("write");
+    let o = common::pkm(&["check", "--config", path.to_str().expect("utf-8")]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(
+        common::stderr(&o)
+            .contains("at task_classes[1].programs[0].params.jog.dead_zon: unknown field `dead_zon`, expected one of"),
+        "{}",
+        common::stderr(&o)
+    );
+}
