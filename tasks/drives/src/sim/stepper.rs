@@ -33,10 +33,12 @@ pub struct Stepper {
     commanded: f64,
     /// Time since the set-point was last written (s).
     since_command_s: f64,
-    /// Steps emitted by the module since power-on (the counter shows them, wrapped).
-    emitted: f64,
-    /// Steps the motor actually made since power-on.
-    moved: f64,
+    /// Steps emitted by the module since power-on, in steps·ns: the set-point is a whole number
+    /// of steps/s and a time step a whole number of ns, so the count is exact (summing fractions
+    /// of a step in floating point would put the counter one step short at whole counts).
+    emitted_step_ns: i128,
+    /// Steps the motor actually made since power-on, in the same unit.
+    moved_step_ns: i128,
     /// Carriage position at power-on (mm).
     start_mm: f64,
     stalled: bool,
@@ -51,8 +53,8 @@ impl Stepper {
             enabled: false,
             commanded: 0.0,
             since_command_s: 0.0,
-            emitted: 0.0,
-            moved: 0.0,
+            emitted_step_ns: 0,
+            moved_step_ns: 0,
             start_mm: position_mm,
             stalled: false,
             stalls: 0,
@@ -93,15 +95,15 @@ impl Stepper {
         } else if self.stalled && rate.abs() <= self.p.pull_in_speed_mm_s * self.p.steps_per_mm {
             self.stalled = false;
         }
-        let steps = rate * dt;
-        self.emitted += steps;
+        let steps = rate as i128 * (dt * 1e9).round() as i128;
+        self.emitted_step_ns += steps;
         if self.stalled || jammed {
             return;
         }
-        // Counted in steps from power-on, as the emitted steps are, so a motor that never lost a
-        // step has made exactly the steps emitted.
-        let [min, max] = travel.map(|mm| (mm - self.start_mm) * self.p.steps_per_mm);
-        self.moved = (self.moved + steps).clamp(min, max);
+        // Counted from power-on, as the emitted steps are, so a motor that never lost a step has
+        // made exactly the steps emitted.
+        let [min, max] = travel.map(|mm| ((mm - self.start_mm) * self.p.steps_per_mm * 1e9).round() as i128);
+        self.moved_step_ns = (self.moved_step_ns + steps).clamp(min, max);
     }
 
     /// The commanded rate in effect (steps/s): zero while disabled.
@@ -118,17 +120,22 @@ impl Stepper {
 
     /// The module's step counter: the steps emitted, 16-bit, wrapping.
     pub fn counter(&self) -> i16 {
-        wrap(self.emitted.floor() as i64)
+        wrap(self.emitted_step_ns.div_euclid(1_000_000_000) as i64)
     }
 
     /// The carriage's true position (mm).
     pub fn position_mm(&self) -> f64 {
-        self.start_mm + self.moved / self.p.steps_per_mm
+        self.start_mm + self.moved_step_ns as f64 * 1e-9 / self.p.steps_per_mm
     }
 
     /// Steps emitted that the motor did not make (stalls, hard stops, jams).
     pub fn lost_steps(&self) -> f64 {
-        self.emitted - self.moved
+        (self.emitted_step_ns - self.moved_step_ns) as f64 * 1e-9
+    }
+
+    /// The steps emitted since power-on (fractions of the step under way included).
+    pub fn emitted(&self) -> f64 {
+        self.emitted_step_ns as f64 * 1e-9
     }
 
     /// Whether the motor is out of step now.
@@ -190,7 +197,7 @@ mod tests {
         assert_eq!(s.lost_steps(), 0.0);
         assert_eq!(s.stalls(), 0);
         let moved_mm = s.position_mm() - 100.0;
-        assert!((moved_mm - s.emitted / 400.0).abs() < 1e-9);
+        assert!((moved_mm - s.emitted() / 400.0).abs() < 1e-9);
         // Ramp up 336 steps, 1 s at 3200 steps/s, ramp down 304 steps: 3840 steps, 9.6 mm.
         assert!((moved_mm - 9.6).abs() < 1e-9, "{moved_mm}");
     }
@@ -261,8 +268,8 @@ mod tests {
         for _ in 0..1100 {
             cycle(&mut s, rate);
         }
-        assert!(s.emitted > 32_768.0);
-        assert_eq!(s.counter(), wrap(s.emitted.floor() as i64));
+        assert!(s.emitted() > 32_768.0);
+        assert_eq!(s.counter(), wrap(s.emitted().floor() as i64));
         assert!(s.counter() < 0);
     }
 }

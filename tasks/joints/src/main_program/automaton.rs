@@ -1,8 +1,9 @@
 //! The main automaton of a joint-driven machine: the shared REBOOT → INIT → READY ⇄ MOTION and
 //! ERROR state machine of pkm-drives with what these machines do in each state (`Main`), and the
-//! inputs and outputs of a cycle (`Io`). INIT is joint mode (waiting while a limit input is active, the operator jogging single joints
-//! off it with the override held), then referencing group by group; READY and MOTION are world
-//! mode. Referencing and jogging have their own modules.
+//! inputs and outputs of a cycle (`Io`). INIT is joint mode (waiting while a limit input is
+//! active or the override is held, the operator jogging single joints), then the return to the
+//! known reference positions and referencing group by group; READY and MOTION are world mode.
+//! Referencing and jogging have their own modules.
 
 use pkm_drives::automaton::Application;
 use pkm_kinematics::MAX_DOF;
@@ -270,5 +271,39 @@ impl Main {
         }
         let [left, right, up, down] = io.buttons.map(|b| f64::from(u8::from(b)));
         [right - left, up - down]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    proptest! {
+        /// A move with `profile` from rest reaches its target, at rest, without passing it, and
+        /// never exceeds its speed or its acceleration.
+        #[test]
+        fn a_profiled_move_arrives_without_overshoot_within_its_limits(
+            distance in -200.0f64..200.0,
+            speed in 0.5f64..50.0,
+            accel in 5.0f64..500.0,
+        ) {
+            let dt = 0.05;
+            let (mut at, mut v) = (0.0f64, 0.0f64);
+            let mut steps = 0;
+            loop {
+                let next = profile(at, v, distance, speed, accel, dt);
+                prop_assert!(next.abs() <= speed + 1e-9, "speed {next}");
+                prop_assert!((next - v).abs() <= accel * dt + 1e-9, "acceleration {}", (next - v) / dt);
+                v = next;
+                at += v * dt;
+                prop_assert!(at.abs() <= distance.abs() + 1e-9, "passed the target: {at} of {distance}");
+                if (distance - at).abs() < 1e-9 && v.abs() <= accel * dt {
+                    break;
+                }
+                steps += 1;
+                prop_assert!(steps < 100_000, "never arrives: at {at} v {v}");
+            }
+        }
     }
 }

@@ -422,3 +422,63 @@ impl Plant {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use pkm_api::machine::Plant as _;
+
+    /// pn101's plant with `edit` applied to its defaults, no mechanism; and the index of each
+    /// signal key.
+    fn pn101(edit: impl FnOnce(&mut PlantConfig)) -> (Plant, impl Fn(&str) -> usize) {
+        let mut config = crate::PN101.default_plant();
+        edit(&mut config);
+        let signals = harness::signals(&crate::PN101);
+        let keys: Vec<&'static str> = signals.iter().map(|(s, _, _)| s.key).collect();
+        let plant = Plant::new(&config, signals.into_iter().map(|(s, w, _)| (s, w)).collect(), None);
+        (plant, move |key: &str| {
+            keys.iter().position(|k| *k == key).expect("a signal")
+        })
+    }
+
+    #[test]
+    fn a_shared_input_is_on_when_any_joint_is_on_its_switch() {
+        let (plant, at) = pn101(|c| c.joints[1].start_mm = 60.5);
+        assert_eq!(plant.read(at("limit_pos")), Value::Bool(true), "joint 2 past +60 mm");
+        assert_eq!(plant.read(at("limit_neg")), Value::Bool(false));
+        assert_eq!(
+            plant.read(at("reference")),
+            Value::Bool(true),
+            "and past its reference switch"
+        );
+        let (plant, at) = pn101(|c| c.joints[2].start_mm = -56.0);
+        assert_eq!(plant.read(at("limit_pos")), Value::Bool(false));
+        assert_eq!(
+            plant.read(at("reference")),
+            Value::Bool(true),
+            "joint 3's switch is at its negative end"
+        );
+    }
+
+    #[test]
+    fn a_stepper_takes_enable_and_speed_of_one_exchange_together() {
+        let (mut plant, at) = pn101(|_| {});
+        let mut values = vec![Value::Bool(false); plant.signals().len()];
+        let (enable, speed) = (at("joint1_enable"), at("joint1_speed"));
+        values[enable] = Value::Bool(true);
+        values[speed] = Value::Int(400);
+        // Within the start-stop speed (2 mm/s): 1 mm/s at once, for 1 s in 10 ms exchanges.
+        for _ in 0..100 {
+            plant.write_from(&[speed, enable], &values);
+            plant.steps(0.001, 10);
+        }
+        assert!((plant.position_mm(0) - (-9.0)).abs() < 1e-9, "{}", plant.position_mm(0));
+        assert_eq!(plant.read(at("joint1_counter")), Value::Int(400));
+        assert_eq!(plant.lost_steps(0), 0.0);
+        // Disabled, it emits nothing whatever the speed.
+        values[enable] = Value::Bool(false);
+        plant.write_from(&[speed, enable], &values);
+        plant.steps(0.001, 100);
+        assert_eq!(plant.read(at("joint1_counter")), Value::Int(400));
+    }
+}
