@@ -60,16 +60,21 @@ pub fn io_map(loaded: &LoadedConfig) -> pkm_plc::io::map::IoMap {
         .expect("an io_map")
 }
 
-/// The simulated machine's plant: the machine's true state.
-pub fn plant(plc: &Plc) -> &Plant {
+/// The simulated machine's plant, of type `P`: the machine's true state.
+pub fn plant_of<P: 'static>(plc: &Plc) -> &P {
     plc.bus()
         .as_any()
         .downcast_ref::<SimBus>()
         .expect("the simulated bus")
         .plant()
         .as_any()
-        .downcast_ref::<Plant>()
-        .expect("the TRIJOINT plant")
+        .downcast_ref::<P>()
+        .unwrap_or_else(|| panic!("a plant of type {}", std::any::type_name::<P>()))
+}
+
+/// The TRIJOINT's simulated plant.
+pub fn plant(plc: &Plc) -> &Plant {
+    plant_of(plc)
 }
 
 /// A joint-driven machine's configuration (`machines/NAME.json`), with `edit` applied to its
@@ -86,14 +91,25 @@ pub fn machine_config(name: &str, edit: impl FnOnce(&mut serde_json::Value)) -> 
 
 /// A joint-driven machine's simulated plant: its true state.
 pub fn joint_plant(plc: &Plc) -> &pkm_joints::plant::Plant {
-    plc.bus()
-        .as_any()
-        .downcast_ref::<SimBus>()
-        .expect("the simulated bus")
-        .plant()
-        .as_any()
-        .downcast_ref::<pkm_joints::plant::Plant>()
-        .expect("a joint-driven machine's plant")
+    plant_of(plc)
+}
+
+/// A seeded generator for the soaks' random scenarios: uniform in [0, 1).
+pub struct Rng(pub u64);
+
+impl Rng {
+    /// The next number in [0, 1) (xorshift64).
+    pub fn next(&mut self) -> f64 {
+        self.0 ^= self.0 << 13;
+        self.0 ^= self.0 >> 7;
+        self.0 ^= self.0 << 17;
+        (self.0 >> 11) as f64 / (1u64 << 53) as f64
+    }
+
+    /// A whole number in [lo, hi).
+    pub fn between(&mut self, lo: u64, hi: u64) -> u64 {
+        lo + (self.next() * (hi - lo) as f64) as u64
+    }
 }
 
 /// A variable of the published image as a value, by its typed name.

@@ -6,6 +6,8 @@
 
 use crate::common;
 
+use common::Rng;
+
 use std::collections::BTreeMap;
 use std::time::Instant;
 
@@ -16,22 +18,9 @@ use pkm_plc::run::VirtualClock;
 
 const HOUR_MS: u64 = 3_600_000;
 
-/// A seeded generator: uniform in [0, 1).
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> f64 {
-        self.0 ^= self.0 << 13;
-        self.0 ^= self.0 >> 7;
-        self.0 ^= self.0 << 17;
-        (self.0 >> 11) as f64 / (1u64 << 53) as f64
-    }
-    fn between(&mut self, lo: u64, hi: u64) -> u64 {
-        lo + (self.next() * (hi - lo) as f64) as u64
-    }
-    fn pick<'a>(&mut self, items: &[&'a str]) -> &'a str {
-        items[((self.next() * items.len() as f64) as usize).min(items.len() - 1)]
-    }
+/// Picks one of `items` with `rng`.
+fn pick<'a>(rng: &mut Rng, items: &[&'a str]) -> &'a str {
+    items[((rng.next() * items.len() as f64) as usize).min(items.len() - 1)]
 }
 
 /// The random scenario of machine `name` (`n` joints, `dc` drives or steppers, `shared`
@@ -84,7 +73,7 @@ fn random_scenario(seed: u64, n: usize, dc: bool, shared: bool, stop_gap: (u64, 
         } else {
             &["switch", "glitch", "dead"]
         };
-        match rng.pick(kinds) {
+        match pick(&mut rng, kinds) {
             "switch" => {
                 let s = &switches[((rng.next() * switches.len() as f64) as usize).min(switches.len() - 1)];
                 events.push(format!(

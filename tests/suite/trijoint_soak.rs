@@ -3,6 +3,8 @@
 
 use crate::common;
 
+use common::Rng;
+
 use std::time::Instant;
 
 use pkm_plc::image::Value;
@@ -10,21 +12,6 @@ use pkm_plc::plc::Plc;
 use pkm_plc::run::VirtualClock;
 
 const HOUR_MS: u64 = 3_600_000;
-
-/// A seeded generator: uniform in [0, 1).
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> f64 {
-        self.0 ^= self.0 << 13;
-        self.0 ^= self.0 >> 7;
-        self.0 ^= self.0 << 17;
-        (self.0 >> 11) as f64 / (1u64 << 53) as f64
-    }
-    fn between(&mut self, lo: u64, hi: u64) -> u64 {
-        lo + (self.next() * (hi - lo) as f64) as u64
-    }
-}
 
 /// Joystick changes every 2–8 s, STOP presses every 20–90 s, a fault every 2–5 min. Returns the
 /// scenario, the number of STOP presses, and the windows (ms) in which a fault that can keep
