@@ -115,6 +115,8 @@ pub struct Snapshot {
     pub state: String,
     /// Its error reason, empty when there is none.
     pub reason: String,
+    /// Its note to the operator, empty when there is none.
+    pub note: String,
     /// The values the main program shows with its state.
     pub values: Vec<(&'static str, f64)>,
 }
@@ -154,6 +156,7 @@ impl Snapshot {
                 .collect(),
             state: String::with_capacity(64),
             reason: String::with_capacity(256),
+            note: String::with_capacity(256),
             values: Vec::with_capacity(MAX_STATUS_VALUES),
         };
         s.update(plc, 0);
@@ -175,12 +178,16 @@ impl Snapshot {
         }
         self.state.clear();
         self.reason.clear();
+        self.note.clear();
         self.values.clear();
         if let Some(status) = plc.app_status() {
             self.values.extend(status.values.iter().take(MAX_STATUS_VALUES));
             self.state.push_str(status.state);
             if let Some(r) = status.reason {
                 self.reason.push_str(r);
+            }
+            if let Some(n) = status.note {
+                self.note.push_str(n);
             }
         }
     }

@@ -133,11 +133,13 @@ impl Program for Consumer {
             None => AppStatus {
                 state: "SELFTEST-RUN",
                 reason: None,
+                note: None,
                 values: &[],
             },
             Some(r) => AppStatus {
                 state: "SELFTEST-ERROR",
                 reason: Some(r),
+                note: None,
                 values: &[],
             },
         })

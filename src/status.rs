@@ -48,6 +48,9 @@ pub fn format_line(s: &Snapshot) -> String {
         if !s.reason.is_empty() {
             line.push_str(&format!(" ({})", s.reason));
         }
+        if !s.note.is_empty() {
+            line.push_str(&format!(" [{}]", s.note));
+        }
     }
     for (name, value) in &s.values {
         // NaN means "not known yet" (M before referencing, say).

@@ -60,6 +60,9 @@ pub struct MainSummary {
     pub state: String,
     /// Why it is in its error state, if it is.
     pub error_reason: Option<String>,
+    /// Its note to the operator at the end of the run (what INIT waits for), if it has one.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub note: Option<String>,
     /// The values it shows with its state at the end of the run (positions: the tool pose and
     /// the joints), by name; a value it could not compute is null.
     pub values: serde_json::Map<String, serde_json::Value>,
@@ -86,6 +89,7 @@ impl Summary {
             program: plc.app_program().unwrap_or_default().to_string(),
             state: s.state.to_string(),
             error_reason: s.reason.map(str::to_string),
+            note: s.note.map(str::to_string),
             values: s
                 .values
                 .iter()
@@ -142,6 +146,9 @@ impl Summary {
             match &m.error_reason {
                 Some(r) => lines.push(format!("final state {} ({}): {r}", m.state, m.program)),
                 None => lines.push(format!("final state {} ({})", m.state, m.program)),
+            }
+            if let Some(note) = &m.note {
+                lines.push(format!("final note: {note}"));
             }
             if !m.values.is_empty() {
                 let values: Vec<String> = m

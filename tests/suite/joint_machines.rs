@@ -313,12 +313,28 @@ fn pn101_on_a_shared_limit_at_power_on_joint_jog_with_the_override_moves_off_it(
     ]}"#;
     let mut plc = build("pn101", Some(scenario), edit);
     let mut at_2s = f64::NAN;
+    let mut notes = Vec::new();
     let seen = transitions(&mut plc, 120_000, |plc, t| {
         if t == 1990 {
             at_2s = joint_plant(plc).position_mm(0);
         }
+        let note = plc.app_status().and_then(|s| s.note).map(str::to_string);
+        if notes.last() != Some(&note) {
+            notes.push(note);
+        }
     });
     assert_eq!(at_2s, 60.5, "without the override the joint stays on the limit");
+    // The status line tells the operator what INIT waits for.
+    assert_eq!(
+        notes,
+        [
+            None,
+            Some("a limit input is active: hold BUTTON_OVERRIDE and jog the joint off it".to_string()),
+            Some("joint mode, limits overridden: jog the selected joint off the limit".to_string()),
+            Some("joint mode: release BUTTON_OVERRIDE to reference".to_string()),
+            None
+        ]
+    );
     let names: Vec<&str> = seen.iter().map(|(_, s, _)| s.as_str()).collect();
     assert_eq!(names, ["REBOOT", "INIT", "READY"], "{seen:?}");
     assert_eq!(joint_plant(&plc).lost_steps(0), 0.0);

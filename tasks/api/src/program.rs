@@ -125,6 +125,8 @@ pub struct AppStatus<'a> {
     pub state: &'a str,
     /// Why the program is in its error state, if it is.
     pub reason: Option<&'a str>,
+    /// What the operator should know in this state besides an error (what INIT waits for, say).
+    pub note: Option<&'a str>,
     /// Values worth showing with the state (name, value), e.g. positions; at most 12 are shown.
     pub values: &'a [(&'static str, f64)],
 }

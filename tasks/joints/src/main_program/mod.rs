@@ -478,6 +478,22 @@ impl MainProgram {
     }
 }
 
+impl MainProgram {
+    /// What INIT waits for, while it waits in joint mode.
+    fn note(&self) -> Option<&'static str> {
+        let a = self.machine.inner();
+        if a.state != MainState::Init || a.app.phase != Phase::Waiting {
+            return None;
+        }
+        Some(match (self.io.limit_active, self.io.override_held) {
+            (true, false) => "a limit input is active: hold BUTTON_OVERRIDE and jog the joint off it",
+            (true, true) => "joint mode, limits overridden: jog the selected joint off the limit",
+            (false, true) => "joint mode: release BUTTON_OVERRIDE to reference",
+            (false, false) => "referencing starts once the joints are at rest",
+        })
+    }
+}
+
 impl Program for MainProgram {
     fn cycle(&mut self, ctx: &mut Cycle<'_>) {
         self.read(ctx);
@@ -491,6 +507,7 @@ impl Program for MainProgram {
         Some(AppStatus {
             state: a.state.name(),
             reason: a.reason.map(|r| self.texts.text(r)),
+            note: self.note(),
             values: &self.shown[..self.shown_len],
         })
     }

@@ -268,6 +268,7 @@ impl Program for MainProgram {
         Some(AppStatus {
             state: a.state.name(),
             reason: a.reason.map(Reason::text),
+            note: None,
             values: &self.shown,
         })
     }
