@@ -136,6 +136,18 @@ fn soak(name: &str, seed: u64) {
         common::sim_plc(&loaded, &pkm_plc::machines::all_programs(), Some(&scenario)).unwrap_or_else(|e| panic!("{e}"));
     let started = Instant::now();
     let driving = |s: &str| matches!(s, "INIT" | "READY" | "MOTION");
+    // The software limits: the kinematics' travel less the configured 2 mm margin.
+    let model = pkm_kinematics::Machine::ALL
+        .into_iter()
+        .find(|m| m.name() == name)
+        .expect("a model");
+    let soft: Vec<[f64; 2]> = pkm_kinematics::KinematicsConfig::default()
+        .build(model)
+        .joint_limits()
+        .iter()
+        .map(|[lo, hi]| [lo + 2.0, hi - 2.0])
+        .collect();
+    let mut worst_past_soft = 0.0f64;
     let in_window = |t: u64, after: u64| windows.iter().any(|&(from, to)| from <= t && t <= to + after);
     let mut clock = VirtualClock::default();
     plc.init(0, &mut clock);
@@ -176,6 +188,27 @@ fn soak(name: &str, seed: u64) {
                 *lost = now;
             }
         }
+        // World mode never commands a joint past its software limit; the joint itself passes
+        // one by no more than the drive's ramp overshoots a set-point that brakes there (the
+        // TRIJOINT's soak allows 0.5 mm), unless a fault falsified the positions.
+        if matches!(state.as_str(), "READY" | "MOTION") && !tainted {
+            for (j, [lo, hi]) in soft.iter().enumerate() {
+                let sp = get(&plc, vars::SETPOINT[j]);
+                assert!(
+                    (lo - 1e-6..=hi + 1e-6).contains(&sp),
+                    "{name}: joint {} commanded to {sp} at {t} ms, outside its software limits",
+                    j + 1
+                );
+                let q = plant.position_mm(j);
+                let past = (lo - q).max(q - hi);
+                worst_past_soft = worst_past_soft.max(past);
+                assert!(
+                    past <= 0.1,
+                    "{name}: joint {} {past:.3} mm past its software limit at {t} ms",
+                    j + 1
+                );
+            }
+        }
         if !driving(&state) && !driving(&previous) {
             assert!(drives_zero(&plc, n, dc), "{name}: drive outputs in {state} at {t} ms");
         }
@@ -198,7 +231,14 @@ fn soak(name: &str, seed: u64) {
         if state != previous {
             *visits.entry(state.clone()).or_default() += 1;
             if state == "ERROR" {
-                *reasons.entry(status.reason.unwrap_or("").to_string()).or_default() += 1;
+                let reason = status.reason.unwrap_or("");
+                *reasons.entry(reason.to_string()).or_default() += 1;
+                // A limit input trips only when a fault made it (a stuck switch, positions a fault
+                // falsified): jogs stop at the software limits before the switches.
+                assert!(
+                    !reason.starts_with("limit") || tainted || in_window(t, 2_000),
+                    "{name}: {reason} at {t} ms without a fault"
+                );
             }
             match previous.as_str() {
                 "INIT" => longest_init = longest_init.max(t - entered),
@@ -210,7 +250,7 @@ fn soak(name: &str, seed: u64) {
         previous = state;
     }
     eprintln!(
-        "{name} soak: 1 simulated hour in {:.2} s; states entered: {visits:?}; longest INIT {longest_init} ms, longest ERROR {longest_error} ms; steps lost to faults {lost:?}; errors {reasons:?}",
+        "{name} soak: 1 simulated hour in {:.2} s; states entered: {visits:?}; longest INIT {longest_init} ms, longest ERROR {longest_error} ms; steps lost to faults {lost:?}; at most {worst_past_soft:.3} mm past a soft limit; errors {reasons:?}",
         started.elapsed().as_secs_f64()
     );
     for s in ["INIT", "READY", "MOTION", "ERROR", "REBOOT"] {

@@ -82,7 +82,10 @@ impl Spec {
                             steps_per_mm: 400.0,
                             kp_per_s: 5.0,
                             max_speed_mm_s: speed,
-                            max_accel_mm_s2: accel,
+                            // The main program plans at the joint's acceleration in 50 ms steps;
+                            // the drive ramps each step out within 1.5× that (the motor pulls out
+                            // at 2×), so it follows them closely.
+                            max_accel_mm_s2: 1.5 * accel,
                             max_following_error_mm: 2.0,
                         };
                         n

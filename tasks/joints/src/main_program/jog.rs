@@ -74,21 +74,70 @@ impl Main {
         lo
     }
 
+    /// The tool's acceleration along the unit direction `u` (at most the jog's): a joint whose
+    /// speed is `g` times the tool's along `u` accelerates `g` times as hard, so the tool takes at
+    /// most the smallest of the joints' accelerations divided by their gear ratio — half of it:
+    /// the set-points change velocity in 50 ms steps, and the drives' ramps (1.5× the joint's
+    /// acceleration on the steppers) need the other half to follow them without running ahead of
+    /// a set-point that brakes at a software limit.
+    fn accel_along(&self, u: &[f64; MAX_DOF]) -> f64 {
+        const H: f64 = 1e-3;
+        let n = self.n;
+        let (mut q0, mut q1) = ([0.0; MAX_DOF], [0.0; MAX_DOF]);
+        let a = self.p.jog.accel_mm_s2;
+        if self.frame.inverse(&self.pose[..n], &mut q0[..n]).is_err()
+            || self.frame.inverse(&self.along(u, H)[..n], &mut q1[..n]).is_err()
+        {
+            return a;
+        }
+        (0..n)
+            .map(|j| {
+                let g = (q1[j] - q0[j]).abs() / H;
+                if g > 0.0 {
+                    0.5 * self.p.joints[j].max_accel_mm_s2 / g
+                } else {
+                    f64::INFINITY
+                }
+            })
+            .fold(a, f64::min)
+    }
+
     /// One jog step towards the commanded tool velocity.
     pub(super) fn jog(&mut self, io: &mut Io, command: [f64; MAX_DOF]) {
-        let (n, dt, a) = (self.n, io.dt_s, self.p.jog.accel_mm_s2);
-        for (v, c) in self.pose_velocity.iter_mut().zip(command) {
-            *v += (c - *v).clamp(-a * dt, a * dt);
-        }
-        let mut speed = self.pose_velocity[..n].iter().map(|v| v * v).sum::<f64>().sqrt();
+        let (n, dt) = (self.n, io.dt_s);
+        let before = self.pose_velocity;
+        let ramp = |a: f64| {
+            let mut v = before;
+            for (v, c) in v.iter_mut().zip(command) {
+                *v += (c - *v).clamp(-a * dt, a * dt);
+            }
+            let speed = v[..n].iter().map(|v| v * v).sum::<f64>().sqrt();
+            let mut u = [0.0; MAX_DOF];
+            if speed > 0.0 {
+                for (d, v) in u.iter_mut().zip(&v) {
+                    *d = v / speed;
+                }
+            }
+            (v, speed, u)
+        };
+        let (mut v, mut speed, mut u) = ramp(self.p.jog.accel_mm_s2);
         if speed == 0.0 {
+            self.pose_velocity = v;
             io.hold();
             return;
         }
-        let mut u = [0.0; MAX_DOF];
-        for (d, v) in u.iter_mut().zip(&self.pose_velocity) {
-            *d = v / speed;
+        // The tool's acceleration, such that no joint accelerates beyond its limit along this
+        // direction: where the mechanism gears a joint up, the tool accelerates and brakes less.
+        let a = self.accel_along(&u);
+        if a < self.p.jog.accel_mm_s2 {
+            (v, speed, u) = ramp(a);
+            if speed == 0.0 {
+                self.pose_velocity = v;
+                io.hold();
+                return;
+            }
         }
+        self.pose_velocity = v;
         // Brake in time: the step and the braking distance after it must stay allowed,
         // v·dt + v²/(2a) ≤ d.
         let reach = speed * dt + speed * speed / (2.0 * a);
