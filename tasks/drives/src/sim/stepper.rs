@@ -33,12 +33,15 @@ pub struct Stepper {
     commanded: f64,
     /// Time since the set-point was last written (s).
     since_command_s: f64,
-    /// Steps emitted by the module since power-on, in steps·ns: the set-point is a whole number
-    /// of steps/s and a time step a whole number of ns, so the count is exact (summing fractions
-    /// of a step in floating point would put the counter one step short at whole counts).
-    emitted_step_ns: i128,
+    /// Steps emitted by the module since power-on, in steps·µs: the set-point is a whole number
+    /// of steps/s and a time step a whole number of µs, so the count is exact (summing fractions
+    /// of a step in floating point would put the counter one step short at whole counts). At
+    /// the module's fastest 32 767 steps/s an i64 holds 8.9 years of it.
+    emitted_step_us: i64,
     /// Steps the motor actually made since power-on, in the same unit.
-    moved_step_ns: i128,
+    moved_step_us: i64,
+    /// The time step the last `step` was given (s), and it in whole µs.
+    dt: (f64, i64),
     /// Carriage position at power-on (mm).
     start_mm: f64,
     stalled: bool,
@@ -53,8 +56,9 @@ impl Stepper {
             enabled: false,
             commanded: 0.0,
             since_command_s: 0.0,
-            emitted_step_ns: 0,
-            moved_step_ns: 0,
+            emitted_step_us: 0,
+            moved_step_us: 0,
+            dt: (f64::NAN, 0),
             start_mm: position_mm,
             stalled: false,
             stalls: 0,
@@ -95,15 +99,22 @@ impl Stepper {
         } else if self.stalled && rate.abs() <= self.p.pull_in_speed_mm_s * self.p.steps_per_mm {
             self.stalled = false;
         }
-        let steps = rate as i128 * (dt * 1e9).round() as i128;
-        self.emitted_step_ns += steps;
+        if rate == 0.0 {
+            return;
+        }
+        if self.dt.0 != dt {
+            self.dt = (dt, (dt * 1e6).round() as i64);
+        }
+        // `rate` is a whole number of steps/s (an INT set-point).
+        let steps = rate as i64 * self.dt.1;
+        self.emitted_step_us += steps;
         if self.stalled || jammed {
             return;
         }
         // Counted from power-on, as the emitted steps are, so a motor that never lost a step has
         // made exactly the steps emitted.
-        let [min, max] = travel.map(|mm| ((mm - self.start_mm) * self.p.steps_per_mm * 1e9).round() as i128);
-        self.moved_step_ns = (self.moved_step_ns + steps).clamp(min, max);
+        let [min, max] = travel.map(|mm| ((mm - self.start_mm) * self.p.steps_per_mm * 1e6).round() as i64);
+        self.moved_step_us = (self.moved_step_us + steps).clamp(min, max);
     }
 
     /// The commanded rate in effect (steps/s): zero while disabled.
@@ -120,22 +131,22 @@ impl Stepper {
 
     /// The module's step counter: the steps emitted, 16-bit, wrapping.
     pub fn counter(&self) -> i16 {
-        wrap(self.emitted_step_ns.div_euclid(1_000_000_000) as i64)
+        wrap(self.emitted_step_us.div_euclid(1_000_000))
     }
 
     /// The carriage's true position (mm).
     pub fn position_mm(&self) -> f64 {
-        self.start_mm + self.moved_step_ns as f64 * 1e-9 / self.p.steps_per_mm
+        self.start_mm + self.moved_step_us as f64 * 1e-6 / self.p.steps_per_mm
     }
 
     /// Steps emitted that the motor did not make (stalls, hard stops, jams).
     pub fn lost_steps(&self) -> f64 {
-        (self.emitted_step_ns - self.moved_step_ns) as f64 * 1e-9
+        (self.emitted_step_us - self.moved_step_us) as f64 * 1e-6
     }
 
     /// The steps emitted since power-on (fractions of the step under way included).
     pub fn emitted(&self) -> f64 {
-        self.emitted_step_ns as f64 * 1e-9
+        self.emitted_step_us as f64 * 1e-6
     }
 
     /// Whether the motor is out of step now.
