@@ -1,0 +1,966 @@
+//! The interpreter: RS274NGC's modal state applied block by block, in LinuxCNC's order of
+//! execution, each block becoming at most a few [`Block`]s in the machine's world coordinates.
+//!
+//! Supported (motion.md): G0 G1 G2 G3 (centre by I J K, incremental as in LinuxCNC, or by R;
+//! helical with the axis normal to the plane; P full turns), G4 P (dwell, s), G17 G18 G19,
+//! G20 G21, G53 (machine coordinates, this block), G54–G59 (work offsets), G61, G64 [P], G90 G91,
+//! G92, F (per minute), S, M0 M1 M2 M30 M3 M4 M5, N, axis words X Y Z and A B C (degrees) as far
+//! as the machine has them. Everything else is refused with its line, column and reason.
+
+use crate::NcError;
+use crate::lexer::{self, Word};
+
+/// A pose in the machine's world coordinates: x y z (mm), a b c (degrees); the machine's
+/// coordinates first, unused ones zero.
+pub type Pose = [f64; 6];
+
+/// The letters of the pose's coordinates, in [`Pose`] order.
+pub const AXES: [char; 6] = ['X', 'Y', 'Z', 'A', 'B', 'C'];
+
+/// The plane of arcs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Plane {
+    /// G17: X–Y, arcs about Z.
+    Xy,
+    /// G18: Z–X, arcs about Y.
+    Zx,
+    /// G19: Y–Z, arcs about X.
+    Yz,
+}
+
+impl Plane {
+    /// The indices of the plane's first and second axis and of its normal, in [`Pose`] order.
+    pub fn axes(self) -> [usize; 3] {
+        match self {
+            Plane::Xy => [0, 1, 2],
+            Plane::Zx => [2, 0, 1],
+            Plane::Yz => [1, 2, 0],
+        }
+    }
+
+    /// The offset letters of the plane's centre (I J, K I, J K).
+    fn offsets(self) -> [char; 2] {
+        match self {
+            Plane::Xy => ['I', 'J'],
+            Plane::Zx => ['K', 'I'],
+            Plane::Yz => ['J', 'K'],
+        }
+    }
+}
+
+/// The path of a move.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Path {
+    /// A straight line in world coordinates.
+    Line,
+    /// An arc (a helix when the normal coordinate changes too).
+    Arc {
+        /// Its plane.
+        plane: Plane,
+        /// Its centre in the plane's two axes (machine coordinates, mm).
+        center: [f64; 2],
+        /// G2 (clockwise, looking down the normal) or G3.
+        clockwise: bool,
+        /// Full turns beyond the first (P − 1).
+        extra_turns: u32,
+    },
+}
+
+/// How a move ends.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Blend {
+    /// G61: at rest at its end point.
+    ExactStop,
+    /// G64: blended into the next move, within this distance of the corner (mm); `None`: as
+    /// close as the limits allow at the best speed (LinuxCNC's G64 without P).
+    Within(Option<f64>),
+}
+
+/// The spindle's direction.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Spindle {
+    /// M3.
+    Clockwise,
+    /// M4.
+    CounterClockwise,
+    /// M5.
+    Off,
+}
+
+/// What a block does.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Action {
+    /// A move from `from` to `to`.
+    Move {
+        /// Where it starts (machine world coordinates).
+        from: Pose,
+        /// Where it ends.
+        to: Pose,
+        /// Its path.
+        path: Path,
+        /// Its feed (mm/min along the path); `None` for a rapid (G0).
+        feed_mm_min: Option<f64>,
+        /// How it ends.
+        blend: Blend,
+    },
+    /// G4: stand still this long (s).
+    Dwell(f64),
+    /// M0 (`optional` false) or M1: stop until resumed.
+    Pause {
+        /// M1, the optional stop.
+        optional: bool,
+    },
+    /// M3/M4/M5 with the speed (S, rpm) in force.
+    Spindle {
+        /// The direction.
+        direction: Spindle,
+        /// The speed (rpm).
+        speed_rpm: f64,
+    },
+    /// M2/M30: the end of the program.
+    End,
+}
+
+/// An action and the program line it comes from.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Block {
+    /// The line (1-based).
+    pub line: usize,
+    /// What it does.
+    pub action: Action,
+}
+
+/// What the interpreter needs to know of the machine.
+#[derive(Clone, Debug)]
+pub struct Machine<'a> {
+    /// The machine's world coordinates (`x`, `y`, `z`, `a`, `b`, `c`, as the kinematics name
+    /// them), in [`Pose`] order.
+    pub axes: &'a [&'a str],
+    /// Where the tool is when the program starts (machine world coordinates).
+    pub start: Pose,
+    /// The work offsets of G54 … G59 (machine coordinates of each system's origin).
+    pub work_offsets: [Pose; 6],
+}
+
+/// A program read into blocks.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Program {
+    /// Its actions, in order.
+    pub blocks: Vec<Block>,
+}
+
+/// Tolerance of an arc's end point off its circle (mm): LinuxCNC's default for mm programs.
+const ARC_TOLERANCE_MM: f64 = 0.002;
+/// … or this fraction of the radius, whichever is larger.
+const ARC_TOLERANCE_RELATIVE: f64 = 0.001;
+
+/// Reads `text` for `machine`; the first problem is returned with its position.
+pub fn read(text: &str, machine: &Machine<'_>) -> Result<Program, NcError> {
+    let mut state = State::new(machine);
+    let mut blocks = Vec::new();
+    let mut ended: Option<usize> = None;
+    for block in lexer::lex(text)? {
+        if let Some(end) = ended {
+            return Err(NcError::new(
+                block.line,
+                block.words[0].column,
+                format!("the program ends at line {end} (M2/M30): this block would never run"),
+            ));
+        }
+        state.block(&block, &mut blocks)?;
+        if matches!(
+            blocks.last(),
+            Some(Block {
+                action: Action::End,
+                ..
+            })
+        ) {
+            ended = Some(block.line);
+        }
+    }
+    Ok(Program { blocks })
+}
+
+/// The modal state.
+struct State<'a> {
+    machine: &'a Machine<'a>,
+    /// The tool's position (machine world coordinates).
+    position: Pose,
+    motion: Option<u8>,
+    plane: Plane,
+    inches: bool,
+    incremental: bool,
+    /// The work coordinate system in force (0 = G54).
+    system: usize,
+    /// G92's offset.
+    g92: Pose,
+    feed_mm_min: Option<f64>,
+    speed_rpm: f64,
+    blend: Blend,
+}
+
+/// The modal groups of the supported G codes (RS274NGC's numbering), for the one-per-group rule.
+fn g_group(code: u16) -> Option<u8> {
+    match code {
+        0 | 10 | 20 | 30 => Some(1),
+        40 => Some(0),
+        170 | 180 | 190 => Some(2),
+        200 | 210 => Some(6),
+        530 | 920 => Some(0),
+        540..=590 => Some(12),
+        610 | 640 => Some(13),
+        900 | 910 => Some(3),
+        _ => None,
+    }
+}
+
+/// Why a G code is not in the subset.
+fn g_refusal(code: u16) -> String {
+    let name = format_code('G', code);
+    let why = match code {
+        50..=52 | 70 | 80 => "lathe and spline modes",
+        100 | 110 => "G10/G11 (tables, retraction)",
+        280..=309 => "going home through an intermediate point",
+        330 | 331 | 760 => "threading",
+        382..=385 => "probing",
+        400..=429 => "cutter compensation",
+        430..=499 => "tool length compensation",
+        800..=899 => "canned cycles",
+        911 | 901 => "arc distance modes",
+        921..=923 => "G92 variants",
+        930 | 940 | 950 => "feed modes other than units per minute",
+        960 | 970 => "spindle speed modes",
+        981 | 990 | 980 => "canned-cycle return levels",
+        _ => "",
+    };
+    if why.is_empty() {
+        format!("{name} is not supported")
+    } else {
+        format!("{name} is not supported ({why})")
+    }
+}
+
+/// `G1`, `G64`, `G92.1` from a code in tenths.
+fn format_code(letter: char, code: u16) -> String {
+    if code.is_multiple_of(10) {
+        format!("{letter}{}", code / 10)
+    } else {
+        format!("{letter}{}.{}", code / 10, code % 10)
+    }
+}
+
+impl<'a> State<'a> {
+    fn new(machine: &'a Machine<'a>) -> State<'a> {
+        State {
+            machine,
+            position: machine.start,
+            motion: None,
+            plane: Plane::Xy,
+            inches: false,
+            incremental: false,
+            system: 0,
+            g92: [0.0; 6],
+            feed_mm_min: None,
+            speed_rpm: 0.0,
+            blend: Blend::Within(None),
+        }
+    }
+
+    /// mm per program length unit.
+    fn unit(&self) -> f64 {
+        if self.inches { 25.4 } else { 1.0 }
+    }
+
+    /// The offset from program to machine coordinates now.
+    fn offset(&self) -> Pose {
+        let w = self.machine.work_offsets[self.system];
+        std::array::from_fn(|c| w[c] + self.g92[c])
+    }
+
+    fn block(&mut self, block: &lexer::Block, out: &mut Vec<Block>) -> Result<(), NcError> {
+        let line = block.line;
+        let at = |w: &Word, message: String| NcError::new(line, w.column, message);
+        // Sort the words, refusing what the subset lacks and what a block may not hold twice.
+        let mut g: Vec<(u16, &Word)> = Vec::new();
+        let mut m: Vec<(u16, &Word)> = Vec::new();
+        let mut values: [Option<&Word>; 26] = [None; 26];
+        for (i, w) in block.words.iter().enumerate() {
+            match w.letter {
+                'G' | 'M' => {
+                    let tenths = w.value * 10.0;
+                    if !(0.0..=9999.0).contains(&tenths) || (tenths - tenths.round()).abs() > 1e-6 {
+                        return Err(at(w, format!("{}{} is not a code", w.letter, w.value)));
+                    }
+                    let code = tenths.round() as u16;
+                    if w.letter == 'G' {
+                        let group = g_group(code).ok_or_else(|| at(w, g_refusal(code)))?;
+                        if let Some((other, _)) = g.iter().find(|(c, _)| g_group(*c) == Some(group) && group != 0) {
+                            return Err(at(
+                                w,
+                                format!(
+                                    "{} and {} are in one modal group: a block holds one of them",
+                                    format_code('G', *other),
+                                    format_code('G', code)
+                                ),
+                            ));
+                        }
+                        if g.iter().any(|(c, _)| *c == code) {
+                            return Err(at(w, format!("{} twice in one block", format_code('G', code))));
+                        }
+                        g.push((code, w));
+                    } else {
+                        let group = match code {
+                            0 | 10 | 20 | 300 => 4,
+                            30 | 40 | 50 => 7,
+                            _ => {
+                                let why = match code {
+                                    60 => " (tool changes)",
+                                    70..=90 => " (coolant)",
+                                    480..=530 => " (overrides)",
+                                    600..=990 => " (subprograms, user codes)",
+                                    1000..=1999 => " (user-defined M codes)",
+                                    _ => "",
+                                };
+                                return Err(at(w, format!("{} is not supported{why}", format_code('M', code))));
+                            }
+                        };
+                        if let Some((other, _)) = m.iter().find(|(c, _)| {
+                            let og = if matches!(c, 0 | 10 | 20 | 300) { 4 } else { 7 };
+                            og == group
+                        }) {
+                            return Err(at(
+                                w,
+                                format!(
+                                    "{} and {} are in one modal group: a block holds one of them",
+                                    format_code('M', *other),
+                                    format_code('M', code)
+                                ),
+                            ));
+                        }
+                        m.push((code, w));
+                    }
+                }
+                'N' => {
+                    if i != 0 {
+                        return Err(at(w, "a line number (N) comes first in its block".into()));
+                    }
+                }
+                'X' | 'Y' | 'Z' | 'A' | 'B' | 'C' | 'I' | 'J' | 'K' | 'R' | 'F' | 'S' | 'P' => {
+                    let slot = &mut values[(w.letter as u8 - b'A') as usize];
+                    if slot.is_some() {
+                        return Err(at(w, format!("{} twice in one block", w.letter)));
+                    }
+                    *slot = Some(w);
+                }
+                'T' => return Err(at(w, "tool selection (T) is not supported".into())),
+                'D' | 'H' => return Err(at(w, format!("{} (tool compensation) is not supported", w.letter))),
+                'L' | 'Q' => {
+                    return Err(at(
+                        w,
+                        format!("{} (G10 tables, canned cycles) is not supported", w.letter),
+                    ));
+                }
+                'E' => return Err(at(w, "E (extruders) is not supported".into())),
+                'U' | 'V' | 'W' => {
+                    return Err(at(w, format!("{}: axes U V W are not supported", w.letter)));
+                }
+                other => return Err(at(w, format!("{other} is not a word of RS274NGC"))),
+            }
+        }
+        let get = |letter: char| values[(letter as u8 - b'A') as usize];
+        let has_g = |code: u16| g.iter().any(|(c, _)| *c == code);
+        // Axis words the machine does not have.
+        for (c, letter) in AXES.iter().enumerate() {
+            if let Some(w) = get(*letter)
+                && !self
+                    .machine
+                    .axes
+                    .get(c)
+                    .is_some_and(|k| k.eq_ignore_ascii_case(&letter.to_string()))
+            {
+                let axes: Vec<String> = self.machine.axes.iter().map(|a| a.to_uppercase()).collect();
+                return Err(at(w, format!("{letter}: this machine's axes are {}", axes.join(" "))));
+            }
+        }
+        // In LinuxCNC's order of execution: feed, speed, spindle, dwell, plane, units, work
+        // offsets, path control, distance mode, G92, motion, stop.
+        if let Some(w) = get('F')
+            && !(w.value.is_finite() && w.value > 0.0)
+        {
+            return Err(at(w, format!("the feed F must be positive, got {}", w.value)));
+        }
+        if let Some(w) = get('S') {
+            if !(w.value.is_finite() && w.value >= 0.0) {
+                return Err(at(
+                    w,
+                    format!("the spindle speed S must be zero or positive, got {}", w.value),
+                ));
+            }
+            self.speed_rpm = w.value;
+        }
+        for (code, w) in &m {
+            let direction = match code {
+                30 => Spindle::Clockwise,
+                40 => Spindle::CounterClockwise,
+                50 => Spindle::Off,
+                _ => continue,
+            };
+            let _ = w;
+            out.push(Block {
+                line,
+                action: Action::Spindle {
+                    direction,
+                    speed_rpm: self.speed_rpm,
+                },
+            });
+        }
+        // P belongs to G4, G64 or an arc; R, I, J, K to an arc.
+        let motion_word = g
+            .iter()
+            .find(|(c, _)| matches!(c, 0 | 10 | 20 | 30))
+            .map(|(c, w)| (*c, *w));
+        let arc_now = match motion_word {
+            Some((c, _)) => matches!(c, 20 | 30),
+            None => matches!(self.motion, Some(20 | 30)) && AXES.iter().any(|a| get(*a).is_some()),
+        };
+        if let Some(w) = get('P')
+            && !(has_g(40) || has_g(640) || arc_now)
+        {
+            return Err(at(
+                w,
+                "P belongs to G4 (dwell), G64 (tolerance) or an arc (turns)".into(),
+            ));
+        }
+        for letter in ['R', 'I', 'J', 'K'] {
+            if let Some(w) = get(letter)
+                && !arc_now
+            {
+                return Err(at(w, format!("{letter} belongs to an arc (G2, G3)")));
+            }
+        }
+        if has_g(40) {
+            let w = g.iter().find(|(c, _)| *c == 40).map(|(_, w)| *w).expect("found above");
+            let p = get('P').ok_or_else(|| at(w, "G4 needs P, the dwell in seconds".into()))?;
+            if !(p.value.is_finite() && p.value >= 0.0) {
+                return Err(at(
+                    p,
+                    format!("the dwell P must be zero or positive seconds, got {}", p.value),
+                ));
+            }
+            out.push(Block {
+                line,
+                action: Action::Dwell(p.value),
+            });
+        }
+        for (code, _) in &g {
+            match code {
+                170 => self.plane = Plane::Xy,
+                180 => self.plane = Plane::Zx,
+                190 => self.plane = Plane::Yz,
+                200 => self.inches = true,
+                210 => self.inches = false,
+                540..=590 if code.is_multiple_of(10) => self.system = usize::from(code / 10 - 54),
+                _ => {}
+            }
+        }
+        if let Some((code, w)) = g.iter().find(|(c, _)| (540..=590).contains(c) && !c.is_multiple_of(10)) {
+            return Err(at(w, g_refusal(*code)));
+        }
+        if let Some(w) = get('F') {
+            self.feed_mm_min = Some(w.value * self.unit());
+        }
+        if has_g(610) {
+            self.blend = Blend::ExactStop;
+        }
+        if has_g(640) {
+            let tolerance = match get('P') {
+                Some(p) if !(p.value.is_finite() && p.value >= 0.0) => {
+                    return Err(at(
+                        p,
+                        format!("the blending tolerance P must be zero or positive, got {}", p.value),
+                    ));
+                }
+                Some(p) => Some(p.value * self.unit()),
+                None => None,
+            };
+            self.blend = Blend::Within(tolerance);
+        }
+        if has_g(900) {
+            self.incremental = false;
+        }
+        if has_g(910) {
+            self.incremental = true;
+        }
+        let axis_words: Vec<(usize, &Word)> = AXES
+            .iter()
+            .enumerate()
+            .filter_map(|(c, l)| get(*l).map(|w| (c, w)))
+            .collect();
+        // A length in machine units: mm for X Y Z, degrees for A B C.
+        let unit = self.unit();
+        let scale = |c: usize| if c < 3 { unit } else { 1.0 };
+        if has_g(920) {
+            let w = g.iter().find(|(c, _)| *c == 920).map(|(_, w)| *w).expect("found above");
+            if axis_words.is_empty() {
+                return Err(at(
+                    w,
+                    "G92 needs at least one axis word: the program coordinates the tool is at".into(),
+                ));
+            }
+            // The tool's position reads as the given values from now on.
+            let work = self.machine.work_offsets[self.system];
+            for (c, w) in &axis_words {
+                self.g92[*c] = self.position[*c] - work[*c] - w.value * scale(*c);
+            }
+        }
+        let machine_coords = has_g(530);
+        if let Some((code, _)) = motion_word {
+            self.motion = Some(code as u8);
+        }
+        let moves = !has_g(920) && !axis_words.is_empty();
+        if machine_coords {
+            let w = g.iter().find(|(c, _)| *c == 530).map(|(_, w)| *w).expect("found above");
+            if !matches!(self.motion, Some(0 | 10)) || !moves {
+                return Err(at(w, "G53 goes with a G0 or G1 move in this block".into()));
+            }
+            if self.incremental {
+                return Err(at(w, "G53 needs absolute distances (G90)".into()));
+            }
+        }
+        if let Some((code, w)) = motion_word
+            && axis_words.is_empty()
+        {
+            return Err(at(
+                w,
+                format!("{} needs at least one axis word", format_code('G', code)),
+            ));
+        }
+        if moves {
+            let Some(mode) = self.motion else {
+                return Err(at(
+                    axis_words[0].1,
+                    "an axis word needs a motion mode: G0, G1, G2 or G3 first".into(),
+                ));
+            };
+            let offset = self.offset();
+            let mut to = self.position;
+            for (c, w) in &axis_words {
+                let v = w.value * scale(*c);
+                to[*c] = if machine_coords {
+                    v
+                } else if self.incremental {
+                    self.position[*c] + v
+                } else {
+                    v + offset[*c]
+                };
+            }
+            let first = axis_words[0].1;
+            let feed = match mode {
+                0 => None,
+                _ => Some(self.feed_mm_min.ok_or_else(|| {
+                    at(
+                        first,
+                        "no feed rate: an F word is needed before the first G1, G2 or G3".into(),
+                    )
+                })?),
+            };
+            let path = match mode {
+                0 | 10 => Path::Line,
+                _ => self.arc(line, first, mode == 20, &to, &get)?,
+            };
+            out.push(Block {
+                line,
+                action: Action::Move {
+                    from: self.position,
+                    to,
+                    path,
+                    feed_mm_min: feed,
+                    blend: self.blend,
+                },
+            });
+            self.position = to;
+        }
+        for (code, _) in &m {
+            match code {
+                0 | 10 => out.push(Block {
+                    line,
+                    action: Action::Pause { optional: *code == 10 },
+                }),
+                20 | 300 => out.push(Block {
+                    line,
+                    action: Action::End,
+                }),
+                _ => {}
+            }
+        }
+        Ok(())
+    }
+
+    /// The arc from the current position to `to`, by its centre (I J K) or radius (R).
+    fn arc<'w>(
+        &self,
+        line: usize,
+        first: &Word,
+        clockwise: bool,
+        to: &Pose,
+        get: &dyn Fn(char) -> Option<&'w Word>,
+    ) -> Result<Path, NcError> {
+        let at = |w: &Word, message: String| NcError::new(line, w.column, message);
+        let [a0, a1, _] = self.plane.axes();
+        let (s, e) = ([self.position[a0], self.position[a1]], [to[a0], to[a1]]);
+        let turns = match get('P') {
+            None => 1,
+            Some(p) if p.value >= 1.0 && p.value.fract() == 0.0 && p.value <= 1000.0 => p.value as u32,
+            Some(p) => {
+                return Err(at(
+                    p,
+                    format!(
+                        "an arc's P is its number of turns, a whole number from 1, got {}",
+                        p.value
+                    ),
+                ));
+            }
+        };
+        let [o0, o1] = self.plane.offsets();
+        let plane_name = match self.plane {
+            Plane::Xy => "G17 (X–Y)",
+            Plane::Zx => "G18 (Z–X)",
+            Plane::Yz => "G19 (Y–Z)",
+        };
+        for letter in ['I', 'J', 'K'] {
+            if letter != o0
+                && letter != o1
+                && let Some(w) = get(letter)
+            {
+                return Err(at(
+                    w,
+                    format!("{letter} is not an offset of an arc in {plane_name}: use {o0} and {o1}"),
+                ));
+            }
+        }
+        let center = match (get('R'), get(o0), get(o1)) {
+            (Some(r), None, None) => {
+                let radius = r.value * self.unit();
+                let chord = [e[0] - s[0], e[1] - s[1]];
+                let d = chord[0].hypot(chord[1]);
+                if d < 1e-9 {
+                    return Err(at(r, "a full circle is given by its centre (I J K), not by R".into()));
+                }
+                if radius.abs() < d / 2.0 - ARC_TOLERANCE_MM {
+                    return Err(at(
+                        r,
+                        format!(
+                            "the radius {} mm is shorter than half the chord ({:.4} mm)",
+                            radius.abs(),
+                            d / 2.0
+                        ),
+                    ));
+                }
+                let h = (radius * radius - d * d / 4.0).max(0.0).sqrt();
+                // The centre lies to the left of the chord for a short counter-clockwise arc;
+                // a negative R asks for the long arc (more than half a turn).
+                let left = !clockwise ^ (radius < 0.0);
+                let sign = if left { 1.0 } else { -1.0 };
+                let mid = [(s[0] + e[0]) / 2.0, (s[1] + e[1]) / 2.0];
+                [mid[0] - sign * h * chord[1] / d, mid[1] + sign * h * chord[0] / d]
+            }
+            (Some(r), _, _) => return Err(at(r, "an arc has a radius (R) or a centre (I J K), not both".into())),
+            (None, None, None) => {
+                return Err(at(
+                    first,
+                    format!("an arc needs its centre ({o0} {o1}) or its radius (R)"),
+                ));
+            }
+            (None, i, j) => {
+                let c = [
+                    s[0] + i.map_or(0.0, |w| w.value) * self.unit(),
+                    s[1] + j.map_or(0.0, |w| w.value) * self.unit(),
+                ];
+                let r_start = (s[0] - c[0]).hypot(s[1] - c[1]);
+                let r_end = (e[0] - c[0]).hypot(e[1] - c[1]);
+                if r_start < 1e-9 {
+                    return Err(at(first, "the arc's centre is its start point".into()));
+                }
+                let tolerance = ARC_TOLERANCE_MM.max(ARC_TOLERANCE_RELATIVE * r_start);
+                if (r_start - r_end).abs() > tolerance {
+                    return Err(at(
+                        first,
+                        format!(
+                            "the arc's end is not on its circle: radius {r_start:.4} mm at the start, {r_end:.4} mm at the end"
+                        ),
+                    ));
+                }
+                c
+            }
+        };
+        Ok(Path::Arc {
+            plane: self.plane,
+            center,
+            clockwise,
+            extra_turns: turns - 1,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const XYZ: [&str; 3] = ["x", "y", "z"];
+    const XYZABC: [&str; 6] = ["x", "y", "z", "a", "b", "c"];
+
+    fn machine(axes: &'static [&'static str]) -> Machine<'static> {
+        let mut work_offsets = [[0.0; 6]; 6];
+        work_offsets[1] = [100.0, 0.0, 0.0, 0.0, 0.0, 0.0];
+        Machine {
+            axes,
+            start: [0.0; 6],
+            work_offsets,
+        }
+    }
+
+    fn run(text: &str) -> Vec<Block> {
+        read(text, &machine(&XYZ)).unwrap_or_else(|e| panic!("{e}")).blocks
+    }
+
+    fn refused(text: &str) -> String {
+        read(text, &machine(&XYZ)).expect_err("refused").to_string()
+    }
+
+    fn moves(blocks: &[Block]) -> Vec<(Pose, Path, Option<f64>)> {
+        blocks
+            .iter()
+            .filter_map(|b| match b.action {
+                Action::Move {
+                    to, path, feed_mm_min, ..
+                } => Some((to, path, feed_mm_min)),
+                _ => None,
+            })
+            .collect()
+    }
+
+    #[test]
+    fn rapid_and_feed_moves_absolute_incremental_inch_and_modal() {
+        let b = run("G0 X10 Y5\nG1 Z-1 F600\nX20\nG91 X1 Y1\nG20 G90 X1 F10\nG21 G0 X0 Y0 Z0\n");
+        let m = moves(&b);
+        assert_eq!(m[0], ([10.0, 5.0, 0.0, 0.0, 0.0, 0.0], Path::Line, None));
+        assert_eq!(m[1], ([10.0, 5.0, -1.0, 0.0, 0.0, 0.0], Path::Line, Some(600.0)));
+        assert_eq!(m[2].0, [20.0, 5.0, -1.0, 0.0, 0.0, 0.0], "G1 is modal");
+        assert_eq!(m[3].0, [21.0, 6.0, -1.0, 0.0, 0.0, 0.0], "G91 adds");
+        assert_eq!(
+            m[4],
+            ([25.4, 6.0, -1.0, 0.0, 0.0, 0.0], Path::Line, Some(254.0)),
+            "G20: inches"
+        );
+        assert_eq!(m[5], ([0.0; 6], Path::Line, None));
+        assert!(b.iter().all(|b| b.line >= 1 && b.line <= 6));
+        assert_eq!(b[1].line, 2);
+    }
+
+    #[test]
+    fn work_offsets_g92_and_g53() {
+        // G55 has its origin at machine x = 100.
+        let b = run("G55 G0 X1\nG92 X0\nG0 X5\nG53 G0 X2\nG54 G0 X3\n");
+        let m = moves(&b);
+        assert_eq!(m[0].0[0], 101.0);
+        assert_eq!(m[1].0[0], 106.0, "G92 X0 made machine x 101 read 0");
+        assert_eq!(m[2].0[0], 2.0, "G53: machine coordinates");
+        assert_eq!(m[3].0[0], 4.0, "G54 (origin 0) with G92's offset of 1 still in force");
+    }
+
+    #[test]
+    fn arcs_by_centre_and_radius_helical_turns_and_planes() {
+        let b = run(
+            "G0 X10 Y0\nG3 X0 Y10 I-10 J0 F100\nG2 X10 Y0 R10\nG3 X10 Y0 Z5 I-10 P2\nG18 G2 X0 Z-5 K0 I-10\nG19 G3 Y10 Z5 J5 K5\n",
+        );
+        let m = moves(&b);
+        assert_eq!(
+            m[1].1,
+            Path::Arc {
+                plane: Plane::Xy,
+                center: [0.0, 0.0],
+                clockwise: false,
+                extra_turns: 0
+            }
+        );
+        match m[2].1 {
+            Path::Arc {
+                center,
+                clockwise: true,
+                ..
+            } => {
+                assert!(
+                    center[0].abs() < 1e-9 && center[1].abs() < 1e-9,
+                    "R10 from (0,10) to (10,0) cw: {center:?}"
+                )
+            }
+            other => panic!("{other:?}"),
+        }
+        assert_eq!(m[3].0[2], 5.0, "helix: Z rises along the arc");
+        assert!(matches!(m[3].1, Path::Arc { extra_turns: 1, .. }), "P2: one extra turn");
+        assert!(matches!(m[4].1, Path::Arc { plane: Plane::Zx, center, .. } if center == [5.0, 0.0]));
+        assert!(matches!(m[5].1, Path::Arc { plane: Plane::Yz, .. }));
+        // The long arc: a negative R.
+        let b = run("G0 X10 Y0\nG3 X0 Y10 R-10 F100\n");
+        match moves(&b)[1].1 {
+            Path::Arc { center, .. } => assert!(
+                (center[0] - 10.0).abs() < 1e-9 && (center[1] - 10.0).abs() < 1e-9,
+                "{center:?}"
+            ),
+            other => panic!("{other:?}"),
+        }
+    }
+
+    #[test]
+    fn dwell_pauses_spindle_blending_and_end() {
+        let b = run("G64 P0.05\nS1200 M3\nG4 P1.5\nG1 X1 F100\nM1\nG61 X2\nM5\nM0\nM2\n");
+        let actions: Vec<Action> = b.iter().map(|b| b.action).collect();
+        assert!(
+            matches!(actions[0], Action::Spindle { direction: Spindle::Clockwise, speed_rpm } if speed_rpm == 1200.0)
+        );
+        assert_eq!(actions[1], Action::Dwell(1.5));
+        assert!(matches!(actions[2], Action::Move { blend: Blend::Within(Some(t)), .. } if t == 0.05));
+        assert_eq!(actions[3], Action::Pause { optional: true });
+        assert!(matches!(
+            actions[4],
+            Action::Move {
+                blend: Blend::ExactStop,
+                ..
+            }
+        ));
+        assert!(matches!(
+            actions[5],
+            Action::Spindle {
+                direction: Spindle::Off,
+                ..
+            }
+        ));
+        assert_eq!(actions[6], Action::Pause { optional: false });
+        assert_eq!(actions[7], Action::End);
+        assert_eq!(b[7].line, 9);
+        let b = run("M4\nM30\n");
+        assert!(matches!(
+            b[0].action,
+            Action::Spindle {
+                direction: Spindle::CounterClockwise,
+                ..
+            }
+        ));
+        assert_eq!(b[1].action, Action::End);
+    }
+
+    #[test]
+    fn rotations_on_the_hexapod_only() {
+        let b = read("G1 X1 A2 B-3 C4 F100", &machine(&XYZABC)).expect("hexapod");
+        assert_eq!(moves(&b.blocks)[0].0, [1.0, 0.0, 0.0, 2.0, -3.0, 4.0]);
+        // G20 scales lengths, not angles.
+        let b = read("G20 G1 X1 A2 F1", &machine(&XYZABC)).expect("hexapod");
+        assert_eq!(moves(&b.blocks)[0].0, [25.4, 0.0, 0.0, 2.0, 0.0, 0.0]);
+        assert_eq!(refused("G1 X1 A2 F100"), "1:7: A: this machine's axes are X Y Z");
+        let planar = read("G1 X1 Z2 F100", &machine(&["x", "y"])).expect_err("refused");
+        assert_eq!(planar.to_string(), "1:7: Z: this machine's axes are X Y");
+    }
+
+    #[test]
+    fn what_the_subset_lacks_is_refused_with_line_column_and_reason() {
+        for (text, message) in [
+            ("G41 X1", "1:1: G41 is not supported (cutter compensation)"),
+            ("G1 X1 F10\nG81 X1 Z-1 R1", "2:1: G81 is not supported (canned cycles)"),
+            ("G43 H1", "1:1: G43 is not supported (tool length compensation)"),
+            (
+                "G28",
+                "1:1: G28 is not supported (going home through an intermediate point)",
+            ),
+            (
+                "G93",
+                "1:1: G93 is not supported (feed modes other than units per minute)",
+            ),
+            ("G91.1", "1:1: G91.1 is not supported (arc distance modes)"),
+            ("G54.1", "1:1: G54.1 is not supported"),
+            ("G1.5", "1:1: G1.5 is not supported"),
+            ("T1 M6", "1:1: tool selection (T) is not supported"),
+            ("M6", "1:1: M6 is not supported (tool changes)"),
+            ("M8", "1:1: M8 is not supported (coolant)"),
+            ("M98 P10", "1:1: M98 is not supported (subprograms, user codes)"),
+            ("M100", "1:1: M100 is not supported (user-defined M codes)"),
+            ("G1 U1", "1:4: U: axes U V W are not supported"),
+            (
+                "G10 L2 P1 X0",
+                "1:1: G10 is not supported (G10/G11 (tables, retraction))",
+            ),
+            (
+                "G0 G1 X1",
+                "1:4: G0 and G1 are in one modal group: a block holds one of them",
+            ),
+            (
+                "G90 G91",
+                "1:5: G90 and G91 are in one modal group: a block holds one of them",
+            ),
+            (
+                "M3 M5",
+                "1:4: M3 and M5 are in one modal group: a block holds one of them",
+            ),
+            ("G1 X1 X2 F1", "1:7: X twice in one block"),
+            (
+                "G1 X1",
+                "1:4: no feed rate: an F word is needed before the first G1, G2 or G3",
+            ),
+            ("X1", "1:1: an axis word needs a motion mode: G0, G1, G2 or G3 first"),
+            ("G1 F100", "1:1: G1 needs at least one axis word"),
+            ("G1 X1 F0", "1:7: the feed F must be positive, got 0"),
+            ("G4", "1:1: G4 needs P, the dwell in seconds"),
+            ("G4 P-1", "1:4: the dwell P must be zero or positive seconds, got -1"),
+            (
+                "G1 X1 P2 F1",
+                "1:7: P belongs to G4 (dwell), G64 (tolerance) or an arc (turns)",
+            ),
+            ("G1 X1 I2 F1", "1:7: I belongs to an arc (G2, G3)"),
+            ("G2 X1 F1", "1:4: an arc needs its centre (I J) or its radius (R)"),
+            (
+                "G2 X1 Y1 I1 R1 F1",
+                "1:13: an arc has a radius (R) or a centre (I J K), not both",
+            ),
+            (
+                "G2 X1 K1 F1",
+                "1:7: K is not an offset of an arc in G17 (X–Y): use I and J",
+            ),
+            (
+                "G2 X10 I1 F1",
+                "1:4: the arc's end is not on its circle: radius 1.0000 mm at the start, 9.0000 mm at the end",
+            ),
+            ("G2 X0 I0 J0 F1", "1:4: the arc's centre is its start point"),
+            (
+                "G2 X10 R2 F1",
+                "1:8: the radius 2 mm is shorter than half the chord (5.0000 mm)",
+            ),
+            (
+                "G2 X0 Y0 R2 F1",
+                "1:10: a full circle is given by its centre (I J K), not by R",
+            ),
+            (
+                "G2 X0 I1 P1.5 F1",
+                "1:10: an arc's P is its number of turns, a whole number from 1, got 1.5",
+            ),
+            ("G53 X1", "1:1: G53 goes with a G0 or G1 move in this block"),
+            ("G91 G53 G0 X1", "1:5: G53 needs absolute distances (G90)"),
+            (
+                "G92",
+                "1:1: G92 needs at least one axis word: the program coordinates the tool is at",
+            ),
+            ("G0 X1 N5", "1:7: a line number (N) comes first in its block"),
+            (
+                "M2\nG0 X1",
+                "2:1: the program ends at line 1 (M2/M30): this block would never run",
+            ),
+            ("G0 X1 E2", "1:7: E (extruders) is not supported"),
+            (
+                "G64 P-1",
+                "1:5: the blending tolerance P must be zero or positive, got -1",
+            ),
+            ("S-5", "1:1: the spindle speed S must be zero or positive, got -5"),
+            ("G1.25 X1", "1:1: G1.25 is not a code"),
+        ] {
+            assert_eq!(refused(text), message, "{text:?}");
+        }
+    }
+}

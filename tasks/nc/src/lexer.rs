@@ -1,0 +1,218 @@
+//! A program's text as words with their positions.
+//!
+//! RS274NGC as LinuxCNC reads it, in the subset of motion.md: a line holds words — a letter
+//! (either case) and a number (`G1`, `x-2.5`, `F 1200`, spaces allowed between them) —,
+//! comments in parentheses and after `;`, and may start with `/` (block delete: the line is
+//! skipped) or be a `%` delimiter. What the subset does not have is refused here, where it
+//! stands: parameters `#…`, expressions `[…]`, O-words (subroutines, loops, conditionals) and any
+//! other character.
+
+use crate::NcError;
+
+/// A letter and its number, where it starts.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Word {
+    /// The letter, upper case.
+    pub letter: char,
+    /// The number.
+    pub value: f64,
+    /// The letter's column (1-based, in characters).
+    pub column: usize,
+}
+
+/// A line of the program that holds words.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Block {
+    /// The line (1-based).
+    pub line: usize,
+    /// Its words, in order.
+    pub words: Vec<Word>,
+}
+
+/// The blocks of `text`: its lines with words, in order (lines with only comments, blank lines,
+/// `%` delimiters and block-deleted lines have none and are left out).
+pub fn lex(text: &str) -> Result<Vec<Block>, NcError> {
+    let mut blocks = Vec::new();
+    for (i, line) in text.lines().enumerate() {
+        let words = lex_line(line, i + 1)?;
+        if !words.is_empty() {
+            blocks.push(Block { line: i + 1, words });
+        }
+    }
+    Ok(blocks)
+}
+
+/// The words of one line.
+fn lex_line(line: &str, number: usize) -> Result<Vec<Word>, NcError> {
+    let chars: Vec<char> = line.chars().collect();
+    let err = |column: usize, message: String| Err(NcError::new(number, column, message));
+    let mut words = Vec::new();
+    let mut i = 0;
+    let skip_blanks = |i: &mut usize| {
+        while *i < chars.len() && chars[*i].is_whitespace() {
+            *i += 1;
+        }
+    };
+    skip_blanks(&mut i);
+    // Block delete: the line is skipped (LinuxCNC with the block-delete switch on).
+    if chars.get(i) == Some(&'/') {
+        return Ok(words);
+    }
+    while i < chars.len() {
+        let c = chars[i];
+        let column = i + 1;
+        match c {
+            c if c.is_whitespace() => i += 1,
+            '(' => match chars[i + 1..].iter().position(|c| *c == ')') {
+                Some(end) => i += end + 2,
+                None => return err(column, "comment not closed: ')' is missing".into()),
+            },
+            ';' => break,
+            '%' => {
+                if words.is_empty() && chars[i + 1..].iter().all(|c| c.is_whitespace()) {
+                    i = chars.len();
+                } else {
+                    return err(
+                        column,
+                        "'%' stands on a line of its own (it delimits the program)".into(),
+                    );
+                }
+            }
+            '#' => return err(column, "parameters (#) are not supported: write the number".into()),
+            '[' => return err(column, "expressions ([…]) are not supported: write the number".into()),
+            '/' => {
+                return err(
+                    column,
+                    "'/' only starts a line (block delete); expressions are not supported".into(),
+                );
+            }
+            'o' | 'O' => {
+                return err(
+                    column,
+                    "O-words (subroutines, loops, conditionals) are not supported".into(),
+                );
+            }
+            c if c.is_ascii_alphabetic() => {
+                let letter = c.to_ascii_uppercase();
+                i += 1;
+                skip_blanks(&mut i);
+                let start = i;
+                if matches!(chars.get(i), Some('+' | '-')) {
+                    i += 1;
+                }
+                let digits_from = i;
+                let mut dot = false;
+                while i < chars.len() && (chars[i].is_ascii_digit() || (chars[i] == '.' && !dot)) {
+                    dot |= chars[i] == '.';
+                    i += 1;
+                }
+                let text: String = chars[start..i].iter().collect();
+                let has_digit = chars[digits_from..i].iter().any(|c| c.is_ascii_digit());
+                match chars.get(start) {
+                    Some('#') => {
+                        return err(start + 1, "parameters (#) are not supported: write the number".into());
+                    }
+                    Some('[') => {
+                        return err(
+                            start + 1,
+                            "expressions ([…]) are not supported: write the number".into(),
+                        );
+                    }
+                    _ => {}
+                }
+                if !has_digit {
+                    return err(column, format!("{letter} needs a number"));
+                }
+                let value = text
+                    .parse::<f64>()
+                    .map_err(|_| NcError::new(number, column, format!("{letter}{text} is not a number")))?;
+                words.push(Word { letter, value, column });
+            }
+            other => return err(column, format!("unexpected character '{other}'")),
+        }
+    }
+    Ok(words)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    fn word(letter: char, value: f64, column: usize) -> Word {
+        Word { letter, value, column }
+    }
+
+    #[test]
+    fn words_comments_line_numbers_and_delimiters() {
+        let text = "%\n(a program)\nN10 G1 x-2.5 Y+3 f 1200 (feed) ; the rest\n/G0 X99\n\n  g2x.5 I-1.25\n%\n";
+        let blocks = lex(text).expect("lexes");
+        assert_eq!(
+            blocks,
+            [
+                Block {
+                    line: 3,
+                    words: vec![
+                        word('N', 10.0, 1),
+                        word('G', 1.0, 5),
+                        word('X', -2.5, 8),
+                        word('Y', 3.0, 14),
+                        word('F', 1200.0, 18)
+                    ]
+                },
+                Block {
+                    line: 6,
+                    words: vec![word('G', 2.0, 3), word('X', 0.5, 5), word('I', -1.25, 9)]
+                },
+            ]
+        );
+    }
+
+    #[test]
+    fn what_the_subset_lacks_is_refused_where_it_stands() {
+        let refused = |text: &str| lex(text).expect_err("refused").to_string();
+        assert_eq!(
+            refused("G1 X#1"),
+            "1:5: parameters (#) are not supported: write the number"
+        );
+        assert_eq!(
+            refused("#1=5"),
+            "1:1: parameters (#) are not supported: write the number"
+        );
+        assert_eq!(
+            refused("G1 X[1+2]"),
+            "1:5: expressions ([…]) are not supported: write the number"
+        );
+        assert_eq!(
+            refused("o100 sub"),
+            "1:1: O-words (subroutines, loops, conditionals) are not supported"
+        );
+        assert_eq!(refused("G1\nG1 X1 (open"), "2:7: comment not closed: ')' is missing");
+        assert_eq!(refused("G1 X"), "1:4: X needs a number");
+        assert_eq!(refused("G1 X1.2.3"), "1:8: unexpected character '.'");
+        assert_eq!(
+            refused("G1 X1 % "),
+            "1:7: '%' stands on a line of its own (it delimits the program)"
+        );
+        assert_eq!(
+            refused("G1 X1/2"),
+            "1:6: '/' only starts a line (block delete); expressions are not supported"
+        );
+        assert_eq!(refused("G1 X1 @"), "1:7: unexpected character '@'");
+        assert_eq!(refused("G1 X-"), "1:4: X needs a number");
+    }
+
+    proptest! {
+        /// Any finite number written with up to 6 decimals reads back to the same value, at any
+        /// case and spacing.
+        #[test]
+        fn numbers_read_back(value in -1e6f64..1e6, decimals in 0usize..6, lower: bool, space: bool) {
+            let text = format!("{:.*}", decimals, value);
+            let letter = if lower { "x" } else { "X" };
+            let line = format!("{letter}{}{text}", if space { " " } else { "" });
+            let blocks = lex(&line).expect("lexes");
+            prop_assert_eq!(blocks[0].words[0].letter, 'X');
+            prop_assert_eq!(blocks[0].words[0].value, text.parse::<f64>().expect("a number"));
+        }
+    }
+}

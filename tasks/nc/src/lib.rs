@@ -1,0 +1,42 @@
+//! NC programs (motion.md): the documented subset of RS274NGC, LinuxCNC's dialect, read into
+//! moves in the machine's world coordinates.
+//!
+//! - [`lexer`]: a program's text as words (`G1`, `X-2.5`) with their line and column; comments,
+//!   line numbers, block delete and `%` delimiters handled; parameters, expressions and O-words
+//!   refused where they stand.
+//! - [`interp`]: the modal state (plane, units, distance mode, work offsets, feed, exact stop or
+//!   blending) applied block by block: every block becomes a [`interp::Block`] — a rapid, a line,
+//!   an arc or helix, a dwell, a pause, a spindle change or the end — with its line. Anything the
+//!   subset does not have is refused with its line and column and the reason, before anything
+//!   moves.
+//!
+//! A small parser of our own rather than the `gcode` crate: that one reads values as `f32`
+//! (seven digits: a 1 µm step is lost beyond 10 m, and 0.1 µm beyond 1 m), is built to skip what
+//! it cannot read and go on, and knows nothing of RS274NGC's parameters, expressions or O-words,
+//! which must be refused with their position, not skipped.
+
+pub mod interp;
+pub mod lexer;
+
+/// A problem in a program, where it is (1-based line and column, in characters).
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[error("{line}:{column}: {message}")]
+pub struct NcError {
+    /// The line.
+    pub line: usize,
+    /// The column of the character the problem starts at.
+    pub column: usize,
+    /// What is wrong and why.
+    pub message: String,
+}
+
+impl NcError {
+    /// A problem at `line`:`column`.
+    pub fn new(line: usize, column: usize, message: impl Into<String>) -> NcError {
+        NcError {
+            line,
+            column,
+            message: message.into(),
+        }
+    }
+}
