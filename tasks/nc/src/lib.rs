@@ -9,14 +9,20 @@
 //!   an arc or helix, a dwell, a pause, a spindle change or the end — with its line. Anything the
 //!   subset does not have is refused with its line and column and the reason, before anything
 //!   moves.
+//! - [`path`]: a move's geometry: its length along the path, its pose at a fraction of it.
+//! - [`check`]: every point of the path, sampled finely, inside the world limits, reachable with
+//!   every joint inside its software limits and away from singularities; the path's length and
+//!   bounding box.
 //!
 //! A small parser of our own rather than the `gcode` crate: that one reads values as `f32`
 //! (seven digits: a 1 µm step is lost beyond 10 m, and 0.1 µm beyond 1 m), is built to skip what
 //! it cannot read and go on, and knows nothing of RS274NGC's parameters, expressions or O-words,
 //! which must be refused with their position, not skipped.
 
+pub mod check;
 pub mod interp;
 pub mod lexer;
+pub mod path;
 
 /// A problem in a program, where it is (1-based line and column, in characters).
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
