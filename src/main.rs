@@ -26,6 +26,7 @@ use pkm_plc::summary::Summary;
 mod cli_enums;
 mod kin_cmd;
 mod kin_svg;
+mod nc_cmd;
 
 /// A soft-PLC for parallel-kinematic machine models.
 #[derive(Parser, Debug)]
@@ -45,6 +46,8 @@ enum Command {
     Bench(BenchArgs),
     /// Kinematics of a machine model: fk, ik, workspace, bench, convergence.
     Kin(kin_cmd::KinArgs),
+    /// NC programs: check one against the configured machine.
+    Nc(nc_cmd::NcArgs),
     /// Replay a trace: feed its inputs to the programs, compare every output and state.
     Replay(ReplayArgs),
     /// Export a trace: VCD for GTKWave, or SVG time plots.
@@ -313,6 +316,10 @@ fn main() -> ExitCode {
         Command::IoSim(args) => cmd_io_sim(args),
         Command::LinkBench(args) => cmd_link_bench(args),
         Command::Kin(args) => kin_cmd::run(args, load_config).map_err(|e| Failure {
+            code: e.code,
+            message: e.message,
+        }),
+        Command::Nc(args) => nc_cmd::run(args, load_config).map_err(|e| Failure {
             code: e.code,
             message: e.message,
         }),

@@ -15,6 +15,7 @@ mod joint_machines_soak;
 mod joystick;
 mod joystick_app;
 mod kinematics;
+mod nc;
 mod registers;
 mod simulated_machine;
 mod traces;

@@ -53,6 +53,47 @@ pub trait Machine: Sync + fmt::Debug {
     fn configuration(&self) -> EmbeddedFile;
     /// Builds the simulated plant from the (checked) sections; problems as in [`Machine::check`].
     fn plant(&self, sections: &Sections<'_>) -> Result<PlantSetup, Vec<Problem>>;
+    /// Where the tool may go, as NC programs need it, from the whole (checked) configuration:
+    /// the machine's main program's parameters and its kinematics.
+    fn motion(&self, config: &serde_json::Value) -> Result<Motion, Vec<Problem>>;
+}
+
+/// Where a machine's tool may go: what NC programs are checked and planned against.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Motion {
+    /// The kinematic model, as `pkm-plc kin` names it (`pn101`).
+    pub model: &'static str,
+    /// The machine frame's origin: the joints at the reference point (`Joints`) or the home
+    /// pose in the mechanism frame (`Pose`).
+    pub home: Home,
+    /// The joints' software limits, `[min, max]` (mm).
+    pub soft_limits: Vec<[f64; 2]>,
+    /// The world limits per coordinate of the machine frame, `[min, max]`.
+    pub world_limits: Vec<[f64; 2]>,
+    /// The tool is never commanded where the singularity measure is below this.
+    pub singularity_threshold: f64,
+}
+
+/// Where a machine frame's origin is.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Home {
+    /// The tool point at these joints.
+    Joints(Vec<f64>),
+    /// This pose of the mechanism frame.
+    Pose(Vec<f64>),
+}
+
+/// The `params` of the first entry of program `name` in a configuration's task classes, if it
+/// has any.
+pub fn program_params<'a>(config: &'a serde_json::Value, name: &str) -> Option<&'a serde_json::Value> {
+    config
+        .get("task_classes")?
+        .as_array()?
+        .iter()
+        .filter_map(|class| class.get("programs")?.as_array())
+        .flatten()
+        .find(|p| p.get("program").and_then(|n| n.as_str()) == Some(name))?
+        .get("params")
 }
 
 /// A plant as its machine built it, with what the runtime needs to wire it.

@@ -15,7 +15,7 @@ pub mod switches;
 pub mod vars;
 
 use pkm_api::image::Declare;
-use pkm_api::machine::{EmbeddedFile, Machine, PlantSetup, Sections};
+use pkm_api::machine::{EmbeddedFile, Home, Machine, Motion, PlantSetup, Sections, program_params};
 use pkm_api::problem::{self, Problem};
 use pkm_api::program::{Program, ProgramArgs, ProgramInfo};
 use pkm_kinematics::KinematicsConfig;
@@ -192,6 +192,30 @@ impl Machine for JointMachine {
 
     fn configuration(&self) -> EmbeddedFile {
         self.0.config
+    }
+
+    fn motion(&self, config: &serde_json::Value) -> Result<Motion, Vec<Problem>> {
+        let spec = self.0;
+        let kinematics = KinematicsConfig::from_section(config.get("kinematics"))?;
+        let main = spec.programs[1].name;
+        let p = params::over_defaults(
+            program_params(config, main),
+            &format!("params of {main}"),
+            spec.default_main(),
+        )
+        .map_err(|p| vec![p])?;
+        let kin = kinematics.build(spec.model);
+        let m = p.soft_limit_margin_mm;
+        Ok(Motion {
+            model: spec.model.name(),
+            home: match spec.model {
+                pkm_kinematics::Machine::Hexapod => Home::Pose(kinematics.hexapod.home.to_vec()),
+                _ => Home::Joints(vec![0.0; kin.dof()]),
+            },
+            soft_limits: kin.joint_limits().iter().map(|[lo, hi]| [lo + m, hi - m]).collect(),
+            world_limits: p.world_limits,
+            singularity_threshold: p.singularity_threshold,
+        })
     }
 
     fn plant(&self, s: &Sections<'_>) -> Result<PlantSetup, Vec<Problem>> {

@@ -29,22 +29,35 @@ pub fn overlay(base: &mut serde_json::Value, over: &serde_json::Value) {
 /// The program entry's `params` laid over `defaults` and parsed strictly; a problem is recorded
 /// against the entry's path (with the path inside `params`) and the defaults are returned, so
 /// that declaration goes on and every problem of the configuration is reported at once.
-pub fn parse<P: DeserializeOwned + Serialize>(args: &ProgramArgs<'_>, decl: &mut Declare<'_>, defaults: P) -> P {
-    let Some(params) = args.params else {
-        return defaults;
-    };
-    let Ok(mut merged) = serde_json::to_value(&defaults) else {
-        // The defaults are plain numbers and lists: serialising them cannot fail.
-        return defaults;
-    };
-    overlay(&mut merged, params);
-    match pkm_api::strict_json::section::<P>(&merged, "params") {
+pub fn parse<P: DeserializeOwned + Serialize + Clone>(
+    args: &ProgramArgs<'_>,
+    decl: &mut Declare<'_>,
+    defaults: P,
+) -> P {
+    match over_defaults(args.params, "params", defaults.clone()) {
         Ok(p) => p,
         Err(problem) => {
             decl.issue(&problem.at, problem.message);
             defaults
         }
     }
+}
+
+/// `params` (if any) laid over `defaults` and parsed strictly; a problem has its path from `at`.
+pub fn over_defaults<P: DeserializeOwned + Serialize>(
+    params: Option<&serde_json::Value>,
+    at: &str,
+    defaults: P,
+) -> Result<P, pkm_api::problem::Problem> {
+    let Some(params) = params else {
+        return Ok(defaults);
+    };
+    let Ok(mut merged) = serde_json::to_value(&defaults) else {
+        // The defaults are plain numbers and lists: serialising them cannot fail.
+        return Ok(defaults);
+    };
+    overlay(&mut merged, params);
+    pkm_api::strict_json::section::<P>(&merged, at)
 }
 
 /// A stepper joint's drive (the drive program).

@@ -11,7 +11,7 @@ pub mod plant;
 pub mod state;
 pub mod vars;
 
-use pkm_api::machine::{EmbeddedFile, Machine, PlantSetup, Sections};
+use pkm_api::machine::{EmbeddedFile, Home, Machine, Motion, PlantSetup, Sections, program_params};
 use pkm_api::problem::{self, Problem};
 use pkm_api::program::ProgramInfo;
 use pkm_kinematics::KinematicsConfig;
@@ -97,6 +97,29 @@ impl Machine for Trijoint {
 
     fn configuration(&self) -> EmbeddedFile {
         CONFIG
+    }
+
+    fn motion(&self, config: &serde_json::Value) -> Result<Motion, Vec<Problem>> {
+        let kinematics = KinematicsConfig::from_section(config.get("kinematics"))?;
+        let p: main_program::MainParams = match program_params(config, "trijoint.main") {
+            None => main_program::MainParams::default(),
+            Some(v) => pkm_api::strict_json::section(v, "params of trijoint.main").map_err(|p| vec![p])?,
+        };
+        let t = &kinematics.trijoint;
+        let travel = [t.h1_travel[1] - t.h1_travel[0], t.h2_travel[1] - t.h2_travel[0]];
+        let m = p.soft_limit_margin_mm;
+        Ok(Motion {
+            model: "trijoint",
+            // M's frame is the mechanism's; referencing ends at the start position.
+            home: Home::Joints(
+                p.start_position_mm
+                    .unwrap_or([travel[0] / 2.0, travel[1] / 2.0])
+                    .to_vec(),
+            ),
+            soft_limits: travel.iter().map(|t| [m, t - m]).collect(),
+            world_limits: vec![[-pkm_kinematics::MAX_LENGTH_MM, pkm_kinematics::MAX_LENGTH_MM]; 2],
+            singularity_threshold: p.singularity_threshold,
+        })
     }
 
     fn plant(&self, s: &Sections<'_>) -> Result<PlantSetup, Vec<Problem>> {

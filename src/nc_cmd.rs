@@ -1,0 +1,198 @@
+//! `pkm-plc nc check FILE`: an NC program read, interpreted and checked offline against the
+//! configured machine — every point of its path reachable (motion.md) — with its path length and
+//! bounding box. No PLC runs, nothing moves.
+
+use std::path::PathBuf;
+
+use clap::{Args, Subcommand};
+use serde_json::{Map, Value, json};
+
+use pkm_api::machine::Home;
+use pkm_kinematics::frame::{Home as FrameHome, MachineFrame};
+use pkm_kinematics::{KinematicsConfig, Machine as Model};
+use pkm_nc::check::{Limits, check, format_pose};
+use pkm_nc::interp::{self, AXES};
+use pkm_plc::compose::Setup;
+use pkm_plc::config::{ConfigError, LoadedConfig};
+
+use crate::ConfigArg;
+
+/// Arguments of `pkm-plc nc`.
+#[derive(Args, Debug)]
+pub struct NcArgs {
+    #[command(subcommand)]
+    op: NcOp,
+}
+
+#[derive(Subcommand, Debug)]
+enum NcOp {
+    /// Read and check a program: refusals with FILE:LINE:COLUMN (exit 2), unreachable points
+    /// with their line (exit 1); else the path's length and bounding box (exit 0).
+    Check {
+        /// The program (G-code).
+        file: PathBuf,
+        #[command(flatten)]
+        config: ConfigArg,
+        /// Also write the report as JSON to FILE.
+        #[arg(long, value_name = "FILE")]
+        json: Option<PathBuf>,
+    },
+}
+
+/// Why `nc` failed: the exit code and the message.
+pub struct NcFailure {
+    /// 1: the program cannot run on the machine; 2: usage, configuration or program text.
+    pub code: u8,
+    /// What to print.
+    pub message: String,
+}
+
+fn fail(code: u8, message: impl Into<String>) -> NcFailure {
+    NcFailure {
+        code,
+        message: message.into(),
+    }
+}
+
+/// Runs `pkm-plc nc`.
+pub fn run(args: NcArgs, load: impl Fn(&ConfigArg) -> Result<LoadedConfig, ConfigError>) -> Result<(), NcFailure> {
+    let NcOp::Check { file, config, json } = args.op;
+    let loaded = load(&config).map_err(|e| fail(2, e.to_string()))?;
+    let origin = loaded.origin.clone();
+    let setup = Setup::new(loaded).map_err(|e| fail(2, e.to_string()))?;
+    let machine = setup.machine.ok_or_else(|| {
+        fail(
+            2,
+            format!("{origin}: the configuration names no machine to check the program against"),
+        )
+    })?;
+    let motion = machine.motion(&setup.loaded.json).map_err(|problems| {
+        fail(
+            2,
+            ConfigError::Invalid {
+                file: origin.clone(),
+                problems,
+            }
+            .to_string(),
+        )
+    })?;
+    let kinematics = KinematicsConfig::from_section(setup.loaded.config.kinematics.as_ref()).map_err(|problems| {
+        fail(
+            2,
+            ConfigError::Invalid {
+                file: origin.clone(),
+                problems,
+            }
+            .to_string(),
+        )
+    })?;
+    let model = Model::ALL
+        .into_iter()
+        .find(|m| m.name() == motion.model)
+        .ok_or_else(|| {
+            fail(
+                2,
+                format!("{}: no kinematic model \"{}\"", machine.name(), motion.model),
+            )
+        })?;
+    let home = match &motion.home {
+        Home::Joints(q) => FrameHome::Joints(q),
+        Home::Pose(x) => FrameHome::Pose(x),
+    };
+    let frame = MachineFrame::new(kinematics.build(model), home).map_err(|e| {
+        fail(
+            2,
+            format!("{origin}: the machine's home is not a pose of its kinematics: {e}"),
+        )
+    })?;
+    let name = file.display().to_string();
+    let text = pkm_plc::files::read_text(&file, pkm_plc::files::MAX_TEXT_BYTES)
+        .map_err(|e| fail(2, format!("{name}: cannot read the program: {e}")))?;
+    let n = frame.dof();
+    let keys = frame.kinematics().pose_keys();
+    let program = interp::read(
+        &text,
+        &interp::Machine {
+            axes: keys,
+            // The program starts at the reference point, the origin of the machine frame.
+            start: [0.0; 6],
+            work_offsets: [[0.0; 6]; 6],
+        },
+    )
+    .map_err(|e| fail(2, format!("{name}:{e}")))?;
+    let report = check(
+        &program,
+        &Limits {
+            frame: &frame,
+            soft: &motion.soft_limits,
+            world: &motion.world_limits,
+            singularity_threshold: motion.singularity_threshold,
+        },
+    );
+    let mut lines = vec![format!(
+        "{name}: {} moves on {}: feed path {:.3} mm, rapids {:.3} mm",
+        report.moves,
+        machine.name(),
+        report.feed_length_mm,
+        report.rapid_length_mm
+    )];
+    if let Some(b) = &report.bounding_box {
+        let parts: Vec<String> = b
+            .iter()
+            .enumerate()
+            .map(|(c, [lo, hi])| format!("{} {lo:.3} … {hi:.3}", AXES[c]))
+            .collect();
+        lines.push(format!("bounding box (machine frame): {}", parts.join(", ")));
+    }
+    if let Some(out) = json {
+        let pose_json = |p: &[f64; 6]| -> Value {
+            let mut m = Map::new();
+            for c in 0..n {
+                m.insert(keys[c].to_string(), json!(p[c]));
+            }
+            Value::Object(m)
+        };
+        let bbox: Map<String, Value> = report
+            .bounding_box
+            .iter()
+            .flatten()
+            .enumerate()
+            .map(|(c, b)| (keys[c].to_string(), json!(b)))
+            .collect();
+        let doc = json!({
+            "file": name,
+            "machine": machine.name(),
+            "moves": report.moves,
+            "feed_length_mm": report.feed_length_mm,
+            "rapid_length_mm": report.rapid_length_mm,
+            "bounding_box": bbox,
+            "unreachable": report.unreachable.iter().map(|u| json!({
+                "line": u.line, "pose": pose_json(&u.pose), "why": u.why
+            })).collect::<Vec<_>>(),
+        });
+        let text = serde_json::to_string_pretty(&doc).map_err(|e| fail(1, e.to_string()))?;
+        std::fs::write(&out, text + "\n").map_err(|e| fail(1, format!("{}: {e}", out.display())))?;
+    }
+    if report.unreachable.is_empty() {
+        lines.push(format!(
+            "every point of the path is reachable (sampled every {} mm and {}°)",
+            pkm_nc::check::SAMPLE_SPACING,
+            pkm_nc::check::SAMPLE_SPACING
+        ));
+        println!("{}", lines.join("\n"));
+        return Ok(());
+    }
+    println!("{}", lines.join("\n"));
+    let problems: Vec<String> = report
+        .unreachable
+        .iter()
+        .map(|u| format!("{name}:{}: at {}: {}", u.line, format_pose(&u.pose, n), u.why))
+        .collect();
+    Err(fail(
+        1,
+        format!(
+            "the program leaves what the machine can reach:\n{}",
+            problems.join("\n")
+        ),
+    ))
+}

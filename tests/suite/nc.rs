@@ -1,0 +1,86 @@
+//! `pkm-plc nc check`: a program read and checked offline against the configured machine.
+
+use crate::common;
+
+use common::{pkm, stderr, stdout};
+
+/// Writes `text` as `name` in `dir`; its path as text.
+fn program(dir: &std::path::Path, name: &str, text: &str) -> String {
+    let path = dir.join(name);
+    std::fs::write(&path, text).expect("write the program");
+    path.to_str().expect("utf-8").to_string()
+}
+
+#[test]
+fn a_program_inside_the_workspace_is_reported_with_its_length_and_box() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let file = program(
+        dir.path(),
+        "circle.ngc",
+        "%\nG0 X10 Y0\nG1 Z-5 F300\nG3 X10 Y0 I-10 J0\nG0 Z0\nM2\n%\n",
+    );
+    let json = dir.path().join("report.json");
+    let o = pkm(&[
+        "nc",
+        "check",
+        &file,
+        "--machine",
+        "ox-x",
+        "--json",
+        json.to_str().expect("utf-8"),
+    ]);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    assert_eq!(
+        stdout(&o),
+        format!(
+            "{file}: 4 moves on ox-x: feed path 67.832 mm, rapids 15.000 mm\n\
+             bounding box (machine frame): X -10.000 … 10.000, Y -10.000 … 10.000, Z -5.000 … 0.000\n\
+             every point of the path is reachable (sampled every 0.1 mm and 0.1°)\n"
+        )
+    );
+    let r = common::read_json(&json);
+    assert_eq!(r["machine"], "ox-x");
+    assert_eq!(r["moves"], 4);
+    assert_eq!(r["unreachable"], serde_json::json!([]));
+    assert_eq!(r["bounding_box"]["z"], serde_json::json!([-5.0, 0.0]));
+}
+
+#[test]
+fn unreachable_points_are_named_by_line_and_nothing_else_is_said_to_pass() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let file = program(dir.path(), "far.ngc", "G1 X1 F100\nG1 X200\nG1 X0\n");
+    let o = pkm(&["nc", "check", &file, "--machine", "pn101"]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert_eq!(
+        stderr(&o),
+        format!(
+            "error: the program leaves what the machine can reach:\n\
+             {file}:2: at X40.100 Y0.000 Z0.000: X = 40.100 is outside the world limits -40 … 40\n\
+             {file}:3: at X199.900 Y0.000 Z0.000: X = 199.900 is outside the world limits -40 … 40\n"
+        )
+    );
+    assert!(!stdout(&o).contains("reachable"), "{}", stdout(&o));
+}
+
+#[test]
+fn a_refused_word_is_named_with_file_line_and_column() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let file = program(dir.path(), "cycle.ngc", "G1 X1 F100\n  G81 X1 Z-1 R1\n");
+    let o = pkm(&["nc", "check", &file, "--machine", "pn101"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert_eq!(
+        stderr(&o),
+        format!("error: {file}:2:3: G81 is not supported (canned cycles)\n")
+    );
+    let file = program(dir.path(), "tilt.ngc", "G1 A5 F100\n");
+    let o = pkm(&["nc", "check", &file, "--machine", "ox-o"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert_eq!(
+        stderr(&o),
+        format!("error: {file}:1:4: A: this machine's axes are X Y Z\n")
+    );
+    // The hexapod has rotations; a few degrees of tilt are inside its workspace.
+    let file = program(dir.path(), "tilt.ngc", "G1 X5 A3 B-3 F100\nG1 X0 A0 B0\n");
+    let o = pkm(&["nc", "check", &file, "--machine", "hexapod"]);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+}
