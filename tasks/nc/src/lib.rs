@@ -23,6 +23,7 @@ pub mod check;
 pub mod interp;
 pub mod lexer;
 pub mod path;
+pub mod plan;
 
 /// A problem in a program, where it is (1-based line and column, in characters).
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]

@@ -14,14 +14,25 @@ pub struct Segment {
     arc: Option<Arc>,
 }
 
+/// A circular arc in x y z (a helix with `rise`): p(φ) = c + r·(cos φ·u + sin φ·v) + rise·φ/sweep·w
+/// for φ from 0 to `sweep`; u, v, w orthonormal.
 #[derive(Clone, Copy, Debug, PartialEq)]
 struct Arc {
-    axes: [usize; 3],
-    center: [f64; 2],
+    center: [f64; 3],
+    u: [f64; 3],
+    v: [f64; 3],
+    w: [f64; 3],
     radius: f64,
-    start_angle: f64,
-    /// Signed sweep (rad): positive counter-clockwise.
+    /// The angle it turns (rad, positive).
     sweep: f64,
+    /// How far it rises along w (mm).
+    rise: f64,
+}
+
+fn unit(axis: usize) -> [f64; 3] {
+    let mut e = [0.0; 3];
+    e[axis] = 1.0;
+    e
 }
 
 impl Segment {
@@ -35,53 +46,92 @@ impl Segment {
                 clockwise,
                 extra_turns,
             } => {
-                let axes = plane.axes();
-                let [a0, a1, _] = axes;
+                let [a0, a1, an] = plane.axes();
                 let start_angle = (from[a1] - center[1]).atan2(from[a0] - center[0]);
                 let end_angle = (to[a1] - center[1]).atan2(to[a0] - center[0]);
                 let radius = (from[a0] - center[0]).hypot(from[a1] - center[1]);
                 // The sweep in the arc's direction, a full turn when it ends where it starts.
-                let mut sweep = end_angle - start_angle;
-                if clockwise {
-                    while sweep >= -1e-12 {
-                        sweep -= TAU;
-                    }
-                    if sweep < -TAU - 1e-12 {
-                        sweep += TAU;
-                    }
+                let mut sweep = if clockwise {
+                    start_angle - end_angle
                 } else {
-                    while sweep <= 1e-12 {
-                        sweep += TAU;
-                    }
-                    if sweep > TAU + 1e-12 {
-                        sweep -= TAU;
-                    }
+                    end_angle - start_angle
+                };
+                while sweep <= 1e-12 {
+                    sweep += TAU;
                 }
-                let turns = f64::from(extra_turns) * TAU;
-                sweep += if clockwise { -turns } else { turns };
+                while sweep > TAU + 1e-12 {
+                    sweep -= TAU;
+                }
+                sweep += f64::from(extra_turns) * TAU;
+                // φ runs from the start point, counter-clockwise for G3 and clockwise for G2
+                // (looking down the plane's normal).
+                let (e0, e1) = (unit(a0), unit(a1));
+                let (c0, s0) = (start_angle.cos(), start_angle.sin());
+                let u = [
+                    e0[0] * c0 + e1[0] * s0,
+                    e0[1] * c0 + e1[1] * s0,
+                    e0[2] * c0 + e1[2] * s0,
+                ];
+                let tangent = [
+                    -e0[0] * s0 + e1[0] * c0,
+                    -e0[1] * s0 + e1[1] * c0,
+                    -e0[2] * s0 + e1[2] * c0,
+                ];
+                let v = if clockwise { tangent.map(|t| -t) } else { tangent };
+                let mut c = [from[0], from[1], from[2]];
+                c[a0] = center[0];
+                c[a1] = center[1];
                 Some(Arc {
-                    axes,
-                    center,
+                    center: c,
+                    u,
+                    v,
+                    w: unit(an),
                     radius,
-                    start_angle,
                     sweep,
+                    rise: to[an] - from[an],
                 })
             }
         };
         Segment { from, to, arc }
     }
 
+    /// A blend: the arc of `radius` about `center` from `from` (its x y z on the circle, `u`
+    /// pointing there from the centre, `v` the direction of travel there) turning by `sweep` to
+    /// `to`; the other coordinates change in proportion.
+    pub fn blend(from: Pose, to: Pose, center: [f64; 3], u: [f64; 3], v: [f64; 3], radius: f64, sweep: f64) -> Segment {
+        let w = [
+            u[1] * v[2] - u[2] * v[1],
+            u[2] * v[0] - u[0] * v[2],
+            u[0] * v[1] - u[1] * v[0],
+        ];
+        Segment {
+            from,
+            to,
+            arc: Some(Arc {
+                center,
+                u,
+                v,
+                w,
+                radius,
+                sweep,
+                rise: 0.0,
+            }),
+        }
+    }
+
     /// The length the feed is measured along (mm): the path in x y z, or where the tool point
     /// does not move, the rotations' (degrees, as LinuxCNC takes them).
     pub fn length(&self) -> f64 {
-        let linear = match self.arc {
-            None => (0..3).map(|c| (self.to[c] - self.from[c]).powi(2)).sum::<f64>().sqrt(),
-            Some(a) => {
-                let rise = self.to[a.axes[2]] - self.from[a.axes[2]];
-                (a.radius * a.sweep).hypot(rise)
-            }
-        };
+        let linear = self.linear_length();
         if linear > 1e-12 { linear } else { self.angular() }
+    }
+
+    /// The length of the tool point's path (mm).
+    pub fn linear_length(&self) -> f64 {
+        match self.arc {
+            None => (0..3).map(|c| (self.to[c] - self.from[c]).powi(2)).sum::<f64>().sqrt(),
+            Some(a) => (a.radius * a.sweep).hypot(a.rise),
+        }
     }
 
     /// The largest change of a rotation a b c (degrees).
@@ -91,15 +141,17 @@ impl Segment {
 
     /// The pose at fraction `u` (0 … 1) of the move.
     pub fn at(&self, u: f64) -> Pose {
-        let mut p: Pose = std::array::from_fn(|c| self.from[c] + (self.to[c] - self.from[c]) * u);
-        if let Some(a) = self.arc {
-            let angle = a.start_angle + a.sweep * u;
-            p[a.axes[0]] = a.center[0] + a.radius * angle.cos();
-            p[a.axes[1]] = a.center[1] + a.radius * angle.sin();
-        }
         if u >= 1.0 {
             // The end point exactly, not as the circle's formula rounds it.
-            p = self.to;
+            return self.to;
+        }
+        let mut p: Pose = std::array::from_fn(|c| self.from[c] + (self.to[c] - self.from[c]) * u);
+        if let Some(a) = self.arc {
+            let phi = a.sweep * u;
+            let (cos, sin) = (phi.cos(), phi.sin());
+            for (c, x) in p.iter_mut().take(3).enumerate() {
+                *x = a.center[c] + a.radius * (cos * a.u[c] + sin * a.v[c]) + a.rise * u * a.w[c];
+            }
         }
         p
     }
@@ -114,14 +166,33 @@ impl Segment {
         &self.to
     }
 
-    /// The arc's radius (mm), for arcs.
-    pub fn radius(&self) -> Option<f64> {
-        self.arc.map(|a| a.radius)
+    /// The angle an arc turns (rad; 0 for a line).
+    pub fn sweep(&self) -> f64 {
+        self.arc.map_or(0.0, |a| a.sweep)
     }
 
-    /// The arc's centre in its plane's axes, and the axes' indices, for arcs.
-    pub fn center(&self) -> Option<([usize; 3], [f64; 2])> {
-        self.arc.map(|a| (a.axes, a.center))
+    /// Whether it is an arc (or a blend).
+    pub fn is_arc(&self) -> bool {
+        self.arc.is_some()
+    }
+
+    /// The unit direction of the tool point's travel at fraction `u` (zero when it does not
+    /// move).
+    pub fn direction(&self, u: f64) -> [f64; 3] {
+        let d = match self.arc {
+            None => [
+                self.to[0] - self.from[0],
+                self.to[1] - self.from[1],
+                self.to[2] - self.from[2],
+            ],
+            Some(a) => {
+                let phi = a.sweep * u;
+                let (cos, sin) = (phi.cos(), phi.sin());
+                std::array::from_fn(|c| a.radius * a.sweep * (-sin * a.u[c] + cos * a.v[c]) + a.rise * a.w[c])
+            }
+        };
+        let n = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+        if n > 0.0 { d.map(|x| x / n) } else { [0.0; 3] }
     }
 }
 
@@ -154,12 +225,29 @@ mod tests {
         );
         let full = Segment::new(p(10.0, 0.0, 0.0), p(10.0, 0.0, 0.0), arc(false, 1));
         assert!(
+            (full.at(0.125)[1] - 10.0).abs() < 1e-9,
+            "a quarter into two turns: (0, 10)"
+        );
+        assert!(
             (full.length() - 40.0 * std::f64::consts::PI).abs() < 1e-9,
             "two full turns"
         );
         let helix = Segment::new(p(10.0, 0.0, 0.0), p(10.0, 0.0, 5.0), arc(false, 0));
         assert!((helix.length() - (20.0 * std::f64::consts::PI).hypot(5.0)).abs() < 1e-9);
         assert!((helix.at(0.5)[2] - 2.5).abs() < 1e-12);
+        assert!(
+            (cw.at(0.5)[0] + 7.0710678).abs() < 1e-6 && (cw.at(0.5)[1] + 7.0710678).abs() < 1e-6,
+            "{:?}",
+            cw.at(0.5)
+        );
+        assert!(
+            (ccw.direction(0.0)[1] - 1.0).abs() < 1e-12,
+            "G3 from (10, 0) starts along +y"
+        );
+        assert!(
+            (cw.direction(0.0)[1] + 1.0).abs() < 1e-12,
+            "G2 from (10, 0) starts along −y"
+        );
         let turn_only = Segment::new([0.0; 6], [0.0, 0.0, 0.0, 3.0, -4.0, 0.0], Path::Line);
         assert_eq!(turn_only.length(), 4.0, "rotations alone: the largest, in degrees");
     }

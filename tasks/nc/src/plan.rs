@@ -1,0 +1,722 @@
+//! The planner (motion.md): the program's moves as one path in world coordinates — corners of
+//! consecutive lines rounded by arcs within the G64 P tolerance, exact stops at G61 and wherever
+//! the path cannot be blended —, and a velocity profile along it that keeps every world axis and
+//! every joint within its speed and acceleration limits: joint rates through the kinematics
+//! (derivatives of the inverse kinematics along the path), so the tool slows down near a
+//! singularity rather than asking a drive for more than it has. It runs off the cyclic path and
+//! may allocate; [`Plan::sample`] gives the pose at any time without allocating.
+//!
+//! The profile is computed on points at most [`GRID_SPACING`] apart: at each, a speed cap (the
+//! feed; each axis' and joint's speed; the part of each acceleration the path's curvature uses)
+//! and a tangential acceleration bound; a forward and a backward pass bring the speed within
+//! reach of its neighbours'. Half of each acceleration limit is given to the curvature and half
+//! to the change of speed, so their sum stays within the limit.
+
+use pkm_kinematics::MAX_DOF;
+use pkm_kinematics::frame::MachineFrame;
+
+use crate::interp::{AXES, Action, Blend, Pose, Program};
+use crate::path::Segment;
+
+/// The largest distance between two points of the velocity profile (mm, or degrees where only
+/// rotations move).
+pub const GRID_SPACING: f64 = 0.5;
+
+/// Consecutive lines turning by less than this (rad) are one straight path.
+const STRAIGHT: f64 = 1e-9;
+/// Lines turning by more than this (rad) reverse: the tool stops.
+const REVERSAL: f64 = std::f64::consts::PI - 1e-3;
+
+/// The machine's limits.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PlanLimits {
+    /// Per joint: speed (mm/s).
+    pub joint_speed: Vec<f64>,
+    /// Per joint: acceleration (mm/s²).
+    pub joint_accel: Vec<f64>,
+    /// Per world axis x y z a b c: speed (mm/s, degrees/s), also the speed of rapids.
+    pub axis_speed: [f64; 6],
+    /// Per world axis: acceleration (mm/s², degrees/s²).
+    pub axis_accel: [f64; 6],
+}
+
+/// A piece of the planned path.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Element {
+    /// Its geometry.
+    pub segment: Segment,
+    /// The program line it comes from (a blend: the line after the corner).
+    pub line: usize,
+    /// Its programmed speed (mm/s; infinite for a rapid, which the axes' limits bound).
+    pub feed: f64,
+    /// Whether the tool stops at its end.
+    pub stop_after: bool,
+    /// How long the tool stands still at its end (G4, s).
+    pub dwell_after_s: f64,
+    /// The G64 tolerance in force at its end (`None`: exact stop or no limit).
+    tolerance: Option<Option<f64>>,
+}
+
+/// What limits a point's speed below the feed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Limit {
+    /// The programmed feed.
+    Feed,
+    /// A world axis' speed (index in x y z a b c).
+    AxisSpeed(usize),
+    /// A joint's speed.
+    JointSpeed(usize),
+    /// A world axis' acceleration on the path's curvature.
+    AxisCurvature(usize),
+    /// A joint's acceleration on the path's curvature (a corner blend, an arc, the mechanism).
+    JointCurvature(usize),
+}
+
+impl Limit {
+    /// The limit as users read it.
+    pub fn text(self) -> String {
+        match self {
+            Limit::Feed => "the programmed feed".into(),
+            Limit::AxisSpeed(c) => format!("the speed of axis {}", AXES[c]),
+            Limit::JointSpeed(j) => format!("the speed of joint {}", j + 1),
+            Limit::AxisCurvature(c) => format!("the acceleration of axis {} on the curve", AXES[c]),
+            Limit::JointCurvature(j) => format!("the acceleration of joint {} on the curve", j + 1),
+        }
+    }
+}
+
+#[derive(Clone, Copy, Debug)]
+struct Point {
+    /// Distance along the path.
+    s: f64,
+    element: u32,
+    u: f64,
+    /// Speed cap and what sets it.
+    cap: f64,
+    limit: Limit,
+    /// Tangential acceleration bound.
+    accel: f64,
+    /// Planned speed.
+    v: f64,
+    /// When the tool passes (s).
+    t: f64,
+    /// Standing still here this long before going on (s).
+    hold: f64,
+}
+
+/// A block whose speed the machine limits below its feed.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Limited {
+    /// The program line.
+    pub line: usize,
+    /// Its feed (mm/min).
+    pub programmed_mm_min: f64,
+    /// The highest speed any point of it may take (mm/min).
+    pub reachable_mm_min: f64,
+    /// Why.
+    pub why: Limit,
+}
+
+/// A planned program.
+#[derive(Clone, Debug)]
+pub struct Plan {
+    elements: Vec<Element>,
+    points: Vec<Point>,
+    /// Its duration (s), dwells included.
+    pub duration_s: f64,
+    /// Its path's length (mm).
+    pub length_mm: f64,
+    /// The blocks whose speed is limited below their feed, and why.
+    pub limited: Vec<Limited>,
+}
+
+/// A point of the plan at a time.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Sample {
+    /// The pose.
+    pub pose: Pose,
+    /// The program line executing.
+    pub line: usize,
+    /// The speed along the path (mm/s).
+    pub speed: f64,
+}
+
+/// Why a program cannot be planned.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+#[error("line {line}: {message}")]
+pub struct PlanError {
+    /// The program line.
+    pub line: usize,
+    /// What fails.
+    pub message: String,
+}
+
+/// The elements of `program` (its moves, corners blended, stops marked) and how long it dwells
+/// before its first move (s).
+pub fn elements(program: &Program) -> (Vec<Element>, f64) {
+    let mut out: Vec<Element> = Vec::new();
+    let mut initial_dwell = 0.0;
+    for block in &program.blocks {
+        match block.action {
+            Action::Move {
+                from,
+                to,
+                path,
+                feed_mm_min,
+                blend,
+            } => {
+                let segment = Segment::new(from, to, path);
+                if segment.length() < 1e-9 {
+                    continue;
+                }
+                out.push(Element {
+                    segment,
+                    line: block.line,
+                    feed: feed_mm_min.map_or(f64::INFINITY, |f| f / 60.0),
+                    stop_after: blend == Blend::ExactStop,
+                    dwell_after_s: 0.0,
+                    tolerance: match blend {
+                        Blend::ExactStop => None,
+                        Blend::Within(p) => Some(p),
+                    },
+                });
+            }
+            Action::Dwell(s) => match out.last_mut() {
+                Some(e) => {
+                    e.stop_after = true;
+                    e.dwell_after_s += s;
+                }
+                None => initial_dwell += s,
+            },
+            Action::Pause { .. } | Action::Spindle { .. } | Action::End => {
+                if let Some(e) = out.last_mut() {
+                    e.stop_after = true;
+                }
+            }
+        }
+    }
+    if let Some(e) = out.last_mut() {
+        e.stop_after = true;
+    }
+    (blend_corners(out), initial_dwell)
+}
+
+/// Rounds the corners between consecutive lines within their tolerance; marks the others stops.
+fn blend_corners(elements: Vec<Element>) -> Vec<Element> {
+    let mut out: Vec<Element> = Vec::with_capacity(elements.len() * 2);
+    let mut iter = elements.into_iter();
+    // How much of the current element's start a previous blend took (mm).
+    let mut current = match iter.next() {
+        Some(e) => e,
+        None => return out,
+    };
+    let mut trimmed_start = 0.0;
+    for mut next in iter {
+        if current.stop_after {
+            out.push(current);
+            current = next;
+            trimmed_start = 0.0;
+            continue;
+        }
+        let d1 = current.segment.direction(1.0);
+        let d2 = next.segment.direction(0.0);
+        let cos = (d1[0] * d2[0] + d1[1] * d2[1] + d1[2] * d2[2]).clamp(-1.0, 1.0);
+        let theta = cos.acos();
+        let both_lines = !current.segment.is_arc() && !next.segment.is_arc();
+        let same_kind = current.feed.is_finite() == next.feed.is_finite();
+        let moving = current.segment.linear_length() > 1e-9 && next.segment.linear_length() > 1e-9;
+        if theta <= STRAIGHT && moving && same_kind {
+            out.push(current);
+            current = next;
+            trimmed_start = 0.0;
+            continue;
+        }
+        if !(both_lines && same_kind && moving && theta < REVERSAL) {
+            // Tangent-continuous arcs go on; anything else stops at the corner.
+            current.stop_after = !(moving && same_kind && theta < 1e-3);
+            out.push(current);
+            current = next;
+            trimmed_start = 0.0;
+            continue;
+        }
+        let (len_a, len_b) = (current.segment.linear_length(), next.segment.linear_length());
+        let half = (theta / 2.0).tan();
+        let by_tolerance = match current.tolerance.flatten() {
+            Some(p) => p / (1.0 / (theta / 2.0).cos() - 1.0),
+            None => f64::INFINITY,
+        };
+        let room = ((len_a + trimmed_start) / 2.0).min(len_a).min(len_b / 2.0);
+        let radius = by_tolerance.min(room / half);
+        if radius.is_nan() || radius <= 1e-9 {
+            current.stop_after = true;
+            out.push(current);
+            current = next;
+            trimmed_start = 0.0;
+            continue;
+        }
+        let cut = radius * half;
+        // The 6-D poses where the blend leaves the first line and joins the second.
+        let a_from = *current.segment.from();
+        let a_end = current.segment.at((len_a - cut) / len_a);
+        let b_start = next.segment.at(cut / len_b);
+        let corner = *current.segment.to();
+        let bisector = [d2[0] - d1[0], d2[1] - d1[1], d2[2] - d1[2]];
+        let norm = (bisector[0].powi(2) + bisector[1].powi(2) + bisector[2].powi(2)).sqrt();
+        let reach = radius / (theta / 2.0).cos();
+        let center: [f64; 3] = std::array::from_fn(|c| corner[c] + bisector[c] / norm * reach);
+        let u_raw: [f64; 3] = std::array::from_fn(|c| a_end[c] - center[c]);
+        let un = (u_raw[0].powi(2) + u_raw[1].powi(2) + u_raw[2].powi(2)).sqrt();
+        let u = u_raw.map(|x| x / un);
+        current.segment = Segment::new(a_from, a_end, crate::interp::Path::Line);
+        let blend = Element {
+            segment: Segment::blend(a_end, b_start, center, u, d1, radius, theta),
+            line: next.line,
+            feed: current.feed.min(next.feed),
+            stop_after: false,
+            dwell_after_s: 0.0,
+            tolerance: current.tolerance,
+        };
+        out.push(current);
+        out.push(blend);
+        next.segment = Segment::new(b_start, *next.segment.to(), crate::interp::Path::Line);
+        trimmed_start = cut;
+        current = next;
+    }
+    out.push(current);
+    out
+}
+
+/// Plans `program` on the machine `frame` within `limits`.
+pub fn plan(program: &Program, frame: &MachineFrame, limits: &PlanLimits) -> Result<Plan, PlanError> {
+    let (elements, initial_dwell) = elements(program);
+    let n = frame.dof();
+    // The points: each element split into at least two intervals.
+    let mut points: Vec<Point> = Vec::new();
+    let mut s = 0.0;
+    for (k, e) in elements.iter().enumerate() {
+        let len = e.segment.length();
+        // Arcs and blends at least every 22.5°, so that their curvature is seen.
+        let turns = e.segment.sweep() * 8.0 / std::f64::consts::PI;
+        let steps = ((len / GRID_SPACING).ceil().max(turns.ceil()) as usize).max(2);
+        for i in 0..steps {
+            points.push(Point {
+                s: s + len * i as f64 / steps as f64,
+                element: k as u32,
+                u: i as f64 / steps as f64,
+                cap: e.feed,
+                limit: Limit::Feed,
+                accel: f64::INFINITY,
+                v: 0.0,
+                t: 0.0,
+                hold: 0.0,
+            });
+        }
+        s += len;
+    }
+    if let Some(last) = elements.len().checked_sub(1) {
+        points.push(Point {
+            s,
+            element: last as u32,
+            u: 1.0,
+            cap: 0.0,
+            limit: Limit::Feed,
+            accel: f64::INFINITY,
+            v: 0.0,
+            t: 0.0,
+            hold: 0.0,
+        });
+    }
+    let count = points.len();
+    // Poses and joints at every point.
+    let mut poses: Vec<Pose> = Vec::with_capacity(count);
+    let mut joints: Vec<[f64; MAX_DOF]> = Vec::with_capacity(count);
+    for p in &points {
+        let e = &elements[p.element as usize];
+        let pose = e.segment.at(p.u);
+        let mut q = [0.0; MAX_DOF];
+        frame.inverse(&pose[..n], &mut q[..n]).map_err(|err| PlanError {
+            line: e.line,
+            message: format!("the path leaves the workspace: {err}"),
+        })?;
+        poses.push(pose);
+        joints.push(q);
+    }
+    // Caps and acceleration bounds from the derivatives along the path.
+    for i in 0..count {
+        let (a, b) = (i.saturating_sub(1), (i + 1).min(count - 1));
+        let ds = points[b].s - points[a].s;
+        if ds <= 0.0 {
+            continue;
+        }
+        let e = &elements[points[i].element as usize];
+        let mut cap = e.feed;
+        let mut limit = Limit::Feed;
+        let mut accel = f64::INFINITY;
+        // The second derivative across the point, and within each element on either side of
+        // it: at the junction of a line and a blend the curve starts, and an average over both
+        // would hide it.
+        let element = |k: usize| points[k].element;
+        let mut triples: [Option<[usize; 3]>; 3] = [None; 3];
+        if a < i && i < b {
+            triples[0] = Some([a, i, b]);
+        }
+        if i + 2 < count && element(i + 1) == element(i + 2) && element(i) == element(i + 1) {
+            triples[1] = Some([i, i + 1, i + 2]);
+        }
+        if i >= 2 && element(i - 2) == element(i - 1) {
+            triples[2] = Some([i - 2, i - 1, i]);
+        }
+        let curvature = |y: &dyn Fn(usize) -> f64| {
+            triples
+                .iter()
+                .flatten()
+                .map(|[x, m, z]| second(y(*x), y(*m), y(*z), points[*x].s, points[*m].s, points[*z].s).abs())
+                .fold(0.0, f64::max)
+        };
+        let mut consider = |value: f64, l: Limit| {
+            if value < cap {
+                cap = value;
+                limit = l;
+            }
+        };
+        #[allow(clippy::needless_range_loop)] // c indexes the poses of three points and the limits
+        for c in 0..n.min(6) {
+            let d1 = (poses[b][c] - poses[a][c]) / ds;
+            if d1.abs() > 1e-12 {
+                consider(limits.axis_speed[c] / d1.abs(), Limit::AxisSpeed(c));
+                accel = accel.min(0.5 * limits.axis_accel[c] / d1.abs());
+            }
+            let d2 = curvature(&|k| poses[k][c]);
+            if d2 > 1e-12 {
+                consider((0.5 * limits.axis_accel[c] / d2).sqrt(), Limit::AxisCurvature(c));
+            }
+        }
+        #[allow(clippy::needless_range_loop)] // j indexes the joints of three points and the limits
+        for j in 0..n {
+            let d1 = (joints[b][j] - joints[a][j]) / ds;
+            if d1.abs() > 1e-12 {
+                consider(limits.joint_speed[j] / d1.abs(), Limit::JointSpeed(j));
+                accel = accel.min(0.5 * limits.joint_accel[j] / d1.abs());
+            }
+            let d2 = curvature(&|k| joints[k][j]);
+            if d2 > 1e-12 {
+                consider((0.5 * limits.joint_accel[j] / d2).sqrt(), Limit::JointCurvature(j));
+            }
+        }
+        // The start, and every stop, at rest.
+        let stop = i == 0 || (points[i].u == 0.0 && elements[points[i - 1].element as usize].stop_after);
+        let p = &mut points[i];
+        p.cap = if stop { 0.0 } else { cap };
+        p.limit = limit;
+        p.accel = accel;
+    }
+    // Dwells: held at the stop after their element.
+    for i in 1..count {
+        if points[i].u == 0.0 {
+            let before = &elements[points[i - 1].element as usize];
+            if before.stop_after {
+                points[i].hold = before.dwell_after_s;
+            }
+        }
+    }
+    if let Some(last) = points.last_mut() {
+        last.cap = 0.0;
+        last.hold = elements.last().map_or(0.0, |e| e.dwell_after_s);
+    }
+    if let Some(first) = points.first_mut() {
+        first.hold += initial_dwell;
+    }
+    // Forward and backward passes.
+    for i in 0..count {
+        let v = if i == 0 {
+            0.0
+        } else {
+            let ds = points[i].s - points[i - 1].s;
+            let a = points[i - 1].accel.min(points[i].accel);
+            (points[i - 1].v * points[i - 1].v + 2.0 * a * ds)
+                .sqrt()
+                .min(points[i].cap)
+        };
+        points[i].v = v;
+    }
+    for i in (0..count.saturating_sub(1)).rev() {
+        let ds = points[i + 1].s - points[i].s;
+        let a = points[i].accel.min(points[i + 1].accel);
+        let v = (points[i + 1].v * points[i + 1].v + 2.0 * a * ds).sqrt();
+        points[i].v = points[i].v.min(v);
+    }
+    // Times.
+    let mut t = 0.0;
+    for i in 0..count {
+        if i > 0 {
+            let ds = points[i].s - points[i - 1].s;
+            let (v0, v1) = (points[i - 1].v, points[i].v);
+            t += if v0 + v1 > 0.0 {
+                2.0 * ds / (v0 + v1)
+            } else {
+                2.0 * (ds / points[i - 1].accel.min(points[i].accel)).sqrt()
+            };
+        }
+        points[i].t = t;
+        t += points[i].hold;
+    }
+    // The blocks whose feed the machine limits.
+    let mut limited: Vec<Limited> = Vec::new();
+    for p in points.iter().filter(|p| p.limit != Limit::Feed) {
+        let e = &elements[p.element as usize];
+        if !e.feed.is_finite() || p.cap >= e.feed * (1.0 - 1e-6) {
+            continue;
+        }
+        match limited.iter_mut().find(|l| l.line == e.line) {
+            Some(l) if p.cap * 60.0 < l.reachable_mm_min => {
+                l.reachable_mm_min = p.cap * 60.0;
+                l.why = p.limit;
+            }
+            Some(_) => {}
+            None => limited.push(Limited {
+                line: e.line,
+                programmed_mm_min: e.feed * 60.0,
+                reachable_mm_min: p.cap * 60.0,
+                why: p.limit,
+            }),
+        }
+    }
+    Ok(Plan {
+        duration_s: t,
+        length_mm: s,
+        elements,
+        points,
+        limited,
+    })
+}
+
+/// The second derivative through three points at `sa < si < sb`.
+fn second(ya: f64, yi: f64, yb: f64, sa: f64, si: f64, sb: f64) -> f64 {
+    2.0 * ((yb - yi) / (sb - si) - (yi - ya) / (si - sa)) / (sb - sa)
+}
+
+impl Plan {
+    /// The path's elements.
+    pub fn elements(&self) -> &[Element] {
+        &self.elements
+    }
+
+    /// The pose at time `t` (s from the start); `cursor` remembers where the last call was, so
+    /// that sampling forward in time costs O(1) per call. Allocates nothing.
+    pub fn sample(&self, t: f64, cursor: &mut usize) -> Sample {
+        let points = &self.points;
+        let Some(last) = points.last() else {
+            return Sample {
+                pose: [0.0; 6],
+                line: 0,
+                speed: 0.0,
+            };
+        };
+        if *cursor >= points.len() || points[*cursor].t > t {
+            *cursor = 0;
+        }
+        while *cursor + 1 < points.len() && points[*cursor + 1].t <= t {
+            *cursor += 1;
+        }
+        let i = *cursor;
+        let p = &points[i];
+        let e = &self.elements[p.element as usize];
+        if i + 1 >= points.len() || t <= p.t + p.hold {
+            let (element, u) = if i + 1 >= points.len() {
+                (last.element as usize, 1.0)
+            } else {
+                (p.element as usize, p.u)
+            };
+            return Sample {
+                pose: self.elements[element].segment.at(u),
+                line: self.elements[element].line,
+                speed: 0.0,
+            };
+        }
+        let q = &points[i + 1];
+        let ds = q.s - p.s;
+        let dt = q.t - (p.t + p.hold);
+        let tau = (t - p.t - p.hold).clamp(0.0, dt);
+        // Constant acceleration over the interval.
+        let a = if dt > 0.0 { (q.v - p.v) / dt } else { 0.0 };
+        let travelled = (p.v * tau + 0.5 * a * tau * tau).clamp(0.0, ds);
+        // Within the interval's element (the last interval of an element ends at its u = 1).
+        let u = (p.u + travelled / e.segment.length()).min(1.0);
+        let element = p.element as usize;
+        Sample {
+            pose: self.elements[element].segment.at(u),
+            line: self.elements[element].line,
+            speed: p.v + a * tau,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::interp::{Machine, read};
+    use pkm_kinematics::KinematicsConfig;
+    use pkm_kinematics::frame::Home;
+
+    fn frame(model: pkm_kinematics::Machine) -> MachineFrame {
+        let k = KinematicsConfig::default();
+        let home = if model == pkm_kinematics::Machine::Hexapod {
+            Home::Pose(&k.hexapod.home)
+        } else {
+            Home::Joints(&[0.0; 6])
+        };
+        MachineFrame::new(k.build(model), home).expect("home")
+    }
+
+    fn limits(n: usize, speed: f64, accel: f64) -> PlanLimits {
+        PlanLimits {
+            joint_speed: vec![speed; n],
+            joint_accel: vec![accel; n],
+            axis_speed: [50.0; 6],
+            axis_accel: [500.0; 6],
+        }
+    }
+
+    fn planned(model: pkm_kinematics::Machine, text: &str, l: &PlanLimits) -> Plan {
+        let f = frame(model);
+        let program = read(
+            text,
+            &Machine {
+                axes: f.kinematics().pose_keys(),
+                start: [0.0; 6],
+                work_offsets: [[0.0; 6]; 6],
+            },
+        )
+        .unwrap_or_else(|e| panic!("{e}"));
+        plan(&program, &f, l).unwrap_or_else(|e| panic!("{e}"))
+    }
+
+    /// Samples every `dt` from start to end.
+    fn samples(p: &Plan, dt: f64) -> Vec<Sample> {
+        let mut cursor = 0;
+        let steps = (p.duration_s / dt).ceil() as usize + 1;
+        (0..=steps).map(|i| p.sample(i as f64 * dt, &mut cursor)).collect()
+    }
+
+    const SQUARE_AND_CIRCLE: &str = "G64 P0.05\nG1 X20 Y0 F1200\nY20\nX0\nY0\nG0 X10\nG2 X10 Y0 I-10 F900\nM2\n";
+
+    #[test]
+    fn every_joint_keeps_its_speed_and_acceleration_at_every_sample() {
+        // Checked against the kinematics: joint positions by IK of the sampled poses, their
+        // differences over 2 ms.
+        for (model, n) in [(pkm_kinematics::Machine::OxX, 3), (pkm_kinematics::Machine::Pn101, 3)] {
+            let (speed, accel) = if n == 3 && model == pkm_kinematics::Machine::Pn101 {
+                (8.0, 40.0)
+            } else {
+                (20.0, 100.0)
+            };
+            let l = limits(n, speed, accel);
+            let p = planned(model, SQUARE_AND_CIRCLE, &l);
+            let f = frame(model);
+            let dt = 0.002;
+            let q: Vec<[f64; MAX_DOF]> = samples(&p, dt)
+                .iter()
+                .map(|s| {
+                    let mut q = [0.0; MAX_DOF];
+                    f.inverse(&s.pose[..n], &mut q[..n]).expect("reachable");
+                    q
+                })
+                .collect();
+            let (mut vmax, mut amax) = (0.0f64, 0.0f64);
+            for w in q.windows(3) {
+                for ((q0, q1), q2) in w[0][..n].iter().zip(&w[1][..n]).zip(&w[2][..n]) {
+                    vmax = vmax.max(((q1 - q0) / dt).abs());
+                    amax = amax.max(((q2 - 2.0 * q1 + q0) / (dt * dt)).abs());
+                }
+            }
+            assert!(vmax <= speed * 1.01, "{model:?}: joint speed {vmax} > {speed}");
+            assert!(amax <= accel * 1.05, "{model:?}: joint acceleration {amax} > {accel}");
+        }
+    }
+
+    #[test]
+    fn blends_stay_within_the_tolerance_and_exact_stops_stop() {
+        let l = limits(3, 100.0, 1000.0);
+        // The square's corners rounded within 0.05 mm: every sample within 0.05 mm of the
+        // programmed polyline.
+        let p = planned(
+            pkm_kinematics::Machine::OxX,
+            "G64 P0.05\nG1 X20 F1200\nY20\nX0\nY0\nM2\n",
+            &l,
+        );
+        let corners = [[0.0, 0.0], [20.0, 0.0], [20.0, 20.0], [0.0, 20.0], [0.0, 0.0]];
+        let distance = |x: f64, y: f64| {
+            corners
+                .windows(2)
+                .map(|w| {
+                    let (a, b) = (w[0], w[1]);
+                    let (dx, dy) = (b[0] - a[0], b[1] - a[1]);
+                    let t = (((x - a[0]) * dx + (y - a[1]) * dy) / (dx * dx + dy * dy)).clamp(0.0, 1.0);
+                    (x - a[0] - t * dx).hypot(y - a[1] - t * dy)
+                })
+                .fold(f64::INFINITY, f64::min)
+        };
+        let worst = samples(&p, 0.001)
+            .iter()
+            .map(|s| distance(s.pose[0], s.pose[1]))
+            .fold(0.0, f64::max);
+        assert!(worst <= 0.05 + 1e-9, "{worst} mm off the programmed path");
+        assert!(worst > 0.01, "the corners are rounded, not stopped at: {worst}");
+        // G61: the tool stops at each corner; it takes longer.
+        let exact = planned(pkm_kinematics::Machine::OxX, "G61\nG1 X20 F1200\nY20\nX0\nY0\nM2\n", &l);
+        assert!(
+            exact.duration_s > p.duration_s,
+            "{} vs {}",
+            exact.duration_s,
+            p.duration_s
+        );
+        let closest = samples(&exact, 0.001)
+            .iter()
+            .map(|s| (s.pose[0] - 20.0).hypot(s.pose[1]))
+            .fold(f64::INFINITY, f64::min);
+        assert!(closest < 1e-3, "the tool reaches the corner: {closest} mm");
+    }
+
+    #[test]
+    fn a_long_line_runs_at_its_feed_and_lasts_length_over_feed_plus_the_ramps() {
+        let l = limits(3, 100.0, 1000.0);
+        let p = planned(pkm_kinematics::Machine::OxX, "G1 X100 F1200\nM2\n", &l);
+        let top = samples(&p, 0.01).iter().map(|s| s.speed).fold(0.0, f64::max);
+        assert!((top - 20.0).abs() < 1e-6, "the feed 20 mm/s is reached: {top}");
+        // 100 mm at 20 mm/s, plus the ramps' 20 mm/s ÷ a, where a is the tool's tangential
+        // acceleration (half the slowest limit over the largest gear ratio).
+        assert!(p.duration_s > 5.0 && p.duration_s < 5.6, "{}", p.duration_s);
+        assert!(p.limited.is_empty(), "{:?}", p.limited);
+    }
+
+    #[test]
+    fn a_feed_beyond_a_joints_speed_is_limited_and_said_why() {
+        // pn101's joints run 8 mm/s: a 100 mm/s feed along x cannot be had.
+        let l = limits(3, 8.0, 40.0);
+        let p = planned(pkm_kinematics::Machine::Pn101, "G1 X20 F6000\nM2\n", &l);
+        assert_eq!(p.limited.len(), 1, "{:?}", p.limited);
+        let lim = &p.limited[0];
+        assert_eq!(lim.line, 1);
+        assert_eq!(lim.programmed_mm_min, 6000.0);
+        assert!(matches!(lim.why, Limit::JointSpeed(_)), "{lim:?}");
+        assert!(lim.reachable_mm_min < 6000.0);
+    }
+
+    #[test]
+    fn a_dwell_holds_the_tool() {
+        let l = limits(3, 100.0, 1000.0);
+        let without = planned(pkm_kinematics::Machine::OxX, "G1 X10 F600\nG1 X20\nM2\n", &l);
+        let with = planned(pkm_kinematics::Machine::OxX, "G1 X10 F600\nG4 P2\nG1 X20\nM2\n", &l);
+        assert!(
+            with.duration_s > without.duration_s + 2.0,
+            "{} vs {}",
+            with.duration_s,
+            without.duration_s
+        );
+        let mut cursor = 0;
+        let start = with.elements()[0].segment.length();
+        let s = with.sample(with.duration_s / 2.0, &mut cursor);
+        let _ = start;
+        assert!((s.pose[0] - 10.0).abs() < 1e-9 && s.speed == 0.0, "{s:?}");
+    }
+}
