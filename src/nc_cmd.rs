@@ -12,6 +12,7 @@ use pkm_kinematics::frame::{Home as FrameHome, MachineFrame};
 use pkm_kinematics::{KinematicsConfig, Machine as Model};
 use pkm_nc::check::{Limits, check, format_pose};
 use pkm_nc::interp::{self, AXES};
+use pkm_nc::plan::{PlanLimits, plan};
 use pkm_plc::compose::Setup;
 use pkm_plc::config::{ConfigError, LoadedConfig};
 
@@ -144,6 +145,32 @@ pub fn run(args: NcArgs, load: impl Fn(&ConfigArg) -> Result<LoadedConfig, Confi
             .collect();
         lines.push(format!("bounding box (machine frame): {}", parts.join(", ")));
     }
+    // Planned only where every point is reachable: the planner needs the joints everywhere.
+    let planned = if report.unreachable.is_empty() {
+        let limits = PlanLimits {
+            joint_speed: motion.joint_speed.clone(),
+            joint_accel: motion.joint_accel.clone(),
+            // No world-axis limits are configured: the joints' limits bound every move, rapids
+            // included.
+            axis_speed: [f64::INFINITY; 6],
+            axis_accel: [f64::INFINITY; 6],
+        };
+        Some(plan(&program, &frame, &limits).map_err(|e| fail(1, format!("{name}: {e}")))?)
+    } else {
+        None
+    };
+    if let Some(p) = &planned {
+        lines.push(format!("planned time {:.3} s", p.duration_s));
+        for l in &p.limited {
+            lines.push(format!(
+                "{name}:{}: F{} reaches at most {:.1} mm/min: {}",
+                l.line,
+                l.programmed_mm_min,
+                l.reachable_mm_min,
+                l.why.text()
+            ));
+        }
+    }
     if let Some(out) = json {
         let pose_json = |p: &[f64; 6]| -> Value {
             let mut m = Map::new();
@@ -166,6 +193,13 @@ pub fn run(args: NcArgs, load: impl Fn(&ConfigArg) -> Result<LoadedConfig, Confi
             "feed_length_mm": report.feed_length_mm,
             "rapid_length_mm": report.rapid_length_mm,
             "bounding_box": bbox,
+            "planned_time_s": planned.as_ref().map(|p| p.duration_s),
+            "limited": planned.as_ref().map(|p| p.limited.iter().map(|l| json!({
+                "line": l.line,
+                "programmed_mm_min": l.programmed_mm_min,
+                "reachable_mm_min": l.reachable_mm_min,
+                "why": l.why.text(),
+            })).collect::<Vec<_>>()).unwrap_or_default(),
             "unreachable": report.unreachable.iter().map(|u| json!({
                 "line": u.line, "pose": pose_json(&u.pose), "why": u.why
             })).collect::<Vec<_>>(),

@@ -35,6 +35,7 @@ fn a_program_inside_the_workspace_is_reported_with_its_length_and_box() {
         format!(
             "{file}: 4 moves on ox-x: feed path 67.832 mm, rapids 15.000 mm\n\
              bounding box (machine frame): X -10.000 … 10.000, Y -10.000 … 10.000, Z -5.000 … 0.000\n\
+             planned time 15.582 s\n\
              every point of the path is reachable (sampled every 0.1 mm and 0.1°)\n"
         )
     );
@@ -43,6 +44,26 @@ fn a_program_inside_the_workspace_is_reported_with_its_length_and_box() {
     assert_eq!(r["moves"], 4);
     assert_eq!(r["unreachable"], serde_json::json!([]));
     assert_eq!(r["bounding_box"]["z"], serde_json::json!([-5.0, 0.0]));
+    assert!(
+        (r["planned_time_s"].as_f64().expect("a time") - 15.582).abs() < 0.001,
+        "{r}"
+    );
+    assert_eq!(r["limited"], serde_json::json!([]));
+}
+
+#[test]
+fn a_feed_the_joints_cannot_give_is_reported_with_the_reachable_feed_and_why() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let file = program(dir.path(), "fast.ngc", "G1 X20 F6000\nM2\n");
+    let o = pkm(&["nc", "check", &file, "--machine", "pn101"]);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    assert!(
+        stdout(&o).contains(&format!(
+            "{file}:1: F6000 reaches at most 480.0 mm/min: the speed of joint 1\n"
+        )),
+        "{}",
+        stdout(&o)
+    );
 }
 
 #[test]

@@ -72,6 +72,10 @@ pub struct Motion {
     pub world_limits: Vec<[f64; 2]>,
     /// The tool is never commanded where the singularity measure is below this.
     pub singularity_threshold: f64,
+    /// Per joint: the speed its set-point may take (mm/s).
+    pub joint_speed: Vec<f64>,
+    /// Per joint: the acceleration its set-point may take (mm/s²).
+    pub joint_accel: Vec<f64>,
 }
 
 /// Where a machine frame's origin is.

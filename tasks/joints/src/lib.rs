@@ -215,6 +215,8 @@ impl Machine for JointMachine {
             soft_limits: kin.joint_limits().iter().map(|[lo, hi]| [lo + m, hi - m]).collect(),
             world_limits: p.world_limits,
             singularity_threshold: p.singularity_threshold,
+            joint_speed: p.joints.iter().map(|j| j.max_speed_mm_s).collect(),
+            joint_accel: p.joints.iter().map(|j| j.max_accel_mm_s2).collect(),
         })
     }
 

@@ -119,6 +119,8 @@ impl Machine for Trijoint {
             soft_limits: travel.iter().map(|t| [m, t - m]).collect(),
             world_limits: vec![[-pkm_kinematics::MAX_LENGTH_MM, pkm_kinematics::MAX_LENGTH_MM]; 2],
             singularity_threshold: p.singularity_threshold,
+            joint_speed: vec![p.max_joint_speed_mm_s; 2],
+            joint_accel: vec![p.brake_decel_mm_s2; 2],
         })
     }
 
