@@ -163,7 +163,7 @@ pub fn run(args: NcArgs, load: impl Fn(&ConfigArg) -> Result<LoadedConfig, Confi
         lines.push(format!("planned time {:.3} s", p.duration_s));
         for l in &p.limited {
             lines.push(format!(
-                "{name}:{}: F{} reaches at most {:.1} mm/min: {}",
+                "{name}:{}: F{} slows to {:.1} mm/min at its slowest point: {}",
                 l.line,
                 l.programmed_mm_min,
                 l.reachable_mm_min,

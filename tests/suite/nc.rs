@@ -59,7 +59,7 @@ fn a_feed_the_joints_cannot_give_is_reported_with_the_reachable_feed_and_why() {
     assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
     assert!(
         stdout(&o).contains(&format!(
-            "{file}:1: F6000 reaches at most 480.0 mm/min: the speed of joint 1\n"
+            "{file}:1: F6000 slows to 480.0 mm/min at its slowest point: the speed of joint 1\n"
         )),
         "{}",
         stdout(&o)
@@ -104,4 +104,35 @@ fn a_refused_word_is_named_with_file_line_and_column() {
     let file = program(dir.path(), "tilt.ngc", "G1 X5 A3 B-3 F100\nG1 X0 A0 B0\n");
     let o = pkm(&["nc", "check", &file, "--machine", "hexapod"]);
     assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+}
+
+#[test]
+fn every_shipped_program_passes_the_check_on_its_machine() {
+    let dir = common::root().join("programs");
+    let mut count = 0;
+    for entry in std::fs::read_dir(&dir).expect("programs/") {
+        let path = entry.expect("entry").path();
+        if path.extension().is_none_or(|e| e != "ngc") {
+            continue;
+        }
+        let file = path
+            .file_name()
+            .and_then(|n| n.to_str())
+            .unwrap_or_default()
+            .to_string();
+        // `MACHINE-….ngc`: the program of that machine.
+        let machine = ["trijoint", "pn101", "ox-x", "ox-o", "hexapod"]
+            .into_iter()
+            .find(|m| file.starts_with(&format!("{m}-")))
+            .unwrap_or_else(|| panic!("{file}: named after no machine"));
+        let o = pkm(&["nc", "check", path.to_str().expect("utf-8"), "--machine", machine]);
+        assert_eq!(o.status.code(), Some(0), "{file}: {}", stderr(&o));
+        assert!(
+            stdout(&o).contains("every point of the path is reachable"),
+            "{}",
+            stdout(&o)
+        );
+        count += 1;
+    }
+    assert!(count >= 5, "{count} programs");
 }
