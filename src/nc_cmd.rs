@@ -37,6 +37,9 @@ enum NcOp {
         /// Also write the report as JSON to FILE.
         #[arg(long, value_name = "FILE")]
         json: Option<PathBuf>,
+        /// Also draw the tool path inside the machine's workspace as SVG to FILE.
+        #[arg(long, value_name = "FILE")]
+        svg: Option<PathBuf>,
     },
 }
 
@@ -57,7 +60,12 @@ fn fail(code: u8, message: impl Into<String>) -> NcFailure {
 
 /// Runs `pkm-plc nc`.
 pub fn run(args: NcArgs, load: impl Fn(&ConfigArg) -> Result<LoadedConfig, ConfigError>) -> Result<(), NcFailure> {
-    let NcOp::Check { file, config, json } = args.op;
+    let NcOp::Check {
+        file,
+        config,
+        json,
+        svg,
+    } = args.op;
     let loaded = load(&config).map_err(|e| fail(2, e.to_string()))?;
     let origin = loaded.origin.clone();
     let setup = Setup::new(loaded).map_err(|e| fail(2, e.to_string()))?;
@@ -207,6 +215,10 @@ pub fn run(args: NcArgs, load: impl Fn(&ConfigArg) -> Result<LoadedConfig, Confi
         let text = serde_json::to_string_pretty(&doc).map_err(|e| fail(1, e.to_string()))?;
         std::fs::write(&out, text + "\n").map_err(|e| fail(1, format!("{}: {e}", out.display())))?;
     }
+    if let Some(out) = svg {
+        draw(&out, &program, &frame, &kinematics, model, &motion, &name)?;
+        lines.push(format!("tool path drawn in {}", out.display()));
+    }
     if report.unreachable.is_empty() {
         lines.push(format!(
             "every point of the path is reachable (sampled every {} mm and {}°)",
@@ -229,4 +241,72 @@ pub fn run(args: NcArgs, load: impl Fn(&ConfigArg) -> Result<LoadedConfig, Confi
             problems.join("\n")
         ),
     ))
+}
+
+/// Draws `program`'s tool path over the machine's sampled workspace into `out`.
+fn draw(
+    out: &std::path::Path,
+    program: &interp::Program,
+    frame: &MachineFrame,
+    kinematics: &KinematicsConfig,
+    model: Model,
+    motion: &pkm_api::machine::Motion,
+    name: &str,
+) -> Result<(), NcFailure> {
+    let n = frame.dof();
+    let ws = pkm_kinematics::workspace::sample(kinematics, model, 40, motion.singularity_threshold);
+    let paths: Vec<crate::kin_svg::Polyline> = program
+        .blocks
+        .iter()
+        .filter_map(|b| match b.action {
+            interp::Action::Move {
+                from,
+                to,
+                path,
+                feed_mm_min,
+                ..
+            } => {
+                let segment = pkm_nc::path::Segment::new(from, to, path);
+                let steps = (segment.length() / 0.5).ceil().max(1.0) as usize;
+                let points = (0..=steps)
+                    .map(|i| {
+                        let pose = segment.at(i as f64 / steps as f64);
+                        let mut mechanism = vec![0.0; n];
+                        frame.to_mechanism(&pose[..n], &mut mechanism);
+                        mechanism
+                    })
+                    .collect();
+                Some(crate::kin_svg::Polyline {
+                    points,
+                    rapid: feed_mm_min.is_none(),
+                })
+            }
+            _ => None,
+        })
+        .collect();
+    // The plane of the path's two largest extents (of x y z).
+    let mut extent: Vec<(usize, f64)> = (0..n.min(3))
+        .map(|c| {
+            let (lo, hi) = paths
+                .iter()
+                .flat_map(|p| p.points.iter())
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), p| {
+                    (lo.min(p[c]), hi.max(p[c]))
+                });
+            (c, hi - lo)
+        })
+        .collect();
+    extent.sort_by(|a, b| b.1.total_cmp(&a.1).then(a.0.cmp(&b.0)));
+    let mut axes = [extent.first().map_or(0, |e| e.0), extent.get(1).map_or(1, |e| e.0)];
+    axes.sort_unstable();
+    let keys = frame.kinematics().pose_keys();
+    let caption = format!(
+        "{name} on {}: {}-{} (mechanism frame; workspace samples projected; rapids grey)",
+        model.name(),
+        keys[axes[0]],
+        keys[axes[1]]
+    );
+    let svg = crate::kin_svg::draw_with(&ws, keys, axes, Some(&caption), &paths)
+        .map_err(|e| fail(1, format!("{}: drawing failed: {e}", out.display())))?;
+    std::fs::write(out, svg).map_err(|e| fail(1, format!("{}: {e}", out.display())))
 }

@@ -136,3 +136,33 @@ fn every_shipped_program_passes_the_check_on_its_machine() {
     }
     assert!(count >= 5, "{count} programs");
 }
+
+#[test]
+fn the_tool_path_is_drawn_inside_the_workspace() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let svg = dir.path().join("pn101.svg");
+    let o = pkm(&[
+        "nc",
+        "check",
+        "programs/pn101-shapes.ngc",
+        "--machine",
+        "pn101",
+        "--svg",
+        svg.to_str().expect("utf-8"),
+    ]);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    assert!(
+        stdout(&o).contains(&format!("tool path drawn in {}\n", svg.display())),
+        "{}",
+        stdout(&o)
+    );
+    let text = std::fs::read_to_string(&svg).expect("svg");
+    assert!(text.starts_with("<svg"), "{}", &text[..80.min(text.len())]);
+    assert!(
+        text.contains("programs/pn101-shapes.ngc on pn101: x-y"),
+        "the caption names program, machine and plane"
+    );
+    // The workspace's samples and the path's moves (16, each a polyline).
+    assert!(text.matches("<circle").count() > 1000, "workspace samples");
+    assert!(text.matches("<polyline").count() >= 16, "the moves");
+}
