@@ -12,6 +12,9 @@ pub struct Segment {
     from: Pose,
     to: Pose,
     arc: Option<Arc>,
+    /// For a blend: the rates of a b c (per unit of the fraction u) at its start and end, so
+    /// that the rotations join the lines' rates without a kink (cubic Hermite); `None`: linear.
+    rotation_rates: Option<([f64; 3], [f64; 3])>,
 }
 
 /// A circular arc in x y z (a helix with `rise`): p(φ) = c + r·(cos φ·u + sin φ·v) + rise·φ/sweep·w
@@ -92,13 +95,30 @@ impl Segment {
                 })
             }
         };
-        Segment { from, to, arc }
+        Segment {
+            from,
+            to,
+            arc,
+            rotation_rates: None,
+        }
     }
 
     /// A blend: the arc of `radius` about `center` from `from` (its x y z on the circle, `u`
     /// pointing there from the centre, `v` the direction of travel there) turning by `sweep` to
-    /// `to`; the other coordinates change in proportion.
-    pub fn blend(from: Pose, to: Pose, center: [f64; 3], u: [f64; 3], v: [f64; 3], radius: f64, sweep: f64) -> Segment {
+    /// `to`; the rotations a b c leave at `rates.0` and arrive at `rates.1` (degrees per mm of
+    /// path), the rates of the lines it joins.
+    #[allow(clippy::too_many_arguments)] // the arc's geometry, named
+    pub fn blend(
+        from: Pose,
+        to: Pose,
+        center: [f64; 3],
+        u: [f64; 3],
+        v: [f64; 3],
+        radius: f64,
+        sweep: f64,
+        rates: ([f64; 3], [f64; 3]),
+    ) -> Segment {
+        let length = radius * sweep;
         let w = [
             u[1] * v[2] - u[2] * v[1],
             u[2] * v[0] - u[0] * v[2],
@@ -116,6 +136,23 @@ impl Segment {
                 sweep,
                 rise: 0.0,
             }),
+            rotation_rates: Some((rates.0.map(|r| r * length), rates.1.map(|r| r * length))),
+        }
+    }
+
+    /// The rates of a b c along the path at its ends (degrees per mm; zero where the tool point
+    /// does not move).
+    pub fn rotation_rates(&self) -> ([f64; 3], [f64; 3]) {
+        let len = self.linear_length();
+        if len <= 1e-12 {
+            return ([0.0; 3], [0.0; 3]);
+        }
+        match self.rotation_rates {
+            Some((m0, m1)) => (m0.map(|m| m / len), m1.map(|m| m / len)),
+            None => {
+                let r: [f64; 3] = std::array::from_fn(|c| (self.to[c + 3] - self.from[c + 3]) / len);
+                (r, r)
+            }
         }
     }
 
@@ -151,6 +188,19 @@ impl Segment {
             let (cos, sin) = (phi.cos(), phi.sin());
             for (c, x) in p.iter_mut().take(3).enumerate() {
                 *x = a.center[c] + a.radius * (cos * a.u[c] + sin * a.v[c]) + a.rise * u * a.w[c];
+            }
+        }
+        if let Some((m0, m1)) = self.rotation_rates {
+            // Cubic Hermite: the values at both ends, the rates of the lines at both ends.
+            let (u2, u3) = (u * u, u * u * u);
+            let (h00, h10, h01, h11) = (
+                2.0 * u3 - 3.0 * u2 + 1.0,
+                u3 - 2.0 * u2 + u,
+                -2.0 * u3 + 3.0 * u2,
+                u3 - u2,
+            );
+            for c in 0..3 {
+                p[c + 3] = h00 * self.from[c + 3] + h10 * m0[c] + h01 * self.to[c + 3] + h11 * m1[c];
             }
         }
         p

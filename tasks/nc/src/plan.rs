@@ -223,17 +223,20 @@ fn blend_corners(elements: Vec<Element>) -> Vec<Element> {
         let cos = (d1[0] * d2[0] + d1[1] * d2[1] + d1[2] * d2[2]).clamp(-1.0, 1.0);
         let theta = cos.acos();
         let both_lines = !current.segment.is_arc() && !next.segment.is_arc();
+        // The rotations' rates must continue too where the path goes on without a blend.
+        let (r1, r2) = (current.segment.rotation_rates().1, next.segment.rotation_rates().0);
+        let rates_continue = (0..3).all(|c| (r1[c] - r2[c]).abs() < 1e-9);
         let same_kind = current.feed.is_finite() == next.feed.is_finite();
         let moving = current.segment.linear_length() > 1e-9 && next.segment.linear_length() > 1e-9;
-        if theta <= STRAIGHT && moving && same_kind {
+        if theta <= STRAIGHT && moving && same_kind && rates_continue {
             out.push(current);
             current = next;
             trimmed_start = 0.0;
             continue;
         }
-        if !(both_lines && same_kind && moving && theta < REVERSAL) {
+        if !(both_lines && same_kind && moving && theta > STRAIGHT && theta < REVERSAL) {
             // Tangent-continuous arcs go on; anything else stops at the corner.
-            current.stop_after = !(moving && same_kind && theta < 1e-3);
+            current.stop_after = !(moving && same_kind && theta < 1e-3 && rates_continue);
             out.push(current);
             current = next;
             trimmed_start = 0.0;
@@ -268,8 +271,9 @@ fn blend_corners(elements: Vec<Element>) -> Vec<Element> {
         let un = (u_raw[0].powi(2) + u_raw[1].powi(2) + u_raw[2].powi(2)).sqrt();
         let u = u_raw.map(|x| x / un);
         current.segment = Segment::new(a_from, a_end, crate::interp::Path::Line);
+        let rates = (current.segment.rotation_rates().1, next.segment.rotation_rates().0);
         let blend = Element {
-            segment: Segment::blend(a_end, b_start, center, u, d1, radius, theta),
+            segment: Segment::blend(a_end, b_start, center, u, d1, radius, theta, rates),
             line: next.line,
             feed: current.feed.min(next.feed),
             stop_after: false,
@@ -618,14 +622,14 @@ mod tests {
     fn every_joint_keeps_its_speed_and_acceleration_at_every_sample() {
         // Checked against the kinematics: joint positions by IK of the sampled poses, their
         // differences over 2 ms.
-        for (model, n) in [(pkm_kinematics::Machine::OxX, 3), (pkm_kinematics::Machine::Pn101, 3)] {
-            let (speed, accel) = if n == 3 && model == pkm_kinematics::Machine::Pn101 {
-                (8.0, 40.0)
-            } else {
-                (20.0, 100.0)
-            };
+        const TILTS: &str = "G64 P0.05\nG1 X10 A3 F600\nY10 B-3\nX0 A0\nY0 B0\nG2 X0 Y0 I5 J0 C2\nM2\n";
+        for (model, n, program, speed, accel) in [
+            (pkm_kinematics::Machine::OxX, 3, SQUARE_AND_CIRCLE, 20.0, 100.0),
+            (pkm_kinematics::Machine::Pn101, 3, SQUARE_AND_CIRCLE, 8.0, 40.0),
+            (pkm_kinematics::Machine::Hexapod, 6, TILTS, 25.0, 200.0),
+        ] {
             let l = limits(n, speed, accel);
-            let p = planned(model, SQUARE_AND_CIRCLE, &l);
+            let p = planned(model, program, &l);
             let f = frame(model);
             let dt = 0.002;
             let q: Vec<[f64; MAX_DOF]> = samples(&p, dt)
@@ -747,6 +751,31 @@ mod tests {
             p.elements().iter().all(|e| e.segment.length() > 1e-9),
             "no empty pieces"
         );
+    }
+
+    #[test]
+    fn rotations_join_without_a_kink_and_a_straight_line_with_a_new_rate_stops() {
+        let l = limits(6, 25.0, 200.0);
+        // A corner blended: the tilt's rate changes smoothly through it.
+        let p = planned(
+            pkm_kinematics::Machine::Hexapod,
+            "G64 P0.5\nG1 X10 A2 F600\nY10 A0\nM2\n",
+            &l,
+        );
+        let blend = p.elements().iter().find(|e| e.segment.is_arc()).expect("a blend");
+        let (r0, r1) = blend.segment.rotation_rates();
+        assert!(
+            (r0[0] - 0.2).abs() < 1e-9 && (r1[0] + 0.2).abs() < 1e-9,
+            "{r0:?} {r1:?}"
+        );
+        // Straight on, but the tilt changes its rate: the tool stops between the two.
+        let p = planned(
+            pkm_kinematics::Machine::Hexapod,
+            "G64\nG1 X10 A2 F600\nX20 A0\nM2\n",
+            &l,
+        );
+        assert!(p.elements()[0].stop_after, "{:?}", p.elements()[0]);
+        assert_eq!(p.elements().len(), 2);
     }
 
     #[test]
