@@ -398,14 +398,13 @@ impl<'a> State<'a> {
             }
             self.speed_rpm = w.value;
         }
-        for (code, w) in &m {
+        for (code, _) in &m {
             let direction = match code {
                 30 => Spindle::Clockwise,
                 40 => Spindle::CounterClockwise,
                 50 => Spindle::Off,
                 _ => continue,
             };
-            let _ = w;
             out.push(Block {
                 line,
                 action: Action::Spindle {

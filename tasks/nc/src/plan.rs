@@ -790,9 +790,7 @@ mod tests {
             without.duration_s
         );
         let mut cursor = 0;
-        let start = with.elements()[0].segment.length();
         let s = with.sample(with.duration_s / 2.0, &mut cursor);
-        let _ = start;
         assert!((s.pose[0] - 10.0).abs() < 1e-9 && s.speed == 0.0, "{s:?}");
     }
 }
