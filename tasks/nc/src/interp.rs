@@ -437,8 +437,8 @@ impl<'a> State<'a> {
                 return Err(at(w, format!("{letter} belongs to an arc (G2, G3)")));
             }
         }
-        if has_g(40) {
-            let w = g.iter().find(|(c, _)| *c == 40).map(|(_, w)| *w).expect("found above");
+        let g_word = |code: u16| g.iter().find(|(c, _)| *c == code).map(|(_, w)| *w);
+        if let Some(w) = g_word(40) {
             let p = get('P').ok_or_else(|| at(w, "G4 needs P, the dwell in seconds".into()))?;
             if !(p.value.is_finite() && p.value >= 0.0) {
                 return Err(at(
@@ -498,8 +498,7 @@ impl<'a> State<'a> {
         // A length in machine units: mm for X Y Z, degrees for A B C.
         let unit = self.unit();
         let scale = |c: usize| if c < 3 { unit } else { 1.0 };
-        if has_g(920) {
-            let w = g.iter().find(|(c, _)| *c == 920).map(|(_, w)| *w).expect("found above");
+        if let Some(w) = g_word(920) {
             if axis_words.is_empty() {
                 return Err(at(
                     w,
@@ -517,8 +516,7 @@ impl<'a> State<'a> {
             self.motion = Some(code as u8);
         }
         let moves = !has_g(920) && !axis_words.is_empty();
-        if machine_coords {
-            let w = g.iter().find(|(c, _)| *c == 530).map(|(_, w)| *w).expect("found above");
+        if let Some(w) = g_word(530) {
             if !matches!(self.motion, Some(0 | 10)) || !moves {
                 return Err(at(w, "G53 goes with a G0 or G1 move in this block".into()));
             }
