@@ -177,18 +177,22 @@ pub fn write_realtime_config(dir: &Path) -> PathBuf {
     path
 }
 
-/// Writes a scenario to `dir` that presses the direction button "right" for a second from
-/// `at_s`; returns its path.
-pub fn jog_right_at(dir: &Path, at_s: f64) -> PathBuf {
+/// Writes a scenario to `dir` that presses the direction button "right" for a second from each
+/// of `at_s`; returns its path. Real-time tests press it more than once: on a busy machine the
+/// exchange may make referencing end later than in virtual time, and a press in INIT is lost.
+pub fn jog_right_at(dir: &Path, at_s: &[f64]) -> PathBuf {
     let path = dir.join("jog-right.json");
-    let (on, off) = ((at_s * 1000.0) as u64, (at_s * 1000.0) as u64 + 1000);
-    std::fs::write(
-        &path,
-        format!(
-            r#"{{"events": [{{"at_ms": {on}, "input": "BUTTON_RIGHT", "value": true}}, {{"at_ms": {off}, "input": "BUTTON_RIGHT", "value": false}}]}}"#
-        ),
-    )
-    .expect("write the scenario");
+    let events: Vec<String> = at_s
+        .iter()
+        .flat_map(|t| {
+            let on = (t * 1000.0) as u64;
+            [
+                format!(r#"{{"at_ms": {on}, "input": "BUTTON_RIGHT", "value": true}}"#),
+                format!(r#"{{"at_ms": {}, "input": "BUTTON_RIGHT", "value": false}}"#, on + 1000),
+            ]
+        })
+        .collect();
+    std::fs::write(&path, format!(r#"{{"events": [{}]}}"#, events.join(", "))).expect("write the scenario");
     path
 }
 
