@@ -72,6 +72,7 @@ pub fn run(options: &BenchOptions, mut progress: impl FnMut(&str)) -> Result<Vec
         io_map: None,
         plant: Default::default(),
         joystick: Default::default(),
+        nc: Default::default(),
     };
     let mut rows = Vec::new();
     let fifo_modes: &[bool] = if options.realtime_priority > 0 {

@@ -115,7 +115,17 @@ impl Setup {
     /// sections have nobody to check them and are refused.
     pub fn section_problems(&self) -> Vec<Problem> {
         match self.machine {
-            Some(m) => m.check(&self.sections()),
+            Some(m) => {
+                let mut problems = m.check(&self.sections());
+                // The NC section, against the machine's coordinates (when its own sections and
+                // parameters let it say what they are).
+                if problems.is_empty()
+                    && let Ok(motion) = m.motion(&self.loaded.json)
+                {
+                    problems.extend(self.loaded.config.nc.check(motion.axes));
+                }
+                problems
+            }
             None => {
                 let sections = self.sections();
                 [("kinematics", sections.kinematics), ("plant", sections.plant)]

@@ -47,6 +47,92 @@ pub struct Config {
     /// How the HID joystick's events map to the operator's commands (`--joystick`).
     #[serde(default)]
     pub joystick: crate::io::joystick::JoystickMapping,
+    /// NC programs: work offsets and the world axes' limits.
+    #[serde(default)]
+    pub nc: NcConfig,
+}
+
+/// The work coordinate systems of NC programs, in order (G54 is the first).
+pub const WORK_SYSTEMS: [&str; 6] = ["G54", "G55", "G56", "G57", "G58", "G59"];
+
+/// The `nc` section: what NC programs need besides the machine.
+#[derive(Clone, Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct NcConfig {
+    /// The origins of work coordinate systems in the machine frame (one value per coordinate of
+    /// the machine: x y z, and a b c where it has them); a system left out has its origin at the
+    /// reference point.
+    #[serde(default)]
+    pub work_offsets: std::collections::BTreeMap<String, Vec<f64>>,
+    /// Speed per world axis (mm/s, degrees/s), one per coordinate; left out: only the joints'
+    /// limits bound the tool.
+    #[serde(default)]
+    pub axis_speed: Option<Vec<f64>>,
+    /// Acceleration per world axis (mm/s², degrees/s²), one per coordinate.
+    #[serde(default)]
+    pub axis_accel: Option<Vec<f64>>,
+}
+
+impl NcConfig {
+    /// The origin of each work coordinate system, G54 first (the reference point where the
+    /// section gives none); `n` values each.
+    pub fn origins(&self, n: usize) -> [[f64; 6]; 6] {
+        let mut origins = [[0.0; 6]; 6];
+        for (i, name) in WORK_SYSTEMS.iter().enumerate() {
+            if let Some(offset) = self.work_offsets.get(*name) {
+                for (o, v) in origins[i].iter_mut().zip(offset).take(n) {
+                    *o = *v;
+                }
+            }
+        }
+        origins
+    }
+
+    /// Checks the section for a machine whose world coordinates are `keys`; problems have their
+    /// path below `nc`.
+    pub fn check(&self, keys: &[&str]) -> Vec<Problem> {
+        let n = keys.len();
+        let mut problems = Vec::new();
+        let names = keys.iter().map(|k| k.to_uppercase()).collect::<Vec<_>>().join(" ");
+        let values = |problems: &mut Vec<Problem>, at: String, v: &[f64], positive: bool| {
+            if v.len() != n {
+                problems.push(Problem {
+                    at: at.clone(),
+                    message: format!(
+                        "one value per coordinate of the machine ({names}): {n}, got {}",
+                        v.len()
+                    ),
+                });
+            }
+            if let Some(bad) = v.iter().find(|x| !x.is_finite() || (positive && **x <= 0.0)) {
+                problems.push(Problem {
+                    at,
+                    message: format!(
+                        "must be {}, got {bad}",
+                        if positive { "positive" } else { "finite numbers" }
+                    ),
+                });
+            }
+        };
+        for (system, offset) in &self.work_offsets {
+            let at = format!("nc.work_offsets.{}", shorten(system));
+            if WORK_SYSTEMS.contains(&system.as_str()) {
+                values(&mut problems, at, offset, false);
+            } else {
+                problems.push(Problem {
+                    at,
+                    message: format!("a work coordinate system is one of {}", WORK_SYSTEMS.join(", ")),
+                });
+            }
+        }
+        if let Some(v) = &self.axis_speed {
+            values(&mut problems, "nc.axis_speed".into(), v, true);
+        }
+        if let Some(v) = &self.axis_accel {
+            values(&mut problems, "nc.axis_accel".into(), v, true);
+        }
+        problems
+    }
 }
 
 /// One task class (B&R: a "cyclic" task class).

@@ -119,13 +119,19 @@ pub fn run(args: NcArgs, load: impl Fn(&ConfigArg) -> Result<LoadedConfig, Confi
         .map_err(|e| fail(2, format!("{name}: cannot read the program: {e}")))?;
     let n = frame.dof();
     let keys = frame.kinematics().pose_keys();
+    let nc = &setup.loaded.config.nc;
+    let problems = nc.check(keys);
+    if !problems.is_empty() {
+        return Err(fail(2, ConfigError::Invalid { file: origin, problems }.to_string()));
+    }
+    let work_offsets = nc.origins(n);
     let program = interp::read(
         &text,
         &interp::Machine {
             axes: keys,
             // The program starts at the reference point, the origin of the machine frame.
             start: [0.0; 6],
-            work_offsets: [[0.0; 6]; 6],
+            work_offsets,
         },
     )
     .map_err(|e| fail(2, format!("{name}:{e}")))?;
@@ -155,13 +161,20 @@ pub fn run(args: NcArgs, load: impl Fn(&ConfigArg) -> Result<LoadedConfig, Confi
     }
     // Planned only where every point is reachable: the planner needs the joints everywhere.
     let planned = if report.unreachable.is_empty() {
+        // World-axis limits where the configuration gives them; else the joints' limits bound
+        // every move, rapids included.
+        let per_axis = |v: &Option<Vec<f64>>| {
+            let mut a = [f64::INFINITY; 6];
+            if let Some(v) = v {
+                a[..n].copy_from_slice(v);
+            }
+            a
+        };
         let limits = PlanLimits {
             joint_speed: motion.joint_speed.clone(),
             joint_accel: motion.joint_accel.clone(),
-            // No world-axis limits are configured: the joints' limits bound every move, rapids
-            // included.
-            axis_speed: [f64::INFINITY; 6],
-            axis_accel: [f64::INFINITY; 6],
+            axis_speed: per_axis(&nc.axis_speed),
+            axis_accel: per_axis(&nc.axis_accel),
         };
         Some(plan(&program, &frame, &limits).map_err(|e| fail(1, format!("{name}: {e}")))?)
     } else {

@@ -166,3 +166,61 @@ fn the_tool_path_is_drawn_inside_the_workspace() {
     assert!(text.matches("<circle").count() > 1000, "workspace samples");
     assert!(text.matches("<polyline").count() >= 16, "the moves");
 }
+
+/// The O-X glide's configuration with `nc` set, written to `dir`.
+fn ox_x_with_nc(dir: &std::path::Path, nc: serde_json::Value) -> String {
+    let mut c = common::read_json(&common::root().join("machines/ox-x.json"));
+    c["io_map"] = common::root().join("io-map/ox-x.json").to_str().expect("utf-8").into();
+    c["nc"] = nc;
+    let path = dir.join("ox-x.json");
+    std::fs::write(&path, c.to_string()).expect("write the configuration");
+    path.to_str().expect("utf-8").to_string()
+}
+
+#[test]
+fn work_offsets_and_axis_limits_come_from_the_configuration() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let config = ox_x_with_nc(
+        dir.path(),
+        serde_json::json!({"work_offsets": {"G55": [20, 0, -5]}, "axis_speed": [50, 2, 50], "axis_accel": [500, 500, 500]}),
+    );
+    let file = program(dir.path(), "p.ngc", "G55 G1 X0 Y10 Z0 F600\nM2\n");
+    let o = pkm(&["nc", "check", &file, "--config", &config]);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    // G55's origin is at machine x 20, z −5; y may run 2 mm/s only.
+    assert!(
+        stdout(&o).contains("bounding box (machine frame): X 0.000 … 20.000, Y 0.000 … 10.000, Z -5.000 … 0.000"),
+        "{}",
+        stdout(&o)
+    );
+    assert!(
+        stdout(&o).contains(&format!("{file}:1: F600 slows to ")),
+        "{}",
+        stdout(&o)
+    );
+    assert!(stdout(&o).contains("the speed of axis Y\n"), "{}", stdout(&o));
+    // Checked with paths: a wrong length, a system that is not one, a limit that is not positive.
+    let config = ox_x_with_nc(
+        dir.path(),
+        serde_json::json!({"work_offsets": {"G55": [1, 2]}, "axis_speed": [1, 0, 1]}),
+    );
+    let o = pkm(&["check", "--config", &config]);
+    assert_eq!(o.status.code(), Some(2), "check sees it too: {}", stderr(&o));
+    let o = pkm(&["nc", "check", &file, "--config", &config]);
+    assert_eq!(o.status.code(), Some(2));
+    assert_eq!(
+        stderr(&o),
+        format!(
+            "error: {config}: 2 problems:\n  at nc.work_offsets.G55: one value per coordinate of the machine (X Y Z): 3, got 2\n  at nc.axis_speed: must be positive, got 0\n"
+        )
+    );
+    let config = ox_x_with_nc(dir.path(), serde_json::json!({"work_offsets": {"G60": [0, 0, 0]}}));
+    let o = pkm(&["nc", "check", &file, "--config", &config]);
+    assert_eq!(o.status.code(), Some(2));
+    assert_eq!(
+        stderr(&o),
+        format!(
+            "error: {config}: at nc.work_offsets.G60: a work coordinate system is one of G54, G55, G56, G57, G58, G59\n"
+        )
+    );
+}

@@ -63,6 +63,8 @@ pub trait Machine: Sync + fmt::Debug {
 pub struct Motion {
     /// The kinematic model, as `pkm-plc kin` names it (`pn101`).
     pub model: &'static str,
+    /// The machine frame's coordinates (`x`, `y`, `z`, `a`, `b`, `c` as far as it has them).
+    pub axes: &'static [&'static str],
     /// The machine frame's origin: the joints at the reference point (`Joints`) or the home
     /// pose in the mechanism frame (`Pose`).
     pub home: Home,

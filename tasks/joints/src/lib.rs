@@ -208,6 +208,7 @@ impl Machine for JointMachine {
         let m = p.soft_limit_margin_mm;
         Ok(Motion {
             model: spec.model.name(),
+            axes: kin.pose_keys(),
             home: match spec.model {
                 pkm_kinematics::Machine::Hexapod => Home::Pose(kinematics.hexapod.home.to_vec()),
                 _ => Home::Joints(vec![0.0; kin.dof()]),

@@ -110,6 +110,7 @@ impl Machine for Trijoint {
         let m = p.soft_limit_margin_mm;
         Ok(Motion {
             model: "trijoint",
+            axes: &["x", "y"],
             // M's frame is the mechanism's; referencing ends at the start position.
             home: Home::Joints(
                 p.start_position_mm
