@@ -7,8 +7,7 @@ use crate::common;
 
 use common::{get, joint_plant, machine_config, run, state};
 use pkm_joints::vars;
-use pkm_kinematics::KinematicsConfig;
-use pkm_kinematics::frame::{Home, MachineFrame};
+use pkm_kinematics::frame::MachineFrame;
 use pkm_plc::plc::Plc;
 
 const MACHINES: [&str; 4] = ["pn101", "ox-x", "ox-o", "hexapod"];
@@ -30,17 +29,11 @@ fn dof(name: &str) -> usize {
 
 /// The machine frame of the machine's default kinematics.
 fn frame(name: &str) -> MachineFrame {
-    let k = KinematicsConfig::default();
     let model = pkm_kinematics::Machine::ALL
         .into_iter()
         .find(|m| m.name() == name)
         .expect("a model");
-    let home = if name == "hexapod" {
-        Home::Pose(&k.hexapod.home)
-    } else {
-        Home::Joints(&[0.0; 6])
-    };
-    MachineFrame::new(k.build(model), home).expect("home is a pose")
+    MachineFrame::default_for(model).expect("home is a pose")
 }
 
 /// State changes as (time ms, state, reason).

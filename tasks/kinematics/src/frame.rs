@@ -52,6 +52,26 @@ impl MachineFrame {
         })
     }
 
+    /// The frame of `model` with the spec's default parameters and its default home: pn101
+    /// and the O-X glide at their joints' zeros (the original controllers' home point), the
+    /// hexapod at its home pose, the TRIJOINT at the middle of its carriages' travel.
+    pub fn default_for(model: crate::Machine) -> Result<MachineFrame, KinError> {
+        let config = crate::KinematicsConfig::default();
+        let kin = config.build(model);
+        match model {
+            crate::Machine::Hexapod => MachineFrame::new(kin, Home::Pose(&config.hexapod.home)),
+            crate::Machine::Trijoint => {
+                let t = &config.trijoint;
+                let middle = [
+                    (t.h1_travel[0] + t.h1_travel[1]) / 2.0,
+                    (t.h2_travel[0] + t.h2_travel[1]) / 2.0,
+                ];
+                MachineFrame::new(kin, Home::Joints(&middle))
+            }
+            _ => MachineFrame::new(kin, Home::Joints(&[0.0; MAX_DOF])),
+        }
+    }
+
     /// The kinematics in the mechanism frame.
     pub fn kinematics(&self) -> &dyn Kinematics {
         self.kin.as_ref()
@@ -114,6 +134,30 @@ impl MachineFrame {
             } else {
                 pose[i]
             };
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_models_default_frame_has_its_home_at_the_origin() {
+        for model in crate::Machine::ALL {
+            let f = MachineFrame::default_for(model).unwrap_or_else(|e| panic!("{model:?}: {e}"));
+            let n = f.dof();
+            let mut pose = [1.0; MAX_DOF];
+            f.forward(f.home_joints(), None, &mut pose[..n])
+                .expect("home assembles");
+            for (c, key) in f.kinematics().pose_keys().iter().enumerate() {
+                let home = if matches!(*key, "x" | "y" | "z") {
+                    0.0
+                } else {
+                    f.home_pose()[c]
+                };
+                assert!((pose[c] - home).abs() < 1e-9, "{model:?} {key}: {}", pose[c]);
+            }
         }
     }
 }

@@ -573,17 +573,9 @@ impl Plan {
 mod tests {
     use super::*;
     use crate::interp::{Machine, read};
-    use pkm_kinematics::KinematicsConfig;
-    use pkm_kinematics::frame::Home;
 
     fn frame(model: pkm_kinematics::Machine) -> MachineFrame {
-        let k = KinematicsConfig::default();
-        let home = if model == pkm_kinematics::Machine::Hexapod {
-            Home::Pose(&k.hexapod.home)
-        } else {
-            Home::Joints(&[0.0; 6])
-        };
-        MachineFrame::new(k.build(model), home).expect("home")
+        MachineFrame::default_for(model).expect("the default home is a pose")
     }
 
     fn limits(n: usize, speed: f64, accel: f64) -> PlanLimits {

@@ -355,12 +355,7 @@ impl MainProgram {
 /// The machine frame of `spec` with the spec's default kinematics, whose home is a pose by
 /// construction (the kinematics tests check it).
 fn default_frame(spec: &Spec) -> MachineFrame {
-    let kinematics = KinematicsConfig::default();
-    let home = match spec.model {
-        Model::Hexapod => Home::Pose(&kinematics.hexapod.home),
-        _ => Home::Joints(&[0.0; MAX_DOF]),
-    };
-    MachineFrame::new(kinematics.build(spec.model), home).unwrap_or_else(|e| {
+    MachineFrame::default_for(spec.model).unwrap_or_else(|e| {
         panic!(
             "{}'s default home is not a pose of its default kinematics: {e}",
             spec.name
