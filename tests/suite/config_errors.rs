@@ -82,7 +82,7 @@ fn syntax_errors_give_line_and_column() {
 fn unknown_fields_are_refused_with_the_expected_ones() {
     assert_eq!(
         error(r#"{"tasks": []}"#),
-        "cfg.json: at tasks: unknown field `tasks`, expected one of `machine`, `task_classes`, `timing`, `io_map`, `plant`, `kinematics`, `joystick`"
+        "cfg.json: at tasks: unknown field `tasks`, expected one of `machine`, `task_classes`, `timing`, `io_map`, `plant`, `kinematics`, `joystick`, `nc`"
     );
     assert_eq!(
         error(&format!(r#"{{"task_classes": [{}]}}"#, class(r#"{"cycle_ms": 10}"#))),
