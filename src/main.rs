@@ -557,7 +557,7 @@ fn finish_trace(plc: &mut Plc) -> Result<(), Failure> {
             info!("{message}");
             Ok(())
         }
-        Some(Err(message)) => Err(Failure::run(message)),
+        Some(Err(e)) => Err(Failure::run(e.to_string())),
         None => Ok(()),
     }
 }

@@ -39,7 +39,31 @@ pub trait CycleSink: Send {
     /// One class cycle has run.
     fn record(&mut self, record: &CycleRecord<'_>);
     /// The run is over: flush, and say what was recorded (or what went wrong).
-    fn finish(self: Box<Self>) -> Result<String, String>;
+    fn finish(self: Box<Self>) -> Result<String, SinkError>;
+}
+
+/// Why a cycle sink (a trace) could not be finished.
+#[derive(Debug, thiserror::Error)]
+pub enum SinkError {
+    /// The thread that wrote it ended by a panic.
+    #[error("{file}: the trace writer panicked")]
+    WriterPanicked {
+        /// The trace file.
+        file: String,
+    },
+    /// Writing failed: recording stopped there, the run went on.
+    #[error(
+        "{file}: writing the trace failed: {source}; recording stopped there, the run went on: the file holds {held}"
+    )]
+    Write {
+        /// The trace file.
+        file: String,
+        /// The write's error.
+        source: std::io::Error,
+        /// What the file holds (`the first 12 records (up to t = 0.120 s) and perhaps part of
+        /// the next`, `no complete record`).
+        held: String,
+    },
 }
 
 /// One program instance in its task class.

@@ -16,7 +16,7 @@ use std::time::{Duration, Instant};
 
 use super::{ClassHeader, FORMAT, Header, VERSION, same, value_to_json};
 use crate::image::{Value, VarIndex};
-use crate::plc::{CycleRecord, CycleSink, Plc};
+use crate::plc::{CycleRecord, CycleSink, Plc, SinkError};
 
 /// Records in flight between the cyclic thread and the writer.
 const CHANNEL: usize = 16_384;
@@ -244,25 +244,29 @@ impl CycleSink for Recorder {
         self.send(msg);
     }
 
-    fn finish(mut self: Box<Self>) -> Result<String, String> {
+    fn finish(mut self: Box<Self>) -> Result<String, SinkError> {
         self.tx = None;
         let written = match self.writer.take().map(JoinHandle::join) {
             Some(Ok(w)) => w,
-            _ => return Err(format!("{}: the trace writer panicked", self.path)),
+            _ => {
+                return Err(SinkError::WriterPanicked {
+                    file: self.path.clone(),
+                });
+            }
         };
         match written.error {
-            Some(e) => Err(format!(
-                "{}: writing the trace failed: {e}; recording stopped there, the run went on: the file holds {}",
-                self.path,
-                match written.flushed_t_us {
+            Some(source) => Err(SinkError::Write {
+                file: self.path.clone(),
+                source,
+                held: match written.flushed_t_us {
                     Some(t) => format!(
                         "the first {} records (up to t = {:.3} s) and perhaps part of the next",
                         written.flushed,
                         t as f64 * 1e-6
                     ),
                     None => "no complete record".to_string(),
-                }
-            )),
+                },
+            }),
             None => Ok(format!(
                 "trace {}: {} records, {:.1} MB of JSON; {} stalls, {} extra buffers",
                 self.path,
