@@ -69,18 +69,49 @@ pub fn value_to_json(v: Value) -> serde_json::Value {
     }
 }
 
+/// Why a JSON value is not a value of a variable's type.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum ValueError {
+    /// Not true or false.
+    #[error("expected BOOL (true or false), got {got}")]
+    NotBool {
+        /// What the trace holds.
+        got: serde_json::Value,
+    },
+    /// Not an integer in the type's range.
+    #[error("expected {ty} ({lo} … {hi}), got {got}")]
+    OutOfRange {
+        /// The type.
+        ty: VarType,
+        /// Its smallest value.
+        lo: i64,
+        /// Its largest value.
+        hi: i64,
+        /// What the trace holds.
+        got: serde_json::Value,
+    },
+    /// Not a number (nor null, a non-finite REAL).
+    #[error("expected REAL (a number), got {got}")]
+    NotReal {
+        /// What the trace holds.
+        got: serde_json::Value,
+    },
+}
+
 /// A JSON value as a value of type `ty`, or why it is not one.
-pub fn value_from_json(v: &serde_json::Value, ty: VarType) -> Result<Value, String> {
+pub fn value_from_json(v: &serde_json::Value, ty: VarType) -> Result<Value, ValueError> {
     let int = |lo: i64, hi: i64| {
         v.as_i64()
             .filter(|i| (lo..=hi).contains(i))
-            .ok_or_else(|| format!("expected {ty} ({lo} … {hi}), got {v}"))
+            .ok_or_else(|| ValueError::OutOfRange {
+                ty,
+                lo,
+                hi,
+                got: v.clone(),
+            })
     };
     Ok(match ty {
-        VarType::Bool => Value::Bool(
-            v.as_bool()
-                .ok_or_else(|| format!("expected BOOL (true or false), got {v}"))?,
-        ),
+        VarType::Bool => Value::Bool(v.as_bool().ok_or_else(|| ValueError::NotBool { got: v.clone() })?),
         VarType::Int => Value::Int(int(i16::MIN.into(), i16::MAX.into())? as i16),
         VarType::Uint => Value::Uint(int(0, u16::MAX.into())? as u16),
         VarType::Dint => Value::Dint(int(i32::MIN.into(), i32::MAX.into())? as i32),
@@ -89,7 +120,7 @@ pub fn value_from_json(v: &serde_json::Value, ty: VarType) -> Result<Value, Stri
             other => Value::Real(
                 other
                     .as_f64()
-                    .ok_or_else(|| format!("expected REAL (a number), got {other}"))?,
+                    .ok_or_else(|| ValueError::NotReal { got: other.clone() })?,
             ),
         },
     })
