@@ -101,8 +101,43 @@ fn run_reader(spec: &JoystickSpec, mapping: &JoystickMapping, mut feed: Joystick
     }
 }
 
+/// Why no joystick could be opened (logged; the reader tries again every second).
+#[derive(Debug, thiserror::Error)]
+enum OpenError {
+    /// `auto` found none.
+    #[error("no joystick or gamepad (absolute X and Y axes, joystick buttons) in /dev/input{hint}")]
+    NoJoystick {
+        /// Why, perhaps (event devices this user may not open).
+        hint: String,
+    },
+    /// The named path could not be opened.
+    #[error("{path}: {source}")]
+    Io {
+        /// The path.
+        path: String,
+        /// The error.
+        source: io::Error,
+    },
+    /// The named device lacks the mapped axes.
+    #[error("{path}: the device has no absolute axes {x} and {y} (see joystick.x_axis, joystick.y_axis)")]
+    NoAxes {
+        /// The device.
+        path: String,
+        /// The mapped x axis.
+        x: u16,
+        /// The mapped y axis.
+        y: u16,
+    },
+    /// The named path is none of the three.
+    #[error("{path}: not an input device, FIFO or capture file")]
+    NotInput {
+        /// The path.
+        path: String,
+    },
+}
+
 /// The first device (by path) with the mapping's absolute X and Y axes.
-fn find_device(mapping: &JoystickMapping) -> Result<(PathBuf, Source), String> {
+fn find_device(mapping: &JoystickMapping) -> Result<(PathBuf, Source), OpenError> {
     let opened: Vec<(PathBuf, evdev::raw_stream::RawDevice)> = evdev::raw_stream::enumerate().collect();
     let opened_count = opened.len();
     let mut found: Vec<_> = opened
@@ -127,9 +162,7 @@ fn find_device(mapping: &JoystickMapping) -> Result<(PathBuf, Source), String> {
         } else {
             String::new()
         };
-        return Err(format!(
-            "no joystick or gamepad (absolute X and Y axes, joystick buttons) in /dev/input{hint}"
-        ));
+        return Err(OpenError::NoJoystick { hint });
     };
     let ranges = axis_ranges(&device, mapping);
     Ok((
@@ -175,17 +208,19 @@ fn axis_ranges(d: &evdev::raw_stream::RawDevice, mapping: &JoystickMapping) -> [
 }
 
 /// Opens a device, FIFO or capture file.
-fn open(path: &Path, mapping: &JoystickMapping) -> Result<Source, String> {
-    let shown = path.display();
-    let meta = std::fs::metadata(path).map_err(|e| format!("{shown}: {e}"))?;
+fn open(path: &Path, mapping: &JoystickMapping) -> Result<Source, OpenError> {
+    let shown = || path.display().to_string();
+    let io = |source: io::Error| OpenError::Io { path: shown(), source };
+    let meta = std::fs::metadata(path).map_err(io)?;
     let ty = meta.file_type();
     if ty.is_char_device() {
-        let device = evdev::raw_stream::RawDevice::open(path).map_err(|e| format!("{shown}: {e}"))?;
+        let device = evdev::raw_stream::RawDevice::open(path).map_err(io)?;
         if !has_axes(&device, mapping) {
-            return Err(format!(
-                "{shown}: the device has no absolute axes {} and {} (see joystick.x_axis, joystick.y_axis)",
-                mapping.x_axis, mapping.y_axis
-            ));
+            return Err(OpenError::NoAxes {
+                path: shown(),
+                x: mapping.x_axis,
+                y: mapping.y_axis,
+            });
         }
         let ranges = axis_ranges(&device, mapping);
         Ok(Source::Device {
@@ -194,13 +229,11 @@ fn open(path: &Path, mapping: &JoystickMapping) -> Result<Source, String> {
         })
     } else if ty.is_fifo() {
         // Blocks until a writer opens the FIFO.
-        File::open(path).map(Source::Fifo).map_err(|e| format!("{shown}: {e}"))
+        File::open(path).map(Source::Fifo).map_err(io)
     } else if ty.is_file() {
-        File::open(path)
-            .map(Source::Capture)
-            .map_err(|e| format!("{shown}: {e}"))
+        File::open(path).map(Source::Capture).map_err(io)
     } else {
-        Err(format!("{shown}: not an input device, FIFO or capture file"))
+        Err(OpenError::NotInput { path: shown() })
     }
 }
 
