@@ -79,7 +79,7 @@ enum KinOp {
 
 /// A kinematic model by its name on the command line.
 fn parse_model(s: &str) -> Result<Machine, String> {
-    Machine::ALL.into_iter().find(|m| m.name() == s).ok_or_else(|| {
+    Machine::from_name(s).ok_or_else(|| {
         let names: Vec<&str> = Machine::ALL.iter().map(|m| m.name()).collect();
         format!("\"{s}\" is not a machine model: use {}", names.join(", "))
     })

@@ -95,15 +95,12 @@ pub fn run(args: NcArgs, load: impl Fn(&ConfigArg) -> Result<LoadedConfig, Confi
             .to_string(),
         )
     })?;
-    let model = Model::ALL
-        .into_iter()
-        .find(|m| m.name() == motion.model)
-        .ok_or_else(|| {
-            fail(
-                2,
-                format!("{}: no kinematic model \"{}\"", machine.name(), motion.model),
-            )
-        })?;
+    let model = Model::from_name(motion.model).ok_or_else(|| {
+        fail(
+            2,
+            format!("{}: no kinematic model \"{}\"", machine.name(), motion.model),
+        )
+    })?;
     let home = match &motion.home {
         Home::Joints(q) => FrameHome::Joints(q),
         Home::Pose(x) => FrameHome::Pose(x),

@@ -44,6 +44,11 @@ impl Machine {
         Machine::Hexapod,
     ];
 
+    /// The machine of that name (as [`Machine::name`] gives it), if there is one.
+    pub fn from_name(name: &str) -> Option<Machine> {
+        Machine::ALL.into_iter().find(|m| m.name() == name)
+    }
+
     /// The name used on the command line and in JSON.
     pub fn name(self) -> &'static str {
         match self {

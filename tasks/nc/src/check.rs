@@ -120,11 +120,7 @@ pub fn check(program: &Program, limits: &Limits<'_>) -> Report {
         } else {
             report.rapid_length_mm += length;
         }
-        let linear = match path {
-            crate::interp::Path::Line => (0..3).map(|c| (to[c] - from[c]).powi(2)).sum::<f64>().sqrt(),
-            crate::interp::Path::Arc { .. } => length,
-        };
-        let samples = ((linear.max(segment.angular()) / SAMPLE_SPACING).ceil() as usize).max(1);
+        let samples = ((segment.linear_length().max(segment.angular()) / SAMPLE_SPACING).ceil() as usize).max(1);
         let begin = if first { 0 } else { 1 };
         first = false;
         for i in begin..=samples {

@@ -284,16 +284,6 @@ impl Plant {
     pub fn jams(&self) -> u64 {
         self.jams
     }
-
-    /// The number of joints.
-    pub fn joints(&self) -> usize {
-        self.joints.len()
-    }
-
-    /// The value of input signal `signal` (as the PLC reads it).
-    pub fn input(&self, signal: usize) -> Value {
-        pkm_api::machine::Plant::read(self, signal)
-    }
 }
 
 impl pkm_api::machine::Plant for Plant {
