@@ -2,6 +2,8 @@
 //! uses a part of them.
 #![allow(dead_code)]
 
+pub mod soak;
+
 use std::path::{Path, PathBuf};
 
 use pkm_plc::compose::Setup;
@@ -138,6 +140,23 @@ pub fn run(plc: &mut Plc, until_ms: u64, mut each: impl FnMut(&Plc, u64)) {
         plc.run_due(&mut clock, u64::MAX);
         each(plc, t / 1_000_000);
     }
+}
+
+/// A state change of the main program: (time ms, state, error reason).
+pub type Transition = (u64, String, Option<String>);
+
+/// Runs as [`run`] does and returns the main program's state changes; `each(plc, t_ms)` after
+/// every pass.
+pub fn transitions(plc: &mut Plc, until_ms: u64, mut each: impl FnMut(&Plc, u64)) -> Vec<Transition> {
+    let mut seen: Vec<Transition> = Vec::new();
+    run(plc, until_ms, |plc, t| {
+        let s = plc.app_status().expect("status");
+        if seen.last().is_none_or(|(_, st, _)| st != s.state) {
+            seen.push((t, s.state.to_string(), s.reason.map(str::to_string)));
+        }
+        each(plc, t);
+    });
+    seen
 }
 
 /// With [`realtime_config`], the machine is READY after this long (15.65 s of simulated time).

@@ -5,7 +5,7 @@
 
 use crate::common;
 
-use common::{get, joint_plant, machine_config, run, state};
+use common::{get, joint_plant, machine_config, run, state, transitions};
 use pkm_joints::vars;
 use pkm_kinematics::frame::MachineFrame;
 use pkm_plc::plc::Plc;
@@ -29,24 +29,8 @@ fn dof(name: &str) -> usize {
 
 /// The machine frame of the machine's default kinematics.
 fn frame(name: &str) -> MachineFrame {
-    let model = pkm_kinematics::Machine::ALL
-        .into_iter()
-        .find(|m| m.name() == name)
-        .expect("a model");
+    let model = pkm_kinematics::Machine::from_name(name).expect("a model");
     MachineFrame::default_for(model).expect("home is a pose")
-}
-
-/// State changes as (time ms, state, reason).
-fn transitions(plc: &mut Plc, until_ms: u64, mut each: impl FnMut(&Plc, u64)) -> Vec<(u64, String, Option<String>)> {
-    let mut seen: Vec<(u64, String, Option<String>)> = Vec::new();
-    run(plc, until_ms, |plc, t| {
-        let s = plc.app_status().expect("status");
-        if seen.last().is_none_or(|(_, st, _)| st != s.state) {
-            seen.push((t, s.state.to_string(), s.reason.map(str::to_string)));
-        }
-        each(plc, t);
-    });
-    seen
 }
 
 /// When the machine reaches READY after power-on (ms of simulated time).

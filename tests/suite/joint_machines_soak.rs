@@ -7,6 +7,7 @@
 use crate::common;
 
 use common::Rng;
+use common::soak::{self, Fault, HOUR_MS};
 
 use std::collections::BTreeMap;
 use std::time::Instant;
@@ -15,8 +16,6 @@ use common::{get, joint_plant, machine_config};
 use pkm_joints::vars;
 use pkm_plc::plc::Plc;
 use pkm_plc::run::VirtualClock;
-
-const HOUR_MS: u64 = 3_600_000;
 
 /// Picks one of `items` with `rng`.
 fn pick<'a>(rng: &mut Rng, items: &[&'a str]) -> &'a str {
@@ -34,29 +33,12 @@ fn random_scenario(seed: u64, n: usize, dc: bool, shared: bool, stop_gap: (u64, 
     while t < HOUR_MS {
         t += rng.between(2_000, 8_000);
         if rng.next() < 0.15 {
-            events.push(format!(r#"{{"at_ms": {t}, "input": "BUTTON_AXES", "value": true}}"#));
-            events.push(format!(
-                r#"{{"at_ms": {}, "input": "BUTTON_AXES", "value": false}}"#,
-                t + 100
-            ));
-            continue;
-        }
-        let (x, y) = if rng.next() < 0.3 {
-            (0.0, 0.0)
+            events.extend(soak::press("BUTTON_AXES", t, 100));
         } else {
-            (rng.next() * 2.0 - 1.0, rng.next() * 2.0 - 1.0)
-        };
-        events.push(format!(r#"{{"at_ms": {t}, "joystick": [{x:.3}, {y:.3}]}}"#));
+            events.push(soak::joystick(&mut rng, t));
+        }
     }
-    let mut t = 0;
-    while t < HOUR_MS {
-        t += rng.between(stop_gap.0, stop_gap.1);
-        events.push(format!(r#"{{"at_ms": {t}, "input": "BUTTON_STOP", "value": true}}"#));
-        events.push(format!(
-            r#"{{"at_ms": {}, "input": "BUTTON_STOP", "value": false}}"#,
-            t + 150
-        ));
-    }
+    events.extend(soak::stop_presses(&mut rng, stop_gap));
     let switches: Vec<String> = if shared {
         ["LIMIT_NEG", "LIMIT_POS", "REFERENCE"].map(String::from).to_vec()
     } else {
@@ -73,38 +55,22 @@ fn random_scenario(seed: u64, n: usize, dc: bool, shared: bool, stop_gap: (u64, 
         } else {
             &["switch", "glitch", "dead"]
         };
-        match pick(&mut rng, kinds) {
+        let fault = match pick(&mut rng, kinds) {
             "switch" => {
                 let s = &switches[((rng.next() * switches.len() as f64) as usize).min(switches.len() - 1)];
-                events.push(format!(
-                    r#"{{"at_ms": {t}, "fault": "switch_stuck", "switch": "{s}", "value": true}}"#
-                ));
-                events.push(format!(
-                    r#"{{"at_ms": {}, "fault": "switch_free", "switch": "{s}"}}"#,
-                    t + 1_000
-                ));
-                windows.push((t, t + 1_000));
+                Fault::StuckSwitch(s)
             }
-            "glitch" => {
-                events.push(format!(
-                    r#"{{"at_ms": {t}, "fault": "encoder_glitch", "drive": "{drive}", "counts": 20000}}"#
-                ));
-                // A step counter that jumps puts the set-points of the next referencing off.
-                windows.push((t, t + 1_000));
-            }
-            "bridge" => events.push(format!(
-                r#"{{"at_ms": {t}, "fault": "bridge_error", "drive": "{drive}"}}"#
-            )),
-            _ => {
-                events.push(format!(
-                    r#"{{"at_ms": {t}, "fault": "drive_dead", "drive": "{drive}"}}"#
-                ));
-                events.push(format!(
-                    r#"{{"at_ms": {}, "fault": "drive_alive", "drive": "{drive}"}}"#,
-                    t + 2_000
-                ));
-                windows.push((t, t + 2_000));
-            }
+            "glitch" => Fault::CounterGlitch(drive),
+            "bridge" => Fault::BridgeError(drive),
+            _ => Fault::DeadDrive(drive),
+        };
+        let (fault_events, lasts) = soak::fault(fault, t);
+        events.extend(fault_events);
+        match fault {
+            // A step counter that jumps puts the set-points of the next referencing off.
+            Fault::CounterGlitch(_) => windows.push((t, t + 1_000)),
+            _ if lasts > 0 => windows.push((t, t + lasts)),
+            _ => {}
         }
         t += rng.between(120_000, 300_000);
     }
@@ -137,10 +103,7 @@ fn soak(name: &str, seed: u64) {
     let started = Instant::now();
     let driving = |s: &str| matches!(s, "INIT" | "READY" | "MOTION");
     // The software limits: the kinematics' travel less the configured 2 mm margin.
-    let model = pkm_kinematics::Machine::ALL
-        .into_iter()
-        .find(|m| m.name() == name)
-        .expect("a model");
+    let model = pkm_kinematics::Machine::from_name(name).expect("a model");
     let soft: Vec<[f64; 2]> = pkm_kinematics::KinematicsConfig::default()
         .build(model)
         .joint_limits()
@@ -250,8 +213,9 @@ fn soak(name: &str, seed: u64) {
         previous = state;
     }
     eprintln!(
-        "{name} soak: 1 simulated hour in {:.2} s; states entered: {visits:?}; longest INIT {longest_init} ms, longest ERROR {longest_error} ms; steps lost to faults {lost:?}; at most {worst_past_soft:.3} mm past a soft limit; errors {reasons:?}",
-        started.elapsed().as_secs_f64()
+        "{name} soak: 1 simulated hour in {:.2} s; states entered: {visits:?}; longest INIT {longest_init} ms, longest ERROR {longest_error} ms; steps lost to faults {lost:?} ({} steps of the plant the mechanism jammed); at most {worst_past_soft:.3} mm past a soft limit; errors {reasons:?}",
+        started.elapsed().as_secs_f64(),
+        joint_plant(&plc).jams()
     );
     for s in ["INIT", "READY", "MOTION", "ERROR", "REBOOT"] {
         assert!(

@@ -22,22 +22,10 @@ fn build(scenario: Option<&str>) -> Plc {
     .unwrap_or_else(|e| panic!("{e}"))
 }
 
-/// State changes as (time ms, state, reason).
-fn transitions(plc: &mut Plc, until_ms: u64) -> Vec<(u64, String, Option<String>)> {
-    let mut seen: Vec<(u64, String, Option<String>)> = Vec::new();
-    run(plc, until_ms, |plc, t| {
-        let s = plc.app_status().expect("status");
-        if seen.last().is_none_or(|(_, st, _)| st != s.state) {
-            seen.push((t, s.state.to_string(), s.reason.map(str::to_string)));
-        }
-    });
-    seen
-}
-
 #[test]
 fn power_on_references_the_machine_and_reaches_ready() {
     let mut plc = build(None);
-    let seen = transitions(&mut plc, 60_000);
+    let seen = common::transitions(&mut plc, 60_000, |_, _| {});
     let names: Vec<&str> = seen.iter().map(|(_, s, _)| s.as_str()).collect();
     assert_eq!(names, ["REBOOT", "INIT", "READY"], "{seen:?}");
     let ready_at = seen[2].0;
@@ -183,16 +171,11 @@ fn stop_during_motion_lockout_and_acknowledgement() {
         r3 = t0 + 1100
     );
     let mut plc = build(Some(&scenario));
-    let mut seen: Vec<(u64, String, Option<String>)> = Vec::new();
-    run(&mut plc, t0 + 50_000, |plc, t| {
+    let seen = common::transitions(&mut plc, t0 + 50_000, |plc, t| {
         if t >= t0 && t < t0 + 1000 {
             for pwm in vars::VELOCITY_SET {
                 assert_eq!(var(plc, pwm), Value::Int(0), "PWM at {t} ms");
             }
-        }
-        let s = plc.app_status().expect("status");
-        if seen.last().is_none_or(|(_, st, _)| st != s.state) {
-            seen.push((t, s.state.to_string(), s.reason.map(str::to_string)));
         }
     });
     let after: Vec<(u64, &str, Option<&str>)> = seen
@@ -226,15 +209,10 @@ fn acknowledgement_from_an_asymmetric_pose_references_again() {
         r2 = ack + 100,
     );
     let mut plc = build(Some(&scenario));
-    let mut seen: Vec<(u64, String, Option<String>)> = Vec::new();
     let mut at_stop = [0.0; 2];
-    run(&mut plc, ack + 60_000, |plc, t| {
+    let seen = common::transitions(&mut plc, ack + 60_000, |plc, t| {
         if t == jog_end {
             at_stop = [plant(plc).position_mm(0), plant(plc).position_mm(1)];
-        }
-        let s = plc.app_status().expect("status");
-        if seen.last().is_none_or(|(_, st, _)| st != s.state) {
-            seen.push((t, s.state.to_string(), s.reason.map(str::to_string)));
         }
     });
     // The jog left the carriages far apart: one drive reaches its switches well before the other.

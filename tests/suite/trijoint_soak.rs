@@ -4,14 +4,13 @@
 use crate::common;
 
 use common::Rng;
+use common::soak::{self, Fault, HOUR_MS};
 
 use std::time::Instant;
 
 use pkm_plc::image::Value;
 use pkm_plc::plc::Plc;
 use pkm_plc::run::VirtualClock;
-
-const HOUR_MS: u64 = 3_600_000;
 
 /// Joystick changes every 2–8 s, STOP presses every 20–90 s, a fault every 2–5 min. Returns the
 /// scenario, the number of STOP presses, and the windows (ms) in which a fault that can keep
@@ -23,24 +22,11 @@ fn random_scenario(seed: u64) -> (String, usize, Vec<(u64, u64)>) {
     let mut t = 0;
     while t < HOUR_MS {
         t += rng.between(2_000, 8_000);
-        let (x, y) = if rng.next() < 0.3 {
-            (0.0, 0.0)
-        } else {
-            (rng.next() * 2.0 - 1.0, rng.next() * 2.0 - 1.0)
-        };
-        events.push(format!(r#"{{"at_ms": {t}, "joystick": [{x:.3}, {y:.3}]}}"#));
+        events.push(soak::joystick(&mut rng, t));
     }
-    let mut t = 0;
-    let mut presses = 0;
-    while t < HOUR_MS {
-        t += rng.between(20_000, 90_000);
-        events.push(format!(r#"{{"at_ms": {t}, "input": "BUTTON_STOP", "value": true}}"#));
-        events.push(format!(
-            r#"{{"at_ms": {}, "input": "BUTTON_STOP", "value": false}}"#,
-            t + 150
-        ));
-        presses += 1;
-    }
+    let stops = soak::stop_presses(&mut rng, (20_000, 90_000));
+    let presses = stops.len() / 2;
+    events.extend(stops);
     let switches = [
         "SWITCH_LEFT_UPPER",
         "SWITCH_LEFT_DOWN",
@@ -51,34 +37,17 @@ fn random_scenario(seed: u64) -> (String, usize, Vec<(u64, u64)>) {
     let mut t = 60_000;
     while t < HOUR_MS {
         let drive = drives[(rng.next() * 2.0) as usize];
-        match (rng.next() * 4.0) as usize {
-            0 => {
-                let s = switches[(rng.next() * 4.0) as usize];
-                events.push(format!(
-                    r#"{{"at_ms": {t}, "fault": "switch_stuck", "switch": "{s}", "value": true}}"#
-                ));
-                events.push(format!(
-                    r#"{{"at_ms": {}, "fault": "switch_free", "switch": "{s}"}}"#,
-                    t + 1_000
-                ));
-                blocking.push((t, t + 1_000));
-            }
-            1 => events.push(format!(
-                r#"{{"at_ms": {t}, "fault": "encoder_glitch", "drive": "{drive}", "counts": 20000}}"#
-            )),
-            2 => events.push(format!(
-                r#"{{"at_ms": {t}, "fault": "bridge_error", "drive": "{drive}"}}"#
-            )),
-            _ => {
-                events.push(format!(
-                    r#"{{"at_ms": {t}, "fault": "drive_dead", "drive": "{drive}"}}"#
-                ));
-                events.push(format!(
-                    r#"{{"at_ms": {}, "fault": "drive_alive", "drive": "{drive}"}}"#,
-                    t + 2_000
-                ));
-                blocking.push((t, t + 2_000));
-            }
+        let fault = match (rng.next() * 4.0) as usize {
+            0 => Fault::StuckSwitch(switches[(rng.next() * 4.0) as usize]),
+            1 => Fault::CounterGlitch(drive),
+            2 => Fault::BridgeError(drive),
+            _ => Fault::DeadDrive(drive),
+        };
+        let (fault_events, lasts) = soak::fault(fault, t);
+        events.extend(fault_events);
+        // A glitch or a bridge error lasts no time; the others can keep referencing from ending.
+        if lasts > 0 {
+            blocking.push((t, t + lasts));
         }
         t += rng.between(120_000, 300_000);
     }
