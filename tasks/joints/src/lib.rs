@@ -160,13 +160,7 @@ impl JointMachine {
 
 /// The `plant` section laid over the machine's defaults and parsed strictly.
 fn plant_section(spec: &Spec, section: Option<&serde_json::Value>) -> Result<PlantConfig, Vec<Problem>> {
-    let defaults = spec.default_plant();
-    let Some(section) = section else {
-        return Ok(defaults);
-    };
-    let mut merged = serde_json::to_value(&defaults).map_err(|e| vec![Problem::new("plant", e.to_string())])?;
-    params::overlay(&mut merged, section);
-    pkm_api::strict_json::section(&merged, "plant").map_err(|p| vec![p])
+    params::over_defaults(section, "plant", spec.default_plant()).map_err(|p| vec![p])
 }
 
 impl Machine for JointMachine {

@@ -10,7 +10,7 @@ use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 
 /// Lays `over` onto `base`: objects key by key (recursively), anything else replaced.
-pub fn overlay(base: &mut serde_json::Value, over: &serde_json::Value) {
+fn overlay(base: &mut serde_json::Value, over: &serde_json::Value) {
     match (base, over) {
         (serde_json::Value::Object(b), serde_json::Value::Object(o)) => {
             for (k, v) in o {

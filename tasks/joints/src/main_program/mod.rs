@@ -140,6 +140,7 @@ fn check(spec: &Spec, p: &MainParams, keys: &[&str], travel: &[[f64; 2]], decl: 
         }
     }
     let mut seen = vec![false; n];
+    let shared = Switches::of(spec).shared();
     for (g, group) in p.reference_order.iter().enumerate() {
         for &joint in group {
             if joint == 0 || joint > n {
@@ -154,7 +155,7 @@ fn check(spec: &Spec, p: &MainParams, keys: &[&str], travel: &[[f64; 2]], decl: 
                 );
             }
         }
-        if Switches::of(spec).shared() && group.len() > 1 {
+        if shared && group.len() > 1 {
             decl.issue(
                 &format!("params.reference_order[{g}]"),
                 format!(
