@@ -11,6 +11,7 @@ use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 
 use pkm_api::machine::{EmbeddedFile, Machine, Sections};
+use pkm_api::trajectory::NcJob;
 use tracing::{info, warn};
 
 use crate::bus::{Bus, NoBus, UnknownBus};
@@ -198,7 +199,12 @@ impl Setup {
     /// Builds the PLC on `bus`: declares every program's variables and checks the configuration
     /// as a whole, the machine's sections included.
     pub fn plc(&self, bus: Box<dyn Bus>) -> Result<Plc, ConfigError> {
-        let plc = Plc::build(&self.loaded.config, &self.registry(), bus);
+        self.plc_with(bus, None)
+    }
+
+    /// [`Setup::plc`] with an NC program for the machine's programs to run.
+    pub fn plc_with(&self, bus: Box<dyn Bus>, job: Option<&NcJob>) -> Result<Plc, ConfigError> {
+        let plc = Plc::build_with(&self.loaded.config, &self.registry(), bus, job);
         let mut problems = self.section_problems();
         match plc {
             Ok(plc) if problems.is_empty() => Ok(plc),
@@ -248,16 +254,19 @@ pub struct Options {
     pub scenario: Option<PathBuf>,
     /// The joystick.
     pub joystick: JoystickChoice,
+    /// An NC program to run (checked and planned before the PLC is built).
+    pub program: Option<PathBuf>,
 }
 
 impl Default for Options {
-    /// The simulated machine, no scenario, no joystick reader.
+    /// The simulated machine, no scenario, no joystick reader, no program.
     fn default() -> Self {
         Options {
             bus: BusChoice::Sim,
             link: ModbusOptions::default(),
             scenario: None,
             joystick: JoystickChoice::Live(JoystickSpec::None),
+            program: None,
         }
     }
 }
@@ -282,6 +291,8 @@ pub struct Built {
     pub plc: Plc,
     /// The joystick reader to start, if a live joystick is wanted.
     pub joystick: Option<Joystick>,
+    /// The NC program it runs, if one was given.
+    pub job: Option<NcJob>,
 }
 
 /// Why a PLC could not be built: every problem of the files, or a usage error. The message is
@@ -370,6 +381,15 @@ fn modbus_bus(map: &IoMap, transport: Transport, options: &Options) -> Result<Bo
 
 /// Builds a PLC: every problem of the configuration and its I/O map is reported at once.
 pub fn build(setup: Setup, options: Options) -> Result<Built, BuildError> {
+    // A program that cannot run is refused before anything is built.
+    let job = match &options.program {
+        Some(path) => Some(
+            crate::nc_job::prepare(&setup, path)
+                .and_then(crate::nc_job::Prepared::into_job)
+                .map_err(|e| BuildError(e.message))?,
+        ),
+        None => None,
+    };
     // A bus that cannot be made for a problem of the files (the I/O map, the plant section) does
     // not hide the configuration's other problems: they are checked on a stand-in bus.
     let (bus, joystick, bus_problem) = match make_bus(&setup, &options) {
@@ -381,8 +401,13 @@ pub fn build(setup: Setup, options: Options) -> Result<Built, BuildError> {
         Err(BusFailure::Sections) => (Box::new(UnknownBus) as Box<dyn Bus>, None, None),
         Err(BusFailure::Other(f)) => return Err(f),
     };
-    match (setup.plc(bus), bus_problem) {
-        (Ok(plc), None) => Ok(Built { setup, plc, joystick }),
+    match (setup.plc_with(bus, job.as_ref()), bus_problem) {
+        (Ok(plc), None) => Ok(Built {
+            setup,
+            plc,
+            joystick,
+            job,
+        }),
         (plc, bus_problem) => {
             let mut problems = match plc {
                 Err(ConfigError::Invalid { problems, .. }) => problems,

@@ -14,6 +14,7 @@ pub mod files;
 pub mod io;
 pub mod link_bench;
 pub mod machines;
+pub mod nc_job;
 pub mod plc;
 pub mod run;
 pub mod selftest;

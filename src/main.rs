@@ -209,6 +209,10 @@ struct RunArgs {
     /// Record every class cycle (inputs, outputs, main state) to FILE (JSON Lines).
     #[arg(long, value_name = "FILE")]
     trace: Option<PathBuf>,
+    /// An NC program (G-code) to run: checked and planned at start (refused with exit code 2
+    /// if it cannot run), started once the machine is READY after referencing (state AUTO).
+    #[arg(long, value_name = "FILE")]
+    program: Option<PathBuf>,
     /// Override the configured time source (real time only).
     #[arg(long, value_enum, value_name = "SOURCE", conflicts_with = "virtual_time")]
     time_source: Option<TimeSource>,
@@ -409,11 +413,13 @@ fn cmd_run(args: RunArgs) -> Result<(), Failure> {
         },
         scenario: args.scenario.clone(),
         joystick,
+        program: args.program.clone(),
     };
     let Built {
         setup,
         mut plc,
         joystick,
+        job,
     } = build(&args.config, options)?;
     let loaded = &setup.loaded;
     let summary_file = args.summary.as_deref().map(OutputFile::create).transpose()?;
@@ -442,7 +448,7 @@ fn cmd_run(args: RunArgs) -> Result<(), Failure> {
             duration / report.wall.as_secs_f64().max(1e-9)
         );
         trace_failure = finish_trace(&mut plc);
-        Summary::collect(&plc, "virtual", &loaded.origin, report.simulated_ns)
+        Summary::collect(&plc, "virtual", &loaded.origin, report.simulated_ns).with_program(&plc, job.as_ref())
     } else {
         let timing = &loaded.config.timing;
         let options = RealTimeOptions {
@@ -481,7 +487,8 @@ fn cmd_run(args: RunArgs) -> Result<(), Failure> {
             }
         }
         trace_failure = finish_trace(&mut outcome.plc);
-        let mut s = Summary::collect(&outcome.plc, "real-time", &loaded.origin, outcome.elapsed_ns);
+        let mut s = Summary::collect(&outcome.plc, "real-time", &loaded.origin, outcome.elapsed_ns)
+            .with_program(&outcome.plc, job.as_ref());
         s.time_source = Some(outcome.source.name());
         s.realtime_priority = Some(outcome.realtime_priority);
         s

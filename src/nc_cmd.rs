@@ -7,14 +7,12 @@ use std::path::PathBuf;
 use clap::{Args, Subcommand};
 use serde_json::{Map, Value, json};
 
-use pkm_api::machine::Home;
-use pkm_kinematics::frame::{Home as FrameHome, MachineFrame};
+use pkm_kinematics::frame::MachineFrame;
 use pkm_kinematics::{KinematicsConfig, Machine as Model};
-use pkm_nc::check::{Limits, check, format_pose};
 use pkm_nc::interp::{self, AXES};
-use pkm_nc::plan::{PlanLimits, plan};
 use pkm_plc::compose::Setup;
 use pkm_plc::config::{ConfigError, LoadedConfig};
+use pkm_plc::nc_job::{Prepared, prepare};
 
 use crate::ConfigArg;
 
@@ -43,20 +41,7 @@ enum NcOp {
     },
 }
 
-/// Why `nc` failed: the exit code and the message.
-pub struct NcFailure {
-    /// 1: the program cannot run on the machine; 2: usage, configuration or program text.
-    pub code: u8,
-    /// What to print.
-    pub message: String,
-}
-
-fn fail(code: u8, message: impl Into<String>) -> NcFailure {
-    NcFailure {
-        code,
-        message: message.into(),
-    }
-}
+pub use pkm_plc::nc_job::NcFailure;
 
 /// Runs `pkm-plc nc`.
 pub fn run(args: NcArgs, load: impl Fn(&ConfigArg) -> Result<LoadedConfig, ConfigError>) -> Result<(), NcFailure> {
@@ -66,81 +51,23 @@ pub fn run(args: NcArgs, load: impl Fn(&ConfigArg) -> Result<LoadedConfig, Confi
         json,
         svg,
     } = args.op;
+    let fail = |code: u8, message: String| NcFailure { code, message };
     let loaded = load(&config).map_err(|e| fail(2, e.to_string()))?;
-    let origin = loaded.origin.clone();
     let setup = Setup::new(loaded).map_err(|e| fail(2, e.to_string()))?;
-    let machine = setup.machine.ok_or_else(|| {
-        fail(
-            2,
-            format!("{origin}: the configuration names no machine to check the program against"),
-        )
-    })?;
-    let motion = machine.motion(&setup.loaded.json).map_err(|problems| {
-        fail(
-            2,
-            ConfigError::Invalid {
-                file: origin.clone(),
-                problems,
-            }
-            .to_string(),
-        )
-    })?;
-    let kinematics = KinematicsConfig::from_section(setup.loaded.config.kinematics.as_ref()).map_err(|problems| {
-        fail(
-            2,
-            ConfigError::Invalid {
-                file: origin.clone(),
-                problems,
-            }
-            .to_string(),
-        )
-    })?;
-    let model = Model::from_name(motion.model).ok_or_else(|| {
-        fail(
-            2,
-            format!("{}: no kinematic model \"{}\"", machine.name(), motion.model),
-        )
-    })?;
-    let home = match &motion.home {
-        Home::Joints(q) => FrameHome::Joints(q),
-        Home::Pose(x) => FrameHome::Pose(x),
-    };
-    let frame = MachineFrame::new(kinematics.build(model), home).map_err(|e| {
-        fail(
-            2,
-            format!("{origin}: the machine's home is not a pose of its kinematics: {e}"),
-        )
-    })?;
-    let name = file.display().to_string();
-    let text = pkm_plc::files::read_text(&file, pkm_plc::files::MAX_TEXT_BYTES)
-        .map_err(|e| fail(2, format!("{name}: cannot read the program: {e}")))?;
+    let prepared = prepare(&setup, &file)?;
+    let Prepared {
+        name,
+        machine,
+        motion,
+        kinematics,
+        model,
+        frame,
+        program,
+        report,
+        plan: planned,
+    } = &prepared;
     let n = frame.dof();
     let keys = frame.kinematics().pose_keys();
-    let nc = &setup.loaded.config.nc;
-    let problems = nc.check(keys);
-    if !problems.is_empty() {
-        return Err(fail(2, ConfigError::Invalid { file: origin, problems }.to_string()));
-    }
-    let work_offsets = nc.origins(n);
-    let program = interp::read(
-        &text,
-        &interp::Machine {
-            axes: keys,
-            // The program starts at the reference point, the origin of the machine frame.
-            start: [0.0; 6],
-            work_offsets,
-        },
-    )
-    .map_err(|e| fail(2, format!("{name}:{e}")))?;
-    let report = check(
-        &program,
-        &Limits {
-            frame: &frame,
-            soft: &motion.soft_limits,
-            world: &motion.world_limits,
-            singularity_threshold: motion.singularity_threshold,
-        },
-    );
     let mut lines = vec![format!(
         "{name}: {} moves on {}: feed path {:.3} mm, rapids {:.3} mm",
         report.moves,
@@ -156,27 +83,6 @@ pub fn run(args: NcArgs, load: impl Fn(&ConfigArg) -> Result<LoadedConfig, Confi
             .collect();
         lines.push(format!("bounding box (machine frame): {}", parts.join(", ")));
     }
-    // Planned only where every point is reachable: the planner needs the joints everywhere.
-    let planned = if report.unreachable.is_empty() {
-        // World-axis limits where the configuration gives them; else the joints' limits bound
-        // every move, rapids included.
-        let per_axis = |v: &Option<Vec<f64>>| {
-            let mut a = [f64::INFINITY; 6];
-            if let Some(v) = v {
-                a[..n].copy_from_slice(v);
-            }
-            a
-        };
-        let limits = PlanLimits {
-            joint_speed: motion.joint_speed.clone(),
-            joint_accel: motion.joint_accel.clone(),
-            axis_speed: per_axis(&nc.axis_speed),
-            axis_accel: per_axis(&nc.axis_accel),
-        };
-        Some(plan(&program, &frame, &limits).map_err(|e| fail(1, format!("{name}: {e}")))?)
-    } else {
-        None
-    };
     if let Some(p) = &planned {
         lines.push(format!("planned time {:.3} s", p.duration_s));
         for l in &p.limited {
@@ -226,7 +132,7 @@ pub fn run(args: NcArgs, load: impl Fn(&ConfigArg) -> Result<LoadedConfig, Confi
         std::fs::write(&out, text + "\n").map_err(|e| fail(1, format!("{}: {e}", out.display())))?;
     }
     if let Some(out) = svg {
-        draw(&out, &program, &frame, &kinematics, model, &motion, &name)?;
+        draw(&out, program, frame, kinematics, *model, motion, name)?;
         lines.push(format!("tool path drawn in {}", out.display()));
     }
     if report.unreachable.is_empty() {
@@ -239,16 +145,11 @@ pub fn run(args: NcArgs, load: impl Fn(&ConfigArg) -> Result<LoadedConfig, Confi
         return Ok(());
     }
     println!("{}", lines.join("\n"));
-    let problems: Vec<String> = report
-        .unreachable
-        .iter()
-        .map(|u| format!("{name}:{}: at {}: {}", u.line, format_pose(&u.pose, n), u.why))
-        .collect();
     Err(fail(
         1,
         format!(
             "the program leaves what the machine can reach:\n{}",
-            problems.join("\n")
+            prepared.unreachable_lines().join("\n")
         ),
     ))
 }
@@ -316,6 +217,7 @@ fn draw(
         keys[axes[0]],
         keys[axes[1]]
     );
+    let fail = |code: u8, message: String| NcFailure { code, message };
     let svg = crate::kin_svg::draw_with(&ws, keys, axes, Some(&caption), &paths)
         .map_err(|e| fail(1, format!("{}: drawing failed: {e}", out.display())))?;
     std::fs::write(out, svg).map_err(|e| fail(1, format!("{}: {e}", out.display())))

@@ -129,7 +129,17 @@ pub struct ClassView<'a> {
 impl Plc {
     /// Builds the PLC from a configuration: checks it as a whole, lets the bus and every program
     /// declare their variables, and returns every problem found at once.
-    pub fn build(config: &Config, registry: &Registry, mut bus: Box<dyn Bus>) -> Result<Plc, Vec<Problem>> {
+    pub fn build(config: &Config, registry: &Registry, bus: Box<dyn Bus>) -> Result<Plc, Vec<Problem>> {
+        Plc::build_with(config, registry, bus, None)
+    }
+
+    /// [`Plc::build`] with an NC program for the programs to run (`run --program`).
+    pub fn build_with(
+        config: &Config,
+        registry: &Registry,
+        mut bus: Box<dyn Bus>,
+        nc: Option<&pkm_api::trajectory::NcJob>,
+    ) -> Result<Plc, Vec<Problem>> {
         let mut issues = config::check(config);
         let mut table = VarTable::new();
         bus.declare(&mut table);
@@ -169,6 +179,7 @@ impl Plc {
                     kinematics: config.kinematics.as_ref(),
                     cycle_us: tc.cycle_us,
                     fastest_class: config.task_classes.iter().all(|o| o.cycle_us >= tc.cycle_us),
+                    nc,
                 };
                 let program = (info.factory)(&args, &mut decl);
                 programs.push(Slot {
@@ -242,6 +253,17 @@ impl Plc {
     /// The published (global) image.
     pub fn global_image(&self) -> &[Value] {
         &self.global
+    }
+
+    /// The variable `name` as its writer last wrote it: a program's output from its class's
+    /// image (which [`Plc::shutdown`] leaves alone), anything else from the global image.
+    pub fn last_written(&self, name: &str) -> Option<Value> {
+        let index = usize::from(self.table.index_of(name)?);
+        let image = match &self.table.vars().get(index)?.writer {
+            Some(Writer::Program { class, .. }) => &self.classes.get(*class)?.image,
+            _ => &self.global,
+        };
+        image.get(index).copied()
     }
 
     /// The bus.

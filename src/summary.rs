@@ -2,6 +2,9 @@
 
 use serde::Serialize;
 
+use pkm_api::trajectory::NcJob;
+
+use crate::image::Value;
 use crate::plc::Plc;
 use crate::stats::StatSummary;
 
@@ -26,6 +29,38 @@ pub struct Summary {
     pub task_classes: Vec<ClassSummary>,
     /// The main program's final state, if a program reports one.
     pub main: Option<MainSummary>,
+    /// The NC program's last run, if one was loaded.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub program: Option<ProgramSummary>,
+}
+
+/// The NC program's last run (motion.md, Execution), from the executor's process-image
+/// variables: what a trace replays, the summary of its replay shows too.
+#[derive(Clone, Debug, Serialize)]
+pub struct ProgramSummary {
+    /// The program's file.
+    pub file: String,
+    /// The run reached the program's end.
+    pub completed: bool,
+    /// How long the run lasted, holds and pauses included (s).
+    pub duration_s: f64,
+    /// The programmed path's length (mm).
+    pub path_length_mm: f64,
+    /// The planned duration (s), without holds and pauses.
+    pub planned_s: f64,
+    /// The distance from the measured tool point to the programmed path (mm).
+    pub contour_error_mm: ContourError,
+    /// The largest following error per joint (mm).
+    pub max_following_error_mm: Vec<f64>,
+}
+
+/// The contour error's largest and RMS value (mm).
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct ContourError {
+    /// The largest.
+    pub max: f64,
+    /// The root mean square over the run's fast cycles.
+    pub rms: f64,
 }
 
 /// One task class's figures.
@@ -110,7 +145,36 @@ impl Summary {
             duration_s: duration_ns as f64 / 1e9,
             task_classes,
             main,
+            program: None,
         }
+    }
+
+    /// Adds the NC program's last run, as `plc`'s executor measured it (nothing without a
+    /// program).
+    pub fn with_program(mut self, plc: &Plc, job: Option<&NcJob>) -> Summary {
+        use pkm_api::trajectory::vars;
+        let Some(job) = job else {
+            return self;
+        };
+        let value = |name: &str| plc.last_written(name);
+        let real = |name: &str| match value(name) {
+            Some(Value::Real(v)) => v,
+            _ => 0.0,
+        };
+        let n = job.trajectory.dof();
+        self.program = Some(ProgramSummary {
+            file: job.file.clone(),
+            completed: value(vars::NC_COMPLETED.name()) == Some(Value::Bool(true)),
+            duration_s: real(vars::NC_RUN_S.name()),
+            path_length_mm: job.trajectory.length_mm(),
+            planned_s: job.trajectory.duration_s(),
+            contour_error_mm: ContourError {
+                max: real(vars::NC_CONTOUR_MAX.name()),
+                rms: real(vars::NC_CONTOUR_RMS.name()),
+            },
+            max_following_error_mm: vars::NC_FOLLOWING_MAX[..n].iter().map(|v| real(v.name())).collect(),
+        });
+        self
     }
 
     /// The summary as pretty JSON.
@@ -161,6 +225,20 @@ impl Summary {
                     .collect();
                 lines.push(format!("final values {}", values.join(" ")));
             }
+        }
+        if let Some(p) = &self.program {
+            let following: Vec<String> = p.max_following_error_mm.iter().map(|e| format!("{e:.4}")).collect();
+            lines.push(format!(
+                "program {}: {}, {:.3} s (planned {:.3} s), path {:.3} mm, contour error max {:.4} mm rms {:.4} mm, following error max per joint {} mm",
+                p.file,
+                if p.completed { "completed" } else { "not completed" },
+                p.duration_s,
+                p.planned_s,
+                p.path_length_mm,
+                p.contour_error_mm.max,
+                p.contour_error_mm.rms,
+                following.join("/")
+            ));
         }
         lines
     }

@@ -6,9 +6,13 @@
 //!   {"at_ms": 1200, "input": "BUTTON_STOP", "value": false},
 //!   {"at_ms": 2000, "joystick": [0.5, -0.2]},
 //!   {"at_ms": 3000, "fault": "switch_stuck", "switch": "SWITCH_LEFT_UPPER", "value": true},
-//!   {"at_ms": 4000, "fault": "encoder_glitch", "drive": "left", "counts": 500}
+//!   {"at_ms": 4000, "fault": "encoder_glitch", "drive": "left", "counts": 500},
+//!   {"at_ms": 5000, "program": "hold"}
 //! ]}
 //! ```
+//!
+//! A `program` event (`start`, `hold`, `resume`) presses the panel's program button bound to
+//! `NC_START`, `NC_HOLD` or `NC_RESUME` for [`PROGRAM_PRESS_MS`].
 //!
 //! Inputs and switches are named by the process-image variable they are bound to in the I/O map;
 //! drives by the names the machine's plant gives them. The file format is the runtime's; what an
@@ -47,7 +51,35 @@ struct EventEntry {
     drive: Option<String>,
     #[serde(default)]
     counts: Option<i64>,
+    #[serde(default)]
+    program: Option<ProgramCommand>,
 }
+
+/// A program event: which program button is pressed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ProgramCommand {
+    /// Start the program (from READY).
+    Start,
+    /// Feed hold.
+    Hold,
+    /// Resume after a feed hold or an M0.
+    Resume,
+}
+
+impl ProgramCommand {
+    /// The input variable of its button.
+    fn variable(self) -> &'static str {
+        match self {
+            ProgramCommand::Start => "NC_START",
+            ProgramCommand::Hold => "NC_HOLD",
+            ProgramCommand::Resume => "NC_RESUME",
+        }
+    }
+}
+
+/// How long a program event holds its button down (ms): two main cycles of 50 ms.
+pub const PROGRAM_PRESS_MS: u64 = 100;
 
 /// The fault kinds.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize)]
@@ -101,12 +133,14 @@ impl Scenario {
         let mut events = Vec::new();
         for (i, e) in file.events.iter().enumerate() {
             let at = format!("events[{i}]");
-            let kinds =
-                usize::from(e.input.is_some()) + usize::from(e.joystick.is_some()) + usize::from(e.fault.is_some());
+            let kinds = usize::from(e.input.is_some())
+                + usize::from(e.joystick.is_some())
+                + usize::from(e.fault.is_some())
+                + usize::from(e.program.is_some());
             if kinds != 1 {
                 problems.push(Problem {
                     at: at.clone(),
-                    message: "an event has exactly one of \"input\", \"joystick\" or \"fault\"".into(),
+                    message: ONE_KIND.into(),
                 });
                 continue;
             }
@@ -121,6 +155,22 @@ impl Scenario {
                 });
                 continue;
             };
+            if let Some(command) = e.program {
+                match program_button(command, map, wiring, plant) {
+                    Ok(signal) => {
+                        events.push((t_ns, Action::Press { signal, pressed: true }));
+                        events.push((
+                            t_ns.saturating_add(PROGRAM_PRESS_MS * 1_000_000),
+                            Action::Press { signal, pressed: false },
+                        ));
+                    }
+                    Err(message) => problems.push(Problem {
+                        at: format!("{at}.program"),
+                        message,
+                    }),
+                }
+                continue;
+            }
             match event_action(e, map, wiring, plant) {
                 Ok(action) => events.push((t_ns, action)),
                 Err((field, message)) => problems.push(Problem {
@@ -137,6 +187,26 @@ impl Scenario {
         }
         events.sort_by_key(|(t, _)| *t);
         Ok(Scenario { events })
+    }
+}
+
+/// What every event must have exactly one of.
+const ONE_KIND: &str = "an event has exactly one of \"input\", \"joystick\", \"fault\" or \"program\"";
+
+/// The plant's button bound to `command`'s variable.
+fn program_button(
+    command: ProgramCommand,
+    map: &IoMap,
+    wiring: &ResolvedWiring,
+    plant: &dyn Plant,
+) -> Result<usize, String> {
+    let name = command.variable();
+    match signal_of(name, map, wiring) {
+        Some(signal) if plant.signals()[signal].role == Role::Button => Ok(signal),
+        _ => Err(format!(
+            "{} binds no panel button of the machine to {name}: this machine's simulated panel has no program buttons",
+            map.origin
+        )),
     }
 }
 
@@ -237,10 +307,7 @@ fn event_action(
         }),
         Some(FaultKind::JoystickUnplugged) => Ok(Action::JoystickConnected(false)),
         Some(FaultKind::JoystickPlugged) => Ok(Action::JoystickConnected(true)),
-        None => Err((
-            "",
-            "an event has exactly one of \"input\", \"joystick\" or \"fault\"".to_string(),
-        )),
+        None => Err(("", ONE_KIND.to_string())),
     }
 }
 

@@ -311,7 +311,7 @@ fn scenario_errors_name_the_event() {
     );
     let e = bad(r#"{"at_ms": 5, "joystick": [0.5, 0.5], "input": "BUTTON_STOP", "value": true}"#);
     assert!(
-        e.contains("at events[0]: an event has exactly one of \"input\", \"joystick\" or \"fault\""),
+        e.contains("at events[0]: an event has exactly one of \"input\", \"joystick\", \"fault\" or \"program\""),
         "{e}"
     );
     // Regression (issue 13): this wrapped to t ≈ 0 and fired at once.

@@ -14,3 +14,4 @@ pub mod machine;
 pub mod problem;
 pub mod program;
 pub mod strict_json;
+pub mod trajectory;

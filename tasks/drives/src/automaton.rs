@@ -3,7 +3,8 @@
 //! dispatches, and the REBOOT → INIT → READY ⇄ MOTION / ERROR state machine (statig) with its
 //! rules — REBOOT lasts one cycle; in INIT, READY and MOTION a STOP press or a supervision fault is
 //! ERROR with its reason; ERROR is left only by an accepted STOP press, to REBOOT. What a machine
-//! does in each state (its referencing, its jog) is its [`Application`].
+//! does in each state (its referencing, its jog) is its [`Application`]. READY ⇄ AUTO runs an NC
+//! program (motion.md), for the machines that start one.
 
 use statig::prelude::*;
 
@@ -20,16 +21,19 @@ pub enum MainState {
     Motion,
     /// Drives stopped; an error reason is kept.
     Error,
+    /// An NC program runs (entered from READY, back to READY at its end).
+    Auto,
 }
 
 impl MainState {
     /// Every state, in code order.
-    pub const ALL: [MainState; 5] = [
+    pub const ALL: [MainState; 6] = [
         MainState::Reboot,
         MainState::Init,
         MainState::Ready,
         MainState::Motion,
         MainState::Error,
+        MainState::Auto,
     ];
 
     /// The code in the process image (`main_state`).
@@ -50,13 +54,17 @@ impl MainState {
             MainState::Ready => "READY",
             MainState::Motion => "MOTION",
             MainState::Error => "ERROR",
+            MainState::Auto => "AUTO",
         }
     }
 
     /// The states in which the drives may be enabled, and in which STOP and supervision faults
     /// become ERROR (the automaton's superstate `operating`).
     pub fn operating(self) -> bool {
-        matches!(self, MainState::Init | MainState::Ready | MainState::Motion)
+        matches!(
+            self,
+            MainState::Init | MainState::Ready | MainState::Motion | MainState::Auto
+        )
     }
 }
 
@@ -153,6 +161,17 @@ pub trait Application: 'static {
     fn enter_motion(&mut self, io: &mut Self::Io);
     /// One cycle of MOTION: false when the motion has ended (→ READY).
     fn motion(&mut self, io: &mut Self::Io) -> bool;
+    /// In READY, before [`Application::ready`]: true when an NC program starts (→ AUTO). A
+    /// machine without programs never starts one.
+    fn start_auto(&mut self, _io: &mut Self::Io) -> bool {
+        false
+    }
+    /// AUTO entered.
+    fn enter_auto(&mut self, _io: &mut Self::Io) {}
+    /// One cycle of AUTO: false when the program has ended (→ READY).
+    fn auto(&mut self, _io: &mut Self::Io) -> bool {
+        false
+    }
     /// ERROR entered with `reason`: drives off.
     fn enter_error(&mut self, reason: Self::Reason, io: &mut Self::Io);
     /// One cycle of ERROR: drives stay off.
@@ -234,7 +253,9 @@ impl<A: Application> Automaton<A> {
         if *event != Event::Tick {
             return Super;
         }
-        if self.app.ready(io) {
+        if self.app.start_auto(io) {
+            Transition(State::auto())
+        } else if self.app.ready(io) {
             Transition(State::motion())
         } else {
             Handled
@@ -263,6 +284,24 @@ impl<A: Application> Automaton<A> {
     fn enter_motion(&mut self, io: &mut A::Io) {
         self.state = MainState::Motion;
         self.app.enter_motion(io);
+    }
+
+    #[state(superstate = "operating", entry_action = "enter_auto")]
+    fn auto(&mut self, io: &mut A::Io, event: &Event<A::Reason>) -> Outcome<State<A>> {
+        if *event != Event::Tick {
+            return Super;
+        }
+        if self.app.auto(io) {
+            Handled
+        } else {
+            Transition(State::ready())
+        }
+    }
+
+    #[action]
+    fn enter_auto(&mut self, io: &mut A::Io) {
+        self.state = MainState::Auto;
+        self.app.enter_auto(io);
     }
 
     #[state(entry_action = "enter_error")]
@@ -294,6 +333,7 @@ mod tests {
         calls: Vec<&'static str>,
         referenced: bool,
         commanded: bool,
+        program: bool,
     }
 
     #[derive(Default)]
@@ -331,6 +371,17 @@ mod tests {
         fn motion(&mut self, _: &mut Clock) -> bool {
             self.calls.push("motion");
             self.commanded
+        }
+        fn start_auto(&mut self, _: &mut Clock) -> bool {
+            self.calls.push("start_auto");
+            self.program
+        }
+        fn enter_auto(&mut self, _: &mut Clock) {
+            self.calls.push("enter_auto");
+        }
+        fn auto(&mut self, _: &mut Clock) -> bool {
+            self.calls.push("auto");
+            self.program
         }
         fn enter_error(&mut self, _: u8, _: &mut Clock) {
             self.calls.push("enter_error");
@@ -378,11 +429,59 @@ mod tests {
                 "init",
                 "init",
                 "enter_ready",
+                "start_auto",
                 "ready",
                 "enter_motion",
                 "motion",
                 "motion",
                 "enter_ready"
+            ]
+        );
+    }
+
+    #[test]
+    fn a_program_runs_from_ready_in_auto_and_returns_to_ready_and_stop_is_an_error_there() {
+        let mut io = Clock::default();
+        let mut m = Automaton::new(Probe::default()).state_machine();
+        m.handle_with_context(&Event::Tick, &mut io);
+        step(&mut m, &mut io, Event::Tick);
+        unsafe { m.inner_mut().app.referenced = true };
+        assert_eq!(step(&mut m, &mut io, Event::Tick), MainState::Ready);
+        // SAFETY: the probe's answers are not part of the automaton's invariants.
+        unsafe {
+            m.inner_mut().app.program = true;
+            m.inner_mut().app.commanded = true;
+        };
+        assert_eq!(
+            step(&mut m, &mut io, Event::Tick),
+            MainState::Auto,
+            "a start before a jog"
+        );
+        assert_eq!(step(&mut m, &mut io, Event::Tick), MainState::Auto);
+        unsafe { m.inner_mut().app.program = false };
+        assert_eq!(
+            step(&mut m, &mut io, Event::Tick),
+            MainState::Ready,
+            "the program's end"
+        );
+        unsafe { m.inner_mut().app.program = true };
+        assert_eq!(step(&mut m, &mut io, Event::Tick), MainState::Auto);
+        assert_eq!(step(&mut m, &mut io, Event::Stop), MainState::Error);
+        assert_eq!(m.inner().reason, Some(1));
+        let calls = &m.inner().app.calls;
+        let from = calls.iter().position(|c| *c == "enter_ready").unwrap_or(0);
+        assert_eq!(
+            calls[from..],
+            [
+                "enter_ready",
+                "start_auto",
+                "enter_auto",
+                "auto",
+                "auto",
+                "enter_ready",
+                "start_auto",
+                "enter_auto",
+                "enter_error"
             ]
         );
     }
@@ -422,13 +521,16 @@ mod tests {
     }
 
     #[test]
-    fn codes_round_trip_and_only_init_ready_motion_operate() {
+    fn codes_round_trip_and_only_init_ready_motion_auto_operate() {
         for s in MainState::ALL {
             assert_eq!(MainState::from_code(s.code()), Some(s));
         }
-        assert_eq!(MainState::from_code(5), None);
+        assert_eq!(MainState::from_code(6), None);
         let operating: Vec<_> = MainState::ALL.into_iter().filter(|s| s.operating()).collect();
-        assert_eq!(operating, [MainState::Init, MainState::Ready, MainState::Motion]);
+        assert_eq!(
+            operating,
+            [MainState::Init, MainState::Ready, MainState::Motion, MainState::Auto]
+        );
     }
 
     #[test]

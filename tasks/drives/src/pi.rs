@@ -1,5 +1,5 @@
-//! The PI position regulator of one drive, with velocity feed-forward (LinuxCNC's FF1) and
-//! anti-windup by conditional integration.
+//! The PI position regulator of one drive, with velocity and acceleration feed-forward
+//! (LinuxCNC's FF1 and FF2) and anti-windup by conditional integration.
 
 /// Gains and limit of a [`Pi`] regulator.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -12,6 +12,11 @@ pub struct PiGains {
     /// the drive at the set-point's speed comes from the set-point itself, so the integral need
     /// not carry it — and need not unwind, overshooting, when the set-point brakes.
     pub velocity_ff: f64,
+    /// Acceleration feed-forward: output per mm/s² of set-point acceleration (the change of the
+    /// set-point velocity since the last step). A drive whose speed follows its output with a
+    /// lag τ needs τ · `velocity_ff` more while the set-point accelerates; without it the lag
+    /// is a following error that grows with every acceleration.
+    pub accel_ff: f64,
     /// Output limit (symmetric, > 0).
     pub output_limit: f64,
 }
@@ -20,13 +25,17 @@ pub struct PiGains {
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Pi {
     integral: f64,
+    /// The set-point velocity of the last step (for the acceleration).
+    last_velocity: f64,
 }
 
 impl Pi {
     /// One step: returns the output for following error `e` (mm) over `dt` seconds at set-point
     /// velocity `v` (mm/s), clamped to the output limit.
     pub fn step(&mut self, g: &PiGains, e: f64, v: f64, dt: f64) -> f64 {
-        let unclamped = g.velocity_ff * v + g.kp * e + g.ki * (self.integral + e * dt);
+        let accel = (v - self.last_velocity) / dt;
+        self.last_velocity = v;
+        let unclamped = g.velocity_ff * v + g.accel_ff * accel + g.kp * e + g.ki * (self.integral + e * dt);
         let out = unclamped.clamp(-g.output_limit, g.output_limit);
         // Integrate only while the output is not saturated, or when the error drives it back.
         if out == unclamped || unclamped.signum() != e.signum() {
@@ -35,9 +44,10 @@ impl Pi {
         out
     }
 
-    /// Forgets the integral (on enable and after a stop).
+    /// Forgets the integral and the last velocity (on enable and after a stop).
     pub fn reset(&mut self) {
         self.integral = 0.0;
+        self.last_velocity = 0.0;
     }
 }
 
@@ -49,6 +59,7 @@ mod tests {
         kp: 0.25,
         ki: 1.0,
         velocity_ff: 1.0 / 80.0,
+        accel_ff: 0.0,
         output_limit: 1.0,
     };
 
@@ -67,6 +78,20 @@ mod tests {
     fn feed_forward_alone_drives_at_the_set_point_speed() {
         let mut pi = Pi::default();
         assert_eq!(pi.step(&GAINS, 0.0, 40.0, 0.01), 0.5);
+    }
+
+    #[test]
+    fn acceleration_feed_forward_adds_the_lag_of_a_ramp() {
+        let g = PiGains {
+            accel_ff: 0.05 / 80.0,
+            ..GAINS
+        };
+        let mut pi = Pi::default();
+        // 0 → 2 mm/s in 10 ms: 200 mm/s², τ = 50 ms at 80 mm/s full duty: 10 mm/s more.
+        let out = pi.step(&g, 0.0, 2.0, 0.01);
+        assert!((out - (2.0 + 10.0) / 80.0).abs() < 1e-12, "{out}");
+        // At constant speed, none.
+        assert!((pi.step(&g, 0.0, 2.0, 0.01) - 2.0 / 80.0).abs() < 1e-12);
     }
 
     #[test]

@@ -12,7 +12,9 @@ use pkm_api::program::{Cycle, Program, ProgramArgs};
 use pkm_drives::automaton::MainState;
 use pkm_drives::counter::unwrap;
 use pkm_drives::interlock::{InterlockInputs, following_error};
+use pkm_drives::nc::NcChannel;
 use pkm_drives::pi::{Pi, PiGains};
+use pkm_kinematics::MAX_DOF;
 
 use crate::params::{self, DcDrive, DrivesParams, StepperDrive};
 use crate::spec::{DriveKind, Spec};
@@ -79,6 +81,8 @@ pub struct Drives {
     interlock: Output<bool>,
     periods: Vec<Output<u16>>,
     pwm_period_us: u16,
+    /// The loaded NC program's execution: in AUTO it gives the joints' set-points.
+    nc: Option<NcChannel>,
 }
 
 /// Checks the drive parameters of `spec`'s joints; problems against `params.…`.
@@ -144,6 +148,12 @@ fn check(spec: &Spec, p: &DrivesParams, decl: &mut Declare<'_>) {
             decl.issue(
                 &at("velocity_ff"),
                 format!("must be between 0 and 1 duty per mm/s, got {}", d.velocity_ff),
+            );
+        }
+        if !(d.accel_ff.is_finite() && (0.0..=0.1).contains(&d.accel_ff)) {
+            decl.issue(
+                &at("accel_ff"),
+                format!("must be between 0 and 0.1 duty per mm/s², got {}", d.accel_ff),
             );
         }
         if !(d.output_limit > 0.0 && d.output_limit <= 1.0) {
@@ -231,6 +241,7 @@ impl Drives {
                                     kp: d.kp,
                                     ki: d.ki,
                                     velocity_ff: d.velocity_ff,
+                                    accel_ff: d.accel_ff,
                                     output_limit: d.output_limit,
                                 },
                                 p: d,
@@ -286,6 +297,7 @@ impl Drives {
             interlock: decl.write(vars::INTERLOCK, false),
             periods,
             pwm_period_us: p.pwm_period_us.unwrap_or(0),
+            nc: args.nc.map(|job| NcChannel::declare(job, n, decl)),
         })
     }
 }
@@ -352,11 +364,29 @@ impl Program for Drives {
             enabled,
         }
         .engaged();
-        // Between main cycles the set-point moves on at its velocity.
+        // Between main cycles the set-point moves on at its velocity; in AUTO the program sets
+        // it, sampled in this cycle.
         let since = (ctx.time_ns() as f64 * 1e-9 - ctx.get(self.setpoint_time)).max(0.0);
+        let mut targets = [(0.0, 0.0); MAX_DOF];
+        for (t, j) in targets.iter_mut().zip(&self.joints) {
+            let velocity = ctx.get(j.setpoint_velocity);
+            *t = (ctx.get(j.setpoint) + velocity * since, velocity);
+        }
+        if let Some(nc) = &mut self.nc {
+            let mut positions = [0.0; MAX_DOF];
+            for (p, j) in positions.iter_mut().zip(&self.joints) {
+                *p = ctx.output_value(j.position);
+            }
+            let auto = state == Some(MainState::Auto);
+            let n = self.joints.len();
+            if let Some((q, v)) = nc.step(ctx, auto, interlock, &positions[..n]) {
+                for (t, (q, v)) in targets.iter_mut().zip(q.iter().zip(&v)) {
+                    *t = (*q, *v);
+                }
+            }
+        }
         let mut following = false;
-        for j in &mut self.joints {
-            let target = ctx.get(j.setpoint) + ctx.get(j.setpoint_velocity) * since;
+        for (j, (target, _)) in self.joints.iter_mut().zip(targets) {
             let error = target - ctx.output_value(j.position);
             let bound = match &j.outputs {
                 Outputs::Stepper { p, .. } => p.max_following_error_mm,
@@ -369,10 +399,8 @@ impl Program for Drives {
         }
         let interlock = interlock || following;
         ctx.set(self.interlock, interlock);
-        for j in &mut self.joints {
-            let target = ctx.get(j.setpoint) + ctx.get(j.setpoint_velocity) * since;
+        for (j, (target, velocity)) in self.joints.iter_mut().zip(targets) {
             let error = target - ctx.output_value(j.position);
-            let velocity = ctx.get(j.setpoint_velocity);
             match &mut j.outputs {
                 Outputs::Stepper {
                     p,

@@ -91,6 +91,9 @@ pub struct DcDrive {
     pub ki: f64,
     /// Velocity feed-forward: duty per mm/s of set-point velocity.
     pub velocity_ff: f64,
+    /// Acceleration feed-forward: duty per mm/s² of set-point acceleration (the drive's lag τ
+    /// times `velocity_ff`).
+    pub accel_ff: f64,
     /// Output limit (duty, 0 … 1).
     pub output_limit: f64,
     /// A following error beyond this (mm) is a fault.

@@ -13,6 +13,10 @@
 //! - [`check`]: every point of the path, sampled finely, inside the world limits, reachable with
 //!   every joint inside its software limits and away from singularities; the path's length and
 //!   bounding box.
+//! - [`plan`]: the path with its corners blended and a velocity profile within every axis' and
+//!   joint's limits; the program's events (M0, spindle) on its time line.
+//! - [`job`]: a plan as the cyclic programs sample it: joints by inverse kinematics, the
+//!   distance of a measured tool point to the path.
 //!
 //! A small parser of our own rather than the `gcode` crate: that one reads values as `f32`
 //! (seven digits: a 1 µm step is lost beyond 10 m, and 0.1 µm beyond 1 m), is built to skip what
@@ -21,6 +25,7 @@
 
 pub mod check;
 pub mod interp;
+pub mod job;
 pub mod lexer;
 pub mod path;
 pub mod plan;

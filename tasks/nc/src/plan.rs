@@ -15,7 +15,9 @@
 use pkm_kinematics::MAX_DOF;
 use pkm_kinematics::frame::MachineFrame;
 
-use crate::interp::{AXES, Action, Blend, Pose, Program};
+use pkm_api::trajectory::{TrajectoryEvent, TrajectoryEventKind};
+
+use crate::interp::{AXES, Action, Blend, Pose, Program, Spindle};
 use crate::path::Segment;
 
 /// The largest distance between two points of the velocity profile (mm, or degrees where only
@@ -128,6 +130,8 @@ pub struct Plan {
     pub length_mm: f64,
     /// The blocks whose speed is limited below their feed, and why.
     pub limited: Vec<Limited>,
+    /// What happens besides motion (M0/M1, spindle), in time order.
+    pub events: Vec<TrajectoryEvent>,
 }
 
 /// A point of the plan at a time.
@@ -139,6 +143,10 @@ pub struct Sample {
     pub line: usize,
     /// The speed along the path (mm/s).
     pub speed: f64,
+    /// The tangential acceleration bound there (mm/s²).
+    pub accel: f64,
+    /// A rapid (G0) executes.
+    pub rapid: bool,
 }
 
 /// Why a program cannot be planned.
@@ -151,11 +159,28 @@ pub struct PlanError {
     pub message: String,
 }
 
+/// An event of a program before it is placed on the time line: its line, what it does, and how
+/// long the tool has dwelt at its stop before it (s).
+struct Pending {
+    line: usize,
+    kind: TrajectoryEventKind,
+    dwelt_s: f64,
+}
+
 /// The elements of `program` (its moves, corners blended, stops marked) and how long it dwells
 /// before its first move (s).
 pub fn elements(program: &Program) -> (Vec<Element>, f64) {
+    let (elements, dwell, _) = elements_and_events(program);
+    (elements, dwell)
+}
+
+/// [`elements`], and the program's events with their lines.
+fn elements_and_events(program: &Program) -> (Vec<Element>, f64, Vec<Pending>) {
     let mut out: Vec<Element> = Vec::new();
     let mut initial_dwell = 0.0;
+    let mut events = Vec::new();
+    // The dwell at the current stop so far (since the last move).
+    let mut dwelt = 0.0;
     for block in &program.blocks {
         match block.action {
             Action::Move {
@@ -169,6 +194,7 @@ pub fn elements(program: &Program) -> (Vec<Element>, f64) {
                 if segment.length() < 1e-9 {
                     continue;
                 }
+                dwelt = 0.0;
                 out.push(Element {
                     segment,
                     line: block.line,
@@ -181,16 +207,40 @@ pub fn elements(program: &Program) -> (Vec<Element>, f64) {
                     },
                 });
             }
-            Action::Dwell(s) => match out.last_mut() {
-                Some(e) => {
-                    e.stop_after = true;
-                    e.dwell_after_s += s;
+            Action::Dwell(s) => {
+                dwelt += s;
+                match out.last_mut() {
+                    Some(e) => {
+                        e.stop_after = true;
+                        e.dwell_after_s += s;
+                    }
+                    None => initial_dwell += s,
                 }
-                None => initial_dwell += s,
-            },
+            }
             Action::Pause { .. } | Action::Spindle { .. } | Action::End => {
                 if let Some(e) = out.last_mut() {
                     e.stop_after = true;
+                }
+                let kind = match block.action {
+                    Action::Spindle { direction, speed_rpm } => Some(TrajectoryEventKind::Spindle {
+                        direction: match direction {
+                            Spindle::Clockwise => 1,
+                            Spindle::CounterClockwise => -1,
+                            Spindle::Off => 0,
+                        },
+                        rpm: speed_rpm,
+                    }),
+                    // M1 stops as M0 does: the optional-stop switch is taken as on, as
+                    // LinuxCNC's is by default.
+                    Action::Pause { .. } => Some(TrajectoryEventKind::Pause),
+                    _ => None,
+                };
+                if let Some(kind) = kind {
+                    events.push(Pending {
+                        line: block.line,
+                        kind,
+                        dwelt_s: dwelt,
+                    });
                 }
             }
         }
@@ -198,7 +248,7 @@ pub fn elements(program: &Program) -> (Vec<Element>, f64) {
     if let Some(e) = out.last_mut() {
         e.stop_after = true;
     }
-    (blend_corners(out), initial_dwell)
+    (blend_corners(out), initial_dwell, events)
 }
 
 /// Rounds the corners between consecutive lines within their tolerance; marks the others stops.
@@ -303,7 +353,7 @@ fn blend_corners(elements: Vec<Element>) -> Vec<Element> {
 
 /// Plans `program` on the machine `frame` within `limits`.
 pub fn plan(program: &Program, frame: &MachineFrame, limits: &PlanLimits) -> Result<Plan, PlanError> {
-    let (elements, initial_dwell) = elements(program);
+    let (elements, initial_dwell, pending) = elements_and_events(program);
     let n = frame.dof();
     // The points: each element split into at least two intervals.
     let mut points: Vec<Point> = Vec::new();
@@ -499,12 +549,33 @@ pub fn plan(program: &Program, frame: &MachineFrame, limits: &PlanLimits) -> Res
             }),
         }
     }
+    // The events on the time line: each at the stop after the last element of an earlier line
+    // (elements come in line order; a blend takes the line after its corner, and no stop is
+    // blended), after the dwell that came before it there.
+    let events = pending
+        .iter()
+        .map(|e| {
+            let before = elements.partition_point(|el| el.line < e.line);
+            let arrival = if before == 0 {
+                0.0
+            } else {
+                let stop = points.partition_point(|p| (p.element as usize) < before);
+                points.get(stop).or(points.last()).map_or(0.0, |p| p.t)
+            };
+            TrajectoryEvent {
+                t: arrival + e.dwelt_s,
+                line: u32::try_from(e.line).unwrap_or(u32::MAX),
+                kind: e.kind,
+            }
+        })
+        .collect();
     Ok(Plan {
         duration_s: t,
         length_mm: s,
         elements,
         points,
         limited,
+        events,
     })
 }
 
@@ -519,6 +590,11 @@ impl Plan {
         &self.elements
     }
 
+    /// A cursor for [`Plan::sample`] at time `t`, found by bisection.
+    pub fn cursor_at(&self, t: f64) -> usize {
+        self.points.partition_point(|p| p.t <= t).saturating_sub(1)
+    }
+
     /// The pose at time `t` (s from the start); `cursor` remembers where the last call was, so
     /// that sampling forward in time costs O(1) per call. Allocates nothing.
     pub fn sample(&self, t: f64, cursor: &mut usize) -> Sample {
@@ -528,6 +604,8 @@ impl Plan {
                 pose: [0.0; 6],
                 line: 0,
                 speed: 0.0,
+                accel: f64::INFINITY,
+                rapid: false,
             };
         };
         if *cursor >= points.len() || points[*cursor].t > t {
@@ -549,6 +627,8 @@ impl Plan {
                 pose: self.elements[element].segment.at(u),
                 line: self.elements[element].line,
                 speed: 0.0,
+                accel: p.accel,
+                rapid: !self.elements[element].feed.is_finite(),
             };
         }
         let q = &points[i + 1];
@@ -565,6 +645,8 @@ impl Plan {
             pose: self.elements[element].segment.at(u),
             line: self.elements[element].line,
             speed: p.v + a * tau,
+            accel: p.accel.min(q.accel),
+            rapid: !e.feed.is_finite(),
         }
     }
 }

@@ -75,6 +75,8 @@ impl ControlParams {
             kp: self.kp,
             ki: self.ki,
             velocity_ff: self.velocity_ff,
+            // The original's regulator had none; its golden traces depend on that.
+            accel_ff: 0.0,
             output_limit: self.output_limit,
         }
     }

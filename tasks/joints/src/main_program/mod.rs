@@ -21,6 +21,7 @@ use referencing::Search;
 use pkm_api::image::{Declare, Input, Output};
 use pkm_api::program::{AppStatus, Cycle, Program, ProgramArgs};
 use pkm_drives::automaton::{MainState, StopButton, event as automaton_event};
+use pkm_drives::nc::{self, RunState};
 use pkm_kinematics::frame::{Home, MachineFrame};
 use pkm_kinematics::{KinematicsConfig, MAX_DOF, Machine as Model};
 use statig::prelude::*;
@@ -29,6 +30,9 @@ use crate::params::{self, MainParams};
 use crate::spec::Spec;
 use crate::switches::Switches;
 use crate::vars;
+
+/// Room for an error reason with its program line (bytes).
+const REASON_CAPACITY: usize = 512;
 
 /// The longest cycle the main program may run in (µs).
 pub const MAX_MAIN_CYCLE_US: u32 = 100_000;
@@ -54,6 +58,20 @@ struct Vars {
     limit_override: Output<bool>,
     selection: Output<i16>,
     tool: Vec<Output<f64>>,
+    nc: Option<NcVars>,
+}
+
+/// The variables of program execution, declared when a program is loaded.
+struct NcVars {
+    start: Input<bool>,
+    hold: Input<bool>,
+    resume: Input<bool>,
+    state: Input<i16>,
+    line: Input<i32>,
+    pose: Vec<Input<f64>>,
+    command: Output<i16>,
+    /// The buttons' levels last cycle (for the presses' edges).
+    was: [bool; 3],
 }
 
 /// One joint's variables.
@@ -84,6 +102,10 @@ pub struct MainProgram {
     /// Tool pose and joints for the status line: at most 12 values.
     shown: [(&'static str, f64); 12],
     shown_len: usize,
+    /// The program line executing when ERROR was entered from AUTO, and the reason's text with
+    /// it (written into capacity reserved at creation: entering ERROR allocates nothing).
+    error_line: Option<i32>,
+    reason_with_line: String,
 }
 
 /// The pose coordinates' names on the status line.
@@ -336,10 +358,29 @@ impl MainProgram {
             limit_override: decl.write(vars::LIMIT_OVERRIDE, false),
             selection: decl.write(vars::JOG_SELECTION, 0),
             tool: vars::TOOL[..keys.len()].iter().map(|v| decl.write(*v, 0.0)).collect(),
+            nc: args.nc.map(|_| NcVars {
+                start: decl.read_optional(nc::vars::NC_START),
+                hold: decl.read_optional(nc::vars::NC_HOLD),
+                resume: decl.read_optional(nc::vars::NC_RESUME),
+                state: decl.read(nc::vars::NC_STATE),
+                line: decl.read(nc::vars::NC_LINE),
+                pose: nc::vars::NC_POSE[..keys.len()].iter().map(|v| decl.read(*v)).collect(),
+                command: decl.write(nc::vars::NC_COMMAND, nc::Command::Off as i16),
+                was: [false; 3],
+            }),
         };
         let stop = StopButton::new(p.stop_lockout_ms as f64 * 1e-3);
+        let mut main = Main::new(p, frame, soft, pairs);
+        if let Some(job) = args.nc {
+            let mut cursor = 0;
+            let start = job.trajectory.sample(0.0, &mut cursor).pose;
+            let mut pose = [0.0; MAX_DOF];
+            pose[..n.min(MAX_DOF)].copy_from_slice(&start[..n.min(MAX_DOF)]);
+            main.program_start = Some(pose);
+            main.autostart = true;
+        }
         Box::new(MainProgram {
-            machine: Automaton::new(Main::new(p, frame, soft, pairs)).state_machine(),
+            machine: Automaton::new(main).state_machine(),
             io: Io::default(),
             vars,
             n,
@@ -349,6 +390,8 @@ impl MainProgram {
             tool: [0.0; MAX_DOF],
             shown: [("", f64::NAN); 12],
             shown_len: 0,
+            error_line: None,
+            reason_with_line: String::with_capacity(REASON_CAPACITY),
         })
     }
 }
@@ -386,6 +429,17 @@ impl MainProgram {
         let axes = ctx.get(v.axes) || ctx.get(v.joystick_axes);
         io.axes_pressed = axes && !self.axes_was_pressed;
         self.axes_was_pressed = axes;
+        if let Some(nc) = &mut self.vars.nc {
+            let levels = [ctx.get(nc.start), ctx.get(nc.hold), ctx.get(nc.resume)];
+            let [start, hold, resume] = std::array::from_fn(|i| levels[i] && !nc.was[i]);
+            nc.was = levels;
+            (io.nc_start, io.nc_hold, io.nc_resume) = (start, hold, resume);
+            io.nc_state = RunState::from_code(ctx.get(nc.state));
+            io.nc_line = ctx.get(nc.line);
+            for (p, input) in io.nc_pose.iter_mut().zip(&nc.pose) {
+                *p = ctx.get(*input);
+            }
+        }
     }
 
     /// The event of this cycle (the shared rule; this machine's supervision faults in order).
@@ -446,8 +500,15 @@ impl MainProgram {
         ctx.set(v.referenced, io.referenced);
         ctx.set(v.limit_override, io.limit_override);
         ctx.set(v.selection, app.selection as i16);
+        if let (Some(nc), Some(command)) = (&v.nc, io.nc_command) {
+            ctx.set(nc.command, command as i16);
+        }
         let coords = v.tool.len();
         let mut shown = 0;
+        if automaton.state == MainState::Auto {
+            self.shown[shown] = ("line", f64::from(io.nc_line));
+            shown += 1;
+        }
         if io.referenced {
             let mut pose = [0.0; MAX_DOF];
             let hint = self.tool;
@@ -461,7 +522,7 @@ impl MainProgram {
                     ctx.set(*out, pose[c]);
                 }
             }
-            for (name, value) in POSE_NAMES.iter().zip(&self.tool).take(coords) {
+            for (name, value) in POSE_NAMES.iter().zip(&self.tool).take(coords.min(12 - shown)) {
                 self.shown[shown] = (name, *value);
                 shown += 1;
             }
@@ -475,9 +536,27 @@ impl MainProgram {
 }
 
 impl MainProgram {
-    /// What INIT waits for, while it waits in joint mode.
+    /// What INIT waits for, while it waits in joint mode; where the program stands in AUTO; why
+    /// a start was refused in READY.
     fn note(&self) -> Option<&'static str> {
         let a = self.machine.inner();
+        match a.state {
+            MainState::Auto => {
+                return Some(match self.io.nc_state {
+                    Some(RunState::Holding) => "feed hold: braking on the path",
+                    Some(RunState::Held) if a.app.held => "feed hold: the program stands; NC_RESUME goes on",
+                    Some(RunState::Paused) | Some(RunState::Held) => "M0: the program stands; NC_RESUME goes on",
+                    Some(RunState::Done) => "program done",
+                    _ => "running the program",
+                });
+            }
+            MainState::Ready if a.app.start_refused => {
+                return Some(
+                    "program not started: the tool is not at the program's start, the reference pose (STOP, acknowledge and reference to return there)",
+                );
+            }
+            _ => {}
+        }
         if a.state != MainState::Init || a.app.phase != Phase::Waiting {
             return None;
         }
@@ -494,15 +573,36 @@ impl Program for MainProgram {
     fn cycle(&mut self, ctx: &mut Cycle<'_>) {
         self.read(ctx);
         let event = self.event(ctx);
+        let before = self.machine.inner().state;
         self.machine.handle_with_context(&event, &mut self.io);
+        let a = self.machine.inner();
+        if a.state == MainState::Error && before != MainState::Error {
+            // The program line executing goes with the reason.
+            self.error_line = None;
+            if let (MainState::Auto, Some(reason)) = (before, a.reason) {
+                use std::fmt::Write as _;
+                self.error_line = Some(self.io.nc_line);
+                self.reason_with_line.clear();
+                let _ = write!(
+                    self.reason_with_line,
+                    "{} (program line {})",
+                    self.texts.text(reason),
+                    self.io.nc_line
+                );
+            }
+        }
         self.write(ctx);
     }
 
     fn status(&self) -> Option<AppStatus<'_>> {
         let a = self.machine.inner();
+        let reason = match self.error_line {
+            Some(_) => Some(self.reason_with_line.as_str()),
+            None => a.reason.map(|r| self.texts.text(r)),
+        };
         Some(AppStatus {
             state: a.state.name(),
-            reason: a.reason.map(|r| self.texts.text(r)),
+            reason: a.reason.and(reason),
             note: self.note(),
             values: &self.shown[..self.shown_len],
         })

@@ -39,8 +39,9 @@ pub enum Wire {
     JoystickConnected,
 }
 
-/// The panel's buttons' signal keys: STOP, the four directions, the axis button, the override.
-pub const PANEL: [&str; 7] = [
+/// The panel's buttons' signal keys: STOP, the four directions, the axis button, the override;
+/// then the program buttons (start, feed hold, resume), wired after the switches.
+pub const PANEL: [&str; 10] = [
     "stop_button",
     "button_left",
     "button_right",
@@ -48,7 +49,13 @@ pub const PANEL: [&str; 7] = [
     "button_down",
     "button_axes",
     "button_override",
+    "program_start",
+    "program_hold",
+    "program_resume",
 ];
+
+/// How many of [`PANEL`]'s buttons come before the switches (the original panel's).
+const PANEL_BEFORE_SWITCHES: usize = 7;
 
 macro_rules! keys {
     ($suffix:literal) => {
@@ -92,7 +99,7 @@ pub fn signals(spec: &Spec) -> Vec<(Signal, Wire, String)> {
         inputs += 1;
         format!("DI{module}.DigitalInput{channel:02}")
     };
-    for (i, key) in PANEL.iter().enumerate() {
+    for (i, key) in PANEL.iter().enumerate().take(PANEL_BEFORE_SWITCHES) {
         out.push((signal(*key, I, Bool, Role::Button), Wire::Button(i), next_input()));
     }
     let n = spec.joints();
@@ -133,6 +140,9 @@ pub fn signals(spec: &Spec) -> Vec<(Signal, Wire, String)> {
                 ));
             }
         }
+    }
+    for (i, key) in PANEL.iter().enumerate().skip(PANEL_BEFORE_SWITCHES) {
+        out.push((signal(*key, I, Bool, Role::Button), Wire::Button(i), next_input()));
     }
     for j in 0..n {
         let (module, channel) = (j / 2 + 1, j % 2 + 1);

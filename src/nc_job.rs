@@ -1,0 +1,190 @@
+//! An NC program prepared against the configured machine, once, for `nc check` and for
+//! `run --program` alike: its text read and interpreted, every point of its path checked, and
+//! — where every point is reachable — planned within the machine's limits. A program that is
+//! refused, or leaves what the machine can reach, or cannot be planned, never reaches the PLC.
+
+use std::path::Path;
+use std::sync::Arc;
+
+use pkm_api::machine::{Home, Machine, Motion};
+use pkm_api::trajectory::NcJob;
+use pkm_kinematics::frame::{Home as FrameHome, MachineFrame};
+use pkm_kinematics::{KinematicsConfig, Machine as Model};
+use pkm_nc::check::{Limits, Report, check, format_pose};
+use pkm_nc::interp::{self, Program};
+use pkm_nc::job::PlannedProgram;
+use pkm_nc::plan::{Plan, PlanLimits, plan};
+
+use crate::compose::Setup;
+use crate::config::ConfigError;
+
+/// Why a program cannot run: the exit code and the message.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[error("{message}")]
+pub struct NcFailure {
+    /// 1: the program cannot run on the machine (unreachable, unplannable); 2: usage,
+    /// configuration or program text.
+    pub code: u8,
+    /// What to print.
+    pub message: String,
+}
+
+fn fail(code: u8, message: impl Into<String>) -> NcFailure {
+    NcFailure {
+        code,
+        message: message.into(),
+    }
+}
+
+/// A program read and checked against a machine.
+pub struct Prepared {
+    /// The program's file as the user named it.
+    pub name: String,
+    /// The machine.
+    pub machine: &'static dyn Machine,
+    /// The machine's motion limits and home.
+    pub motion: Motion,
+    /// Its geometry.
+    pub kinematics: KinematicsConfig,
+    /// Its kinematic model.
+    pub model: Model,
+    /// Its machine frame (origin at the reference pose).
+    pub frame: MachineFrame,
+    /// The interpreted program.
+    pub program: Program,
+    /// The check of every point of its path.
+    pub report: Report,
+    /// The plan, where every point is reachable.
+    pub plan: Option<Plan>,
+}
+
+impl Prepared {
+    /// The unreachable points, one per line as `FILE:LINE: at POSE: why`.
+    pub fn unreachable_lines(&self) -> Vec<String> {
+        let n = self.frame.dof();
+        self.report
+            .unreachable
+            .iter()
+            .map(|u| format!("{}:{}: at {}: {}", self.name, u.line, format_pose(&u.pose, n), u.why))
+            .collect()
+    }
+
+    /// The program ready to run, or why it cannot (exit code 1: unreachable).
+    pub fn into_job(self) -> Result<NcJob, NcFailure> {
+        let Some(plan) = self.plan else {
+            return Err(fail(
+                1,
+                format!(
+                    "{}: the program leaves what {} can reach; nothing moves:\n{}",
+                    self.name,
+                    self.machine.name(),
+                    self.unreachable_lines().join("\n")
+                ),
+            ));
+        };
+        Ok(NcJob {
+            file: self.name,
+            trajectory: Arc::new(PlannedProgram::new(plan, self.frame)),
+        })
+    }
+}
+
+/// Reads the program `file` and checks and plans it against `setup`'s machine.
+pub fn prepare(setup: &Setup, file: &Path) -> Result<Prepared, NcFailure> {
+    let origin = setup.origin().to_string();
+    let invalid = |problems| {
+        fail(
+            2,
+            ConfigError::Invalid {
+                file: origin.clone(),
+                problems,
+            }
+            .to_string(),
+        )
+    };
+    let machine = setup.machine.ok_or_else(|| {
+        fail(
+            2,
+            format!("{origin}: the configuration names no machine to run the program on"),
+        )
+    })?;
+    let motion = machine.motion(&setup.loaded.json).map_err(invalid)?;
+    let kinematics = KinematicsConfig::from_section(setup.loaded.config.kinematics.as_ref()).map_err(invalid)?;
+    let model = Model::from_name(motion.model).ok_or_else(|| {
+        fail(
+            2,
+            format!("{}: no kinematic model \"{}\"", machine.name(), motion.model),
+        )
+    })?;
+    let home = match &motion.home {
+        Home::Joints(q) => FrameHome::Joints(q),
+        Home::Pose(x) => FrameHome::Pose(x),
+    };
+    let frame = MachineFrame::new(kinematics.build(model), home).map_err(|e| {
+        fail(
+            2,
+            format!("{origin}: the machine's home is not a pose of its kinematics: {e}"),
+        )
+    })?;
+    let name = file.display().to_string();
+    let text = crate::files::read_text(file, crate::files::MAX_TEXT_BYTES)
+        .map_err(|e| fail(2, format!("{name}: cannot read the program: {e}")))?;
+    let n = frame.dof();
+    let keys = frame.kinematics().pose_keys();
+    let nc = &setup.loaded.config.nc;
+    let problems = nc.check(keys);
+    if !problems.is_empty() {
+        return Err(invalid(problems));
+    }
+    let program = interp::read(
+        &text,
+        &interp::Machine {
+            axes: keys,
+            // The program starts at the reference point, the origin of the machine frame.
+            start: [0.0; 6],
+            work_offsets: nc.origins(n),
+        },
+    )
+    .map_err(|e| fail(2, format!("{name}:{e}")))?;
+    let report = check(
+        &program,
+        &Limits {
+            frame: &frame,
+            soft: &motion.soft_limits,
+            world: &motion.world_limits,
+            singularity_threshold: motion.singularity_threshold,
+        },
+    );
+    // Planned only where every point is reachable: the planner needs the joints everywhere.
+    let planned = if report.unreachable.is_empty() {
+        // World-axis limits where the configuration gives them; else the joints' limits bound
+        // every move, rapids included.
+        let per_axis = |v: &Option<Vec<f64>>| {
+            let mut a = [f64::INFINITY; 6];
+            if let Some(v) = v {
+                a[..n].copy_from_slice(v);
+            }
+            a
+        };
+        let limits = PlanLimits {
+            joint_speed: motion.joint_speed.clone(),
+            joint_accel: motion.joint_accel.clone(),
+            axis_speed: per_axis(&nc.axis_speed),
+            axis_accel: per_axis(&nc.axis_accel),
+        };
+        Some(plan(&program, &frame, &limits).map_err(|e| fail(1, format!("{name}: {e}")))?)
+    } else {
+        None
+    };
+    Ok(Prepared {
+        name,
+        machine,
+        motion,
+        kinematics,
+        model,
+        frame,
+        program,
+        report,
+        plan: planned,
+    })
+}

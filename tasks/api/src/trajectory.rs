@@ -1,0 +1,149 @@
+//! A planned motion handed to the cyclic programs: an NC program checked and planned off the
+//! cyclic path before the PLC starts (motion.md), which the fast class samples once per cycle
+//! without allocating. The runtime builds it (the `pkm-nc` crate plans it); the machines' drive
+//! programs execute it (`pkm_drives::nc`); this module is the interface between them.
+
+use std::sync::Arc;
+
+/// The process-image variables of program execution: the main program's and the drive
+/// program's, and what the runtime's summary reads.
+pub mod vars {
+    use crate::image::Var;
+
+    /// Start the program (a press; from READY).
+    pub const NC_START: Var<bool> = Var::new("NC_START");
+    /// Feed hold (a press; in AUTO).
+    pub const NC_HOLD: Var<bool> = Var::new("NC_HOLD");
+    /// Resume after a feed hold or an M0 (a press; in AUTO).
+    pub const NC_RESUME: Var<bool> = Var::new("NC_RESUME");
+    /// The main program's command to the executor (`pkm_drives::nc::Command` code).
+    pub const NC_COMMAND: Var<i16> = Var::new("NC_COMMAND");
+    /// The executor's state (`pkm_drives::nc::RunState` code).
+    pub const NC_STATE: Var<i16> = Var::new("NC_STATE");
+    /// The program line executing (0 before the first block).
+    pub const NC_LINE: Var<i32> = Var::new("NC_LINE");
+    /// Where on the program's planned time line the executor stands (s).
+    pub const NC_TIME_S: Var<f64> = Var::new("NC_TIME_S");
+    /// The commanded tool pose, per pose coordinate (machine frame, mm and degrees).
+    pub const NC_POSE: [Var<f64>; 6] = [
+        Var::new("NC_X"),
+        Var::new("NC_Y"),
+        Var::new("NC_Z"),
+        Var::new("NC_A"),
+        Var::new("NC_B"),
+        Var::new("NC_C"),
+    ];
+    /// The spindle turns (M3 or M4).
+    pub const SPINDLE_ON: Var<bool> = Var::new("SPINDLE_ON");
+    /// The spindle turns counter-clockwise (M4).
+    pub const SPINDLE_REVERSE: Var<bool> = Var::new("SPINDLE_REVERSE");
+    /// The programmed spindle speed (rpm; 0 when off).
+    pub const SPINDLE_RPM: Var<f64> = Var::new("SPINDLE_RPM");
+    /// The contour error now: the distance from the measured tool point to the programmed path
+    /// (mm), measured on feed moves (G1, G2, G3; not on rapids).
+    pub const NC_CONTOUR_ERROR: Var<f64> = Var::new("NC_CONTOUR_ERROR");
+    /// The run's largest contour error so far (mm).
+    pub const NC_CONTOUR_MAX: Var<f64> = Var::new("NC_CONTOUR_MAX");
+    /// The run's RMS contour error so far (mm).
+    pub const NC_CONTOUR_RMS: Var<f64> = Var::new("NC_CONTOUR_RMS");
+    /// The run's largest following error per joint (mm).
+    pub const NC_FOLLOWING_MAX: [Var<f64>; 6] = [
+        Var::new("NC_JOINT1_FOLLOWING_MAX"),
+        Var::new("NC_JOINT2_FOLLOWING_MAX"),
+        Var::new("NC_JOINT3_FOLLOWING_MAX"),
+        Var::new("NC_JOINT4_FOLLOWING_MAX"),
+        Var::new("NC_JOINT5_FOLLOWING_MAX"),
+        Var::new("NC_JOINT6_FOLLOWING_MAX"),
+    ];
+    /// How long the current (or last) run has lasted, holds and pauses included (s).
+    pub const NC_RUN_S: Var<f64> = Var::new("NC_RUN_S");
+    /// The last run reached the program's end.
+    pub const NC_COMPLETED: Var<bool> = Var::new("NC_COMPLETED");
+}
+
+/// The most joints or pose coordinates a trajectory has (x y z a b c).
+pub const MAX_AXES: usize = 6;
+
+/// The trajectory at one instant.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct TrajectorySample {
+    /// The commanded tool pose (machine frame: mm and degrees, x y z a b c; unused ones 0).
+    pub pose: [f64; MAX_AXES],
+    /// The joints for that pose (mm; unused ones 0).
+    pub joints: [f64; MAX_AXES],
+    /// The program line executing (1-based; 0 before the first block).
+    pub line: u32,
+    /// The planned speed along the path (mm/s, or degrees/s where only rotations move).
+    pub speed: f64,
+    /// The largest change of speed along the path the machine's limits allow here (mm/s²): a
+    /// feed hold brakes, and a resume accelerates, with it.
+    pub accel: f64,
+    /// A rapid (G0) executes: no programmed feed, no contour to keep.
+    pub rapid: bool,
+}
+
+/// What happens at an instant of a program besides motion (the tool is at rest there).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum TrajectoryEventKind {
+    /// M0, or M1 (the optional stop): wait for a resume.
+    Pause,
+    /// M3 (1), M4 (−1), M5 (0) with the programmed speed (rpm).
+    Spindle {
+        /// 1 clockwise, −1 counter-clockwise, 0 off.
+        direction: i8,
+        /// The programmed speed (rpm).
+        rpm: f64,
+    },
+}
+
+/// A timed event of a trajectory.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TrajectoryEvent {
+    /// When (s from the program's start, on its planned time line).
+    pub t: f64,
+    /// Its program line.
+    pub line: u32,
+    /// What it does.
+    pub kind: TrajectoryEventKind,
+}
+
+/// A planned program as the cyclic programs see it. Every method is allocation-free and
+/// deterministic; `sample` and `path_distance` run in the fast class.
+pub trait Trajectory: Send + Sync {
+    /// The machine's number of joints (and pose coordinates).
+    fn dof(&self) -> usize;
+    /// The planned duration (s), dwells included, pauses excluded.
+    fn duration_s(&self) -> f64;
+    /// The path's length (mm).
+    fn length_mm(&self) -> f64;
+    /// The trajectory at `t` (s, clamped to 0 … duration). `cursor` remembers where the last call
+    /// was, so that sampling forward in time costs O(1).
+    fn sample(&self, t: f64, cursor: &mut usize) -> TrajectorySample;
+    /// The events, in time order.
+    fn events(&self) -> &[TrajectoryEvent];
+    /// The tool pose for `joints` (forward kinematics, machine frame), found from `hint` (the
+    /// last pose); false where the mechanism has no pose for them.
+    fn forward(&self, joints: &[f64], hint: &[f64; MAX_AXES], pose: &mut [f64; MAX_AXES]) -> bool;
+    /// The distance (mm) from the tool point (x y z of `pose`; x y on a planar machine) to the
+    /// programmed path near the time `t` (s): where a tool that lags or leads its set-point
+    /// might be.
+    fn path_distance(&self, pose: &[f64; MAX_AXES], t: f64) -> f64;
+}
+
+/// An NC program ready to run: its file and its trajectory.
+#[derive(Clone)]
+pub struct NcJob {
+    /// The program's file, as the user named it.
+    pub file: String,
+    /// Its trajectory.
+    pub trajectory: Arc<dyn Trajectory>,
+}
+
+impl std::fmt::Debug for NcJob {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("NcJob")
+            .field("file", &self.file)
+            .field("duration_s", &self.trajectory.duration_s())
+            .finish()
+    }
+}

@@ -1,0 +1,395 @@
+//! Executing an NC program in the fast class (motion.md, Execution): the [`Executor`] walks the
+//! planned trajectory once per cycle — feed hold and resume as a change of the rate at which
+//! it walks, M0 as a pause at its block, M3/M4/M5 as the spindle's state — and the
+//! [`NcChannel`] is its process-image side: the main program's command in, the joints'
+//! set-points out to the drive program, the executing line, the commanded pose, the spindle
+//! outputs, and the run's measured contour and following errors for the summary.
+//!
+//! The main program decides (AUTO entered, start, hold, resume); the executor only follows its
+//! command. It allocates nothing and reads no clock: time is the cycle's.
+
+use std::sync::Arc;
+
+use pkm_api::image::{Declare, Input, Output};
+use pkm_api::program::Cycle;
+use pkm_api::trajectory::{MAX_AXES, NcJob, Trajectory, TrajectoryEventKind, TrajectorySample};
+
+pub use pkm_api::trajectory::vars;
+
+/// What the main program asks of the executor.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Command {
+    /// Not in AUTO: the executor is idle, the next `Run` starts the program from its beginning.
+    Off = 0,
+    /// Run: start from idle, resume from a hold.
+    Run = 1,
+    /// Feed hold: brake along the path and stand; an M0 pause is left by a hold, then a run.
+    Hold = 2,
+}
+
+impl Command {
+    /// The command with this code (anything unknown is `Off`: stand still).
+    pub fn from_code(code: i16) -> Command {
+        match code {
+            1 => Command::Run,
+            2 => Command::Hold,
+            _ => Command::Off,
+        }
+    }
+}
+
+/// Where the executor stands.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RunState {
+    /// No program running.
+    Idle = 0,
+    /// Walking the trajectory at the programmed rate.
+    Running = 1,
+    /// A feed hold: braking along the path.
+    Holding = 2,
+    /// Standing after a feed hold (or a paused M0 the main program took over).
+    Held = 3,
+    /// Standing at an M0 (or M1) until the main program holds and resumes.
+    Paused = 4,
+    /// At the program's end.
+    Done = 5,
+}
+
+impl RunState {
+    /// Every state, in code order.
+    pub const ALL: [RunState; 6] = [
+        RunState::Idle,
+        RunState::Running,
+        RunState::Holding,
+        RunState::Held,
+        RunState::Paused,
+        RunState::Done,
+    ];
+
+    /// The state with this code.
+    pub fn from_code(code: i16) -> Option<RunState> {
+        RunState::ALL.into_iter().find(|s| *s as i16 == code)
+    }
+
+    /// The name shown to users.
+    pub fn name(self) -> &'static str {
+        match self {
+            RunState::Idle => "idle",
+            RunState::Running => "running",
+            RunState::Holding => "holding",
+            RunState::Held => "held",
+            RunState::Paused => "paused (M0)",
+            RunState::Done => "done",
+        }
+    }
+}
+
+/// The trajectory walker.
+pub struct Executor {
+    trajectory: Arc<dyn Trajectory>,
+    state: RunState,
+    /// Where on the planned time line (s).
+    t: f64,
+    /// How fast the time line is walked (0 … 1): a feed hold brings it to 0.
+    rate: f64,
+    cursor: usize,
+    ahead: usize,
+    next_event: usize,
+    spindle: i8,
+    rpm: f64,
+    /// The executing line, kept at an event's.
+    line: u32,
+    current: TrajectorySample,
+    velocities: [f64; MAX_AXES],
+}
+
+impl Executor {
+    /// An idle executor of `trajectory`, standing at its start.
+    pub fn new(trajectory: Arc<dyn Trajectory>) -> Executor {
+        let mut cursor = 0;
+        let current = trajectory.sample(0.0, &mut cursor);
+        Executor {
+            trajectory,
+            state: RunState::Idle,
+            t: 0.0,
+            rate: 0.0,
+            cursor: 0,
+            ahead: 0,
+            next_event: 0,
+            spindle: 0,
+            rpm: 0.0,
+            line: current.line,
+            current,
+            velocities: [0.0; MAX_AXES],
+        }
+    }
+
+    /// Its state.
+    pub fn state(&self) -> RunState {
+        self.state
+    }
+
+    /// Where on the planned time line it stands (s).
+    pub fn time_s(&self) -> f64 {
+        self.t
+    }
+
+    /// The trajectory where it stands.
+    pub fn sample(&self) -> &TrajectorySample {
+        &self.current
+    }
+
+    /// The joints' velocities (mm/s) towards where it stands next cycle.
+    pub fn velocities(&self) -> &[f64; MAX_AXES] {
+        &self.velocities
+    }
+
+    /// The executing line.
+    pub fn line(&self) -> u32 {
+        self.line
+    }
+
+    /// The spindle: direction (1, −1, 0) and speed (rpm).
+    pub fn spindle(&self) -> (i8, f64) {
+        (self.spindle, self.rpm)
+    }
+
+    /// The trajectory.
+    pub fn trajectory(&self) -> &Arc<dyn Trajectory> {
+        &self.trajectory
+    }
+
+    /// One cycle of `dt` seconds under `command`; `frozen` (the drives' interlock is engaged)
+    /// stands still where it is. Afterwards [`Executor::sample`] is the set-point for this
+    /// cycle and [`Executor::velocities`] the joints' velocities towards the next one.
+    pub fn step(&mut self, command: Command, dt: f64, frozen: bool) {
+        match (command, self.state) {
+            (Command::Off, _) => {
+                self.state = RunState::Idle;
+                self.spindle = 0;
+                self.rpm = 0.0;
+            }
+            (Command::Run, RunState::Idle) => {
+                self.state = RunState::Running;
+                self.t = 0.0;
+                self.rate = 1.0;
+                self.cursor = 0;
+                self.next_event = 0;
+            }
+            (Command::Run, RunState::Holding | RunState::Held) => self.state = RunState::Running,
+            (Command::Hold, RunState::Running) => self.state = RunState::Holding,
+            (Command::Hold, RunState::Paused) => self.state = RunState::Held,
+            _ => {}
+        }
+        self.velocities = [0.0; MAX_AXES];
+        if frozen {
+            self.rate = 0.0;
+        }
+        self.current = self.trajectory.sample(self.t, &mut self.cursor);
+        let duration = self.trajectory.duration_s();
+        let moving = matches!(self.state, RunState::Running | RunState::Holding) && !frozen;
+        if moving && self.t >= duration {
+            self.state = RunState::Done;
+        }
+        if self.state == RunState::Paused {
+            // Standing at the M0: its line is the one executing.
+            self.current.line = self.line;
+        } else {
+            self.line = self.current.line;
+        }
+        if !moving || self.state == RunState::Done {
+            return;
+        }
+        // The rate changes so that the speed along the path changes by at most the
+        // trajectory's tangential acceleration bound: v·dr/dt ≤ a.
+        let change = if self.current.speed > 1e-9 {
+            self.current.accel * dt / self.current.speed
+        } else {
+            1.0
+        };
+        if self.state == RunState::Holding {
+            self.rate = (self.rate - change).max(0.0);
+            if self.rate == 0.0 {
+                self.state = RunState::Held;
+                return;
+            }
+        } else {
+            self.rate = (self.rate + change).min(1.0);
+        }
+        // Where the next cycle stands; the events on the way happen (the tool is at rest at
+        // each), a pause stops there.
+        let mut next = (self.t + self.rate * dt).min(duration);
+        let events = self.trajectory.events();
+        while let Some(e) = events.get(self.next_event)
+            && e.t <= next
+        {
+            self.next_event += 1;
+            match e.kind {
+                TrajectoryEventKind::Spindle { direction, rpm } => {
+                    self.spindle = direction;
+                    self.rpm = if direction == 0 { 0.0 } else { rpm };
+                }
+                TrajectoryEventKind::Pause => {
+                    next = e.t.max(self.t);
+                    self.line = e.line;
+                    self.state = RunState::Paused;
+                    self.rate = 0.0;
+                    break;
+                }
+            }
+        }
+        self.ahead = self.cursor;
+        let ahead = self.trajectory.sample(next, &mut self.ahead);
+        for (v, (q1, q0)) in self
+            .velocities
+            .iter_mut()
+            .zip(ahead.joints.iter().zip(&self.current.joints))
+        {
+            *v = (q1 - q0) / dt;
+        }
+        self.t = next;
+    }
+}
+
+/// The process-image side of program execution, declared by a machine's drive program when a
+/// program is loaded.
+pub struct NcChannel {
+    executor: Executor,
+    command: Input<i16>,
+    state: Output<i16>,
+    line: Output<i32>,
+    time: Output<f64>,
+    pose: Vec<Output<f64>>,
+    spindle_on: Output<bool>,
+    spindle_reverse: Output<bool>,
+    spindle_rpm: Output<f64>,
+    contour: Output<f64>,
+    contour_max: Output<f64>,
+    contour_rms: Output<f64>,
+    following_max: Vec<Output<f64>>,
+    run_s: Output<f64>,
+    completed: Output<bool>,
+    /// The measured tool pose of the last cycle (the forward kinematics' start).
+    measured: [f64; MAX_AXES],
+    squares: f64,
+    samples: u64,
+}
+
+impl NcChannel {
+    /// Declares the execution's variables for `job` on a machine whose pose coordinates are
+    /// `coordinates` long (the first ones of x y z a b c).
+    pub fn declare(job: &NcJob, coordinates: usize, decl: &mut Declare<'_>) -> NcChannel {
+        let trajectory = Arc::clone(&job.trajectory);
+        let n = trajectory.dof();
+        let executor = Executor::new(trajectory);
+        let measured = executor.sample().pose;
+        NcChannel {
+            executor,
+            command: decl.read(vars::NC_COMMAND),
+            state: decl.write(vars::NC_STATE, RunState::Idle as i16),
+            line: decl.write(vars::NC_LINE, 0),
+            time: decl.write(vars::NC_TIME_S, 0.0),
+            pose: vars::NC_POSE[..coordinates.min(MAX_AXES)]
+                .iter()
+                .map(|v| decl.write(*v, 0.0))
+                .collect(),
+            spindle_on: decl.write(vars::SPINDLE_ON, false),
+            spindle_reverse: decl.write(vars::SPINDLE_REVERSE, false),
+            spindle_rpm: decl.write(vars::SPINDLE_RPM, 0.0),
+            contour: decl.write(vars::NC_CONTOUR_ERROR, 0.0),
+            contour_max: decl.write(vars::NC_CONTOUR_MAX, 0.0),
+            contour_rms: decl.write(vars::NC_CONTOUR_RMS, 0.0),
+            following_max: vars::NC_FOLLOWING_MAX[..n.min(MAX_AXES)]
+                .iter()
+                .map(|v| decl.write(*v, 0.0))
+                .collect(),
+            run_s: decl.write(vars::NC_RUN_S, 0.0),
+            completed: decl.write(vars::NC_COMPLETED, false),
+            measured,
+            squares: 0.0,
+            samples: 0,
+        }
+    }
+
+    /// One fast cycle: `auto` (the main state is AUTO), `interlock` (the drives are being
+    /// stopped), the joints' measured `positions`. Returns the joints' set-points and
+    /// velocities while the program drives them (in AUTO).
+    pub fn step(
+        &mut self,
+        ctx: &mut Cycle<'_>,
+        auto: bool,
+        interlock: bool,
+        positions: &[f64],
+    ) -> Option<([f64; MAX_AXES], [f64; MAX_AXES])> {
+        let dt = ctx.period_ns() as f64 * 1e-9;
+        let command = if auto {
+            Command::from_code(ctx.get(self.command))
+        } else {
+            Command::Off
+        };
+        let before = self.executor.state();
+        self.executor.step(command, dt, interlock);
+        let state = self.executor.state();
+        if before == RunState::Idle && state != RunState::Idle {
+            // A new run: its measurements start afresh.
+            self.squares = 0.0;
+            self.samples = 0;
+            self.measured = self.executor.sample().pose;
+            ctx.set(self.contour, 0.0);
+            ctx.set(self.contour_max, 0.0);
+            ctx.set(self.contour_rms, 0.0);
+            ctx.set(self.run_s, 0.0);
+            ctx.set(self.completed, false);
+            for f in &self.following_max {
+                ctx.set(*f, 0.0);
+            }
+        }
+        ctx.set(self.state, state as i16);
+        if state == RunState::Done {
+            ctx.set(self.completed, true);
+        }
+        let sample = *self.executor.sample();
+        ctx.set(self.line, i32::try_from(self.executor.line()).unwrap_or(i32::MAX));
+        ctx.set(self.time, self.executor.time_s());
+        for (out, value) in self.pose.iter().zip(&sample.pose) {
+            ctx.set(*out, *value);
+        }
+        let (direction, rpm) = self.executor.spindle();
+        // The spindle stops with the drives.
+        let turning = auto && direction != 0 && !interlock;
+        ctx.set(self.spindle_on, turning);
+        ctx.set(self.spindle_reverse, turning && direction < 0);
+        ctx.set(self.spindle_rpm, if turning { rpm } else { 0.0 });
+        if !auto || state == RunState::Idle {
+            return None;
+        }
+        if state != RunState::Done {
+            // The run's measurements: the measured tool point against the programmed path,
+            // each joint against its set-point.
+            ctx.set(self.run_s, ctx.output_value(self.run_s) + dt);
+            let trajectory = self.executor.trajectory();
+            let mut pose = [0.0; MAX_AXES];
+            if trajectory.forward(positions, &self.measured, &mut pose) {
+                self.measured = pose;
+            }
+            // The contour is kept on feed moves; a rapid has none to keep.
+            if !sample.rapid {
+                let error = trajectory.path_distance(&self.measured, self.executor.time_s());
+                self.squares += error * error;
+                self.samples += 1;
+                ctx.set(self.contour, error);
+                if error > ctx.output_value(self.contour_max) {
+                    ctx.set(self.contour_max, error);
+                }
+                ctx.set(self.contour_rms, (self.squares / self.samples as f64).sqrt());
+            }
+            for ((out, q), s) in self.following_max.iter().zip(positions).zip(&sample.joints) {
+                let e = (q - s).abs();
+                if e > ctx.output_value(*out) {
+                    ctx.set(*out, e);
+                }
+            }
+        }
+        Some((sample.joints, *self.executor.velocities()))
+    }
+}
