@@ -425,7 +425,11 @@ fn cmd_run(args: RunArgs) -> Result<(), Failure> {
     let summary_file = args.summary.as_deref().map(OutputFile::create).transpose()?;
     if let Some(path) = &args.trace {
         let digest = setup.digest()?;
-        let recorder = pkm_plc::trace::record::Recorder::create(path, &plc, &digest)
+        let program = job.as_ref().map(|j| pkm_plc::trace::TraceProgram {
+            file: j.file.clone(),
+            text: j.text.clone(),
+        });
+        let recorder = pkm_plc::trace::record::Recorder::create_with(path, &plc, &digest, program)
             .map_err(|e| Failure::run(format!("{}: cannot create the trace: {e}", path.display())))?;
         plc.set_recorder(Box::new(recorder));
     }

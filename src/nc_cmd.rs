@@ -58,6 +58,7 @@ pub fn run(args: NcArgs, load: impl Fn(&ConfigArg) -> Result<LoadedConfig, Confi
     let Prepared {
         name,
         machine,
+        text: _,
         motion,
         kinematics,
         model,

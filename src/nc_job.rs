@@ -40,6 +40,8 @@ fn fail(code: u8, message: impl Into<String>) -> NcFailure {
 pub struct Prepared {
     /// The program's file as the user named it.
     pub name: String,
+    /// Its text.
+    pub text: String,
     /// The machine.
     pub machine: &'static dyn Machine,
     /// The machine's motion limits and home.
@@ -84,6 +86,7 @@ impl Prepared {
         };
         Ok(NcJob {
             file: self.name,
+            text: self.text,
             trajectory: Arc::new(PlannedProgram::new(plan, self.frame)),
         })
     }
@@ -91,6 +94,14 @@ impl Prepared {
 
 /// Reads the program `file` and checks and plans it against `setup`'s machine.
 pub fn prepare(setup: &Setup, file: &Path) -> Result<Prepared, NcFailure> {
+    let name = file.display().to_string();
+    let text = crate::files::read_text(file, crate::files::MAX_TEXT_BYTES)
+        .map_err(|e| fail(2, format!("{name}: cannot read the program: {e}")))?;
+    prepare_text(setup, name, text)
+}
+
+/// Checks and plans the program `text` (from the file `name`) against `setup`'s machine.
+pub fn prepare_text(setup: &Setup, name: String, text: String) -> Result<Prepared, NcFailure> {
     let origin = setup.origin().to_string();
     let invalid = |problems| {
         fail(
@@ -126,9 +137,6 @@ pub fn prepare(setup: &Setup, file: &Path) -> Result<Prepared, NcFailure> {
             format!("{origin}: the machine's home is not a pose of its kinematics: {e}"),
         )
     })?;
-    let name = file.display().to_string();
-    let text = crate::files::read_text(file, crate::files::MAX_TEXT_BYTES)
-        .map_err(|e| fail(2, format!("{name}: cannot read the program: {e}")))?;
     let n = frame.dof();
     let keys = frame.kinematics().pose_keys();
     let nc = &setup.loaded.config.nc;
@@ -178,6 +186,7 @@ pub fn prepare(setup: &Setup, file: &Path) -> Result<Prepared, NcFailure> {
     };
     Ok(Prepared {
         name,
+        text,
         machine,
         motion,
         kinematics,

@@ -42,6 +42,19 @@ pub struct Header {
     pub task_classes: Vec<ClassHeader>,
     /// Every variable that appears, with its type.
     pub variables: BTreeMap<String, VarType>,
+    /// The NC program the run executed (`run --program`): a replay plans it again.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub program: Option<TraceProgram>,
+}
+
+/// An NC program as a trace carries it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TraceProgram {
+    /// Its file, as the run named it.
+    pub file: String,
+    /// Its text.
+    pub text: String,
 }
 
 /// One task class in a header.

@@ -206,6 +206,7 @@ impl TraceReader {
                 bus: String::new(),
                 task_classes: Vec::new(),
                 variables: Default::default(),
+                program: None,
             },
             classes: HashMap::new(),
             variables: Vec::new(),

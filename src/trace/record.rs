@@ -130,6 +130,16 @@ pub struct Recorder {
 impl Recorder {
     /// Creates the trace file, writes its header and starts the writer thread.
     pub fn create(path: &Path, plc: &Plc, config_digest: &str) -> io::Result<Recorder> {
+        Recorder::create_with(path, plc, config_digest, None)
+    }
+
+    /// [`Recorder::create`] for a run that executes an NC program: the header carries it.
+    pub fn create_with(
+        path: &Path,
+        plc: &Plc,
+        config_digest: &str,
+        program: Option<super::TraceProgram>,
+    ) -> io::Result<Recorder> {
         let file = Output::create(path)?;
         let vars = plc.vars().vars();
         let name = |i: &VarIndex| vars[usize::from(*i)].name.clone();
@@ -148,6 +158,7 @@ impl Recorder {
                 })
                 .collect(),
             variables: vars.iter().map(|v| (v.name.clone(), v.ty)).collect(),
+            program,
         };
         let var_names: Vec<String> = vars.iter().map(|v| v.name.clone()).collect();
         let class_names: Vec<String> = plc.classes().map(|c| c.name.to_string()).collect();

@@ -82,9 +82,18 @@ pub fn replay(trace: &Path, setup: &Setup, force: bool) -> Result<ReplayReport, 
             header.config_digest
         )));
     }
-    // The bus only declares the I/O map's variables: replayed cycles never call it.
-    let mut plc = setup.plc(setup.declaring_bus()?)?;
     let refused = |m: String| ReplayError::Refused(format!("{}: {m}", trace.display()));
+    // The program the run executed, planned again as it was then.
+    let job = match &header.program {
+        Some(p) => Some(
+            crate::nc_job::prepare_text(setup, p.file.clone(), p.text.clone())
+                .and_then(crate::nc_job::Prepared::into_job)
+                .map_err(|e| refused(format!("its program {}: {e}", p.file)))?,
+        ),
+        None => None,
+    };
+    // The bus only declares the I/O map's variables: replayed cycles never call it.
+    let mut plc = setup.plc_with(setup.declaring_bus()?, job.as_ref())?;
     let mut index = std::collections::HashMap::new();
     let mut by_position: Vec<VarIndex> = Vec::new();
     for (name, ty) in &header.variables {

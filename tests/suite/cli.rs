@@ -12,7 +12,7 @@ fn check_accepts_the_default_configuration() {
     assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
     assert_eq!(
         String::from_utf8_lossy(&o.stdout),
-        "config.json: valid (3 task classes: fast (10 ms), main (50 ms), spare (100 ms); 58 process-image variables; I/O map: io-map/trijoint.json)\n"
+        "config.json: valid (3 task classes: fast (10 ms), main (50 ms), spare (100 ms); 63 process-image variables; I/O map: io-map/trijoint.json)\n"
     );
 }
 

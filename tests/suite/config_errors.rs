@@ -479,7 +479,7 @@ fn safety_relevant_settings_are_refused_naming_the_key() {
             "input \"BUTTON_STOP\" is latched by class \"spare\" (100 ms) but read by \"trijoint.control\" in class \"fast\" (10 ms), which would see it up to 100 ms late: bind it to \"fast\"",
         ),
         (
-            problems_of(no_change, |m| m["bindings"][13]["task_class"] = "spare".into()),
+            problems_of(no_change, |m| m["bindings"][18]["task_class"] = "spare".into()),
             "output \"velocity_right_set\" is written by \"trijoint.control\" in class \"fast\" (10 ms) but exchanged by class \"spare\" (100 ms), so the module would see it up to 100 ms late: bind it to \"fast\"",
         ),
         (

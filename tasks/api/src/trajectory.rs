@@ -130,11 +130,13 @@ pub trait Trajectory: Send + Sync {
     fn path_distance(&self, pose: &[f64; MAX_AXES], t: f64) -> f64;
 }
 
-/// An NC program ready to run: its file and its trajectory.
+/// An NC program ready to run: its file, its text and its trajectory.
 #[derive(Clone)]
 pub struct NcJob {
     /// The program's file, as the user named it.
     pub file: String,
+    /// The program's text (traces carry it, so that a replay plans the same program).
+    pub text: String,
     /// Its trajectory.
     pub trajectory: Arc<dyn Trajectory>,
 }

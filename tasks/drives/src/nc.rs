@@ -393,3 +393,153 @@ impl NcChannel {
         Some((sample.joints, *self.executor.velocities()))
     }
 }
+
+/// The main program's side of program execution, the same on every machine: the program
+/// buttons' presses, the start (by itself at the first READY after `run --program`, then by
+/// NC_START, only where the program starts), feed hold and resume (an M0 taken over as a hold),
+/// and the command to the executor.
+#[derive(Clone, Debug, Default)]
+pub struct ProgramControl {
+    /// The buttons' levels last cycle: start, hold, resume.
+    was: [bool; 3],
+    /// This cycle's presses (rising edges): start, hold, resume.
+    pressed: [bool; 3],
+    /// The program stands: a feed hold, or an M0 taken over as one.
+    held: bool,
+    /// A resume pressed, taken once the program stands.
+    resume_pending: bool,
+    /// The last start was refused: the tool is not where the program starts.
+    refused: bool,
+    /// The next READY starts the program by itself.
+    autostart: bool,
+    /// The command to the executor.
+    command: Option<Command>,
+}
+
+/// The operator's notes about the program.
+pub mod notes {
+    /// A start refused in READY.
+    pub const NOT_AT_START: &str = "program not started: the tool is not at the program's start, the reference pose (STOP, acknowledge and reference to return there)";
+}
+
+impl ProgramControl {
+    /// The control of a loaded program, which starts by itself at the first READY.
+    pub fn loaded() -> ProgramControl {
+        ProgramControl {
+            autostart: true,
+            command: Some(Command::Off),
+            ..ProgramControl::default()
+        }
+    }
+
+    /// Takes the program buttons' levels of this cycle (start, hold, resume).
+    pub fn buttons(&mut self, levels: [bool; 3]) {
+        self.pressed = std::array::from_fn(|i| levels[i] && !self.was[i]);
+        self.was = levels;
+    }
+
+    /// In READY: whether the program starts now. `at_start`: the tool stands where the program
+    /// starts.
+    pub fn start(&mut self, at_start: bool) -> bool {
+        if self.command.is_none() || !(self.pressed[0] || std::mem::take(&mut self.autostart)) {
+            return false;
+        }
+        self.refused = !at_start;
+        at_start
+    }
+
+    /// AUTO entered: the program runs.
+    pub fn enter(&mut self) {
+        self.held = false;
+        self.resume_pending = false;
+        self.command = Some(Command::Run);
+    }
+
+    /// One cycle of AUTO with the executor in `state`: false once the program has ended.
+    pub fn auto(&mut self, state: Option<RunState>) -> bool {
+        let [_, hold, resume] = self.pressed;
+        if hold || state == Some(RunState::Paused) {
+            self.held = true;
+            self.resume_pending = false;
+        }
+        self.resume_pending |= resume && self.held;
+        // A resume goes through once the executor stands held (an M0 becomes held one cycle
+        // after this program holds it).
+        if self.resume_pending && state == Some(RunState::Held) {
+            self.held = false;
+            self.resume_pending = false;
+        }
+        self.command = Some(if self.held { Command::Hold } else { Command::Run });
+        state != Some(RunState::Done)
+    }
+
+    /// AUTO left (to READY or ERROR), or ERROR entered: the executor goes idle.
+    pub fn leave(&mut self) {
+        self.command = self.command.map(|_| Command::Off);
+    }
+
+    /// Something else happened in READY (a jog): a refused start is forgotten.
+    pub fn forget_refusal(&mut self) {
+        self.refused = false;
+    }
+
+    /// The command to the executor (`None`: no program loaded).
+    pub fn command(&self) -> Option<Command> {
+        self.command
+    }
+
+    /// The operator's note: in AUTO where the program stands (executor in `state`); in READY
+    /// why a start was refused.
+    pub fn note(&self, auto: bool, state: Option<RunState>) -> Option<&'static str> {
+        if !auto {
+            return self.refused.then_some(notes::NOT_AT_START);
+        }
+        Some(match state {
+            Some(RunState::Holding) => "feed hold: braking on the path",
+            Some(RunState::Held) if !self.resume_pending && self.held => {
+                "the program stands (feed hold or M0): NC_RESUME goes on"
+            }
+            Some(RunState::Paused) => "M0: the program stands; NC_RESUME goes on",
+            Some(RunState::Done) => "program done",
+            _ => "running the program",
+        })
+    }
+}
+
+/// An error reason with the program line that was executing (motion.md: STOP and faults in
+/// AUTO name the line), written into capacity reserved at creation: entering ERROR allocates
+/// nothing.
+#[derive(Clone, Debug)]
+pub struct LineReason {
+    with_line: Option<i32>,
+    text: String,
+}
+
+impl Default for LineReason {
+    fn default() -> Self {
+        LineReason {
+            with_line: None,
+            text: String::with_capacity(Self::CAPACITY),
+        }
+    }
+}
+
+impl LineReason {
+    /// Room for a reason with its line (bytes).
+    const CAPACITY: usize = 512;
+
+    /// ERROR entered from `from` with the reason `reason`; `line` was executing.
+    pub fn entered(&mut self, from_auto: bool, reason: &str, line: i32) {
+        use std::fmt::Write as _;
+        self.with_line = from_auto.then_some(line);
+        if from_auto {
+            self.text.clear();
+            let _ = write!(self.text, "{reason} (program line {line})");
+        }
+    }
+
+    /// The reason to show: with its line where ERROR came from AUTO, else `plain`.
+    pub fn text<'a>(&'a self, plain: &'a str) -> &'a str {
+        if self.with_line.is_some() { &self.text } else { plain }
+    }
+}

@@ -52,6 +52,12 @@ pub struct Wiring {
     pub button_up: String,
     /// Direction button down.
     pub button_down: String,
+    /// Program start (NC_START).
+    pub program_start: String,
+    /// Feed hold (NC_HOLD).
+    pub program_hold: String,
+    /// Program resume (NC_RESUME).
+    pub program_resume: String,
     /// Limit switch, left drive, upper end.
     pub switch_left_upper: String,
     /// Limit switch, left drive, lower end.
@@ -99,6 +105,9 @@ impl Default for Wiring {
             button_right: s("DI.DigitalInput03"),
             button_up: s("DI.DigitalInput04"),
             button_down: s("DI.DigitalInput05"),
+            program_start: s("DI.DigitalInput10"),
+            program_hold: s("DI.DigitalInput11"),
+            program_resume: s("DI.DigitalInput12"),
             switch_left_upper: s("DI.DigitalInput06"),
             switch_left_lower: s("DI.DigitalInput07"),
             switch_right_upper: s("DI.DigitalInput08"),
@@ -175,12 +184,15 @@ use Direction::{Input as I, Output as O};
 use VarType::{Bool, Int, Real, Uint};
 
 /// The plant's signals, in wiring order (the order of the `plant.wiring` keys).
-pub const SIGNALS: [Signal; 23] = [
+pub const SIGNALS: [Signal; 26] = [
     signal("stop_button", I, Bool, Role::Button),
     signal("button_left", I, Bool, Role::Button),
     signal("button_right", I, Bool, Role::Button),
     signal("button_up", I, Bool, Role::Button),
     signal("button_down", I, Bool, Role::Button),
+    signal("program_start", I, Bool, Role::Button),
+    signal("program_hold", I, Bool, Role::Button),
+    signal("program_resume", I, Bool, Role::Button),
     signal("switch_left_upper", I, Bool, Role::Switch),
     signal("switch_left_lower", I, Bool, Role::Switch),
     signal("switch_right_upper", I, Bool, Role::Switch),
@@ -202,7 +214,7 @@ pub const SIGNALS: [Signal; 23] = [
 ];
 
 /// What each of [`SIGNALS`] is to the plant, by the same index.
-pub const WIRES: [Wire; 23] = {
+pub const WIRES: [Wire; 26] = {
     use Button as B;
     use SwitchEnd as E;
     [
@@ -211,6 +223,9 @@ pub const WIRES: [Wire; 23] = {
         Wire::Button(B::Right),
         Wire::Button(B::Up),
         Wire::Button(B::Down),
+        Wire::Button(B::ProgramStart),
+        Wire::Button(B::ProgramHold),
+        Wire::Button(B::ProgramResume),
         Wire::Switch(0, E::Upper),
         Wire::Switch(0, E::Lower),
         Wire::Switch(1, E::Upper),
@@ -234,13 +249,16 @@ pub const WIRES: [Wire; 23] = {
 
 impl Wiring {
     /// The channel (`MODULE.Channel`) of each of [`SIGNALS`], by the same index.
-    pub fn channels(&self) -> [&str; 23] {
+    pub fn channels(&self) -> [&str; 26] {
         [
             &self.stop_button,
             &self.button_left,
             &self.button_right,
             &self.button_up,
             &self.button_down,
+            &self.program_start,
+            &self.program_hold,
+            &self.program_resume,
             &self.switch_left_upper,
             &self.switch_left_lower,
             &self.switch_right_upper,

@@ -106,6 +106,12 @@ pub enum Button {
     Up,
     /// Down.
     Down,
+    /// Program start.
+    ProgramStart,
+    /// Feed hold.
+    ProgramHold,
+    /// Program resume.
+    ProgramResume,
 }
 
 /// Which limit switch of a drive.
@@ -137,7 +143,7 @@ struct Drive {
 pub struct Plant {
     drives: [Drive; 2],
     period_us: u16,
-    buttons: [bool; 5],
+    buttons: [bool; 8],
     joystick: [f64; 2],
     joystick_connected: bool,
     mechanism: Option<Trijoint>,
@@ -178,7 +184,7 @@ impl Plant {
         Plant {
             drives: [drive(left), drive(right)],
             period_us: 0,
-            buttons: [false; 5],
+            buttons: [false; 8],
             joystick: [0.0; 2],
             joystick_connected: true,
             mechanism,

@@ -6,7 +6,7 @@
 //! Referencing and jogging have their own modules.
 
 use pkm_drives::automaton::Application;
-use pkm_drives::nc::{Command, RunState};
+use pkm_drives::nc::{ProgramControl, RunState};
 use pkm_kinematics::MAX_DOF;
 use pkm_kinematics::frame::MachineFrame;
 
@@ -37,10 +37,8 @@ pub struct Io {
     pub(super) override_held: bool,
     /// The axis button was pressed this cycle (a rising edge).
     pub(super) axes_pressed: bool,
-    /// The program buttons pressed this cycle (rising edges): start, hold, resume.
-    pub(super) nc_start: bool,
-    pub(super) nc_hold: bool,
-    pub(super) nc_resume: bool,
+    /// The loaded program's control: its buttons, start, hold and resume, the command.
+    pub(super) program: ProgramControl,
     /// The executor's state, line and commanded pose (from the drive program).
     pub(super) nc_state: Option<RunState>,
     pub(super) nc_line: i32,
@@ -54,8 +52,6 @@ pub struct Io {
     pub(super) acknowledge: bool,
     pub(super) referenced: bool,
     pub(super) limit_override: bool,
-    /// The command to the program's executor.
-    pub(super) nc_command: Option<Command>,
 }
 
 impl Io {
@@ -133,15 +129,6 @@ pub struct Main {
     pub(super) ret_since_s: f64,
     /// The loaded program's start pose (machine frame), if a program is loaded.
     pub(super) program_start: Option<[f64; MAX_DOF]>,
-    /// The program stands: a feed hold, or an M0 taken over as one.
-    pub(super) held: bool,
-    /// A resume pressed, taken once the program stands.
-    pub(super) resume_pending: bool,
-    /// The last start press was refused: the tool is not where the program starts.
-    pub(super) start_refused: bool,
-    /// The program starts by itself at the first READY (`run --program`); later starts are the
-    /// operator's.
-    pub(super) autostart: bool,
 }
 
 /// How close the tool must be to the program's start pose for a start (mm, degrees).
@@ -209,53 +196,36 @@ impl Application for Main {
     fn enter_ready(&mut self, io: &mut Io) {
         self.pose_velocity = [0.0; MAX_DOF];
         io.hold();
-        io.nc_command = io.nc_command.map(|_| Command::Off);
+        io.program.leave();
     }
 
     fn start_auto(&mut self, io: &mut Io) -> bool {
         let Some(start) = self.program_start else {
             return false;
         };
-        if !(io.nc_start || std::mem::take(&mut self.autostart)) {
-            return false;
-        }
         // A program starts where it was checked and planned from: the reference pose.
         let n = self.n;
-        self.start_refused = (0..n).any(|c| (self.pose[c] - start[c]).abs() > START_TOLERANCE);
-        !self.start_refused
+        let at_start = (0..n).all(|c| (self.pose[c] - start[c]).abs() <= START_TOLERANCE);
+        io.program.start(at_start)
     }
 
     fn enter_auto(&mut self, io: &mut Io) {
         self.pose_velocity = [0.0; MAX_DOF];
-        self.held = false;
-        self.resume_pending = false;
         io.hold();
-        io.nc_command = Some(Command::Run);
+        io.program.enter();
     }
 
     fn auto(&mut self, io: &mut Io) -> bool {
-        // No jog in AUTO: the drive program takes the joints' set-points from the program.
+        // No jog in AUTO: the drive program takes the joints' set-points from the program; these
+        // follow its pose, so that READY takes over where it ends.
         io.hold();
-        if io.nc_hold || io.nc_state == Some(RunState::Paused) {
-            self.held = true;
-            self.resume_pending = false;
-        }
-        self.resume_pending |= io.nc_resume && self.held;
-        // A resume goes through once the executor stands held (an M0 becomes held one cycle
-        // after this program holds it).
-        if self.resume_pending && io.nc_state == Some(RunState::Held) {
-            self.held = false;
-            self.resume_pending = false;
-        }
-        io.nc_command = Some(if self.held { Command::Hold } else { Command::Run });
-        // The set-points follow the program's pose: READY takes over where it ends.
         let n = self.n;
         let mut joints = [0.0; MAX_DOF];
         if self.frame.inverse(&io.nc_pose[..n], &mut joints[..n]).is_ok() {
             self.pose = io.nc_pose;
             io.setpoints = joints;
         }
-        io.nc_state != Some(RunState::Done)
+        io.program.auto(io.nc_state)
     }
 
     fn ready(&mut self, io: &mut Io) -> bool {
@@ -263,7 +233,11 @@ impl Application for Main {
         if io.axes_pressed && !self.pairs.is_empty() {
             self.selection = (self.selection + 1) % self.pairs.len();
         }
-        self.world_command(io) != [0.0; MAX_DOF]
+        let jog = self.world_command(io) != [0.0; MAX_DOF];
+        if jog {
+            io.program.forget_refusal();
+        }
+        jog
     }
 
     fn enter_motion(&mut self, _io: &mut Io) {}
@@ -284,7 +258,7 @@ impl Application for Main {
         if !matches!(reason, Reason::Stop | Reason::Limit(_)) {
             self.known = false;
         }
-        io.nc_command = io.nc_command.map(|_| Command::Off);
+        io.program.leave();
         self.pose_velocity = [0.0; MAX_DOF];
         self.error(io);
     }
@@ -331,10 +305,6 @@ impl Main {
             ret_rate: 0.0,
             ret_since_s: 0.0,
             program_start: None,
-            held: false,
-            resume_pending: false,
-            start_refused: false,
-            autostart: false,
         }
     }
 

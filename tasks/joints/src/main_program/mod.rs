@@ -31,9 +31,6 @@ use crate::spec::Spec;
 use crate::switches::Switches;
 use crate::vars;
 
-/// Room for an error reason with its program line (bytes).
-const REASON_CAPACITY: usize = 512;
-
 /// The longest cycle the main program may run in (µs).
 pub const MAX_MAIN_CYCLE_US: u32 = 100_000;
 
@@ -70,8 +67,6 @@ struct NcVars {
     line: Input<i32>,
     pose: Vec<Input<f64>>,
     command: Output<i16>,
-    /// The buttons' levels last cycle (for the presses' edges).
-    was: [bool; 3],
 }
 
 /// One joint's variables.
@@ -102,10 +97,8 @@ pub struct MainProgram {
     /// Tool pose and joints for the status line: at most 12 values.
     shown: [(&'static str, f64); 12],
     shown_len: usize,
-    /// The program line executing when ERROR was entered from AUTO, and the reason's text with
-    /// it (written into capacity reserved at creation: entering ERROR allocates nothing).
-    error_line: Option<i32>,
-    reason_with_line: String,
+    /// The reason with the program line executing when ERROR was entered from AUTO.
+    line_reason: nc::LineReason,
 }
 
 /// The pose coordinates' names on the status line.
@@ -366,7 +359,6 @@ impl MainProgram {
                 line: decl.read(nc::vars::NC_LINE),
                 pose: nc::vars::NC_POSE[..keys.len()].iter().map(|v| decl.read(*v)).collect(),
                 command: decl.write(nc::vars::NC_COMMAND, nc::Command::Off as i16),
-                was: [false; 3],
             }),
         };
         let stop = StopButton::new(p.stop_lockout_ms as f64 * 1e-3);
@@ -377,11 +369,18 @@ impl MainProgram {
             let mut pose = [0.0; MAX_DOF];
             pose[..n.min(MAX_DOF)].copy_from_slice(&start[..n.min(MAX_DOF)]);
             main.program_start = Some(pose);
-            main.autostart = true;
         }
+        let io = Io {
+            program: if args.nc.is_some() {
+                nc::ProgramControl::loaded()
+            } else {
+                nc::ProgramControl::default()
+            },
+            ..Io::default()
+        };
         Box::new(MainProgram {
             machine: Automaton::new(main).state_machine(),
-            io: Io::default(),
+            io,
             vars,
             n,
             stop,
@@ -390,8 +389,7 @@ impl MainProgram {
             tool: [0.0; MAX_DOF],
             shown: [("", f64::NAN); 12],
             shown_len: 0,
-            error_line: None,
-            reason_with_line: String::with_capacity(REASON_CAPACITY),
+            line_reason: nc::LineReason::default(),
         })
     }
 }
@@ -429,11 +427,9 @@ impl MainProgram {
         let axes = ctx.get(v.axes) || ctx.get(v.joystick_axes);
         io.axes_pressed = axes && !self.axes_was_pressed;
         self.axes_was_pressed = axes;
-        if let Some(nc) = &mut self.vars.nc {
-            let levels = [ctx.get(nc.start), ctx.get(nc.hold), ctx.get(nc.resume)];
-            let [start, hold, resume] = std::array::from_fn(|i| levels[i] && !nc.was[i]);
-            nc.was = levels;
-            (io.nc_start, io.nc_hold, io.nc_resume) = (start, hold, resume);
+        if let Some(nc) = &v.nc {
+            io.program
+                .buttons([ctx.get(nc.start), ctx.get(nc.hold), ctx.get(nc.resume)]);
             io.nc_state = RunState::from_code(ctx.get(nc.state));
             io.nc_line = ctx.get(nc.line);
             for (p, input) in io.nc_pose.iter_mut().zip(&nc.pose) {
@@ -500,7 +496,7 @@ impl MainProgram {
         ctx.set(v.referenced, io.referenced);
         ctx.set(v.limit_override, io.limit_override);
         ctx.set(v.selection, app.selection as i16);
-        if let (Some(nc), Some(command)) = (&v.nc, io.nc_command) {
+        if let (Some(nc), Some(command)) = (&v.nc, io.program.command()) {
             ctx.set(nc.command, command as i16);
         }
         let coords = v.tool.len();
@@ -540,22 +536,8 @@ impl MainProgram {
     /// a start was refused in READY.
     fn note(&self) -> Option<&'static str> {
         let a = self.machine.inner();
-        match a.state {
-            MainState::Auto => {
-                return Some(match self.io.nc_state {
-                    Some(RunState::Holding) => "feed hold: braking on the path",
-                    Some(RunState::Held) if a.app.held => "feed hold: the program stands; NC_RESUME goes on",
-                    Some(RunState::Paused) | Some(RunState::Held) => "M0: the program stands; NC_RESUME goes on",
-                    Some(RunState::Done) => "program done",
-                    _ => "running the program",
-                });
-            }
-            MainState::Ready if a.app.start_refused => {
-                return Some(
-                    "program not started: the tool is not at the program's start, the reference pose (STOP, acknowledge and reference to return there)",
-                );
-            }
-            _ => {}
+        if matches!(a.state, MainState::Auto | MainState::Ready) {
+            return self.io.program.note(a.state == MainState::Auto, self.io.nc_state);
         }
         if a.state != MainState::Init || a.app.phase != Phase::Waiting {
             return None;
@@ -576,33 +558,19 @@ impl Program for MainProgram {
         let before = self.machine.inner().state;
         self.machine.handle_with_context(&event, &mut self.io);
         let a = self.machine.inner();
-        if a.state == MainState::Error && before != MainState::Error {
+        if let (MainState::Error, false, Some(reason)) = (a.state, before == MainState::Error, a.reason) {
             // The program line executing goes with the reason.
-            self.error_line = None;
-            if let (MainState::Auto, Some(reason)) = (before, a.reason) {
-                use std::fmt::Write as _;
-                self.error_line = Some(self.io.nc_line);
-                self.reason_with_line.clear();
-                let _ = write!(
-                    self.reason_with_line,
-                    "{} (program line {})",
-                    self.texts.text(reason),
-                    self.io.nc_line
-                );
-            }
+            self.line_reason
+                .entered(before == MainState::Auto, self.texts.text(reason), self.io.nc_line);
         }
         self.write(ctx);
     }
 
     fn status(&self) -> Option<AppStatus<'_>> {
         let a = self.machine.inner();
-        let reason = match self.error_line {
-            Some(_) => Some(self.reason_with_line.as_str()),
-            None => a.reason.map(|r| self.texts.text(r)),
-        };
         Some(AppStatus {
             state: a.state.name(),
-            reason: a.reason.and(reason),
+            reason: a.reason.map(|r| self.line_reason.text(self.texts.text(r))),
             note: self.note(),
             values: &self.shown[..self.shown_len],
         })

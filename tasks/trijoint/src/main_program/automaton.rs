@@ -3,7 +3,11 @@
 //! outputs of a cycle it works on (`Io`). Referencing and jogging are `Main`'s, in their own
 //! modules.
 
+use std::sync::Arc;
+
+use pkm_api::trajectory::Trajectory;
 use pkm_drives::automaton::Application;
+use pkm_drives::nc::{ProgramControl, RunState};
 use pkm_kinematics::trijoint::{Trijoint, TrijointParams};
 
 use super::*;
@@ -34,7 +38,16 @@ pub struct Io {
     pub(super) references: [f64; 2],
     pub(super) acknowledge: bool,
     pub(super) referenced: bool,
+    /// The loaded program's control: its buttons, start, hold and resume, the command.
+    pub(super) program: ProgramControl,
+    /// The executor's state, line and place on the program's time line (from the controller).
+    pub(super) nc_state: Option<RunState>,
+    pub(super) nc_line: i32,
+    pub(super) nc_time_s: f64,
 }
+
+/// How close the carriages must be to the program's start for a start (mm).
+const START_TOLERANCE_MM: f64 = 1e-3;
 
 impl Io {
     /// Holds both drives at their current set-points.
@@ -60,6 +73,9 @@ pub struct Main {
     pub(super) soft: [[f64; 2]; 2],
     pub(super) m_setpoint: [f64; 2],
     pub(super) searches: [Search; 2],
+    /// The loaded program, and where this program samples it.
+    pub(super) trajectory: Option<Arc<dyn Trajectory>>,
+    pub(super) cursor: usize,
 }
 
 impl Application for Main {
@@ -105,11 +121,47 @@ impl Application for Main {
 
     fn enter_ready(&mut self, io: &mut Io) {
         io.hold();
+        io.program.leave();
     }
 
     fn ready(&mut self, io: &mut Io) -> bool {
         io.hold();
-        self.command(io) != [0.0; 2]
+        let jog = self.command(io) != [0.0; 2];
+        if jog {
+            io.program.forget_refusal();
+        }
+        jog
+    }
+
+    fn start_auto(&mut self, io: &mut Io) -> bool {
+        let Some(trajectory) = &self.trajectory else {
+            return false;
+        };
+        // A program starts where it was checked and planned from: the start position.
+        self.cursor = 0;
+        let start = trajectory.sample(0.0, &mut self.cursor).joints;
+        let at_start = (0..2).all(|i| (io.setpoints[i] - start[i]).abs() <= START_TOLERANCE_MM);
+        io.program.start(at_start)
+    }
+
+    fn enter_auto(&mut self, io: &mut Io) {
+        io.hold();
+        io.program.enter();
+    }
+
+    fn auto(&mut self, io: &mut Io) -> bool {
+        // No jog in AUTO: the controller takes the set-points from the program; these follow
+        // it, so that READY takes over where it ends.
+        io.hold();
+        if let (Some(trajectory), Some(limits)) = (&self.trajectory, &self.limits) {
+            let joints = trajectory.sample(io.nc_time_s, &mut self.cursor).joints;
+            let mut m = [0.0; 2];
+            if limits.forward(&joints[..2], Some(&self.m_setpoint), &mut m).is_ok() {
+                io.setpoints = [joints[0], joints[1]];
+                self.m_setpoint = m;
+            }
+        }
+        io.program.auto(io.nc_state)
     }
 
     fn enter_motion(&mut self, _io: &mut Io) {}
@@ -125,6 +177,7 @@ impl Application for Main {
     }
 
     fn enter_error(&mut self, _reason: Reason, io: &mut Io) {
+        io.program.leave();
         io.enable = false;
         io.setpoints = io.positions;
         io.hold();
@@ -149,6 +202,8 @@ impl Main {
             soft: [[0.0; 2]; 2],
             m_setpoint: [0.0; 2],
             searches: [Search::Done; 2],
+            trajectory: None,
+            cursor: 0,
         }
     }
 

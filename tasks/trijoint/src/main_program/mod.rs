@@ -30,6 +30,7 @@ use pkm_kinematics::{Kinematics, KinematicsConfig};
 use crate::state::MainState;
 use crate::vars;
 use pkm_drives::automaton::{StopButton, event as automaton_event};
+use pkm_drives::nc;
 use statig::prelude::*;
 
 struct Vars {
@@ -58,6 +59,16 @@ struct Vars {
     period: Output<u16>,
     referenced: Output<bool>,
     m: [Output<f64>; 2],
+    nc: Option<NcVars>,
+}
+
+/// The variables of program execution, declared when a program is loaded.
+struct NcVars {
+    buttons: [Input<bool>; 3],
+    state: Input<i16>,
+    line: Input<i32>,
+    time: Input<f64>,
+    command: Output<i16>,
 }
 
 /// The main program.
@@ -67,8 +78,11 @@ pub struct MainProgram {
     vars: Vars,
     stop: StopButton,
     display: Trijoint,
-    /// M and the carriage positions, for the status line.
-    shown: [(&'static str, f64); 6],
+    /// M and the carriage positions, for the status line (the program line first in AUTO).
+    shown: [(&'static str, f64); 7],
+    shown_len: usize,
+    /// The reason with the program line executing when ERROR was entered from AUTO.
+    line_reason: nc::LineReason,
 }
 
 impl MainProgram {
@@ -129,6 +143,13 @@ impl MainProgram {
             period: decl.write(vars::PERIOD_DURATION, 0),
             referenced: decl.write(vars::REFERENCED, false),
             m: vars::M.map(|v| decl.write(v, 0.0)),
+            nc: args.nc.map(|_| NcVars {
+                buttons: [nc::vars::NC_START, nc::vars::NC_HOLD, nc::vars::NC_RESUME].map(|v| decl.read_optional(v)),
+                state: decl.read(nc::vars::NC_STATE),
+                line: decl.read(nc::vars::NC_LINE),
+                time: decl.read(nc::vars::NC_TIME_S),
+                command: decl.write(nc::vars::NC_COMMAND, nc::Command::Off as i16),
+            }),
         };
         let lockout_s = p.stop_lockout_ms as f64 * 1e-3;
         let display = Trijoint::new(&TrijointParams {
@@ -136,20 +157,25 @@ impl MainProgram {
             h2_travel: [-1e6, 1e6],
             ..geometry.clone()
         });
+        let mut main = Main::new(p, geometry);
+        main.trajectory = args.nc.map(|job| std::sync::Arc::clone(&job.trajectory));
+        let io = Io {
+            program: if args.nc.is_some() {
+                nc::ProgramControl::loaded()
+            } else {
+                nc::ProgramControl::default()
+            },
+            ..Io::default()
+        };
         Box::new(MainProgram {
-            machine: Automaton::new(Main::new(p, geometry)).state_machine(),
-            io: Io::default(),
+            machine: Automaton::new(main).state_machine(),
+            io,
             vars,
             stop: StopButton::new(lockout_s),
             display,
-            shown: [
-                ("Mx", f64::NAN),
-                ("My", f64::NAN),
-                ("h1", f64::NAN),
-                ("h2", f64::NAN),
-                ("jx", f64::NAN),
-                ("jy", f64::NAN),
-            ],
+            shown: [("", f64::NAN); 7],
+            shown_len: 0,
+            line_reason: nc::LineReason::default(),
         })
     }
 
@@ -168,6 +194,12 @@ impl MainProgram {
         io.capture_counts = v.capture_counts.map(|c| c.map(|x| ctx.get(x)));
         for i in 0..2 {
             io.setpoints[i] += io.velocities[i] * io.dt_s;
+        }
+        if let Some(nc) = &v.nc {
+            io.program.buttons(nc.buttons.map(|b| ctx.get(b)));
+            io.nc_state = nc::RunState::from_code(ctx.get(nc.state));
+            io.nc_line = ctx.get(nc.line);
+            io.nc_time_s = ctx.get(nc.time);
         }
     }
 
@@ -225,12 +257,16 @@ impl MainProgram {
         ctx.set(v.acknowledge, io.acknowledge);
         ctx.set(v.period, self.machine.inner().app.p.pwm_period_us);
         ctx.set(v.referenced, io.referenced);
+        if let (Some(nc), Some(command)) = (&v.nc, io.program.command()) {
+            ctx.set(nc.command, command as i16);
+        }
         let mut m = [f64::NAN; 2];
         if io.referenced && self.display.forward(&io.positions, None, &mut m).is_ok() {
             ctx.set(v.m[0], m[0]);
             ctx.set(v.m[1], m[1]);
         }
-        self.shown = [
+        let line = (automaton.state == MainState::Auto).then_some(("line", f64::from(io.nc_line)));
+        let shown = [
             ("Mx", m[0]),
             ("My", m[1]),
             ("h1", io.positions[0]),
@@ -253,6 +289,11 @@ impl MainProgram {
                 },
             ),
         ];
+        self.shown_len = 0;
+        for value in line.into_iter().chain(shown) {
+            self.shown[self.shown_len] = value;
+            self.shown_len += 1;
+        }
     }
 }
 
@@ -260,17 +301,28 @@ impl Program for MainProgram {
     fn cycle(&mut self, ctx: &mut Cycle<'_>) {
         self.read(ctx);
         let event = self.event(ctx);
+        let before = self.machine.inner().state;
         self.machine.handle_with_context(&event, &mut self.io);
+        let a = self.machine.inner();
+        if let (MainState::Error, false, Some(reason)) = (a.state, before == MainState::Error, a.reason) {
+            // The program line executing goes with the reason.
+            self.line_reason
+                .entered(before == MainState::Auto, reason.text(), self.io.nc_line);
+        }
         self.write(ctx);
     }
 
     fn status(&self) -> Option<AppStatus<'_>> {
         let a = self.machine.inner();
+        let note = match a.state {
+            MainState::Auto | MainState::Ready => self.io.program.note(a.state == MainState::Auto, self.io.nc_state),
+            _ => None,
+        };
         Some(AppStatus {
             state: a.state.name(),
-            reason: a.reason.map(Reason::text),
-            note: None,
-            values: &self.shown,
+            reason: a.reason.map(|r| self.line_reason.text(r.text())),
+            note,
+            values: &self.shown[..self.shown_len],
         })
     }
 }
