@@ -16,6 +16,7 @@ mod joystick;
 mod joystick_app;
 mod kinematics;
 mod nc;
+mod nc_run;
 mod registers;
 mod simulated_machine;
 mod traces;

@@ -99,6 +99,8 @@ pub struct Executor {
     rpm: f64,
     /// The executing line, kept at an event's.
     line: u32,
+    /// Standing at an M0 (paused, or held after it): its line is the one executing.
+    at_pause: bool,
     current: TrajectorySample,
     velocities: [f64; MAX_AXES],
 }
@@ -119,6 +121,7 @@ impl Executor {
             spindle: 0,
             rpm: 0.0,
             line: current.line,
+            at_pause: false,
             current,
             velocities: [0.0; MAX_AXES],
         }
@@ -171,12 +174,19 @@ impl Executor {
             }
             (Command::Run, RunState::Idle) => {
                 self.state = RunState::Running;
+                self.at_pause = false;
                 self.t = 0.0;
                 self.rate = 1.0;
                 self.cursor = 0;
                 self.next_event = 0;
             }
-            (Command::Run, RunState::Holding | RunState::Held) => self.state = RunState::Running,
+            (Command::Run, RunState::Holding | RunState::Held) => {
+                self.state = RunState::Running;
+                if std::mem::take(&mut self.at_pause) {
+                    // The M0 it stood at is done.
+                    self.next_event += 1;
+                }
+            }
             (Command::Hold, RunState::Running) => self.state = RunState::Holding,
             (Command::Hold, RunState::Paused) => self.state = RunState::Held,
             _ => {}
@@ -188,14 +198,40 @@ impl Executor {
         self.current = self.trajectory.sample(self.t, &mut self.cursor);
         let duration = self.trajectory.duration_s();
         let moving = matches!(self.state, RunState::Running | RunState::Holding) && !frozen;
-        if moving && self.t >= duration {
-            self.state = RunState::Done;
+        let events = self.trajectory.events();
+        if moving {
+            // The events where it stands happen, in order, up to a pause (the tool is at rest
+            // at each).
+            while let Some(e) = events.get(self.next_event)
+                && e.t <= self.t
+            {
+                match e.kind {
+                    TrajectoryEventKind::Spindle { direction, rpm } => {
+                        self.spindle = direction;
+                        self.rpm = if direction == 0 { 0.0 } else { rpm };
+                        self.next_event += 1;
+                    }
+                    TrajectoryEventKind::Pause => {
+                        self.line = e.line;
+                        self.at_pause = true;
+                        self.state = RunState::Paused;
+                        self.rate = 0.0;
+                        break;
+                    }
+                }
+            }
         }
-        if self.state == RunState::Paused {
+        if self.at_pause {
             // Standing at the M0: its line is the one executing.
             self.current.line = self.line;
         } else {
             self.line = self.current.line;
+        }
+        if self.state == RunState::Paused {
+            return;
+        }
+        if moving && self.t >= duration && self.next_event >= events.len() {
+            self.state = RunState::Done;
         }
         if !moving || self.state == RunState::Done {
             return;
@@ -216,27 +252,14 @@ impl Executor {
         } else {
             self.rate = (self.rate + change).min(1.0);
         }
-        // Where the next cycle stands; the events on the way happen (the tool is at rest at
-        // each), a pause stops there.
+        // Where the next cycle stands: not past the next pause.
         let mut next = (self.t + self.rate * dt).min(duration);
-        let events = self.trajectory.events();
-        while let Some(e) = events.get(self.next_event)
-            && e.t <= next
+        if let Some(pause) = events[self.next_event.min(events.len())..]
+            .iter()
+            .take_while(|e| e.t <= next)
+            .find(|e| e.kind == TrajectoryEventKind::Pause)
         {
-            self.next_event += 1;
-            match e.kind {
-                TrajectoryEventKind::Spindle { direction, rpm } => {
-                    self.spindle = direction;
-                    self.rpm = if direction == 0 { 0.0 } else { rpm };
-                }
-                TrajectoryEventKind::Pause => {
-                    next = e.t.max(self.t);
-                    self.line = e.line;
-                    self.state = RunState::Paused;
-                    self.rate = 0.0;
-                    break;
-                }
-            }
+            next = pause.t.max(self.t);
         }
         self.ahead = self.cursor;
         let ahead = self.trajectory.sample(next, &mut self.ahead);
@@ -541,5 +564,203 @@ impl LineReason {
     /// The reason to show: with its line where ERROR came from AUTO, else `plain`.
     pub fn text<'a>(&'a self, plain: &'a str) -> &'a str {
         if self.with_line.is_some() { &self.text } else { plain }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use pkm_api::trajectory::TrajectoryEvent;
+
+    /// One axis: two moves of 10 mm at 10 mm/s, accelerating and braking at 50 mm/s², with a
+    /// stop between them at t = 1.2 s (where an M0 stands) and M3 at the start, M5 at the end.
+    struct TwoMoves {
+        events: Vec<TrajectoryEvent>,
+    }
+
+    const V: f64 = 10.0;
+    const A: f64 = 50.0;
+    /// One move: 0.2 s up to speed (1 mm), 0.8 s at speed (8 mm), 0.2 s down (1 mm).
+    const MOVE_S: f64 = 1.2;
+
+    impl TwoMoves {
+        fn new(pause: bool) -> TwoMoves {
+            let mut events = vec![TrajectoryEvent {
+                t: 0.0,
+                line: 1,
+                kind: TrajectoryEventKind::Spindle {
+                    direction: 1,
+                    rpm: 1000.0,
+                },
+            }];
+            if pause {
+                events.push(TrajectoryEvent {
+                    t: MOVE_S,
+                    line: 3,
+                    kind: TrajectoryEventKind::Pause,
+                });
+            }
+            events.push(TrajectoryEvent {
+                t: 2.0 * MOVE_S,
+                line: 5,
+                kind: TrajectoryEventKind::Spindle { direction: 0, rpm: 0.0 },
+            });
+            TwoMoves { events }
+        }
+
+        /// Position and speed within one move at `t`.
+        fn within(t: f64) -> (f64, f64) {
+            let ramp = V / A;
+            if t < ramp {
+                (0.5 * A * t * t, A * t)
+            } else if t < MOVE_S - ramp {
+                (0.5 * A * ramp * ramp + V * (t - ramp), V)
+            } else {
+                let left = (MOVE_S - t).max(0.0);
+                (10.0 - 0.5 * A * left * left, A * left)
+            }
+        }
+    }
+
+    impl Trajectory for TwoMoves {
+        fn dof(&self) -> usize {
+            1
+        }
+        fn duration_s(&self) -> f64 {
+            2.0 * MOVE_S
+        }
+        fn length_mm(&self) -> f64 {
+            20.0
+        }
+        fn sample(&self, t: f64, _cursor: &mut usize) -> TrajectorySample {
+            let t = t.clamp(0.0, 2.0 * MOVE_S);
+            let (second, local) = if t < MOVE_S { (false, t) } else { (true, t - MOVE_S) };
+            let (x, v) = Self::within(local);
+            let x = x + if second { 10.0 } else { 0.0 };
+            let mut s = TrajectorySample {
+                line: if second { 4 } else { 2 },
+                speed: v,
+                accel: A,
+                ..TrajectorySample::default()
+            };
+            s.pose[0] = x;
+            s.joints[0] = x;
+            s
+        }
+        fn events(&self) -> &[TrajectoryEvent] {
+            &self.events
+        }
+        fn forward(&self, joints: &[f64], _hint: &[f64; MAX_AXES], pose: &mut [f64; MAX_AXES]) -> bool {
+            pose[0] = joints[0];
+            true
+        }
+        fn path_distance(&self, _pose: &[f64; MAX_AXES], _t: f64) -> f64 {
+            0.0
+        }
+    }
+
+    const DT: f64 = 0.01;
+
+    fn executor(pause: bool) -> Executor {
+        Executor::new(Arc::new(TwoMoves::new(pause)))
+    }
+
+    /// Steps under `command` until `until` holds or `max` cycles; the positions seen.
+    fn walk(e: &mut Executor, command: Command, max: usize, until: impl Fn(&Executor) -> bool) -> Vec<f64> {
+        let mut seen = Vec::new();
+        for _ in 0..max {
+            e.step(command, DT, false);
+            seen.push(e.sample().joints[0]);
+            if until(e) {
+                break;
+            }
+        }
+        seen
+    }
+
+    #[test]
+    fn a_run_walks_the_trajectory_to_its_end_with_the_velocities_of_its_steps() {
+        let mut e = executor(false);
+        assert_eq!(e.state(), RunState::Idle);
+        let mut last: Option<(f64, f64)> = None;
+        let mut cycles = 0;
+        while e.state() != RunState::Done {
+            e.step(Command::Run, DT, false);
+            let x = e.sample().joints[0];
+            if let Some((x0, v0)) = last {
+                assert!((x - (x0 + v0 * DT)).abs() < 1e-9, "the velocity led to this set-point");
+            }
+            last = Some((x, e.velocities()[0]));
+            assert_eq!(
+                e.spindle(),
+                if e.state() == RunState::Done {
+                    (0, 0.0)
+                } else {
+                    (1, 1000.0)
+                }
+            );
+            cycles += 1;
+            assert!(cycles < 1000);
+        }
+        // 2.4 s of 10 ms cycles, and the one that stands at the end (one more where the sum of
+        // the steps falls short of 2.4 s by a rounding).
+        assert!((241..=242).contains(&cycles), "{cycles} cycles");
+        assert_eq!(e.sample().joints[0], 20.0);
+        assert_eq!(e.line(), 4);
+        e.step(Command::Off, DT, false);
+        assert_eq!(e.state(), RunState::Idle);
+    }
+
+    #[test]
+    fn a_hold_brakes_within_the_acceleration_stands_and_resumes_where_it_stood() {
+        let mut e = executor(false);
+        walk(&mut e, Command::Run, 50, |_| false);
+        let before = e.sample().joints[0];
+        let mut positions = walk(&mut e, Command::Hold, 100, |e| e.state() == RunState::Held);
+        assert_eq!(e.state(), RunState::Held);
+        positions.insert(0, before);
+        // Never faster than the plan, the speed changing by at most the acceleration bound.
+        let speeds: Vec<f64> = positions.windows(2).map(|w| (w[1] - w[0]) / DT).collect();
+        for w in speeds.windows(2) {
+            assert!(w[1] <= w[0] + 1e-9, "braking only: {speeds:?}");
+            assert!((w[0] - w[1]) <= A * DT * 1.01, "within {A} mm/s²: {speeds:?}");
+        }
+        assert!(speeds.len() < 30, "stopped from 10 mm/s in {} cycles", speeds.len());
+        let stood = e.sample().joints[0];
+        walk(&mut e, Command::Hold, 50, |_| false);
+        assert_eq!(e.sample().joints[0], stood, "standing");
+        assert_eq!(e.velocities()[0], 0.0);
+        walk(&mut e, Command::Run, 1000, |e| e.state() == RunState::Done);
+        assert_eq!(e.state(), RunState::Done);
+        assert_eq!(e.sample().joints[0], 20.0);
+    }
+
+    #[test]
+    fn an_m0_stands_until_a_hold_and_a_run_and_names_its_line() {
+        let mut e = executor(true);
+        walk(&mut e, Command::Run, 300, |e| e.state() == RunState::Paused);
+        assert_eq!(e.state(), RunState::Paused);
+        walk(&mut e, Command::Run, 50, |_| false);
+        assert_eq!(e.state(), RunState::Paused, "a run alone does not leave the pause");
+        assert_eq!(e.sample().joints[0], 10.0);
+        assert_eq!((e.line(), e.sample().line), (3, 3));
+        assert_eq!(e.spindle(), (1, 1000.0), "the spindle turns through the pause");
+        e.step(Command::Hold, DT, false);
+        assert_eq!((e.state(), e.line()), (RunState::Held, 3));
+        walk(&mut e, Command::Run, 1000, |e| e.state() == RunState::Done);
+        assert_eq!(e.state(), RunState::Done);
+        assert_eq!(e.line(), 4);
+    }
+
+    #[test]
+    fn an_engaged_interlock_freezes_the_walk() {
+        let mut e = executor(false);
+        walk(&mut e, Command::Run, 30, |_| false);
+        let at = e.time_s();
+        for _ in 0..10 {
+            e.step(Command::Run, DT, true);
+            assert_eq!(e.time_s(), at);
+            assert_eq!(e.velocities()[0], 0.0);
+        }
     }
 }

@@ -228,7 +228,7 @@ fn elements_and_events(program: &Program) -> (Vec<Element>, f64, Vec<Pending>) {
                             Spindle::CounterClockwise => -1,
                             Spindle::Off => 0,
                         },
-                        rpm: speed_rpm,
+                        rpm: if direction == Spindle::Off { 0.0 } else { speed_rpm },
                     }),
                     // M1 stops as M0 does: the optional-stop switch is taken as on, as
                     // LinuxCNC's is by default.
@@ -866,5 +866,38 @@ mod tests {
         let mut cursor = 0;
         let s = with.sample(with.duration_s / 2.0, &mut cursor);
         assert!((s.pose[0] - 10.0).abs() < 1e-9 && s.speed == 0.0, "{s:?}");
+    }
+
+    #[test]
+    fn pauses_and_spindle_changes_stand_where_the_tool_stops_for_them() {
+        let l = limits(3, 100.0, 1000.0);
+        let p = planned(
+            pkm_kinematics::Machine::OxX,
+            "S1000 M3\nG64 P0.1\nG1 X10 F600\nG4 P1\nM0\nG1 X20\nM5\nM2\n",
+            &l,
+        );
+        let kinds: Vec<(u32, TrajectoryEventKind)> = p.events.iter().map(|e| (e.line, e.kind)).collect();
+        assert_eq!(
+            kinds,
+            [
+                (
+                    1,
+                    TrajectoryEventKind::Spindle {
+                        direction: 1,
+                        rpm: 1000.0
+                    }
+                ),
+                (5, TrajectoryEventKind::Pause),
+                (7, TrajectoryEventKind::Spindle { direction: 0, rpm: 0.0 }),
+            ]
+        );
+        assert_eq!(p.events[0].t, 0.0);
+        // The pause after the dwell, at the end of the first line: the tool stands at X10.
+        let mut cursor = 0;
+        let at = p.sample(p.events[1].t, &mut cursor);
+        assert!((at.pose[0] - 10.0).abs() < 1e-9 && at.speed == 0.0, "{at:?}");
+        let before = p.sample(p.events[1].t - 0.5, &mut cursor);
+        assert!((before.pose[0] - 10.0).abs() < 1e-9, "dwelling first: {before:?}");
+        assert!((p.events[2].t - p.duration_s).abs() < 1e-9, "M5 at the end");
     }
 }

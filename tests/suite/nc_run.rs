@@ -1,0 +1,307 @@
+//! NC programs running on the machines (`run --program`), in virtual time: every machine's
+//! acceptance programs complete within the contour tolerance and replay identically; feed hold
+//! mid-arc stops on the path and resumes; STOP mid-program names the line; M0 pauses; M3/M5
+//! drive the spindle output; a start away from the program's start is refused; a program that
+//! cannot run is refused before anything moves.
+
+use crate::common;
+
+use common::{get, machine_config, pkm, stderr, transitions};
+use pkm_api::trajectory::vars;
+use pkm_plc::compose::{self, Options, Setup};
+use pkm_plc::plc::Plc;
+
+/// The repository's path of a file, as text.
+fn repo(path: &str) -> String {
+    common::root().join(path).to_str().expect("utf-8").to_string()
+}
+
+/// Builds `machine` (`trijoint`: the repository's config.json) on its simulated plant running
+/// `program`, with the scenario `events` (a JSON array).
+fn build(machine: &str, program: &std::path::Path, events: &str) -> Plc {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let scenario = dir.path().join("scenario.json");
+    std::fs::write(&scenario, format!(r#"{{"events": {events}}}"#)).expect("write the scenario");
+    let loaded = if machine == "trijoint" {
+        common::loaded(&common::repo_config())
+    } else {
+        machine_config(machine, |_| {})
+    };
+    let setup = Setup::new(loaded).expect("a known machine");
+    let options = Options {
+        scenario: Some(scenario),
+        program: Some(program.to_path_buf()),
+        ..Options::default()
+    };
+    compose::build(setup, options).unwrap_or_else(|e| panic!("{e}")).plc
+}
+
+/// Writes `text` as a program in `dir`; its path.
+fn write_program(dir: &std::path::Path, text: &str) -> std::path::PathBuf {
+    let path = dir.join("program.ngc");
+    std::fs::write(&path, text).expect("write the program");
+    path
+}
+
+#[test]
+fn every_machine_runs_its_acceptance_programs_within_the_contour_tolerance_and_replays_them() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    for (machine, program, seconds) in [
+        ("ox-x", "programs/ox-x-target.ngc", 90),
+        ("ox-x", "programs/ox-x-text.ngc", 70),
+        ("pn101", "programs/pn101-shapes.ngc", 150),
+        ("hexapod", "programs/hexapod-tilted-circle.ngc", 30),
+        ("trijoint", "programs/trijoint-circle-square.ngc", 70),
+    ] {
+        let summary = dir.path().join(format!("{machine}.summary.json"));
+        let trace = dir.path().join(format!("{machine}.jsonl.gz"));
+        let seconds = seconds.to_string();
+        let config = if machine == "trijoint" {
+            vec!["--config".to_string(), repo("config.json")]
+        } else {
+            vec!["--machine".to_string(), machine.to_string()]
+        };
+        let mut args = vec!["run", "--virtual", "--duration", &seconds, "--program", program];
+        args.extend(config.iter().map(String::as_str));
+        args.extend([
+            "--summary",
+            summary.to_str().expect("utf-8"),
+            "--trace",
+            trace.to_str().expect("utf-8"),
+        ]);
+        let o = pkm(&args);
+        assert_eq!(o.status.code(), Some(0), "{program}: {}", stderr(&o));
+        let s = common::read_json(&summary);
+        let p = &s["program"];
+        assert_eq!(s["main"]["state"], "READY", "{program}: back in READY at its end: {s}");
+        assert_eq!(p["file"], program);
+        assert_eq!(p["completed"], true, "{program}: {p}");
+        let max = p["contour_error_mm"]["max"].as_f64().expect("a number");
+        let rms = p["contour_error_mm"]["rms"].as_f64().expect("a number");
+        assert!(max <= 0.02, "{program}: contour error {max} mm > 0.02 mm");
+        assert!(rms > 0.0 && rms <= max, "{program}: RMS {rms}, max {max}");
+        // At the programmed feed: the run lasts as long as its plan (no hold, no pause).
+        let (run, planned) = (
+            p["duration_s"].as_f64().expect("a number"),
+            p["planned_s"].as_f64().expect("a number"),
+        );
+        assert!(
+            (run - planned).abs() < 0.02,
+            "{program}: ran {run} s, planned {planned} s"
+        );
+        assert!(p["path_length_mm"].as_f64().expect("a number") > 100.0, "{p}");
+        for e in p["max_following_error_mm"].as_array().expect("per joint") {
+            assert!(e.as_f64().expect("a number") < 0.05, "{program}: {p}");
+        }
+        let mut replay = vec!["replay", trace.to_str().expect("utf-8")];
+        replay.extend(config.iter().map(String::as_str));
+        let o = pkm(&replay);
+        assert_eq!(o.status.code(), Some(0), "{program}: {}", stderr(&o));
+        assert!(common::stdout(&o).contains(": identical: "), "{}", common::stdout(&o));
+    }
+}
+
+/// The O-X target part's first groove, a full circle of radius 10 mm at z = −0.5 mm (line 8):
+/// when the executor works on it, in ms of simulated time.
+fn first_groove_ms() -> (u64, u64) {
+    let program = std::path::Path::new(common::root()).join("programs/ox-x-target.ngc");
+    let mut plc = build("ox-x", &program, "[]");
+    let (mut from, mut to) = (u64::MAX, 0);
+    common::run(&mut plc, 40_000, |plc, t| {
+        if get(plc, vars::NC_LINE) == 8 && get(plc, vars::NC_STATE) == 1 {
+            from = from.min(t);
+            to = to.max(t);
+        }
+    });
+    assert!(from < to, "the groove was cut");
+    (from, to)
+}
+
+#[test]
+fn a_feed_hold_mid_arc_brakes_on_the_path_stands_and_resumes() {
+    let (from, to) = first_groove_ms();
+    let hold = (from + to) / 2;
+    let resume = hold + 2000;
+    let program = common::root().join("programs/ox-x-target.ngc");
+    let events = format!(r#"[{{"at_ms": {hold}, "program": "hold"}}, {{"at_ms": {resume}, "program": "resume"}}]"#);
+    let mut plc = build("ox-x", &program, &events);
+    let mut states: Vec<i16> = Vec::new();
+    let mut held_at: Option<(u64, f64)> = None;
+    let mut worst_off_circle = 0.0f64;
+    let seen = transitions(&mut plc, 100_000, |plc, t| {
+        let state = get(plc, vars::NC_STATE);
+        if states.last() != Some(&state) {
+            states.push(state);
+        }
+        if (hold..resume).contains(&t) {
+            // Braking and standing: on the groove's circle, at its depth.
+            let [x, y, z] = [vars::NC_POSE[0], vars::NC_POSE[1], vars::NC_POSE[2]].map(|v| get(plc, v));
+            worst_off_circle = worst_off_circle.max((x.hypot(y) - 10.0).abs()).max((z + 0.5).abs());
+            assert_eq!(get(plc, vars::NC_LINE), 8, "at {t} ms");
+            if state == 3 && held_at.is_none() {
+                held_at = Some((t, get(plc, vars::NC_TIME_S)));
+            }
+            if let Some((_, stood)) = held_at {
+                assert_eq!(get(plc, vars::NC_TIME_S), stood, "standing still at {t} ms");
+                assert_eq!(common::state(plc), "AUTO");
+            }
+        }
+    });
+    let (held_ms, _) = held_at.expect("the program stood");
+    // 10 mm/s braked within the path's tangential acceleration: well under a second.
+    assert!(held_ms - hold < 500, "held {} ms after the press", held_ms - hold);
+    assert!(worst_off_circle < 1e-6, "{worst_off_circle} mm off the groove");
+    // Idle, running, holding, held, running, done (at the end idle again in READY).
+    assert_eq!(states, [0, 1, 2, 3, 1, 5, 0], "{states:?}");
+    let names: Vec<&str> = seen.iter().map(|(_, s, _)| s.as_str()).collect();
+    assert_eq!(names, ["REBOOT", "INIT", "READY", "AUTO", "READY"], "{seen:?}");
+    // The hold cost about its two seconds; the tool kept to the contour through it.
+    let run = get(&plc, vars::NC_RUN_S);
+    let planned = 69.717;
+    assert!(run > planned + 1.9 && run < planned + 2.6, "{run} s");
+    assert!(get(&plc, vars::NC_COMPLETED));
+    let contour = get(&plc, vars::NC_CONTOUR_MAX);
+    assert!(contour <= 0.02, "{contour} mm");
+}
+
+#[test]
+fn stop_mid_program_is_error_with_the_line_and_the_program_starts_again_after_referencing() {
+    let (from, to) = first_groove_ms();
+    let stop = (from + to) / 2;
+    let program = common::root().join("programs/ox-x-target.ngc");
+    // STOP, its acknowledgement (after the lockout), referencing, then a start.
+    let events = format!(
+        r#"[{{"at_ms": {stop}, "input": "BUTTON_STOP", "value": true}},
+            {{"at_ms": {}, "input": "BUTTON_STOP", "value": false}},
+            {{"at_ms": {}, "input": "BUTTON_STOP", "value": true}},
+            {{"at_ms": {}, "input": "BUTTON_STOP", "value": false}},
+            {{"at_ms": {}, "program": "start"}}]"#,
+        stop + 200,
+        stop + 3000,
+        stop + 3200,
+        stop + 30_000
+    );
+    let mut plc = build("ox-x", &program, &events);
+    let mut spindle_after_stop = false;
+    let seen = transitions(&mut plc, stop + 110_000, |plc, t| {
+        if (stop + 50..stop + 3000).contains(&t) {
+            spindle_after_stop |= get(plc, vars::SPINDLE_ON);
+        }
+    });
+    let error = seen.iter().find(|(_, s, _)| s == "ERROR").expect("ERROR");
+    assert_eq!(error.2.as_deref(), Some("STOP (program line 8)"), "{seen:?}");
+    assert!(error.0 - stop <= 50, "ERROR within a main cycle: {seen:?}");
+    assert!(!spindle_after_stop, "the spindle stops with the drives");
+    let names: Vec<&str> = seen.iter().map(|(_, s, _)| s.as_str()).collect();
+    assert_eq!(
+        names,
+        [
+            "REBOOT", "INIT", "READY", "AUTO", "ERROR", "REBOOT", "INIT", "READY", "AUTO", "READY"
+        ],
+        "{seen:?}"
+    );
+    assert!(get(&plc, vars::NC_COMPLETED), "the second run completed");
+    assert!(get(&plc, vars::NC_CONTOUR_MAX) <= 0.02);
+}
+
+#[test]
+fn m0_pauses_until_resumed_and_m3_m5_drive_the_spindle() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let program = write_program(dir.path(), "S1200 M4\nG1 X5 F600\nM0\nG1 X10\nM5\nG0 X0\nM2\n");
+    // The program starts at O-X's READY (11.65 s); the pause comes about a second later.
+    let mut plc = build("ox-x", &program, r#"[{"at_ms": 20000, "program": "resume"}]"#);
+    let mut log: Vec<(i16, i32, bool, bool, f64)> = Vec::new();
+    transitions(&mut plc, 30_000, |plc, _| {
+        let entry = (
+            get(plc, vars::NC_STATE),
+            get(plc, vars::NC_LINE),
+            get(plc, vars::SPINDLE_ON),
+            get(plc, vars::SPINDLE_REVERSE),
+            get(plc, vars::SPINDLE_RPM),
+        );
+        if log.last() != Some(&entry) {
+            log.push(entry);
+        }
+    });
+    let paused = log.iter().position(|e| e.0 == 3).expect("the program stood at the M0");
+    assert_eq!(log[paused].1, 3, "standing on the M0's line: {log:?}");
+    assert_eq!(
+        (log[paused].2, log[paused].3, log[paused].4),
+        (true, true, 1200.0),
+        "M4 at 1200 rpm turns on through the pause: {log:?}"
+    );
+    let done = log.iter().position(|e| e.0 == 5).expect("done");
+    assert!(done > paused, "{log:?}");
+    assert!(!log[done].2 && log[done].4 == 0.0, "M5 stopped it: {log:?}");
+    assert!(get(&plc, vars::NC_COMPLETED));
+    // It stood from about 12.7 s until the resume at 20 s.
+    let run = get(&plc, vars::NC_RUN_S);
+    assert!(run > 8.0, "{run} s: the pause lasted until the resume");
+}
+
+#[test]
+fn a_start_away_from_the_programs_start_is_refused_with_a_note() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let program = write_program(dir.path(), "G1 X5 F600\nG0 X0\nM2\n");
+    // The program runs at READY and ends where it started; a jog moves the tool; a start then
+    // is refused.
+    let events = r#"[{"at_ms": 16000, "input": "BUTTON_RIGHT", "value": true},
+                     {"at_ms": 17000, "input": "BUTTON_RIGHT", "value": false},
+                     {"at_ms": 19000, "program": "start"}]"#;
+    let mut plc = build("ox-x", &program, events);
+    let seen = transitions(&mut plc, 21_000, |_, _| {});
+    let names: Vec<&str> = seen.iter().map(|(_, s, _)| s.as_str()).collect();
+    assert_eq!(
+        names,
+        ["REBOOT", "INIT", "READY", "AUTO", "READY", "MOTION", "READY"],
+        "{seen:?}"
+    );
+    let status = plc.app_status().expect("status");
+    assert_eq!(
+        status.note,
+        Some(
+            "program not started: the tool is not at the program's start, the reference pose (STOP, acknowledge and reference to return there)"
+        )
+    );
+}
+
+#[test]
+fn run_refuses_a_program_that_cannot_run_before_anything_moves() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let far = write_program(dir.path(), "G0 X10\nG1 X500 F600\nM2\n");
+    let far = far.to_str().expect("utf-8");
+    let o = pkm(&[
+        "run",
+        "--machine",
+        "ox-x",
+        "--virtual",
+        "--duration",
+        "5",
+        "--program",
+        far,
+    ]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    let e = stderr(&o);
+    assert!(
+        e.contains(&format!(
+            "{far}: the program leaves what ox-x can reach; nothing moves:\n{far}:2: at "
+        )),
+        "{e}"
+    );
+    assert!(!e.contains("REBOOT"), "no PLC ran: {e}");
+    let bad = dir.path().join("bad.ngc");
+    std::fs::write(&bad, "G1 X1 F600\nG5 X2\n").expect("write");
+    let bad = bad.to_str().expect("utf-8");
+    let o = pkm(&[
+        "run",
+        "--machine",
+        "ox-x",
+        "--virtual",
+        "--duration",
+        "5",
+        "--program",
+        bad,
+    ]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains(&format!("{bad}:2:1: ")), "{}", stderr(&o));
+}
