@@ -145,6 +145,25 @@ enum TraceOp {
         #[arg(long, value_delimiter = ',')]
         vars: Vec<String>,
     },
+    /// Draw the programmed against the actual tool path of a run with a program (SVG), and its
+    /// contour error against time.
+    Path {
+        /// The trace (of `run --program FILE --trace …`).
+        trace: PathBuf,
+        /// The SVG file to write.
+        out: PathBuf,
+        /// Draw the actual path's deviation from the programmed one this many times as large.
+        #[arg(long, default_value_t = 1.0, value_parser = parse_magnification)]
+        magnify: f64,
+    },
+}
+
+/// A magnification: at least 1, at most 100 000.
+fn parse_magnification(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if (1.0..=100_000.0).contains(&v) => Ok(v),
+        _ => Err(format!("must be a number from 1 to 100000, got {s}")),
+    }
 }
 
 #[derive(Args, Debug)]
@@ -608,6 +627,7 @@ fn cmd_trace(args: TraceArgs) -> Result<(), Failure> {
     let (result, out) = match &args.op {
         TraceOp::Vcd { trace, out } => (to_vcd(trace, out), out),
         TraceOp::Plot { trace, out, vars } => (to_svg(trace, out, vars), out),
+        TraceOp::Path { trace, out, magnify } => (pkm_plc::trace::path::to_svg(trace, out, *magnify), out),
         TraceOp::Summary { .. } => unreachable!("handled above"),
     };
     match result {

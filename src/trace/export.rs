@@ -24,6 +24,14 @@ pub enum ExportError {
         /// What went wrong.
         message: String,
     },
+    /// The trace holds nothing of what was asked (no program ran in it, say).
+    #[error("{trace}: {why}")]
+    Nothing {
+        /// The trace.
+        trace: String,
+        /// What it lacks.
+        why: String,
+    },
     /// A requested variable is not in the trace.
     #[error("{trace}: no variable \"{name}\" in the trace (it has {known})")]
     UnknownVariable {

@@ -11,6 +11,7 @@
 pub mod expected;
 pub mod export;
 mod fast;
+pub mod path;
 pub mod read;
 pub mod record;
 pub mod replay;

@@ -305,3 +305,62 @@ fn run_refuses_a_program_that_cannot_run_before_anything_moves() {
     assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
     assert!(stderr(&o).contains(&format!("{bad}:2:1: ")), "{}", stderr(&o));
 }
+
+#[test]
+fn trace_path_draws_the_programmed_and_the_actual_path_of_a_run_with_a_program() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let trace = dir.path().join("hexapod.jsonl.gz");
+    let program = "programs/hexapod-tilted-circle.ngc";
+    let o = pkm(&[
+        "run",
+        "--machine",
+        "hexapod",
+        "--virtual",
+        "--duration",
+        "25",
+        "--program",
+        program,
+        "--trace",
+        trace.to_str().expect("utf-8"),
+    ]);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    let svg = dir.path().join("path.svg");
+    let o = pkm(&[
+        "trace",
+        "path",
+        trace.to_str().expect("utf-8"),
+        svg.to_str().expect("utf-8"),
+        "--magnify",
+        "200",
+    ]);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    let text = std::fs::read_to_string(&svg).expect("the drawing");
+    assert!(
+        text.contains(&format!(
+            "{program}: programmed (grey) and actual (blue) tool path, deviation ×200"
+        )),
+        "the caption"
+    );
+    assert!(
+        text.contains("contour error on feed moves: max 0.0"),
+        "the error's panel"
+    );
+    assert!(
+        text.contains("x [mm, machine frame]") && text.contains("y [mm]"),
+        "the circle's plane"
+    );
+    // A trace without a program has nothing to draw.
+    let plain = common::record_machine_trace(dir.path(), "plain.jsonl", 2, "[]", &["--machine", "hexapod"]);
+    let o = pkm(&[
+        "trace",
+        "path",
+        plain.to_str().expect("utf-8"),
+        svg.to_str().expect("utf-8"),
+    ]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("recorded without a program: record one with `run --program FILE --trace …`"),
+        "{}",
+        stderr(&o)
+    );
+}

@@ -33,6 +33,16 @@ pub mod vars {
         Var::new("NC_B"),
         Var::new("NC_C"),
     ];
+    /// The measured tool pose: the forward kinematics of the measured joints, per pose
+    /// coordinate (machine frame, mm and degrees), while a program runs.
+    pub const NC_TOOL: [Var<f64>; 6] = [
+        Var::new("NC_TOOL_X"),
+        Var::new("NC_TOOL_Y"),
+        Var::new("NC_TOOL_Z"),
+        Var::new("NC_TOOL_A"),
+        Var::new("NC_TOOL_B"),
+        Var::new("NC_TOOL_C"),
+    ];
     /// The spindle turns (M3 or M4).
     pub const SPINDLE_ON: Var<bool> = Var::new("SPINDLE_ON");
     /// The spindle turns counter-clockwise (M4).

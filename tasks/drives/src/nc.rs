@@ -283,6 +283,7 @@ pub struct NcChannel {
     line: Output<i32>,
     time: Output<f64>,
     pose: Vec<Output<f64>>,
+    tool: Vec<Output<f64>>,
     spindle_on: Output<bool>,
     spindle_reverse: Output<bool>,
     spindle_rpm: Output<f64>,
@@ -313,6 +314,10 @@ impl NcChannel {
             line: decl.write(vars::NC_LINE, 0),
             time: decl.write(vars::NC_TIME_S, 0.0),
             pose: vars::NC_POSE[..coordinates.min(MAX_AXES)]
+                .iter()
+                .map(|v| decl.write(*v, 0.0))
+                .collect(),
+            tool: vars::NC_TOOL[..coordinates.min(MAX_AXES)]
                 .iter()
                 .map(|v| decl.write(*v, 0.0))
                 .collect(),
@@ -394,6 +399,9 @@ impl NcChannel {
             let mut pose = [0.0; MAX_AXES];
             if trajectory.forward(positions, &self.measured, &mut pose) {
                 self.measured = pose;
+                for (out, value) in self.tool.iter().zip(&pose) {
+                    ctx.set(*out, *value);
+                }
             }
             // The contour is kept on feed moves; a rapid has none to keep.
             if !sample.rapid {
