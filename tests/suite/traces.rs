@@ -158,6 +158,9 @@ struct GoldenTrace {
     machine: Option<String>,
     duration_s: u32,
     events: serde_json::Value,
+    /// The NC program it runs (`--program`), if any.
+    #[serde(default)]
+    program: Option<String>,
 }
 
 #[test]
@@ -171,12 +174,14 @@ fn golden_traces_replay_identically() {
         let trace = dir.join(format!("{}.jsonl.gz", g.name));
         let machine: Vec<&str> = g.machine.iter().flat_map(|m| ["--machine", m.as_str()]).collect();
         if bless {
+            let mut run = machine.clone();
+            run.extend(g.program.iter().flat_map(|p| ["--program", p.as_str()]));
             let recorded = common::record_machine_trace(
                 scratch.path(),
                 &format!("{}.jsonl.gz", g.name),
                 g.duration_s,
                 &g.events.to_string(),
-                &machine,
+                &run,
             );
             std::fs::copy(recorded, &trace).expect("bless");
         }
