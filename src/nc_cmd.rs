@@ -86,6 +86,14 @@ pub fn run(args: NcArgs, load: impl Fn(&ConfigArg) -> Result<LoadedConfig, Confi
     }
     if let Some(p) = &planned {
         lines.push(format!("planned time {:.3} s", p.duration_s));
+        if p.programmed_feed_time_s > 0.0 {
+            lines.push(format!(
+                "feed moves: {:.3} s planned, {:.3} s at the programmed feeds ({:.3}×)",
+                p.feed_time_s,
+                p.programmed_feed_time_s,
+                p.feed_time_s / p.programmed_feed_time_s
+            ));
+        }
         for l in &p.limited {
             lines.push(format!(
                 "{name}:{}: F{} slows to {:.1} mm/min at its slowest point: {}",
@@ -119,6 +127,8 @@ pub fn run(args: NcArgs, load: impl Fn(&ConfigArg) -> Result<LoadedConfig, Confi
             "rapid_length_mm": report.rapid_length_mm,
             "bounding_box": bbox,
             "planned_time_s": planned.as_ref().map(|p| p.duration_s),
+            "feed_time_s": planned.as_ref().map(|p| p.feed_time_s),
+            "programmed_feed_time_s": planned.as_ref().map(|p| p.programmed_feed_time_s),
             "limited": planned.as_ref().map(|p| p.limited.iter().map(|l| json!({
                 "line": l.line,
                 "programmed_mm_min": l.programmed_mm_min,

@@ -36,6 +36,7 @@ fn a_program_inside_the_workspace_is_reported_with_its_length_and_box() {
             "{file}: 4 moves on ox-x: feed path 67.832 mm, rapids 15.000 mm\n\
              bounding box (machine frame): X -10.000 … 10.000, Y -10.000 … 10.000, Z -5.000 … 0.000\n\
              planned time 15.582 s\n\
+             feed moves: 13.966 s planned, 13.566 s at the programmed feeds (1.029×)\n\
              every point of the path is reachable (sampled every 0.1 mm and 0.1°)\n"
         )
     );
@@ -49,6 +50,10 @@ fn a_program_inside_the_workspace_is_reported_with_its_length_and_box() {
         "{r}"
     );
     assert_eq!(r["limited"], serde_json::json!([]));
+    // The plunge (5 mm) and the circle (62.832 mm) at F300: 13.566 s.
+    let at_feed = r["programmed_feed_time_s"].as_f64().expect("a time");
+    assert!((at_feed - 67.832 / 5.0).abs() < 0.001, "{r}");
+    assert!(r["feed_time_s"].as_f64().expect("a time") > at_feed, "{r}");
 }
 
 #[test]

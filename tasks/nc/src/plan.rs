@@ -132,6 +132,10 @@ pub struct Plan {
     pub limited: Vec<Limited>,
     /// What happens besides motion (M0/M1, spindle), in time order.
     pub events: Vec<TrajectoryEvent>,
+    /// How long the feed moves (not the rapids) take as planned (s), dwells excluded.
+    pub feed_time_s: f64,
+    /// How long they would take at their programmed feeds: Σ length ÷ feed (s).
+    pub programmed_feed_time_s: f64,
 }
 
 /// A point of the plan at a time.
@@ -569,6 +573,18 @@ pub fn plan(program: &Program, frame: &MachineFrame, limits: &PlanLimits) -> Res
             }
         })
         .collect();
+    // The feed moves' time as planned (each interval belongs to the element of its start) and
+    // at their programmed feeds.
+    let feed_time_s = points
+        .windows(2)
+        .filter(|w| elements[w[0].element as usize].feed.is_finite())
+        .map(|w| w[1].t - (w[0].t + w[0].hold))
+        .sum();
+    let programmed_feed_time_s = elements
+        .iter()
+        .filter(|e| e.feed.is_finite())
+        .map(|e| e.segment.length() / e.feed)
+        .sum();
     Ok(Plan {
         duration_s: t,
         length_mm: s,
@@ -576,6 +592,8 @@ pub fn plan(program: &Program, frame: &MachineFrame, limits: &PlanLimits) -> Res
         points,
         limited,
         events,
+        feed_time_s,
+        programmed_feed_time_s,
     })
 }
 
