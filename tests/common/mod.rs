@@ -159,12 +159,12 @@ pub fn transitions(plc: &mut Plc, until_ms: u64, mut each: impl FnMut(&Plc, u64)
     seen
 }
 
-/// With [`realtime_config`], the machine is READY after this long (15.65 s of simulated time).
-pub const FAST_READY_S: f64 = 15.65;
+/// With [`realtime_config`], the machine is READY after this long (14.45 s of simulated time).
+pub const FAST_READY_S: f64 = 14.45;
 
 /// The repository's configuration for real-time end-to-end tests, which test an exchange (Modbus,
 /// a joystick), not the scheduler's timing: referencing at up to 50 mm/s with short, quicker
-/// approaches (READY after [`FAST_READY_S`] instead of 41.6 s); cycle time violations logged
+/// approaches (READY after [`FAST_READY_S`] instead of 40.2 s); cycle time violations logged
 /// rather than raising ERROR on a busy machine (timing has its own benchmarks); and the encoder
 /// plausibility bound at 30 000 counts per cycle, so that inputs a busy machine delays by a few
 /// cycles at 50 mm/s (3500 counts per 10 ms) are not an encoder fault. The I/O map's path is
