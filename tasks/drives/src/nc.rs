@@ -454,12 +454,16 @@ pub mod notes {
 }
 
 impl ProgramControl {
-    /// The control of a loaded program, which starts by itself at the first READY.
-    pub fn loaded() -> ProgramControl {
-        ProgramControl {
-            autostart: true,
-            command: Some(Command::Off),
-            ..ProgramControl::default()
+    /// The control of `job`, if one is loaded (it starts by itself at the first READY); without
+    /// one, nothing ever starts.
+    pub fn of(job: Option<&NcJob>) -> ProgramControl {
+        match job {
+            Some(_) => ProgramControl {
+                autostart: true,
+                command: Some(Command::Off),
+                ..ProgramControl::default()
+            },
+            None => ProgramControl::default(),
         }
     }
 

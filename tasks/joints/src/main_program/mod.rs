@@ -371,11 +371,7 @@ impl MainProgram {
             main.program_start = Some(pose);
         }
         let io = Io {
-            program: if args.nc.is_some() {
-                nc::ProgramControl::loaded()
-            } else {
-                nc::ProgramControl::default()
-            },
+            program: nc::ProgramControl::of(args.nc),
             ..Io::default()
         };
         Box::new(MainProgram {

@@ -160,11 +160,7 @@ impl MainProgram {
         let mut main = Main::new(p, geometry);
         main.trajectory = args.nc.map(|job| std::sync::Arc::clone(&job.trajectory));
         let io = Io {
-            program: if args.nc.is_some() {
-                nc::ProgramControl::loaded()
-            } else {
-                nc::ProgramControl::default()
-            },
+            program: nc::ProgramControl::of(args.nc),
             ..Io::default()
         };
         Box::new(MainProgram {
