@@ -256,6 +256,8 @@ pub struct Options {
     pub joystick: JoystickChoice,
     /// An NC program to run (checked and planned before the PLC is built).
     pub program: Option<PathBuf>,
+    /// Lay the operator screen's variables over the bus (`HMI_*`, see `hmi`).
+    pub hmi: bool,
 }
 
 impl Default for Options {
@@ -267,6 +269,7 @@ impl Default for Options {
             scenario: None,
             joystick: JoystickChoice::Live(JoystickSpec::None),
             program: None,
+            hmi: false,
         }
     }
 }
@@ -293,6 +296,9 @@ pub struct Built {
     pub joystick: Option<Joystick>,
     /// The NC program it runs, if one was given.
     pub job: Option<NcJob>,
+    /// Where the operator screen's commands go, if the screen's variables were laid over the
+    /// bus.
+    pub hmi: Option<crate::hmi::commands::CommandSink>,
 }
 
 /// Why a PLC could not be built: every problem of the files, or a usage error. The message is
@@ -401,12 +407,24 @@ pub fn build(setup: Setup, options: Options) -> Result<Built, BuildError> {
         Err(BusFailure::Sections) => (Box::new(UnknownBus) as Box<dyn Bus>, None, None),
         Err(BusFailure::Other(f)) => return Err(f),
     };
+    // The screen's variables are latched by the fastest class: its STOP reaches the fast
+    // interlock as the panel's does.
+    let (bus, hmi) = if options.hmi {
+        let fastest = (0..setup.loaded.config.task_classes.len())
+            .min_by_key(|&c| setup.loaded.config.task_classes[c].cycle_us)
+            .unwrap_or(0);
+        let (bus, sink) = crate::hmi::commands::HmiBus::new(bus, fastest);
+        (Box::new(bus) as Box<dyn Bus>, Some(sink))
+    } else {
+        (bus, None)
+    };
     match (setup.plc_with(bus, job.as_ref()), bus_problem) {
         (Ok(plc), None) => Ok(Built {
             setup,
             plc,
             joystick,
             job,
+            hmi,
         }),
         (plc, bus_problem) => {
             let mut problems = match plc {

@@ -11,6 +11,7 @@ pub mod bus;
 pub mod compose;
 pub mod config;
 pub mod files;
+pub mod hmi;
 pub mod io;
 pub mod link_bench;
 pub mod machines;

@@ -232,6 +232,16 @@ struct RunArgs {
     /// if it cannot run), started once the machine is READY after referencing (state AUTO).
     #[arg(long, value_name = "FILE")]
     program: Option<PathBuf>,
+    /// The operator's screen: `ADDR` (host:port) to serve it at, or `none`. Real time only;
+    /// default 127.0.0.1:8080 (another address than loopback needs --hmi-token).
+    #[arg(long, value_name = "ADDR|none", value_parser = parse_hmi)]
+    hmi: Option<HmiAddr>,
+    /// The screen's commands (STOP, jog, program) need this token; without it a page watches.
+    #[arg(long, value_name = "TOKEN", conflicts_with = "hmi_token_file")]
+    hmi_token: Option<String>,
+    /// As --hmi-token, the token read from FILE (its first line).
+    #[arg(long, value_name = "FILE")]
+    hmi_token_file: Option<PathBuf>,
     /// Override the configured time source (real time only).
     #[arg(long, value_enum, value_name = "SOURCE", conflicts_with = "virtual_time")]
     time_source: Option<TimeSource>,
@@ -257,6 +267,27 @@ struct BenchArgs {
     /// Also write the rows as JSON to FILE.
     #[arg(long, value_name = "FILE")]
     json: Option<PathBuf>,
+}
+
+/// Where the operator's screen is served.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum HmiAddr {
+    /// Not at all.
+    Off,
+    /// At this address.
+    At(std::net::SocketAddr),
+}
+
+fn parse_hmi(s: &str) -> Result<HmiAddr, String> {
+    use std::net::ToSocketAddrs;
+    if s == "none" {
+        return Ok(HmiAddr::Off);
+    }
+    s.to_socket_addrs()
+        .ok()
+        .and_then(|mut a| a.next())
+        .map(HmiAddr::At)
+        .ok_or_else(|| format!("\"{s}\" is not HOST:PORT or none"))
 }
 
 /// `PATH[@BAUD]`, 115 200 baud by default.
@@ -416,6 +447,7 @@ fn cmd_check(args: ConfigArg) -> Result<(), Failure> {
 }
 
 fn cmd_run(args: RunArgs) -> Result<(), Failure> {
+    let screen = screen_options(&args)?;
     // In virtual time a joystick path is a capture file, played on the simulated clock;
     // `auto` (a live device) is off.
     let joystick = match (&args.joystick, args.virtual_time) {
@@ -433,12 +465,14 @@ fn cmd_run(args: RunArgs) -> Result<(), Failure> {
         scenario: args.scenario.clone(),
         joystick,
         program: args.program.clone(),
+        hmi: screen.is_some(),
     };
     let Built {
         setup,
         mut plc,
         joystick,
         job,
+        hmi,
     } = build(&args.config, options)?;
     let loaded = &setup.loaded;
     let summary_file = args.summary.as_deref().map(OutputFile::create).transpose()?;
@@ -499,7 +533,15 @@ fn cmd_run(args: RunArgs) -> Result<(), Failure> {
             }
             None => None,
         };
-        let mut outcome = run_realtime(plc, options)?;
+        let screen = match (screen, hmi) {
+            (Some(options), Some(sink)) => Some(Screen {
+                info: screen_info(&plc, &setup, job.as_ref()),
+                options,
+                sink,
+            }),
+            _ => None,
+        };
+        let mut outcome = run_realtime(plc, options, screen)?;
         if let Some((probe, stop)) = probe {
             stop.store(true, std::sync::atomic::Ordering::Relaxed);
             if let Some(l) = probe.summary(outcome.epoch_ns) {
@@ -530,7 +572,58 @@ fn cmd_run(args: RunArgs) -> Result<(), Failure> {
 /// Runs in real time on a tokio runtime that watches for the terminating signals (Ctrl-C,
 /// SIGTERM, SIGHUP, …: [`pkm_plc::signals`]) and draws the status line, while the cyclic thread
 /// does the work.
-fn run_realtime(plc: Plc, options: RealTimeOptions) -> Result<run::RealTimeOutcome, Failure> {
+/// The operator's screen of a real-time run: where, what it shows at connection, where its
+/// commands go.
+struct Screen {
+    options: pkm_plc::hmi::HmiOptions,
+    info: pkm_plc::hmi::server::HmiInfo,
+    sink: pkm_plc::hmi::commands::CommandSink,
+}
+
+/// The screen `args` ask for: `None` in virtual time or with `--hmi none`.
+fn screen_options(args: &RunArgs) -> Result<Option<pkm_plc::hmi::HmiOptions>, Failure> {
+    let addr = match (args.hmi, args.virtual_time) {
+        (Some(HmiAddr::Off), _) | (None, true) => return Ok(None),
+        (Some(HmiAddr::At(_)), true) => {
+            return Err(Failure::usage(
+                "--hmi serves the screen in real time only; a --virtual run has none",
+            ));
+        }
+        (Some(HmiAddr::At(a)), false) => a,
+        (None, false) => pkm_plc::hmi::DEFAULT_ADDR
+            .parse()
+            .map_err(|e| Failure::usage(format!("{}: {e}", pkm_plc::hmi::DEFAULT_ADDR)))?,
+    };
+    let token = match (&args.hmi_token, &args.hmi_token_file) {
+        (Some(t), _) => Some(t.clone()),
+        (None, Some(path)) => {
+            let text = pkm_plc::files::read_text(path, 4096)
+                .map_err(|e| Failure::usage(format!("--hmi-token-file {}: {e}", path.display())))?;
+            Some(text.lines().next().unwrap_or("").trim().to_string())
+        }
+        (None, None) => None,
+    };
+    let options = pkm_plc::hmi::HmiOptions { addr, token };
+    options.check().map_err(Failure::usage)?;
+    Ok(Some(options))
+}
+
+/// What the screen shows at connection.
+fn screen_info(plc: &Plc, setup: &Setup, job: Option<&pkm_api::trajectory::NcJob>) -> pkm_plc::hmi::server::HmiInfo {
+    pkm_plc::hmi::server::HmiInfo {
+        machine: setup.machine.map_or("runtime".to_string(), |m| m.name().to_string()),
+        config: setup.origin().to_string(),
+        variables: plc
+            .vars()
+            .vars()
+            .iter()
+            .map(|v| (v.name.clone(), v.ty.to_string()))
+            .collect(),
+        program: job.map(|j| (j.file.clone(), j.text.clone())),
+    }
+}
+
+fn run_realtime(plc: Plc, options: RealTimeOptions, screen: Option<Screen>) -> Result<run::RealTimeOutcome, Failure> {
     let runtime = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()
@@ -540,7 +633,44 @@ fn run_realtime(plc: Plc, options: RealTimeOptions) -> Result<run::RealTimeOutco
         let _inside = runtime.enter();
         pkm_plc::signals::Terminating::register()
     };
-    let run = run::start_realtime(plc, options).map_err(|e| Failure::run(e.to_string()))?;
+    // The screen: served on this runtime, off the cyclic thread. A port that cannot be had is
+    // no reason not to run the machine: a warning, and no screen.
+    let publisher = match screen {
+        None => None,
+        Some(Screen { options, info, sink }) => {
+            let _inside = runtime.enter();
+            match runtime.block_on(tokio::net::TcpListener::bind(options.addr)) {
+                Ok(listener) => {
+                    let (publisher, reader) = pkm_plc::hmi::frame::frames(&plc);
+                    let router = pkm_plc::hmi::server::router(&info, reader, sink, options.token.clone());
+                    let at = listener.local_addr().map_or(options.addr, |a| a);
+                    info!(
+                        "operator screen at http://{at}/{}",
+                        if options.token.is_some() {
+                            " (commands need the token: ?token=…)"
+                        } else {
+                            ""
+                        }
+                    );
+                    runtime.spawn(async move {
+                        let service = router.into_make_service_with_connect_info::<std::net::SocketAddr>();
+                        if let Err(e) = axum::serve(listener, service).await {
+                            warn!("operator screen: {e}");
+                        }
+                    });
+                    Some(publisher)
+                }
+                Err(e) => {
+                    warn!(
+                        "operator screen: cannot listen on {}: {e}; running without it (--hmi ADDR, or --hmi none)",
+                        options.addr
+                    );
+                    None
+                }
+            }
+        }
+    };
+    let run = run::start_realtime_with(plc, options, publisher).map_err(|e| Failure::run(e.to_string()))?;
     let stop = run.stop_flag();
     let snapshot = run.snapshot();
     let outcome = runtime.block_on(async move {

@@ -296,6 +296,20 @@ impl Plc {
             .find_map(|slot| slot.program.status())
     }
 
+    /// The cycle time (ns) of the task class whose program reports [`Plc::app_status`]: the
+    /// main program's, at whose rate the operator's screen is updated.
+    pub fn app_period_ns(&self) -> Option<u64> {
+        self.order
+            .iter()
+            .find(|&&c| {
+                self.classes[c]
+                    .programs
+                    .iter()
+                    .any(|slot| slot.program.status().is_some())
+            })
+            .map(|&c| self.classes[c].period_ns)
+    }
+
     /// The name of the program whose status [`Plc::app_status`] reports.
     pub fn app_program(&self) -> Option<&str> {
         self.order

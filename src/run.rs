@@ -241,7 +241,17 @@ const SNAPSHOT_EVERY_NS: u64 = 100_000_000;
 
 /// Starts the cyclic thread. Memory locking and real-time priority are asked for when configured;
 /// where the process may not have them, a warning is logged and the run goes on without.
-pub fn start_realtime(mut plc: Plc, options: RealTimeOptions) -> Result<RealTimeRun, RunError> {
+pub fn start_realtime(plc: Plc, options: RealTimeOptions) -> Result<RealTimeRun, RunError> {
+    start_realtime_with(plc, options, None)
+}
+
+/// [`start_realtime`], publishing a frame for the operator's screen after every pass in which
+/// the main class ran.
+pub fn start_realtime_with(
+    mut plc: Plc,
+    options: RealTimeOptions,
+    mut screen: Option<crate::hmi::frame::FramePublisher>,
+) -> Result<RealTimeRun, RunError> {
     if options.lock_memory
         && let Err(e) = timing::lock_memory()
     {
@@ -305,6 +315,9 @@ pub fn start_realtime(mut plc: Plc, options: RealTimeOptions) -> Result<RealTime
                     })?;
                 plc.run_due(&mut clock, end_ns);
                 log.observe(&plc, t);
+                if let Some(screen) = &mut screen {
+                    screen.after_pass(&plc, t);
+                }
                 if t >= next_snapshot {
                     next_snapshot = t + SNAPSHOT_EVERY_NS;
                     // Never block the cyclic thread: if the status line holds the lock, skip.

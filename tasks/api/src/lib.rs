@@ -9,6 +9,7 @@
 //! The runtime (the `pkm-plc` crate) builds on this; application crates depend on it alone.
 
 pub mod bus;
+pub mod hmi;
 pub mod image;
 pub mod machine;
 pub mod problem;

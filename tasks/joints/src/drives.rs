@@ -75,6 +75,7 @@ pub struct Drives {
     setpoint_time: Input<f64>,
     stop: Input<bool>,
     joystick_stop: Input<bool>,
+    hmi_stop: Input<bool>,
     limit_override: Input<bool>,
     ack: Input<bool>,
     last_ack: bool,
@@ -291,6 +292,7 @@ impl Drives {
             setpoint_time: decl.read(vars::SETPOINT_TIME_S),
             stop: decl.read(vars::BUTTON_STOP),
             joystick_stop: decl.read_optional(vars::JOYSTICK_STOP),
+            hmi_stop: decl.read_optional(pkm_api::hmi::HMI_STOP),
             limit_override: decl.read(vars::LIMIT_OVERRIDE),
             ack: decl.read(vars::FAULT_ACK),
             last_ack: false,
@@ -354,8 +356,8 @@ impl Program for Drives {
                         Outputs::Stepper { .. } => false,
                     }
             });
-        // The joystick's STOP acts in addition to the panel's, never instead of it.
-        let stop = ctx.get(self.stop) || ctx.get(self.joystick_stop);
+        // The joystick's and the screen's STOP act in addition to the panel's, never instead of it.
+        let stop = ctx.get(self.stop) || ctx.get(self.joystick_stop) || ctx.get(self.hmi_stop);
         let interlock = InterlockInputs {
             stop,
             limit_switch: limit,

@@ -108,6 +108,7 @@ pub struct Control {
     setpoint_time: Input<f64>,
     stop: Input<bool>,
     joystick_stop: Input<bool>,
+    hmi_stop: Input<bool>,
     interlock: Output<bool>,
     drives: [Drive; 2],
     pi: [Pi; 2],
@@ -176,6 +177,7 @@ impl Control {
             setpoint_time: decl.read(vars::SETPOINT_TIME_S),
             stop: decl.read(vars::BUTTON_STOP),
             joystick_stop: decl.read_optional(vars::JOYSTICK_STOP),
+            hmi_stop: decl.read_optional(pkm_api::hmi::HMI_STOP),
             interlock: decl.write(vars::INTERLOCK, false),
             drives,
             pi: [Pi::default(); 2],
@@ -193,8 +195,8 @@ impl Program for Control {
         let enabled = driving_state && ctx.get(self.enable);
         let switch = self.drives.iter().any(|d| d.switches.iter().any(|s| ctx.get(*s)));
         let faults = ctx.get(self.bus_fault) || self.drives.iter().any(|d| ctx.get(d.bridge_error) || ctx.get(d.fault));
-        // The joystick's STOP acts in addition to the panel's, never instead of it.
-        let stop = ctx.get(self.stop) || ctx.get(self.joystick_stop);
+        // The joystick's and the screen's STOP act in addition to the panel's, never instead of it.
+        let stop = ctx.get(self.stop) || ctx.get(self.joystick_stop) || ctx.get(self.hmi_stop);
         let interlock = InterlockInputs {
             stop,
             limit_switch: switch,

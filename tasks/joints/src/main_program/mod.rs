@@ -18,6 +18,7 @@ pub use reason::Reason;
 use reason::ReasonTexts;
 use referencing::Search;
 
+use pkm_api::hmi;
 use pkm_api::image::{Declare, Input, Output};
 use pkm_api::program::{AppStatus, Cycle, Program, ProgramArgs};
 use pkm_drives::automaton::{MainState, StopButton, event as automaton_event};
@@ -56,6 +57,26 @@ struct Vars {
     selection: Output<i16>,
     tool: Vec<Output<f64>>,
     nc: Option<NcVars>,
+    hmi: HmiVars,
+}
+
+/// The operator screen's inputs (zero without a screen).
+struct HmiVars {
+    stop: Input<bool>,
+    jog: [Input<f64>; 2],
+    axes: Input<bool>,
+    nc: [Input<bool>; 3],
+}
+
+impl HmiVars {
+    fn declare(decl: &mut Declare<'_>) -> HmiVars {
+        HmiVars {
+            stop: decl.read_optional(hmi::HMI_STOP),
+            jog: hmi::HMI_JOG.map(|v| decl.read_optional(v)),
+            axes: decl.read_optional(hmi::HMI_AXES),
+            nc: hmi::HMI_NC.map(|v| decl.read_optional(v)),
+        }
+    }
 }
 
 /// The variables of program execution, declared when a program is loaded.
@@ -360,6 +381,7 @@ impl MainProgram {
                 pose: nc::vars::NC_POSE[..keys.len()].iter().map(|v| decl.read(*v)).collect(),
                 command: decl.write(nc::vars::NC_COMMAND, nc::Command::Off as i16),
             }),
+            hmi: HmiVars::declare(decl),
         };
         let stop = StopButton::new(p.stop_lockout_ms as f64 * 1e-3);
         let mut main = Main::new(p, frame, soft, pairs);
@@ -418,14 +440,24 @@ impl MainProgram {
         io.limit_active = v.limits.iter().any(|l| ctx.get(*l));
         io.stick = v.stick.map(|s| ctx.get(s));
         io.stick_connected = ctx.get(v.stick_connected);
+        // The screen's jog, while held, in place of the stick.
+        let screen = v.hmi.jog.map(|j| ctx.get(j));
+        if screen != [0.0; 2] {
+            io.stick = screen;
+            io.stick_connected = true;
+        }
         io.buttons = v.buttons.map(|b| ctx.get(b));
         io.override_held = ctx.get(v.override_button);
-        let axes = ctx.get(v.axes) || ctx.get(v.joystick_axes);
+        let axes = ctx.get(v.axes) || ctx.get(v.joystick_axes) || ctx.get(v.hmi.axes);
         io.axes_pressed = axes && !self.axes_was_pressed;
         self.axes_was_pressed = axes;
         if let Some(nc) = &v.nc {
-            io.program
-                .buttons([ctx.get(nc.start), ctx.get(nc.hold), ctx.get(nc.resume)]);
+            let screen = v.hmi.nc.map(|b| ctx.get(b));
+            io.program.buttons([
+                ctx.get(nc.start) || screen[0],
+                ctx.get(nc.hold) || screen[1],
+                ctx.get(nc.resume) || screen[2],
+            ]);
             io.nc_state = RunState::from_code(ctx.get(nc.state));
             io.nc_line = ctx.get(nc.line);
             for (p, input) in io.nc_pose.iter_mut().zip(&nc.pose) {
@@ -440,8 +472,8 @@ impl MainProgram {
         let automaton = self.machine.inner();
         let state = automaton.state;
         let app = &automaton.app;
-        // The joystick's STOP acts in addition to the panel's, never instead of it.
-        let pressed = ctx.get(v.stop) || ctx.get(v.joystick_stop);
+        // The joystick's and the screen's STOP act in addition to the panel's, never instead of it.
+        let pressed = ctx.get(v.stop) || ctx.get(v.joystick_stop) || ctx.get(v.hmi.stop);
         automaton_event(&mut self.stop, pressed, self.io.now_s, state, || {
             if ctx.violation().is_some() {
                 return Some(Reason::CycleTimeViolation);

@@ -60,6 +60,9 @@ struct Vars {
     referenced: Output<bool>,
     m: [Output<f64>; 2],
     nc: Option<NcVars>,
+    hmi_stop: Input<bool>,
+    hmi_jog: [Input<f64>; 2],
+    hmi_nc: [Input<bool>; 3],
 }
 
 /// The variables of program execution, declared when a program is loaded.
@@ -150,6 +153,9 @@ impl MainProgram {
                 time: decl.read(nc::vars::NC_TIME_S),
                 command: decl.write(nc::vars::NC_COMMAND, nc::Command::Off as i16),
             }),
+            hmi_stop: decl.read_optional(pkm_api::hmi::HMI_STOP),
+            hmi_jog: pkm_api::hmi::HMI_JOG.map(|v| decl.read_optional(v)),
+            hmi_nc: pkm_api::hmi::HMI_NC.map(|v| decl.read_optional(v)),
         };
         let lockout_s = p.stop_lockout_ms as f64 * 1e-3;
         let display = Trijoint::new(&TrijointParams {
@@ -186,13 +192,21 @@ impl MainProgram {
         io.buttons = v.buttons.map(|b| ctx.get(b));
         io.joystick = v.joystick.map(|j| ctx.get(j));
         io.joystick_connected = ctx.get(v.joystick_connected);
+        // The screen's jog, while held, in place of the joystick.
+        let screen = v.hmi_jog.map(|j| ctx.get(j));
+        if screen != [0.0; 2] {
+            io.joystick = screen;
+            io.joystick_connected = true;
+        }
         io.captures = v.captures.map(|c| c.map(|x| ctx.get(x)));
         io.capture_counts = v.capture_counts.map(|c| c.map(|x| ctx.get(x)));
         for i in 0..2 {
             io.setpoints[i] += io.velocities[i] * io.dt_s;
         }
         if let Some(nc) = &v.nc {
-            io.program.buttons(nc.buttons.map(|b| ctx.get(b)));
+            let screen = v.hmi_nc.map(|b| ctx.get(b));
+            let panel = nc.buttons.map(|b| ctx.get(b));
+            io.program.buttons(std::array::from_fn(|i| panel[i] || screen[i]));
             io.nc_state = nc::RunState::from_code(ctx.get(nc.state));
             io.nc_line = ctx.get(nc.line);
             io.nc_time_s = ctx.get(nc.time);
@@ -204,8 +218,8 @@ impl MainProgram {
         let (v, io) = (&self.vars, &self.io);
         let state = self.machine.inner().state;
         let searches = &self.machine.inner().app.searches;
-        // The joystick's STOP acts in addition to the panel's, never instead of it.
-        let pressed = ctx.get(v.stop) || ctx.get(v.joystick_stop);
+        // The joystick's and the screen's STOP act in addition to the panel's, never instead of it.
+        let pressed = ctx.get(v.stop) || ctx.get(v.joystick_stop) || ctx.get(v.hmi_stop);
         automaton_event(&mut self.stop, pressed, io.now_s, state, || {
             if ctx.violation().is_some() {
                 return Some(Reason::CycleTimeViolation);

@@ -1,0 +1,148 @@
+//! The screen's commands on their way into the process image: the web server writes the latest
+//! [`Commands`] (under a lock, off the cyclic thread), the [`HmiBus`] laid over the field bus
+//! takes them wait-free before each cycle and writes the `HMI_*` variables — so a command from
+//! the page is an input like the panel's, traced and replayed.
+
+use std::sync::{Arc, Mutex};
+
+use pkm_api::hmi::{HMI_AXES, HMI_JOG, HMI_NC, HMI_STOP};
+
+use crate::bus::Bus;
+use crate::image::{Value, VarIndex, VarTable, VarType, Writer};
+
+/// How long a press from the screen holds its variable on (ns): two main cycles of 50 ms, so
+/// that the main program sees it whatever its phase.
+pub const PRESS_NS: u64 = 100_000_000;
+
+/// What the screen commands now: a count of presses per button (a new count is a new press) and
+/// the jog's deflection.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Commands {
+    /// Presses of STOP, the axis button, and the program's start, hold and resume.
+    pub presses: [u64; 5],
+    /// The jog (x, y in −1 … 1); 0 when nothing is held.
+    pub jog: [f64; 2],
+}
+
+/// Which of [`Commands::presses`] is which.
+pub mod press {
+    /// STOP (and the acknowledgement in ERROR).
+    pub const STOP: usize = 0;
+    /// The axis button.
+    pub const AXES: usize = 1;
+    /// Program start, hold, resume.
+    pub const NC: [usize; 3] = [2, 3, 4];
+}
+
+/// The server's end: any connection may command (they share it, and the commands as last
+/// published, under a lock).
+#[derive(Clone)]
+pub struct CommandSink(Arc<Mutex<(triple_buffer::Input<Commands>, Commands)>>);
+
+impl CommandSink {
+    /// Changes the commands by `edit` and publishes them.
+    pub fn update(&self, edit: impl FnOnce(&mut Commands)) {
+        let mut guard = self.0.lock().unwrap_or_else(|p| p.into_inner());
+        let (input, current) = &mut *guard;
+        edit(current);
+        input.write(*current);
+    }
+
+    /// The commands as last published.
+    pub fn current(&self) -> Commands {
+        self.0.lock().unwrap_or_else(|p| p.into_inner()).1
+    }
+}
+
+/// The field bus with the screen's variables laid over it.
+pub struct HmiBus {
+    inner: Box<dyn Bus>,
+    /// The class that latches the screen's variables (the fastest: STOP reaches the interlock).
+    class: usize,
+    output: triple_buffer::Output<Commands>,
+    /// The variables: the five presses' (in [`press`] order), then the jog's x and y.
+    vars: [VarIndex; 7],
+    seen: [u64; 5],
+    /// Until when each press holds its variable on (ns of the schedule).
+    until: [u64; 5],
+}
+
+impl HmiBus {
+    /// Wraps `inner`; the screen's variables are latched by the task class `class`.
+    pub fn new(inner: Box<dyn Bus>, class: usize) -> (HmiBus, CommandSink) {
+        let (input, output) = triple_buffer::triple_buffer(&Commands::default());
+        let bus = HmiBus {
+            inner,
+            class,
+            output,
+            vars: [0; 7],
+            seen: [0; 5],
+            until: [0; 5],
+        };
+        (bus, CommandSink(Arc::new(Mutex::new((input, Commands::default())))))
+    }
+}
+
+impl Bus for HmiBus {
+    fn name(&self) -> &str {
+        self.inner.name()
+    }
+
+    fn declare(&mut self, table: &mut VarTable) {
+        self.inner.declare(table);
+        let at = "the operator screen (--hmi)";
+        let writer = || Writer::Bus {
+            class: self.class,
+            at: at.to_string(),
+        };
+        let mut declare = |name: &str, ty: VarType, safe: Value| table.declare_writer(name, ty, writer(), safe);
+        self.vars = [
+            declare(HMI_STOP.name(), VarType::Bool, Value::Bool(false)),
+            declare(HMI_AXES.name(), VarType::Bool, Value::Bool(false)),
+            declare(HMI_NC[0].name(), VarType::Bool, Value::Bool(false)),
+            declare(HMI_NC[1].name(), VarType::Bool, Value::Bool(false)),
+            declare(HMI_NC[2].name(), VarType::Bool, Value::Bool(false)),
+            declare(HMI_JOG[0].name(), VarType::Real, Value::Real(0.0)),
+            declare(HMI_JOG[1].name(), VarType::Real, Value::Real(0.0)),
+        ];
+    }
+
+    fn start(&mut self) {
+        self.inner.start();
+    }
+
+    fn read_inputs(&mut self, class: usize, t_ns: u64, image: &mut [Value]) {
+        self.inner.read_inputs(class, t_ns, image);
+        if class != self.class {
+            return;
+        }
+        let c = *self.output.read();
+        for k in 0..5 {
+            if c.presses[k] != self.seen[k] {
+                self.seen[k] = c.presses[k];
+                self.until[k] = t_ns + PRESS_NS;
+            }
+            image[usize::from(self.vars[k])] = Value::Bool(t_ns < self.until[k]);
+        }
+        for (i, v) in c.jog.iter().enumerate() {
+            image[usize::from(self.vars[5 + i])] = Value::Real(v.clamp(-1.0, 1.0));
+        }
+    }
+
+    fn write_outputs(&mut self, class: usize, t_ns: u64, image: &[Value]) {
+        self.inner.write_outputs(class, t_ns, image);
+    }
+
+    fn write_safe(&mut self, image: &[Value]) {
+        self.inner.write_safe(image);
+    }
+
+    /// The wrapped bus (the wrapper is transparent to callers that look for the bus's type).
+    fn as_any(&self) -> &dyn std::any::Any {
+        self.inner.as_any()
+    }
+
+    fn fault(&self) -> bool {
+        self.inner.fault()
+    }
+}

@@ -1,0 +1,87 @@
+//! What the cycle publishes for the screen: the status (state, reason, note, values, per class
+//! figures) and the whole published process image, handed over through a triple buffer — the
+//! cyclic thread never waits on the network and allocates nothing once the buffers have grown
+//! to the longest texts.
+
+use crate::image::Value;
+use crate::plc::Plc;
+use crate::run::Snapshot;
+
+/// One published frame.
+#[derive(Clone, Debug)]
+pub struct Frame {
+    /// Counts the frames published (the first is 1; 0: nothing published yet).
+    pub seq: u64,
+    /// The status, as the status line has it.
+    pub status: Snapshot,
+    /// The published process image, in the variable table's order.
+    pub image: Vec<Value>,
+    /// The bus reports a fault.
+    pub bus_fault: bool,
+}
+
+/// The cyclic thread's end.
+pub struct FramePublisher {
+    input: triple_buffer::Input<Frame>,
+    seq: u64,
+    /// Publishes after the passes at multiples of this (ns): the main class's cycle.
+    every_ns: u64,
+}
+
+/// The server's end.
+pub struct FrameReader {
+    output: triple_buffer::Output<Frame>,
+}
+
+/// A publisher and a reader for frames of `plc` (allocates; call once, before the run).
+pub fn frames(plc: &Plc) -> (FramePublisher, FrameReader) {
+    let frame = Frame {
+        seq: 0,
+        status: Snapshot::for_plc(plc),
+        image: plc.global_image().to_vec(),
+        bus_fault: false,
+    };
+    let (input, output) = triple_buffer::triple_buffer(&frame);
+    let every_ns = plc.app_period_ns().unwrap_or(50_000_000).max(1);
+    (
+        FramePublisher {
+            input,
+            seq: 0,
+            every_ns,
+        },
+        FrameReader { output },
+    )
+}
+
+impl FramePublisher {
+    /// After the pass at schedule time `t_ns`: publishes `plc`'s state if the main class ran
+    /// in it.
+    pub fn after_pass(&mut self, plc: &Plc, t_ns: u64) {
+        if t_ns.is_multiple_of(self.every_ns) {
+            self.publish(plc, t_ns);
+        }
+    }
+
+    /// Publishes `plc`'s state at schedule time `t_ns`.
+    pub fn publish(&mut self, plc: &Plc, t_ns: u64) {
+        self.seq += 1;
+        let frame = self.input.input_buffer_mut();
+        frame.seq = self.seq;
+        frame.status.update(plc, t_ns);
+        frame.image.clear();
+        frame.image.extend_from_slice(plc.global_image());
+        frame.bus_fault = plc.bus().fault();
+        self.input.publish();
+    }
+}
+
+impl FrameReader {
+    /// The newest frame, if one was published since the last call.
+    pub fn newer(&mut self) -> Option<&Frame> {
+        if self.output.update() {
+            Some(self.output.output_buffer())
+        } else {
+            None
+        }
+    }
+}

@@ -1,0 +1,156 @@
+// The operator's screen: one WebSocket, frames pushed by the soft-PLC at its main cycle's rate,
+// commands sent back. The jog is a dead-man: released on pointer up, when the tab is hidden,
+// when the connection drops; while held it is refreshed every 20 ms (the server stops a jog not
+// refreshed for 60 ms).
+"use strict";
+
+const $ = (id) => document.getElementById(id);
+const token = new URLSearchParams(location.search).get("token");
+let ws = null;
+let variables = [];
+let programLines = [];
+let jog = null; // [x, y] while held
+let jogTimer = null;
+let lastLine = 0;
+
+function send(command) {
+  if (ws && ws.readyState === WebSocket.OPEN) {
+    ws.send(JSON.stringify(command));
+  }
+}
+
+function connect() {
+  const url = new URL("ws", location.href);
+  url.protocol = location.protocol === "https:" ? "wss:" : "ws:";
+  if (token) url.searchParams.set("token", token);
+  ws = new WebSocket(url);
+  ws.onopen = () => { $("link").textContent = "connected"; $("link").className = "good"; };
+  ws.onclose = () => {
+    $("link").textContent = "disconnected: reconnecting…";
+    $("link").className = "bad";
+    stopJog();
+    setTimeout(connect, 1000);
+  };
+  ws.onmessage = (e) => {
+    const m = JSON.parse(e.data);
+    if (m.type === "hello") hello(m);
+    else if (m.type === "frame") frame(m);
+    else if (m.type === "refused") $("access").textContent = m.why;
+  };
+}
+
+function hello(m) {
+  $("machine").textContent = m.machine;
+  $("config").textContent = m.config;
+  variables = m.variables;
+  $("access").textContent = m.commands ? "" : "watching only: commands need the token (?token=…)";
+  document.body.dataset.commands = m.commands;
+  const box = $("program-box");
+  if (m.program) {
+    $("program-file").textContent = m.program.file;
+    programLines = m.program.text.split("\n");
+    $("program-text").innerHTML = programLines
+      .map((l, i) => `<div class="line" id="line-${i + 1}">${String(i + 1).padStart(4)}  ${escape(l)}</div>`)
+      .join("");
+    box.hidden = false;
+  } else {
+    box.hidden = true;
+  }
+  const watch = $("watch");
+  watch.innerHTML = "<tr><th>variable</th><th>type</th><th>value</th></tr>" +
+    variables.map(([n, t], i) => `<tr data-name="${n.toLowerCase()}"><td>${n}</td><td>${t}</td><td class="num" id="v-${i}"></td></tr>`).join("");
+  filter();
+}
+
+function escape(s) {
+  return s.replace(/[&<>]/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;" })[c]);
+}
+
+function num(v, digits) {
+  return v === null || v === undefined || Number.isNaN(v) ? "–" : Number(v).toFixed(digits);
+}
+
+function frame(m) {
+  const state = $("state");
+  state.textContent = m.state || "—";
+  state.className = "state " + (m.state || "");
+  $("reason").textContent = m.reason;
+  $("note").textContent = m.note;
+  document.body.dataset.state = m.state;
+  $("values").innerHTML = m.values
+    .map(([n, v]) => `<tr><td>${n}</td><td class="num" data-value="${n}">${num(v, 3)}</td></tr>`).join("");
+  $("classes").innerHTML = "<tr><th>class</th><th>cycles</th><th>late mean / max µs</th><th>exec mean / max µs</th><th>overruns</th></tr>" +
+    m.classes.map((c) => `<tr><td>${c.name}</td><td class="num">${c.cycles}</td><td class="num">${num(c.late_mean_us, 1)} / ${num(c.late_max_us, 1)}</td><td class="num">${num(c.exec_mean_us, 1)} / ${num(c.exec_max_us, 1)}</td><td class="num">${c.overruns}</td></tr>`).join("") +
+    `<tr><td>bus</td><td colspan="4">${m.bus_fault ? "FAULT" : "ok"}</td></tr>`;
+  m.image.forEach((v, i) => {
+    const cell = document.getElementById("v-" + i);
+    if (cell) cell.textContent = typeof v === "number" && !Number.isInteger(v) ? v.toFixed(4) : String(v);
+  });
+  const lineIndex = variables.findIndex(([n]) => n === "NC_LINE");
+  const line = lineIndex >= 0 ? m.image[lineIndex] : 0;
+  if (line !== lastLine) {
+    const old = document.getElementById("line-" + lastLine);
+    if (old) old.classList.remove("current");
+    const now = document.getElementById("line-" + line);
+    if (now) { now.classList.add("current"); now.scrollIntoView({ block: "nearest" }); }
+    lastLine = line;
+  }
+}
+
+function filter() {
+  const f = $("filter").value.toLowerCase();
+  for (const row of $("watch").querySelectorAll("tr[data-name]")) {
+    row.hidden = f !== "" && !row.dataset.name.includes(f);
+  }
+}
+
+function startJog(x, y) {
+  jog = [x, y];
+  send({ cmd: "jog", x, y });
+  if (!jogTimer) jogTimer = setInterval(() => { if (jog) send({ cmd: "jog", x: jog[0], y: jog[1] }); }, 20);
+}
+
+function stopJog() {
+  if (jogTimer) { clearInterval(jogTimer); jogTimer = null; }
+  if (jog) { jog = null; send({ cmd: "jog", x: 0, y: 0 }); }
+  for (const b of document.querySelectorAll(".jog-btn.held")) b.classList.remove("held");
+  $("pad-dot").style.left = "72px";
+  $("pad-dot").style.top = "72px";
+}
+
+for (const b of document.querySelectorAll(".jog-btn")) {
+  b.addEventListener("pointerdown", (e) => {
+    b.setPointerCapture(e.pointerId);
+    b.classList.add("held");
+    startJog(Number(b.dataset.x), Number(b.dataset.y));
+  });
+  for (const end of ["pointerup", "pointercancel", "lostpointercapture"]) b.addEventListener(end, stopJog);
+}
+
+const pad = $("pad");
+function padAt(e) {
+  const r = pad.getBoundingClientRect();
+  let x = (e.clientX - r.left) / r.width * 2 - 1;
+  let y = 1 - (e.clientY - r.top) / r.height * 2;
+  const len = Math.hypot(x, y);
+  if (len > 1) { x /= len; y /= len; }
+  $("pad-dot").style.left = `${72 + x * 72}px`;
+  $("pad-dot").style.top = `${72 - y * 72}px`;
+  startJog(x, y);
+}
+pad.addEventListener("pointerdown", (e) => { pad.setPointerCapture(e.pointerId); padAt(e); });
+pad.addEventListener("pointermove", (e) => { if (jog && pad.hasPointerCapture(e.pointerId)) padAt(e); });
+for (const end of ["pointerup", "pointercancel", "lostpointercapture"]) pad.addEventListener(end, stopJog);
+
+document.addEventListener("visibilitychange", () => { if (document.hidden) stopJog(); });
+window.addEventListener("blur", stopJog);
+
+$("stop").addEventListener("click", () => send({ cmd: "stop" }));
+$("ack").addEventListener("click", () => send({ cmd: "stop" }));
+$("axes").addEventListener("click", () => send({ cmd: "axes" }));
+$("nc-start").addEventListener("click", () => send({ cmd: "program", what: "start" }));
+$("nc-hold").addEventListener("click", () => send({ cmd: "program", what: "hold" }));
+$("nc-resume").addEventListener("click", () => send({ cmd: "program", what: "resume" }));
+$("filter").addEventListener("input", filter);
+
+connect();

@@ -1,0 +1,302 @@
+//! The web server of the operator's screen (axum on the runtime's tokio runtime, off the cyclic
+//! path): the page and its assets built into the binary, and one WebSocket per client that
+//! pushes every published frame (at the main cycle's rate) and takes the client's commands.
+//!
+//! Commands need the token when one is configured (`?token=` on the WebSocket's URL); without
+//! it a client only watches. Every command is logged with the client's address. The jog is a
+//! dead-man: a release, a closed connection or a client that stops refreshing it for
+//! [`JOG_TIMEOUT`] sets it to 0.
+
+use std::collections::HashMap;
+use std::net::SocketAddr;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::{Duration, Instant};
+
+use axum::Router;
+use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
+use axum::extract::{ConnectInfo, Query, State};
+use axum::http::header;
+use axum::response::{Html, IntoResponse, Response};
+use axum::routing::get;
+use serde::Deserialize;
+use serde_json::{Value as Json, json};
+use tokio::sync::broadcast;
+use tracing::{info, warn};
+
+use super::commands::{CommandSink, press};
+use super::frame::{Frame, FrameReader};
+use crate::image::Value;
+
+/// A jog not refreshed for this long stops (the page refreshes it every 20 ms while held).
+pub const JOG_TIMEOUT: Duration = Duration::from_millis(60);
+/// How often the server looks for a newly published frame.
+const FRAME_POLL: Duration = Duration::from_millis(2);
+
+const INDEX_HTML: &str = include_str!("page/index.html");
+const APP_JS: &str = include_str!("page/app.js");
+const APP_CSS: &str = include_str!("page/app.css");
+
+/// What the server shares with every connection.
+pub struct Shared {
+    /// The first message to every client: the machine, the configuration, the variables.
+    hello: String,
+    frames: broadcast::Sender<Arc<str>>,
+    sink: CommandSink,
+    token: Option<String>,
+    next_client: AtomicU64,
+    /// The client that jogs (its id), with when it last refreshed the jog.
+    jog_owner: std::sync::Mutex<Option<(u64, Instant)>>,
+}
+
+/// What the screen is told once, at connection: the machine and its variables.
+pub struct HmiInfo {
+    /// The machine's name (or `runtime` without one).
+    pub machine: String,
+    /// The configuration's file.
+    pub config: String,
+    /// Every variable of the process image, in the image's order, with its type.
+    pub variables: Vec<(String, String)>,
+    /// The NC program, if one is loaded: its file and text.
+    pub program: Option<(String, String)>,
+}
+
+/// Builds the router and the task that pushes frames; `token`: commands need it.
+pub fn router(info: &HmiInfo, mut frames: FrameReader, sink: CommandSink, token: Option<String>) -> Router {
+    let hello = json!({
+        "type": "hello",
+        "machine": info.machine,
+        "config": info.config,
+        "variables": info.variables.iter().map(|(n, t)| json!([n, t])).collect::<Vec<_>>(),
+        "program": info.program.as_ref().map(|(file, text)| json!({"file": file, "text": text})),
+    })
+    .to_string();
+    let (tx, _) = broadcast::channel::<Arc<str>>(16);
+    let shared = Arc::new(Shared {
+        hello,
+        frames: tx.clone(),
+        sink,
+        token,
+        next_client: AtomicU64::new(1),
+        jog_owner: std::sync::Mutex::new(None),
+    });
+    let pump = Arc::clone(&shared);
+    tokio::spawn(async move {
+        let mut tick = tokio::time::interval(FRAME_POLL);
+        tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+        loop {
+            tick.tick().await;
+            if let Some(frame) = frames.newer() {
+                // Nobody listening is no error.
+                let _ = tx.send(Arc::from(frame_json(frame).as_str()));
+            }
+            pump.release_stale_jog();
+        }
+    });
+    Router::new()
+        .route("/", get(|| async { Html(INDEX_HTML) }))
+        .route(
+            "/app.js",
+            get(|| async { asset("text/javascript; charset=utf-8", APP_JS) }),
+        )
+        .route("/app.css", get(|| async { asset("text/css; charset=utf-8", APP_CSS) }))
+        .route("/ws", get(socket))
+        .with_state(shared)
+}
+
+fn asset(content_type: &'static str, body: &'static str) -> Response {
+    ([(header::CONTENT_TYPE, content_type)], body).into_response()
+}
+
+/// A frame as the page reads it.
+fn frame_json(f: &Frame) -> String {
+    let s = &f.status;
+    let value = |v: &Value| match *v {
+        Value::Bool(b) => json!(b),
+        Value::Int(i) => json!(i),
+        Value::Uint(u) => json!(u),
+        Value::Dint(d) => json!(d),
+        Value::Real(x) => serde_json::Number::from_f64(x).map_or(Json::Null, Json::Number),
+    };
+    json!({
+        "type": "frame",
+        "seq": f.seq,
+        "t_s": s.t_ns as f64 * 1e-9,
+        "state": s.state,
+        "reason": s.reason,
+        "note": s.note,
+        "values": s.values.iter().map(|(n, v)| json!([n, serde_json::Number::from_f64(*v).map_or(Json::Null, Json::Number)])).collect::<Vec<_>>(),
+        "classes": s.classes.iter().map(|c| json!({
+            "name": c.name, "cycles": c.cycles, "overruns": c.overruns, "violations": c.violations,
+            "late_mean_us": c.lateness_mean_ns / 1e3, "late_max_us": c.lateness_max_ns as f64 / 1e3,
+            "exec_mean_us": c.exec_mean_ns / 1e3, "exec_max_us": c.exec_max_ns as f64 / 1e3,
+        })).collect::<Vec<_>>(),
+        "bus_fault": f.bus_fault,
+        "image": f.image.iter().map(value).collect::<Vec<_>>(),
+    })
+    .to_string()
+}
+
+/// The WebSocket's query: the token, if the client has one.
+#[derive(Deserialize)]
+struct Access {
+    token: Option<String>,
+}
+
+async fn socket(
+    ws: WebSocketUpgrade,
+    Query(access): Query<HashMap<String, String>>,
+    ConnectInfo(peer): ConnectInfo<SocketAddr>,
+    State(shared): State<Arc<Shared>>,
+) -> Response {
+    let access = Access {
+        token: access.get("token").cloned(),
+    };
+    let commands = match &shared.token {
+        None => true,
+        Some(t) => access.token.as_deref() == Some(t.as_str()),
+    };
+    ws.on_upgrade(move |socket| client(socket, peer, commands, shared))
+}
+
+/// A command from the page.
+#[derive(Deserialize)]
+#[serde(tag = "cmd", rename_all = "snake_case", deny_unknown_fields)]
+enum Command {
+    /// STOP (and, in ERROR, its acknowledgement).
+    Stop,
+    /// The axis button.
+    Axes,
+    /// The jog's deflection (0, 0: released).
+    Jog { x: f64, y: f64 },
+    /// Program start, hold or resume.
+    Program { what: String },
+}
+
+async fn client(mut socket: WebSocket, peer: SocketAddr, commands: bool, shared: Arc<Shared>) {
+    let id = shared.next_client.fetch_add(1, Ordering::Relaxed);
+    let mut frames = shared.frames.subscribe();
+    info!(
+        "screen {peer}: connected ({})",
+        if commands {
+            "may command"
+        } else {
+            "watching only: no token"
+        }
+    );
+    let hello = shared.hello.replacen(
+        "\"type\":\"hello\"",
+        &format!("\"type\":\"hello\",\"commands\":{commands}"),
+        1,
+    );
+    if socket.send(Message::Text(hello.into())).await.is_err() {
+        return;
+    }
+    loop {
+        tokio::select! {
+            frame = frames.recv() => match frame {
+                Ok(text) => {
+                    if socket.send(Message::Text(text.as_ref().into())).await.is_err() {
+                        break;
+                    }
+                }
+                // A slow client skips frames; it gets the newest next.
+                Err(broadcast::error::RecvError::Lagged(_)) => {}
+                Err(broadcast::error::RecvError::Closed) => break,
+            },
+            message = socket.recv() => match message {
+                Some(Ok(Message::Text(text))) => {
+                    if !commands {
+                        let _ = socket
+                            .send(Message::Text(r#"{"type":"refused","why":"watching only: commands need the token"}"#.into()))
+                            .await;
+                        continue;
+                    }
+                    match serde_json::from_str::<Command>(&text) {
+                        Ok(c) => shared.apply(id, peer, c),
+                        Err(e) => warn!("screen {peer}: a command that is not one ({e}): {}", crate::config::shorten(&text)),
+                    }
+                }
+                Some(Ok(Message::Close(_))) | None | Some(Err(_)) => break,
+                Some(Ok(_)) => {}
+            },
+        }
+    }
+    shared.release_jog(id, peer, "connection closed");
+    info!("screen {peer}: disconnected");
+}
+
+impl Shared {
+    fn apply(&self, id: u64, peer: SocketAddr, command: Command) {
+        match command {
+            Command::Stop => {
+                info!("screen {peer}: STOP");
+                self.sink.update(|c| c.presses[press::STOP] += 1);
+            }
+            Command::Axes => {
+                info!("screen {peer}: axis button");
+                self.sink.update(|c| c.presses[press::AXES] += 1);
+            }
+            Command::Program { what } => {
+                let k = match what.as_str() {
+                    "start" => 0,
+                    "hold" => 1,
+                    "resume" => 2,
+                    other => {
+                        warn!(
+                            "screen {peer}: no program command \"{}\"",
+                            crate::config::shorten(other)
+                        );
+                        return;
+                    }
+                };
+                info!("screen {peer}: program {what}");
+                self.sink.update(|c| c.presses[press::NC[k]] += 1);
+            }
+            Command::Jog { x, y } => {
+                let (x, y) = (finite(x).clamp(-1.0, 1.0), finite(y).clamp(-1.0, 1.0));
+                let mut owner = self.jog_owner.lock().unwrap_or_else(|p| p.into_inner());
+                if x == 0.0 && y == 0.0 {
+                    if owner.is_some_and(|(o, _)| o == id) {
+                        *owner = None;
+                        info!("screen {peer}: jog released");
+                        self.sink.update(|c| c.jog = [0.0; 2]);
+                    }
+                    return;
+                }
+                if owner.is_none_or(|(o, _)| o != id) {
+                    info!("screen {peer}: jog {x:.2} {y:.2}");
+                }
+                *owner = Some((id, Instant::now()));
+                self.sink.update(|c| c.jog = [x, y]);
+            }
+        }
+    }
+
+    /// Stops the jog if client `id` holds it.
+    fn release_jog(&self, id: u64, peer: SocketAddr, why: &str) {
+        let mut owner = self.jog_owner.lock().unwrap_or_else(|p| p.into_inner());
+        if owner.is_some_and(|(o, _)| o == id) {
+            *owner = None;
+            info!("screen {peer}: jog stopped: {why}");
+            self.sink.update(|c| c.jog = [0.0; 2]);
+        }
+    }
+
+    /// Stops a jog that its client stopped refreshing.
+    fn release_stale_jog(&self) {
+        let mut owner = self.jog_owner.lock().unwrap_or_else(|p| p.into_inner());
+        if owner.is_some_and(|(_, at)| at.elapsed() > JOG_TIMEOUT) {
+            *owner = None;
+            warn!(
+                "screen: the jog was not refreshed for {} ms: stopped",
+                JOG_TIMEOUT.as_millis()
+            );
+            self.sink.update(|c| c.jog = [0.0; 2]);
+        }
+    }
+}
+
+fn finite(v: f64) -> f64 {
+    if v.is_finite() { v } else { 0.0 }
+}

@@ -1,0 +1,23 @@
+//! The operator screen's inputs (issue 17): what the web page commands enters the process image
+//! as these variables, written by the runtime's HMI bus before each cycle, so that it is traced
+//! and replayed like the panel. Programs read them as optional inputs: without a screen they read
+//! zero and nothing changes.
+
+use crate::image::Var;
+
+/// STOP pressed on the screen (a press, held 100 ms): in addition to the panel's STOP, never
+/// instead of it. In ERROR a press acknowledges, as the panel's does.
+pub const HMI_STOP: Var<bool> = Var::new("HMI_STOP");
+/// The screen's jog: a deflection in −1 … 1 per stick axis (x, y), 0 when released. The page
+/// refreshes it while a jog button or the drag pad is held; a release, a lost connection, a
+/// hidden tab or a silent page brings it to 0 (the dead-man).
+pub const HMI_JOG: [Var<f64>; 2] = [Var::new("HMI_JOG_X"), Var::new("HMI_JOG_Y")];
+/// The screen's axis button: selects the next joint (joint mode) or pair of world axes (a press).
+pub const HMI_AXES: Var<bool> = Var::new("HMI_AXES");
+/// The screen's program buttons: start, feed hold, resume (presses), in addition to the panel's
+/// `NC_START`, `NC_HOLD`, `NC_RESUME`.
+pub const HMI_NC: [Var<bool>; 3] = [
+    Var::new("HMI_NC_START"),
+    Var::new("HMI_NC_HOLD"),
+    Var::new("HMI_NC_RESUME"),
+];
