@@ -187,6 +187,15 @@ impl Setup {
         crate::sim::build(&self.loaded, machine, map, scenario)
     }
 
+    /// Lays the operator screen's variables (`HMI_*`) over `bus`, latched by the fastest class:
+    /// the screen's STOP reaches the fast interlock as the panel's does.
+    pub fn with_screen(&self, bus: Box<dyn Bus>) -> (Box<dyn Bus>, crate::hmi::commands::CommandSink) {
+        let classes = &self.loaded.config.task_classes;
+        let fastest = (0..classes.len()).min_by_key(|&c| classes[c].cycle_us).unwrap_or(0);
+        let (bus, sink) = crate::hmi::commands::HmiBus::new(bus, fastest);
+        (Box::new(bus), sink)
+    }
+
     /// A bus that only declares the I/O map's variables (inputs written by the bus, outputs read
     /// by it) and exchanges nothing: replay feeds the recorded inputs itself.
     pub fn declaring_bus(&self) -> Result<Box<dyn Bus>, ConfigError> {
@@ -407,14 +416,9 @@ pub fn build(setup: Setup, options: Options) -> Result<Built, BuildError> {
         Err(BusFailure::Sections) => (Box::new(UnknownBus) as Box<dyn Bus>, None, None),
         Err(BusFailure::Other(f)) => return Err(f),
     };
-    // The screen's variables are latched by the fastest class: its STOP reaches the fast
-    // interlock as the panel's does.
     let (bus, hmi) = if options.hmi {
-        let fastest = (0..setup.loaded.config.task_classes.len())
-            .min_by_key(|&c| setup.loaded.config.task_classes[c].cycle_us)
-            .unwrap_or(0);
-        let (bus, sink) = crate::hmi::commands::HmiBus::new(bus, fastest);
-        (Box::new(bus) as Box<dyn Bus>, Some(sink))
+        let (bus, sink) = setup.with_screen(bus);
+        (bus, Some(sink))
     } else {
         (bus, None)
     };

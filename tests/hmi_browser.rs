@@ -31,9 +31,9 @@ impl Drop for Plc {
     }
 }
 
-/// Starts `pkm-plc run` in real time on `machine` with the screen on a free loopback port;
-/// returns when the screen's address is logged.
-fn start_plc(machine: &str, seconds: u32) -> Plc {
+/// Starts `pkm-plc run` in real time on `machine` with the screen on a free loopback port (and
+/// `more` arguments); returns when the screen's address is logged.
+fn start_plc(machine: &str, seconds: u32, more: &[&str]) -> Plc {
     let mut child = Command::new(env!("CARGO_BIN_EXE_pkm-plc"))
         .args([
             "run",
@@ -46,6 +46,7 @@ fn start_plc(machine: &str, seconds: u32) -> Plc {
             "--duration",
             &seconds.to_string(),
         ])
+        .args(more)
         .current_dir(env!("CARGO_MANIFEST_DIR"))
         .env("RUST_LOG", "info")
         .stdout(Stdio::null())
@@ -159,8 +160,9 @@ async fn the_page_shows_referencing_jogs_while_held_stops_and_acknowledges() {
         );
         return;
     };
-    let plc = start_plc("ox-x", 90);
     let profile = tempfile::tempdir().expect("tempdir");
+    let trace = profile.path().join("screen.jsonl");
+    let mut plc = start_plc("ox-x", 90, &["--trace", trace.to_str().expect("utf-8")]);
     let config = BrowserConfig::builder()
         .chrome_executable(chromium)
         .no_sandbox()
@@ -229,7 +231,29 @@ async fn the_page_shows_referencing_jogs_while_held_stops_and_acknowledges() {
     let _ = browser.close().await;
     let _ = browser.wait().await;
     events.abort();
-    drop(plc);
+    // The screen's commands are inputs like the panel's: in the trace, and replayed.
+    let stopped = Command::new("kill")
+        .args(["-TERM", &plc.child.id().to_string()])
+        .status()
+        .expect("kill runs");
+    assert!(stopped.success());
+    assert!(plc.child.wait().expect("the run ends").success());
+    let recorded = std::fs::read_to_string(&trace).expect("the trace");
+    assert!(
+        recorded.contains(r#""HMI_STOP":true"#),
+        "the screen's STOP is in the trace"
+    );
+    assert!(
+        recorded.contains(r#""HMI_JOG_X":1.0"#),
+        "the screen's jog is in the trace"
+    );
+    let replay = common::pkm(&["replay", trace.to_str().expect("utf-8"), "--machine", "ox-x"]);
+    assert_eq!(replay.status.code(), Some(0), "{}", common::stderr(&replay));
+    assert!(
+        common::stdout(&replay).contains(": identical: "),
+        "{}",
+        common::stdout(&replay)
+    );
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -237,7 +261,7 @@ async fn a_websocket_dropped_mid_jog_stops_the_jog_within_a_main_cycle() {
     use futures::SinkExt;
     use tokio_tungstenite::tungstenite::Message;
     type Ws = tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>;
-    let plc = start_plc("ox-x", 60);
+    let plc = start_plc("ox-x", 60, &[]);
     let ws = plc.url.replacen("http://", "ws://", 1) + "ws";
     // A watcher, and a client that jogs.
     let (mut watcher, _) = tokio_tungstenite::connect_async(ws.as_str()).await.expect("connects");

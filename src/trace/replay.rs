@@ -92,8 +92,13 @@ pub fn replay(trace: &Path, setup: &Setup, force: bool) -> Result<ReplayReport, 
         ),
         None => None,
     };
-    // The bus only declares the I/O map's variables: replayed cycles never call it.
-    let mut plc = setup.plc_with(setup.declaring_bus()?, job.as_ref())?;
+    // The bus only declares the I/O map's variables (and the operator screen's, if the run had
+    // one): replayed cycles never call it.
+    let mut bus = setup.declaring_bus()?;
+    if header.variables.contains_key(pkm_api::hmi::HMI_STOP.name()) {
+        bus = setup.with_screen(bus).0;
+    }
+    let mut plc = setup.plc_with(bus, job.as_ref())?;
     let mut index = std::collections::HashMap::new();
     let mut by_position: Vec<VarIndex> = Vec::new();
     for (name, ty) in &header.variables {
