@@ -18,6 +18,9 @@ pub struct Frame {
     pub image: Vec<Value>,
     /// The bus reports a fault.
     pub bus_fault: bool,
+    /// When it was published, wall clock (µs since the Unix epoch): a browser on the same
+    /// computer measures the update's latency against it.
+    pub published_unix_us: u64,
 }
 
 /// The cyclic thread's end.
@@ -40,6 +43,7 @@ pub fn frames(plc: &Plc) -> (FramePublisher, FrameReader) {
         status: Snapshot::for_plc(plc),
         image: plc.global_image().to_vec(),
         bus_fault: false,
+        published_unix_us: 0,
     };
     let (input, output) = triple_buffer::triple_buffer(&frame);
     let every_ns = plc.app_period_ns().unwrap_or(50_000_000).max(1);
@@ -71,6 +75,10 @@ impl FramePublisher {
         frame.image.clear();
         frame.image.extend_from_slice(plc.global_image());
         frame.bus_fault = plc.bus().fault();
+        // The runtime's own clock read (a vDSO call), not a program's: the cycle is done.
+        frame.published_unix_us = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_micros() as u64);
         self.input.publish();
     }
 }

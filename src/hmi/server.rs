@@ -132,6 +132,7 @@ fn frame_json(f: &Frame) -> String {
             "exec_mean_us": c.exec_mean_ns / 1e3, "exec_max_us": c.exec_max_ns as f64 / 1e3,
         })).collect::<Vec<_>>(),
         "bus_fault": f.bus_fault,
+        "published_unix_us": f.published_unix_us,
         "image": f.image.iter().map(value).collect::<Vec<_>>(),
     })
     .to_string()

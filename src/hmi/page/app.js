@@ -12,6 +12,8 @@ let programLines = [];
 let jog = null; // [x, y] while held
 let jogTimer = null;
 let lastLine = 0;
+// The update latency: from the cycle's publication to this page (ms), the last 2000 frames.
+window.latency = [];
 
 function send(command) {
   if (ws && ws.readyState === WebSocket.OPEN) {
@@ -71,6 +73,12 @@ function num(v, digits) {
 }
 
 function frame(m) {
+  const latency = performance.timeOrigin + performance.now() - m.published_unix_us / 1000;
+  window.latency.push(latency);
+  if (window.latency.length > 2000) window.latency.shift();
+  const sorted = [...window.latency].sort((a, b) => a - b);
+  const mean = sorted.reduce((a, b) => a + b, 0) / sorted.length;
+  $("latency").textContent = `update ${mean.toFixed(1)} ms mean, ${sorted[Math.floor(sorted.length * 0.99)].toFixed(1)} ms p99`;
   const state = $("state");
   state.textContent = m.state || "—";
   state.className = "state " + (m.state || "");

@@ -1,0 +1,138 @@
+//! Measures the operator screen (README, "The operator's screen"): the update latency from a
+//! cycle to the browser, and the 10 ms class's lateness and execution time with N headless
+//! Chromium browsers connected.
+//!
+//! `cargo build --release && cargo run --release --example hmi_latency -- [BROWSERS] [SECONDS]`
+//! (3 browsers, 30 s by default; 0 browsers measures the PLC alone). Needs Chromium
+//! (`apt-get install chromium`) and runs `target/release/pkm-plc run --machine ox-x`.
+
+use std::io::BufRead;
+use std::process::{Command, Stdio};
+use std::time::Duration;
+
+use chromiumoxide::{Browser, BrowserConfig};
+use futures::StreamExt;
+
+fn fail(message: String) -> ! {
+    eprintln!("hmi_latency: {message}");
+    std::process::exit(1)
+}
+
+#[tokio::main]
+async fn main() {
+    let mut args = std::env::args().skip(1);
+    let browsers: usize = args.next().map_or(3, |a| {
+        a.parse()
+            .unwrap_or_else(|_| fail(format!("{a} is not a number of browsers")))
+    });
+    let seconds: u64 = args.next().map_or(30, |a| {
+        a.parse()
+            .unwrap_or_else(|_| fail(format!("{a} is not a number of seconds")))
+    });
+    let dir = std::env::temp_dir().join(format!("hmi-latency-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap_or_else(|e| fail(format!("{}: {e}", dir.display())));
+    let summary = dir.join("summary.json");
+    let mut plc = Command::new("target/release/pkm-plc")
+        .args([
+            "run",
+            "--machine",
+            "ox-x",
+            "--joystick",
+            "none",
+            "--hmi",
+            "127.0.0.1:0",
+            "--duration",
+        ])
+        .arg((seconds + 5).to_string())
+        .arg("--summary")
+        .arg(&summary)
+        .env("RUST_LOG", "info")
+        .stderr(Stdio::piped())
+        .stdout(Stdio::null())
+        .spawn()
+        .unwrap_or_else(|e| fail(format!("target/release/pkm-plc: {e} (cargo build --release first)")));
+    let stderr = plc.stderr.take().unwrap_or_else(|| fail("no stderr".into()));
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        for line in std::io::BufReader::new(stderr).lines().map_while(Result::ok) {
+            if let Some(at) = line.split("operator screen at ").nth(1) {
+                let _ = tx.send(at.split_whitespace().next().unwrap_or("").to_string());
+            }
+        }
+    });
+    let url = rx
+        .recv_timeout(Duration::from_secs(30))
+        .unwrap_or_else(|_| fail("the screen's address was not logged".into()));
+    let chromium = Command::new("which")
+        .arg("chromium")
+        .output()
+        .ok()
+        .and_then(|o| String::from_utf8(o.stdout).ok())
+        .map(|p| p.trim().to_string())
+        .filter(|p| !p.is_empty());
+    let mut open = Vec::new();
+    for i in 0..browsers {
+        let Some(chromium) = chromium.as_deref() else {
+            fail("no chromium on the PATH (apt-get install chromium)".into())
+        };
+        let config = BrowserConfig::builder()
+            .chrome_executable(chromium)
+            .no_sandbox()
+            .user_data_dir(dir.join(format!("profile-{i}")))
+            .arg("--disable-gpu")
+            .build()
+            .unwrap_or_else(|e| fail(e));
+        let (browser, mut handler) = Browser::launch(config)
+            .await
+            .unwrap_or_else(|e| fail(format!("Chromium: {e}")));
+        tokio::spawn(async move { while handler.next().await.is_some() {} });
+        let page = browser
+            .new_page(url.as_str())
+            .await
+            .unwrap_or_else(|e| fail(format!("the page: {e}")));
+        open.push((browser, page));
+    }
+    tokio::time::sleep(Duration::from_secs(seconds)).await;
+    let mut all: Vec<f64> = Vec::new();
+    for (_, page) in &open {
+        let latency: Vec<f64> = page
+            .evaluate("window.latency")
+            .await
+            .ok()
+            .and_then(|r| r.into_value().ok())
+            .unwrap_or_default();
+        all.extend(latency);
+    }
+    for (mut browser, _) in open {
+        let _ = browser.close().await;
+        let _ = browser.wait().await;
+    }
+    let status = plc.wait().unwrap_or_else(|e| fail(e.to_string()));
+    if !status.success() {
+        fail(format!("pkm-plc ended with {status}"));
+    }
+    let text = std::fs::read_to_string(&summary).unwrap_or_else(|e| fail(e.to_string()));
+    let s: serde_json::Value = serde_json::from_str(&text).unwrap_or_else(|e| fail(e.to_string()));
+    let fast = &s["task_classes"][0];
+    println!(
+        "{browsers} browsers, {seconds} s: 10 ms class lateness p50/p99/max {}/{}/{} µs, execution mean/p99/max {}/{}/{} µs, {} overruns",
+        fast["lateness_us"]["p50"],
+        fast["lateness_us"]["p99"],
+        fast["lateness_us"]["max"],
+        fast["exec_us"]["mean"],
+        fast["exec_us"]["p99"],
+        fast["exec_us"]["max"],
+        fast["overruns"]
+    );
+    if !all.is_empty() {
+        all.sort_by(f64::total_cmp);
+        let mean = all.iter().sum::<f64>() / all.len() as f64;
+        let p99 = all[(all.len() * 99 / 100).min(all.len() - 1)];
+        println!(
+            "update latency (publication in the cycle → the page's handler): mean {mean:.2} ms, p99 {p99:.2} ms, max {:.2} ms over {} frames",
+            all[all.len() - 1],
+            all.len()
+        );
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
