@@ -342,3 +342,70 @@ async fn a_websocket_dropped_mid_jog_stops_the_jog_within_a_main_cycle() {
     // One main cycle (50 ms), and the frame's way to this client.
     assert!(delay < Duration::from_millis(100), "{} ms", delay.as_millis());
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn with_a_token_a_page_without_it_only_watches() {
+    use futures::SinkExt;
+    use tokio_tungstenite::tungstenite::Message;
+    type Ws = tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>;
+    async fn next(ws: &mut Ws) -> serde_json::Value {
+        loop {
+            match ws.next().await {
+                Some(Ok(Message::Text(t))) => return serde_json::from_str(&t).expect("JSON"),
+                Some(Ok(_)) => {}
+                other => panic!("the connection ended: {other:?}"),
+            }
+        }
+    }
+    async fn state_after(ws: &mut Ws, frames: usize) -> String {
+        let mut state = String::new();
+        for _ in 0..frames {
+            let f = next(ws).await;
+            if f["type"] == "frame" {
+                state = f["state"].as_str().unwrap_or("").to_string();
+            }
+        }
+        state
+    }
+    let plc = start_plc("ox-x", 30, &["--hmi-token", "s3cret"]);
+    let ws = plc.url.replacen("http://", "ws://", 1) + "ws";
+    let (mut watcher, _) = tokio_tungstenite::connect_async(ws.as_str()).await.expect("connects");
+    assert_eq!(next(&mut watcher).await["commands"], false);
+    watcher
+        .send(Message::Text(r#"{"cmd":"stop"}"#.into()))
+        .await
+        .expect("sends");
+    let mut refused = false;
+    for _ in 0..20 {
+        let m = next(&mut watcher).await;
+        if m["type"] == "refused" {
+            assert_eq!(m["why"], "watching only: commands need the token");
+            refused = true;
+            break;
+        }
+    }
+    assert!(refused, "the command was refused");
+    assert_ne!(state_after(&mut watcher, 10).await, "ERROR", "and did nothing");
+    let (mut operator, _) = tokio_tungstenite::connect_async(format!("{ws}?token=s3cret"))
+        .await
+        .expect("connects");
+    assert_eq!(next(&mut operator).await["commands"], true);
+    operator
+        .send(Message::Text(r#"{"cmd":"stop"}"#.into()))
+        .await
+        .expect("sends");
+    assert_eq!(state_after(&mut watcher, 10).await, "ERROR", "the operator's STOP");
+}
+
+#[test]
+fn serving_beyond_loopback_needs_a_token() {
+    let o = common::pkm(&["run", "--machine", "ox-x", "--hmi", "0.0.0.0:0", "--duration", "1"]);
+    assert_eq!(o.status.code(), Some(2), "{}", common::stderr(&o));
+    assert!(
+        common::stderr(&o).contains(
+            "--hmi 0.0.0.0:0: serving the screen beyond this computer needs a token (--hmi-token TOKEN or --hmi-token-file FILE)"
+        ),
+        "{}",
+        common::stderr(&o)
+    );
+}

@@ -7,7 +7,6 @@
 //! dead-man: a release, a closed connection or a client that stops refreshing it for
 //! [`JOG_TIMEOUT`] sets it to 0.
 
-use std::collections::HashMap;
 use std::net::SocketAddr;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -40,7 +39,7 @@ const APP_CSS: &str = include_str!("page/app.css");
 /// What the server shares with every connection.
 pub struct Shared {
     /// The first message to every client: the machine, the configuration, the variables.
-    hello: String,
+    hello: Json,
     frames: broadcast::Sender<Arc<str>>,
     sink: CommandSink,
     token: Option<String>,
@@ -69,8 +68,7 @@ pub fn router(info: &HmiInfo, mut frames: FrameReader, sink: CommandSink, token:
         "config": info.config,
         "variables": info.variables.iter().map(|(n, t)| json!([n, t])).collect::<Vec<_>>(),
         "program": info.program.as_ref().map(|(file, text)| json!({"file": file, "text": text})),
-    })
-    .to_string();
+    });
     let (tx, _) = broadcast::channel::<Arc<str>>(16);
     let shared = Arc::new(Shared {
         hello,
@@ -146,13 +144,10 @@ struct Access {
 
 async fn socket(
     ws: WebSocketUpgrade,
-    Query(access): Query<HashMap<String, String>>,
+    Query(access): Query<Access>,
     ConnectInfo(peer): ConnectInfo<SocketAddr>,
     State(shared): State<Arc<Shared>>,
 ) -> Response {
-    let access = Access {
-        token: access.get("token").cloned(),
-    };
     let commands = match &shared.token {
         None => true,
         Some(t) => access.token.as_deref() == Some(t.as_str()),
@@ -185,12 +180,9 @@ async fn client(mut socket: WebSocket, peer: SocketAddr, commands: bool, shared:
             "watching only: no token"
         }
     );
-    let hello = shared.hello.replacen(
-        "\"type\":\"hello\"",
-        &format!("\"type\":\"hello\",\"commands\":{commands}"),
-        1,
-    );
-    if socket.send(Message::Text(hello.into())).await.is_err() {
+    let mut hello = shared.hello.clone();
+    hello["commands"] = json!(commands);
+    if socket.send(Message::Text(hello.to_string().into())).await.is_err() {
         return;
     }
     loop {
