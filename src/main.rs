@@ -620,7 +620,25 @@ fn screen_info(plc: &Plc, setup: &Setup, job: Option<&pkm_api::trajectory::NcJob
             .map(|v| (v.name.clone(), v.ty.to_string()))
             .collect(),
         program: job.map(|j| (j.file.clone(), j.text.clone())),
+        path: job.map(|j| preview(j.trajectory.as_ref())).unwrap_or_default(),
     }
+}
+
+/// The programmed path for the screen's preview: at most 4000 points along the time line.
+fn preview(trajectory: &dyn pkm_api::trajectory::Trajectory) -> Vec<[f64; 3]> {
+    const POINTS: usize = 4000;
+    let duration = trajectory.duration_s();
+    let mut cursor = 0;
+    let mut points: Vec<[f64; 3]> = Vec::with_capacity(POINTS + 1);
+    for i in 0..=POINTS {
+        let p = trajectory.sample(duration * i as f64 / POINTS as f64, &mut cursor).pose;
+        let point = [p[0], p[1], p[2]];
+        // Where the tool stands (dwells, stops), one point is enough.
+        if points.last() != Some(&point) {
+            points.push(point);
+        }
+    }
+    points
 }
 
 fn run_realtime(plc: Plc, options: RealTimeOptions, screen: Option<Screen>) -> Result<run::RealTimeOutcome, Failure> {

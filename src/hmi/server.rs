@@ -58,6 +58,9 @@ pub struct HmiInfo {
     pub variables: Vec<(String, String)>,
     /// The NC program, if one is loaded: its file and text.
     pub program: Option<(String, String)>,
+    /// The programmed tool path (x y z of the commanded pose along the program's time line),
+    /// for the page's preview.
+    pub path: Vec<[f64; 3]>,
 }
 
 /// Builds the router and the task that pushes frames; `token`: commands need it.
@@ -68,6 +71,7 @@ pub fn router(info: &HmiInfo, mut frames: FrameReader, sink: CommandSink, token:
         "config": info.config,
         "variables": info.variables.iter().map(|(n, t)| json!([n, t])).collect::<Vec<_>>(),
         "program": info.program.as_ref().map(|(file, text)| json!({"file": file, "text": text})),
+        "path": info.path,
     });
     let (tx, _) = broadcast::channel::<Arc<str>>(16);
     let shared = Arc::new(Shared {

@@ -12,6 +12,11 @@ let programLines = [];
 let jog = null; // [x, y] while held
 let jogTimer = null;
 let lastLine = 0;
+// The tool path: programmed (from the hello), cut (the measured tool point while a program runs).
+let programmed = [];
+let cut = [];
+let plane = [0, 1];
+let index = {};
 // The update latency: from the cycle's publication to this page (ms), the last 2000 frames.
 window.latency = [];
 
@@ -42,6 +47,16 @@ function connect() {
 }
 
 function hello(m) {
+  index = {};
+  m.variables.forEach(([n], i) => { index[n] = i; });
+  programmed = m.path || [];
+  cut = [];
+  // The plane of the programmed path's two largest extents (of x y z).
+  if (programmed.length > 1) {
+    const extent = [0, 1, 2].map((c) => Math.max(...programmed.map((p) => p[c])) - Math.min(...programmed.map((p) => p[c])));
+    plane = [0, 1, 2].sort((a, b) => extent[b] - extent[a] || a - b).slice(0, 2).sort();
+  }
+  $("path-box").hidden = programmed.length < 2;
   $("machine").textContent = m.machine;
   $("config").textContent = m.config;
   variables = m.variables;
@@ -89,11 +104,15 @@ function frame(m) {
     .map(([n, v]) => `<tr><td>${n}</td><td class="num" data-value="${n}">${num(v, 3)}</td></tr>`).join("");
   $("classes").innerHTML = "<tr><th>class</th><th>cycles</th><th>late mean / max µs</th><th>exec mean / max µs</th><th>overruns</th></tr>" +
     m.classes.map((c) => `<tr><td>${c.name}</td><td class="num">${c.cycles}</td><td class="num">${num(c.late_mean_us, 1)} / ${num(c.late_max_us, 1)}</td><td class="num">${num(c.exec_mean_us, 1)} / ${num(c.exec_max_us, 1)}</td><td class="num">${c.overruns}</td></tr>`).join("") +
-    `<tr><td>bus</td><td colspan="4">${m.bus_fault ? "FAULT" : "ok"}</td></tr>`;
+    `<tr><td>bus</td><td colspan="4">${m.bus_fault ? "FAULT" : "ok"}</td></tr>` +
+    ("JOYSTICK_CONNECTED" in index
+      ? `<tr><td>joystick</td><td colspan="4">${m.image[index.JOYSTICK_CONNECTED] ? "connected" : "not connected"}</td></tr>`
+      : "");
   m.image.forEach((v, i) => {
     const cell = document.getElementById("v-" + i);
     if (cell) cell.textContent = typeof v === "number" && !Number.isInteger(v) ? v.toFixed(4) : String(v);
   });
+  drawPath(m);
   const lineIndex = variables.findIndex(([n]) => n === "NC_LINE");
   const line = lineIndex >= 0 ? m.image[lineIndex] : 0;
   if (line !== lastLine) {
@@ -103,6 +122,35 @@ function frame(m) {
     if (now) { now.classList.add("current"); now.scrollIntoView({ block: "nearest" }); }
     lastLine = line;
   }
+}
+
+function drawPath(m) {
+  if (programmed.length < 2) return;
+  const value = (name) => (name in index ? m.image[index[name]] : null);
+  const tool = ["NC_TOOL_X", "NC_TOOL_Y", "NC_TOOL_Z"].map(value);
+  const running = [1, 2, 3, 4].includes(value("NC_STATE"));
+  if (running && tool[plane[0]] !== null && tool[plane[1]] !== null) {
+    cut.push([tool[plane[0]], tool[plane[1]]]);
+    if (cut.length > 20000) cut.shift();
+  }
+  const canvas = $("path");
+  const g = canvas.getContext("2d");
+  const pts = programmed.map((p) => [p[plane[0]], p[plane[1]]]);
+  const xs = pts.map((p) => p[0]), ys = pts.map((p) => p[1]);
+  const [x0, x1, y0, y1] = [Math.min(...xs), Math.max(...xs), Math.min(...ys), Math.max(...ys)];
+  const span = Math.max(x1 - x0, y1 - y0, 1e-3) * 1.1;
+  const [cx, cy] = [(x0 + x1) / 2, (y0 + y1) / 2];
+  const px = (p) => [(p[0] - cx) / span * canvas.width + canvas.width / 2, canvas.height / 2 - (p[1] - cy) / span * canvas.height];
+  g.clearRect(0, 0, canvas.width, canvas.height);
+  const line = (points, style, width) => {
+    g.strokeStyle = style; g.lineWidth = width; g.beginPath();
+    points.forEach((p, i) => { const [x, y] = px(p); if (i === 0) g.moveTo(x, y); else g.lineTo(x, y); });
+    g.stroke();
+  };
+  line(pts, "#bbb", 3);
+  line(cut, "#06c", 1.5);
+  const at = cut[cut.length - 1];
+  if (at) { const [x, y] = px(at); g.fillStyle = "#c00"; g.beginPath(); g.arc(x, y, 4, 0, 2 * Math.PI); g.fill(); }
 }
 
 function filter() {
