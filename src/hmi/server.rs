@@ -88,8 +88,11 @@ pub fn router(info: &HmiInfo, mut frames: FrameReader, sink: CommandSink, token:
         tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
         loop {
             tick.tick().await;
-            if let Some(frame) = frames.newer() {
-                // Nobody listening is no error.
+            // Taken even with nobody listening, so that a client gets the newest next; written
+            // out only for listeners.
+            if let Some(frame) = frames.newer()
+                && tx.receiver_count() > 0
+            {
                 let _ = tx.send(Arc::from(frame_json(frame).as_str()));
             }
             pump.release_stale_jog();
