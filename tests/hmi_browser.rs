@@ -145,6 +145,21 @@ async fn mouse(page: &Page, at: (f64, f64), pressed: bool) {
     page.execute(event).await.expect("the mouse event is dispatched");
 }
 
+/// A WebSocket client of the screen.
+type Ws = tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>;
+
+/// The screen's next message (the hello, a frame, a refusal) as JSON.
+async fn next(ws: &mut Ws) -> serde_json::Value {
+    use tokio_tungstenite::tungstenite::Message;
+    loop {
+        match ws.next().await {
+            Some(Ok(Message::Text(t))) => return serde_json::from_str(&t).expect("JSON"),
+            Some(Ok(_)) => {}
+            other => panic!("the connection ended: {other:?}"),
+        }
+    }
+}
+
 async fn click(page: &Page, selector: &str) {
     let at = centre(page, selector).await;
     mouse(page, at, true).await;
@@ -260,22 +275,12 @@ async fn the_page_shows_referencing_jogs_while_held_stops_and_acknowledges() {
 async fn a_websocket_dropped_mid_jog_stops_the_jog_within_a_main_cycle() {
     use futures::SinkExt;
     use tokio_tungstenite::tungstenite::Message;
-    type Ws = tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>;
     let plc = start_plc("ox-x", 60, &[]);
     let ws = plc.url.replacen("http://", "ws://", 1) + "ws";
     // A watcher, and a client that jogs.
     let (mut watcher, _) = tokio_tungstenite::connect_async(ws.as_str()).await.expect("connects");
     let (mut jogger, _) = tokio_tungstenite::connect_async(ws.as_str()).await.expect("connects");
     // The hello (the variables' names) comes first, then a frame per main cycle.
-    async fn next(ws: &mut Ws) -> serde_json::Value {
-        loop {
-            match ws.next().await {
-                Some(Ok(Message::Text(t))) => return serde_json::from_str(&t).expect("JSON"),
-                Some(Ok(_)) => {}
-                other => panic!("the watcher lost its connection: {other:?}"),
-            }
-        }
-    }
     let hello = next(&mut watcher).await;
     assert_eq!(hello["type"], "hello");
     let jog = hello["variables"]
@@ -347,16 +352,6 @@ async fn a_websocket_dropped_mid_jog_stops_the_jog_within_a_main_cycle() {
 async fn with_a_token_a_page_without_it_only_watches() {
     use futures::SinkExt;
     use tokio_tungstenite::tungstenite::Message;
-    type Ws = tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>;
-    async fn next(ws: &mut Ws) -> serde_json::Value {
-        loop {
-            match ws.next().await {
-                Some(Ok(Message::Text(t))) => return serde_json::from_str(&t).expect("JSON"),
-                Some(Ok(_)) => {}
-                other => panic!("the connection ended: {other:?}"),
-            }
-        }
-    }
     async fn state_after(ws: &mut Ws, frames: usize) -> String {
         let mut state = String::new();
         for _ in 0..frames {
