@@ -69,6 +69,9 @@ pub mod vars {
     pub const NC_RUN_S: Var<f64> = Var::new("NC_RUN_S");
     /// The last run reached the program's end.
     pub const NC_COMPLETED: Var<bool> = Var::new("NC_COMPLETED");
+    /// The executor met a pose of the program that has no joints (which its check rules out):
+    /// it stands where it was; the main program makes it an ERROR.
+    pub const NC_FAULT: Var<bool> = Var::new("NC_FAULT");
 }
 
 /// The most joints or pose coordinates a trajectory has (x y z a b c).

@@ -101,6 +101,8 @@ pub struct Executor {
     line: u32,
     /// Standing at an M0 (paused, or held after it): its line is the one executing.
     at_pause: bool,
+    /// A sampled pose had no joints: standing at the last one that had.
+    fault: bool,
     current: TrajectorySample,
     velocities: [f64; MAX_AXES],
 }
@@ -122,6 +124,7 @@ impl Executor {
             rpm: 0.0,
             line: current.line,
             at_pause: false,
+            fault: false,
             current,
             velocities: [0.0; MAX_AXES],
         }
@@ -152,6 +155,12 @@ impl Executor {
         self.line
     }
 
+    /// Whether a sampled pose had no joints (the executor stands at the last that had, until
+    /// the next start).
+    pub fn fault(&self) -> bool {
+        self.fault
+    }
+
     /// The spindle: direction (1, −1, 0) and speed (rpm).
     pub fn spindle(&self) -> (i8, f64) {
         (self.spindle, self.rpm)
@@ -175,6 +184,7 @@ impl Executor {
             (Command::Run, RunState::Idle) => {
                 self.state = RunState::Running;
                 self.at_pause = false;
+                self.fault = false;
                 self.t = 0.0;
                 self.rate = 1.0;
                 self.cursor = 0;
@@ -192,10 +202,19 @@ impl Executor {
             _ => {}
         }
         self.velocities = [0.0; MAX_AXES];
-        if frozen {
+        if frozen || self.fault {
             self.rate = 0.0;
         }
-        self.current = self.trajectory.sample(self.t, &mut self.cursor);
+        if self.fault {
+            // Standing at the last pose that had joints.
+            return;
+        }
+        let sample = self.trajectory.sample(self.t, &mut self.cursor);
+        if sample.joints.iter().any(|q| !q.is_finite()) {
+            self.fault = true;
+            return;
+        }
+        self.current = sample;
         let duration = self.trajectory.duration_s();
         let moving = matches!(self.state, RunState::Running | RunState::Holding) && !frozen;
         let events = self.trajectory.events();
@@ -263,6 +282,11 @@ impl Executor {
         }
         self.ahead = self.cursor;
         let ahead = self.trajectory.sample(next, &mut self.ahead);
+        if ahead.joints.iter().any(|q| !q.is_finite()) {
+            // The next pose has none: stand here (and fault at it next cycle).
+            self.t = next;
+            return;
+        }
         for (v, (q1, q0)) in self
             .velocities
             .iter_mut()
@@ -293,6 +317,7 @@ pub struct NcChannel {
     following_max: Vec<Output<f64>>,
     run_s: Output<f64>,
     completed: Output<bool>,
+    fault: Output<bool>,
     /// The measured tool pose of the last cycle (the forward kinematics' start).
     measured: [f64; MAX_AXES],
     squares: f64,
@@ -333,6 +358,7 @@ impl NcChannel {
                 .collect(),
             run_s: decl.write(vars::NC_RUN_S, 0.0),
             completed: decl.write(vars::NC_COMPLETED, false),
+            fault: decl.write(vars::NC_FAULT, false),
             measured,
             squares: 0.0,
             samples: 0,
@@ -373,6 +399,7 @@ impl NcChannel {
             }
         }
         ctx.set(self.state, state as i16);
+        ctx.set(self.fault, self.executor.fault());
         if state == RunState::Done {
             ctx.set(self.completed, true);
         }
@@ -588,6 +615,8 @@ mod tests {
     /// stop between them at t = 1.2 s (where an M0 stands) and M3 at the start, M5 at the end.
     struct TwoMoves {
         events: Vec<TrajectoryEvent>,
+        /// From this time on the poses have no joints (a trajectory its check let through).
+        hole_from_s: f64,
     }
 
     const V: f64 = 10.0;
@@ -617,7 +646,10 @@ mod tests {
                 line: 5,
                 kind: TrajectoryEventKind::Spindle { direction: 0, rpm: 0.0 },
             });
-            TwoMoves { events }
+            TwoMoves {
+                events,
+                hole_from_s: f64::INFINITY,
+            }
         }
 
         /// Position and speed within one move at `t`.
@@ -656,7 +688,7 @@ mod tests {
                 ..TrajectorySample::default()
             };
             s.pose[0] = x;
-            s.joints[0] = x;
+            s.joints[0] = if t >= self.hole_from_s { f64::NAN } else { x };
             s
         }
         fn events(&self) -> &[TrajectoryEvent] {
@@ -774,5 +806,27 @@ mod tests {
             assert_eq!(e.time_s(), at);
             assert_eq!(e.velocities()[0], 0.0);
         }
+    }
+
+    #[test]
+    fn a_pose_without_joints_stands_the_executor_at_the_last_that_had_and_says_so() {
+        let mut e = Executor::new(Arc::new(TwoMoves {
+            hole_from_s: 0.5,
+            ..TwoMoves::new(false)
+        }));
+        let seen = walk(&mut e, Command::Run, 200, |e| e.fault());
+        assert!(e.fault(), "the hole was met");
+        let stood = e.sample().joints[0];
+        assert!(
+            stood.is_finite() && stood == *seen.last().unwrap_or(&f64::NAN),
+            "{stood}"
+        );
+        walk(&mut e, Command::Run, 20, |_| false);
+        assert_eq!(e.sample().joints[0], stood, "standing");
+        assert_eq!(e.velocities()[0], 0.0);
+        // Off, then a new start: the fault is forgotten (and met again).
+        e.step(Command::Off, DT, false);
+        e.step(Command::Run, DT, false);
+        assert!(!e.fault());
     }
 }

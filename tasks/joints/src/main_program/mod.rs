@@ -87,6 +87,7 @@ struct NcVars {
     state: Input<i16>,
     line: Input<i32>,
     pose: Vec<Input<f64>>,
+    fault: Input<bool>,
     command: Output<i16>,
 }
 
@@ -379,6 +380,7 @@ impl MainProgram {
                 state: decl.read(nc::vars::NC_STATE),
                 line: decl.read(nc::vars::NC_LINE),
                 pose: nc::vars::NC_POSE[..keys.len()].iter().map(|v| decl.read(*v)).collect(),
+                fault: decl.read(nc::vars::NC_FAULT),
                 command: decl.write(nc::vars::NC_COMMAND, nc::Command::Off as i16),
             }),
             hmi: HmiVars::declare(decl),
@@ -480,6 +482,9 @@ impl MainProgram {
             }
             if ctx.get(v.bus_fault) {
                 return Some(Reason::BusFault);
+            }
+            if v.nc.as_ref().is_some_and(|nc| ctx.get(nc.fault)) {
+                return Some(Reason::ProgramFault);
             }
             for (j, jv) in v.joints.iter().enumerate() {
                 if ctx.get(jv.encoder_fault) {

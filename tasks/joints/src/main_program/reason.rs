@@ -26,6 +26,8 @@ pub enum Reason {
     /// A joint's reference input stays on while the joint backs off its switch (pn101: another
     /// joint sits on its own switch, and the shared input cannot say which).
     ReferenceStaysOn(usize),
+    /// The NC program's executor met a pose without joints.
+    ProgramFault,
 }
 
 impl Reason {
@@ -42,9 +44,14 @@ impl Reason {
             Reason::InitTimeout(j) => at(60, j),
             Reason::ReferenceStaysOn(j) => at(70, j),
             Reason::Limit(k) => at(100, k),
+            Reason::ProgramFault => 80,
         }
     }
 }
+
+/// The text of [`Reason::ProgramFault`].
+pub const PROGRAM_FAULT: &str =
+    "the program's path has no joints here: the executor stands (its check should have refused the program)";
 
 /// The texts of every reason a machine can give, made once when the program is created so that
 /// entering ERROR allocates nothing.
@@ -59,6 +66,7 @@ impl ReasonTexts {
             (Reason::Stop, "STOP".to_string()),
             (Reason::CycleTimeViolation, "cycle time violation".to_string()),
             (Reason::BusFault, "bus fault".to_string()),
+            (Reason::ProgramFault, PROGRAM_FAULT.to_string()),
         ];
         for (k, l) in switches.limits().iter().enumerate() {
             let text = match l.joint {

@@ -71,6 +71,7 @@ struct NcVars {
     state: Input<i16>,
     line: Input<i32>,
     time: Input<f64>,
+    fault: Input<bool>,
     command: Output<i16>,
 }
 
@@ -151,6 +152,7 @@ impl MainProgram {
                 state: decl.read(nc::vars::NC_STATE),
                 line: decl.read(nc::vars::NC_LINE),
                 time: decl.read(nc::vars::NC_TIME_S),
+                fault: decl.read(nc::vars::NC_FAULT),
                 command: decl.write(nc::vars::NC_COMMAND, nc::Command::Off as i16),
             }),
             hmi_stop: decl.read_optional(pkm_api::hmi::HMI_STOP),
@@ -226,6 +228,9 @@ impl MainProgram {
             }
             if ctx.get(v.bus_fault) {
                 return Some(Reason::BusFault);
+            }
+            if v.nc.as_ref().is_some_and(|nc| ctx.get(nc.fault)) {
+                return Some(Reason::ProgramFault);
             }
             for (d, search) in searches.iter().enumerate() {
                 if ctx.get(v.encoder_faults[d]) {

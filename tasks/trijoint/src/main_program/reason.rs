@@ -26,6 +26,8 @@ pub enum Reason {
     InitTimeout(usize),
     /// The wrong switch during INIT (switch index as for `LimitSwitch`).
     InitWrongSwitch(usize),
+    /// The NC program's executor met a pose without joints.
+    ProgramFault,
 }
 
 /// The limit switches in the original program's order: left upper, left lower, right upper,
@@ -73,6 +75,9 @@ impl Reason {
             Reason::BusFault => "bus fault",
             Reason::InitTimeout(i) => NOT_REACHED[i.min(3)],
             Reason::InitWrongSwitch(i) => WRONG[i.min(3)],
+            Reason::ProgramFault => {
+                "the program's path has no joints here: the executor stands (its check should have refused the program)"
+            }
         }
     }
 
@@ -88,6 +93,7 @@ impl Reason {
             Reason::BusFault => 55,
             Reason::InitTimeout(i) => 60 + i as i16,
             Reason::InitWrongSwitch(i) => 70 + i as i16,
+            Reason::ProgramFault => 80,
         }
     }
 }
