@@ -621,6 +621,11 @@ fn screen_info(plc: &Plc, setup: &Setup, job: Option<&pkm_api::trajectory::NcJob
             .collect(),
         program: job.map(|j| (j.file.clone(), j.text.clone())),
         path: job.map(|j| preview(j.trajectory.as_ref())).unwrap_or_default(),
+        axes: setup
+            .machine
+            .and_then(|m| m.motion(&setup.loaded.json).ok())
+            .map(|m| m.axes.iter().map(|a| a.to_string()).collect())
+            .unwrap_or_default(),
     }
 }
 

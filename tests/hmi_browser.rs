@@ -200,7 +200,8 @@ async fn the_page_shows_referencing_jogs_while_held_stops_and_acknowledges() {
     .await;
     // Hold +x: the tool moves while held.
     let before = x(&page).await;
-    let button = centre(&page, ".jog-btn[data-x='1']").await;
+    // The +x button (the first pose coordinate).
+    let button = centre(&page, r#".jog-btn[data-axis="1"][data-x="1"]"#).await;
     mouse(&page, button, true).await;
     until(&page, Duration::from_secs(10), "the tool moves", async |p| {
         x(p).await > before + 2.0

@@ -5,7 +5,7 @@
 
 use std::sync::{Arc, Mutex};
 
-use pkm_api::hmi::{HMI_AXES, HMI_JOG, HMI_NC, HMI_STOP};
+use pkm_api::hmi::{HMI_AXES, HMI_JOG, HMI_JOG_AXIS, HMI_NC, HMI_STOP};
 
 use crate::bus::Bus;
 use crate::image::{Value, VarIndex, VarTable, VarType, Writer};
@@ -22,6 +22,8 @@ pub struct Commands {
     pub presses: [u64; 5],
     /// The jog (x, y in −1 … 1); 0 when nothing is held.
     pub jog: [f64; 2],
+    /// Which axis the jog moves (0: the stick's pair; k ≥ 1: the k-th pose coordinate alone).
+    pub jog_axis: i16,
 }
 
 /// Which of [`Commands::presses`] is which.
@@ -60,8 +62,8 @@ pub struct HmiBus {
     /// The class that latches the screen's variables (the fastest: STOP reaches the interlock).
     class: usize,
     output: triple_buffer::Output<Commands>,
-    /// The variables: the five presses' (in [`press`] order), then the jog's x and y.
-    vars: [VarIndex; 7],
+    /// The variables: the five presses' (in [`press`] order), the jog's x and y, its axis.
+    vars: [VarIndex; 8],
     seen: [u64; 5],
     /// Until when each press holds its variable on (ns of the schedule).
     until: [u64; 5],
@@ -75,7 +77,7 @@ impl HmiBus {
             inner,
             class,
             output,
-            vars: [0; 7],
+            vars: [0; 8],
             seen: [0; 5],
             until: [0; 5],
         };
@@ -104,6 +106,7 @@ impl Bus for HmiBus {
             declare(HMI_NC[2].name(), VarType::Bool, Value::Bool(false)),
             declare(HMI_JOG[0].name(), VarType::Real, Value::Real(0.0)),
             declare(HMI_JOG[1].name(), VarType::Real, Value::Real(0.0)),
+            declare(HMI_JOG_AXIS.name(), VarType::Int, Value::Int(0)),
         ];
     }
 
@@ -127,6 +130,7 @@ impl Bus for HmiBus {
         for (i, v) in c.jog.iter().enumerate() {
             image[usize::from(self.vars[5 + i])] = Value::Real(v.clamp(-1.0, 1.0));
         }
+        image[usize::from(self.vars[7])] = Value::Int(c.jog_axis.clamp(0, 6));
     }
 
     fn write_outputs(&mut self, class: usize, t_ns: u64, image: &[Value]) {

@@ -61,6 +61,8 @@ pub struct HmiInfo {
     /// The programmed tool path (x y z of the commanded pose along the program's time line),
     /// for the page's preview.
     pub path: Vec<[f64; 3]>,
+    /// The machine's pose coordinates (`x`, `y`, … ): a jog button each.
+    pub axes: Vec<String>,
 }
 
 /// Builds the router and the task that pushes frames; `token`: commands need it.
@@ -72,6 +74,7 @@ pub fn router(info: &HmiInfo, mut frames: FrameReader, sink: CommandSink, token:
         "variables": info.variables.iter().map(|(n, t)| json!([n, t])).collect::<Vec<_>>(),
         "program": info.program.as_ref().map(|(file, text)| json!({"file": file, "text": text})),
         "path": info.path,
+        "axes": info.axes,
     });
     let (tx, _) = broadcast::channel::<Arc<str>>(16);
     let shared = Arc::new(Shared {
@@ -170,8 +173,14 @@ enum Command {
     Stop,
     /// The axis button.
     Axes,
-    /// The jog's deflection (0, 0: released).
-    Jog { x: f64, y: f64 },
+    /// The jog's deflection (0, 0: released), on the stick's pair of axes (`axis` 0 or left out)
+    /// or on the `axis`-th pose coordinate alone.
+    Jog {
+        x: f64,
+        y: f64,
+        #[serde(default)]
+        axis: i16,
+    },
     /// Program start, hold or resume.
     Program { what: String },
 }
@@ -253,7 +262,7 @@ impl Shared {
                 info!("screen {peer}: program {what}");
                 self.sink.update(|c| c.presses[press::NC[k]] += 1);
             }
-            Command::Jog { x, y } => {
+            Command::Jog { x, y, axis } => {
                 let (x, y) = (finite(x).clamp(-1.0, 1.0), finite(y).clamp(-1.0, 1.0));
                 let mut owner = self.jog_owner.lock().unwrap_or_else(|p| p.into_inner());
                 if x == 0.0 && y == 0.0 {
@@ -265,10 +274,13 @@ impl Shared {
                     return;
                 }
                 if owner.is_none_or(|(o, _)| o != id) {
-                    info!("screen {peer}: jog {x:.2} {y:.2}");
+                    info!("screen {peer}: jog {x:.2} {y:.2} (axis {axis})");
                 }
                 *owner = Some((id, Instant::now()));
-                self.sink.update(|c| c.jog = [x, y]);
+                self.sink.update(|c| {
+                    c.jog = [x, y];
+                    c.jog_axis = axis.clamp(0, 6);
+                });
             }
         }
     }

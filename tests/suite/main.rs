@@ -10,6 +10,7 @@ mod common;
 mod architecture;
 mod cli;
 mod config_errors;
+mod hmi;
 mod joint_machines;
 mod joint_machines_soak;
 mod joystick;

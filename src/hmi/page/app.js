@@ -9,7 +9,7 @@ const token = new URLSearchParams(location.search).get("token");
 let ws = null;
 let variables = [];
 let programLines = [];
-let jog = null; // [x, y] while held
+let jog = null; // [x, y, axis] while held
 let jogTimer = null;
 let lastLine = 0;
 // The tool path: programmed (from the hello), cut (the measured tool point while a program runs).
@@ -57,6 +57,19 @@ function hello(m) {
     plane = [0, 1, 2].sort((a, b) => extent[b] - extent[a] || a - b).slice(0, 2).sort();
   }
   $("path-box").hidden = programmed.length < 2;
+  // A pair of press-and-hold buttons per pose coordinate of the machine.
+  $("jog-buttons").innerHTML = (m.axes || [])
+    .map((a, k) => `<button class="jog-btn" data-axis="${k + 1}" data-x="-1">− ${a}</button>` +
+      `<button class="jog-btn" data-axis="${k + 1}" data-x="1">+ ${a}</button>`)
+    .join("");
+  for (const b of document.querySelectorAll(".jog-btn")) {
+    b.addEventListener("pointerdown", (e) => {
+      b.setPointerCapture(e.pointerId);
+      b.classList.add("held");
+      startJog(Number(b.dataset.x), 0, Number(b.dataset.axis));
+    });
+    for (const end of ["pointerup", "pointercancel", "lostpointercapture"]) b.addEventListener(end, stopJog);
+  }
   $("machine").textContent = m.machine;
   $("config").textContent = m.config;
   variables = m.variables;
@@ -160,10 +173,10 @@ function filter() {
   }
 }
 
-function startJog(x, y) {
-  jog = [x, y];
-  send({ cmd: "jog", x, y });
-  if (!jogTimer) jogTimer = setInterval(() => { if (jog) send({ cmd: "jog", x: jog[0], y: jog[1] }); }, 20);
+function startJog(x, y, axis = 0) {
+  jog = [x, y, axis];
+  send({ cmd: "jog", x, y, axis });
+  if (!jogTimer) jogTimer = setInterval(() => { if (jog) send({ cmd: "jog", x: jog[0], y: jog[1], axis: jog[2] }); }, 20);
 }
 
 function stopJog() {
@@ -174,14 +187,6 @@ function stopJog() {
   $("pad-dot").style.top = "72px";
 }
 
-for (const b of document.querySelectorAll(".jog-btn")) {
-  b.addEventListener("pointerdown", (e) => {
-    b.setPointerCapture(e.pointerId);
-    b.classList.add("held");
-    startJog(Number(b.dataset.x), Number(b.dataset.y));
-  });
-  for (const end of ["pointerup", "pointercancel", "lostpointercapture"]) b.addEventListener(end, stopJog);
-}
 
 const pad = $("pad");
 function padAt(e) {

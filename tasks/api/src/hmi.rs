@@ -12,6 +12,9 @@ pub const HMI_STOP: Var<bool> = Var::new("HMI_STOP");
 /// refreshes it while a jog button or the drag pad is held; a release, a lost connection, a
 /// hidden tab or a silent page brings it to 0 (the dead-man).
 pub const HMI_JOG: [Var<f64>; 2] = [Var::new("HMI_JOG_X"), Var::new("HMI_JOG_Y")];
+/// Which axis the screen's jog moves: 0 the stick's (the selected pair: `HMI_JOG` x and y), `k`
+/// ≥ 1 the k-th pose coordinate of the machine alone (x y z a b c), at `HMI_JOG` x's deflection.
+pub const HMI_JOG_AXIS: Var<i16> = Var::new("HMI_JOG_AXIS");
 /// The screen's axis button: selects the next joint (joint mode) or pair of world axes (a press).
 pub const HMI_AXES: Var<bool> = Var::new("HMI_AXES");
 /// The screen's program buttons: start, feed hold, resume (presses), in addition to the panel's

@@ -33,6 +33,8 @@ pub struct Io {
     pub(super) limit_active: bool,
     pub(super) stick: [f64; 2],
     pub(super) stick_connected: bool,
+    /// The screen jogs this pose coordinate alone (1-based; 0: the stick's pair).
+    pub(super) screen_axis: usize,
     pub(super) buttons: [bool; 4],
     pub(super) override_held: bool,
     /// The axis button was pressed this cycle (a rising edge).

@@ -16,6 +16,12 @@ impl Main {
     /// degrees/s): the stick's x and y on the selected pair of axes.
     pub(super) fn world_command(&self, io: &Io) -> [f64; MAX_DOF] {
         let mut v = [0.0; MAX_DOF];
+        // The screen's button of one pose coordinate moves that coordinate alone.
+        if (1..=self.n).contains(&io.screen_axis) {
+            let k = io.screen_axis - 1;
+            v[k] = self.stick(io)[0] * self.axis_speed[k];
+            return v;
+        }
         let Some(&[a, b]) = self.pairs.get(self.selection) else {
             return v;
         };

@@ -64,6 +64,7 @@ struct Vars {
 struct HmiVars {
     stop: Input<bool>,
     jog: [Input<f64>; 2],
+    jog_axis: Input<i16>,
     axes: Input<bool>,
     nc: [Input<bool>; 3],
 }
@@ -73,6 +74,7 @@ impl HmiVars {
         HmiVars {
             stop: decl.read_optional(hmi::HMI_STOP),
             jog: hmi::HMI_JOG.map(|v| decl.read_optional(v)),
+            jog_axis: decl.read_optional(hmi::HMI_JOG_AXIS),
             axes: decl.read_optional(hmi::HMI_AXES),
             nc: hmi::HMI_NC.map(|v| decl.read_optional(v)),
         }
@@ -444,9 +446,11 @@ impl MainProgram {
         io.stick_connected = ctx.get(v.stick_connected);
         // The screen's jog, while held, in place of the stick.
         let screen = v.hmi.jog.map(|j| ctx.get(j));
+        io.screen_axis = 0;
         if screen != [0.0; 2] {
             io.stick = screen;
             io.stick_connected = true;
+            io.screen_axis = ctx.get(v.hmi.jog_axis).clamp(0, 6) as usize;
         }
         io.buttons = v.buttons.map(|b| ctx.get(b));
         io.override_held = ctx.get(v.override_button);

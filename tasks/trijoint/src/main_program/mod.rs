@@ -62,6 +62,7 @@ struct Vars {
     nc: Option<NcVars>,
     hmi_stop: Input<bool>,
     hmi_jog: [Input<f64>; 2],
+    hmi_jog_axis: Input<i16>,
     hmi_nc: [Input<bool>; 3],
 }
 
@@ -157,6 +158,7 @@ impl MainProgram {
             }),
             hmi_stop: decl.read_optional(pkm_api::hmi::HMI_STOP),
             hmi_jog: pkm_api::hmi::HMI_JOG.map(|v| decl.read_optional(v)),
+            hmi_jog_axis: decl.read_optional(pkm_api::hmi::HMI_JOG_AXIS),
             hmi_nc: pkm_api::hmi::HMI_NC.map(|v| decl.read_optional(v)),
         };
         let lockout_s = p.stop_lockout_ms as f64 * 1e-3;
@@ -197,7 +199,12 @@ impl MainProgram {
         // The screen's jog, while held, in place of the joystick.
         let screen = v.hmi_jog.map(|j| ctx.get(j));
         if screen != [0.0; 2] {
-            io.joystick = screen;
+            // The screen's button of one axis (1: x, 2: y) moves M along that axis alone.
+            io.joystick = match ctx.get(v.hmi_jog_axis) {
+                1 => [screen[0], 0.0],
+                2 => [0.0, screen[0]],
+                _ => screen,
+            };
             io.joystick_connected = true;
         }
         io.captures = v.captures.map(|c| c.map(|x| ctx.get(x)));
