@@ -18,6 +18,10 @@ use chromiumoxide::cdp::browser_protocol::input::{DispatchMouseEventParams, Disp
 use chromiumoxide::{Browser, BrowserConfig, Page};
 use futures::StreamExt;
 
+/// The tests run one at a time: each runs a PLC in real time (and one a browser), and on a small
+/// machine side by side they would starve each other.
+static SERIAL: tokio::sync::Mutex<()> = tokio::sync::Mutex::const_new(());
+
 /// A running `pkm-plc run` with its screen, killed when dropped.
 struct Plc {
     child: Child,
@@ -175,6 +179,7 @@ async fn the_page_shows_referencing_jogs_while_held_stops_and_acknowledges() {
         );
         return;
     };
+    let _serial = SERIAL.lock().await;
     let profile = tempfile::tempdir().expect("tempdir");
     let trace = profile.path().join("screen.jsonl");
     let mut plc = start_plc("ox-x", 90, &["--trace", trace.to_str().expect("utf-8")]);
@@ -190,7 +195,7 @@ async fn the_page_shows_referencing_jogs_while_held_stops_and_acknowledges() {
     let events = tokio::spawn(async move { while handler.next().await.is_some() {} });
     let page = browser.new_page(plc.url.as_str()).await.expect("the page loads");
     // INIT while the machine references, then READY (O-X: 11.65 s of referencing).
-    until(&page, Duration::from_secs(10), "INIT shown", async |p| {
+    until(&page, Duration::from_secs(30), "INIT shown", async |p| {
         state(p).await == "INIT"
     })
     .await;
@@ -276,6 +281,7 @@ async fn the_page_shows_referencing_jogs_while_held_stops_and_acknowledges() {
 async fn a_websocket_dropped_mid_jog_stops_the_jog_within_a_main_cycle() {
     use futures::SinkExt;
     use tokio_tungstenite::tungstenite::Message;
+    let _serial = SERIAL.lock().await;
     let plc = start_plc("ox-x", 60, &[]);
     let ws = plc.url.replacen("http://", "ws://", 1) + "ws";
     // A watcher, and a client that jogs.
@@ -294,7 +300,12 @@ async fn a_websocket_dropped_mid_jog_stops_the_jog_within_a_main_cycle() {
     let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel();
     tokio::spawn(async move {
         loop {
-            let f = next(&mut watcher).await;
+            // Ends with the connection (the PLC ends with the test).
+            let f = match watcher.next().await {
+                Some(Ok(Message::Text(t))) => serde_json::from_str::<serde_json::Value>(&t).expect("JSON"),
+                Some(Ok(_)) => continue,
+                _ => break,
+            };
             let entry = (
                 Instant::now(),
                 f["seq"].as_u64().unwrap_or(0),
@@ -363,6 +374,7 @@ async fn with_a_token_a_page_without_it_only_watches() {
         }
         state
     }
+    let _serial = SERIAL.lock().await;
     let plc = start_plc("ox-x", 30, &["--hmi-token", "s3cret"]);
     let ws = plc.url.replacen("http://", "ws://", 1) + "ws";
     let (mut watcher, _) = tokio_tungstenite::connect_async(ws.as_str()).await.expect("connects");
