@@ -113,7 +113,11 @@ async fn x(page: &Page) -> f64 {
 async fn until(page: &Page, within: Duration, what: &str, check: impl AsyncFn(&Page) -> bool) {
     let start = Instant::now();
     while !check(page).await {
-        assert!(start.elapsed() < within, "{what}: not within {within:?}");
+        if start.elapsed() >= within {
+            let shown = state(page).await;
+            let link = text(page, "document.getElementById('link').textContent").await;
+            panic!("{what}: not within {within:?} (the page shows {shown:?}, link {link:?})");
+        }
         tokio::time::sleep(Duration::from_millis(50)).await;
     }
 }
@@ -182,18 +186,22 @@ async fn the_page_shows_referencing_jogs_while_held_stops_and_acknowledges() {
     let _serial = SERIAL.lock().await;
     let profile = tempfile::tempdir().expect("tempdir");
     let trace = profile.path().join("screen.jsonl");
-    let mut plc = start_plc("ox-x", 90, &["--trace", trace.to_str().expect("utf-8")]);
+    // The browser first: a cold start on a busy machine takes seconds, and the page must load
+    // while the machine still references.
     let config = BrowserConfig::builder()
         .chrome_executable(chromium)
         .no_sandbox()
-        .user_data_dir(profile.path())
+        .user_data_dir(profile.path().join("profile"))
         .arg("--disable-gpu")
         .window_size(1280, 1400)
         .build()
         .expect("a browser configuration");
     let (mut browser, mut handler) = Browser::launch(config).await.expect("Chromium starts");
     let events = tokio::spawn(async move { while handler.next().await.is_some() {} });
-    let page = browser.new_page(plc.url.as_str()).await.expect("the page loads");
+    let blank = browser.new_page("about:blank").await.expect("a page");
+    let mut plc = start_plc("ox-x", 90, &["--trace", trace.to_str().expect("utf-8")]);
+    blank.goto(plc.url.as_str()).await.expect("the page loads");
+    let page = blank;
     // INIT while the machine references, then READY (O-X: 11.65 s of referencing).
     until(&page, Duration::from_secs(30), "INIT shown", async |p| {
         state(p).await == "INIT"
