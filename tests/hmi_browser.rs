@@ -35,14 +35,29 @@ impl Drop for Plc {
     }
 }
 
-/// Starts `pkm-plc run` in real time on `machine` with the screen on a free loopback port (and
-/// `more` arguments); returns when the screen's address is logged.
-fn start_plc(machine: &str, seconds: u32, more: &[&str]) -> Plc {
+/// The O-X glide's configuration for these tests, written to `dir`: they test the screen, not
+/// the scheduler's timing, so a late cycle on a busy machine is logged rather than an ERROR (as
+/// the other real-time end-to-end tests do; timing has its own benchmarks).
+fn test_config(dir: &std::path::Path) -> std::path::PathBuf {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut config = common::read_json(&root.join("machines/ox-x.json"));
+    config["io_map"] = root.join("io-map/ox-x.json").to_str().expect("utf-8").into();
+    for class in config["task_classes"].as_array_mut().expect("classes") {
+        class["on_violation"] = "log".into();
+    }
+    let path = dir.join("ox-x.json");
+    std::fs::write(&path, config.to_string()).expect("write the configuration");
+    path
+}
+
+/// Starts `pkm-plc run` in real time on the configuration `config` with the screen on a free
+/// loopback port (and `more` arguments); returns when the screen's address is logged.
+fn start_plc(config: &std::path::Path, seconds: u32, more: &[&str]) -> Plc {
     let mut child = Command::new(env!("CARGO_BIN_EXE_pkm-plc"))
         .args([
             "run",
-            "--machine",
-            machine,
+            "--config",
+            config.to_str().expect("utf-8"),
             "--hmi",
             "127.0.0.1:0",
             "--joystick",
@@ -199,7 +214,8 @@ async fn the_page_shows_referencing_jogs_while_held_stops_and_acknowledges() {
     let (mut browser, mut handler) = Browser::launch(config).await.expect("Chromium starts");
     let events = tokio::spawn(async move { while handler.next().await.is_some() {} });
     let blank = browser.new_page("about:blank").await.expect("a page");
-    let mut plc = start_plc("ox-x", 90, &["--trace", trace.to_str().expect("utf-8")]);
+    let config = test_config(profile.path());
+    let mut plc = start_plc(&config, 90, &["--trace", trace.to_str().expect("utf-8")]);
     blank.goto(plc.url.as_str()).await.expect("the page loads");
     let page = blank;
     // INIT while the machine references, then READY (O-X: 11.65 s of referencing).
@@ -276,7 +292,12 @@ async fn the_page_shows_referencing_jogs_while_held_stops_and_acknowledges() {
         recorded.contains(r#""HMI_JOG_X":1.0"#),
         "the screen's jog is in the trace"
     );
-    let replay = common::pkm(&["replay", trace.to_str().expect("utf-8"), "--machine", "ox-x"]);
+    let replay = common::pkm(&[
+        "replay",
+        trace.to_str().expect("utf-8"),
+        "--config",
+        config.to_str().expect("utf-8"),
+    ]);
     assert_eq!(replay.status.code(), Some(0), "{}", common::stderr(&replay));
     assert!(
         common::stdout(&replay).contains(": identical: "),
@@ -290,7 +311,8 @@ async fn a_websocket_dropped_mid_jog_stops_the_jog_within_a_main_cycle() {
     use futures::SinkExt;
     use tokio_tungstenite::tungstenite::Message;
     let _serial = SERIAL.lock().await;
-    let plc = start_plc("ox-x", 60, &[]);
+    let dir = tempfile::tempdir().expect("tempdir");
+    let plc = start_plc(&test_config(dir.path()), 60, &[]);
     let ws = plc.url.replacen("http://", "ws://", 1) + "ws";
     // A watcher, and a client that jogs.
     let (mut watcher, _) = tokio_tungstenite::connect_async(ws.as_str()).await.expect("connects");
@@ -383,7 +405,8 @@ async fn with_a_token_a_page_without_it_only_watches() {
         state
     }
     let _serial = SERIAL.lock().await;
-    let plc = start_plc("ox-x", 30, &["--hmi-token", "s3cret"]);
+    let dir = tempfile::tempdir().expect("tempdir");
+    let plc = start_plc(&test_config(dir.path()), 30, &["--hmi-token", "s3cret"]);
     let ws = plc.url.replacen("http://", "ws://", 1) + "ws";
     let (mut watcher, _) = tokio_tungstenite::connect_async(ws.as_str()).await.expect("connects");
     assert_eq!(next(&mut watcher).await["commands"], false);
