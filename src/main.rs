@@ -621,6 +621,7 @@ fn screen_info(plc: &Plc, setup: &Setup, job: Option<&pkm_api::trajectory::NcJob
             .collect(),
         program: job.map(|j| (j.file.clone(), j.text.clone())),
         path: job.map(|j| preview(j.trajectory.as_ref())).unwrap_or_default(),
+        mechanism: pkm_plc::hmi::mechanism::Mechanism::of(setup, plc),
         axes: setup
             .machine
             .and_then(|m| m.motion(&setup.loaded.json).ok())
@@ -665,7 +666,7 @@ fn run_realtime(plc: Plc, options: RealTimeOptions, screen: Option<Screen>) -> R
             match runtime.block_on(tokio::net::TcpListener::bind(options.addr)) {
                 Ok(listener) => {
                     let (publisher, reader) = pkm_plc::hmi::frame::frames(&plc);
-                    let router = pkm_plc::hmi::server::router(&info, reader, sink, options.token.clone());
+                    let router = pkm_plc::hmi::server::router(info, reader, sink, options.token.clone());
                     let at = listener.local_addr().map_or(options.addr, |a| a);
                     info!(
                         "operator screen at http://{at}/{}",

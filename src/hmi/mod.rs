@@ -3,6 +3,7 @@
 //! - [`frame`]: what the cycle publishes for the screen, wait-free.
 //! - [`commands`]: the screen's commands, taken wait-free before each cycle into the `HMI_*`
 //!   variables by a bus laid over the field bus.
+//! - [`mechanism`]: the machine's links in its pose, drawn by its kinematics.
 //! - [`server`]: the page and its WebSocket (axum, on the runtime's tokio runtime).
 //!
 //! Loopback only by default; binding to another address needs a token, and commands need it
@@ -10,6 +11,7 @@
 
 pub mod commands;
 pub mod frame;
+pub mod mechanism;
 pub mod server;
 
 use std::net::SocketAddr;

@@ -63,10 +63,12 @@ pub struct HmiInfo {
     pub path: Vec<[f64; 3]>,
     /// The machine's pose coordinates (`x`, `y`, … ): a jog button each.
     pub axes: Vec<String>,
+    /// The drawing of the mechanism, if its kinematics draws one.
+    pub mechanism: Option<super::mechanism::Mechanism>,
 }
 
 /// Builds the router and the task that pushes frames; `token`: commands need it.
-pub fn router(info: &HmiInfo, mut frames: FrameReader, sink: CommandSink, token: Option<String>) -> Router {
+pub fn router(info: HmiInfo, mut frames: FrameReader, sink: CommandSink, token: Option<String>) -> Router {
     let hello = json!({
         "type": "hello",
         "machine": info.machine,
@@ -86,6 +88,7 @@ pub fn router(info: &HmiInfo, mut frames: FrameReader, sink: CommandSink, token:
         jog_owner: std::sync::Mutex::new(None),
     });
     let pump = Arc::clone(&shared);
+    let mut mechanism = info.mechanism;
     tokio::spawn(async move {
         let mut tick = tokio::time::interval(FRAME_POLL);
         tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
@@ -96,7 +99,13 @@ pub fn router(info: &HmiInfo, mut frames: FrameReader, sink: CommandSink, token:
             if let Some(frame) = frames.newer()
                 && tx.receiver_count() > 0
             {
-                let _ = tx.send(Arc::from(frame_json(frame).as_str()));
+                // The links only where the positions are the kinematics' (once referenced).
+                let operating = matches!(frame.status.state.as_str(), "READY" | "MOTION" | "AUTO");
+                let links = mechanism
+                    .as_mut()
+                    .filter(|_| operating)
+                    .and_then(|m| m.links(&frame.image));
+                let _ = tx.send(Arc::from(frame_json(frame, links).as_str()));
             }
             pump.release_stale_jog();
         }
@@ -117,7 +126,7 @@ fn asset(content_type: &'static str, body: &'static str) -> Response {
 }
 
 /// A frame as the page reads it.
-fn frame_json(f: &Frame) -> String {
+fn frame_json(f: &Frame, links: Option<&[[[f64; 3]; 2]]>) -> String {
     let s = &f.status;
     let value = |v: &Value| match *v {
         Value::Bool(b) => json!(b),
@@ -141,6 +150,7 @@ fn frame_json(f: &Frame) -> String {
         })).collect::<Vec<_>>(),
         "bus_fault": f.bus_fault,
         "published_unix_us": f.published_unix_us,
+        "links": links.map(|l| l.iter().map(|[a, b]| json!([a, b])).collect::<Vec<_>>()),
         "image": f.image.iter().map(value).collect::<Vec<_>>(),
     })
     .to_string()

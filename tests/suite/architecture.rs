@@ -168,6 +168,7 @@ fn the_runtime_names_a_machine_in_the_list_of_machines_only() {
             "src/kin_svg.rs",
             "src/nc_cmd.rs",
             "src/nc_job.rs",
+            "src/hmi/mechanism.rs",
         ],
     );
     assert!(

@@ -58,3 +58,27 @@ fn the_screens_jog_of_one_axis_moves_that_axis_alone_and_its_stop_is_the_panels(
     assert_eq!(seen[5].2.as_deref(), Some("STOP"));
     assert!(seen[5].0 - 13_000 <= 50, "within a main cycle: {seen:?}");
 }
+
+#[test]
+fn the_screen_draws_the_trijoints_linkage_at_the_measured_joints() {
+    use pkm_plc::hmi::mechanism::Mechanism;
+    use pkm_plc::image::Value;
+    let setup = Setup::new(common::loaded(&common::repo_config())).expect("the TRIJOINT");
+    let plc = setup.plc(setup.declaring_bus().expect("a bus")).expect("a PLC");
+    let mut mechanism = Mechanism::of(&setup, &plc).expect("the TRIJOINT's kinematics draws");
+    let mut image = plc.global_image().to_vec();
+    for name in ["position_left_mm", "position_right_mm"] {
+        let i = plc.vars().index_of(name).expect("a position");
+        image[usize::from(i)] = Value::Real(125.0);
+    }
+    let links = mechanism.links(&image).expect("a pose at mid-travel");
+    assert_eq!(links.len(), 6, "two guides, the rod, the arm's triangle");
+    // Outside the travel: no pose, nothing drawn.
+    let i = plc.vars().index_of("position_left_mm").expect("a position");
+    image[usize::from(i)] = Value::Real(1e6);
+    assert!(mechanism.links(&image).is_none());
+    // The other machines' kinematics draw nothing yet.
+    let hexapod = Setup::new(machine_config("hexapod", |_| {})).expect("the hexapod");
+    let plc = hexapod.plc(hexapod.declaring_bus().expect("a bus")).expect("a PLC");
+    assert!(Mechanism::of(&hexapod, &plc).is_none());
+}

@@ -17,6 +17,8 @@ let programmed = [];
 let cut = [];
 let plane = [0, 1];
 let index = {};
+// The mechanism drawing's extent (grows to everything drawn so far, so that it does not jump).
+let extent = null;
 // The update latency: from the cycle's publication to this page (ms), the last 2000 frames.
 window.latency = [];
 
@@ -126,6 +128,7 @@ function frame(m) {
     if (cell) cell.textContent = typeof v === "number" && !Number.isInteger(v) ? v.toFixed(4) : String(v);
   });
   drawPath(m);
+  drawMechanism(m.links);
   const lineIndex = variables.findIndex(([n]) => n === "NC_LINE");
   const line = lineIndex >= 0 ? m.image[lineIndex] : 0;
   if (line !== lastLine) {
@@ -164,6 +167,32 @@ function drawPath(m) {
   line(cut, "#06c", 1.5);
   const at = cut[cut.length - 1];
   if (at) { const [x, y] = px(at); g.fillStyle = "#c00"; g.beginPath(); g.arc(x, y, 4, 0, 2 * Math.PI); g.fill(); }
+}
+
+function drawMechanism(links) {
+  const box = $("mechanism-box");
+  if (!links) return;
+  box.hidden = false;
+  for (const [a, b] of links) {
+    for (const p of [a, b]) {
+      if (!extent) extent = [p[0], p[0], p[1], p[1]];
+      extent = [Math.min(extent[0], p[0]), Math.max(extent[1], p[0]), Math.min(extent[2], p[1]), Math.max(extent[3], p[1])];
+    }
+  }
+  const canvas = $("mechanism");
+  const g = canvas.getContext("2d");
+  const span = Math.max(extent[1] - extent[0], extent[3] - extent[2], 1e-3) * 1.1;
+  const [cx, cy] = [(extent[0] + extent[1]) / 2, (extent[2] + extent[3]) / 2];
+  const px = (p) => [(p[0] - cx) / span * canvas.width + canvas.width / 2, canvas.height / 2 - (p[1] - cy) / span * canvas.height];
+  g.clearRect(0, 0, canvas.width, canvas.height);
+  g.strokeStyle = "#333";
+  g.lineWidth = 3;
+  for (const [a, b] of links) {
+    const [x0, y0] = px(a), [x1, y1] = px(b);
+    g.beginPath(); g.moveTo(x0, y0); g.lineTo(x1, y1); g.stroke();
+    g.fillStyle = "#06c";
+    for (const [x, y] of [[x0, y0], [x1, y1]]) { g.beginPath(); g.arc(x, y, 4, 0, 2 * Math.PI); g.fill(); }
+  }
 }
 
 function filter() {

@@ -78,6 +78,9 @@ pub struct Motion {
     pub joint_speed: Vec<f64>,
     /// Per joint: the acceleration its set-point may take (mm/s²).
     pub joint_accel: Vec<f64>,
+    /// Per joint: the variable holding its measured position in the kinematics' joint
+    /// coordinates (once referenced), for drawings of the mechanism.
+    pub joint_vars: Vec<&'static str>,
 }
 
 /// Where a machine frame's origin is.

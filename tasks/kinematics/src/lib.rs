@@ -131,6 +131,13 @@ pub trait Kinematics: Send + Sync {
         1.0
     }
 
+    /// The mechanism's links at `joints` for a drawing (the operator's screen): line segments
+    /// between 3-D points of the mechanism frame (mm), pushed onto `out`. False where this model
+    /// draws nothing yet or the joints have no pose.
+    fn links(&self, _joints: &[f64], _out: &mut Vec<[[f64; 3]; 2]>) -> bool {
+        false
+    }
+
     /// ∂pose/∂joints at a pose (row i: pose coordinate i, columns: joints).
     fn jacobian(&self, pose: &[f64], j: &mut Mat) -> Result<(), KinError> {
         let mut jinv = [0.0; MAX_DOF * MAX_DOF];

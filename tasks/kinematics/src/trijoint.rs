@@ -160,6 +160,24 @@ impl Kinematics for Trijoint {
     fn machine(&self) -> Machine {
         Machine::Trijoint
     }
+
+    /// The two guides over their travel, the rod C–B, and the arm: the triangle A–B–M.
+    fn links(&self, joints: &[f64], out: &mut Vec<[[f64; 3]; 2]>) -> bool {
+        let mut pose = [0.0; 2];
+        let Ok(s) = self.forward(joints, None, &mut pose).and_then(|()| self.solve(&pose)) else {
+            return false;
+        };
+        let p3 = |p: [f64; 2]| [p[0], p[1], 0.0];
+        let guide =
+            |g: [f64; 2], u: [f64; 2], [lo, hi]: [f64; 2]| [p3(Self::point(g, u, lo)), p3(Self::point(g, u, hi))];
+        out.push(guide([0.0, 0.0], self.u1, self.limits[0]));
+        out.push(guide(self.g2, self.u2, self.limits[1]));
+        out.push([p3(s.c), p3(s.b)]);
+        out.push([p3(s.a), p3(s.b)]);
+        out.push([p3(s.b), p3(pose)]);
+        out.push([p3(s.a), p3(pose)]);
+        true
+    }
     fn dof(&self) -> usize {
         2
     }
@@ -229,5 +247,36 @@ impl Kinematics for Trijoint {
             jinv[MAX + col] = dh2;
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_drawing_joins_the_carriages_rod_and_arm_as_the_geometry_says() {
+        let p = TrijointParams::default();
+        let k = Trijoint::new(&p);
+        let joints = [125.0, 125.0];
+        let mut links = Vec::new();
+        assert!(k.links(&joints, &mut links));
+        assert_eq!(links.len(), 6);
+        let length = |[a, b]: [[f64; 3]; 2]| (b[0] - a[0]).hypot(b[1] - a[1]);
+        let [_, _, rod, arm_ab, _, _] = links[..] else {
+            panic!("six links")
+        };
+        assert!((length(rod) - p.l3).abs() < 1e-9, "the rod is l3 long");
+        assert!((length(arm_ab) - p.l2).abs() < 1e-9, "A–B is l2 long");
+        // C is carriage 1 at h1 on guide 1; M is the forward kinematics' pose.
+        let c = rod[0];
+        let a1 = p.alpha1_deg.to_radians();
+        assert!((c[0] - 125.0 * a1.cos()).abs() < 1e-9 && (c[1] - 125.0 * a1.sin()).abs() < 1e-9);
+        let mut pose = [0.0; 2];
+        k.forward(&joints, None, &mut pose).expect("a pose");
+        let m = links[5][1];
+        assert!((m[0] - pose[0]).abs() < 1e-9 && (m[1] - pose[1]).abs() < 1e-9);
+        // Joints outside the travel draw nothing.
+        assert!(!k.links(&[1e6, 0.0], &mut Vec::new()));
     }
 }
