@@ -60,7 +60,7 @@ fn the_screens_jog_of_one_axis_moves_that_axis_alone_and_its_stop_is_the_panels(
 }
 
 #[test]
-fn the_screen_draws_the_trijoints_linkage_at_the_measured_joints() {
+fn the_screen_draws_the_mechanisms_at_the_measured_joints() {
     use pkm_plc::hmi::mechanism::Mechanism;
     use pkm_plc::image::Value;
     let setup = Setup::new(common::loaded(&common::repo_config())).expect("the TRIJOINT");
@@ -77,8 +77,14 @@ fn the_screen_draws_the_trijoints_linkage_at_the_measured_joints() {
     let i = plc.vars().index_of("position_left_mm").expect("a position");
     image[usize::from(i)] = Value::Real(1e6);
     assert!(mechanism.links(&image).is_none());
-    // The other machines' kinematics draw nothing yet.
+    // The hexapod's: six struts and the outlines of base and platform, at its home lengths.
     let hexapod = Setup::new(machine_config("hexapod", |_| {})).expect("the hexapod");
     let plc = hexapod.plc(hexapod.declaring_bus().expect("a bus")).expect("a PLC");
-    assert!(Mechanism::of(&hexapod, &plc).is_none());
+    let mut mechanism = Mechanism::of(&hexapod, &plc).expect("the hexapod's kinematics draws");
+    let mut image = plc.global_image().to_vec();
+    for j in 0..6 {
+        let i = plc.vars().index_of(vars::JOINT_POSITION[j].name()).expect("a position");
+        image[usize::from(i)] = Value::Real(755.57);
+    }
+    assert_eq!(mechanism.links(&image).map(<[_]>::len), Some(18));
 }

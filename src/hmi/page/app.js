@@ -17,8 +17,9 @@ let programmed = [];
 let cut = [];
 let plane = [0, 1];
 let index = {};
-// The mechanism drawing's extent (grows to everything drawn so far, so that it does not jump).
-let extent = null;
+// The mechanism's views: the planes of its largest extents, each with a frame that grows to
+// everything drawn so far (so that it does not jump).
+let views = null;
 // The update latency: from the cycle's publication to this page (ms), the last 2000 frames.
 window.latency = [];
 
@@ -170,16 +171,33 @@ function drawPath(m) {
 }
 
 function drawMechanism(links) {
-  const box = $("mechanism-box");
   if (!links) return;
-  box.hidden = false;
-  for (const [a, b] of links) {
+  $("mechanism-box").hidden = false;
+  if (!views) {
+    // The two largest extents (of x y z) make the first view; a third that matters, a second.
+    const points = links.flat();
+    const size = [0, 1, 2].map((c) => Math.max(...points.map((p) => p[c])) - Math.min(...points.map((p) => p[c])));
+    const order = [0, 1, 2].sort((a, b) => size[b] - size[a] || a - b);
+    views = [[order[0], order[1]].sort()];
+    if (size[order[2]] > 0.1 * size[order[0]]) views.push([order[0], order[2]].sort());
+    views = views.map((axes) => ({ axes, extent: null }));
+    $("mechanism2").hidden = views.length < 2;
+    $("views").textContent = views.map((v) => v.axes.map((c) => "xyz"[c]).join("–")).join(", ");
+  }
+  views.forEach((view, i) => drawView(i === 0 ? "mechanism" : "mechanism2", view, links));
+}
+
+function drawView(id, view, links) {
+  const [u, v] = view.axes;
+  const flat = links.map(([a, b]) => [[a[u], a[v]], [b[u], b[v]]]);
+  for (const [a, b] of flat) {
     for (const p of [a, b]) {
-      if (!extent) extent = [p[0], p[0], p[1], p[1]];
-      extent = [Math.min(extent[0], p[0]), Math.max(extent[1], p[0]), Math.min(extent[2], p[1]), Math.max(extent[3], p[1])];
+      const e = view.extent || [p[0], p[0], p[1], p[1]];
+      view.extent = [Math.min(e[0], p[0]), Math.max(e[1], p[0]), Math.min(e[2], p[1]), Math.max(e[3], p[1])];
     }
   }
-  const canvas = $("mechanism");
+  const extent = view.extent;
+  const canvas = $(id);
   const g = canvas.getContext("2d");
   const span = Math.max(extent[1] - extent[0], extent[3] - extent[2], 1e-3) * 1.1;
   const [cx, cy] = [(extent[0] + extent[1]) / 2, (extent[2] + extent[3]) / 2];
@@ -187,7 +205,7 @@ function drawMechanism(links) {
   g.clearRect(0, 0, canvas.width, canvas.height);
   g.strokeStyle = "#333";
   g.lineWidth = 3;
-  for (const [a, b] of links) {
+  for (const [a, b] of flat) {
     const [x0, y0] = px(a), [x1, y1] = px(b);
     g.beginPath(); g.moveTo(x0, y0); g.lineTo(x1, y1); g.stroke();
     g.fillStyle = "#06c";

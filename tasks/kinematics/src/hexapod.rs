@@ -236,6 +236,27 @@ impl Kinematics for Hexapod {
     fn machine(&self) -> Machine {
         Machine::Hexapod
     }
+
+    /// The six struts from their base joints to their platform joints, the base's and the
+    /// platform's outlines (joints in order).
+    fn links(&self, joints: &[f64], out: &mut Vec<[[f64; 3]; 2]>) -> bool {
+        let mut pose = [0.0; 6];
+        if self.forward(joints, None, &mut pose).is_err() {
+            return false;
+        }
+        let internal = Self::to_internal(&pose);
+        let angles = [internal[3], internal[4], internal[5]];
+        let top: [V3; 6] = std::array::from_fn(|i| {
+            let [r, ..] = rotate(angles, self.p.platform[i]);
+            [pose[0] + r[0], pose[1] + r[1], pose[2] + r[2]]
+        });
+        for i in 0..6 {
+            out.push([self.p.base[i], top[i]]);
+            out.push([self.p.base[i], self.p.base[(i + 1) % 6]]);
+            out.push([top[i], top[(i + 1) % 6]]);
+        }
+        true
+    }
     fn dof(&self) -> usize {
         6
     }
@@ -278,6 +299,30 @@ impl Kinematics for Hexapod {
             (1.0f64).to_radians() * self.radius
         } else {
             1.0
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_drawing_s_struts_are_as_long_as_the_joints_say() {
+        let p = HexapodParams::default();
+        let k = Hexapod::new(&p);
+        let mut joints = [0.0; 6];
+        let h = p.home;
+        let pose = [h[0] + 5.0, h[1] - 3.0, h[2] + 10.0, h[3] + 2.0, h[4] - 1.0, h[5] + 3.0];
+        k.inverse(&pose, &mut joints).expect("a reachable pose");
+        let mut links = Vec::new();
+        assert!(k.links(&joints, &mut links));
+        assert_eq!(links.len(), 18);
+        for (i, q) in joints.iter().enumerate() {
+            let [a, b] = links[3 * i];
+            let l = ((b[0] - a[0]).powi(2) + (b[1] - a[1]).powi(2) + (b[2] - a[2]).powi(2)).sqrt();
+            assert!((l - q).abs() < 1e-6, "strut {i}: {l} against {q}");
+            assert_eq!(a, p.base[i]);
         }
     }
 }

@@ -178,6 +178,31 @@ impl Kinematics for OxGlide {
         &self.p.travel
     }
 
+    /// The two guides (z = ±d) over the sliders' travel, the rods from the sliders to their
+    /// joints on the platform, and the platform through the tool point (x–z; y is the serial
+    /// axis).
+    fn links(&self, joints: &[f64], out: &mut Vec<[[f64; 3]; 2]>) -> bool {
+        let mut pose = [0.0; 3];
+        if self.forward(joints, None, &mut pose).is_err() {
+            return false;
+        }
+        let Ok((r1, r2)) = self.roots(&pose) else {
+            return false;
+        };
+        let (p, sigma) = (&self.p, self.config.sigma());
+        let [x, y, z] = pose;
+        let at = |px: f64, pz: f64| [px, y, pz];
+        // Slider 1 at xr1 + s1 on z = d, slider 2 at xr2 − s2 on z = −d (the IK's frame).
+        let [t1, t2] = [p.travel[0], p.travel[1]];
+        out.push([at(p.xr1 + t1[0], p.d), at(p.xr1 + t1[1], p.d)]);
+        out.push([at(p.xr2 - t2[1], -p.d), at(p.xr2 - t2[0], -p.d)]);
+        let (j1, j2) = (at(x + p.p1, z), at(x - p.p2, z));
+        out.push([at(x + p.p1 + sigma * r1, p.d), j1]);
+        out.push([at(x - p.p2 - sigma * r2, -p.d), j2]);
+        out.push([j1, j2]);
+        true
+    }
+
     fn inverse(&self, pose: &[f64], joints: &mut [f64]) -> Result<(), KinError> {
         let (r1, r2) = self.roots(pose)?;
         let (p, sigma, x) = (&self.p, self.config.sigma(), pose[0]);
@@ -246,5 +271,43 @@ impl Kinematics for OxGlide {
             jinv[r * MAX..r * MAX + 3].copy_from_slice(row);
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_drawing_puts_the_sliders_at_their_joints_and_the_rods_at_their_lengths() {
+        for (config, p) in [
+            (Configuration::X, OxParams::default()),
+            (Configuration::O, OxParams::default_o()),
+        ] {
+            let k = OxGlide::new(&p, config);
+            let joints = [1.0, 1.0, 2.0];
+            let mut links = Vec::new();
+            assert!(k.links(&joints, &mut links), "{config:?}");
+            assert_eq!(links.len(), 5);
+            let length = |[a, b]: [[f64; 3]; 2]| ((b[0] - a[0]).powi(2) + (b[2] - a[2]).powi(2)).sqrt();
+            assert!((length(links[2]) - p.l1).abs() < 1e-9, "{config:?}: rod 1");
+            assert!((length(links[3]) - p.l2).abs() < 1e-9, "{config:?}: rod 2");
+            assert!(
+                (links[2][0][0] - (p.xr1 + joints[0])).abs() < 1e-9,
+                "slider 1 at xr1 + s1"
+            );
+            assert!(
+                (links[3][0][0] - (p.xr2 - joints[1])).abs() < 1e-9,
+                "slider 2 at xr2 − s2"
+            );
+            let mut pose = [0.0; 3];
+            k.forward(&joints, None, &mut pose).expect("a pose");
+            let [j1, j2] = links[4];
+            assert!(
+                j1[0] > pose[0] - 1e-9 || j2[0] > pose[0] - 1e-9,
+                "the platform spans the tool point"
+            );
+            assert!((j1[2] - pose[2]).abs() < 1e-9 && (links[0][0][1] - pose[1]).abs() < 1e-9);
+        }
     }
 }

@@ -149,6 +149,33 @@ impl Kinematics for Pn101 {
         &self.p.travel
     }
 
+    /// The three guides along x over the sliders' travel (sliders 1 and 2 at y = −d, z = 0;
+    /// slider 3 at z = zz3), strut pairs 1 and 2 and the link of slider 3 to their joints on the
+    /// platform, and the platform between those joints (P2 is the tool point).
+    fn links(&self, joints: &[f64], out: &mut Vec<[[f64; 3]; 2]>) -> bool {
+        let mut pose = [0.0; 3];
+        if self.forward(joints, None, &mut pose).is_err() {
+            return false;
+        }
+        let p = &self.p;
+        let [x, y, z] = pose;
+        let guide = |i: usize, at: [f64; 2]| {
+            let [lo, hi] = p.travel[i];
+            [[p.xr[i] + lo, at[0], at[1]], [p.xr[i] + hi, at[0], at[1]]]
+        };
+        out.push(guide(0, [-p.d, 0.0]));
+        out.push(guide(1, [-p.d, 0.0]));
+        out.push(guide(2, [y, p.zz3]));
+        let slider = |i: usize, at: [f64; 2]| [p.xr[i] + joints[i], at[0], at[1]];
+        let (j1, j2, j3) = ([x + self.dx1, y, z], [x, y, z], [x + p.dx3, y, z + p.dz3]);
+        out.push([slider(0, [-p.d, 0.0]), j1]);
+        out.push([slider(1, [-p.d, 0.0]), j2]);
+        out.push([slider(2, [y, p.zz3]), j3]);
+        out.push([j1, j2]);
+        out.push([j2, j3]);
+        true
+    }
+
     fn inverse(&self, pose: &[f64], joints: &mut [f64]) -> Result<(), KinError> {
         let [s1, s2, s3] = self.roots(pose)?;
         let x = pose[0];
@@ -219,5 +246,31 @@ impl Kinematics for Pn101 {
             jinv[r * MAX..r * MAX + 3].copy_from_slice(row);
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_drawing_s_struts_and_link_have_their_lengths() {
+        let p = Pn101Params::default();
+        let k = Pn101::new(&p);
+        let joints = [2.0, -1.0, 3.0];
+        let mut links = Vec::new();
+        assert!(k.links(&joints, &mut links));
+        assert_eq!(links.len(), 8);
+        let length =
+            |[a, b]: [[f64; 3]; 2]| ((b[0] - a[0]).powi(2) + (b[1] - a[1]).powi(2) + (b[2] - a[2]).powi(2)).sqrt();
+        assert!((length(links[3]) - p.c1).abs() < 1e-9, "strut pair 1");
+        assert!((length(links[4]) - p.c2).abs() < 1e-9, "strut pair 2");
+        assert!((length(links[5]) - p.c4).abs() < 1e-9, "the link of slider 3");
+        for i in 0..3 {
+            assert!(
+                (links[3 + i][0][0] - (p.xr[i] + joints[i])).abs() < 1e-9,
+                "slider {i} at xr + q"
+            );
+        }
     }
 }
