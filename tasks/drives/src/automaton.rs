@@ -6,6 +6,8 @@
 //! does in each state (its referencing, its jog) is its [`Application`]. READY ⇄ AUTO runs an NC
 //! program (motion.md), for the machines that start one.
 
+use pkm_api::image::{Declare, Input, Var};
+use pkm_api::program::Cycle;
 use statig::prelude::*;
 
 /// The states of the main automaton (application.md).
@@ -103,6 +105,34 @@ impl StopButton {
         } else {
             false
         }
+    }
+}
+
+/// Every STOP an operator has, read as one: the panel's button, the joystick's and the
+/// operator screen's act in addition to each other, never instead of each other. The main
+/// program takes the presses (through [`StopButton`]), the drive program's fast interlock the
+/// level.
+#[derive(Clone, Copy, Debug)]
+pub struct StopInputs {
+    panel: Input<bool>,
+    joystick: Input<bool>,
+    screen: Input<bool>,
+}
+
+impl StopInputs {
+    /// Declares the reads: the panel's STOP `panel` (which the I/O map must bind), the
+    /// joystick's `joystick` and the screen's (`HMI_STOP`), which may be left out.
+    pub fn declare(decl: &mut Declare<'_>, panel: Var<bool>, joystick: Var<bool>) -> StopInputs {
+        StopInputs {
+            panel: decl.read(panel),
+            joystick: decl.read_optional(joystick),
+            screen: decl.read_optional(pkm_api::hmi::HMI_STOP),
+        }
+    }
+
+    /// Whether any STOP is pressed in this cycle.
+    pub fn pressed(&self, ctx: &Cycle<'_>) -> bool {
+        ctx.get(self.panel) || ctx.get(self.joystick) || ctx.get(self.screen)
     }
 }
 

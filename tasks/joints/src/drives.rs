@@ -9,7 +9,7 @@
 
 use pkm_api::image::{Declare, Input, Output};
 use pkm_api::program::{Cycle, Program, ProgramArgs};
-use pkm_drives::automaton::MainState;
+use pkm_drives::automaton::{MainState, StopInputs};
 use pkm_drives::counter::unwrap;
 use pkm_drives::interlock::{InterlockInputs, following_error};
 use pkm_drives::nc::NcChannel;
@@ -73,9 +73,7 @@ pub struct Drives {
     enable: Input<bool>,
     bus_fault: Input<bool>,
     setpoint_time: Input<f64>,
-    stop: Input<bool>,
-    joystick_stop: Input<bool>,
-    hmi_stop: Input<bool>,
+    stop: StopInputs,
     limit_override: Input<bool>,
     ack: Input<bool>,
     last_ack: bool,
@@ -290,9 +288,7 @@ impl Drives {
             enable: decl.read(vars::DRIVES_ENABLE),
             bus_fault: decl.read(vars::BUS_FAULT),
             setpoint_time: decl.read(vars::SETPOINT_TIME_S),
-            stop: decl.read(vars::BUTTON_STOP),
-            joystick_stop: decl.read_optional(vars::JOYSTICK_STOP),
-            hmi_stop: decl.read_optional(pkm_api::hmi::HMI_STOP),
+            stop: StopInputs::declare(decl, vars::BUTTON_STOP, vars::JOYSTICK_STOP),
             limit_override: decl.read(vars::LIMIT_OVERRIDE),
             ack: decl.read(vars::FAULT_ACK),
             last_ack: false,
@@ -356,8 +352,7 @@ impl Program for Drives {
                         Outputs::Stepper { .. } => false,
                     }
             });
-        // The joystick's and the screen's STOP act in addition to the panel's, never instead of it.
-        let stop = ctx.get(self.stop) || ctx.get(self.joystick_stop) || ctx.get(self.hmi_stop);
+        let stop = self.stop.pressed(ctx);
         let interlock = InterlockInputs {
             stop,
             limit_switch: limit,

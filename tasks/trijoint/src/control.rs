@@ -9,6 +9,7 @@ use super::state::MainState;
 use crate::vars;
 use pkm_api::image::{Declare, Input, Output};
 use pkm_api::program::{Cycle, Program, ProgramArgs};
+use pkm_drives::automaton::StopInputs;
 use pkm_drives::interlock::{InterlockInputs, following_error};
 use pkm_drives::nc::NcChannel;
 use pkm_drives::pi::{Pi, PiGains};
@@ -106,9 +107,7 @@ pub struct Control {
     enable: Input<bool>,
     bus_fault: Input<bool>,
     setpoint_time: Input<f64>,
-    stop: Input<bool>,
-    joystick_stop: Input<bool>,
-    hmi_stop: Input<bool>,
+    stop: StopInputs,
     interlock: Output<bool>,
     drives: [Drive; 2],
     pi: [Pi; 2],
@@ -175,9 +174,7 @@ impl Control {
             enable: decl.read(vars::DRIVES_ENABLE),
             bus_fault: decl.read(vars::BUS_FAULT),
             setpoint_time: decl.read(vars::SETPOINT_TIME_S),
-            stop: decl.read(vars::BUTTON_STOP),
-            joystick_stop: decl.read_optional(vars::JOYSTICK_STOP),
-            hmi_stop: decl.read_optional(pkm_api::hmi::HMI_STOP),
+            stop: StopInputs::declare(decl, vars::BUTTON_STOP, vars::JOYSTICK_STOP),
             interlock: decl.write(vars::INTERLOCK, false),
             drives,
             pi: [Pi::default(); 2],
@@ -195,8 +192,7 @@ impl Program for Control {
         let enabled = driving_state && ctx.get(self.enable);
         let switch = self.drives.iter().any(|d| d.switches.iter().any(|s| ctx.get(*s)));
         let faults = ctx.get(self.bus_fault) || self.drives.iter().any(|d| ctx.get(d.bridge_error) || ctx.get(d.fault));
-        // The joystick's and the screen's STOP act in addition to the panel's, never instead of it.
-        let stop = ctx.get(self.stop) || ctx.get(self.joystick_stop) || ctx.get(self.hmi_stop);
+        let stop = self.stop.pressed(ctx);
         let interlock = InterlockInputs {
             stop,
             limit_switch: switch,

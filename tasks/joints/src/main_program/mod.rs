@@ -21,7 +21,7 @@ use referencing::Search;
 use pkm_api::hmi;
 use pkm_api::image::{Declare, Input, Output};
 use pkm_api::program::{AppStatus, Cycle, Program, ProgramArgs};
-use pkm_drives::automaton::{MainState, StopButton, event as automaton_event};
+use pkm_drives::automaton::{MainState, StopButton, StopInputs, event as automaton_event};
 use pkm_drives::nc::{self, RunState};
 use pkm_kinematics::frame::{Home, MachineFrame};
 use pkm_kinematics::{KinematicsConfig, MAX_DOF, Machine as Model};
@@ -36,8 +36,7 @@ use crate::vars;
 pub const MAX_MAIN_CYCLE_US: u32 = 100_000;
 
 struct Vars {
-    stop: Input<bool>,
-    joystick_stop: Input<bool>,
+    stop: StopInputs,
     bus_fault: Input<bool>,
     limits: Vec<Input<bool>>,
     buttons: [Input<bool>; 4],
@@ -62,7 +61,6 @@ struct Vars {
 
 /// The operator screen's inputs (zero without a screen).
 struct HmiVars {
-    stop: Input<bool>,
     jog: [Input<f64>; 2],
     jog_axis: Input<i16>,
     axes: Input<bool>,
@@ -72,7 +70,6 @@ struct HmiVars {
 impl HmiVars {
     fn declare(decl: &mut Declare<'_>) -> HmiVars {
         HmiVars {
-            stop: decl.read_optional(hmi::HMI_STOP),
             jog: hmi::HMI_JOG.map(|v| decl.read_optional(v)),
             jog_axis: decl.read_optional(hmi::HMI_JOG_AXIS),
             axes: decl.read_optional(hmi::HMI_AXES),
@@ -355,8 +352,7 @@ impl MainProgram {
             })
             .collect();
         let vars = Vars {
-            stop: decl.read(vars::BUTTON_STOP),
-            joystick_stop: decl.read_optional(vars::JOYSTICK_STOP),
+            stop: StopInputs::declare(decl, vars::BUTTON_STOP, vars::JOYSTICK_STOP),
             bus_fault: decl.read(vars::BUS_FAULT),
             limits: switches.limits().iter().map(|l| decl.read(l.var)).collect(),
             buttons: vars::BUTTONS.map(|b| decl.read(b)),
@@ -478,8 +474,7 @@ impl MainProgram {
         let automaton = self.machine.inner();
         let state = automaton.state;
         let app = &automaton.app;
-        // The joystick's and the screen's STOP act in addition to the panel's, never instead of it.
-        let pressed = ctx.get(v.stop) || ctx.get(v.joystick_stop) || ctx.get(v.hmi.stop);
+        let pressed = v.stop.pressed(ctx);
         automaton_event(&mut self.stop, pressed, self.io.now_s, state, || {
             if ctx.violation().is_some() {
                 return Some(Reason::CycleTimeViolation);

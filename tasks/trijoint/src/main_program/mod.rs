@@ -29,13 +29,12 @@ use pkm_kinematics::{Kinematics, KinematicsConfig};
 
 use crate::state::MainState;
 use crate::vars;
-use pkm_drives::automaton::{StopButton, event as automaton_event};
+use pkm_drives::automaton::{StopButton, StopInputs, event as automaton_event};
 use pkm_drives::nc;
 use statig::prelude::*;
 
 struct Vars {
-    stop: Input<bool>,
-    joystick_stop: Input<bool>,
+    stop: StopInputs,
     bus_fault: Input<bool>,
     switches: [Input<bool>; 4],
     buttons: [Input<bool>; 4],
@@ -60,7 +59,6 @@ struct Vars {
     referenced: Output<bool>,
     m: [Output<f64>; 2],
     nc: Option<NcVars>,
-    hmi_stop: Input<bool>,
     hmi_jog: [Input<f64>; 2],
     hmi_jog_axis: Input<i16>,
     hmi_nc: [Input<bool>; 3],
@@ -123,8 +121,7 @@ impl MainProgram {
             );
         }
         let vars = Vars {
-            stop: decl.read(vars::BUTTON_STOP),
-            joystick_stop: decl.read_optional(vars::JOYSTICK_STOP),
+            stop: StopInputs::declare(decl, vars::BUTTON_STOP, vars::JOYSTICK_STOP),
             bus_fault: decl.read(vars::BUS_FAULT),
             switches: SWITCHES.map(|v| decl.read(v)),
             buttons: vars::BUTTONS.map(|v| decl.read(v)),
@@ -156,7 +153,6 @@ impl MainProgram {
                 fault: decl.read(nc::vars::NC_FAULT),
                 command: decl.write(nc::vars::NC_COMMAND, nc::Command::Off as i16),
             }),
-            hmi_stop: decl.read_optional(pkm_api::hmi::HMI_STOP),
             hmi_jog: pkm_api::hmi::HMI_JOG.map(|v| decl.read_optional(v)),
             hmi_jog_axis: decl.read_optional(pkm_api::hmi::HMI_JOG_AXIS),
             hmi_nc: pkm_api::hmi::HMI_NC.map(|v| decl.read_optional(v)),
@@ -227,8 +223,7 @@ impl MainProgram {
         let (v, io) = (&self.vars, &self.io);
         let state = self.machine.inner().state;
         let searches = &self.machine.inner().app.searches;
-        // The joystick's and the screen's STOP act in addition to the panel's, never instead of it.
-        let pressed = ctx.get(v.stop) || ctx.get(v.joystick_stop) || ctx.get(v.hmi_stop);
+        let pressed = v.stop.pressed(ctx);
         automaton_event(&mut self.stop, pressed, io.now_s, state, || {
             if ctx.violation().is_some() {
                 return Some(Reason::CycleTimeViolation);
