@@ -14,6 +14,8 @@ use pkm_api::image::{Declare, Input, Output};
 use pkm_api::program::Cycle;
 use pkm_api::trajectory::{MAX_AXES, NcJob, Trajectory, TrajectoryEventKind, TrajectorySample};
 
+use crate::automaton::MainState;
+
 pub use pkm_api::trajectory::vars;
 
 /// What the main program asks of the executor.
@@ -590,8 +592,17 @@ impl LineReason {
     /// Room for a reason with its line (bytes).
     const CAPACITY: usize = 512;
 
-    /// ERROR entered from `from` with the reason `reason`; `line` was executing.
-    pub fn entered(&mut self, from_auto: bool, reason: &str, line: i32) {
+    /// After a cycle of the automaton that went from `before` to `after` (with `reason`, the
+    /// reason's text, if it is in ERROR): takes the line `line` that was executing when ERROR
+    /// was entered from AUTO.
+    pub fn observe(&mut self, before: MainState, after: MainState, reason: Option<&str>, line: i32) {
+        if let (MainState::Error, false, Some(reason)) = (after, before == MainState::Error, reason) {
+            self.entered(before == MainState::Auto, reason, line);
+        }
+    }
+
+    /// ERROR entered with the reason `reason` (from AUTO: `from_auto`); `line` was executing.
+    fn entered(&mut self, from_auto: bool, reason: &str, line: i32) {
         use std::fmt::Write as _;
         self.with_line = from_auto.then_some(line);
         if from_auto {

@@ -589,12 +589,10 @@ impl Program for MainProgram {
         let event = self.event(ctx);
         let before = self.machine.inner().state;
         self.machine.handle_with_context(&event, &mut self.io);
+        // The program line executing goes with an ERROR's reason.
         let a = self.machine.inner();
-        if let (MainState::Error, false, Some(reason)) = (a.state, before == MainState::Error, a.reason) {
-            // The program line executing goes with the reason.
-            self.line_reason
-                .entered(before == MainState::Auto, self.texts.text(reason), self.io.nc_line);
-        }
+        let reason = a.reason.map(|r| self.texts.text(r));
+        self.line_reason.observe(before, a.state, reason, self.io.nc_line);
         self.write(ctx);
     }
 
