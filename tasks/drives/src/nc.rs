@@ -107,6 +107,9 @@ pub struct Executor {
     fault: bool,
     current: TrajectorySample,
     velocities: [f64; MAX_AXES],
+    /// The sample taken for the velocities last cycle (its time, the sample, its cursor): the
+    /// next cycle's set-point, so it is not computed twice.
+    next: Option<(f64, TrajectorySample, usize)>,
 }
 
 impl Executor {
@@ -129,6 +132,7 @@ impl Executor {
             fault: false,
             current,
             velocities: [0.0; MAX_AXES],
+            next: None,
         }
     }
 
@@ -211,7 +215,14 @@ impl Executor {
             // Standing at the last pose that had joints.
             return;
         }
-        let sample = self.trajectory.sample(self.t, &mut self.cursor);
+        // The sample is a function of the time alone: last cycle's look-ahead is this one's.
+        let sample = match self.next.take() {
+            Some((t, sample, cursor)) if t == self.t => {
+                self.cursor = cursor;
+                sample
+            }
+            _ => self.trajectory.sample(self.t, &mut self.cursor),
+        };
         if sample.joints.iter().any(|q| !q.is_finite()) {
             self.fault = true;
             return;
@@ -289,6 +300,7 @@ impl Executor {
             self.t = next;
             return;
         }
+        self.next = Some((next, ahead, self.ahead));
         for (v, (q1, q0)) in self
             .velocities
             .iter_mut()
