@@ -610,6 +610,7 @@ fn screen_options(args: &RunArgs) -> Result<Option<pkm_plc::hmi::HmiOptions>, Fa
 
 /// What the screen shows at connection.
 fn screen_info(plc: &Plc, setup: &Setup, job: Option<&pkm_api::trajectory::NcJob>) -> pkm_plc::hmi::server::HmiInfo {
+    let motion = setup.machine.and_then(|m| m.motion(&setup.loaded.json).ok());
     pkm_plc::hmi::server::HmiInfo {
         machine: setup.machine.map_or("runtime".to_string(), |m| m.name().to_string()),
         config: setup.origin().to_string(),
@@ -622,10 +623,12 @@ fn screen_info(plc: &Plc, setup: &Setup, job: Option<&pkm_api::trajectory::NcJob
         program: job.map(|j| (j.file.clone(), j.text.clone())),
         path: job.map(|j| preview(j.trajectory.as_ref())).unwrap_or_default(),
         mechanism: pkm_plc::hmi::mechanism::Mechanism::of(setup, plc),
-        axes: setup
-            .machine
-            .and_then(|m| m.motion(&setup.loaded.json).ok())
+        axes: motion
+            .as_ref()
             .map(|m| m.axes.iter().map(|a| a.to_string()).collect())
+            .unwrap_or_default(),
+        joints: motion
+            .map(|m| m.joint_vars.iter().map(|v| v.to_string()).collect())
             .unwrap_or_default(),
     }
 }

@@ -115,9 +115,14 @@ async fn state(page: &Page) -> String {
 
 /// The tool's x shown.
 async fn x(page: &Page) -> f64 {
+    shown(page, "x").await
+}
+
+/// A position shown (`x`, `q1`, …).
+async fn shown(page: &Page, name: &str) -> f64 {
     text(
         page,
-        "(document.querySelector('[data-value=x]') || {}).textContent || ''",
+        &format!("(document.querySelector('[data-value={name}]') || {{}}).textContent || ''"),
     )
     .await
     .parse()
@@ -137,11 +142,11 @@ async fn until(page: &Page, within: Duration, what: &str, check: impl AsyncFn(&P
     }
 }
 
-/// The centre of the element `selector`.
+/// The centre of the element `selector`, scrolled into view.
 async fn centre(page: &Page, selector: &str) -> (f64, f64) {
     let r: Vec<f64> = page
         .evaluate(format!(
-            "(() => {{ const r = document.querySelector({selector:?}).getBoundingClientRect(); return [r.x + r.width / 2, r.y + r.height / 2]; }})()"
+            "(() => {{ const e = document.querySelector({selector:?}); e.scrollIntoView({{block: 'center'}}); const r = e.getBoundingClientRect(); return [r.x + r.width / 2, r.y + r.height / 2]; }})()"
         ))
         .await
         .expect("evaluates")
@@ -254,6 +259,31 @@ async fn the_page_shows_referencing_jogs_while_held_stops_and_acknowledges() {
     let stood = x(&page).await;
     tokio::time::sleep(Duration::from_millis(500)).await;
     assert!((x(&page).await - stood).abs() < 0.003, "the tool stands at {stood}");
+    // Hold +q3 (the O-X glide's serial axis): that joint alone moves.
+    let joints = async |p: &Page| [shown(p, "q1").await, shown(p, "q2").await, shown(p, "q3").await];
+    let before = joints(&page).await;
+    let button = centre(&page, r#".jog-btn[data-axis="-3"][data-x="1"]"#).await;
+    mouse(&page, button, true).await;
+    until(&page, Duration::from_secs(10), "joint 3 moves", async |p| {
+        shown(p, "q3").await > before[2] + 2.0
+    })
+    .await;
+    mouse(&page, button, false).await;
+    until(
+        &page,
+        Duration::from_secs(5),
+        "READY after the joint's release",
+        async |p| state(p).await == "READY",
+    )
+    .await;
+    let after = joints(&page).await;
+    for j in 0..2 {
+        assert!(
+            (after[j] - before[j]).abs() < 0.01,
+            "joint {} stayed: {before:?} → {after:?}",
+            j + 1
+        );
+    }
     // STOP: ERROR with its reason; acknowledge after the lockout: INIT.
     click(&page, "#stop").await;
     until(&page, Duration::from_secs(5), "ERROR shown", async |p| {

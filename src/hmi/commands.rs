@@ -5,7 +5,7 @@
 
 use std::sync::{Arc, Mutex};
 
-use pkm_api::hmi::{HMI_AXES, HMI_JOG, HMI_JOG_AXIS, HMI_NC, HMI_STOP};
+use pkm_api::hmi::{HMI_AXES, HMI_JOG, HMI_JOG_AXIS, HMI_NC, HMI_STOP, JOG_AXIS_RANGE};
 
 use crate::bus::Bus;
 use crate::image::{Value, VarIndex, VarTable, VarType, Writer};
@@ -22,7 +22,8 @@ pub struct Commands {
     pub presses: [u64; 5],
     /// The jog (x, y in −1 … 1); 0 when nothing is held.
     pub jog: [f64; 2],
-    /// Which axis the jog moves (0: the stick's pair; k ≥ 1: the k-th pose coordinate alone).
+    /// Which axis the jog moves (0: the stick's pair; k ≥ 1: the k-th pose coordinate alone;
+    /// −k: the k-th joint alone).
     pub jog_axis: i16,
 }
 
@@ -130,7 +131,7 @@ impl Bus for HmiBus {
         for (i, v) in c.jog.iter().enumerate() {
             image[usize::from(self.vars[5 + i])] = Value::Real(v.clamp(-1.0, 1.0));
         }
-        image[usize::from(self.vars[7])] = Value::Int(c.jog_axis.clamp(0, 6));
+        image[usize::from(self.vars[7])] = Value::Int(c.jog_axis.clamp(*JOG_AXIS_RANGE.start(), *JOG_AXIS_RANGE.end()));
     }
 
     fn write_outputs(&mut self, class: usize, t_ns: u64, image: &[Value]) {

@@ -23,6 +23,8 @@ use serde_json::{Value as Json, json};
 use tokio::sync::broadcast;
 use tracing::{info, warn};
 
+use pkm_api::hmi::JOG_AXIS_RANGE;
+
 use super::commands::{CommandSink, press};
 use super::frame::{Frame, FrameReader};
 use crate::image::Value;
@@ -63,6 +65,8 @@ pub struct HmiInfo {
     pub path: Vec<[f64; 3]>,
     /// The machine's pose coordinates (`x`, `y`, … ): a jog button each.
     pub axes: Vec<String>,
+    /// The variables of the machine's measured joint positions: a jog button each (world mode).
+    pub joints: Vec<String>,
     /// The drawing of the mechanism, if its kinematics draws one.
     pub mechanism: Option<super::mechanism::Mechanism>,
 }
@@ -77,6 +81,7 @@ pub fn router(info: HmiInfo, mut frames: FrameReader, sink: CommandSink, token: 
         "program": info.program.as_ref().map(|(file, text)| json!({"file": file, "text": text})),
         "path": info.path,
         "axes": info.axes,
+        "joints": info.joints,
     });
     let (tx, _) = broadcast::channel::<Arc<str>>(16);
     let shared = Arc::new(Shared {
@@ -183,8 +188,8 @@ enum Command {
     Stop,
     /// The axis button.
     Axes,
-    /// The jog's deflection (0, 0: released), on the stick's pair of axes (`axis` 0 or left out)
-    /// or on the `axis`-th pose coordinate alone.
+    /// The jog's deflection (0, 0: released), on the stick's pair of axes (`axis` 0 or left out),
+    /// on the `axis`-th pose coordinate alone, or (`axis` −k) on the k-th joint alone.
     Jog {
         x: f64,
         y: f64,
@@ -289,7 +294,7 @@ impl Shared {
                 *owner = Some((id, Instant::now()));
                 self.sink.update(|c| {
                     c.jog = [x, y];
-                    c.jog_axis = axis.clamp(0, 6);
+                    c.jog_axis = axis.clamp(*JOG_AXIS_RANGE.start(), *JOG_AXIS_RANGE.end());
                 });
             }
         }

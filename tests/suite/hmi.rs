@@ -1,6 +1,7 @@
 //! The operator screen's inputs in virtual time (no server: its command sink written directly,
 //! as the server writes it): the screen's jog of one pose coordinate moves that coordinate alone,
-//! its STOP is an ERROR like the panel's.
+//! its jog of one joint moves that joint alone (once referenced, never before), its STOP is an
+//! ERROR like the panel's.
 
 use crate::common;
 
@@ -57,6 +58,185 @@ fn the_screens_jog_of_one_axis_moves_that_axis_alone_and_its_stop_is_the_panels(
     );
     assert_eq!(seen[5].2.as_deref(), Some("STOP"));
     assert!(seen[5].0 - 13_000 <= 50, "within a main cycle: {seen:?}");
+}
+
+/// A PLC of machine `name` on the simulated machine, with the screen's commands.
+fn with_screen(
+    name: &str,
+    scenario: Option<&std::path::Path>,
+    edit: impl FnOnce(&mut serde_json::Value),
+) -> (pkm_plc::plc::Plc, pkm_plc::hmi::commands::CommandSink) {
+    let setup = Setup::new(machine_config(name, edit)).expect("a machine");
+    let built = compose::build(
+        setup,
+        Options {
+            hmi: true,
+            scenario: scenario.map(std::path::Path::to_path_buf),
+            ..Options::default()
+        },
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    (built.plc, built.hmi.expect("the screen's commands"))
+}
+
+#[test]
+fn the_screens_jog_of_one_joint_moves_that_joint_alone_and_stops_on_the_border() {
+    let (mut plc, sink) = with_screen("hexapod", None, |_| {});
+    let joints = |plc: &pkm_plc::plc::Plc| -> [f64; 6] { std::array::from_fn(|j| get(plc, vars::JOINT_POSITION[j])) };
+    let (mut at_ready, mut after_jog, mut on_border) = (None, None, None);
+    let mut fastest: f64 = 0.0;
+    let seen = transitions(&mut plc, 120_000, |plc, t| {
+        let q = joints(plc);
+        if t > 9_000 {
+            fastest = fastest.max(get(plc, vars::SETPOINT_VELOCITY[1]).abs());
+        }
+        match t {
+            // READY at 7.65 s: joint 2 lengthened, at 0.8 of the screen's joint speed (5 mm/s).
+            9_000 => {
+                at_ready = Some(q);
+                sink.update(|c| {
+                    c.jog = [0.8, 0.0];
+                    c.jog_axis = -2;
+                });
+            }
+            11_000 => after_jog = Some(q),
+            // Held on: the joint brakes for the border of the allowed region and stands on it.
+            110_000 => {
+                on_border = Some(q);
+                sink.update(|c| c.jog = [0.0; 2]);
+            }
+            _ => {}
+        }
+    });
+    let (before, after) = (at_ready.expect("READY"), after_jog.expect("jogged"));
+    assert!(
+        (7.0..8.0).contains(&(after[1] - before[1])),
+        "joint 2 lengthened by about 0.8 × 5 mm/s × 2 s: {before:?} → {after:?}"
+    );
+    for j in [0, 2, 3, 4, 5] {
+        assert!(
+            (after[j] - before[j]).abs() < 0.01,
+            "joint {} stayed: {before:?} → {after:?}",
+            j + 1
+        );
+    }
+    assert!(fastest <= 4.0 + 1e-9, "never above the commanded 4 mm/s: {fastest}");
+    let border = on_border.expect("held on");
+    let names: Vec<&str> = seen.iter().map(|(_, s, _)| s.as_str()).collect();
+    assert_eq!(
+        names,
+        ["REBOOT", "INIT", "READY", "MOTION", "READY"],
+        "stopped on the border without an error: {seen:?}"
+    );
+    let stood = seen[4].0;
+    assert!(stood > 110_000, "moved until released: {seen:?}");
+    // Where it stood: the tool's pose inside the world limits (±100 mm) and the joint inside its
+    // software limits (400 + 2 … 1000 − 2 mm).
+    let tool: [f64; 6] = std::array::from_fn(|c| get(&plc, vars::TOOL[c]));
+    assert!(border[1] > after[1] + 20.0, "went on to the border: {border:?}");
+    assert!((402.0..=998.0).contains(&border[1]), "{border:?}");
+    assert!(tool[..3].iter().all(|c| c.abs() <= 100.0 + 0.01), "{tool:?}");
+}
+
+#[test]
+fn the_screen_never_jogs_a_joint_before_referencing_even_with_the_panels_override_held() {
+    // pn101's joint 1 stands past its positive limit switch (60 mm) at power-on: INIT waits in
+    // joint mode. The panel's override is held; the screen's joint jog moves nothing.
+    let edit = |c: &mut serde_json::Value| c["plant"]["joints"][0]["start_mm"] = serde_json::json!(60.5);
+    let dir = tempfile::tempdir().expect("a temporary directory");
+    let scenario = dir.path().join("override.json");
+    std::fs::write(
+        &scenario,
+        r#"{"events": [{"at_ms": 500, "input": "BUTTON_OVERRIDE", "value": true}]}"#,
+    )
+    .expect("the scenario written");
+    let (mut plc, sink) = with_screen("pn101", Some(&scenario), edit);
+    let mut notes = Vec::new();
+    let seen = transitions(&mut plc, 4_000, |plc, t| {
+        if t == 1_000 {
+            sink.update(|c| {
+                c.jog = [-1.0, 0.0];
+                c.jog_axis = -1;
+            });
+        }
+        let note = plc.app_status().and_then(|s| s.note).map(str::to_string);
+        if notes.last() != Some(&note) {
+            notes.push(note);
+        }
+    });
+    assert_eq!(
+        common::joint_plant(&plc).position_mm(0),
+        60.5,
+        "joint 1 stayed on its switch"
+    );
+    let names: Vec<&str> = seen.iter().map(|(_, s, _)| s.as_str()).collect();
+    assert_eq!(names, ["REBOOT", "INIT"], "{seen:?}");
+    assert_eq!(
+        notes.last().cloned().flatten().as_deref(),
+        Some(
+            "the screen jogs once the machine is referenced; in joint mode, jog from the panel with BUTTON_OVERRIDE held"
+        ),
+        "{notes:?}"
+    );
+}
+
+#[test]
+fn the_screens_jog_of_one_trijoint_carriage_moves_it_alone_within_its_software_limit() {
+    use pkm_trijoint::vars as t;
+    let setup = Setup::new(common::loaded(&common::repo_config())).expect("the TRIJOINT");
+    let built = compose::build(
+        setup,
+        Options {
+            hmi: true,
+            ..Options::default()
+        },
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    let (mut plc, sink) = (built.plc, built.hmi.expect("the screen's commands"));
+    let carriages = |plc: &pkm_plc::plc::Plc| t::POSITION_MM.map(|v| get(plc, v));
+    let m = |plc: &pkm_plc::plc::Plc| t::M.map(|v| get(plc, v));
+    let (mut at_ready, mut after_jog, mut held) = (None, None, None);
+    let seen = transitions(&mut plc, 90_000, |plc, t| match t {
+        // READY at 40.2 s: the left carriage down, at half of M's jog speed (20 mm/s).
+        42_000 => {
+            at_ready = Some((carriages(plc), m(plc)));
+            sink.update(|c| {
+                c.jog = [-0.5, 0.0];
+                c.jog_axis = -1;
+            });
+        }
+        43_000 => after_jog = Some((carriages(plc), m(plc))),
+        // Held on: it brakes for its software limit (or the border of M's region) and stands.
+        85_000 => {
+            held = Some(carriages(plc));
+            sink.update(|c| c.jog = [0.0; 2]);
+        }
+        _ => {}
+    });
+    let ((q0, m0), (q1, m1)) = (at_ready.expect("READY"), after_jog.expect("jogged"));
+    assert!(
+        (-10.5..-8.0).contains(&(q1[0] - q0[0])),
+        "the left carriage went down by about 10 mm/s × 1 s: {q0:?} → {q1:?}"
+    );
+    assert!(
+        (q1[1] - q0[1]).abs() < 0.01,
+        "the right carriage stayed: {q0:?} → {q1:?}"
+    );
+    assert!(
+        (m1[0] - m0[0]).hypot(m1[1] - m0[1]) > 1.0,
+        "M followed: {m0:?} → {m1:?}"
+    );
+    let names: Vec<&str> = seen.iter().map(|(_, s, _)| s.as_str()).collect();
+    assert_eq!(
+        names,
+        ["REBOOT", "INIT", "READY", "MOTION", "READY"],
+        "stood without an error: {seen:?}"
+    );
+    let stood = held.expect("held on");
+    assert!(
+        stood[0] < q1[0] - 20.0 && stood[0] >= 2.0 - 0.05,
+        "went on, and stood inside the lower software limit (2 mm): {stood:?}"
+    );
 }
 
 #[test]

@@ -60,11 +60,14 @@ function hello(m) {
     plane = [0, 1, 2].sort((a, b) => extent[b] - extent[a] || a - b).slice(0, 2).sort();
   }
   $("path-box").hidden = programmed.length < 2;
-  // A pair of press-and-hold buttons per pose coordinate of the machine.
-  $("jog-buttons").innerHTML = (m.axes || [])
-    .map((a, k) => `<button class="jog-btn" data-axis="${k + 1}" data-x="-1">− ${a}</button>` +
-      `<button class="jog-btn" data-axis="${k + 1}" data-x="1">+ ${a}</button>`)
-    .join("");
+  // A pair of press-and-hold buttons per pose coordinate of the machine (axis k), and per joint
+  // (axis −k: the joint alone, once referenced).
+  const pair = (label, axis, title) =>
+    `<button class="jog-btn" data-axis="${axis}" data-x="-1" title="${title}">− ${label}</button>` +
+    `<button class="jog-btn" data-axis="${axis}" data-x="1" title="${title}">+ ${label}</button>`;
+  $("jog-buttons").innerHTML = (m.axes || []).map((a, k) => pair(a, k + 1, `the tool along ${a}`)).join("");
+  $("joint-buttons").innerHTML = (m.joints || []).map((v, k) => pair(`q${k + 1}`, -(k + 1), `joint ${k + 1} alone (${v})`)).join("");
+  $("joint-hint").hidden = !(m.joints || []).length;
   for (const b of document.querySelectorAll(".jog-btn")) {
     b.addEventListener("pointerdown", (e) => {
       b.setPointerCapture(e.pointerId);

@@ -13,8 +13,15 @@ pub const HMI_STOP: Var<bool> = Var::new("HMI_STOP");
 /// hidden tab or a silent page brings it to 0 (the dead-man).
 pub const HMI_JOG: [Var<f64>; 2] = [Var::new("HMI_JOG_X"), Var::new("HMI_JOG_Y")];
 /// Which axis the screen's jog moves: 0 the stick's (the selected pair: `HMI_JOG` x and y), `k`
-/// ≥ 1 the k-th pose coordinate of the machine alone (x y z a b c), at `HMI_JOG` x's deflection.
+/// ≥ 1 the k-th pose coordinate of the machine alone (x y z a b c), `-k` the k-th joint alone,
+/// each at `HMI_JOG` x's deflection. A joint is jogged from the screen only once the machine is
+/// referenced (world mode), inside its software limits and the allowed region of the tool:
+/// before referencing, single joints move from the panel alone, where a person stands at the
+/// machine.
 pub const HMI_JOG_AXIS: Var<i16> = Var::new("HMI_JOG_AXIS");
+/// The values `HMI_JOG_AXIS` may take: −6 (the sixth joint) … 6 (the sixth pose coordinate).
+pub const JOG_AXIS_RANGE: std::ops::RangeInclusive<i16> = -6..=6;
+
 /// The screen's axis button: selects the next joint (joint mode) or pair of world axes (a press).
 pub const HMI_AXES: Var<bool> = Var::new("HMI_AXES");
 /// The screen's program buttons: start, feed hold, resume (presses), in addition to the panel's

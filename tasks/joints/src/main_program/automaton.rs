@@ -35,6 +35,10 @@ pub struct Io {
     pub(super) stick_connected: bool,
     /// The screen jogs this pose coordinate alone (1-based; 0: the stick's pair).
     pub(super) screen_axis: usize,
+    /// The screen jogs this joint alone (1-based; 0: none), in world mode only.
+    pub(super) screen_joint: usize,
+    /// The screen's jog is held (its deflection stands in `stick`).
+    pub(super) screen_jog: bool,
     pub(super) buttons: [bool; 4],
     pub(super) override_held: bool,
     /// The axis button was pressed this cycle (a rising edge).
@@ -119,6 +123,9 @@ pub struct Main {
     /// The tool pose set-point (machine frame) and its velocity, in world mode.
     pub(super) pose: [f64; MAX_DOF],
     pub(super) pose_velocity: [f64; MAX_DOF],
+    /// In world mode, the joint the screen jogs alone and its set-point velocity (mm/s), until
+    /// it stands again.
+    pub(super) joint_jog: Option<(usize, f64)>,
     /// What the stick drives: a joint in joint mode, a pair of world axes in world mode.
     pub(super) selection: usize,
     /// The joints' references are known from an earlier referencing (kept through REBOOT).
@@ -197,6 +204,7 @@ impl Application for Main {
 
     fn enter_ready(&mut self, io: &mut Io) {
         self.pose_velocity = [0.0; MAX_DOF];
+        self.joint_jog = None;
         io.hold();
         io.program.leave();
     }
@@ -235,7 +243,7 @@ impl Application for Main {
         if io.axes_pressed && !self.pairs.is_empty() {
             self.selection = (self.selection + 1) % self.pairs.len();
         }
-        let jog = self.world_command(io) != [0.0; MAX_DOF];
+        let jog = self.world_command(io) != [0.0; MAX_DOF] || self.joint_command(io).is_some();
         if jog {
             io.program.forget_refusal();
         }
@@ -245,6 +253,12 @@ impl Application for Main {
     fn enter_motion(&mut self, _io: &mut Io) {}
 
     fn motion(&mut self, io: &mut Io) -> bool {
+        // One jog at a time: a joint's (the screen's) or the tool's, each braked to a stand
+        // before the other starts.
+        let joint = self.joint_command(io);
+        if self.joint_jog.is_some() || (joint.is_some() && self.pose_velocity == [0.0; MAX_DOF]) {
+            return self.jog_joint(io, joint);
+        }
         let command = self.world_command(io);
         if command == [0.0; MAX_DOF] && self.pose_velocity == [0.0; MAX_DOF] {
             io.hold();
@@ -262,6 +276,7 @@ impl Application for Main {
         }
         io.program.leave();
         self.pose_velocity = [0.0; MAX_DOF];
+        self.joint_jog = None;
         self.error(io);
     }
 
@@ -300,6 +315,7 @@ impl Main {
             searches: [Search::Done; MAX_DOF],
             pose: [0.0; MAX_DOF],
             pose_velocity: [0.0; MAX_DOF],
+            joint_jog: None,
             selection: 0,
             known: false,
             ret_from: [0.0; MAX_DOF],

@@ -2,7 +2,8 @@
 //! inverse kinematics. The tool's jog speed ramps with the configured acceleration, brakes in
 //! time for the border of the allowed region (software limits of the joints, world limits, the
 //! singularity threshold) and stops on it without an error; no joint set-point moves faster than
-//! the joint's speed limit.
+//! the joint's speed limit. The screen may also jog one joint alone, under the same rules: the
+//! tool follows by the forward kinematics and must stay in the allowed region.
 
 use pkm_kinematics::MAX_DOF;
 
@@ -11,11 +12,33 @@ use super::automaton::{Io, Main};
 /// How close to the border of the allowed region a jog stops (mm or degrees along its path).
 const BORDER_TOLERANCE: f64 = 1e-6;
 
+/// How far (up to `reach`) a jog may go from where `allowed(0)` holds: `reach` if `allowed`
+/// holds there, else the border found by bisection to [`BORDER_TOLERANCE`] (the allowed region
+/// is taken as connected along the short path looked at).
+fn reachable(reach: f64, mut allowed: impl FnMut(f64) -> bool) -> f64 {
+    if allowed(reach) {
+        return reach;
+    }
+    let (mut lo, mut hi) = (0.0, reach);
+    while hi - lo > BORDER_TOLERANCE {
+        let mid = (lo + hi) / 2.0;
+        if allowed(mid) {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    lo
+}
+
 impl Main {
     /// The operator's command as a velocity of the tool (per pose coordinate, mm/s or
     /// degrees/s): the stick's x and y on the selected pair of axes.
     pub(super) fn world_command(&self, io: &Io) -> [f64; MAX_DOF] {
         let mut v = [0.0; MAX_DOF];
+        if io.screen_joint != 0 {
+            return v;
+        }
         // The screen's button of one pose coordinate moves that coordinate alone.
         if (1..=self.n).contains(&io.screen_axis) {
             let k = io.screen_axis - 1;
@@ -65,19 +88,7 @@ impl Main {
     /// looked for up to `reach`.
     fn free_distance(&self, u: &[f64; MAX_DOF], reach: f64) -> f64 {
         let mut joints = [0.0; MAX_DOF];
-        if self.allowed(&self.along(u, reach), &mut joints) {
-            return reach;
-        }
-        let (mut lo, mut hi) = (0.0, reach);
-        while hi - lo > BORDER_TOLERANCE {
-            let mid = (lo + hi) / 2.0;
-            if self.allowed(&self.along(u, mid), &mut joints) {
-                lo = mid;
-            } else {
-                hi = mid;
-            }
-        }
-        lo
+        reachable(reach, |t| self.allowed(&self.along(u, t), &mut joints))
     }
 
     /// The tool's acceleration along the unit direction `u` (at most the jog's): a joint whose
@@ -189,6 +200,78 @@ impl Main {
             // On the border, pushing outwards: stand still there, no error.
             io.hold();
             self.pose_velocity = [0.0; MAX_DOF];
+        }
+    }
+}
+
+impl Main {
+    /// The screen's jog of one joint alone, in world mode: the joint and its commanded
+    /// set-point velocity (mm/s), if the screen holds one.
+    pub(super) fn joint_command(&self, io: &Io) -> Option<(usize, f64)> {
+        let j = io.screen_joint.checked_sub(1).filter(|j| *j < self.n)?;
+        let x = self.stick(io)[0];
+        (x != 0.0).then_some((j, x * self.p.jog.joint_speed_mm_s))
+    }
+
+    /// The tool pose at the joints `q` (machine frame), if it is one the tool may be commanded
+    /// to: the forward kinematics from the set-point's pose, and back by the inverse to `q`
+    /// itself (not to another assembly of the mechanism).
+    fn pose_at(&self, q: &[f64; MAX_DOF]) -> Option<[f64; MAX_DOF]> {
+        let n = self.n;
+        let mut pose = [0.0; MAX_DOF];
+        let mut back = [0.0; MAX_DOF];
+        self.frame
+            .forward(&q[..n], Some(&self.pose[..n]), &mut pose[..n])
+            .ok()?;
+        let same = |back: &[f64; MAX_DOF]| (0..n).all(|j| (back[j] - q[j]).abs() < 1e-6);
+        (self.allowed(&pose, &mut back) && same(&back)).then_some(pose)
+    }
+
+    /// One step of the screen's jog of a joint alone (world mode): the joint's set-point ramps
+    /// towards the command (0 once released, or when another is commanded) at half its
+    /// acceleration (as a world jog's joints, for the drives' ramps), brakes in time for the
+    /// border of the allowed region, and stops on it. The other joints hold; the tool's pose
+    /// follows. False once it stands, the command released.
+    pub(super) fn jog_joint(&mut self, io: &mut Io, command: Option<(usize, f64)>) -> bool {
+        let (j, before) = self.joint_jog.unwrap_or((command.map_or(0, |(j, _)| j), 0.0));
+        let target = match command {
+            Some((k, v)) if k == j => v,
+            _ => 0.0,
+        };
+        let (dt, a) = (io.dt_s, 0.5 * self.p.joints[j].max_accel_mm_s2);
+        let v = target.clamp(before - a * dt, before + a * dt);
+        io.hold();
+        let mut speed = v.abs();
+        if speed == 0.0 {
+            self.joint_jog = None;
+            return false;
+        }
+        let direction = v.signum();
+        let from = io.setpoints;
+        let at = |t: f64| {
+            let mut q = from;
+            q[j] += direction * t;
+            q
+        };
+        // Brake in time: the step and the braking distance after it must stay allowed.
+        let reach = speed * dt + speed * speed / (2.0 * a);
+        let free = reachable(reach, |t| self.pose_at(&at(t)).is_some());
+        if free < reach {
+            speed = speed.min(a * ((dt * dt + 2.0 * free / a).sqrt() - dt));
+        }
+        let step = (speed * dt).min(free);
+        match self.pose_at(&at(step)).filter(|_| step > 0.0) {
+            Some(pose) => {
+                io.velocities[j] = direction * step / dt;
+                self.pose = pose;
+                self.joint_jog = Some((j, direction * step / dt));
+                true
+            }
+            None => {
+                // On the border, pushing outwards: stand there, no error.
+                self.joint_jog = None;
+                target != 0.0
+            }
         }
     }
 }

@@ -442,11 +442,16 @@ impl MainProgram {
         io.stick_connected = ctx.get(v.stick_connected);
         // The screen's jog, while held, in place of the stick.
         let screen = v.hmi.jog.map(|j| ctx.get(j));
-        io.screen_axis = 0;
-        if screen != [0.0; 2] {
+        io.screen_jog = screen != [0.0; 2];
+        (io.screen_axis, io.screen_joint) = (0, 0);
+        if io.screen_jog {
             io.stick = screen;
             io.stick_connected = true;
-            io.screen_axis = ctx.get(v.hmi.jog_axis).clamp(0, 6) as usize;
+            let axis = ctx
+                .get(v.hmi.jog_axis)
+                .clamp(*hmi::JOG_AXIS_RANGE.start(), *hmi::JOG_AXIS_RANGE.end());
+            io.screen_axis = axis.max(0).unsigned_abs() as usize;
+            io.screen_joint = axis.min(0).unsigned_abs() as usize;
         }
         io.buttons = v.buttons.map(|b| ctx.get(b));
         io.override_held = ctx.get(v.override_button);
@@ -573,6 +578,11 @@ impl MainProgram {
         }
         if a.state != MainState::Init || a.app.phase != Phase::Waiting {
             return None;
+        }
+        if self.io.screen_jog {
+            return Some(
+                "the screen jogs once the machine is referenced; in joint mode, jog from the panel with BUTTON_OVERRIDE held",
+            );
         }
         Some(match (self.io.limit_active, self.io.override_held) {
             (true, false) => "a limit input is active: hold BUTTON_OVERRIDE and jog the joint off it",

@@ -36,7 +36,14 @@ impl Main {
             self.selection = (self.selection + 1) % self.n;
         }
         io.limit_override = io.override_held;
-        let x = if io.override_held { self.stick(io)[0] } else { 0.0 };
+        // Single joints move before referencing from the panel alone, with the override held by
+        // someone at the machine: the positions are not known yet, the software limits are not
+        // in force, and only the limit switches guard the travel. Never from the screen.
+        let x = if io.override_held && !io.screen_jog {
+            self.stick(io)[0]
+        } else {
+            0.0
+        };
         for j in 0..self.n {
             let v = if j == self.selection {
                 x * self.p.jog.joint_speed_mm_s

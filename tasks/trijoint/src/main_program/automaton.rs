@@ -29,6 +29,9 @@ pub struct Io {
     pub(super) capture_counts: [[i32; 2]; 2],
     pub(super) joystick: [f64; 2],
     pub(super) joystick_connected: bool,
+    /// The screen jogs this carriage alone (1: left, 2: right; 0: none); its deflection is the
+    /// joystick's x.
+    pub(super) screen_carriage: usize,
     pub(super) buttons: [bool; 4],
     // Outputs. A set-point is published with its velocity: the 10 ms controller moves it on at
     // that velocity until the next main cycle.
@@ -126,7 +129,7 @@ impl Application for Main {
 
     fn ready(&mut self, io: &mut Io) -> bool {
         io.hold();
-        let jog = self.command(io) != [0.0; 2];
+        let jog = self.command(io) != [0.0; 2] || self.carriage_command(io).is_some();
         if jog {
             io.program.forget_refusal();
         }
@@ -167,6 +170,10 @@ impl Application for Main {
     fn enter_motion(&mut self, _io: &mut Io) {}
 
     fn motion(&mut self, io: &mut Io) -> bool {
+        if let Some((i, v)) = self.carriage_command(io) {
+            self.jog_carriage(io, i, v);
+            return true;
+        }
         let v = self.command(io);
         if v == [0.0; 2] {
             io.hold();
@@ -210,6 +217,9 @@ impl Main {
     /// The operator's command as a velocity of M (mm/s): joystick, else direction buttons. A
     /// joystick that is not connected commands nothing, whatever its axes read.
     pub(super) fn command(&self, io: &Io) -> [f64; 2] {
+        if io.screen_carriage != 0 {
+            return [0.0; 2];
+        }
         let dz = self.p.dead_zone;
         let [jx, jy] = if io.joystick_connected { io.joystick } else { [0.0; 2] };
         let (mut x, mut y) = (

@@ -194,13 +194,19 @@ impl MainProgram {
         io.joystick_connected = ctx.get(v.joystick_connected);
         // The screen's jog, while held, in place of the joystick.
         let screen = v.hmi_jog.map(|j| ctx.get(j));
+        io.screen_carriage = 0;
         if screen != [0.0; 2] {
-            // The screen's button of one axis (1: x, 2: y) moves M along that axis alone.
-            io.joystick = match ctx.get(v.hmi_jog_axis) {
-                1 => [screen[0], 0.0],
+            // The screen's button of one axis (1: x, 2: y) moves M along that axis alone; that
+            // of one carriage (−1: left, −2: right) moves that carriage alone.
+            let axis = ctx.get(v.hmi_jog_axis);
+            io.joystick = match axis {
+                1 | -1 | -2 => [screen[0], 0.0],
                 2 => [0.0, screen[0]],
                 _ => screen,
             };
+            if axis < 0 {
+                io.screen_carriage = axis.unsigned_abs() as usize;
+            }
             io.joystick_connected = true;
         }
         io.captures = v.captures.map(|c| c.map(|x| ctx.get(x)));
