@@ -11,7 +11,7 @@ use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 
 use pkm_api::machine::{EmbeddedFile, Machine, Sections};
-use pkm_api::trajectory::NcJob;
+use pkm_api::trajectory::NcLibrary;
 use tracing::{info, warn};
 
 use crate::bus::{Bus, NoBus, UnknownBus};
@@ -211,9 +211,9 @@ impl Setup {
         self.plc_with(bus, None)
     }
 
-    /// [`Setup::plc`] with an NC program for the machine's programs to run.
-    pub fn plc_with(&self, bus: Box<dyn Bus>, job: Option<&NcJob>) -> Result<Plc, ConfigError> {
-        let plc = Plc::build_with(&self.loaded.config, &self.registry(), bus, job);
+    /// [`Setup::plc`] with NC programs for the machine's programs to run.
+    pub fn plc_with(&self, bus: Box<dyn Bus>, library: Option<&NcLibrary>) -> Result<Plc, ConfigError> {
+        let plc = Plc::build_with(&self.loaded.config, &self.registry(), bus, library);
         let mut problems = self.section_problems();
         match plc {
             Ok(plc) if problems.is_empty() => Ok(plc),
@@ -265,6 +265,9 @@ pub struct Options {
     pub joystick: JoystickChoice,
     /// An NC program to run (checked and planned before the PLC is built).
     pub program: Option<PathBuf>,
+    /// A directory whose programs (`*.ngc`) the operator may load from the screen instead
+    /// (each checked and planned before the PLC is built; those that cannot run are listed).
+    pub programs: Option<PathBuf>,
     /// Lay the operator screen's variables over the bus (`HMI_*`, see `hmi`).
     pub hmi: bool,
 }
@@ -278,6 +281,7 @@ impl Default for Options {
             scenario: None,
             joystick: JoystickChoice::Live(JoystickSpec::None),
             program: None,
+            programs: None,
             hmi: false,
         }
     }
@@ -303,8 +307,10 @@ pub struct Built {
     pub plc: Plc,
     /// The joystick reader to start, if a live joystick is wanted.
     pub joystick: Option<Joystick>,
-    /// The NC program it runs, if one was given.
-    pub job: Option<NcJob>,
+    /// The NC programs of the run, if any was given.
+    pub library: Option<NcLibrary>,
+    /// The programs of `Options::programs` that cannot run on the machine: file and why.
+    pub refused: Vec<(String, String)>,
     /// Where the operator screen's commands go, if the screen's variables were laid over the
     /// bus.
     pub hmi: Option<crate::hmi::commands::CommandSink>,
@@ -397,14 +403,8 @@ fn modbus_bus(map: &IoMap, transport: Transport, options: &Options) -> Result<Bo
 /// Builds a PLC: every problem of the configuration and its I/O map is reported at once.
 pub fn build(setup: Setup, options: Options) -> Result<Built, BuildError> {
     // A program that cannot run is refused before anything is built.
-    let job = match &options.program {
-        Some(path) => Some(
-            crate::nc_job::prepare(&setup, path)
-                .and_then(crate::nc_job::Prepared::into_job)
-                .map_err(|e| BuildError(e.message))?,
-        ),
-        None => None,
-    };
+    let programs = crate::nc_job::programs(&setup, options.program.as_deref(), options.programs.as_deref())
+        .map_err(|e| BuildError(e.message))?;
     // A bus that cannot be made for a problem of the files (the I/O map, the plant section) does
     // not hide the configuration's other problems: they are checked on a stand-in bus.
     let (bus, joystick, bus_problem) = match make_bus(&setup, &options) {
@@ -422,12 +422,13 @@ pub fn build(setup: Setup, options: Options) -> Result<Built, BuildError> {
     } else {
         (bus, None)
     };
-    match (setup.plc_with(bus, job.as_ref()), bus_problem) {
+    match (setup.plc_with(bus, programs.library.as_ref()), bus_problem) {
         (Ok(plc), None) => Ok(Built {
             setup,
             plc,
             joystick,
-            job,
+            library: programs.library,
+            refused: programs.refused,
             hmi,
         }),
         (plc, bus_problem) => {

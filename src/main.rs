@@ -232,6 +232,11 @@ struct RunArgs {
     /// if it cannot run), started once the machine is READY after referencing (state AUTO).
     #[arg(long, value_name = "FILE")]
     program: Option<PathBuf>,
+    /// The programs (`*.ngc`) the operator may load from the screen, each checked and planned
+    /// at start (those that cannot run on the machine are listed with why), or `none`. Real
+    /// time with a screen only; default `programs` (if that directory exists).
+    #[arg(long, value_name = "DIR|none")]
+    programs: Option<PathBuf>,
     /// The operator's screen: `ADDR` (host:port) to serve it at, or `none`. Real time only;
     /// default 127.0.0.1:8080 (another address than loopback needs --hmi-token).
     #[arg(long, value_name = "ADDR|none", value_parser = parse_hmi)]
@@ -455,6 +460,7 @@ fn cmd_run(args: RunArgs) -> Result<(), Failure> {
         (_, true) => JoystickChoice::Live(JoystickSpec::None),
         (spec, false) => JoystickChoice::Live(spec.clone()),
     };
+    let programs = program_library(&args, screen.is_some())?;
     let options = Options {
         bus: args.bus,
         link: pkm_plc::io::modbus::ModbusOptions {
@@ -465,24 +471,26 @@ fn cmd_run(args: RunArgs) -> Result<(), Failure> {
         scenario: args.scenario.clone(),
         joystick,
         program: args.program.clone(),
+        programs,
         hmi: screen.is_some(),
     };
     let Built {
         setup,
         mut plc,
         joystick,
-        job,
+        library,
+        refused,
         hmi,
     } = build(&args.config, options)?;
     let loaded = &setup.loaded;
+    // Each reason starts with the file's name.
+    for (_, why) in &refused {
+        info!("screen: not offered: {}", why.lines().next().unwrap_or_default());
+    }
     let summary_file = args.summary.as_deref().map(OutputFile::create).transpose()?;
     if let Some(path) = &args.trace {
         let digest = setup.digest()?;
-        let program = job.as_ref().map(|j| pkm_plc::trace::TraceProgram {
-            file: j.file.clone(),
-            text: j.text.clone(),
-        });
-        let recorder = pkm_plc::trace::record::Recorder::create_with(path, &plc, &digest, program)
+        let recorder = pkm_plc::trace::record::Recorder::create_with(path, &plc, &digest, library.as_ref())
             .map_err(|e| Failure::run(format!("{}: cannot create the trace: {e}", path.display())))?;
         plc.set_recorder(Box::new(recorder));
     }
@@ -505,7 +513,7 @@ fn cmd_run(args: RunArgs) -> Result<(), Failure> {
             duration / report.wall.as_secs_f64().max(1e-9)
         );
         trace_failure = finish_trace(&mut plc);
-        Summary::collect(&plc, "virtual", &loaded.origin, report.simulated_ns).with_program(&plc, job.as_ref())
+        Summary::collect(&plc, "virtual", &loaded.origin, report.simulated_ns).with_program(&plc, library.as_ref())
     } else {
         let timing = &loaded.config.timing;
         let options = RealTimeOptions {
@@ -535,7 +543,7 @@ fn cmd_run(args: RunArgs) -> Result<(), Failure> {
         };
         let screen = match (screen, hmi) {
             (Some(options), Some(sink)) => Some(Screen {
-                info: screen_info(&plc, &setup, job.as_ref()),
+                info: screen_info(&plc, &setup, library.as_ref(), refused),
                 options,
                 sink,
             }),
@@ -553,7 +561,7 @@ fn cmd_run(args: RunArgs) -> Result<(), Failure> {
         }
         trace_failure = finish_trace(&mut outcome.plc);
         let mut s = Summary::collect(&outcome.plc, "real-time", &loaded.origin, outcome.elapsed_ns)
-            .with_program(&outcome.plc, job.as_ref());
+            .with_program(&outcome.plc, library.as_ref());
         s.time_source = Some(outcome.source.name());
         s.realtime_priority = Some(outcome.realtime_priority);
         s
@@ -608,8 +616,27 @@ fn screen_options(args: &RunArgs) -> Result<Option<pkm_plc::hmi::HmiOptions>, Fa
     Ok(Some(options))
 }
 
+/// The directory of programs the screen offers: `--programs DIR`, or `programs` where it exists
+/// (with a screen); `none` or no screen: none.
+fn program_library(args: &RunArgs, screen: bool) -> Result<Option<PathBuf>, Failure> {
+    match &args.programs {
+        Some(dir) if dir.as_os_str() == "none" => Ok(None),
+        Some(dir) if !screen => Err(Failure::usage(format!(
+            "--programs {}: programs are loaded from the operator's screen, which is served in real time only (and not with --hmi none)",
+            dir.display()
+        ))),
+        Some(dir) => Ok(Some(dir.clone())),
+        None => Ok(Some(PathBuf::from("programs")).filter(|d| screen && d.is_dir())),
+    }
+}
+
 /// What the screen shows at connection.
-fn screen_info(plc: &Plc, setup: &Setup, job: Option<&pkm_api::trajectory::NcJob>) -> pkm_plc::hmi::server::HmiInfo {
+fn screen_info(
+    plc: &Plc,
+    setup: &Setup,
+    library: Option<&pkm_api::trajectory::NcLibrary>,
+    refused: Vec<(String, String)>,
+) -> pkm_plc::hmi::server::HmiInfo {
     let motion = setup.machine.and_then(|m| m.motion(&setup.loaded.json).ok());
     pkm_plc::hmi::server::HmiInfo {
         machine: setup.machine.map_or("runtime".to_string(), |m| m.name().to_string()),
@@ -620,8 +647,16 @@ fn screen_info(plc: &Plc, setup: &Setup, job: Option<&pkm_api::trajectory::NcJob
             .iter()
             .map(|v| (v.name.clone(), v.ty.to_string()))
             .collect(),
-        program: job.map(|j| (j.file.clone(), j.text.clone())),
-        path: job.map(|j| preview(j.trajectory.as_ref())).unwrap_or_default(),
+        programs: library
+            .map_or(&[][..], |l| &l.jobs)
+            .iter()
+            .map(|j| pkm_plc::hmi::server::ScreenProgram {
+                file: j.file.clone(),
+                text: j.text.clone(),
+                path: preview(j.trajectory.as_ref()),
+            })
+            .collect(),
+        refused,
         mechanism: pkm_plc::hmi::mechanism::Mechanism::of(setup, plc),
         axes: motion
             .as_ref()

@@ -7,7 +7,7 @@ use std::path::Path;
 use std::sync::Arc;
 
 use pkm_api::machine::{Home, Machine, Motion};
-use pkm_api::trajectory::NcJob;
+use pkm_api::trajectory::{NcJob, NcLibrary};
 use pkm_kinematics::frame::{Home as FrameHome, MachineFrame};
 use pkm_kinematics::{KinematicsConfig, Machine as Model};
 use pkm_nc::check::{Limits, Report, check, format_pose};
@@ -196,4 +196,69 @@ pub fn prepare_text(setup: &Setup, name: String, text: String) -> Result<Prepare
         report,
         plan: planned,
     })
+}
+
+/// The run's programs: the one to run (`run --program`), and those the operator may load
+/// instead from the screen (`run --programs DIR`), each checked and planned now.
+#[derive(Debug, Default)]
+pub struct Programs {
+    /// The library, if there is any program at all.
+    pub library: Option<NcLibrary>,
+    /// The programs of the directory that cannot run on this machine: file and why.
+    pub refused: Vec<(String, String)>,
+}
+
+/// The extension of the programs a directory offers.
+pub const PROGRAM_EXTENSION: &str = "ngc";
+
+/// Reads, checks and plans `program` (refused with its reason if it cannot run) and every
+/// `*.ngc` of `dir` (in name order; one that cannot run is listed in [`Programs::refused`]).
+pub fn programs(setup: &Setup, program: Option<&Path>, dir: Option<&Path>) -> Result<Programs, NcFailure> {
+    let first = program
+        .map(|p| prepare(setup, p).and_then(Prepared::into_job))
+        .transpose()?;
+    let mut offered = Vec::new();
+    let mut refused = Vec::new();
+    if let Some(dir) = dir {
+        let entries = std::fs::read_dir(dir).map_err(|e| {
+            fail(
+                2,
+                format!("--programs {}: cannot list the directory: {e}", dir.display()),
+            )
+        })?;
+        let mut files: Vec<std::path::PathBuf> = entries
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| p.is_file() && p.extension().is_some_and(|x| x == PROGRAM_EXTENSION))
+            .collect();
+        files.sort();
+        for file in files {
+            // The program given to run is not offered twice.
+            if program.is_some_and(|p| same_file(p, &file)) {
+                continue;
+            }
+            match prepare(setup, &file).and_then(Prepared::into_job) {
+                Ok(job) => offered.push(job),
+                Err(e) => refused.push((file.display().to_string(), e.message)),
+            }
+        }
+    }
+    Ok(Programs {
+        library: library(first, offered),
+        refused,
+    })
+}
+
+/// The library of `first` (run by itself at the first READY) and `offered` (loaded from the
+/// screen), if there is any program.
+pub fn library(first: Option<NcJob>, offered: Vec<NcJob>) -> Option<NcLibrary> {
+    let autostart = first.is_some();
+    let jobs: Vec<NcJob> = first.into_iter().chain(offered).collect();
+    (!jobs.is_empty()).then_some(NcLibrary { jobs, autostart })
+}
+
+fn same_file(a: &Path, b: &Path) -> bool {
+    match (a.canonicalize(), b.canonicalize()) {
+        (Ok(a), Ok(b)) => a == b,
+        _ => a == b,
+    }
 }

@@ -133,12 +133,12 @@ impl Plc {
         Plc::build_with(config, registry, bus, None)
     }
 
-    /// [`Plc::build`] with an NC program for the programs to run (`run --program`).
+    /// [`Plc::build`] with NC programs for the programs to run (`run --program`, `--programs`).
     pub fn build_with(
         config: &Config,
         registry: &Registry,
         mut bus: Box<dyn Bus>,
-        nc: Option<&pkm_api::trajectory::NcJob>,
+        nc: Option<&pkm_api::trajectory::NcLibrary>,
     ) -> Result<Plc, Vec<Problem>> {
         let mut issues = config::check(config);
         let mut table = VarTable::new();

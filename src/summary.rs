@@ -2,7 +2,7 @@
 
 use serde::Serialize;
 
-use pkm_api::trajectory::NcJob;
+use pkm_api::trajectory::NcLibrary;
 
 use crate::image::Value;
 use crate::plc::Plc;
@@ -149,18 +149,30 @@ impl Summary {
         }
     }
 
-    /// Adds the NC program's last run, as `plc`'s executor measured it (nothing without a
-    /// program).
-    pub fn with_program(mut self, plc: &Plc, job: Option<&NcJob>) -> Summary {
+    /// Adds the loaded NC program's last run, as `plc`'s executor measured it (nothing without
+    /// a program).
+    pub fn with_program(mut self, plc: &Plc, library: Option<&NcLibrary>) -> Summary {
         use pkm_api::trajectory::vars;
-        let Some(job) = job else {
+        let value = |name: &str| plc.last_written(name);
+        let loaded = match value(vars::NC_PROGRAM.name()) {
+            Some(Value::Int(k)) => k,
+            _ => 1,
+        };
+        let Some(library) = library else {
             return self;
         };
-        let value = |name: &str| plc.last_written(name);
+        let Some(job) = library.numbered(loaded) else {
+            return self;
+        };
         let real = |name: &str| match value(name) {
             Some(Value::Real(v)) => v,
             _ => 0.0,
         };
+        // A program only offered to the screen, never started, has nothing to report (loading
+        // a program clears the last run's figures).
+        if !library.autostart && real(vars::NC_RUN_S.name()) == 0.0 {
+            return self;
+        }
         let n = job.trajectory.dof();
         self.program = Some(ProgramSummary {
             file: job.file.clone(),

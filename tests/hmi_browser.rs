@@ -232,6 +232,24 @@ async fn the_page_shows_referencing_jogs_while_held_stops_and_acknowledges() {
         state(p).await == "READY"
     })
     .await;
+    // The programs of programs/ that fit the O-X glide are offered, the first loaded: load the
+    // second (the text) in its place.
+    let file = async |p: &Page| text(p, "document.getElementById('program-file').textContent").await;
+    assert!(file(&page).await.ends_with("ox-x-target.ngc"), "{}", file(&page).await);
+    page.evaluate("document.getElementById('program-choice').value = '2'")
+        .await
+        .expect("a program chosen");
+    click(&page, "#nc-load").await;
+    until(&page, Duration::from_secs(5), "the text loaded", async |p| {
+        file(p).await.ends_with("ox-x-text.ngc")
+    })
+    .await;
+    assert!(
+        text(&page, "document.getElementById('program-text').textContent")
+            .await
+            .contains("O-X GLIDE"),
+        "its text shown"
+    );
     // Hold +x: the tool moves while held.
     let before = x(&page).await;
     // The +x button (the first pose coordinate).
@@ -321,6 +339,10 @@ async fn the_page_shows_referencing_jogs_while_held_stops_and_acknowledges() {
     assert!(
         recorded.contains(r#""HMI_JOG_X":1.0"#),
         "the screen's jog is in the trace"
+    );
+    assert!(
+        recorded.contains(r#""HMI_NC_PROGRAM":2"#),
+        "the screen's load is in the trace"
     );
     let replay = common::pkm(&[
         "replay",

@@ -5,7 +5,7 @@
 
 use std::sync::{Arc, Mutex};
 
-use pkm_api::hmi::{HMI_AXES, HMI_JOG, HMI_JOG_AXIS, HMI_NC, HMI_STOP, JOG_AXIS_RANGE};
+use pkm_api::hmi::{HMI_AXES, HMI_JOG, HMI_JOG_AXIS, HMI_NC, HMI_NC_PROGRAM, HMI_STOP, JOG_AXIS_RANGE};
 
 use crate::bus::Bus;
 use crate::image::{Value, VarIndex, VarTable, VarType, Writer};
@@ -25,6 +25,8 @@ pub struct Commands {
     /// Which axis the jog moves (0: the stick's pair; k ≥ 1: the k-th pose coordinate alone;
     /// −k: the k-th joint alone).
     pub jog_axis: i16,
+    /// The program to load (its number from 1; 0: no choice made).
+    pub program: i16,
 }
 
 /// Which of [`Commands::presses`] is which.
@@ -63,8 +65,9 @@ pub struct HmiBus {
     /// The class that latches the screen's variables (the fastest: STOP reaches the interlock).
     class: usize,
     output: triple_buffer::Output<Commands>,
-    /// The variables: the five presses' (in [`press`] order), the jog's x and y, its axis.
-    vars: [VarIndex; 8],
+    /// The variables: the five presses' (in [`press`] order), the jog's x and y, its axis, the
+    /// program to load.
+    vars: [VarIndex; 9],
     seen: [u64; 5],
     /// Until when each press holds its variable on (ns of the schedule).
     until: [u64; 5],
@@ -78,7 +81,7 @@ impl HmiBus {
             inner,
             class,
             output,
-            vars: [0; 8],
+            vars: [0; 9],
             seen: [0; 5],
             until: [0; 5],
         };
@@ -108,6 +111,7 @@ impl Bus for HmiBus {
             declare(HMI_JOG[0].name(), VarType::Real, Value::Real(0.0)),
             declare(HMI_JOG[1].name(), VarType::Real, Value::Real(0.0)),
             declare(HMI_JOG_AXIS.name(), VarType::Int, Value::Int(0)),
+            declare(HMI_NC_PROGRAM.name(), VarType::Int, Value::Int(0)),
         ];
     }
 
@@ -132,6 +136,7 @@ impl Bus for HmiBus {
             image[usize::from(self.vars[5 + i])] = Value::Real(v.clamp(-1.0, 1.0));
         }
         image[usize::from(self.vars[7])] = Value::Int(c.jog_axis.clamp(*JOG_AXIS_RANGE.start(), *JOG_AXIS_RANGE.end()));
+        image[usize::from(self.vars[8])] = Value::Int(c.program.max(0));
     }
 
     fn write_outputs(&mut self, class: usize, t_ns: u64, image: &[Value]) {

@@ -48,6 +48,10 @@ pub struct Shared {
     next_client: AtomicU64,
     /// The client that jogs (its id), with when it last refreshed the jog.
     jog_owner: std::sync::Mutex<Option<(u64, Instant)>>,
+    /// A program runs (the last frame's state is AUTO): no other is loaded.
+    running: std::sync::atomic::AtomicBool,
+    /// How many programs the run has.
+    programs: usize,
 }
 
 /// What the screen is told once, at connection: the machine and its variables.
@@ -58,17 +62,27 @@ pub struct HmiInfo {
     pub config: String,
     /// Every variable of the process image, in the image's order, with its type.
     pub variables: Vec<(String, String)>,
-    /// The NC program, if one is loaded: its file and text.
-    pub program: Option<(String, String)>,
-    /// The programmed tool path (x y z of the commanded pose along the program's time line),
-    /// for the page's preview.
-    pub path: Vec<[f64; 3]>,
+    /// The run's NC programs, numbered from 1 (`NC_PROGRAM` holds the loaded one's number).
+    pub programs: Vec<ScreenProgram>,
+    /// The programs offered that cannot run on the machine: file and why.
+    pub refused: Vec<(String, String)>,
     /// The machine's pose coordinates (`x`, `y`, … ): a jog button each.
     pub axes: Vec<String>,
     /// The variables of the machine's measured joint positions: a jog button each (world mode).
     pub joints: Vec<String>,
     /// The drawing of the mechanism, if its kinematics draws one.
     pub mechanism: Option<super::mechanism::Mechanism>,
+}
+
+/// An NC program as the screen shows it.
+pub struct ScreenProgram {
+    /// Its file.
+    pub file: String,
+    /// Its text.
+    pub text: String,
+    /// The programmed tool path (x y z of the commanded pose along the program's time line),
+    /// for the page's preview.
+    pub path: Vec<[f64; 3]>,
 }
 
 /// Builds the router and the task that pushes frames; `token`: commands need it.
@@ -78,8 +92,8 @@ pub fn router(info: HmiInfo, mut frames: FrameReader, sink: CommandSink, token: 
         "machine": info.machine,
         "config": info.config,
         "variables": info.variables.iter().map(|(n, t)| json!([n, t])).collect::<Vec<_>>(),
-        "program": info.program.as_ref().map(|(file, text)| json!({"file": file, "text": text})),
-        "path": info.path,
+        "programs": info.programs.iter().map(|p| json!({"file": p.file, "text": p.text, "path": p.path})).collect::<Vec<_>>(),
+        "refused": info.refused.iter().map(|(file, why)| json!({"file": file, "why": why})).collect::<Vec<_>>(),
         "axes": info.axes,
         "joints": info.joints,
     });
@@ -91,6 +105,8 @@ pub fn router(info: HmiInfo, mut frames: FrameReader, sink: CommandSink, token: 
         token,
         next_client: AtomicU64::new(1),
         jog_owner: std::sync::Mutex::new(None),
+        running: std::sync::atomic::AtomicBool::new(false),
+        programs: info.programs.len(),
     });
     let pump = Arc::clone(&shared);
     let mut mechanism = info.mechanism;
@@ -101,7 +117,11 @@ pub fn router(info: HmiInfo, mut frames: FrameReader, sink: CommandSink, token: 
             tick.tick().await;
             // Taken even with nobody listening, so that a client gets the newest next; written
             // out only for listeners.
-            if let Some(frame) = frames.newer()
+            let newer = frames.newer();
+            if let Some(frame) = &newer {
+                pump.running.store(frame.status.state == "AUTO", Ordering::Relaxed);
+            }
+            if let Some(frame) = newer
                 && tx.receiver_count() > 0
             {
                 // The links only where the positions are the kinematics' (once referenced).
@@ -198,6 +218,8 @@ enum Command {
     },
     /// Program start, hold or resume.
     Program { what: String },
+    /// Load the run's program of this number (from 1) in place of the loaded one.
+    Load { program: i16 },
 }
 
 async fn client(mut socket: WebSocket, peer: SocketAddr, commands: bool, shared: Arc<Shared>) {
@@ -237,7 +259,12 @@ async fn client(mut socket: WebSocket, peer: SocketAddr, commands: bool, shared:
                         continue;
                     }
                     match serde_json::from_str::<Command>(&text) {
-                        Ok(c) => shared.apply(id, peer, c),
+                        Ok(c) => {
+                            if let Err(why) = shared.apply(id, peer, c) {
+                                let refusal = json!({"type": "refused", "why": why}).to_string();
+                                let _ = socket.send(Message::Text(refusal.into())).await;
+                            }
+                        }
                         Err(e) => warn!("screen {peer}: a command that is not one ({e}): {}", crate::config::shorten(&text)),
                     }
                 }
@@ -251,8 +278,22 @@ async fn client(mut socket: WebSocket, peer: SocketAddr, commands: bool, shared:
 }
 
 impl Shared {
-    fn apply(&self, id: u64, peer: SocketAddr, command: Command) {
+    /// Carries out a client's command; a refused one says why.
+    fn apply(&self, id: u64, peer: SocketAddr, command: Command) -> Result<(), String> {
         match command {
+            Command::Load { program } => {
+                let known = usize::try_from(program).is_ok_and(|k| (1..=self.programs).contains(&k));
+                if !known {
+                    warn!("screen {peer}: no program {program} to load");
+                    return Err(format!("no program {program}: the run has {}", self.programs));
+                }
+                if self.running.load(Ordering::Relaxed) {
+                    info!("screen {peer}: load program {program} refused: a program runs");
+                    return Err("a program runs: another is loaded once it has ended or stopped".into());
+                }
+                info!("screen {peer}: load program {program}");
+                self.sink.update(|c| c.program = program);
+            }
             Command::Stop => {
                 info!("screen {peer}: STOP");
                 self.sink.update(|c| c.presses[press::STOP] += 1);
@@ -271,7 +312,7 @@ impl Shared {
                             "screen {peer}: no program command \"{}\"",
                             crate::config::shorten(other)
                         );
-                        return;
+                        return Err(format!("no program command \"{}\"", crate::config::shorten(other)));
                     }
                 };
                 info!("screen {peer}: program {what}");
@@ -286,7 +327,7 @@ impl Shared {
                         info!("screen {peer}: jog released");
                         self.sink.update(|c| c.jog = [0.0; 2]);
                     }
-                    return;
+                    return Ok(());
                 }
                 if owner.is_none_or(|(o, _)| o != id) {
                     info!("screen {peer}: jog {x:.2} {y:.2} (axis {axis})");
@@ -298,6 +339,7 @@ impl Shared {
                 });
             }
         }
+        Ok(())
     }
 
     /// Stops the jog if client `id` holds it.

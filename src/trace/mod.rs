@@ -46,6 +46,25 @@ pub struct Header {
     /// The NC program the run executed (`run --program`): a replay plans it again.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub program: Option<TraceProgram>,
+    /// The programs the operator could load from the screen (`run --programs`), numbered after
+    /// `program`: a replay plans them again.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub library: Vec<TraceProgram>,
+}
+
+impl Header {
+    /// The header's `program` and `library` of a run with `library`.
+    pub fn programs(library: Option<&pkm_api::trajectory::NcLibrary>) -> (Option<TraceProgram>, Vec<TraceProgram>) {
+        let Some(l) = library else {
+            return (None, Vec::new());
+        };
+        let mut all = l.jobs.iter().map(|j| TraceProgram {
+            file: j.file.clone(),
+            text: j.text.clone(),
+        });
+        let first = if l.autostart { all.next() } else { None };
+        (first, all.collect())
+    }
 }
 
 /// An NC program as a trace carries it.

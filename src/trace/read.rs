@@ -207,6 +207,7 @@ impl TraceReader {
                 task_classes: Vec::new(),
                 variables: Default::default(),
                 program: None,
+                library: Vec::new(),
             },
             classes: HashMap::new(),
             variables: Vec::new(),

@@ -133,13 +133,14 @@ impl Recorder {
         Recorder::create_with(path, plc, config_digest, None)
     }
 
-    /// [`Recorder::create`] for a run that executes an NC program: the header carries it.
+    /// [`Recorder::create`] for a run with NC programs: the header carries them.
     pub fn create_with(
         path: &Path,
         plc: &Plc,
         config_digest: &str,
-        program: Option<super::TraceProgram>,
+        library: Option<&pkm_api::trajectory::NcLibrary>,
     ) -> io::Result<Recorder> {
+        let (program, library) = Header::programs(library);
         let file = Output::create(path)?;
         let vars = plc.vars().vars();
         let name = |i: &VarIndex| vars[usize::from(*i)].name.clone();
@@ -159,6 +160,7 @@ impl Recorder {
                 .collect(),
             variables: vars.iter().map(|v| (v.name.clone(), v.ty)).collect(),
             program,
+            library,
         };
         let var_names: Vec<String> = vars.iter().map(|v| v.name.clone()).collect();
         let class_names: Vec<String> = plc.classes().map(|c| c.name.to_string()).collect();

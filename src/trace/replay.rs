@@ -83,22 +83,22 @@ pub fn replay(trace: &Path, setup: &Setup, force: bool) -> Result<ReplayReport, 
         )));
     }
     let refused = |m: String| ReplayError::Refused(format!("{}: {m}", trace.display()));
-    // The program the run executed, planned again as it was then.
-    let job = match &header.program {
-        Some(p) => Some(
-            crate::nc_job::prepare_text(setup, p.file.clone(), p.text.clone())
-                .and_then(crate::nc_job::Prepared::into_job)
-                .map_err(|e| refused(format!("its program {}: {e}", p.file)))?,
-        ),
-        None => None,
+    // The run's programs, planned again as they were then.
+    let plan = |p: &crate::trace::TraceProgram| {
+        crate::nc_job::prepare_text(setup, p.file.clone(), p.text.clone())
+            .and_then(crate::nc_job::Prepared::into_job)
+            .map_err(|e| refused(format!("its program {}: {e}", p.file)))
     };
+    let first = header.program.as_ref().map(plan).transpose()?;
+    let offered = header.library.iter().map(plan).collect::<Result<Vec<_>, _>>()?;
+    let library = crate::nc_job::library(first, offered);
     // The bus only declares the I/O map's variables (and the operator screen's, if the run had
     // one): replayed cycles never call it.
     let mut bus = setup.declaring_bus()?;
     if header.variables.contains_key(pkm_api::hmi::HMI_STOP.name()) {
         bus = setup.with_screen(bus).0;
     }
-    let mut plc = setup.plc_with(bus, job.as_ref())?;
+    let mut plc = setup.plc_with(bus, library.as_ref())?;
     let mut index = std::collections::HashMap::new();
     let mut by_position: Vec<VarIndex> = Vec::new();
     for (name, ty) in &header.variables {

@@ -579,3 +579,31 @@ fn machine_names_a_machines_configuration_file_or_its_built_in_copy() {
         stderr(&o)
     );
 }
+
+#[test]
+fn programs_to_load_need_the_screen_and_a_directory_that_can_be_listed() {
+    let o = pkm(&["run", "--virtual", "--duration", "1", "--programs", "programs"]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains(
+            "--programs programs: programs are loaded from the operator's screen, which is served in real time only (and not with --hmi none)"
+        ),
+        "{}",
+        stderr(&o)
+    );
+    let o = pkm(&[
+        "run",
+        "--duration",
+        "1",
+        "--hmi",
+        "127.0.0.1:0",
+        "--programs",
+        "no-such-dir",
+    ]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("--programs no-such-dir: cannot list the directory: No such file or directory"),
+        "{}",
+        stderr(&o)
+    );
+}

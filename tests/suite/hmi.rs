@@ -268,3 +268,89 @@ fn the_screen_draws_the_mechanisms_at_the_measured_joints() {
     }
     assert_eq!(mechanism.links(&image).map(<[_]>::len), Some(18));
 }
+
+#[test]
+fn the_screen_loads_another_program_outside_auto_and_the_run_replays_with_it() {
+    use pkm_api::trajectory::vars as nc;
+    let dir = tempfile::tempdir().expect("a temporary directory");
+    let library = dir.path().join("programs");
+    std::fs::create_dir(&library).expect("the directory");
+    for file in ["ox-x-target.ngc", "ox-x-text.ngc", "hexapod-tilted-circle.ngc"] {
+        std::fs::copy(common::root().join("programs").join(file), library.join(file)).expect("copied");
+    }
+    let options = || Options {
+        hmi: true,
+        programs: Some(library.clone()),
+        ..Options::default()
+    };
+    let setup = Setup::new(machine_config("ox-x", |_| {})).expect("the O-X glide");
+    let built = compose::build(setup, options()).unwrap_or_else(|e| panic!("{e}"));
+    // The hexapod's program does not fit the O-X glide: listed with why, not offered.
+    assert_eq!(built.refused.len(), 1, "{:?}", built.refused);
+    assert!(built.refused[0].0.ends_with("hexapod-tilted-circle.ngc"));
+    assert!(
+        built.refused[0]
+            .1
+            .ends_with("hexapod-tilted-circle.ngc:5:4: A: this machine's axes are X Y Z"),
+        "{}",
+        built.refused[0].1
+    );
+    let library_of = built.library.expect("two programs");
+    let files: Vec<&str> = library_of.jobs.iter().map(|j| j.file.as_str()).collect();
+    assert!(
+        files[0].ends_with("ox-x-target.ngc") && files[1].ends_with("ox-x-text.ngc"),
+        "{files:?}"
+    );
+    assert!(!library_of.autostart, "offered programs wait for a start");
+    let (mut plc, sink) = (built.plc, built.hmi.expect("the screen's commands"));
+    let trace = dir.path().join("load.jsonl");
+    let digest = built.setup.digest().expect("a digest");
+    let recorder =
+        pkm_plc::trace::record::Recorder::create_with(&trace, &plc, &digest, Some(&library_of)).expect("the trace");
+    plc.set_recorder(Box::new(recorder));
+    let mut loaded = Vec::new();
+    let mut text_completed = false;
+    let press = |k: usize| sink.update(|c| c.presses[k] += 1);
+    let seen = transitions(&mut plc, 80_000, |plc, t| {
+        let k = get(plc, nc::NC_PROGRAM);
+        text_completed |= k == 2 && get(plc, nc::NC_COMPLETED);
+        if loaded.last().map(|(_, l)| *l) != Some(k) {
+            loaded.push((t, k));
+        }
+        match t {
+            // READY at 11.65 s, nothing started: load the text, start it.
+            13_000 => sink.update(|c| c.program = 2),
+            14_000 => press(pkm_plc::hmi::commands::press::NC[0]),
+            // While it runs, the target is chosen: taken once the text has ended.
+            20_000 => sink.update(|c| c.program = 1),
+            _ => {}
+        }
+    });
+    let names: Vec<&str> = seen.iter().map(|(_, s, _)| s.as_str()).collect();
+    assert_eq!(names, ["REBOOT", "INIT", "READY", "AUTO", "READY"], "{seen:?}");
+    let (auto, ended) = (seen[3].0, seen[4].0);
+    // The text's plan: 50.70 s.
+    assert!(
+        ((ended - auto) as f64 / 1000.0 - 50.7).abs() < 0.2,
+        "the text ran: {auto} … {ended} ms"
+    );
+    assert_eq!(loaded[0], (0, 1), "{loaded:?}");
+    assert_eq!(loaded[1].1, 2, "{loaded:?}");
+    assert!(loaded[1].0 <= 13_050, "loaded within a main cycle: {loaded:?}");
+    assert_eq!(loaded[2].1, 1, "{loaded:?}");
+    assert!(
+        loaded[2].0 >= ended,
+        "not while the text ran: {loaded:?} (ended {ended})"
+    );
+    assert!(text_completed, "the text completed");
+    // The target loaded after the text's run: no run of it to report.
+    assert!(!get(&plc, nc::NC_COMPLETED) && get(&plc, nc::NC_RUN_S) == 0.0);
+    match plc.take_recorder().map(|r| r.finish()) {
+        Some(Ok(_)) => {}
+        other => panic!("the trace: {:?}", other.map(|r| r.map_err(|e| e.to_string()))),
+    }
+    // Replayed with the programs the trace carries.
+    let setup = Setup::new(machine_config("ox-x", |_| {})).expect("the O-X glide");
+    let report = pkm_plc::trace::replay::replay(&trace, &setup, false).unwrap_or_else(|e| panic!("{e}"));
+    assert!(report.records > 1000, "{}", report.records);
+}

@@ -10,6 +10,9 @@ let ws = null;
 let variables = [];
 let programLines = [];
 let jog = null; // [x, y, axis] while held
+// The run's programs (numbered from 1 as NC_PROGRAM holds the loaded one's) and the one shown.
+let programs = [];
+let shownProgram = 0;
 let jogTimer = null;
 let lastLine = 0;
 // The tool path: programmed (from the hello), cut (the measured tool point while a program runs).
@@ -52,14 +55,12 @@ function connect() {
 function hello(m) {
   index = {};
   m.variables.forEach(([n], i) => { index[n] = i; });
-  programmed = m.path || [];
-  cut = [];
-  // The plane of the programmed path's two largest extents (of x y z).
-  if (programmed.length > 1) {
-    const extent = [0, 1, 2].map((c) => Math.max(...programmed.map((p) => p[c])) - Math.min(...programmed.map((p) => p[c])));
-    plane = [0, 1, 2].sort((a, b) => extent[b] - extent[a] || a - b).slice(0, 2).sort();
-  }
-  $("path-box").hidden = programmed.length < 2;
+  programs = m.programs || [];
+  shownProgram = 0;
+  $("program-choice").innerHTML = programs.map((p, i) => `<option value="${i + 1}">${escape(p.file)}</option>`).join("");
+  $("library").hidden = programs.length < 2;
+  $("refused").innerHTML = (m.refused || []).map((r) => `<div>${escape(r.file)}: cannot run here: ${escape(r.why.split("\n")[0])}</div>`).join("");
+  showProgram(programs.length ? 1 : 0);
   // A pair of press-and-hold buttons per pose coordinate of the machine (axis k), and per joint
   // (axis −k: the joint alone, once referenced).
   const pair = (label, axis, title) =>
@@ -81,21 +82,33 @@ function hello(m) {
   variables = m.variables;
   $("access").textContent = m.commands ? "" : "watching only: commands need the token (?token=…)";
   document.body.dataset.commands = m.commands;
-  const box = $("program-box");
-  if (m.program) {
-    $("program-file").textContent = m.program.file;
-    programLines = m.program.text.split("\n");
-    $("program-text").innerHTML = programLines
-      .map((l, i) => `<div class="line" id="line-${i + 1}">${String(i + 1).padStart(4)}  ${escape(l)}</div>`)
-      .join("");
-    box.hidden = false;
-  } else {
-    box.hidden = true;
-  }
   const watch = $("watch");
   watch.innerHTML = "<tr><th>variable</th><th>type</th><th>value</th></tr>" +
     variables.map(([n, t], i) => `<tr data-name="${n.toLowerCase()}"><td>${n}</td><td>${t}</td><td class="num" id="v-${i}"></td></tr>`).join("");
   filter();
+}
+
+// Shows the run's program number k (from 1; 0: none): its text, its path, nothing cut yet.
+function showProgram(k) {
+  shownProgram = k;
+  const program = programs[k - 1];
+  $("program-box").hidden = !program;
+  programmed = program ? program.path : [];
+  cut = [];
+  lastLine = 0;
+  // The plane of the programmed path's two largest extents (of x y z).
+  if (programmed.length > 1) {
+    const extent = [0, 1, 2].map((c) => Math.max(...programmed.map((p) => p[c])) - Math.min(...programmed.map((p) => p[c])));
+    plane = [0, 1, 2].sort((a, b) => extent[b] - extent[a] || a - b).slice(0, 2).sort();
+  }
+  $("path-box").hidden = programmed.length < 2;
+  if (!program) return;
+  $("program-file").textContent = program.file;
+  $("program-choice").value = String(k);
+  programLines = program.text.split("\n");
+  $("program-text").innerHTML = programLines
+    .map((l, i) => `<div class="line" id="line-${i + 1}">${String(i + 1).padStart(4)}  ${escape(l)}</div>`)
+    .join("");
 }
 
 function escape(s) {
@@ -131,6 +144,8 @@ function frame(m) {
     const cell = document.getElementById("v-" + i);
     if (cell) cell.textContent = typeof v === "number" && !Number.isInteger(v) ? v.toFixed(4) : String(v);
   });
+  // The loaded program, as the PLC says (a load takes effect outside AUTO).
+  if ("NC_PROGRAM" in index && m.image[index.NC_PROGRAM] !== shownProgram) showProgram(m.image[index.NC_PROGRAM]);
   drawPath(m);
   drawMechanism(m.links);
   const lineIndex = variables.findIndex(([n]) => n === "NC_LINE");
@@ -259,6 +274,7 @@ window.addEventListener("blur", stopJog);
 $("stop").addEventListener("click", () => send({ cmd: "stop" }));
 $("ack").addEventListener("click", () => send({ cmd: "stop" }));
 $("axes").addEventListener("click", () => send({ cmd: "axes" }));
+$("nc-load").addEventListener("click", () => { $("access").textContent = ""; send({ cmd: "load", program: Number($("program-choice").value) }); });
 $("nc-start").addEventListener("click", () => send({ cmd: "program", what: "start" }));
 $("nc-hold").addEventListener("click", () => send({ cmd: "program", what: "hold" }));
 $("nc-resume").addEventListener("click", () => send({ cmd: "program", what: "resume" }));

@@ -154,9 +154,9 @@ pub struct ProgramArgs<'a> {
     pub cycle_us: u32,
     /// Whether that class is the fastest configured (no class has a shorter cycle).
     pub fastest_class: bool,
-    /// The NC program to run (`run --program`), checked and planned; the main program runs it in
-    /// AUTO and the drive program samples it.
-    pub nc: Option<&'a crate::trajectory::NcJob>,
+    /// The NC programs of the run (`run --program`, `--programs`), checked and planned; the
+    /// main program runs the loaded one in AUTO and the drive program samples it.
+    pub nc: Option<&'a crate::trajectory::NcLibrary>,
 }
 
 impl ProgramArgs<'_> {

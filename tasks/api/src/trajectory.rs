@@ -69,6 +69,9 @@ pub mod vars {
     pub const NC_RUN_S: Var<f64> = Var::new("NC_RUN_S");
     /// The last run reached the program's end.
     pub const NC_COMPLETED: Var<bool> = Var::new("NC_COMPLETED");
+    /// The loaded program: its number in the run's [`NcLibrary`](super::NcLibrary), from 1 (the
+    /// main program's choice; the drive program executes it).
+    pub const NC_PROGRAM: Var<i16> = Var::new("NC_PROGRAM");
     /// The executor met a pose of the program that has no joints (which its check rules out):
     /// it stands where it was; the main program makes it an ERROR.
     pub const NC_FAULT: Var<bool> = Var::new("NC_FAULT");
@@ -152,6 +155,33 @@ pub struct NcJob {
     pub text: String,
     /// Its trajectory.
     pub trajectory: Arc<dyn Trajectory>,
+}
+
+/// The NC programs of a run, each read, checked and planned against the machine before the PLC
+/// is built: the one loaded at start first, then those the operator may load instead (`run
+/// --programs DIR`, from the screen). The main program chooses which one is loaded
+/// (`vars::NC_PROGRAM`), never while one runs; the drive program executes that one.
+#[derive(Clone, Debug)]
+pub struct NcLibrary {
+    /// The programs; the first is loaded at start.
+    pub jobs: Vec<NcJob>,
+    /// The program loaded at start starts by itself at the first READY (`run --program`).
+    pub autostart: bool,
+}
+
+impl NcLibrary {
+    /// One program, started by itself at the first READY (`run --program FILE`).
+    pub fn single(job: NcJob) -> NcLibrary {
+        NcLibrary {
+            jobs: vec![job],
+            autostart: true,
+        }
+    }
+
+    /// The program of the (1-based) number `k` as `vars::NC_PROGRAM` holds it.
+    pub fn numbered(&self, k: i16) -> Option<&NcJob> {
+        usize::try_from(k).ok()?.checked_sub(1).and_then(|i| self.jobs.get(i))
+    }
 }
 
 impl std::fmt::Debug for NcJob {

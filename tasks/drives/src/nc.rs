@@ -12,7 +12,7 @@ use std::sync::Arc;
 
 use pkm_api::image::{Declare, Input, Output};
 use pkm_api::program::Cycle;
-use pkm_api::trajectory::{MAX_AXES, NcJob, Trajectory, TrajectoryEventKind, TrajectorySample};
+use pkm_api::trajectory::{MAX_AXES, NcLibrary, Trajectory, TrajectoryEventKind, TrajectorySample};
 
 use crate::automaton::MainState;
 
@@ -316,6 +316,11 @@ impl Executor {
 /// program is loaded.
 pub struct NcChannel {
     executor: Executor,
+    /// The run's programs' trajectories (kept here, so that swapping one in never frees one).
+    jobs: Vec<Arc<dyn Trajectory>>,
+    /// The number of the one the executor walks (1-based, as `NC_PROGRAM`).
+    loaded: i16,
+    program: Input<i16>,
     command: Input<i16>,
     state: Output<i16>,
     line: Output<i32>,
@@ -339,15 +344,21 @@ pub struct NcChannel {
 }
 
 impl NcChannel {
-    /// Declares the execution's variables for `job` on a machine whose pose coordinates are
-    /// `coordinates` long (the first ones of x y z a b c).
-    pub fn declare(job: &NcJob, coordinates: usize, decl: &mut Declare<'_>) -> NcChannel {
-        let trajectory = Arc::clone(&job.trajectory);
-        let n = trajectory.dof();
-        let executor = Executor::new(trajectory);
+    /// Declares the execution's variables for `library`'s programs (it has at least one) on a
+    /// machine whose pose coordinates are `coordinates` long (the first ones of x y z a b c).
+    pub fn declare(library: &NcLibrary, coordinates: usize, decl: &mut Declare<'_>) -> NcChannel {
+        let jobs: Vec<Arc<dyn Trajectory>> = library.jobs.iter().map(|j| Arc::clone(&j.trajectory)).collect();
+        let Some(first) = jobs.first() else {
+            panic!("a program library without a program: the runtime builds one only with programs")
+        };
+        let n = first.dof();
+        let executor = Executor::new(Arc::clone(first));
         let measured = executor.sample().pose;
         NcChannel {
             executor,
+            jobs,
+            loaded: 1,
+            program: decl.read(vars::NC_PROGRAM),
             command: decl.read(vars::NC_COMMAND),
             state: decl.write(vars::NC_STATE, RunState::Idle as i16),
             line: decl.write(vars::NC_LINE, 0),
@@ -379,6 +390,21 @@ impl NcChannel {
         }
     }
 
+    /// A new run, or another program loaded: the run's measurements start afresh.
+    fn new_run(&mut self, ctx: &mut Cycle<'_>) {
+        self.squares = 0.0;
+        self.samples = 0;
+        self.measured = self.executor.sample().pose;
+        ctx.set(self.contour, 0.0);
+        ctx.set(self.contour_max, 0.0);
+        ctx.set(self.contour_rms, 0.0);
+        ctx.set(self.run_s, 0.0);
+        ctx.set(self.completed, false);
+        for f in &self.following_max {
+            ctx.set(*f, 0.0);
+        }
+    }
+
     /// One fast cycle: `auto` (the main state is AUTO), `interlock` (the drives are being
     /// stopped), the joints' measured `positions`. Returns the joints' set-points and
     /// velocities while the program drives them (in AUTO).
@@ -390,6 +416,19 @@ impl NcChannel {
         positions: &[f64],
     ) -> Option<([f64; MAX_AXES], [f64; MAX_AXES])> {
         let dt = ctx.period_ns() as f64 * 1e-9;
+        // The program the main program loaded, taken while the executor stands idle (the main
+        // program changes it only outside AUTO; the library keeps every trajectory alive, so
+        // the swap frees nothing in the cycle).
+        let k = ctx.get(self.program);
+        if k != self.loaded
+            && self.executor.state() == RunState::Idle
+            && let Some(trajectory) = usize::try_from(k).ok().and_then(|k| self.jobs.get(k.wrapping_sub(1)))
+        {
+            self.executor = Executor::new(Arc::clone(trajectory));
+            self.loaded = k;
+            // The figures of the last run were another program's.
+            self.new_run(ctx);
+        }
         let command = if auto {
             Command::from_code(ctx.get(self.command))
         } else {
@@ -399,18 +438,7 @@ impl NcChannel {
         self.executor.step(command, dt, interlock);
         let state = self.executor.state();
         if before == RunState::Idle && state != RunState::Idle {
-            // A new run: its measurements start afresh.
-            self.squares = 0.0;
-            self.samples = 0;
-            self.measured = self.executor.sample().pose;
-            ctx.set(self.contour, 0.0);
-            ctx.set(self.contour_max, 0.0);
-            ctx.set(self.contour_rms, 0.0);
-            ctx.set(self.run_s, 0.0);
-            ctx.set(self.completed, false);
-            for f in &self.following_max {
-                ctx.set(*f, 0.0);
-            }
+            self.new_run(ctx);
         }
         ctx.set(self.state, state as i16);
         ctx.set(self.fault, self.executor.fault());
@@ -486,6 +514,9 @@ pub struct ProgramControl {
     autostart: bool,
     /// The command to the executor.
     command: Option<Command>,
+    /// The loaded program's number (1-based, as `NC_PROGRAM`), and how many there are.
+    loaded: i16,
+    programs: usize,
 }
 
 /// The operator's notes about the program.
@@ -495,17 +526,43 @@ pub mod notes {
 }
 
 impl ProgramControl {
-    /// The control of `job`, if one is loaded (it starts by itself at the first READY); without
-    /// one, nothing ever starts.
-    pub fn of(job: Option<&NcJob>) -> ProgramControl {
-        match job {
-            Some(_) => ProgramControl {
-                autostart: true,
+    /// The control of `library`'s programs, if the run has any (the first loaded; it starts by
+    /// itself at the first READY after `run --program`); without, nothing ever starts.
+    pub fn of(library: Option<&NcLibrary>) -> ProgramControl {
+        match library {
+            Some(l) => ProgramControl {
+                autostart: l.autostart,
                 command: Some(Command::Off),
+                loaded: 1,
+                programs: l.jobs.len(),
                 ..ProgramControl::default()
             },
             None => ProgramControl::default(),
         }
+    }
+
+    /// Outside AUTO: loads program `request` (1-based; 0 or an unknown number: no request) in
+    /// place of the loaded one. True when the loaded program changed; a program loaded this way
+    /// starts by NC_START only.
+    pub fn select(&mut self, request: i16, auto: bool) -> bool {
+        let known = usize::try_from(request).is_ok_and(|r| (1..=self.programs).contains(&r));
+        if auto || !known || request == self.loaded {
+            return false;
+        }
+        self.loaded = request;
+        self.autostart = false;
+        self.refused = false;
+        true
+    }
+
+    /// The loaded program's index in the library (0-based), if the run has programs.
+    pub fn loaded(&self) -> Option<usize> {
+        (self.programs > 0).then(|| usize::from(self.loaded.unsigned_abs()).saturating_sub(1))
+    }
+
+    /// The loaded program's number, as `NC_PROGRAM` holds it (1-based).
+    pub fn number(&self) -> i16 {
+        self.loaded
     }
 
     /// Takes the program buttons' levels of this cycle (start, hold, resume).
@@ -743,6 +800,35 @@ mod tests {
             }
         }
         seen
+    }
+
+    #[test]
+    fn another_program_is_loaded_outside_auto_only_and_waits_for_a_start() {
+        use pkm_api::trajectory::NcJob;
+        let job = |file: &str| NcJob {
+            file: file.into(),
+            text: String::new(),
+            trajectory: Arc::new(TwoMoves::new(false)),
+        };
+        let library = NcLibrary {
+            jobs: vec![job("a.ngc"), job("b.ngc")],
+            autostart: true,
+        };
+        let mut control = ProgramControl::of(Some(&library));
+        assert_eq!((control.loaded(), control.number()), (Some(0), 1));
+        // Unknown numbers and the loaded one change nothing; in AUTO nothing is loaded.
+        for (request, auto) in [(0, false), (3, false), (-1, false), (1, false), (2, true)] {
+            assert!(!control.select(request, auto), "{request} {auto}");
+        }
+        assert_eq!(control.number(), 1);
+        assert!(control.select(2, false));
+        assert_eq!((control.loaded(), control.number()), (Some(1), 2));
+        // A program loaded from the screen does not start by itself at READY.
+        assert!(!control.start(true));
+        control.buttons([true, false, false]);
+        assert!(control.start(true), "NC_START starts it");
+        // Without programs nothing is loaded.
+        assert_eq!(ProgramControl::of(None).loaded(), None);
     }
 
     #[test]

@@ -295,7 +295,7 @@ impl Drives {
             interlock: decl.write(vars::INTERLOCK, false),
             periods,
             pwm_period_us: p.pwm_period_us.unwrap_or(0),
-            nc: args.nc.map(|job| NcChannel::declare(job, n, decl)),
+            nc: args.nc.map(|library| NcChannel::declare(library, n, decl)),
         })
     }
 }

@@ -179,7 +179,7 @@ impl Control {
             drives,
             pi: [Pi::default(); 2],
             // M's plane: two pose coordinates, x and y.
-            nc: args.nc.map(|job| NcChannel::declare(job, 2, decl)),
+            nc: args.nc.map(|library| NcChannel::declare(library, 2, decl)),
         })
     }
 }

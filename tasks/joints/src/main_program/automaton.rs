@@ -136,8 +136,8 @@ pub struct Main {
     pub(super) ret_s: f64,
     pub(super) ret_rate: f64,
     pub(super) ret_since_s: f64,
-    /// The loaded program's start pose (machine frame), if a program is loaded.
-    pub(super) program_start: Option<[f64; MAX_DOF]>,
+    /// The start pose (machine frame) of each of the run's programs.
+    pub(super) program_starts: Vec<[f64; MAX_DOF]>,
 }
 
 /// How close the tool must be to the program's start pose for a start (mm, degrees).
@@ -210,7 +210,7 @@ impl Application for Main {
     }
 
     fn start_auto(&mut self, io: &mut Io) -> bool {
-        let Some(start) = self.program_start else {
+        let Some(&start) = io.program.loaded().and_then(|k| self.program_starts.get(k)) else {
             return false;
         };
         // A program starts where it was checked and planned from: the reference pose.
@@ -322,7 +322,7 @@ impl Main {
             ret_s: 0.0,
             ret_rate: 0.0,
             ret_since_s: 0.0,
-            program_start: None,
+            program_starts: Vec::new(),
         }
     }
 

@@ -80,6 +80,10 @@ impl HmiVars {
 
 /// The variables of program execution, declared when a program is loaded.
 struct NcVars {
+    /// The screen's request to load another of the run's programs.
+    request: Input<i16>,
+    /// The loaded program's number.
+    program: Output<i16>,
     start: Input<bool>,
     hold: Input<bool>,
     resume: Input<bool>,
@@ -372,6 +376,8 @@ impl MainProgram {
             selection: decl.write(vars::JOG_SELECTION, 0),
             tool: vars::TOOL[..keys.len()].iter().map(|v| decl.write(*v, 0.0)).collect(),
             nc: args.nc.map(|_| NcVars {
+                request: decl.read_optional(hmi::HMI_NC_PROGRAM),
+                program: decl.write(nc::vars::NC_PROGRAM, 1),
                 start: decl.read_optional(nc::vars::NC_START),
                 hold: decl.read_optional(nc::vars::NC_HOLD),
                 resume: decl.read_optional(nc::vars::NC_RESUME),
@@ -385,12 +391,12 @@ impl MainProgram {
         };
         let stop = StopButton::new(p.stop_lockout_ms as f64 * 1e-3);
         let mut main = Main::new(p, frame, soft, pairs);
-        if let Some(job) = args.nc {
+        for job in args.nc.map_or(&[][..], |l| &l.jobs) {
             let mut cursor = 0;
             let start = job.trajectory.sample(0.0, &mut cursor).pose;
             let mut pose = [0.0; MAX_DOF];
             pose[..n.min(MAX_DOF)].copy_from_slice(&start[..n.min(MAX_DOF)]);
-            main.program_start = Some(pose);
+            main.program_starts.push(pose);
         }
         let io = Io {
             program: nc::ProgramControl::of(args.nc),
@@ -459,6 +465,8 @@ impl MainProgram {
         io.axes_pressed = axes && !self.axes_was_pressed;
         self.axes_was_pressed = axes;
         if let Some(nc) = &v.nc {
+            let auto = self.machine.inner().state == MainState::Auto;
+            io.program.select(ctx.get(nc.request), auto);
             let screen = v.hmi.nc.map(|b| ctx.get(b));
             io.program.buttons([
                 ctx.get(nc.start) || screen[0],
@@ -535,6 +543,7 @@ impl MainProgram {
         ctx.set(v.selection, app.selection as i16);
         if let (Some(nc), Some(command)) = (&v.nc, io.program.command()) {
             ctx.set(nc.command, command as i16);
+            ctx.set(nc.program, io.program.number());
         }
         let coords = v.tool.len();
         let mut shown = 0;

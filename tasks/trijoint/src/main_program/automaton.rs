@@ -76,8 +76,9 @@ pub struct Main {
     pub(super) soft: [[f64; 2]; 2],
     pub(super) m_setpoint: [f64; 2],
     pub(super) searches: [Search; 2],
-    /// The loaded program, and where this program samples it.
-    pub(super) trajectory: Option<Arc<dyn Trajectory>>,
+    /// The run's programs (the loaded one is `io.program`'s), and where this program samples
+    /// the loaded one.
+    pub(super) trajectories: Vec<Arc<dyn Trajectory>>,
     pub(super) cursor: usize,
 }
 
@@ -137,7 +138,7 @@ impl Application for Main {
     }
 
     fn start_auto(&mut self, io: &mut Io) -> bool {
-        let Some(trajectory) = &self.trajectory else {
+        let Some(trajectory) = io.program.loaded().and_then(|k| self.trajectories.get(k)) else {
             return false;
         };
         // A program starts where it was checked and planned from: the start position.
@@ -156,7 +157,8 @@ impl Application for Main {
         // No jog in AUTO: the controller takes the set-points from the program; these follow
         // it, so that READY takes over where it ends.
         io.hold();
-        if let (Some(trajectory), Some(limits)) = (&self.trajectory, &self.limits) {
+        let trajectory = io.program.loaded().and_then(|k| self.trajectories.get(k));
+        if let (Some(trajectory), Some(limits)) = (trajectory, &self.limits) {
             let joints = trajectory.sample(io.nc_time_s, &mut self.cursor).joints;
             let mut m = [0.0; 2];
             if limits.forward(&joints[..2], Some(&self.m_setpoint), &mut m).is_ok() {
@@ -209,7 +211,7 @@ impl Main {
             soft: [[0.0; 2]; 2],
             m_setpoint: [0.0; 2],
             searches: [Search::Done; 2],
-            trajectory: None,
+            trajectories: Vec::new(),
             cursor: 0,
         }
     }

@@ -66,6 +66,10 @@ struct Vars {
 
 /// The variables of program execution, declared when a program is loaded.
 struct NcVars {
+    /// The screen's request to load another of the run's programs.
+    request: Input<i16>,
+    /// The loaded program's number.
+    program: Output<i16>,
     buttons: [Input<bool>; 3],
     state: Input<i16>,
     line: Input<i32>,
@@ -146,6 +150,8 @@ impl MainProgram {
             referenced: decl.write(vars::REFERENCED, false),
             m: vars::M.map(|v| decl.write(v, 0.0)),
             nc: args.nc.map(|_| NcVars {
+                request: decl.read_optional(pkm_api::hmi::HMI_NC_PROGRAM),
+                program: decl.write(nc::vars::NC_PROGRAM, 1),
                 buttons: [nc::vars::NC_START, nc::vars::NC_HOLD, nc::vars::NC_RESUME].map(|v| decl.read_optional(v)),
                 state: decl.read(nc::vars::NC_STATE),
                 line: decl.read(nc::vars::NC_LINE),
@@ -164,7 +170,12 @@ impl MainProgram {
             ..geometry.clone()
         });
         let mut main = Main::new(p, geometry);
-        main.trajectory = args.nc.map(|job| std::sync::Arc::clone(&job.trajectory));
+        main.trajectories = args
+            .nc
+            .map_or(&[][..], |l| &l.jobs)
+            .iter()
+            .map(|job| std::sync::Arc::clone(&job.trajectory))
+            .collect();
         let io = Io {
             program: nc::ProgramControl::of(args.nc),
             ..Io::default()
@@ -215,6 +226,8 @@ impl MainProgram {
             io.setpoints[i] += io.velocities[i] * io.dt_s;
         }
         if let Some(nc) = &v.nc {
+            let auto = self.machine.inner().state == MainState::Auto;
+            io.program.select(ctx.get(nc.request), auto);
             let screen = v.hmi_nc.map(|b| ctx.get(b));
             let panel = nc.buttons.map(|b| ctx.get(b));
             io.program.buttons(std::array::from_fn(|i| panel[i] || screen[i]));
@@ -282,6 +295,7 @@ impl MainProgram {
         ctx.set(v.referenced, io.referenced);
         if let (Some(nc), Some(command)) = (&v.nc, io.program.command()) {
             ctx.set(nc.command, command as i16);
+            ctx.set(nc.program, io.program.number());
         }
         let mut m = [f64::NAN; 2];
         if io.referenced && self.display.forward(&io.positions, None, &mut m).is_ok() {
