@@ -13,6 +13,8 @@ let jog = null; // [x, y, axis] while held
 // The run's programs (numbered from 1 as NC_PROGRAM holds the loaded one's) and the one shown.
 let programs = [];
 let shownProgram = 0;
+// The programs offered that cannot run on this machine, with why.
+let refused = [];
 let jogTimer = null;
 let lastLine = 0;
 // The tool path: programmed (from the hello), cut (the measured tool point while a program runs).
@@ -59,7 +61,9 @@ function hello(m) {
   shownProgram = 0;
   $("program-choice").innerHTML = programs.map((p, i) => `<option value="${i + 1}">${escape(p.file)}</option>`).join("");
   $("library").hidden = programs.length < 2;
-  $("refused").innerHTML = (m.refused || []).map((r) => `<div>${escape(r.file)}: cannot run here: ${escape(r.why.split("\n")[0])}</div>`).join("");
+  // Each reason starts with its file's name.
+  refused = m.refused || [];
+  $("refused").innerHTML = refused.map((r) => `<div>not offered: ${escape(r.why.split("\n")[0])}</div>`).join("");
   showProgram(programs.length ? 1 : 0);
   // A pair of press-and-hold buttons per pose coordinate of the machine (axis k), and per joint
   // (axis −k: the joint alone, once referenced).
@@ -92,7 +96,7 @@ function hello(m) {
 function showProgram(k) {
   shownProgram = k;
   const program = programs[k - 1];
-  $("program-box").hidden = !program;
+  $("program-box").hidden = !program && !refused.length;
   programmed = program ? program.path : [];
   cut = [];
   lastLine = 0;

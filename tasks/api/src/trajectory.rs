@@ -170,14 +170,6 @@ pub struct NcLibrary {
 }
 
 impl NcLibrary {
-    /// One program, started by itself at the first READY (`run --program FILE`).
-    pub fn single(job: NcJob) -> NcLibrary {
-        NcLibrary {
-            jobs: vec![job],
-            autostart: true,
-        }
-    }
-
     /// The program of the (1-based) number `k` as `vars::NC_PROGRAM` holds it.
     pub fn numbered(&self, k: i16) -> Option<&NcJob> {
         usize::try_from(k).ok()?.checked_sub(1).and_then(|i| self.jobs.get(i))

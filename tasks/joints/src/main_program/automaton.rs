@@ -256,8 +256,10 @@ impl Application for Main {
         // One jog at a time: a joint's (the screen's) or the tool's, each braked to a stand
         // before the other starts.
         let joint = self.joint_command(io);
-        if self.joint_jog.is_some() || (joint.is_some() && self.pose_velocity == [0.0; MAX_DOF]) {
-            return self.jog_joint(io, joint);
+        if (self.joint_jog.is_some() || (joint.is_some() && self.pose_velocity == [0.0; MAX_DOF]))
+            && self.jog_joint(io, joint)
+        {
+            return true;
         }
         let command = self.world_command(io);
         if command == [0.0; MAX_DOF] && self.pose_velocity == [0.0; MAX_DOF] {
