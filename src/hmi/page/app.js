@@ -158,7 +158,12 @@ function frame(m) {
     const old = document.getElementById("line-" + lastLine);
     if (old) old.classList.remove("current");
     const now = document.getElementById("line-" + line);
-    if (now) { now.classList.add("current"); now.scrollIntoView({ block: "nearest" }); }
+    if (now) {
+      now.classList.add("current");
+      // Scrolls the program's text alone (never the page) to keep the line in view.
+      const box = $("program-text"), r = now.getBoundingClientRect(), b = box.getBoundingClientRect();
+      if (r.top < b.top || r.bottom > b.bottom) box.scrollTop += r.top - b.top - b.height / 2;
+    }
     lastLine = line;
   }
 }
