@@ -11,16 +11,7 @@ use pkm_plc::compose::{self, Options, Setup};
 
 #[test]
 fn the_screens_jog_of_one_axis_moves_that_axis_alone_and_its_stop_is_the_panels() {
-    let setup = Setup::new(machine_config("hexapod", |_| {})).expect("a machine");
-    let built = compose::build(
-        setup,
-        Options {
-            hmi: true,
-            ..Options::default()
-        },
-    )
-    .unwrap_or_else(|e| panic!("{e}"));
-    let (mut plc, sink) = (built.plc, built.hmi.expect("the screen's commands"));
+    let (mut plc, sink) = with_screen(machine_config("hexapod", |_| {}), None);
     let mut at_ready: Option<[f64; 6]> = None;
     let mut after_jog: Option<[f64; 6]> = None;
     let seen = transitions(&mut plc, 16_000, |plc, t| {
@@ -60,13 +51,12 @@ fn the_screens_jog_of_one_axis_moves_that_axis_alone_and_its_stop_is_the_panels(
     assert!(seen[5].0 - 13_000 <= 50, "within a main cycle: {seen:?}");
 }
 
-/// A PLC of machine `name` on the simulated machine, with the screen's commands.
+/// A PLC of the configuration `loaded` on its simulated machine, with the screen's commands.
 fn with_screen(
-    name: &str,
+    loaded: pkm_plc::config::LoadedConfig,
     scenario: Option<&std::path::Path>,
-    edit: impl FnOnce(&mut serde_json::Value),
 ) -> (pkm_plc::plc::Plc, pkm_plc::hmi::commands::CommandSink) {
-    let setup = Setup::new(machine_config(name, edit)).expect("a machine");
+    let setup = Setup::new(loaded).expect("a machine");
     let built = compose::build(
         setup,
         Options {
@@ -81,7 +71,7 @@ fn with_screen(
 
 #[test]
 fn the_screens_jog_of_one_joint_moves_that_joint_alone_and_stops_on_the_border() {
-    let (mut plc, sink) = with_screen("hexapod", None, |_| {});
+    let (mut plc, sink) = with_screen(machine_config("hexapod", |_| {}), None);
     let joints = |plc: &pkm_plc::plc::Plc| -> [f64; 6] { std::array::from_fn(|j| get(plc, vars::JOINT_POSITION[j])) };
     let (mut at_ready, mut after_jog, mut on_border) = (None, None, None);
     let mut fastest: f64 = 0.0;
@@ -150,7 +140,7 @@ fn the_screen_never_jogs_a_joint_before_referencing_even_with_the_panels_overrid
         r#"{"events": [{"at_ms": 500, "input": "BUTTON_OVERRIDE", "value": true}]}"#,
     )
     .expect("the scenario written");
-    let (mut plc, sink) = with_screen("pn101", Some(&scenario), edit);
+    let (mut plc, sink) = with_screen(machine_config("pn101", edit), Some(&scenario));
     let mut notes = Vec::new();
     let seen = transitions(&mut plc, 4_000, |plc, t| {
         if t == 1_000 {
@@ -183,16 +173,7 @@ fn the_screen_never_jogs_a_joint_before_referencing_even_with_the_panels_overrid
 #[test]
 fn the_screens_jog_of_one_trijoint_carriage_moves_it_alone_within_its_software_limit() {
     use pkm_trijoint::vars as t;
-    let setup = Setup::new(common::loaded(&common::repo_config())).expect("the TRIJOINT");
-    let built = compose::build(
-        setup,
-        Options {
-            hmi: true,
-            ..Options::default()
-        },
-    )
-    .unwrap_or_else(|e| panic!("{e}"));
-    let (mut plc, sink) = (built.plc, built.hmi.expect("the screen's commands"));
+    let (mut plc, sink) = with_screen(common::loaded(&common::repo_config()), None);
     let carriages = |plc: &pkm_plc::plc::Plc| t::POSITION_MM.map(|v| get(plc, v));
     let m = |plc: &pkm_plc::plc::Plc| t::M.map(|v| get(plc, v));
     let (mut at_ready, mut after_jog, mut held) = (None, None, None);
