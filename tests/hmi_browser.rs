@@ -344,18 +344,7 @@ async fn the_page_shows_referencing_jogs_while_held_stops_and_acknowledges() {
         recorded.contains(r#""HMI_NC_PROGRAM":2"#),
         "the screen's load is in the trace"
     );
-    let replay = common::pkm(&[
-        "replay",
-        trace.to_str().expect("utf-8"),
-        "--config",
-        config.to_str().expect("utf-8"),
-    ]);
-    assert_eq!(replay.status.code(), Some(0), "{}", common::stderr(&replay));
-    assert!(
-        common::stdout(&replay).contains(": identical: "),
-        "{}",
-        common::stdout(&replay)
-    );
+    common::assert_replays_identically(&trace, &["--config", config.to_str().expect("utf-8")]);
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

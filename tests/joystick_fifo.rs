@@ -174,16 +174,5 @@ fn a_capture_through_a_fifo_drives_m_and_an_unplug_stops_it() {
     assert_eq!(cycles.last().map(|c| c.state.as_str()), Some("READY"));
 
     // The joystick's values are inputs like any other: the run replays identically from its trace.
-    let replay = common::pkm(&[
-        "replay",
-        trace.to_str().expect("utf-8"),
-        "--config",
-        config.to_str().expect("utf-8"),
-    ]);
-    assert_eq!(replay.status.code(), Some(0), "{}", common::stderr(&replay));
-    assert!(
-        common::stdout(&replay).contains(": identical: "),
-        "{}",
-        common::stdout(&replay)
-    );
+    common::assert_replays_identically(&trace, &["--config", config.to_str().expect("utf-8")]);
 }

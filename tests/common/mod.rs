@@ -253,6 +253,16 @@ pub fn pkm(args: &[&str]) -> std::process::Output {
         .expect("the binary runs")
 }
 
+/// Replays `trace` with the configuration arguments `config` (`--config FILE` or `--machine
+/// NAME`): the replay must succeed and find every record identical.
+pub fn assert_replays_identically(trace: &Path, config: &[&str]) {
+    let mut args = vec!["replay", trace.to_str().expect("utf-8")];
+    args.extend_from_slice(config);
+    let o = pkm(&args);
+    assert_eq!(o.status.code(), Some(0), "{}: {}", trace.display(), stderr(&o));
+    assert!(stdout(&o).contains(": identical: "), "{}", stdout(&o));
+}
+
 /// A command's standard error as text.
 pub fn stderr(o: &std::process::Output) -> String {
     String::from_utf8_lossy(&o.stderr).into_owned()

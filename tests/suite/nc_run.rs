@@ -93,11 +93,8 @@ fn every_machine_runs_its_acceptance_programs_within_the_contour_tolerance_and_r
         for e in p["max_following_error_mm"].as_array().expect("per joint") {
             assert!(e.as_f64().expect("a number") < 0.05, "{program}: {p}");
         }
-        let mut replay = vec!["replay", trace.to_str().expect("utf-8")];
-        replay.extend(config.iter().map(String::as_str));
-        let o = pkm(&replay);
-        assert_eq!(o.status.code(), Some(0), "{program}: {}", stderr(&o));
-        assert!(common::stdout(&o).contains(": identical: "), "{}", common::stdout(&o));
+        let config: Vec<&str> = config.iter().map(String::as_str).collect();
+        common::assert_replays_identically(&trace, &config);
     }
 }
 
