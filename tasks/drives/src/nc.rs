@@ -106,6 +106,8 @@ pub struct Executor {
     /// A sampled pose had no joints: standing at the last one that had.
     fault: bool,
     current: TrajectorySample,
+    /// The time `current` was sampled at.
+    current_t: f64,
     velocities: [f64; MAX_AXES],
     /// The sample taken for the velocities last cycle (its time, the sample, its cursor): the
     /// next cycle's set-point, so it is not computed twice.
@@ -131,6 +133,7 @@ impl Executor {
             at_pause: false,
             fault: false,
             current,
+            current_t: 0.0,
             velocities: [0.0; MAX_AXES],
             next: None,
         }
@@ -215,12 +218,15 @@ impl Executor {
             // Standing at the last pose that had joints.
             return;
         }
-        // The sample is a function of the time alone: last cycle's look-ahead is this one's.
+        // The sample is a function of the time alone: last cycle's look-ahead is this one's,
+        // and an idle executor (every cycle of a run whose programs wait for a start) stands at
+        // the time it last sampled.
         let sample = match self.next.take() {
             Some((t, sample, cursor)) if t == self.t => {
                 self.cursor = cursor;
                 sample
             }
+            _ if self.state == RunState::Idle && self.current_t == self.t => self.current,
             _ => self.trajectory.sample(self.t, &mut self.cursor),
         };
         if sample.joints.iter().any(|q| !q.is_finite()) {
@@ -228,6 +234,7 @@ impl Executor {
             return;
         }
         self.current = sample;
+        self.current_t = self.t;
         let duration = self.trajectory.duration_s();
         let moving = matches!(self.state, RunState::Running | RunState::Holding) && !frozen;
         let events = self.trajectory.events();
