@@ -25,6 +25,10 @@ impl Bus for NoBus {
     fn as_any(&self) -> &dyn std::any::Any {
         self
     }
+
+    fn as_any_mut(&mut self) -> &mut dyn std::any::Any {
+        self
+    }
 }
 
 /// Stands in for a bus whose I/O map is invalid while the rest of the configuration is checked,
@@ -44,6 +48,10 @@ impl Bus for UnknownBus {
     fn write_outputs(&mut self, _class: usize, _t_ns: u64, _image: &[Value]) {}
     fn write_safe(&mut self, _image: &[Value]) {}
     fn as_any(&self) -> &dyn std::any::Any {
+        self
+    }
+
+    fn as_any_mut(&mut self) -> &mut dyn std::any::Any {
         self
     }
 }

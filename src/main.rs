@@ -892,7 +892,7 @@ fn cmd_io_sim(args: IoSimArgs) -> Result<(), Failure> {
             info!("io-sim: {} on {path} at {baud} baud as Modbus RTU, {watchdog}; Ctrl-C stops", setup.origin());
             return tokio::select! {
                 served = pkm_plc::sim::server::serve_rtu(stream, station, options) => served.map_err(|e| Failure::run(format!("io-sim: {e}"))),
-                name = signals.recv() => stopped(name),
+                name = signals.recv() => stopped(&name),
             };
         }
         let tcp = args.tcp.ok_or_else(|| Failure::usage("io-sim needs --tcp or --serial"))?;
@@ -918,7 +918,7 @@ fn cmd_io_sim(args: IoSimArgs) -> Result<(), Failure> {
             served = pkm_plc::sim::server::serve_tcp(listener, station, options) => {
                 served.map_err(|e| Failure::run(format!("io-sim: {e}")))
             }
-            name = signals.recv() => stopped(name),
+            name = signals.recv() => stopped(&name),
         }
     })
 }

@@ -271,6 +271,11 @@ impl Plc {
         self.bus.as_ref()
     }
 
+    /// The bus, to act on the simulated machine (tests).
+    pub fn bus_mut(&mut self) -> &mut dyn Bus {
+        self.bus.as_mut()
+    }
+
     /// The bus's name.
     pub fn bus_name(&self) -> &str {
         self.bus.name()

@@ -211,11 +211,18 @@ fn a_killed_plc_leaves_the_drives_to_the_watchdog() {
 }
 
 #[test]
-fn hangup_quit_and_user_signals_stop_the_plc_safely() {
+fn hangup_quit_user_power_and_limit_signals_stop_the_plc_safely() {
+    // The ones a probe found ending the PLC with PWM up to 34 % and the spindle on among them.
     for (signal, name) in [
         (libc::SIGHUP, "SIGHUP"),
         (libc::SIGQUIT, "SIGQUIT"),
         (libc::SIGUSR1, "SIGUSR1"),
+        (libc::SIGPWR, "SIGPWR"),
+        (libc::SIGXCPU, "SIGXCPU"),
+        (libc::SIGVTALRM, "SIGVTALRM"),
+        (libc::SIGPROF, "SIGPROF"),
+        (libc::SIGIO, "SIGIO"),
+        (libc::SIGSYS, "SIGSYS"),
     ] {
         let dir = tempfile::tempdir().expect("tempdir");
         // No watchdog: only the PLC's own safe stop can zero the outputs.
@@ -231,6 +238,78 @@ fn hangup_quit_and_user_signals_stop_the_plc_safely() {
         assert_eq!(status.code(), Some(0), "{name}: {log}");
         assert!(log.contains(&format!("{name}: stopping")), "{name}: {log}");
         assert_eq!(outputs(&mut s), [0, 0, 0], "{name}: outputs after the stop");
+    }
+}
+
+/// Waits until `log` has a line containing `text` (the process writes it), or `limit` passes.
+fn until_logged(log: &std::path::Path, text: &str, limit: Duration) -> bool {
+    let start = Instant::now();
+    while start.elapsed() < limit {
+        if std::fs::read_to_string(log).is_ok_and(|l| l.contains(text)) {
+            return true;
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    false
+}
+
+/// Every signal the PLC handles (the named ones and SIGRTMIN … SIGRTMAX) ends a running PLC
+/// through the safe stop with exit code 0; SIGPIPE, which Rust ignores, does not end it.
+#[test]
+fn every_terminating_signal_ends_the_plc_through_the_safe_stop() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let signals = pkm_plc::signals::handled();
+    // A few at a time: each is a real-time PLC (without field I/O or screen).
+    for (batch, chunk) in signals.chunks(8).enumerate() {
+        let started: Vec<(Child, std::path::PathBuf, &(String, i32))> = chunk
+            .iter()
+            .enumerate()
+            .map(|(k, signal)| {
+                let log = dir.path().join(format!("{batch}-{k}.log"));
+                let child = Command::new(env!("CARGO_BIN_EXE_pkm-plc"))
+                    .args([
+                        "run",
+                        "--bus",
+                        "none",
+                        "--hmi",
+                        "none",
+                        "--joystick",
+                        "none",
+                        "--duration",
+                        "300",
+                    ])
+                    .current_dir(env!("CARGO_MANIFEST_DIR"))
+                    .env("RUST_LOG", "info")
+                    .stdout(Stdio::null())
+                    .stderr(std::fs::File::create(&log).expect("log file"))
+                    .spawn()
+                    .expect("run starts");
+                (child, log, signal)
+            })
+            .collect();
+        for (mut child, log, (name, number)) in started {
+            assert!(
+                until_logged(&log, "running in real time", Duration::from_secs(60)),
+                "{name}: the PLC did not start: {}",
+                std::fs::read_to_string(&log).unwrap_or_default()
+            );
+            if batch == 0 {
+                // SIGPIPE first: ignored, the PLC runs on.
+                // SAFETY: kill(2) on a child process we own and have not reaped.
+                assert_eq!(unsafe { libc::kill(child.id() as i32, libc::SIGPIPE) }, 0);
+            }
+            // SAFETY: as above.
+            assert_eq!(unsafe { libc::kill(child.id() as i32, *number) }, 0);
+            let status = child.wait().expect("the PLC exits");
+            let text = std::fs::read_to_string(&log).expect("log");
+            assert_eq!(status.code(), Some(0), "{name} ({number}): {status:?}\n{text}");
+            assert!(
+                text.contains(&format!(
+                    "{name}: stopping after the current cycle, outputs to safe values"
+                )),
+                "{name}: {text}"
+            );
+        }
     }
 }
 

@@ -152,6 +152,10 @@ impl Bus for HmiBus {
         self.inner.as_any()
     }
 
+    fn as_any_mut(&mut self) -> &mut dyn std::any::Any {
+        self.inner.as_any_mut()
+    }
+
     fn fault(&self) -> bool {
         self.inner.fault()
     }

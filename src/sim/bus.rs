@@ -85,6 +85,11 @@ impl SimBus {
         self.plant.as_ref()
     }
 
+    /// The plant, to act on it as a person at the machine would (tests).
+    pub fn plant_mut(&mut self) -> &mut dyn Plant {
+        self.plant.as_mut()
+    }
+
     /// The simulated time the plant has reached (ns).
     pub fn time_ns(&self) -> u64 {
         self.time_ns
@@ -194,6 +199,10 @@ impl Bus for SimBus {
     }
 
     fn as_any(&self) -> &dyn std::any::Any {
+        self
+    }
+
+    fn as_any_mut(&mut self) -> &mut dyn std::any::Any {
         self
     }
 }

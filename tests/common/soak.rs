@@ -6,6 +6,20 @@ use super::Rng;
 /// One simulated hour (ms).
 pub const HOUR_MS: u64 = 3_600_000;
 
+/// How many simulated hours a soak runs: `PKM_SOAK_HOURS` (a whole number ≥ 1), else 1 — the
+/// test command runs one hour per machine; `PKM_SOAK_HOURS=24 cargo test --release --test suite
+/// soak` runs the day the README's figures come from.
+pub fn hours() -> u64 {
+    match std::env::var("PKM_SOAK_HOURS") {
+        Ok(h) => h
+            .parse::<u64>()
+            .ok()
+            .filter(|h| *h >= 1)
+            .unwrap_or_else(|| panic!("PKM_SOAK_HOURS={h}: a whole number of hours, at least 1")),
+        Err(_) => 1,
+    }
+}
+
 /// A joystick move at `t` (ms): released three times in ten, else anywhere.
 pub fn joystick(rng: &mut Rng, t: u64) -> String {
     let (x, y) = if rng.next() < 0.3 {
@@ -24,13 +38,23 @@ pub fn press(input: &str, t: u64, hold_ms: u64) -> [String; 2] {
     ]
 }
 
-/// STOP pressed (for 150 ms) again and again through the hour, `gap` ms apart (the range).
-pub fn stop_presses(rng: &mut Rng, gap: (u64, u64)) -> Vec<String> {
+/// STOP pressed (for 150 ms) again and again through `hours`, `gap` ms apart (the range). One
+/// press in three starts the sequence that once sent the hexapod's re-referencing blind into its
+/// limit switches: STOP, its acknowledgement a second later, STOP again 0.3 … 5 s into the new
+/// referencing, and that one's acknowledgement a second later.
+pub fn stop_presses(rng: &mut Rng, gap: (u64, u64), hours: u64) -> Vec<String> {
     let mut events = Vec::new();
     let mut t = 0;
-    while t < HOUR_MS {
+    while t < hours * HOUR_MS {
         t += rng.between(gap.0, gap.1);
         events.extend(press("BUTTON_STOP", t, 150));
+        if rng.next() < 1.0 / 3.0 {
+            let again = t + 1_000 + 50 + rng.between(300, 5_000);
+            for at in [t + 1_000, again, again + 1_000] {
+                events.extend(press("BUTTON_STOP", at, 150));
+            }
+            t = again + 1_000;
+        }
     }
     events
 }

@@ -236,6 +236,129 @@ fn stop_zeroes_the_drives_in_the_same_fast_cycle_and_the_acknowledgement_referen
     }
 }
 
+/// How far (mm) each joint stands past its reference switch, in the direction in which the
+/// switch is on (the plant's truth, not the controller's belief).
+fn past_reference(plc: &Plc, n: usize) -> Vec<f64> {
+    let plant = joint_plant(plc);
+    (0..n)
+        .map(|j| {
+            let (at, direction) = plant.reference_switch(j);
+            (plant.position_mm(j) - at) * direction
+        })
+        .collect()
+}
+
+/// STOP in READY, acknowledged; STOP again while the new referencing runs (at five timings up to
+/// 5 s into it), acknowledged: the next referencing reaches READY, and no joint is ever driven
+/// past its reference switch by more than the search's braking (once the hexapod's return went
+/// to the reference positions of the counted frame, 737 mm past its switches at 50 % PWM, until
+/// a limit switch tripped).
+#[test]
+fn a_stop_during_re_referencing_never_sends_a_joint_past_its_reference_switch() {
+    for name in MACHINES {
+        let n = dof(name);
+        let stop = ready_ms(name) + 1000;
+        let ack = stop + 1000;
+        for into_ms in [300, 1200, 2500, 3700, 5000] {
+            let again = ack + 1000 + into_ms;
+            let presses: Vec<String> = [stop, ack, again, again + 1000]
+                .iter()
+                .map(|t| {
+                    format!(
+                        r#"{{"at_ms": {t}, "input": "BUTTON_STOP", "value": true}}, {{"at_ms": {}, "input": "BUTTON_STOP", "value": false}}"#,
+                        t + 150
+                    )
+                })
+                .collect();
+            let scenario = format!(r#"{{"events": [{}]}}"#, presses.join(", "));
+            let mut plc = build(name, Some(&scenario), |_| {});
+            // Per joint: how far past its switch it stood when INIT was entered, and the farthest
+            // it went beyond that during the visit.
+            let mut entry: Option<Vec<f64>> = None;
+            let mut worst = 0.0f64;
+            let seen = transitions(&mut plc, again + 1000 + 3 * ready_ms(name), |plc, _| {
+                if state(plc) != "INIT" {
+                    entry = None;
+                    return;
+                }
+                let past = past_reference(plc, n);
+                let from = entry.get_or_insert_with(|| past.clone());
+                for (p, f) in past.iter().zip(from.iter()) {
+                    worst = worst.max(p - f.max(0.0));
+                }
+            });
+            let names: Vec<&str> = seen.iter().map(|(_, s, _)| s.as_str()).collect();
+            assert_eq!(
+                names,
+                [
+                    "REBOOT", "INIT", "READY", "ERROR", "REBOOT", "INIT", "ERROR", "REBOOT", "INIT", "READY"
+                ],
+                "{name}, STOP {into_ms} ms into referencing: {seen:?}"
+            );
+            assert_eq!(seen[6].2.as_deref(), Some("STOP"), "{name}: {seen:?}");
+            assert!(
+                worst < 3.0,
+                "{name}, STOP {into_ms} ms into referencing: a joint went {worst:.1} mm past its reference switch"
+            );
+        }
+    }
+}
+
+/// A stepper that lost steps (its motor dead while jogged) leaves the counted positions wrong
+/// while the references are still believed known (STOP keeps them): the return of the next
+/// referencing sees the reference input contradict them and stops with ERROR at once instead
+/// of moving on by them; acknowledged, the machine references from where it stands.
+#[test]
+fn a_reference_input_that_contradicts_the_known_positions_stops_referencing() {
+    let ready = ready_ms("ox-x");
+    let (jog, stop) = (ready + 2000, ready + 6000);
+    let scenario = format!(
+        r#"{{"events": [
+            {{"at_ms": {jog}, "fault": "drive_dead", "drive": "joint1"}},
+            {{"at_ms": {jog}, "joystick": [0.8, 0]}},
+            {{"at_ms": {}, "joystick": [0, 0]}},
+            {{"at_ms": {}, "fault": "drive_alive", "drive": "joint1"}},
+            {{"at_ms": {stop}, "input": "BUTTON_STOP", "value": true}},
+            {{"at_ms": {}, "input": "BUTTON_STOP", "value": false}},
+            {{"at_ms": {}, "input": "BUTTON_STOP", "value": true}},
+            {{"at_ms": {}, "input": "BUTTON_STOP", "value": false}},
+            {{"at_ms": {}, "input": "BUTTON_STOP", "value": true}},
+            {{"at_ms": {}, "input": "BUTTON_STOP", "value": false}}
+        ]}}"#,
+        jog + 1500,
+        jog + 3000,
+        stop + 150,
+        stop + 1000,
+        stop + 1150,
+        stop + 5000,
+        stop + 5150,
+    );
+    let mut plc = build("ox-x", Some(&scenario), |_| {});
+    let seen = transitions(&mut plc, stop + 5000 + 2 * ready, |_, _| {});
+    let names: Vec<&str> = seen.iter().map(|(_, s, _)| s.as_str()).collect();
+    assert_eq!(
+        names,
+        [
+            "REBOOT", "INIT", "READY", "MOTION", "READY", "ERROR", "REBOOT", "INIT", "ERROR", "REBOOT", "INIT", "READY"
+        ],
+        "{seen:?}"
+    );
+    assert_eq!(
+        seen[8].2.as_deref(),
+        Some(
+            "reference input JOINT1_REFERENCE contradicts joint 1's position in the last referencing's frame: the positions are not known; acknowledge to reference from where the joints stand"
+        )
+    );
+    // Caught within a few main cycles of the return's start, and referenced again from there:
+    // the controller's positions are the plant's.
+    assert!(seen[8].0 - seen[7].0 <= 500, "{seen:?}");
+    for j in 0..3 {
+        let q = get(&plc, vars::JOINT_POSITION[j]);
+        let truth = joint_plant(&plc).position_mm(j);
+        assert!((q - truth).abs() < 0.01, "joint {} reads {q}, true {truth}", j + 1);
+    }
+}
+
 #[test]
 fn pn101_references_one_joint_at_a_time_in_order() {
     let mut plc = build("pn101", None, |_| {});

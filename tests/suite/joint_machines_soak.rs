@@ -1,8 +1,11 @@
-//! Soak of the joint-driven machines: per machine one simulated hour of random jogs (both axis
-//! pairs), STOP presses and injected faults on its simulated plant, with the invariants checked
-//! after every cycle: no joint past its hard stop, drive outputs zero while the state does not
-//! drive, ERROR always with a reason and left only by acknowledgement, no state that sticks, and
-//! no stepper losing a step unless a fault made it.
+//! Soak of the joint-driven machines: per machine one simulated hour (`PKM_SOAK_HOURS`) of random
+//! jogs (both axis pairs), STOP presses (one in three a STOP during the referencing that its
+//! acknowledgement starts) and injected faults on its simulated plant, with the invariants
+//! checked after every cycle: no joint past its hard stop, none driven past its reference switch
+//! in INIT beyond the search's braking, drive outputs zero while the state does not drive, ERROR
+//! always with a reason and left only by acknowledgement, no state that sticks, no stepper
+//! losing a step unless a fault made it, and every referencing after a fault-free stretch
+//! restores the plant's true positions.
 
 use crate::common;
 
@@ -16,6 +19,7 @@ use common::{get, joint_plant, machine_config};
 use pkm_joints::vars;
 use pkm_plc::plc::Plc;
 use pkm_plc::run::VirtualClock;
+use pkm_plc::sim::bus::SimBus;
 
 /// Picks one of `items` with `rng`.
 fn pick<'a>(rng: &mut Rng, items: &[&'a str]) -> &'a str {
@@ -25,12 +29,19 @@ fn pick<'a>(rng: &mut Rng, items: &[&'a str]) -> &'a str {
 /// The random scenario of machine `name` (`n` joints, `dc` drives or steppers, `shared`
 /// switches, `stop_gap` the range between STOP presses in ms), and the windows in which a fault
 /// is active that may stop referencing or lose steps.
-fn random_scenario(seed: u64, n: usize, dc: bool, shared: bool, stop_gap: (u64, u64)) -> (String, Vec<(u64, u64)>) {
+fn random_scenario(
+    seed: u64,
+    n: usize,
+    dc: bool,
+    shared: bool,
+    stop_gap: (u64, u64),
+    hours: u64,
+) -> (String, Vec<(u64, u64)>) {
     let mut rng = Rng(seed);
     let mut events = Vec::new();
     let mut windows = Vec::new();
     let mut t = 0;
-    while t < HOUR_MS {
+    while t < hours * HOUR_MS {
         t += rng.between(2_000, 8_000);
         if rng.next() < 0.15 {
             events.extend(soak::press("BUTTON_AXES", t, 100));
@@ -38,7 +49,7 @@ fn random_scenario(seed: u64, n: usize, dc: bool, shared: bool, stop_gap: (u64, 
             events.push(soak::joystick(&mut rng, t));
         }
     }
-    events.extend(soak::stop_presses(&mut rng, stop_gap));
+    events.extend(soak::stop_presses(&mut rng, stop_gap, hours));
     let switches: Vec<String> = if shared {
         ["LIMIT_NEG", "LIMIT_POS", "REFERENCE"].map(String::from).to_vec()
     } else {
@@ -48,7 +59,7 @@ fn random_scenario(seed: u64, n: usize, dc: bool, shared: bool, stop_gap: (u64, 
     };
     let drives: Vec<String> = (1..=n).map(|j| format!("joint{j}")).collect();
     let mut t = 60_000;
-    while t < HOUR_MS {
+    while t < hours * HOUR_MS {
         let drive = &drives[((rng.next() * n as f64) as usize).min(n - 1)];
         let kinds: &[&str] = if dc {
             &["switch", "glitch", "bridge", "dead"]
@@ -77,6 +88,51 @@ fn random_scenario(seed: u64, n: usize, dc: bool, shared: bool, stop_gap: (u64, 
     (format!(r#"{{"events": [{}]}}"#, events.join(",\n")), windows)
 }
 
+/// The operator's part where the controller hands over (ERROR, drives off): a joint on a limit
+/// switch, or on a shared reference switch before its search (which the input cannot name), is
+/// turned off it by hand, 3 mm clear. On a machine whose joints share their switches (pn101:
+/// coupled joints referenced one at a time, open-loop steppers), referencing from a pose nobody
+/// knows can jam the mechanism; there, after a referencing that failed for another reason than
+/// STOP, or positions the switches contradicted, the operator parks the machine by hand near its
+/// home pose (its power-on pose), as the reason's text asks. True when a joint was moved.
+fn operator_recovers(plc: &mut Plc, n: usize, shared: bool, reason: &str, from_init: bool) -> bool {
+    let on_reference = reason.starts_with("INIT: the shared reference input");
+    let on_limit = reason.starts_with("limit");
+    let park = shared && (reason.starts_with("reference input") || (from_init && reason != "STOP"));
+    if !on_reference && !on_limit && !park {
+        return false;
+    }
+    let plant = plc
+        .bus_mut()
+        .as_any_mut()
+        .downcast_mut::<SimBus>()
+        .expect("the simulated bus")
+        .plant_mut()
+        .as_any_mut()
+        .downcast_mut::<pkm_joints::plant::Plant>()
+        .expect("a joint plant");
+    let mut moved = false;
+    for j in 0..n {
+        let q = plant.position_mm(j);
+        let (at, direction) = plant.reference_switch(j);
+        let [neg, pos] = plant.limit_switches_mm(j);
+        let to = if park {
+            plant.start_mm(j)
+        } else if on_reference && (q - at) * direction >= 0.0 {
+            at - 3.0 * direction
+        } else if on_limit && q <= neg {
+            neg + 3.0
+        } else if on_limit && q >= pos {
+            pos - 3.0
+        } else {
+            continue;
+        };
+        plant.move_by_hand(j, to);
+        moved = true;
+    }
+    moved
+}
+
 /// Whether every drive output is zero now.
 fn drives_zero(plc: &Plc, n: usize, dc: bool) -> bool {
     (0..n).all(|j| {
@@ -96,7 +152,8 @@ fn soak(name: &str, seed: u64) {
     };
     // pn101 references one joint after another (about 84 s): STOP presses come after that.
     let stop_gap = if shared { (100_000, 200_000) } else { (20_000, 90_000) };
-    let (scenario, windows) = random_scenario(seed, n, dc, shared, stop_gap);
+    let hours = soak::hours();
+    let (scenario, windows) = random_scenario(seed, n, dc, shared, stop_gap, hours);
     let loaded = machine_config(name, |_| {});
     let mut plc =
         common::sim_plc(&loaded, &pkm_plc::machines::all_programs(), Some(&scenario)).unwrap_or_else(|e| panic!("{e}"));
@@ -123,7 +180,13 @@ fn soak(name: &str, seed: u64) {
     // wrong until the machine is referenced again; what happens until then is its consequence.
     let mut tainted = false;
     let mut reasons = BTreeMap::<String, usize>::new();
-    while plc.next_release() < HOUR_MS * 1_000_000 {
+    // Per INIT visit, how far past its reference switch each joint stood when it began; the
+    // farthest any joint went beyond that (the search's braking), and how often one went
+    // farther than the search may (a search or return without its switch ahead).
+    let mut init_entry: Option<Vec<f64>> = None;
+    let (mut worst_past_reference, mut blind) = (0.0f64, 0);
+    let (mut stops_in_init, mut contradictions, mut by_hand) = (0, 0, 0);
+    while plc.next_release() < hours * HOUR_MS * 1_000_000 {
         let t_ns = plc.next_release();
         clock.advance_to(t_ns);
         plc.run_due(&mut clock, u64::MAX);
@@ -150,6 +213,31 @@ fn soak(name: &str, seed: u64) {
                 );
                 *lost = now;
             }
+        }
+        if state == "INIT" {
+            let past: Vec<f64> = (0..n)
+                .map(|j| {
+                    let (at, direction) = plant.reference_switch(j);
+                    (plant.position_mm(j) - at) * direction
+                })
+                .collect();
+            let from = init_entry.get_or_insert_with(|| past.clone());
+            let beyond = past
+                .iter()
+                .zip(from.iter())
+                .map(|(p, f)| p - f.max(0.0))
+                .fold(0.0f64, f64::max);
+            // A stuck reference switch may hide the switch from the search (the limit switch
+            // stops it then).
+            if !in_window(t, 0) {
+                worst_past_reference = worst_past_reference.max(beyond);
+                if beyond > 3.0 {
+                    blind += 1;
+                    panic!("{name}: a joint {beyond:.1} mm past its reference switch in INIT at {t} ms");
+                }
+            }
+        } else {
+            init_entry = None;
         }
         // World mode never commands a joint past its software limit; the joint itself passes
         // one by no more than the drive's ramp overshoots a set-point that brakes there (the
@@ -184,18 +272,30 @@ fn soak(name: &str, seed: u64) {
         if previous == "INIT" && state == "ERROR" {
             let reason = status.reason.unwrap_or("");
             assert!(
-                !reason.starts_with("INIT") || in_window(t, 90_000),
+                !reason.starts_with("INIT") || tainted || in_window(t, 90_000),
                 "{name}: referencing failed without a fault at {t} ms: {reason}"
             );
         }
+        // A referencing restores the true positions — unless it started from positions a
+        // fault had falsified, on a mechanism that jammed on the way (pn101's coupled joints
+        // from a pose nobody knows): then the reference switches catch the consequence later.
         if previous == "INIT" && state == "READY" && !in_window(t, 0) {
-            tainted = false;
+            let exact = (0..n).all(|j| (get(&plc, vars::JOINT_POSITION[j]) - plant.position_mm(j)).abs() < 0.05);
+            assert!(
+                exact || tainted,
+                "{name}: referenced at {t} ms without a fault, positions differ from the plant's"
+            );
+            tainted = !exact;
         }
         if state != previous {
             *visits.entry(state.clone()).or_default() += 1;
             if state == "ERROR" {
                 let reason = status.reason.unwrap_or("");
                 *reasons.entry(reason.to_string()).or_default() += 1;
+                stops_in_init += usize::from(previous == "INIT" && reason == "STOP");
+                contradictions += usize::from(reason.starts_with("reference input"));
+                let reason = reason.to_string();
+                by_hand += usize::from(operator_recovers(&mut plc, n, shared, &reason, previous == "INIT"));
                 // A limit input trips only when a fault made it (a stuck switch, positions a fault
                 // falsified): jogs stop at the software limits before the switches.
                 assert!(
@@ -213,13 +313,20 @@ fn soak(name: &str, seed: u64) {
         previous = state;
     }
     eprintln!(
-        "{name} soak: 1 simulated hour in {:.2} s; states entered: {visits:?}; longest INIT {longest_init} ms, longest ERROR {longest_error} ms; steps lost to faults {lost:?} ({} steps of the plant the mechanism jammed); at most {worst_past_soft:.3} mm past a soft limit; errors {reasons:?}",
+        "{name} soak: {hours} simulated hour(s) in {:.2} s; states entered: {visits:?}; {stops_in_init} STOPs during INIT; \
+         {blind} joints driven past their reference switch in INIT (at most {worst_past_reference:.2} mm beyond where INIT found them); \
+         {contradictions} reference inputs that contradicted the positions; {by_hand} recoveries by hand; longest INIT {longest_init} ms, longest ERROR {longest_error} ms; \
+         steps lost to faults {lost:?} ({} steps of the plant the mechanism jammed); at most {worst_past_soft:.3} mm past a soft limit; errors {reasons:?}",
         started.elapsed().as_secs_f64(),
         joint_plant(&plc).jams()
     );
+    assert!(
+        stops_in_init >= 5 * hours as usize,
+        "{name}: only {stops_in_init} STOPs during INIT"
+    );
     for s in ["INIT", "READY", "MOTION", "ERROR", "REBOOT"] {
         assert!(
-            visits.get(s).copied().unwrap_or(0) >= 5,
+            visits.get(s).copied().unwrap_or(0) >= 5 * hours as usize,
             "{name}: {s} entered only {:?} times",
             visits.get(s)
         );

@@ -335,6 +335,10 @@ impl Bus for ModbusBus {
         self
     }
 
+    fn as_any_mut(&mut self) -> &mut dyn std::any::Any {
+        self
+    }
+
     fn fault(&self) -> bool {
         self.shared.fault.load(Ordering::Relaxed) || self.inputs_stale()
     }

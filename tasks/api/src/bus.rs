@@ -29,6 +29,9 @@ pub trait Bus: Send {
     /// The bus as `Any`, so that callers who know its type can reach it (tests and status
     /// displays read the simulated machine's true state this way).
     fn as_any(&self) -> &dyn std::any::Any;
+    /// The bus as mutable `Any`: tests reach the simulated machine this way to act on it as a
+    /// person at the machine would (turning a lead screw by hand with the drives off).
+    fn as_any_mut(&mut self) -> &mut dyn std::any::Any;
     /// Whether the link is faulty beyond the configured bound: published every cycle as the
     /// variable [`BUS_FAULT`], so the application can stop the drives and report it.
     fn fault(&self) -> bool {

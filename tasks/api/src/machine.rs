@@ -220,4 +220,6 @@ pub trait Plant: Send + Any {
     fn apply(&mut self, action: Action);
     /// The plant as `Any`, for tests and displays that know its type.
     fn as_any(&self) -> &dyn Any;
+    /// The plant as mutable `Any`, for tests that act on the machine by hand.
+    fn as_any_mut(&mut self) -> &mut dyn Any;
 }

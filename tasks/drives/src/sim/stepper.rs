@@ -129,6 +129,14 @@ impl Stepper {
         }
     }
 
+    /// The carriage turned by hand by `mm` (the motor unpowered): it moves, the module counts
+    /// nothing.
+    pub fn turn_by_hand(&mut self, mm: f64, travel: [f64; 2]) {
+        let [min, max] = travel.map(|t| ((t - self.start_mm) * self.p.steps_per_mm * 1e6).round() as i64);
+        let by = (mm * self.p.steps_per_mm * 1e6).round() as i64;
+        self.moved_step_us = (self.moved_step_us + by).clamp(min, max);
+    }
+
     /// The module's step counter: the steps emitted, 16-bit, wrapping.
     pub fn counter(&self) -> i16 {
         wrap(self.emitted_step_us.div_euclid(1_000_000))

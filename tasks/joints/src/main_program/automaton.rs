@@ -130,6 +130,8 @@ pub struct Main {
     pub(super) selection: usize,
     /// The joints' references are known from an earlier referencing (kept through REBOOT).
     pub(super) known: bool,
+    /// The joints share one reference input (pn101): it is on when any joint is past its switch.
+    pub(super) shared_reference: bool,
     /// The return to the reference positions: where it started, its progress (0 … 1), the
     /// progress's rate (1/s), and when it started (s).
     pub(super) ret_from: [f64; MAX_DOF],
@@ -178,20 +180,20 @@ impl Application for Main {
                     if self.known {
                         self.start_return(io);
                     } else {
-                        self.start_group(io, 0);
+                        self.start_group(io, 0)?;
                     }
                 }
             }
             Phase::Returning => {
                 if self.step_return(io)? {
-                    self.start_group(io, 0);
+                    self.start_group(io, 0)?;
                 }
             }
             Phase::Group(g) => {
                 io.limit_override = false;
                 if self.step_group(io, g)? {
                     if g + 1 < self.p.reference_order.len() {
-                        self.start_group(io, g + 1);
+                        self.start_group(io, g + 1)?;
                     } else {
                         self.finish_referencing(io);
                         return Ok(true);
@@ -293,7 +295,13 @@ impl Application for Main {
 
 impl Main {
     /// A machine's part of the automaton.
-    pub(super) fn new(p: MainParams, frame: MachineFrame, soft: [[f64; 2]; MAX_DOF], pairs: Vec<[usize; 2]>) -> Self {
+    pub(super) fn new(
+        p: MainParams,
+        frame: MachineFrame,
+        soft: [[f64; 2]; MAX_DOF],
+        pairs: Vec<[usize; 2]>,
+        shared_reference: bool,
+    ) -> Self {
         let n = frame.dof();
         let mut home = [0.0; MAX_DOF];
         home[..n].copy_from_slice(frame.home_joints());
@@ -320,6 +328,7 @@ impl Main {
             joint_jog: None,
             selection: 0,
             known: false,
+            shared_reference,
             ret_from: [0.0; MAX_DOF],
             ret_s: 0.0,
             ret_rate: 0.0,

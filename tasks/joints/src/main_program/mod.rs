@@ -390,7 +390,7 @@ impl MainProgram {
             hmi: HmiVars::declare(decl),
         };
         let stop = StopButton::new(p.stop_lockout_ms as f64 * 1e-3);
-        let mut main = Main::new(p, frame, soft, pairs);
+        let mut main = Main::new(p, frame, soft, pairs, Switches::of(spec).shared());
         for job in args.nc.map_or(&[][..], |l| &l.jobs) {
             let mut cursor = 0;
             let start = job.trajectory.sample(0.0, &mut cursor).pose;
@@ -517,6 +517,16 @@ impl MainProgram {
             }
             // A limit input is a fault except in INIT's joint mode, where the operator jogs off it.
             let joint_mode = state == MainState::Init && app.phase == Phase::Waiting;
+            // Wherever the joints move by positions believed known (INIT's return and search in
+            // the last referencing's frame, world mode), the reference switches check them: a
+            // position a fault falsified (a stepper's lost steps) stops the machine at the
+            // switch, before it searches, returns or jogs blind into a limit switch.
+            if !joint_mode
+                && state.operating()
+                && let Some(j) = app.contradiction(&self.io)
+            {
+                return Some(Reason::ReferenceContradicts(j));
+            }
             if joint_mode {
                 return None;
             }

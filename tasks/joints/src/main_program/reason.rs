@@ -26,6 +26,16 @@ pub enum Reason {
     /// A joint's reference input stays on while the joint backs off its switch (pn101: another
     /// joint sits on its own switch, and the shared input cannot say which).
     ReferenceStaysOn(usize),
+    /// A joint's search travelled as far as its switch can be from where it began without the
+    /// reference input turning on (a switch that does not switch).
+    ReferenceNotFound(usize),
+    /// The shared reference input is on before a joint's search with the references unknown:
+    /// some joint stands on its switch and the input cannot say which.
+    ReferenceOnAtStart(usize),
+    /// A joint's reference input says the other side of its switch than the frame of the last
+    /// referencing puts the joint: its position is not known (a fault falsified it), and
+    /// referencing does not move on by it.
+    ReferenceContradicts(usize),
     /// The NC program's executor met a pose without joints.
     ProgramFault,
 }
@@ -43,6 +53,9 @@ impl Reason {
             Reason::BusFault => 55,
             Reason::InitTimeout(j) => at(60, j),
             Reason::ReferenceStaysOn(j) => at(70, j),
+            Reason::ReferenceContradicts(j) => at(90, j),
+            Reason::ReferenceNotFound(j) => at(130, j),
+            Reason::ReferenceOnAtStart(j) => at(140, j),
             Reason::Limit(k) => at(100, k),
             Reason::ProgramFault => 80,
         }
@@ -100,6 +113,34 @@ impl ReasonTexts {
                         ": another joint is on its switch (the shared input cannot say which)"
                     } else {
                         ""
+                    }
+                ),
+            ));
+            texts.push((
+                Reason::ReferenceNotFound(j),
+                format!(
+                    "INIT: joint {} searched as far as its reference switch can be without {reference} turning on (a switch that does not switch?)",
+                    j + 1
+                ),
+            ));
+            texts.push((
+                Reason::ReferenceOnAtStart(j),
+                format!(
+                    "INIT: the shared reference input {reference} is on before joint {}'s search, and it cannot say which joint stands on its switch: \
+                     acknowledge, then hold BUTTON_OVERRIDE and jog that joint off its switch in joint mode (referencing starts when it is released)",
+                    j + 1
+                ),
+            ));
+            texts.push((
+                Reason::ReferenceContradicts(j),
+                format!(
+                    "reference input {reference} contradicts joint {}'s position in the last referencing's frame: the positions are not known; {}",
+                    j + 1,
+                    if switches.shared() {
+                        // One joint at a time from a pose far from home, the mechanism can jam.
+                        "bring the machine near its home pose (drives off: by hand) and acknowledge to reference it joint by joint"
+                    } else {
+                        "acknowledge to reference from where the joints stand"
                     }
                 ),
             ));

@@ -3,22 +3,39 @@
 //! together. Each joint finds its reference switch twice (a search, then a slow approach whose
 //! captured edge is the reference) and goes to its reference position; the next group starts
 //! when the whole group is there.
+//!
+//! No search runs without its switch ahead (issue 26): a joint leaves a switch only when the
+//! input says it is its own (a shared input with the references unknown cannot), no search or
+//! back-off travels farther than the switch can be from where it began (the travel on that side
+//! of the switch), and where the references are known the inputs must agree with the positions
+//! (the main program's supervision, [`Main::contradiction`]).
 
 use pkm_kinematics::MAX_DOF;
 
 use super::automaton::{Io, Main, Phase};
 use super::reason::Reason;
 
+/// How far (mm) a joint may stand from its reference switch's edge, in the frame of the last
+/// referencing, while its reference input says the other side (the switch's repeatability, a
+/// cycle's travel between the input's and the position's sampling, a stepper's rounding).
+pub const SWITCH_AGREEMENT_MM: f64 = 1.0;
+
 /// One joint's progress through referencing.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Search {
-    /// Started on the switch: moving against the search direction until the input is off.
-    Leave { since_s: f64 },
-    /// Moving towards the switch until its capture count moves past `seen`; stage 0 searches,
-    /// stage 1 approaches slowly and takes the reference.
-    Seek { stage: u8, seen: i32, since_s: f64 },
-    /// Backing off the switch to `target` before the slow approach.
-    Retreat { target: f64, since_s: f64 },
+    /// Started on the switch: moving against the search direction from `from` until the input
+    /// is off.
+    Leave { since_s: f64, from: f64 },
+    /// Moving towards the switch from `from` until its capture count moves past `seen`; stage 0
+    /// searches, stage 1 approaches slowly and takes the reference.
+    Seek {
+        stage: u8,
+        seen: i32,
+        since_s: f64,
+        from: f64,
+    },
+    /// Backing off the switch (its edge at `edge`) to `target` before the slow approach.
+    Retreat { target: f64, since_s: f64, edge: f64 },
     /// Referenced; moving to the reference (home) position.
     ToHome { since_s: f64 },
     /// At the reference position.
@@ -108,31 +125,88 @@ impl Main {
         Ok(false)
     }
 
-    /// Starts referencing group `g`; the first group starts from the counted frame, where
-    /// referencing finds the joints' zeros again (a referencing cut short by an error may have
-    /// set some of them).
-    pub(super) fn start_group(&mut self, io: &mut Io, g: usize) {
+    /// Starts referencing group `g`. The joints stay in the frame they are in: the last
+    /// referencing's (its offsets) or, before any, the counted one. A referencing cut short
+    /// (STOP during INIT) leaves every joint in a frame that still matches its switch — the
+    /// joints it referenced in the new one, the others in the old one — so the next INIT's
+    /// return goes where the reference positions really are. (Resetting the offsets here once
+    /// sent the return of an interrupted referencing to the reference positions *of the counted
+    /// frame*: on the hexapod 737 mm past the switches, into the limit switches.)
+    ///
+    /// A joint that starts on its switch leaves it first — unless the input is shared and the
+    /// references are not known: then some joint stands on its switch, the input cannot say
+    /// which, and moving this one could only drive it blind (into its limit switch, as pn101's
+    /// joint 1 once went while joint 3 held the input): ERROR, for the operator to jog the joint
+    /// off in joint mode.
+    pub(super) fn start_group(&mut self, io: &mut Io, g: usize) -> Result<(), Reason> {
         io.limit_override = false;
-        if g == 0 {
-            for j in 0..self.n {
-                io.setpoints[j] += io.offsets[j];
-                io.positions[j] += io.offsets[j];
-                io.offsets[j] = 0.0;
-            }
-        }
         self.phase = Phase::Group(g);
-        for &joint in &self.p.reference_order[g] {
-            let j = joint - 1;
+        for k in 0..self.p.reference_order[g].len() {
+            let j = self.p.reference_order[g][k] - 1;
             self.searches[j] = if io.reference_on[j] {
-                Search::Leave { since_s: io.now_s }
+                let own = !self.shared_reference || (self.known && self.past_switch(io, j) >= 0.0);
+                if !own {
+                    return Err(Reason::ReferenceOnAtStart(j));
+                }
+                Search::Leave {
+                    since_s: io.now_s,
+                    from: io.positions[j],
+                }
             } else {
                 Search::Seek {
                     stage: 0,
                     seen: io.capture_counts[j],
                     since_s: io.now_s,
+                    from: io.positions[j],
                 }
             };
         }
+        Ok(())
+    }
+
+    /// How far (mm) joint `j` stands past its reference switch in the frame it is in (negative:
+    /// before it).
+    fn past_switch(&self, io: &Io, j: usize) -> f64 {
+        let r = &self.p.joints[j].reference;
+        (io.positions[j] - r.switch_mm) * r.direction
+    }
+
+    /// The farthest (mm) joint `j`'s switch can be from where a search towards it begins
+    /// (`towards`: the search direction; else leaving it): the joint's travel on the other side
+    /// of the switch, and a back-off and the agreement beyond.
+    pub(super) fn search_bound(&self, j: usize, towards: bool) -> f64 {
+        let r = &self.p.joints[j].reference;
+        let margin = self.p.soft_limit_margin_mm;
+        let [lo, hi] = [self.soft[j][0] - margin, self.soft[j][1] + margin];
+        let (below, above) = ((r.switch_mm - lo).max(0.0), (hi - r.switch_mm).max(0.0));
+        // Searching in +direction, the joint is below the switch (in the direction's sense).
+        let side = if (r.direction > 0.0) == towards { below } else { above };
+        side + r.back_off_mm + SWITCH_AGREEMENT_MM
+    }
+
+    /// Whether joint `j`'s reference input contradicts the frame the joints are believed in:
+    /// with the references known, the input is on exactly where the frame puts a joint past its
+    /// switch (for a shared input: any joint), up to [`SWITCH_AGREEMENT_MM`]. A contradiction
+    /// means the positions are not what the last referencing made them (a fault falsified
+    /// them): moving on by them would search, or return, blind — past the switch, into the
+    /// limit switches.
+    pub(super) fn switch_contradicts(&self, io: &Io, j: usize) -> bool {
+        if !self.known {
+            return false;
+        }
+        let past = |k: usize| self.past_switch(io, k);
+        let (expected, margin) = if self.shared_reference {
+            let nearest = (0..self.n).map(|k| past(k).abs()).fold(f64::INFINITY, f64::min);
+            ((0..self.n).any(|k| past(k) >= 0.0), nearest)
+        } else {
+            (past(j) >= 0.0, past(j).abs())
+        };
+        io.reference_on[j] != expected && margin > SWITCH_AGREEMENT_MM
+    }
+
+    /// The first joint whose reference input contradicts the frame, if any.
+    pub(super) fn contradiction(&self, io: &Io) -> Option<usize> {
+        (0..self.n).find(|&j| self.switch_contradicts(io, j))
     }
 
     /// One cycle of group `g`; true when every joint of it is at its reference position.
@@ -152,38 +226,50 @@ impl Main {
         let accel = joint.max_accel_mm_s2;
         let timeout = self.p.search_timeout_s;
         match self.searches[j] {
-            Search::Leave { since_s } => {
+            Search::Leave { since_s, from } => {
                 if !io.reference_on[j] {
                     self.searches[j] = Search::Seek {
                         stage: 0,
                         seen: io.capture_counts[j],
                         since_s: io.now_s,
+                        from: io.positions[j],
                     };
-                } else if io.now_s - since_s > timeout {
+                } else if io.now_s - since_s > timeout || (io.positions[j] - from).abs() > self.search_bound(j, false) {
                     return Err(Reason::ReferenceStaysOn(j));
                 } else {
                     io.ramp_velocity(j, -r.direction * r.search_speed_mm_s, accel);
                 }
             }
-            Search::Seek { stage, seen, since_s } => {
+            Search::Seek {
+                stage,
+                seen,
+                since_s,
+                from,
+            } => {
                 if io.capture_counts[j] != seen {
-                    let edge = io.captures[j];
+                    // The capture is counted; the joint moves in the frame of its offset.
+                    let counted = io.captures[j];
                     if stage == 0 {
+                        let edge = counted - io.offsets[j];
                         self.searches[j] = Search::Retreat {
                             target: edge - r.direction * r.back_off_mm,
                             since_s: io.now_s,
+                            edge,
                         };
                     } else {
                         // The reference: the switch's edge is the joint's `switch_mm`. The
-                        // set-points and positions move into the referenced frame with it.
-                        let offset = edge - r.switch_mm;
+                        // set-points and positions move into the new frame with it.
+                        let offset = counted - r.switch_mm;
+                        let shift = offset - io.offsets[j];
                         io.offsets[j] = offset;
-                        io.setpoints[j] -= offset;
-                        io.positions[j] -= offset;
+                        io.setpoints[j] -= shift;
+                        io.positions[j] -= shift;
                         self.searches[j] = Search::ToHome { since_s: io.now_s };
                     }
                 } else if io.now_s - since_s > timeout {
                     return Err(Reason::InitTimeout(j));
+                } else if (io.positions[j] - from).abs() > self.search_bound(j, true) {
+                    return Err(Reason::ReferenceNotFound(j));
                 } else {
                     let speed = if stage == 0 {
                         r.search_speed_mm_s
@@ -193,22 +279,25 @@ impl Main {
                     io.ramp_velocity(j, r.direction * speed, accel);
                 }
             }
-            Search::Retreat { target, since_s } => {
+            Search::Retreat { target, since_s, edge } => {
                 if io.now_s - since_s > timeout {
                     return Err(Reason::ReferenceStaysOn(j));
                 }
                 if io.move_to(j, target, r.search_speed_mm_s, accel) {
                     self.searches[j] = if io.reference_on[j] {
-                        // Still on the switch: back off further.
-                        Search::Retreat {
-                            target: target - r.direction * r.back_off_mm,
-                            since_s,
+                        // Still on the switch: back off further, but never farther than the
+                        // switch's edge can be from the joint.
+                        let target = target - r.direction * r.back_off_mm;
+                        if (target - edge).abs() > self.search_bound(j, false) {
+                            return Err(Reason::ReferenceStaysOn(j));
                         }
+                        Search::Retreat { target, since_s, edge }
                     } else {
                         Search::Seek {
                             stage: 1,
                             seen: io.capture_counts[j],
                             since_s: io.now_s,
+                            from: io.positions[j],
                         }
                     };
                 }

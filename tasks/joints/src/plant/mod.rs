@@ -275,9 +275,41 @@ impl Plant {
         }
     }
 
+    /// Joint `j`'s position at power-on (mm).
+    pub fn start_mm(&self, j: usize) -> f64 {
+        self.joints[j].p.start_mm
+    }
+
+    /// Joint `j`'s limit switches' trip points [negative, positive] (mm).
+    pub fn limit_switches_mm(&self, j: usize) -> [f64; 2] {
+        self.joints[j].p.limit_switches_mm
+    }
+
     /// Joint `j`'s hard stops (mm).
     pub fn hard_stops_mm(&self, j: usize) -> [f64; 2] {
         self.joints[j].p.hard_stops_mm
+    }
+
+    /// Joint `j`'s carriage turned by hand to `to_mm` (within its hard stops), as an operator
+    /// does with the drives off: an encoder sees it, a stepper module counts nothing.
+    pub fn move_by_hand(&mut self, j: usize, to_mm: f64) {
+        let joint = &mut self.joints[j];
+        let [lo, hi] = joint.p.hard_stops_mm;
+        let to = to_mm.clamp(lo, hi);
+        let by = to - joint.position_mm();
+        match &mut joint.drive {
+            Drive::Stepper { motor, .. } => motor.turn_by_hand(by, [lo, hi]),
+            Drive::Dc { axis, .. } => axis.commit(to),
+        }
+    }
+
+    /// Joint `j`'s reference switch: where it trips (mm) and the direction in which it is on
+    /// beyond that point (1 or −1).
+    pub fn reference_switch(&self, j: usize) -> (f64, f64) {
+        (
+            self.joints[j].p.reference_switch_mm,
+            self.joints[j].p.reference_direction,
+        )
     }
 
     /// How many steps the mechanism jammed.
@@ -369,6 +401,10 @@ impl pkm_api::machine::Plant for Plant {
     }
 
     fn as_any(&self) -> &dyn std::any::Any {
+        self
+    }
+
+    fn as_any_mut(&mut self) -> &mut dyn std::any::Any {
         self
     }
 }
