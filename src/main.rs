@@ -39,7 +39,7 @@ struct Cli {
 #[derive(Subcommand, Debug)]
 enum Command {
     /// Run the soft-PLC (real time until Ctrl-C, or virtual time for a given duration).
-    Run(RunArgs),
+    Run(Box<RunArgs>),
     /// Validate a configuration without running anything.
     Check(ConfigArg),
     /// Measure the time sources side by side (cycle start lateness of a 10 ms class).
@@ -217,6 +217,11 @@ struct RunArgs {
     /// the exchanges fail: slow responses that never time out count too.
     #[arg(long, value_name = "MS", default_value_t = 50, value_parser = clap::value_parser!(u64).range(1..))]
     max_input_age_ms: u64,
+    /// A Modbus bus faults when its exchanges take longer than this (the median of the last
+    /// five, ms): the drive regulators were tuned for inputs this fresh, and oscillate on a
+    /// slower link. Raise it only after checking the regulators on that link.
+    #[arg(long, value_name = "MS", default_value_t = 8, value_parser = clap::value_parser!(u64).range(1..=1000))]
+    max_exchange_ms: u64,
     /// A scenario for the simulated machine: timed operator actions and faults (JSON).
     #[arg(long, value_name = "FILE")]
     scenario: Option<PathBuf>,
@@ -247,6 +252,14 @@ struct RunArgs {
     /// As --hmi-token, the token read from FILE (its first line).
     #[arg(long, value_name = "FILE")]
     hmi_token_file: Option<PathBuf>,
+    /// Another origin (`scheme://host[:port]`) whose pages may open the screen's WebSocket, and
+    /// whose host the screen answers to (a reverse proxy's, say); repeatable. The screen's own
+    /// page is always allowed.
+    #[arg(long, value_name = "ORIGIN")]
+    hmi_allow_origin: Vec<String>,
+    /// The most clients the screen serves at once.
+    #[arg(long, value_name = "N", default_value_t = pkm_plc::hmi::DEFAULT_MAX_CLIENTS)]
+    hmi_max_clients: usize,
     /// Override the configured time source (real time only).
     #[arg(long, value_enum, value_name = "SOURCE", conflicts_with = "virtual_time")]
     time_source: Option<TimeSource>,
@@ -366,7 +379,7 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     init_logging();
     let result = match cli.command {
-        Command::Run(args) => cmd_run(args),
+        Command::Run(args) => cmd_run(*args),
         Command::Check(args) => cmd_check(args),
         Command::Bench(args) => cmd_bench(args),
         Command::Replay(args) => cmd_replay(args),
@@ -466,6 +479,7 @@ fn cmd_run(args: RunArgs) -> Result<(), Failure> {
         link: pkm_plc::io::modbus::ModbusOptions {
             exchange: args.exchange.into(),
             max_input_age: Duration::from_millis(args.max_input_age_ms),
+            max_exchange: Duration::from_millis(args.max_exchange_ms),
             ..Default::default()
         },
         scenario: args.scenario.clone(),
@@ -611,7 +625,16 @@ fn screen_options(args: &RunArgs) -> Result<Option<pkm_plc::hmi::HmiOptions>, Fa
         }
         (None, None) => None,
     };
-    let options = pkm_plc::hmi::HmiOptions { addr, token };
+    let options = pkm_plc::hmi::HmiOptions {
+        addr,
+        token,
+        allowed_origins: args
+            .hmi_allow_origin
+            .iter()
+            .map(|o| o.trim_end_matches('/').to_ascii_lowercase())
+            .collect(),
+        max_clients: args.hmi_max_clients,
+    };
     options.check().map_err(Failure::usage)?;
     Ok(Some(options))
 }
@@ -704,7 +727,14 @@ fn run_realtime(plc: Plc, options: RealTimeOptions, screen: Option<Screen>) -> R
             match runtime.block_on(tokio::net::TcpListener::bind(options.addr)) {
                 Ok(listener) => {
                     let (publisher, reader) = pkm_plc::hmi::frame::frames(&plc);
-                    let router = pkm_plc::hmi::server::router(info, reader, sink, options.token.clone());
+                    let server_options = pkm_plc::hmi::server::ServerOptions {
+                        access: pkm_plc::hmi::access::Access {
+                            token: options.token.clone(),
+                            allowed_origins: options.allowed_origins.clone(),
+                        },
+                        max_clients: options.max_clients,
+                    };
+                    let router = pkm_plc::hmi::server::router(info, reader, sink, server_options);
                     let at = listener.local_addr().map_or(options.addr, |a| a);
                     info!(
                         "operator screen at http://{at}/{}",
@@ -714,8 +744,10 @@ fn run_realtime(plc: Plc, options: RealTimeOptions, screen: Option<Screen>) -> R
                             ""
                         }
                     );
+                    // Connections: the clients', and room for pages and assets loading.
+                    let listener = pkm_plc::hmi::listener::Bounded::new(listener, options.max_clients + 8);
                     runtime.spawn(async move {
-                        let service = router.into_make_service_with_connect_info::<std::net::SocketAddr>();
+                        let service = router.into_make_service_with_connect_info::<pkm_plc::hmi::listener::Peer>();
                         if let Err(e) = axum::serve(listener, service).await {
                             warn!("operator screen: {e}");
                         }

@@ -271,6 +271,32 @@ impl Plc {
         self.bus.as_ref()
     }
 
+    /// Writes the application's error `reason` to `out`, completed where it is the bus fault: the
+    /// application knows only that the bus failed, the bus knows why (`bus fault: tcp:…: the
+    /// link is too slow: …`). Allocates nothing once `out` has grown to the longest reason.
+    pub fn write_reason(&self, reason: &str, out: &mut String) {
+        out.push_str(reason);
+        if reason.starts_with(pkm_api::bus::BUS_FAULT_REASON) {
+            let mark = out.len();
+            out.push_str(": ");
+            out.push_str(self.bus.name());
+            out.push_str(": ");
+            if !self.bus.write_fault_cause(out) {
+                out.truncate(mark);
+            }
+        }
+    }
+
+    /// The application's error reason, completed as [`Plc::write_reason`] does; `None` without
+    /// one.
+    pub fn error_reason(&self) -> Option<String> {
+        let status = self.app_status()?;
+        let reason = status.reason?;
+        let mut out = String::new();
+        self.write_reason(reason, &mut out);
+        Some(out)
+    }
+
     /// The bus, to act on the simulated machine (tests).
     pub fn bus_mut(&mut self) -> &mut dyn Bus {
         self.bus.as_mut()

@@ -47,7 +47,7 @@ impl StateLog {
     fn observe(&mut self, plc: &Plc, t_ns: u64) {
         let Some(status) = plc.app_status() else { return };
         if status.state != self.last {
-            match status.reason {
+            match plc.error_reason() {
                 Some(reason) => warn!("t={:.3} s: {} ({reason})", t_ns as f64 * 1e-9, status.state),
                 None => info!("t={:.3} s: {}", t_ns as f64 * 1e-9, status.state),
             }
@@ -184,7 +184,7 @@ impl Snapshot {
             self.values.extend(status.values.iter().take(MAX_STATUS_VALUES));
             self.state.push_str(status.state);
             if let Some(r) = status.reason {
-                self.reason.push_str(r);
+                plc.write_reason(r, &mut self.reason);
             }
             if let Some(n) = status.note {
                 self.note.push_str(n);

@@ -123,7 +123,7 @@ impl Summary {
         let main = plc.app_status().map(|s| MainSummary {
             program: plc.app_program().unwrap_or_default().to_string(),
             state: s.state.to_string(),
-            error_reason: s.reason.map(str::to_string),
+            error_reason: plc.error_reason(),
             note: s.note.map(str::to_string),
             values: s
                 .values

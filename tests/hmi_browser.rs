@@ -26,6 +26,25 @@ static SERIAL: tokio::sync::Mutex<()> = tokio::sync::Mutex::const_new(());
 struct Plc {
     child: Child,
     url: String,
+    /// Its log so far.
+    log: std::sync::Arc<std::sync::Mutex<String>>,
+}
+
+impl Plc {
+    /// The log so far.
+    fn log(&self) -> String {
+        self.log.lock().map(|l| l.clone()).unwrap_or_default()
+    }
+
+    /// The screen's port.
+    fn port(&self) -> u16 {
+        self.url
+            .trim_end_matches('/')
+            .rsplit(':')
+            .next()
+            .and_then(|p| p.parse().ok())
+            .expect("a port in the screen's address")
+    }
 }
 
 impl Drop for Plc {
@@ -74,18 +93,24 @@ fn start_plc(config: &std::path::Path, seconds: u32, more: &[&str]) -> Plc {
         .expect("pkm-plc starts");
     let stderr = child.stderr.take().expect("stderr");
     let (tx, rx) = std::sync::mpsc::channel();
+    let log = std::sync::Arc::new(std::sync::Mutex::new(String::new()));
+    let kept = std::sync::Arc::clone(&log);
     // Drains the log for the whole run (a full pipe would block the PLC's logging).
     std::thread::spawn(move || {
         for line in std::io::BufReader::new(stderr).lines().map_while(Result::ok) {
             if let Some(at) = line.split("operator screen at ").nth(1) {
                 let _ = tx.send(at.split_whitespace().next().unwrap_or("").to_string());
             }
+            if let Ok(mut l) = kept.lock() {
+                l.push_str(&line);
+                l.push('\n');
+            }
         }
     });
     let url = rx
         .recv_timeout(Duration::from_secs(30))
         .expect("the screen's address is logged");
-    Plc { child, url }
+    Plc { child, url, log }
 }
 
 /// Debian's `chromium`, or another Chromium or Chrome on the PATH.
@@ -212,7 +237,7 @@ async fn the_page_shows_referencing_jogs_while_held_stops_and_acknowledges() {
         .chrome_executable(chromium)
         .no_sandbox()
         .user_data_dir(profile.path().join("profile"))
-        .arg("--disable-gpu")
+        .arg("disable-gpu")
         .window_size(1280, 1400)
         .build()
         .expect("a browser configuration");
@@ -488,4 +513,383 @@ fn serving_beyond_loopback_needs_a_token() {
         "{}",
         common::stderr(&o)
     );
+}
+
+/// Starts headless Chromium with its profile in `dir` and the switches `args` (name, value)
+/// besides the usual; returns it and the task that drives its events.
+async fn launch(
+    chromium: std::path::PathBuf,
+    dir: &std::path::Path,
+    args: &[(&str, &str)],
+) -> (Browser, tokio::task::JoinHandle<()>) {
+    let mut config = BrowserConfig::builder()
+        .chrome_executable(chromium)
+        .no_sandbox()
+        .user_data_dir(dir.join("profile"))
+        .arg("disable-gpu")
+        .window_size(1280, 1400);
+    for (name, value) in args {
+        config = config.arg((*name, *value));
+    }
+    let (browser, mut handler) = Browser::launch(config.build().expect("a browser configuration"))
+        .await
+        .expect("Chromium starts");
+    let events = tokio::spawn(async move { while handler.next().await.is_some() {} });
+    (browser, events)
+}
+
+/// Serves `html` to every request on a free loopback port (another origin than the screen's).
+fn serve_page(html: String) -> u16 {
+    use std::io::{Read, Write};
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").expect("a port");
+    let port = listener.local_addr().expect("address").port();
+    std::thread::spawn(move || {
+        for mut s in listener.incoming().flatten() {
+            let mut request = [0u8; 4096];
+            let _ = s.read(&mut request);
+            let _ = write!(
+                s,
+                "HTTP/1.1 200 OK\r\nContent-Type: text/html\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{html}",
+                html.len()
+            );
+        }
+    });
+    port
+}
+
+/// Every frame a watching client receives, as it arrives: (state, HMI_STOP, HMI_JOG_X).
+async fn watch_frames(ws_url: &str) -> tokio::sync::mpsc::UnboundedReceiver<(String, bool, f64)> {
+    use tokio_tungstenite::tungstenite::Message;
+    let (mut watcher, _) = tokio_tungstenite::connect_async(ws_url).await.expect("connects");
+    let hello = next(&mut watcher).await;
+    let at = |name: &str| {
+        hello["variables"]
+            .as_array()
+            .expect("variables")
+            .iter()
+            .position(|p| p[0] == name)
+            .unwrap_or_else(|| panic!("{name} in the image"))
+    };
+    let (stop, jog) = (at("HMI_STOP"), at("HMI_JOG_X"));
+    let (tx, rx) = tokio::sync::mpsc::unbounded_channel();
+    tokio::spawn(async move {
+        while let Some(Ok(m)) = watcher.next().await {
+            let Message::Text(t) = m else { continue };
+            let f: serde_json::Value = serde_json::from_str(&t).expect("JSON");
+            if f["type"] != "frame" {
+                continue;
+            }
+            let entry = (
+                f["state"].as_str().unwrap_or("").to_string(),
+                f["image"][stop].as_bool().unwrap_or(false),
+                f["image"][jog].as_f64().unwrap_or(f64::NAN),
+            );
+            if tx.send(entry).is_err() {
+                break;
+            }
+        }
+    });
+    rx
+}
+
+/// Waits for a frame in `state` (at most `within`).
+async fn until_state(
+    rx: &mut tokio::sync::mpsc::UnboundedReceiver<(String, bool, f64)>,
+    state: &str,
+    within: Duration,
+) {
+    let start = Instant::now();
+    loop {
+        let (s, _, _) = tokio::time::timeout(within, rx.recv())
+            .await
+            .expect("frames in time")
+            .expect("frames");
+        if s == state {
+            return;
+        }
+        assert!(start.elapsed() < within, "{state} in time");
+    }
+}
+
+/// Issue 26: any web page the operator has open could open the screen's WebSocket (loopback,
+/// no token) and stop, jog or start programs. A page of another origin is refused before the
+/// upgrade, and so is a page that reached the port under its own name (DNS rebinding, here
+/// through Chromium's host resolver rules): nothing it sends reaches the process image.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_page_of_another_origin_or_a_rebound_name_reaches_nothing() {
+    let Some(chromium) = chromium() else {
+        eprintln!("SKIPPED hmi_browser::a_page_of_another_origin_or_a_rebound_name_reaches_nothing: no Chromium here");
+        return;
+    };
+    let _serial = SERIAL.lock().await;
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (mut browser, events) = launch(
+        chromium,
+        dir.path(),
+        &[("host-resolver-rules", "MAP evil.test 127.0.0.1")],
+    )
+    .await;
+    let page = browser.new_page("about:blank").await.expect("a page");
+    let plc = start_plc(&test_config(dir.path()), 90, &[]);
+    let port = plc.port();
+    let mut frames = watch_frames(&(plc.url.replacen("http://", "ws://", 1) + "ws")).await;
+    until_state(&mut frames, "READY", Duration::from_secs(60)).await;
+    // The attacker's page: opens the screen's WebSocket by its address and under its own name,
+    // and sends STOP and a jog every 20 ms on whichever opens.
+    let attack = |url: String| {
+        format!(
+            r#"(() => {{ const ws = new WebSocket("{url}"); window.results = window.results || {{}};
+                ws.onopen = () => {{ window.results["{url}"] = "open"; setInterval(() => {{ ws.send('{{"cmd":"stop"}}'); ws.send('{{"cmd":"jog","x":1,"y":0}}'); }}, 20); }};
+                ws.onclose = () => {{ window.results["{url}"] = window.results["{url}"] || "refused"; }}; }})()"#
+        )
+    };
+    let scripts = [
+        attack(format!("ws://127.0.0.1:{port}/ws")),
+        attack(format!("ws://localhost:{port}/ws")),
+        attack(format!("ws://evil.test:{port}/ws")),
+    ];
+    let html = format!(
+        "<html><body>a page of another origin<script>{}</script></body></html>",
+        scripts.join(";")
+    );
+    let other = serve_page(html);
+    page.goto(format!("http://127.0.0.1:{other}/"))
+        .await
+        .expect("the other page loads");
+    let results = async |p: &Page| text(p, "JSON.stringify(window.results || {})").await;
+    until(
+        &page,
+        Duration::from_secs(10),
+        "the attacker's sockets settle",
+        async |p| results(p).await.matches("refused").count() + results(p).await.matches("open").count() == 3,
+    )
+    .await;
+    assert_eq!(
+        results(&page).await.matches("refused").count(),
+        3,
+        "{}",
+        results(&page).await
+    );
+    // Seconds of the page trying: the machine stands READY, the screen's inputs never moved.
+    let start = Instant::now();
+    while start.elapsed() < Duration::from_secs(2) {
+        let (state, stop, jog) = frames.recv().await.expect("frames");
+        assert_eq!(
+            (state.as_str(), stop, jog),
+            ("READY", false, 0.0),
+            "the other page reached the machine"
+        );
+    }
+    // The rebound name does not even get the page.
+    page.goto(format!("http://evil.test:{port}/")).await.expect("loads");
+    assert!(
+        text(&page, "document.body.innerText")
+            .await
+            .contains("this screen answers to its IP address or localhost"),
+        "{}",
+        text(&page, "document.body.innerText").await
+    );
+    let log = plc.log();
+    assert!(
+        log.contains("WebSocket refused: a page of another origin (http://127.0.0.1:"),
+        "{log}"
+    );
+    assert!(log.contains(r#"refused a request for Host "evil.test:"#), "{log}");
+    let _ = browser.close().await;
+    let _ = browser.wait().await;
+    events.abort();
+}
+
+/// With a token, a page opened without it shows every control disabled; opened with it, the
+/// token leaves the address bar (the server keeps it in an HttpOnly, SameSite cookie) and a
+/// reload without it in the address still commands.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_watching_page_shows_its_controls_disabled_and_the_token_leaves_the_address() {
+    let Some(chromium) = chromium() else {
+        eprintln!(
+            "SKIPPED hmi_browser::a_watching_page_shows_its_controls_disabled_and_the_token_leaves_the_address: no Chromium here"
+        );
+        return;
+    };
+    let _serial = SERIAL.lock().await;
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (mut browser, events) = launch(chromium, dir.path(), &[]).await;
+    let page = browser.new_page("about:blank").await.expect("a page");
+    let token = "0123456789abcdef-token";
+    let plc = start_plc(&test_config(dir.path()), 60, &["--hmi-token", token]);
+    let controls = "[...document.querySelectorAll('button, select')]";
+    let all_disabled = format!("String({controls}.length > 5 && {controls}.every(b => b.disabled))");
+    let all_enabled = format!("String({controls}.length > 5 && {controls}.every(b => !b.disabled))");
+    page.goto(plc.url.as_str()).await.expect("loads");
+    until(
+        &page,
+        Duration::from_secs(20),
+        "a watching page's controls disabled",
+        async |p| text(p, &all_disabled).await == "true",
+    )
+    .await;
+    assert!(
+        text(&page, "document.getElementById('access').textContent")
+            .await
+            .contains("watching only")
+    );
+    page.goto(format!("{}?token={token}", plc.url)).await.expect("loads");
+    until(
+        &page,
+        Duration::from_secs(20),
+        "the operator's controls enabled",
+        async |p| text(p, &all_enabled).await == "true",
+    )
+    .await;
+    assert_eq!(text(&page, "location.search").await, "", "the token left the address");
+    page.reload().await.expect("reloads");
+    until(
+        &page,
+        Duration::from_secs(20),
+        "still commanding after a reload",
+        async |p| text(p, &all_enabled).await == "true",
+    )
+    .await;
+    let _ = browser.close().await;
+    let _ = browser.wait().await;
+    events.abort();
+}
+
+/// One HTTP/1.1 GET of `path` with `host` as its Host header; the response's head and body.
+fn get(port: u16, path: &str, host: &str) -> String {
+    use std::io::{Read, Write};
+    let mut s = std::net::TcpStream::connect(("127.0.0.1", port)).expect("connects");
+    s.set_read_timeout(Some(Duration::from_secs(10))).expect("timeout");
+    write!(s, "GET {path} HTTP/1.1\r\nHost: {host}\r\nConnection: close\r\n\r\n").expect("sends");
+    let mut response = String::new();
+    let _ = s.read_to_string(&mut response);
+    response
+}
+
+/// The screen as an attacker without a browser meets it: a foreign Host is 403 on every path,
+/// every response forbids framing, a WebSocket with a foreign Origin is 403, a third client
+/// beyond `--hmi-max-clients 2` is 503, an oversized message ends its connection, a flood of
+/// messages is cut to the rate, a command with a stray field is refused; the token counts in a
+/// bearer header too.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_screen_bounds_clients_messages_and_rates_and_checks_host_and_origin() {
+    use futures::SinkExt;
+    use tokio_tungstenite::tungstenite::Message;
+    use tokio_tungstenite::tungstenite::client::IntoClientRequest;
+    let _serial = SERIAL.lock().await;
+    let dir = tempfile::tempdir().expect("tempdir");
+    let token = "0123456789abcdef-token";
+    let plc = start_plc(
+        &test_config(dir.path()),
+        60,
+        &["--hmi-max-clients", "2", "--hmi-token", token],
+    );
+    let port = plc.port();
+    for path in ["/", "/app.js", "/ws"] {
+        let r = get(port, path, &format!("evil.example:{port}"));
+        assert!(r.starts_with("HTTP/1.1 403"), "{path}: {r}");
+    }
+    let page = get(port, "/", &format!("127.0.0.1:{port}"));
+    assert!(page.starts_with("HTTP/1.1 200"), "{page}");
+    let head = page.to_ascii_lowercase();
+    assert!(
+        head.contains("x-frame-options: deny") && head.contains("content-security-policy: frame-ancestors 'none'"),
+        "{page}"
+    );
+    assert!(!head.contains("set-cookie"), "no cookie without the token");
+    let with_token = get(port, &format!("/?token={token}"), &format!("127.0.0.1:{port}")).to_ascii_lowercase();
+    assert!(
+        with_token.contains(&format!(
+            "set-cookie: pkm_token={token}; path=/; httponly; samesite=strict"
+        )),
+        "{with_token}"
+    );
+    let ws = plc.url.replacen("http://", "ws://", 1) + "ws";
+    let request = |origin: Option<&str>, bearer: Option<&str>| {
+        let mut r = ws.as_str().into_client_request().expect("a request");
+        if let Some(o) = origin {
+            r.headers_mut().insert("Origin", o.parse().expect("a header"));
+        }
+        if let Some(t) = bearer {
+            r.headers_mut()
+                .insert("Authorization", format!("Bearer {t}").parse().expect("a header"));
+        }
+        r
+    };
+    let refused = tokio_tungstenite::connect_async(request(Some("http://evil.example"), None)).await;
+    assert!(
+        matches!(&refused, Err(tokio_tungstenite::tungstenite::Error::Http(r)) if r.status() == 403),
+        "{refused:?}"
+    );
+    // The screen's own origin, with the token as a bearer header: commands.
+    let (mut operator, _) =
+        tokio_tungstenite::connect_async(request(Some(&format!("http://127.0.0.1:{port}")), Some(token)))
+            .await
+            .expect("connects");
+    let hello = next(&mut operator).await;
+    assert_eq!(hello["commands"], true);
+    // Bounded: the hello does not carry the programs' text.
+    assert!(hello.to_string().len() < 64 * 1024, "{} bytes", hello.to_string().len());
+    assert!(hello["programs"][0].get("text").is_none());
+    let (mut second, _) = tokio_tungstenite::connect_async(ws.as_str()).await.expect("connects");
+    let third = tokio_tungstenite::connect_async(ws.as_str()).await;
+    assert!(
+        matches!(&third, Err(tokio_tungstenite::tungstenite::Error::Http(r)) if r.status() == 503),
+        "{third:?}"
+    );
+    // A command with a stray field is not a command.
+    operator
+        .send(Message::Text(r#"{"cmd":"stop","force":true}"#.into()))
+        .await
+        .expect("sends");
+    let refusal = loop {
+        let m = next(&mut operator).await;
+        if m["type"] == "refused" {
+            break m;
+        }
+    };
+    assert!(
+        refusal["why"].as_str().unwrap_or("").contains("unknown field `force`"),
+        "{refusal}"
+    );
+    // A flood of reads (300 at once): about the budget of 100 is answered.
+    for _ in 0..300 {
+        operator
+            .send(Message::Text(r#"{"cmd":"text","program":1,"from":1}"#.into()))
+            .await
+            .expect("sends");
+    }
+    operator
+        .send(Message::Text(r#"{"cmd":"path","program":99}"#.into()))
+        .await
+        .expect("sends");
+    let mut answered = 0;
+    let start = Instant::now();
+    while start.elapsed() < Duration::from_secs(3) {
+        let Ok(m) = tokio::time::timeout(Duration::from_millis(500), next(&mut operator)).await else {
+            break;
+        };
+        if m["type"] == "text" {
+            answered += 1;
+            assert!(m["lines"].as_array().is_some_and(|l| l.len() <= 400));
+        }
+    }
+    assert!((90..=200).contains(&answered), "{answered} of 300 answered");
+    // An oversized message (64 KiB) ends the connection.
+    let _ = second.send(Message::Text("x".repeat(64 * 1024).into())).await;
+    let ended = tokio::time::timeout(Duration::from_secs(5), async {
+        loop {
+            match second.next().await {
+                Some(Ok(_)) => continue,
+                _ => return,
+            }
+        }
+    })
+    .await;
+    assert!(ended.is_ok(), "the oversized message's connection still runs");
+    drop(operator);
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let log = plc.log();
+    assert!(log.contains("more than 100 messages a second"), "{log}");
+    assert!(log.contains("messages over the rate"), "{log}");
 }

@@ -1,5 +1,6 @@
 //! Link faults on Modbus TCP and RTU: garbage bytes, bad CRCs, slow responses, exception responses, a station
-//! that disappears and comes back. Each must become a bus fault (ERROR "bus fault", PWM zero),
+//! that disappears and comes back, a link too slow for the regulators. Each must become a bus fault
+//! (ERROR "bus fault: LINK: CAUSE", PWM zero),
 //! never a hang or a panic; a returning station brings the link back.
 
 mod common;
@@ -113,34 +114,50 @@ fn garbage_slow_and_exceptional_stations_are_bus_faults() {
         // Regression (issue 12): late answers never made a bus fault.
         (Misbehaviour::Late, "late"),
     ] {
-        let (s, log) = run_against(bad_station(how), "2");
+        let port = bad_station(how);
+        let (s, log) = run_against(port, "2");
         assert_eq!(s["main"]["state"], "ERROR", "{name}: {s}");
-        assert_eq!(s["main"]["error_reason"], "bus fault", "{name}");
+        // The reason names the link and why it failed.
+        let reason = s["main"]["error_reason"].as_str().unwrap_or_default();
+        let cause = match how {
+            Misbehaviour::Garbage | Misbehaviour::Short => {
+                "failed exchanges in a row, the last: a response that could not be decoded"
+            }
+            Misbehaviour::Slow => "failed exchanges in a row, the last: no response within the timeout",
+            Misbehaviour::Exception => "failed exchanges in a row, the last: an exception response",
+            Misbehaviour::Late => "",
+        };
+        assert!(
+            reason.starts_with(&format!("bus fault: tcp:127.0.0.1:{port}: ")) && reason.contains(cause),
+            "{name}: {reason}"
+        );
         let logged = match how {
             Misbehaviour::Late => "the newest input image is",
-            _ => "bus fault after",
+            _ => "failed exchanges in a row",
         };
         assert!(log.contains(logged), "{name}: {log}");
         let counts = log
             .lines()
             .find(|l| l.contains(" exchanges (tables)"))
             .expect("link report");
-        let wanted = match how {
-            Misbehaviour::Garbage | Misbehaviour::Short => " corrupt",
-            Misbehaviour::Slow => " timeouts",
-            Misbehaviour::Exception => " exceptions",
-            Misbehaviour::Late => " stale",
+        let count = |wanted: &str| -> u64 {
+            counts
+                .split(", ")
+                .chain(counts.split("; "))
+                .find_map(|part| {
+                    part.strip_suffix(wanted)
+                        .and_then(|p| p.rsplit(' ').next())
+                        .and_then(|n| n.parse().ok())
+                })
+                .unwrap_or(0)
         };
-        let n: u64 = counts
-            .split(", ")
-            .chain(counts.split("; "))
-            .find_map(|part| {
-                part.strip_suffix(wanted)
-                    .and_then(|p| p.rsplit(' ').next())
-                    .and_then(|n| n.parse().ok())
-            })
-            .unwrap_or(0);
-        assert!(n > 3, "{name}: {counts}");
+        match how {
+            Misbehaviour::Garbage | Misbehaviour::Short => assert!(count(" corrupt") > 3, "{name}: {counts}"),
+            Misbehaviour::Slow => assert!(count(" timeouts") > 3, "{name}: {counts}"),
+            Misbehaviour::Exception => assert!(count(" exceptions") > 3, "{name}: {counts}"),
+            // Stale inputs first (50 ms), then too slow on average (four exchanges).
+            Misbehaviour::Late => assert!(count(" stale") >= 1 && count(" slow") == 1, "{name}: {counts}"),
+        }
     }
 }
 
@@ -157,10 +174,76 @@ fn the_link_comes_back_when_the_station_returns_but_error_stays_until_acknowledg
     });
     let (s, log) = run_against(port, "6");
     drop(restart.join().expect("restart"));
-    assert!(log.contains("bus fault after"), "{log}");
+    assert!(log.contains("failed exchanges in a row"), "{log}");
     assert!(log.contains("the link works again"), "{log}");
     assert_eq!(s["main"]["state"], "ERROR");
-    assert_eq!(s["main"]["error_reason"], "bus fault");
+    let reason = s["main"]["error_reason"].as_str().unwrap_or_default();
+    assert!(
+        reason.starts_with(&format!("bus fault: tcp:127.0.0.1:{port}: ")),
+        "{reason}"
+    );
+}
+
+/// A proxy in front of `upstream` that holds every response `delay` before passing it on (a
+/// slow link: each exchange's four requests take 4 × `delay`). Returns its port.
+fn delaying_proxy(upstream: std::net::SocketAddr, delay: Duration) -> u16 {
+    let listener = TcpListener::bind("127.0.0.1:0").expect("bind");
+    let port = listener.local_addr().expect("address").port();
+    std::thread::spawn(move || {
+        for client in listener.incoming().flatten() {
+            std::thread::spawn(move || {
+                let mut client = client;
+                let Ok(mut station) = TcpStream::connect(upstream) else {
+                    return;
+                };
+                let frame = |from: &mut TcpStream| -> Option<Vec<u8>> {
+                    let mut header = [0u8; 7];
+                    from.read_exact(&mut header).ok()?;
+                    let len = usize::from(u16::from_be_bytes([header[4], header[5]])).saturating_sub(1);
+                    let mut pdu = vec![0u8; len];
+                    from.read_exact(&mut pdu).ok()?;
+                    Some([header.to_vec(), pdu].concat())
+                };
+                while let Some(request) = frame(&mut client) {
+                    let Some(response) = station.write_all(&request).ok().and_then(|()| frame(&mut station)) else {
+                        return;
+                    };
+                    std::thread::sleep(delay);
+                    if client.write_all(&response).is_err() {
+                        return;
+                    }
+                }
+            });
+        }
+    });
+    port
+}
+
+/// Regression (issue 26): with 8 ms added to every response (33 ms exchanges, inputs never
+/// older than the 50 ms bound) the regulators oscillated (PWM 83 %, 60 mm/s where 15 were
+/// commanded) until an encoder fault stopped them with a misleading reason. The slow link is a
+/// bus fault within a few exchanges, and the reason says so.
+#[test]
+fn a_link_slower_than_the_regulators_were_tuned_for_is_a_bus_fault_that_says_so() {
+    let (_sim, address) = common::start_io_sim("127.0.0.1:0", &[]);
+    let port = delaying_proxy(address, Duration::from_millis(8));
+    let (s, log) = run_against(port, "3");
+    assert_eq!(s["main"]["state"], "ERROR", "{s}");
+    let reason = s["main"]["error_reason"].as_str().unwrap_or_default();
+    assert!(
+        reason.starts_with(&format!(
+            "bus fault: tcp:127.0.0.1:{port}: the link is too slow: its exchanges take "
+        )) && reason.ends_with(
+            " ms (the median of the last 5), over the 8 ms the drive regulators are tuned for (--max-exchange-ms)"
+        ),
+        "{reason}"
+    );
+    assert!(!log.contains("encoder fault"), "{log}");
+    let slow = log
+        .lines()
+        .find(|l| l.contains(" exchanges (tables)"))
+        .unwrap_or_default();
+    assert!(slow.ends_with(", 1 slow"), "{slow}");
 }
 
 /// A station on a pseudo-terminal that answers every request with `reply(request)`, for

@@ -33,9 +33,11 @@ fn the_application_runs_over_modbus_rtu_on_a_pty_pair() {
     let (_station, plc_end) =
         StationOnLine::start(station, LineTiming::modbus_rtu(115_200), relaxed).expect("station on the line");
     let map = setup.io_map().expect("valid map").expect("an io_map");
-    // This tests the exchange, not its timing: a busy machine may delay an image.
+    // This tests the exchange, not its timing: a busy machine may delay an image, and slow the
+    // emulated line's exchanges beyond what the regulators are tuned for.
     let link = pkm_plc::io::modbus::ModbusOptions {
         max_input_age: std::time::Duration::from_millis(500),
+        max_exchange: std::time::Duration::from_millis(100),
         ..Default::default()
     };
     let bus = ModbusBus::new(map, Transport::Port(Some(plc_end)), link).expect("the image fits");

@@ -223,6 +223,10 @@ impl Bus for SnoopBus {
     fn as_any(&self) -> &dyn std::any::Any {
         self
     }
+
+    fn as_any_mut(&mut self) -> &mut dyn std::any::Any {
+        self
+    }
 }
 
 #[test]
@@ -277,6 +281,10 @@ impl Bus for ThreadedBus {
     fn write_outputs(&mut self, _class: usize, _t_ns: u64, _image: &[Value]) {}
     fn write_safe(&mut self, _image: &[Value]) {}
     fn as_any(&self) -> &dyn std::any::Any {
+        self
+    }
+
+    fn as_any_mut(&mut self) -> &mut dyn std::any::Any {
         self
     }
 }
@@ -485,6 +493,10 @@ impl Bus for RecordingBus {
         self.0.lock().expect("lock").safe = Some(image[0]);
     }
     fn as_any(&self) -> &dyn std::any::Any {
+        self
+    }
+
+    fn as_any_mut(&mut self) -> &mut dyn std::any::Any {
         self
     }
 }

@@ -210,6 +210,104 @@ fn a_killed_plc_leaves_the_drives_to_the_watchdog() {
     assert!(took < Duration::from_secs(2), "{took:?}");
 }
 
+/// A second client cannot keep a dead controller's drives running: while the PLC owns the
+/// outputs, another client's write (an unused coil, every 20 ms) is refused with exception 6;
+/// when the PLC is killed its connection closes and every output goes to zero at once, and the
+/// other client's writes do not bring the PWM back.
+#[test]
+fn only_the_controller_feeds_the_watchdog_and_its_death_zeroes_the_outputs() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (_sim, address) = io_sim(&[], &dir.path().join("sim.log"));
+    let mut plc = plc_against(address, &dir.path().join("plc.log"));
+    let mut s = connect(address);
+    until_driving(&mut s);
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let (tx, answers) = std::sync::mpsc::channel::<Vec<u8>>();
+    let feeder = {
+        let stop = std::sync::Arc::clone(&stop);
+        std::thread::spawn(move || {
+            let mut other = connect(address);
+            let mut t = 100;
+            while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+                // Write single coil 11 (DigitalOutput12, bound to nothing) on.
+                if tx.send(transact(&mut other, t, &[0x05, 0, 11, 0xFF, 0])).is_err() {
+                    break;
+                }
+                t = t.wrapping_add(1);
+                std::thread::sleep(Duration::from_millis(20));
+            }
+        })
+    };
+    // The other client's writes are refused while the PLC drives.
+    let first = answers.recv_timeout(Duration::from_secs(10)).expect("an answer");
+    assert_eq!(
+        first,
+        [0x85, 0x06],
+        "another client's write while the PLC owns the outputs"
+    );
+    plc.kill().expect("SIGKILL");
+    plc.wait().expect("reaped");
+    let took = until(&mut s, Duration::from_secs(10), |o| o == [0, 0, 0]).expect("outputs zero after SIGKILL");
+    eprintln!(
+        "outputs zero {} ms after SIGKILL, another client writing",
+        took.as_millis()
+    );
+    // The other client takes the outputs with its coil once the PLC is gone; the PWM stays zero.
+    let mut taken = false;
+    while !taken {
+        let answer = answers.recv_timeout(Duration::from_secs(10)).expect("an answer");
+        taken = answer[0] == 0x05;
+    }
+    for _ in 0..20 {
+        let _ = answers.recv_timeout(Duration::from_secs(10)).expect("an answer");
+        assert_eq!(outputs(&mut s), [0, 0, 0], "the drives were left running");
+    }
+    stop.store(true, std::sync::atomic::Ordering::Relaxed);
+    drop(answers);
+    feeder.join().expect("the other client");
+    assert!(took < Duration::from_millis(500), "{took:?}");
+}
+
+/// A station that accepts connections and closes them at once (full, or not Modbus) is tried
+/// again with back-off, not thousands of times a second.
+#[test]
+fn a_plc_reconnects_with_back_off() {
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").expect("a port");
+    let address = listener.local_addr().expect("address");
+    let dir = tempfile::tempdir().expect("tempdir");
+    let log = dir.path().join("plc.log");
+    let mut plc = Command::new(env!("CARGO_BIN_EXE_pkm-plc"))
+        .args([
+            "run",
+            "--bus",
+            &format!("tcp:{address}"),
+            "--hmi",
+            "none",
+            "--duration",
+            "5",
+        ])
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .env("RUST_LOG", "info")
+        .stdout(Stdio::null())
+        .stderr(std::fs::File::create(&log).expect("log file"))
+        .spawn()
+        .expect("run starts");
+    listener.set_nonblocking(true).expect("non-blocking");
+    let mut accepted = 0;
+    while plc.try_wait().expect("status").is_none() {
+        match listener.accept() {
+            Ok((c, _)) => {
+                accepted += 1;
+                drop(c);
+            }
+            Err(_) => std::thread::sleep(Duration::from_millis(1)),
+        }
+    }
+    // 50 ms doubling to 2 s: about ten attempts in five seconds (and the start's wait).
+    eprintln!("{accepted} connections in the PLC's 5 s");
+    assert!((2..=25).contains(&accepted), "{accepted} connection attempts");
+}
+
 #[test]
 fn hangup_quit_user_power_and_limit_signals_stop_the_plc_safely() {
     // The ones a probe found ending the PLC with PWM up to 34 % and the spindle on among them.

@@ -156,6 +156,10 @@ impl Bus for HmiBus {
         self.inner.as_any_mut()
     }
 
+    fn write_fault_cause(&self, out: &mut String) -> bool {
+        self.inner.write_fault_cause(out)
+    }
+
     fn fault(&self) -> bool {
         self.inner.fault()
     }

@@ -5,12 +5,16 @@
 //!   variables by a bus laid over the field bus.
 //! - [`mechanism`]: the machine's links in its pose, drawn by its kinematics.
 //! - [`server`]: the page and its WebSocket (axum, on the runtime's tokio runtime).
+//! - [`access`]: who is served (Host, Origin) and who commands (the token).
+//! - [`listener`]: the listening socket, with a bound on the connections it holds.
 //!
 //! Loopback only by default; binding to another address needs a token, and commands need it
 //! whenever one is set (see "The operator's screen" in the README).
 
+pub mod access;
 pub mod commands;
 pub mod frame;
+pub mod listener;
 pub mod mechanism;
 pub mod server;
 
@@ -21,19 +25,42 @@ use std::net::SocketAddr;
 pub struct HmiOptions {
     /// The address to listen on.
     pub addr: SocketAddr,
-    /// Commands need this token (`?token=` on the page's address); without it a client watches.
+    /// Commands need this token (`?token=` on the page's address, an `Authorization: Bearer`
+    /// header or the page's cookie); without it a client watches.
     pub token: Option<String>,
+    /// Origins besides the screen's own whose pages may open its WebSocket.
+    pub allowed_origins: Vec<String>,
+    /// WebSocket clients at once.
+    pub max_clients: usize,
 }
 
 /// The default address: loopback, port 8080.
 pub const DEFAULT_ADDR: &str = "127.0.0.1:8080";
 
+/// The default bound on WebSocket clients.
+pub const DEFAULT_MAX_CLIENTS: usize = 16;
+
 impl HmiOptions {
     /// Refuses what must not be served: another address than loopback without a token (anyone
-    /// who reaches the port could stop or jog the machine), or an empty token.
+    /// who reaches the port could stop or jog the machine), a token that is empty, not
+    /// printable or (beyond loopback) shorter than [`access::MIN_TOKEN_LEN`], an allowed origin
+    /// that is not `scheme://host[:port]`.
     pub fn check(&self) -> Result<(), String> {
-        if self.token.as_deref().is_some_and(|t| t.trim().is_empty()) {
-            return Err("--hmi-token: the token is empty".into());
+        if let Some(token) = &self.token {
+            access::check_token(token, self.addr.ip().is_loopback()).map_err(|e| format!("--hmi-token: {e}"))?;
+        }
+        for origin in &self.allowed_origins {
+            let valid = origin.split_once("://").is_some_and(|(scheme, host)| {
+                matches!(scheme, "http" | "https") && !host.is_empty() && !host.contains(['/', '?', '#', ' ', '@'])
+            });
+            if !valid {
+                return Err(format!(
+                    "--hmi-allow-origin {origin}: an origin is scheme://host[:port], as a browser sends it (e.g. https://hmi.lab.example)"
+                ));
+            }
+        }
+        if self.max_clients == 0 {
+            return Err("--hmi-max-clients: at least 1".into());
         }
         if !self.addr.ip().is_loopback() && self.token.is_none() {
             return Err(format!(
@@ -55,6 +82,8 @@ mod tests {
         let at = |a: &str, token: Option<&str>| HmiOptions {
             addr: a.parse().expect("an address"),
             token: token.map(str::to_string),
+            allowed_origins: Vec::new(),
+            max_clients: DEFAULT_MAX_CLIENTS,
         };
         assert_eq!(at("127.0.0.1:8080", None).check(), Ok(()));
         assert_eq!(at("[::1]:8080", None).check(), Ok(()));
@@ -63,11 +92,24 @@ mod tests {
                 .check()
                 .is_err_and(|e| e.contains("needs a token"))
         );
-        assert_eq!(at("0.0.0.0:8080", Some("s3cret")).check(), Ok(()));
+        assert_eq!(at("0.0.0.0:8080", Some("a-long-s3cret-token")).check(), Ok(()));
+        assert_eq!(
+            at("0.0.0.0:8080", Some("s3cret")).check(),
+            Err(
+                "--hmi-token: a token for a screen served beyond this computer needs at least 16 characters, got 6"
+                    .into()
+            )
+        );
+        assert_eq!(at("127.0.0.1:8080", Some("s3cret")).check(), Ok(()));
         assert!(
             at("127.0.0.1:8080", Some(" "))
                 .check()
-                .is_err_and(|e| e.contains("empty"))
+                .is_err_and(|e| e.contains("printable"))
         );
+        let mut o = at("127.0.0.1:8080", None);
+        o.allowed_origins = vec!["https://hmi.lab.example/page".into()];
+        assert!(o.check().is_err_and(|e| e.contains("scheme://host[:port]")));
+        o.allowed_origins = vec!["https://hmi.lab.example:8443".into()];
+        assert_eq!(o.check(), Ok(()));
     }
 }

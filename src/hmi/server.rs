@@ -2,20 +2,25 @@
 //! path): the page and its assets built into the binary, and one WebSocket per client that
 //! pushes every published frame (at the main cycle's rate) and takes the client's commands.
 //!
-//! Commands need the token when one is configured (`?token=` on the WebSocket's URL); without
-//! it a client only watches. Every command is logged with the client's address. The jog is a
-//! dead-man: a release, a closed connection or a client that stops refreshing it for
-//! [`JOG_TIMEOUT`] sets it to 0.
+//! Who is served and who commands is [`super::access`]'s: the Host of every request, the Origin
+//! of every WebSocket, the token. Bounded (issue 26): connections ([`super::listener`]),
+//! WebSocket clients ([`ServerOptions::max_clients`]), messages from a client (4 KiB) and
+//! commands per second per client ([`COMMANDS_PER_S`]); what is sent at connection (the hello)
+//! does not grow with the programs' length — their text is fetched a window at a time
+//! ([`TEXT_WINDOW`] lines). Every command is logged with the client's address; a refused one is
+//! logged once per client, and counted. The jog is a dead-man: a release, a closed connection or
+//! a client that stops refreshing it for [`JOG_TIMEOUT`] sets it to 0.
 
 use std::net::SocketAddr;
 use std::sync::Arc;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
 use std::time::{Duration, Instant};
 
 use axum::Router;
 use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
-use axum::extract::{ConnectInfo, Query, State};
-use axum::http::header;
+use axum::extract::{ConnectInfo, Query, Request, State};
+use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
+use axum::middleware::{self, Next};
 use axum::response::{Html, IntoResponse, Response};
 use axum::routing::get;
 use serde::Deserialize;
@@ -25,18 +30,40 @@ use tracing::{info, warn};
 
 use pkm_api::hmi::JOG_AXIS_RANGE;
 
+use super::access::Access;
 use super::commands::{CommandSink, press};
 use super::frame::{Frame, FrameReader};
+use super::listener::Peer;
 use crate::image::Value;
 
 /// A jog not refreshed for this long stops (the page refreshes it every 20 ms while held).
 pub const JOG_TIMEOUT: Duration = Duration::from_millis(60);
 /// How often the server looks for a newly published frame.
 const FRAME_POLL: Duration = Duration::from_millis(2);
+/// The longest message a client may send (its commands are a few dozen bytes).
+pub const MAX_CLIENT_MESSAGE: usize = 4096;
+/// Commands (and text requests) a client may send per second, on average; as many at once. The
+/// page sends 50 a second while a jog is held.
+pub const COMMANDS_PER_S: f64 = 100.0;
+/// The most lines of a program's text sent in one answer.
+pub const TEXT_WINDOW: usize = 400;
+/// A line of a program's text is sent cut to this many characters.
+const MAX_LINE_CHARS: usize = 300;
+/// The most programs refused by `--programs` that the hello lists (the rest are counted).
+const MAX_REFUSED_LISTED: usize = 50;
 
 const INDEX_HTML: &str = include_str!("page/index.html");
 const APP_JS: &str = include_str!("page/app.js");
 const APP_CSS: &str = include_str!("page/app.css");
+
+/// How the screen is served: who may reach it and how many.
+#[derive(Clone, Debug)]
+pub struct ServerOptions {
+    /// Host, Origin and token rules.
+    pub access: Access,
+    /// WebSocket clients at once.
+    pub max_clients: usize,
+}
 
 /// What the server shares with every connection.
 pub struct Shared {
@@ -44,14 +71,16 @@ pub struct Shared {
     hello: Json,
     frames: broadcast::Sender<Arc<str>>,
     sink: CommandSink,
-    token: Option<String>,
+    options: ServerOptions,
     next_client: AtomicU64,
+    /// WebSocket clients connected now.
+    clients: AtomicUsize,
     /// The client that jogs (its id), with when it last refreshed the jog.
     jog_owner: std::sync::Mutex<Option<(u64, Instant)>>,
     /// A program runs (the last frame's state is AUTO): no other is loaded.
-    running: std::sync::atomic::AtomicBool,
-    /// How many programs the run has.
-    programs: usize,
+    running: AtomicBool,
+    /// The run's programs: text and path, served on request.
+    programs: Vec<ScreenProgram>,
 }
 
 /// What the screen is told once, at connection: the machine and its variables.
@@ -85,15 +114,35 @@ pub struct ScreenProgram {
     pub path: Vec<[f64; 3]>,
 }
 
-/// Builds the router and the task that pushes frames; `token`: commands need it.
-pub fn router(info: HmiInfo, mut frames: FrameReader, sink: CommandSink, token: Option<String>) -> Router {
+impl ScreenProgram {
+    /// Lines `from` … (1-based) of the text, at most [`TEXT_WINDOW`], each cut to
+    /// [`MAX_LINE_CHARS`] characters; and how many lines the text has.
+    fn window(&self, from: usize) -> (Vec<String>, usize) {
+        let total = self.text.lines().count();
+        let lines = self
+            .text
+            .lines()
+            .skip(from.max(1) - 1)
+            .take(TEXT_WINDOW)
+            .map(|l| match l.char_indices().nth(MAX_LINE_CHARS) {
+                Some((at, _)) => format!("{}…", &l[..at]),
+                None => l.to_string(),
+            })
+            .collect();
+        (lines, total)
+    }
+}
+
+/// Builds the router and the task that pushes frames.
+pub fn router(info: HmiInfo, mut frames: FrameReader, sink: CommandSink, options: ServerOptions) -> Router {
     let hello = json!({
         "type": "hello",
         "machine": info.machine,
         "config": info.config,
         "variables": info.variables.iter().map(|(n, t)| json!([n, t])).collect::<Vec<_>>(),
-        "programs": info.programs.iter().map(|p| json!({"file": p.file, "text": p.text, "path": p.path})).collect::<Vec<_>>(),
-        "refused": info.refused.iter().map(|(file, why)| json!({"file": file, "why": why})).collect::<Vec<_>>(),
+        "programs": info.programs.iter().map(|p| json!({"file": p.file, "lines": p.text.lines().count()})).collect::<Vec<_>>(),
+        "refused": info.refused.iter().take(MAX_REFUSED_LISTED).map(|(file, why)| json!({"file": file, "why": crate::config::shorten(why)})).collect::<Vec<_>>(),
+        "refused_more": info.refused.len().saturating_sub(MAX_REFUSED_LISTED),
         "axes": info.axes,
         "joints": info.joints,
     });
@@ -102,11 +151,12 @@ pub fn router(info: HmiInfo, mut frames: FrameReader, sink: CommandSink, token: 
         hello,
         frames: tx.clone(),
         sink,
-        token,
+        options,
         next_client: AtomicU64::new(1),
+        clients: AtomicUsize::new(0),
         jog_owner: std::sync::Mutex::new(None),
-        running: std::sync::atomic::AtomicBool::new(false),
-        programs: info.programs.len(),
+        running: AtomicBool::new(false),
+        programs: info.programs,
     });
     let pump = Arc::clone(&shared);
     let mut mechanism = info.mechanism;
@@ -136,14 +186,60 @@ pub fn router(info: HmiInfo, mut frames: FrameReader, sink: CommandSink, token: 
         }
     });
     Router::new()
-        .route("/", get(|| async { Html(INDEX_HTML) }))
+        .route("/", get(index))
         .route(
             "/app.js",
             get(|| async { asset("text/javascript; charset=utf-8", APP_JS) }),
         )
         .route("/app.css", get(|| async { asset("text/css; charset=utf-8", APP_CSS) }))
         .route("/ws", get(socket))
+        .layer(middleware::from_fn_with_state(Arc::clone(&shared), guard))
         .with_state(shared)
+}
+
+/// Every request: its Host must be one the screen answers to (no DNS rebinding), and every
+/// response says it must not be framed by another page (no clickjacking).
+async fn guard(State(shared): State<Arc<Shared>>, request: Request, next: Next) -> Response {
+    let mut response = if shared.options.access.host_allowed(request.headers()) {
+        next.run(request).await
+    } else {
+        let host = request
+            .headers()
+            .get(header::HOST)
+            .and_then(|h| h.to_str().ok())
+            .map(crate::config::shorten)
+            .unwrap_or_default();
+        warn!(
+            "screen: refused a request for Host \"{host}\" (not an IP address, localhost or an allowed origin's host)"
+        );
+        (
+            StatusCode::FORBIDDEN,
+            "this screen answers to its IP address or localhost; allow another name with --hmi-allow-origin\n",
+        )
+            .into_response()
+    };
+    let headers = response.headers_mut();
+    headers.insert(header::X_FRAME_OPTIONS, HeaderValue::from_static("DENY"));
+    headers.insert(
+        header::CONTENT_SECURITY_POLICY,
+        HeaderValue::from_static("frame-ancestors 'none'"),
+    );
+    headers.insert(header::X_CONTENT_TYPE_OPTIONS, HeaderValue::from_static("nosniff"));
+    headers.insert(header::REFERRER_POLICY, HeaderValue::from_static("no-referrer"));
+    headers.insert(header::CACHE_CONTROL, HeaderValue::from_static("no-store"));
+    response
+}
+
+/// The page; opened with the right `?token=`, it also sets the token's cookie, so that its
+/// WebSocket carries the token without it in the address.
+async fn index(Query(given): Query<TokenQuery>, State(shared): State<Arc<Shared>>) -> Response {
+    let mut response = Html(INDEX_HTML).into_response();
+    if let Some(cookie) = shared.options.access.token_cookie(given.token.as_deref())
+        && let Ok(value) = HeaderValue::from_str(&cookie)
+    {
+        response.headers_mut().insert(header::SET_COOKIE, value);
+    }
+    response
 }
 
 fn asset(content_type: &'static str, body: &'static str) -> Response {
@@ -181,33 +277,57 @@ fn frame_json(f: &Frame, links: Option<&[[[f64; 3]; 2]]>) -> String {
     .to_string()
 }
 
-/// The WebSocket's query: the token, if the client has one.
+/// The query of the page's and the WebSocket's address: the token, if the client has one.
 #[derive(Deserialize)]
-struct Access {
+struct TokenQuery {
     token: Option<String>,
 }
 
 async fn socket(
     ws: WebSocketUpgrade,
-    Query(access): Query<Access>,
-    ConnectInfo(peer): ConnectInfo<SocketAddr>,
+    Query(given): Query<TokenQuery>,
+    headers: HeaderMap,
+    ConnectInfo(peer): ConnectInfo<Peer>,
     State(shared): State<Arc<Shared>>,
 ) -> Response {
-    let commands = match &shared.token {
-        None => true,
-        Some(t) => access.token.as_deref() == Some(t.as_str()),
-    };
-    ws.on_upgrade(move |socket| client(socket, peer, commands, shared))
+    let access = &shared.options.access;
+    if !access.origin_allowed(&headers) {
+        let origin = headers
+            .get(header::ORIGIN)
+            .and_then(|o| o.to_str().ok())
+            .map(crate::config::shorten)
+            .unwrap_or_default();
+        warn!(
+            "screen {peer}: WebSocket refused: a page of another origin ({origin}); allow it with --hmi-allow-origin"
+        );
+        return (StatusCode::FORBIDDEN, "a page of another origin may not connect\n").into_response();
+    }
+    // Counted here, released when the client's task ends.
+    if shared.clients.fetch_add(1, Ordering::AcqRel) >= shared.options.max_clients {
+        shared.clients.fetch_sub(1, Ordering::AcqRel);
+        warn!(
+            "screen {peer}: WebSocket refused: already {} clients (--hmi-max-clients)",
+            shared.options.max_clients
+        );
+        return (StatusCode::SERVICE_UNAVAILABLE, "too many clients\n").into_response();
+    }
+    let commands = access.may_command(given.token.as_deref(), &headers);
+    ws.max_message_size(MAX_CLIENT_MESSAGE)
+        .max_frame_size(MAX_CLIENT_MESSAGE)
+        .on_upgrade(move |socket| async move {
+            client(socket, peer.0, commands, &shared).await;
+            shared.clients.fetch_sub(1, Ordering::AcqRel);
+        })
 }
 
-/// A command from the page.
+/// A message from the page: a command, or a request for part of a program's text.
 #[derive(Deserialize)]
 #[serde(tag = "cmd", rename_all = "snake_case", deny_unknown_fields)]
 enum Command {
     /// STOP (and, in ERROR, its acknowledgement).
-    Stop,
+    Stop {},
     /// The axis button.
-    Axes,
+    Axes {},
     /// The jog's deflection (0, 0: released), on the stick's pair of axes (`axis` 0 or left out),
     /// on the `axis`-th pose coordinate alone, or (`axis` −k) on the k-th joint alone.
     Jog {
@@ -220,9 +340,61 @@ enum Command {
     Program { what: String },
     /// Load the run's program of this number (from 1) in place of the loaded one.
     Load { program: i16 },
+    /// Lines `from` … of program `program`'s text (a read: watchers may ask too).
+    Text { program: usize, from: usize },
+    /// The programmed path of program `program` (a read).
+    Path { program: usize },
 }
 
-async fn client(mut socket: WebSocket, peer: SocketAddr, commands: bool, shared: Arc<Shared>) {
+impl Command {
+    /// Whether it only reads (a watching client may send it).
+    fn reads(&self) -> bool {
+        matches!(self, Command::Text { .. } | Command::Path { .. })
+    }
+}
+
+/// A client's allowance of messages: [`COMMANDS_PER_S`] a second on average, as many at once.
+struct Budget {
+    tokens: f64,
+    at: Instant,
+}
+
+impl Budget {
+    fn new() -> Budget {
+        Budget {
+            tokens: COMMANDS_PER_S,
+            at: Instant::now(),
+        }
+    }
+
+    /// Takes one message from the allowance; false when it is spent.
+    fn take(&mut self) -> bool {
+        let now = Instant::now();
+        self.tokens = (self.tokens + now.duration_since(self.at).as_secs_f64() * COMMANDS_PER_S).min(COMMANDS_PER_S);
+        self.at = now;
+        if self.tokens >= 1.0 {
+            self.tokens -= 1.0;
+            true
+        } else {
+            false
+        }
+    }
+}
+
+/// What a client did that was not carried out, counted; the first of each kind is logged.
+#[derive(Default)]
+struct Refusals {
+    /// Commands without the token.
+    watching: u64,
+    /// Messages beyond the budget.
+    throttled: u64,
+    /// Messages that are not commands.
+    malformed: u64,
+    /// Commands that could not be carried out (no such program, a program runs, …).
+    refused: u64,
+}
+
+async fn client(mut socket: WebSocket, peer: SocketAddr, commands: bool, shared: &Shared) {
     let id = shared.next_client.fetch_add(1, Ordering::Relaxed);
     let mut frames = shared.frames.subscribe();
     info!(
@@ -238,6 +410,8 @@ async fn client(mut socket: WebSocket, peer: SocketAddr, commands: bool, shared:
     if socket.send(Message::Text(hello.to_string().into())).await.is_err() {
         return;
     }
+    let mut budget = Budget::new();
+    let mut counts = Refusals::default();
     loop {
         tokio::select! {
             frame = frames.recv() => match frame {
@@ -252,20 +426,38 @@ async fn client(mut socket: WebSocket, peer: SocketAddr, commands: bool, shared:
             },
             message = socket.recv() => match message {
                 Some(Ok(Message::Text(text))) => {
-                    if !commands {
-                        let _ = socket
-                            .send(Message::Text(r#"{"type":"refused","why":"watching only: commands need the token"}"#.into()))
-                            .await;
+                    if !budget.take() {
+                        counts.throttled += 1;
+                        if counts.throttled == 1 {
+                            warn!("screen {peer}: more than {COMMANDS_PER_S} messages a second: the excess is dropped (counted from now)");
+                        }
                         continue;
                     }
-                    match serde_json::from_str::<Command>(&text) {
-                        Ok(c) => {
-                            if let Err(why) = shared.apply(id, peer, c) {
-                                let refusal = json!({"type": "refused", "why": why}).to_string();
-                                let _ = socket.send(Message::Text(refusal.into())).await;
+                    let reply = match serde_json::from_str::<Command>(&text) {
+                        Ok(c) if c.reads() => shared.read(c),
+                        Ok(_) if !commands => {
+                            counts.watching += 1;
+                            if counts.watching == 1 {
+                                warn!("screen {peer}: command refused: watching only (no token); further refusals are counted");
                             }
+                            Some(json!({"type": "refused", "why": "watching only: commands need the token"}))
                         }
-                        Err(e) => warn!("screen {peer}: a command that is not one ({e}): {}", crate::config::shorten(&text)),
+                        Ok(c) => shared.apply(id, peer, c).err().map(|why| {
+                            counts.refused += 1;
+                            json!({"type": "refused", "why": why})
+                        }),
+                        Err(e) => {
+                            counts.malformed += 1;
+                            if counts.malformed == 1 {
+                                warn!("screen {peer}: a message that is not a command ({e}): {}; further ones are counted", crate::config::shorten(&text));
+                            }
+                            Some(json!({"type": "refused", "why": format!("not a command: {e}")}))
+                        }
+                    };
+                    if let Some(reply) = reply
+                        && socket.send(Message::Text(reply.to_string().into())).await.is_err()
+                    {
+                        break;
                     }
                 }
                 Some(Ok(Message::Close(_))) | None | Some(Err(_)) => break,
@@ -274,18 +466,49 @@ async fn client(mut socket: WebSocket, peer: SocketAddr, commands: bool, shared:
         }
     }
     shared.release_jog(id, peer, "connection closed");
-    info!("screen {peer}: disconnected");
+    let Refusals {
+        watching,
+        throttled,
+        malformed,
+        refused,
+    } = counts;
+    if watching + throttled + malformed + refused > 0 {
+        info!(
+            "screen {peer}: disconnected; not carried out: {watching} commands without the token, {throttled} messages over the rate, {malformed} malformed, {refused} refused"
+        );
+    } else {
+        info!("screen {peer}: disconnected");
+    }
 }
 
 impl Shared {
+    /// Answers a read: a window of a program's text, or its path.
+    fn read(&self, command: Command) -> Option<Json> {
+        let program = |k: usize| k.checked_sub(1).and_then(|i| self.programs.get(i));
+        Some(match command {
+            Command::Text { program: k, from } => match program(k) {
+                Some(p) => {
+                    let (lines, total) = p.window(from);
+                    json!({"type": "text", "program": k, "from": from.max(1), "lines": lines, "total": total})
+                }
+                None => json!({"type": "refused", "why": format!("no program {k}")}),
+            },
+            Command::Path { program: k } => match program(k) {
+                Some(p) => json!({"type": "path", "program": k, "path": p.path}),
+                None => json!({"type": "refused", "why": format!("no program {k}")}),
+            },
+            _ => return None,
+        })
+    }
+
     /// Carries out a client's command; a refused one says why.
     fn apply(&self, id: u64, peer: SocketAddr, command: Command) -> Result<(), String> {
         match command {
+            Command::Text { .. } | Command::Path { .. } => {}
             Command::Load { program } => {
-                let known = usize::try_from(program).is_ok_and(|k| (1..=self.programs).contains(&k));
+                let known = usize::try_from(program).is_ok_and(|k| (1..=self.programs.len()).contains(&k));
                 if !known {
-                    warn!("screen {peer}: no program {program} to load");
-                    return Err(format!("no program {program}: the run has {}", self.programs));
+                    return Err(format!("no program {program}: the run has {}", self.programs.len()));
                 }
                 if self.running.load(Ordering::Relaxed) {
                     info!("screen {peer}: load program {program} refused: a program runs");
@@ -294,11 +517,11 @@ impl Shared {
                 info!("screen {peer}: load program {program}");
                 self.sink.update(|c| c.program = program);
             }
-            Command::Stop => {
+            Command::Stop {} => {
                 info!("screen {peer}: STOP");
                 self.sink.update(|c| c.presses[press::STOP] += 1);
             }
-            Command::Axes => {
+            Command::Axes {} => {
                 info!("screen {peer}: axis button");
                 self.sink.update(|c| c.presses[press::AXES] += 1);
             }
@@ -308,10 +531,6 @@ impl Shared {
                     "hold" => 1,
                     "resume" => 2,
                     other => {
-                        warn!(
-                            "screen {peer}: no program command \"{}\"",
-                            crate::config::shorten(other)
-                        );
                         return Err(format!("no program command \"{}\"", crate::config::shorten(other)));
                     }
                 };

@@ -36,7 +36,16 @@ pub struct Station {
     last_write: Option<Instant>,
     /// Whether the watchdog has put the outputs to their safe values since the last write.
     tripped: bool,
+    /// The client that owns the outputs: the one whose write took them last. Only its writes
+    /// are carried out and feed the watchdog.
+    owner: Option<ClientId>,
 }
+
+/// A client of the station: a TCP connection's number, or [`SERIAL_LINE`].
+pub type ClientId = u64;
+
+/// The one client of a serial line (its master).
+pub const SERIAL_LINE: ClientId = 0;
 
 impl Station {
     /// A station serving `bus`'s I/O map.
@@ -65,6 +74,7 @@ impl Station {
             watchdog: None,
             last_write: None,
             tripped: false,
+            owner: None,
         }
     }
 
@@ -73,10 +83,10 @@ impl Station {
         self.watchdog = watchdog;
     }
 
-    /// The output watchdog of a real bus coupler: when no write request has arrived for longer
-    /// than the watchdog time since the last one, every output goes to its safe value (coils
-    /// off, registers zero: PWM 0, bridges and steppers off). Called periodically. The next write
-    /// request takes the outputs over again.
+    /// The output watchdog of a real bus coupler: when the client that owns the outputs has sent
+    /// no write request for longer than the watchdog time, every output goes to its safe value
+    /// (coils off, registers zero: PWM 0, bridges and steppers off) and the outputs are free.
+    /// Called periodically. The next write request takes them over again.
     pub fn watch(&mut self) {
         let (Some(limit), Some(last)) = (self.watchdog, self.last_write) else {
             return;
@@ -87,6 +97,7 @@ impl Station {
         self.bus.refresh(self.started.elapsed().as_nanos() as u64);
         self.safe_outputs();
         self.tripped = true;
+        self.owner = None;
         tracing::warn!(
             "io-sim: output watchdog: no write for {} ms (limit {} ms); outputs set to their safe values",
             last.elapsed().as_millis(),
@@ -104,13 +115,41 @@ impl Station {
         self.holding.fill(0);
     }
 
-    /// Notes a write request for the watchdog.
-    fn written(&mut self) {
-        if self.tripped {
-            tracing::info!("io-sim: outputs written again after the watchdog acted");
+    /// Takes a write request of `client` for the watchdog: the owner's (or, with the outputs
+    /// free, the one that takes them) feeds it; another client's is refused (false).
+    fn written(&mut self, client: ClientId) -> bool {
+        match self.owner {
+            Some(owner) if owner != client => return false,
+            Some(_) => {}
+            None => {
+                if self.tripped {
+                    tracing::info!("io-sim: outputs written again after the watchdog acted");
+                }
+                self.owner = Some(client);
+            }
         }
         self.last_write = Some(Instant::now());
         self.tripped = false;
+        true
+    }
+
+    /// Client `client` is gone (its connection closed): if it owned the outputs, they go to
+    /// their safe values at once and are free — a real coupler's connection monitoring. No
+    /// client that connects later inherits what a departed controller left on the drives.
+    pub fn disconnected(&mut self, client: ClientId) {
+        if self.owner != Some(client) {
+            return;
+        }
+        self.bus.refresh(self.started.elapsed().as_nanos() as u64);
+        self.safe_outputs();
+        self.owner = None;
+        self.last_write = None;
+        tracing::warn!("io-sim: the client that wrote the outputs disconnected; outputs set to their safe values");
+    }
+
+    /// The client that owns the outputs, if any.
+    pub fn owner(&self) -> Option<ClientId> {
+        self.owner
     }
 
     /// The register map served.
@@ -241,8 +280,10 @@ impl Station {
         Ok(())
     }
 
-    /// Serves one request.
-    pub fn handle(&mut self, request: Request<'_>) -> Result<Response, ExceptionCode> {
+    /// Serves one request of `client`. A write from a client other than the one that owns the
+    /// outputs is refused with exception 6 (server device busy): one controller drives a
+    /// station at a time.
+    pub fn handle(&mut self, request: Request<'_>, client: ClientId) -> Result<Response, ExceptionCode> {
         self.bus.refresh(self.started.elapsed().as_nanos() as u64);
         if matches!(
             request,
@@ -251,8 +292,9 @@ impl Station {
                 | Request::WriteSingleRegister(..)
                 | Request::WriteMultipleRegisters(..)
                 | Request::ReadWriteMultipleRegisters(..)
-        ) {
-            self.written();
+        ) && !self.written(client)
+        {
+            return Err(ExceptionCode::ServerDeviceBusy);
         }
         Ok(match request {
             Request::ReadCoils(a, n) => Response::ReadCoils(self.bits(Table::Coil, a, n)?),

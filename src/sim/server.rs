@@ -9,10 +9,16 @@
 //!   exhausted, say) is logged and the server goes on after a pause.
 //! - Repeated problems are summarised ([`Digest`]): the first of each kind is logged with its
 //!   detail, the rest are counted and reported every [`DIGEST_PERIOD`].
-//! - The **output watchdog** of a real bus coupler: when no write request arrives within
-//!   [`ServerOptions::watchdog`], every output goes to its safe value (zero), as the station's
-//!   drives must stop when the controller dies without a safe stop (SIGKILL, a crash, a cut
-//!   cable). The next write takes the outputs over again.
+//! - **One controller owns the outputs**: the first client to write takes them; writes from any
+//!   other client are refused with exception 6 (server device busy) while it holds them. When
+//!   its connection closes, every output goes to its safe value at once (a coupler's connection
+//!   monitoring).
+//! - The **output watchdog** of a real bus coupler: when the owner's writes stop for
+//!   [`ServerOptions::watchdog`], every output goes to its safe value (zero) and the outputs are
+//!   free, as the station's drives must stop when the controller dies without a safe stop
+//!   (SIGKILL, a crash, a cut cable). Only the owner's writes feed it: another client writing
+//!   an unused coil cannot keep a dead controller's drives running. The next write takes the
+//!   outputs over again.
 
 use std::io::ErrorKind;
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -22,7 +28,7 @@ use std::time::{Duration, Instant};
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 use tokio::net::TcpListener;
 
-use super::modbus::Station;
+use super::modbus::{ClientId, SERIAL_LINE, Station};
 use super::pdu::{MAX_PDU, PduLen, crc16, decode_request, encode_response, request_len};
 
 /// A started frame must be complete within this time (TCP: the PDU after its header).
@@ -127,11 +133,16 @@ fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
 }
 
 impl Shared {
-    /// Answers one request PDU into `out` (the response PDU or an exception).
-    fn answer(&self, pdu: &[u8], out: &mut Vec<u8>) {
+    /// Answers one request PDU of `client` into `out` (the response PDU or an exception).
+    fn answer(&self, pdu: &[u8], client: ClientId, out: &mut Vec<u8>) {
         match decode_request(pdu) {
             Ok(request) => {
-                let result = lock(&self.station).handle(request);
+                let result = lock(&self.station).handle(request, client);
+                if result == Err(tokio_modbus::ExceptionCode::ServerDeviceBusy) {
+                    self.note("write refused", || {
+                        format!("client {client}: another client owns the outputs")
+                    });
+                }
                 encode_response(pdu[0], &result, out);
             }
             Err(refused) => {
@@ -175,6 +186,8 @@ fn shared(mut station: Station, options: &ServerOptions) -> (Arc<Shared>, Durati
 pub async fn serve_tcp(listener: TcpListener, station: Station, options: ServerOptions) -> std::io::Result<()> {
     let (shared, period) = shared(station, &options);
     let active = Arc::new(AtomicUsize::new(0));
+    // Connections are numbered from 1 (0 is a serial line's master).
+    let mut next_client: ClientId = SERIAL_LINE;
     let accept = async {
         loop {
             let (stream, peer) = match listener.accept().await {
@@ -194,11 +207,14 @@ pub async fn serve_tcp(listener: TcpListener, station: Station, options: ServerO
             }
             let _ = stream.set_nodelay(true);
             active.fetch_add(1, Ordering::Relaxed);
+            next_client += 1;
+            let client = next_client;
             let (shared, active) = (shared.clone(), active.clone());
             tokio::spawn(async move {
-                if let Err((kind, detail)) = serve_connection(stream, &shared, &options).await {
+                if let Err((kind, detail)) = serve_connection(stream, client, &shared, &options).await {
                     shared.note(kind, || format!("{peer}: {detail}"));
                 }
+                lock(&shared.station).disconnected(client);
                 active.fetch_sub(1, Ordering::Relaxed);
             });
         }
@@ -212,6 +228,7 @@ pub async fn serve_tcp(listener: TcpListener, station: Station, options: ServerO
 /// Serves one TCP client until it leaves or misbehaves; `Err` says how it misbehaved.
 async fn serve_connection<S: AsyncRead + AsyncWrite + Unpin>(
     mut stream: S,
+    client: ClientId,
     shared: &Shared,
     options: &ServerOptions,
 ) -> Result<(), (&'static str, String)> {
@@ -254,7 +271,7 @@ async fn serve_connection<S: AsyncRead + AsyncWrite + Unpin>(
         };
         out.clear();
         out.extend_from_slice(&header);
-        shared.answer(&pdu[..len], &mut out);
+        shared.answer(&pdu[..len], client, &mut out);
         let response_len = (out.len() - 6) as u16;
         out[4..6].copy_from_slice(&response_len.to_be_bytes());
         match tokio::time::timeout(FRAME_TIMEOUT, stream.write_all(&out)).await {
@@ -327,7 +344,7 @@ async fn rtu_loop<S: AsyncRead + AsyncWrite + Unpin>(mut serial: S, shared: &Sha
             let unit = buf[0];
             out.clear();
             out.push(unit);
-            shared.answer(&buf[1..1 + len], &mut out);
+            shared.answer(&buf[1..1 + len], SERIAL_LINE, &mut out);
             buf.drain(..total);
             if unit != 0 {
                 let crc = crc16(&out);

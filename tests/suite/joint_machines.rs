@@ -359,6 +359,36 @@ fn a_reference_input_that_contradicts_the_known_positions_stops_referencing() {
     }
 }
 
+/// pn101's shared reference input on at power-on because joint 3 stands on its switch: joint 1,
+/// referenced first, leaves for at most the travel beyond its own switch, finds the input still
+/// on, goes back to where it started and stops with ERROR — where it once left for 12 s, into
+/// its limit switch.
+#[test]
+fn pn101_a_joint_never_leaves_a_switch_another_joint_holds_beyond_its_own_switchs_reach() {
+    let edit = |c: &mut serde_json::Value| c["plant"]["joints"][2]["start_mm"] = serde_json::json!(-57.0);
+    let mut plc = build("pn101", None, edit);
+    let start = joint_plant(&plc).position_mm(0);
+    let mut farthest = 0.0f64;
+    let seen = transitions(&mut plc, 30_000, |plc, _| {
+        farthest = farthest.max((joint_plant(plc).position_mm(0) - start).abs());
+    });
+    let names: Vec<&str> = seen.iter().map(|(_, s, _)| s.as_str()).collect();
+    assert_eq!(names, ["REBOOT", "INIT", "ERROR"], "{seen:?}");
+    assert_eq!(
+        seen[2].2.as_deref(),
+        Some(
+            "INIT: reference input REFERENCE stays on while joint 1 backs off its switch: another joint is on its switch (the shared input cannot say which); \
+             the joint went back to where it started. Acknowledge, then hold BUTTON_OVERRIDE and jog the joint on its switch off it in joint mode"
+        )
+    );
+    // Its switch at 55 mm, its travel to 60 mm: 5 mm, a back-off of 2 and the agreement of 1.
+    assert!(farthest <= 8.5, "joint 1 left {farthest:.2} mm");
+    assert!(farthest >= 7.5, "joint 1 tried {farthest:.2} mm");
+    let back = (joint_plant(&plc).position_mm(0) - start).abs();
+    assert!(back < 0.05, "joint 1 stands {back:.3} mm from where it started");
+    assert!(joint_plant(&plc).position_mm(2) <= -55.0, "joint 3 still on its switch");
+}
+
 #[test]
 fn pn101_references_one_joint_at_a_time_in_order() {
     let mut plc = build("pn101", None, |_| {});

@@ -89,17 +89,16 @@ fn random_scenario(
 }
 
 /// The operator's part where the controller hands over (ERROR, drives off): a joint on a limit
-/// switch, or on a shared reference switch before its search (which the input cannot name), is
-/// turned off it by hand, 3 mm clear. On a machine whose joints share their switches (pn101:
-/// coupled joints referenced one at a time, open-loop steppers), referencing from a pose nobody
-/// knows can jam the mechanism; there, after a referencing that failed for another reason than
-/// STOP, or positions the switches contradicted, the operator parks the machine by hand near its
-/// home pose (its power-on pose), as the reason's text asks. True when a joint was moved.
+/// switch is turned off it by hand, 3 mm clear. On a machine whose joints share their switches
+/// (pn101: coupled joints referenced one at a time, open-loop steppers) referencing from a pose
+/// nobody knows can jam the mechanism, and a shared input does not say which joint holds it;
+/// there, after a referencing that failed for another reason than STOP, or positions the
+/// switches contradicted, the operator parks the machine by hand near its home pose (its
+/// power-on pose), as the reason's text asks. True when a joint was moved.
 fn operator_recovers(plc: &mut Plc, n: usize, shared: bool, reason: &str, from_init: bool) -> bool {
-    let on_reference = reason.starts_with("INIT: the shared reference input");
     let on_limit = reason.starts_with("limit");
     let park = shared && (reason.starts_with("reference input") || (from_init && reason != "STOP"));
-    if !on_reference && !on_limit && !park {
+    if !on_limit && !park {
         return false;
     }
     let plant = plc
@@ -114,15 +113,12 @@ fn operator_recovers(plc: &mut Plc, n: usize, shared: bool, reason: &str, from_i
     let mut moved = false;
     for j in 0..n {
         let q = plant.position_mm(j);
-        let (at, direction) = plant.reference_switch(j);
         let [neg, pos] = plant.limit_switches_mm(j);
         let to = if park {
             plant.start_mm(j)
-        } else if on_reference && (q - at) * direction >= 0.0 {
-            at - 3.0 * direction
-        } else if on_limit && q <= neg {
+        } else if q <= neg {
             neg + 3.0
-        } else if on_limit && q >= pos {
+        } else if q >= pos {
             pos - 3.0
         } else {
             continue;
@@ -232,8 +228,10 @@ fn soak(name: &str, seed: u64) {
             if !in_window(t, 0) {
                 worst_past_reference = worst_past_reference.max(beyond);
                 if beyond > 3.0 {
+                    if blind == 0 {
+                        eprintln!("{name}: a joint {beyond:.1} mm past its reference switch in INIT at {t} ms");
+                    }
                     blind += 1;
-                    panic!("{name}: a joint {beyond:.1} mm past its reference switch in INIT at {t} ms");
                 }
             }
         } else {
@@ -314,7 +312,7 @@ fn soak(name: &str, seed: u64) {
     }
     eprintln!(
         "{name} soak: {hours} simulated hour(s) in {:.2} s; states entered: {visits:?}; {stops_in_init} STOPs during INIT; \
-         {blind} joints driven past their reference switch in INIT (at most {worst_past_reference:.2} mm beyond where INIT found them); \
+         {blind} cycles with a joint driven past its reference switch in INIT (at most {worst_past_reference:.2} mm beyond where INIT found them); \
          {contradictions} reference inputs that contradicted the positions; {by_hand} recoveries by hand; longest INIT {longest_init} ms, longest ERROR {longest_error} ms; \
          steps lost to faults {lost:?} ({} steps of the plant the mechanism jammed); at most {worst_past_soft:.3} mm past a soft limit; errors {reasons:?}",
         started.elapsed().as_secs_f64(),
@@ -323,6 +321,10 @@ fn soak(name: &str, seed: u64) {
     assert!(
         stops_in_init >= 5 * hours as usize,
         "{name}: only {stops_in_init} STOPs during INIT"
+    );
+    assert_eq!(
+        blind, 0,
+        "{name}: cycles with a joint driven past its reference switch in INIT"
     );
     for s in ["INIT", "READY", "MOTION", "ERROR", "REBOOT"] {
         assert!(

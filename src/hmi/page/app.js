@@ -8,7 +8,12 @@ const $ = (id) => document.getElementById(id);
 const token = new URLSearchParams(location.search).get("token");
 let ws = null;
 let variables = [];
-let programLines = [];
+// May this page command (it has the token, or none is needed)?
+let commands = false;
+// The shown program's text is fetched a window at a time: its first line's number, its lines,
+// and how many the program has.
+let textWindow = { program: 0, from: 1, lines: [], total: 0 };
+let textAsked = 0; // the first line of the window last asked for (0: none pending)
 let jog = null; // [x, y, axis] while held
 // The run's programs (numbered from 1 as NC_PROGRAM holds the loaded one's) and the one shown.
 let programs = [];
@@ -50,6 +55,8 @@ function connect() {
     const m = JSON.parse(e.data);
     if (m.type === "hello") hello(m);
     else if (m.type === "frame") frame(m);
+    else if (m.type === "text") text(m);
+    else if (m.type === "path") path(m);
     else if (m.type === "refused") $("access").textContent = m.why;
   };
 }
@@ -63,7 +70,8 @@ function hello(m) {
   $("library").hidden = programs.length < 2;
   // Each reason starts with its file's name.
   refused = m.refused || [];
-  $("refused").innerHTML = refused.map((r) => `<div>not offered: ${escape(r.why.split("\n")[0])}</div>`).join("");
+  $("refused").innerHTML = refused.map((r) => `<div>not offered: ${escape(r.why.split("\n")[0])}</div>`).join("") +
+    (m.refused_more ? `<div>… and ${m.refused_more} more (see the log)</div>` : "");
   showProgram(programs.length ? 1 : 0);
   // A pair of press-and-hold buttons per pose coordinate of the machine (axis k), and per joint
   // (axis −k: the joint alone, once referenced).
@@ -84,35 +92,78 @@ function hello(m) {
   $("machine").textContent = m.machine;
   $("config").textContent = m.config;
   variables = m.variables;
-  $("access").textContent = m.commands ? "" : "watching only: commands need the token (?token=…)";
-  document.body.dataset.commands = m.commands;
+  commands = m.commands;
+  $("access").textContent = commands ? "" : "watching only: commands need the token (?token=…)";
+  document.body.dataset.commands = commands;
+  // A watching page shows what it cannot do: its controls disabled.
+  for (const c of document.querySelectorAll("button, select")) c.disabled = !commands;
+  $("pad").classList.toggle("disabled", !commands);
+  // The token has done its work (the server keeps it in an HttpOnly cookie for this page's
+  // reconnections): it leaves the address bar and the history.
+  if (token && commands && history.replaceState) history.replaceState(null, "", location.pathname);
   const watch = $("watch");
   watch.innerHTML = "<tr><th>variable</th><th>type</th><th>value</th></tr>" +
     variables.map(([n, t], i) => `<tr data-name="${n.toLowerCase()}"><td>${n}</td><td>${t}</td><td class="num" id="v-${i}"></td></tr>`).join("");
   filter();
 }
 
-// Shows the run's program number k (from 1; 0: none): its text, its path, nothing cut yet.
+// Shows the run's program number k (from 1; 0: none): its text and path as the server sends
+// them, nothing cut yet.
 function showProgram(k) {
   shownProgram = k;
   const program = programs[k - 1];
   $("program-box").hidden = !program && !refused.length;
-  programmed = program ? program.path : [];
+  programmed = [];
   cut = [];
   lastLine = 0;
-  // The plane of the programmed path's two largest extents (of x y z).
+  $("path-box").hidden = true;
+  textWindow = { program: k, from: 1, lines: [], total: program ? program.lines : 0 };
+  $("program-text").innerHTML = "";
+  if (!program) return;
+  $("program-file").textContent = program.file;
+  $("program-choice").value = String(k);
+  askText(1);
+  send({ cmd: "path", program: k });
+}
+
+// Asks for the window of the shown program's text that starts at line `from`.
+function askText(from) {
+  if (textAsked === from) return;
+  textAsked = from;
+  send({ cmd: "text", program: shownProgram, from });
+}
+
+function text(m) {
+  if (m.program !== shownProgram) return;
+  textAsked = 0;
+  textWindow = { program: m.program, from: m.from, lines: m.lines, total: m.total };
+  $("program-text").innerHTML = m.lines
+    .map((l, i) => `<div class="line" id="line-${m.from + i}">${String(m.from + i).padStart(4)}  ${escape(l)}</div>`)
+    .join("") + (m.from + m.lines.length <= m.total ? `<div class="line">      … ${m.total} lines</div>` : "");
+  const now = document.getElementById("line-" + lastLine);
+  if (now) now.classList.add("current");
+}
+
+// The programmed path of the shown program, in the plane of its two largest extents (of x y z).
+function path(m) {
+  if (m.program !== shownProgram) return;
+  programmed = m.path;
   if (programmed.length > 1) {
     const extent = [0, 1, 2].map((c) => Math.max(...programmed.map((p) => p[c])) - Math.min(...programmed.map((p) => p[c])));
     plane = [0, 1, 2].sort((a, b) => extent[b] - extent[a] || a - b).slice(0, 2).sort();
   }
   $("path-box").hidden = programmed.length < 2;
-  if (!program) return;
-  $("program-file").textContent = program.file;
-  $("program-choice").value = String(k);
-  programLines = program.text.split("\n");
-  $("program-text").innerHTML = programLines
-    .map((l, i) => `<div class="line" id="line-${i + 1}">${String(i + 1).padStart(4)}  ${escape(l)}</div>`)
-    .join("");
+}
+
+// Keeps the executing line in the text's window: a new window around it when it nears an edge
+// the program goes beyond.
+function followLine(line) {
+  const w = textWindow;
+  if (!line || !w.lines.length) return;
+  const last = w.from + w.lines.length - 1;
+  const nearStart = line < w.from + 50 && w.from > 1;
+  const nearEnd = line > last - 50 && last < w.total;
+  if (line < w.from || line > last || nearStart || nearEnd) askText(Math.max(1, line - 100));
 }
 
 function escape(s) {
@@ -155,6 +206,7 @@ function frame(m) {
   const lineIndex = variables.findIndex(([n]) => n === "NC_LINE");
   const line = lineIndex >= 0 ? m.image[lineIndex] : 0;
   if (line !== lastLine) {
+    followLine(line);
     const old = document.getElementById("line-" + lastLine);
     if (old) old.classList.remove("current");
     const now = document.getElementById("line-" + line);
@@ -248,6 +300,7 @@ function filter() {
 }
 
 function startJog(x, y, axis = 0) {
+  if (!commands) return;
   jog = [x, y, axis];
   send({ cmd: "jog", x, y, axis });
   if (!jogTimer) jogTimer = setInterval(() => { if (jog) send({ cmd: "jog", x: jog[0], y: jog[1], axis: jog[2] }); }, 20);

@@ -35,6 +35,18 @@ pub(super) enum Failure {
     Disconnected,
 }
 
+impl Failure {
+    /// What the failure was, for a fault's cause.
+    pub(super) fn describe(self) -> &'static str {
+        match self {
+            Failure::Timeout => "no response within the timeout",
+            Failure::Corrupt => "a response that could not be decoded",
+            Failure::Exception => "an exception response",
+            Failure::Disconnected => "the connection was lost or refused",
+        }
+    }
+}
+
 /// What is exchanged and how: the input and output slots, the table sizes, the mode (never
 /// `Auto`) and the timeout of each request.
 pub(super) struct Exchange {

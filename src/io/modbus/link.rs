@@ -3,8 +3,8 @@
 //! the bound and reconnects with backoff.
 
 use std::net::SocketAddr;
-use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
@@ -17,6 +17,11 @@ use super::stats::LinkStats;
 use crate::bus::{MailboxReader, MailboxWriter};
 use crate::image::Value;
 use crate::io::rx_counter::RxCounter;
+
+/// The first pause before connecting again after a lost link.
+pub const RECONNECT_FIRST: Duration = Duration::from_millis(50);
+/// The longest pause between connection attempts.
+pub const RECONNECT_MAX: Duration = Duration::from_secs(2);
 
 /// How the driver reaches the station.
 pub enum Transport {
@@ -83,6 +88,9 @@ pub(super) struct Shared {
     pub epoch: Instant,
     /// The counters.
     pub stats: Arc<LinkStats>,
+    /// Why the last bus fault was declared (empty before the first): set where it is declared,
+    /// read by the runtime to complete the application's "bus fault" reason.
+    pub cause: Mutex<String>,
 }
 
 /// `image_at_ns` before the first complete input image.
@@ -96,7 +104,17 @@ impl Shared {
             image_at_ns: AtomicU64::new(NO_IMAGE),
             epoch: Instant::now(),
             stats: Arc::new(LinkStats::default()),
+            cause: Mutex::new(String::new()),
         }
+    }
+
+    /// Declares a bus fault because of `cause` (logged as a warning with the link's `name` once
+    /// per episode: when the fault was not set already).
+    pub(super) fn declare_fault(&self, name: &str, cause: String) {
+        if !self.fault.swap(true, Ordering::Relaxed) {
+            tracing::warn!("modbus {name}: bus fault: {cause}");
+        }
+        *self.cause.lock().unwrap_or_else(|p| p.into_inner()) = cause;
     }
 
     /// Nanoseconds since `epoch`.
@@ -114,8 +132,16 @@ pub(super) struct Link {
     pub period: Duration,
     /// More consecutive failed exchanges than this is a bus fault.
     pub max_failures: u32,
+    /// The median time of the last [`SLOW_WINDOW`] exchanges above this is a bus fault.
+    pub max_exchange: Duration,
     pub shared: Arc<Shared>,
 }
+
+/// How many of the latest exchanges the slow-link supervision takes the median of: one or two
+/// slow exchanges (a scheduler's stall on a busy machine) do not fault, a link that is slow on
+/// every exchange faults within three of them — 100 ms when each takes 33 ms, before the
+/// regulators it delays start to oscillate.
+pub const SLOW_WINDOW: usize = 5;
 
 impl Link {
     /// Starts the loop on a thread named `modbus`: complete input images go to `inputs`, the
@@ -151,21 +177,26 @@ impl Link {
         let shared = Arc::clone(&self.shared);
         let received = Arc::new(AtomicU64::new(0));
         let mut failures = 0u32;
-        let mut backoff = Duration::from_millis(50);
+        // The pause before the next connection attempt: doubled after every attempt that gave no
+        // successful exchange (a refused connection, or a station that accepts and closes at
+        // once — which without it made 4774 attempts in 5 s), back to the first after one that
+        // did.
+        let mut backoff = RECONNECT_FIRST;
+        // The latest exchanges' durations (ns), for the slow-link supervision.
+        let mut recent = [0u64; SLOW_WINDOW];
+        let mut taken = 0usize;
+        let mut slow = false;
         let mut out_values: Vec<Value> = self.exchange.outputs.iter().map(|s| Value::zero(s.ty)).collect();
         let mut in_values: Vec<Value> = self.exchange.inputs.iter().map(|s| Value::zero(s.ty)).collect();
         while !shared.stop.load(Ordering::Relaxed) {
             let connected = tokio::time::timeout(self.exchange.timeout, self.transport.connect(&received)).await;
             let mut ctx = match connected {
-                Ok(Ok(ctx)) => {
-                    backoff = Duration::from_millis(50);
-                    ctx
-                }
+                Ok(Ok(ctx)) => ctx,
                 _ => {
                     shared.stats.failed(Failure::Disconnected);
-                    self.failed(&mut failures);
+                    self.failed(&mut failures, Failure::Disconnected);
                     tokio::time::sleep(backoff).await;
-                    backoff = (backoff * 2).min(Duration::from_secs(2));
+                    backoff = (backoff * 2).min(RECONNECT_MAX);
                     continue;
                 }
             };
@@ -181,10 +212,33 @@ impl Link {
                     .await
                 {
                     Ok(()) => {
+                        backoff = RECONNECT_FIRST;
                         inputs.publish(&in_values);
                         shared.image_at_ns.store(shared.now_ns(), Ordering::Release);
-                        shared.stats.succeeded(started.elapsed().as_nanos() as u64);
+                        let took = started.elapsed().as_nanos() as u64;
+                        shared.stats.succeeded(took);
                         failures = 0;
+                        recent[taken % SLOW_WINDOW] = took;
+                        taken += 1;
+                        let mut sorted = recent;
+                        sorted.sort_unstable();
+                        let median = sorted[SLOW_WINDOW / 2];
+                        if taken >= SLOW_WINDOW && Duration::from_nanos(median) > self.max_exchange {
+                            if !slow {
+                                slow = true;
+                                shared.stats.slow.fetch_add(1, Ordering::Relaxed);
+                            }
+                            shared.declare_fault(
+                                &self.name,
+                                format!(
+                                    "the link is too slow: its exchanges take {:.1} ms (the median of the last {SLOW_WINDOW}), over the {} ms the drive regulators are tuned for (--max-exchange-ms)",
+                                    median as f64 / 1e6,
+                                    self.max_exchange.as_millis()
+                                ),
+                            );
+                            continue;
+                        }
+                        slow = false;
                         if shared.fault.swap(false, Ordering::Relaxed) {
                             tracing::info!(
                                 "modbus {}: the link works again (the machine stays in ERROR until acknowledged)",
@@ -194,8 +248,10 @@ impl Link {
                     }
                     Err(f) => {
                         shared.stats.failed(f);
-                        self.failed(&mut failures);
+                        self.failed(&mut failures, f);
                         if self.reconnects_after(f) {
+                            tokio::time::sleep(backoff).await;
+                            backoff = (backoff * 2).min(RECONNECT_MAX);
                             break;
                         }
                     }
@@ -215,10 +271,13 @@ impl Link {
         }
     }
 
-    fn failed(&self, failures: &mut u32) {
+    fn failed(&self, failures: &mut u32, last: Failure) {
         *failures += 1;
-        if *failures > self.max_failures && !self.shared.fault.swap(true, Ordering::Relaxed) {
-            tracing::warn!("modbus {}: bus fault after {failures} failed exchanges", self.name);
+        if *failures > self.max_failures {
+            self.shared.declare_fault(
+                &self.name,
+                format!("{failures} failed exchanges in a row, the last: {}", last.describe()),
+            );
         }
     }
 }

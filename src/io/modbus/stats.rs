@@ -20,6 +20,8 @@ pub struct LinkStats {
     pub disconnects: AtomicU64,
     /// Times the newest input image grew older than the bound (`max_input_age`).
     pub stale: AtomicU64,
+    /// Times the exchanges grew slower on average than the bound (`max_exchange`).
+    pub slow: AtomicU64,
     /// Summed duration of the successful exchanges (ns).
     pub exchange_ns_total: AtomicU64,
     /// Longest successful exchange (ns).
@@ -37,6 +39,7 @@ impl Default for LinkStats {
             exceptions: AtomicU64::new(0),
             disconnects: AtomicU64::new(0),
             stale: AtomicU64::new(0),
+            slow: AtomicU64::new(0),
             exchange_ns_total: AtomicU64::new(0),
             exchange_ns_max: AtomicU64::new(0),
             exchange_ns_min: AtomicU64::new(u64::MAX),
@@ -70,7 +73,7 @@ impl LinkStats {
         let get = |a: &AtomicU64| a.load(Ordering::Relaxed);
         let n = get(&self.exchanges);
         format!(
-            "{n} exchanges ({}), mean {:.0} µs, max {:.0} µs; {} timeouts, {} corrupt, {} exceptions, {} disconnects, {} stale",
+            "{n} exchanges ({}), mean {:.0} µs, max {:.0} µs; {} timeouts, {} corrupt, {} exceptions, {} disconnects, {} stale, {} slow",
             mode.name(),
             get(&self.exchange_ns_total) as f64 / n.max(1) as f64 / 1e3,
             get(&self.exchange_ns_max) as f64 / 1e3,
@@ -78,7 +81,8 @@ impl LinkStats {
             get(&self.corrupt),
             get(&self.exceptions),
             get(&self.disconnects),
-            get(&self.stale)
+            get(&self.stale),
+            get(&self.slow)
         )
     }
 }
@@ -99,7 +103,7 @@ mod tests {
         assert_eq!(s.exchange_ns_min.load(Ordering::Relaxed), 2_000);
         assert_eq!(
             s.summary(ExchangeMode::Image),
-            "2 exchanges (image), mean 3 µs, max 4 µs; 1 timeouts, 2 corrupt, 0 exceptions, 1 disconnects, 0 stale"
+            "2 exchanges (image), mean 3 µs, max 4 µs; 1 timeouts, 2 corrupt, 0 exceptions, 1 disconnects, 0 stale, 0 slow"
         );
     }
 }

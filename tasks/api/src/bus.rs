@@ -37,7 +37,17 @@ pub trait Bus: Send {
     fn fault(&self) -> bool {
         false
     }
+    /// Why the link is (or last was) faulty, appended to `out`; false when there is nothing to
+    /// say. Called by the runtime to complete an application's [`BUS_FAULT_REASON`]; it must
+    /// not block (a bus that cannot tell at once says nothing).
+    fn write_fault_cause(&self, _out: &mut String) -> bool {
+        false
+    }
 }
 
 /// The variable every bus provides: its fault status.
 pub const BUS_FAULT: &str = "bus_fault";
+
+/// The text of an application's error reason for [`BUS_FAULT`]: the runtime appends the bus's
+/// name and cause to a reason that starts with it (`bus fault: tcp:10.0.0.5:502: …`).
+pub const BUS_FAULT_REASON: &str = "bus fault";

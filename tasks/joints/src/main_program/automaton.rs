@@ -180,20 +180,20 @@ impl Application for Main {
                     if self.known {
                         self.start_return(io);
                     } else {
-                        self.start_group(io, 0)?;
+                        self.start_group(io, 0);
                     }
                 }
             }
             Phase::Returning => {
                 if self.step_return(io)? {
-                    self.start_group(io, 0)?;
+                    self.start_group(io, 0);
                 }
             }
             Phase::Group(g) => {
                 io.limit_override = false;
                 if self.step_group(io, g)? {
                     if g + 1 < self.p.reference_order.len() {
-                        self.start_group(io, g + 1)?;
+                        self.start_group(io, g + 1);
                     } else {
                         self.finish_referencing(io);
                         return Ok(true);

@@ -29,9 +29,6 @@ pub enum Reason {
     /// A joint's search travelled as far as its switch can be from where it began without the
     /// reference input turning on (a switch that does not switch).
     ReferenceNotFound(usize),
-    /// The shared reference input is on before a joint's search with the references unknown:
-    /// some joint stands on its switch and the input cannot say which.
-    ReferenceOnAtStart(usize),
     /// A joint's reference input says the other side of its switch than the frame of the last
     /// referencing puts the joint: its position is not known (a fault falsified it), and
     /// referencing does not move on by it.
@@ -55,7 +52,6 @@ impl Reason {
             Reason::ReferenceStaysOn(j) => at(70, j),
             Reason::ReferenceContradicts(j) => at(90, j),
             Reason::ReferenceNotFound(j) => at(130, j),
-            Reason::ReferenceOnAtStart(j) => at(140, j),
             Reason::Limit(k) => at(100, k),
             Reason::ProgramFault => 80,
         }
@@ -78,7 +74,7 @@ impl ReasonTexts {
         let mut texts = vec![
             (Reason::Stop, "STOP".to_string()),
             (Reason::CycleTimeViolation, "cycle time violation".to_string()),
-            (Reason::BusFault, "bus fault".to_string()),
+            (Reason::BusFault, pkm_api::bus::BUS_FAULT_REASON.to_string()),
             (Reason::ProgramFault, PROGRAM_FAULT.to_string()),
         ];
         for (k, l) in switches.limits().iter().enumerate() {
@@ -110,9 +106,10 @@ impl ReasonTexts {
                     "INIT: reference input {reference} stays on while joint {} backs off its switch{}",
                     j + 1,
                     if switches.shared() {
-                        ": another joint is on its switch (the shared input cannot say which)"
+                        ": another joint is on its switch (the shared input cannot say which); the joint went back to where it started. \
+                         Acknowledge, then hold BUTTON_OVERRIDE and jog the joint on its switch off it in joint mode"
                     } else {
-                        ""
+                        " (a switch stuck on?); the joint went back to where it started"
                     }
                 ),
             ));
@@ -120,14 +117,6 @@ impl ReasonTexts {
                 Reason::ReferenceNotFound(j),
                 format!(
                     "INIT: joint {} searched as far as its reference switch can be without {reference} turning on (a switch that does not switch?)",
-                    j + 1
-                ),
-            ));
-            texts.push((
-                Reason::ReferenceOnAtStart(j),
-                format!(
-                    "INIT: the shared reference input {reference} is on before joint {}'s search, and it cannot say which joint stands on its switch: \
-                     acknowledge, then hold BUTTON_OVERRIDE and jog that joint off its switch in joint mode (referencing starts when it is released)",
                     j + 1
                 ),
             ));

@@ -4,11 +4,12 @@
 //! captured edge is the reference) and goes to its reference position; the next group starts
 //! when the whole group is there.
 //!
-//! No search runs without its switch ahead (issue 26): a joint leaves a switch only when the
-//! input says it is its own (a shared input with the references unknown cannot), no search or
-//! back-off travels farther than the switch can be from where it began (the travel on that side
-//! of the switch), and where the references are known the inputs must agree with the positions
-//! (the main program's supervision, [`Main::contradiction`]).
+//! No search runs without its switch ahead (issue 26): no search, leave or back-off travels
+//! farther than the switch can be from where it began (the travel on that side of the switch);
+//! a leave that does not clear the input within it (a shared input another joint holds, a
+//! switch stuck on) takes the joint back to where it started before the error, so that repeated
+//! attempts do not walk it; and where the references are known the inputs must agree with the
+//! positions (the main program's supervision, [`Main::contradiction`]).
 
 use pkm_kinematics::MAX_DOF;
 
@@ -26,6 +27,8 @@ pub enum Search {
     /// Started on the switch: moving against the search direction from `from` until the input
     /// is off.
     Leave { since_s: f64, from: f64 },
+    /// A leave that did not clear the input: back to where it started (`to`), then ERROR.
+    Undo { to: f64, since_s: f64 },
     /// Moving towards the switch from `from` until its capture count moves past `seen`; stage 0
     /// searches, stage 1 approaches slowly and takes the reference.
     Seek {
@@ -133,21 +136,15 @@ impl Main {
     /// sent the return of an interrupted referencing to the reference positions *of the counted
     /// frame*: on the hexapod 737 mm past the switches, into the limit switches.)
     ///
-    /// A joint that starts on its switch leaves it first — unless the input is shared and the
-    /// references are not known: then some joint stands on its switch, the input cannot say
-    /// which, and moving this one could only drive it blind (into its limit switch, as pn101's
-    /// joint 1 once went while joint 3 held the input): ERROR, for the operator to jog the joint
-    /// off in joint mode.
-    pub(super) fn start_group(&mut self, io: &mut Io, g: usize) -> Result<(), Reason> {
+    /// A joint that starts on its switch leaves it first. With a shared input the joint may not
+    /// be the one that holds it; its leave is then bounded and undone (pn101's joint 1 once left
+    /// for 12 s, into its limit switch, while joint 3 held the input).
+    pub(super) fn start_group(&mut self, io: &mut Io, g: usize) {
         io.limit_override = false;
         self.phase = Phase::Group(g);
         for k in 0..self.p.reference_order[g].len() {
             let j = self.p.reference_order[g][k] - 1;
             self.searches[j] = if io.reference_on[j] {
-                let own = !self.shared_reference || (self.known && self.past_switch(io, j) >= 0.0);
-                if !own {
-                    return Err(Reason::ReferenceOnAtStart(j));
-                }
                 Search::Leave {
                     since_s: io.now_s,
                     from: io.positions[j],
@@ -161,7 +158,6 @@ impl Main {
                 }
             };
         }
-        Ok(())
     }
 
     /// How far (mm) joint `j` stands past its reference switch in the frame it is in (negative:
@@ -235,9 +231,19 @@ impl Main {
                         from: io.positions[j],
                     };
                 } else if io.now_s - since_s > timeout || (io.positions[j] - from).abs() > self.search_bound(j, false) {
-                    return Err(Reason::ReferenceStaysOn(j));
+                    self.searches[j] = Search::Undo {
+                        to: from,
+                        since_s: io.now_s,
+                    };
                 } else {
                     io.ramp_velocity(j, -r.direction * r.search_speed_mm_s, accel);
+                }
+            }
+            Search::Undo { to, since_s } => {
+                let back = io.move_to(j, to, r.search_speed_mm_s, accel);
+                if (back && (io.positions[j] - to).abs() < 0.05) || io.now_s - since_s > timeout {
+                    io.velocities[j] = 0.0;
+                    return Err(Reason::ReferenceStaysOn(j));
                 }
             }
             Search::Seek {

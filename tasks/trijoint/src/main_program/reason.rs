@@ -72,7 +72,7 @@ impl Reason {
             Reason::BridgeError(d) => SIDE[1][d.min(1)],
             Reason::FollowingError(d) => SIDE[2][d.min(1)],
             Reason::CycleTimeViolation => "cycle time violation",
-            Reason::BusFault => "bus fault",
+            Reason::BusFault => pkm_api::bus::BUS_FAULT_REASON,
             Reason::InitTimeout(i) => NOT_REACHED[i.min(3)],
             Reason::InitWrongSwitch(i) => WRONG[i.min(3)],
             Reason::ProgramFault => {
