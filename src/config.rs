@@ -7,6 +7,7 @@
 use std::fmt;
 use std::path::{Path, PathBuf};
 
+use pkm_api::ranges::{self, Range};
 use serde::Deserialize;
 
 use crate::image::Problem;
@@ -18,6 +19,8 @@ pub const BUILTIN_CONFIG: &str = include_str!("../config.json");
 pub const MIN_CYCLE_US: u32 = 200;
 /// Longest cycle time accepted (µs).
 pub const MAX_CYCLE_US: u32 = 10_000_000;
+/// A task class's tolerance is at least its cycle time divided by this.
+pub const MIN_TOLERANCE_DIVISOR: u32 = 10;
 
 /// The whole configuration file.
 #[derive(Clone, Debug, Deserialize)]
@@ -94,7 +97,8 @@ impl NcConfig {
         let n = keys.len();
         let mut problems = Vec::new();
         let names = keys.iter().map(|k| k.to_uppercase()).collect::<Vec<_>>().join(" ");
-        let values = |problems: &mut Vec<Problem>, at: String, v: &[f64], positive: bool| {
+        // One value per coordinate, each within its range (mm or degrees by the coordinate).
+        let values = |problems: &mut Vec<Problem>, at: String, v: &[f64], linear: Range, angular: Range| {
             if v.len() != n {
                 problems.push(Problem {
                     at: at.clone(),
@@ -104,20 +108,19 @@ impl NcConfig {
                     ),
                 });
             }
-            if let Some(bad) = v.iter().find(|x| !x.is_finite() || (positive && **x <= 0.0)) {
-                problems.push(Problem {
-                    at,
-                    message: format!(
-                        "must be {}, got {bad}",
-                        if positive { "positive" } else { "finite numbers" }
-                    ),
-                });
+            for (i, (x, key)) in v.iter().zip(keys).enumerate() {
+                let range = if matches!(*key, "a" | "b" | "c") {
+                    angular
+                } else {
+                    linear
+                };
+                ranges::check_into(problems, format!("{at}[{i}]"), *x, &range);
             }
         };
         for (system, offset) in &self.work_offsets {
             let at = format!("nc.work_offsets.{}", shorten(system));
             if WORK_SYSTEMS.contains(&system.as_str()) {
-                values(&mut problems, at, offset, false);
+                values(&mut problems, at, offset, ranges::POSITION_MM, ranges::ANGLE_DEG);
             } else {
                 problems.push(Problem {
                     at,
@@ -126,10 +129,22 @@ impl NcConfig {
             }
         }
         if let Some(v) = &self.axis_speed {
-            values(&mut problems, "nc.axis_speed".into(), v, true);
+            values(
+                &mut problems,
+                "nc.axis_speed".into(),
+                v,
+                ranges::SPEED_MM_S,
+                ranges::ANGULAR_SPEED_DEG_S,
+            );
         }
         if let Some(v) = &self.axis_accel {
-            values(&mut problems, "nc.axis_accel".into(), v, true);
+            values(
+                &mut problems,
+                "nc.axis_accel".into(),
+                v,
+                ranges::ACCEL_MM_S2,
+                ranges::ACCEL_MM_S2,
+            );
         }
         problems
     }
@@ -474,6 +489,18 @@ pub fn check(config: &Config) -> Vec<Problem> {
                     "tolerance must be at most the cycle time ({} µs): a cycle that starts later than \
                      that has missed its slot, got {}",
                     tc.cycle_us, tc.tolerance_us
+                ),
+            );
+        }
+        if (MIN_CYCLE_US..=MAX_CYCLE_US).contains(&tc.cycle_us) && tc.tolerance_us < tc.cycle_us / MIN_TOLERANCE_DIVISOR
+        {
+            push(
+                format!("{at}.tolerance_us"),
+                format!(
+                    "tolerance must be at least a tenth of the cycle time ({} µs): below it every wake-up of a \
+                     busy operating system is a cycle time violation, got {}",
+                    tc.cycle_us / MIN_TOLERANCE_DIVISOR,
+                    tc.tolerance_us
                 ),
             );
         }

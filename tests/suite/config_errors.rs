@@ -338,8 +338,8 @@ fn variable_conflicts_between_programs() {
     let two = |a: &str, b: &str| {
         format!(
             r#"{{"task_classes": [
-                {{"name": "fast", "cycle_us": 10000, "tolerance_us": 0, "priority": 1, "programs": [{{"program": "a", "params": {a}}}]}},
-                {{"name": "main", "cycle_us": 50000, "tolerance_us": 0, "priority": 2, "programs": [{{"program": "b", "params": {b}}}]}}
+                {{"name": "fast", "cycle_us": 10000, "tolerance_us": 10000, "priority": 1, "programs": [{{"program": "a", "params": {a}}}]}},
+                {{"name": "main", "cycle_us": 50000, "tolerance_us": 50000, "priority": 2, "programs": [{{"program": "b", "params": {b}}}]}}
             ]}}"#
         )
     };
@@ -487,37 +487,37 @@ fn safety_relevant_settings_are_refused_naming_the_key() {
                 |c| c["task_classes"][0]["programs"][1]["params"] = serde_json::json!({"max_following_error_mm": 0}),
                 no_change,
             ),
-            "at task_classes[0].programs[1].params.max_following_error_mm: must be above 0 and at most 50 mm: 0 faults at once, a huge bound never does, got 0",
+            "at task_classes[0].programs[1].params.max_following_error_mm: must be between 0.01 and 50 mm (beyond it a blocked or dead drive goes unnoticed; 0 would stop at every step), got 0",
         ),
         (
             problems_of(
                 |c| c["task_classes"][0]["programs"][1]["params"] = serde_json::json!({"max_following_error_mm": 1e12}),
                 no_change,
             ),
-            "params.max_following_error_mm: must be above 0 and at most 50 mm: 0 faults at once, a huge bound never does, got 1000000000000",
+            "params.max_following_error_mm: must be between 0.01 and 50 mm (beyond it a blocked or dead drive goes unnoticed; 0 would stop at every step), got 1000000000000",
         ),
         (
             problems_of(main_params(serde_json::json!({"singularity_threshold": -1})), no_change),
-            "at task_classes[1].programs[0].params.singularity_threshold: must be between 0.01 and 0.99 (a ratio of singular values; 0 would let M reach a singularity), got -1",
+            "at task_classes[1].programs[0].params.singularity_threshold: must be between 0.01 and 0.99 (a ratio of singular values; 0 would let the tool reach a singularity), got -1",
         ),
         (
             problems_of(main_params(serde_json::json!({"singularity_threshold": 2})), no_change),
-            "params.singularity_threshold: must be between 0.01 and 0.99 (a ratio of singular values; 0 would let M reach a singularity), got 2",
+            "params.singularity_threshold: must be between 0.01 and 0.99 (a ratio of singular values; 0 would let the tool reach a singularity), got 2",
         ),
         (
             problems_of(main_params(serde_json::json!({"soft_limit_margin_mm": -5})), no_change),
-            "params.soft_limit_margin_mm: must be between 0.1 and 62.5 mm (at most a quarter of the shorter travel), got -5",
+            "params.soft_limit_margin_mm: must be between 0.1 and 62.5 mm (0 puts the software limits on the hard ends of the travel; at most a quarter of the shortest travel), got -5",
         ),
         (
             problems_of(
                 main_params(serde_json::json!({"soft_limit_margin_mm": 1000})),
                 no_change,
             ),
-            "params.soft_limit_margin_mm: must be between 0.1 and 62.5 mm (at most a quarter of the shorter travel), got 1000",
+            "params.soft_limit_margin_mm: must be between 0.1 and 62.5 mm (0 puts the software limits on the hard ends of the travel; at most a quarter of the shortest travel), got 1000",
         ),
         (
             problems_of(main_params(serde_json::json!({"stop_lockout_ms": 0})), no_change),
-            "params.stop_lockout_ms: must be between 100 and 10000 ms: a shorter lockout lets a bouncing STOP contact acknowledge the error it caused, got 0",
+            "params.stop_lockout_ms: must be between 100 and 10000 ms (a shorter lockout lets a bouncing STOP contact acknowledge the error it caused; a longer one leaves STOP dead for too long), got 0",
         ),
         (
             problems_of(main_params(serde_json::json!({"dead_zone": 1.5})), no_change),
@@ -525,11 +525,23 @@ fn safety_relevant_settings_are_refused_naming_the_key() {
         ),
         (
             problems_of(main_params(serde_json::json!({"pwm_period_us": 0})), no_change),
-            "params.pwm_period_us: must be between 10 and 10000 µs: 0 switches the motor bridges off, got 0",
+            "params.pwm_period_us: must be between 10 and 10000 µs (0 switches the motor bridges off), got 0",
         ),
         (
             problems_of(|c| c["task_classes"][0]["tolerance_us"] = 10_000_000.into(), no_change),
             "at task_classes[0].tolerance_us: tolerance must be at most the cycle time (10000 µs): a cycle that starts later than that has missed its slot, got 10000000",
+        ),
+        (
+            problems_of(|c| c["task_classes"][0]["tolerance_us"] = 0.into(), no_change),
+            "at task_classes[0].tolerance_us: tolerance must be at least a tenth of the cycle time (1000 µs): below it every wake-up of a busy operating system is a cycle time violation, got 0",
+        ),
+        (
+            problems_of(main_params(serde_json::json!({"init_speed_mm_s": 1e6})), no_change),
+            "params.init_speed_mm_s: must be between 0.01 and 1000 mm/s, got 1000000",
+        ),
+        (
+            problems_of(main_params(serde_json::json!({"creep_speed_mm_s": 2.0})), no_change),
+            "params.creep_speed_mm_s: must be between 0.001 and 1 mm/s, got 2",
         ),
         (
             problems_of(|c| c["kinematics"]["trijoint"]["l2"] = 1e308.into(), no_change),

@@ -10,6 +10,7 @@ mod common;
 mod architecture;
 mod cli;
 mod config_errors;
+mod config_ranges;
 mod hmi;
 mod joint_machines;
 mod joint_machines_soak;

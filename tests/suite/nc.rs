@@ -216,7 +216,7 @@ fn work_offsets_and_axis_limits_come_from_the_configuration() {
     assert_eq!(
         stderr(&o),
         format!(
-            "error: {config}: 2 problems:\n  at nc.work_offsets.G55: one value per coordinate of the machine (X Y Z): 3, got 2\n  at nc.axis_speed: must be positive, got 0\n"
+            "error: {config}: 2 problems:\n  at nc.work_offsets.G55: one value per coordinate of the machine (X Y Z): 3, got 2\n  at nc.axis_speed[1]: must be between 0.01 and 1000 mm/s, got 0\n"
         )
     );
     let config = ox_x_with_nc(dir.path(), serde_json::json!({"work_offsets": {"G60": [0, 0, 0]}}));

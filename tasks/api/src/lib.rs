@@ -14,5 +14,6 @@ pub mod image;
 pub mod machine;
 pub mod problem;
 pub mod program;
+pub mod ranges;
 pub mod strict_json;
 pub mod trajectory;

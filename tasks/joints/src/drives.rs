@@ -84,14 +84,11 @@ pub struct Drives {
     nc: Option<NcChannel>,
 }
 
-/// Checks the drive parameters of `spec`'s joints; problems against `params.…`.
+/// Checks the drive parameters of `spec`'s joints (every number within its range of
+/// [`pkm_api::ranges`]); problems against `params.…`.
 fn check(spec: &Spec, p: &DrivesParams, decl: &mut Declare<'_>) {
+    use pkm_api::ranges;
     let n = spec.joints();
-    let positive = |decl: &mut Declare<'_>, at: String, v: f64| {
-        if !(v.is_finite() && v > 0.0) {
-            decl.issue(&at, format!("must be positive, got {v}"));
-        }
-    };
     let (list, len) = match spec.drive {
         DriveKind::Stepper => ("steppers", p.steppers.len()),
         DriveKind::Dc => ("dc", p.dc.len()),
@@ -114,17 +111,16 @@ fn check(spec: &Spec, p: &DrivesParams, decl: &mut Declare<'_>) {
     }
     for (i, s) in p.steppers.iter().enumerate() {
         let at = |k: &str| format!("params.steppers[{i}].{k}");
-        positive(decl, at("steps_per_mm"), s.steps_per_mm);
-        positive(decl, at("max_speed_mm_s"), s.max_speed_mm_s);
-        positive(decl, at("max_accel_mm_s2"), s.max_accel_mm_s2);
-        positive(decl, at("max_following_error_mm"), s.max_following_error_mm);
-        if !(s.kp_per_s.is_finite() && (0.0..=100.0).contains(&s.kp_per_s)) {
-            decl.issue(
-                &at("kp_per_s"),
-                format!("must be between 0 and 100 /s, got {}", s.kp_per_s),
-            );
-        }
-        if s.max_speed_mm_s * s.steps_per_mm > f64::from(i16::MAX) {
+        let steps = decl.within(&at("steps_per_mm"), s.steps_per_mm, &ranges::COUNTS_PER_MM);
+        let speed = decl.within(&at("max_speed_mm_s"), s.max_speed_mm_s, &ranges::SPEED_MM_S);
+        decl.within(&at("max_accel_mm_s2"), s.max_accel_mm_s2, &ranges::ACCEL_MM_S2);
+        decl.within(
+            &at("max_following_error_mm"),
+            s.max_following_error_mm,
+            &ranges::FOLLOWING_ERROR_MM,
+        );
+        decl.within(&at("kp_per_s"), s.kp_per_s, &ranges::PROPORTIONAL_GAIN);
+        if steps && speed && s.max_speed_mm_s * s.steps_per_mm > f64::from(i16::MAX) {
             decl.issue(
                 &at("max_speed_mm_s"),
                 format!(
@@ -136,31 +132,17 @@ fn check(spec: &Spec, p: &DrivesParams, decl: &mut Declare<'_>) {
     }
     for (i, d) in p.dc.iter().enumerate() {
         let at = |k: &str| format!("params.dc[{i}].{k}");
-        positive(decl, at("counts_per_mm"), d.counts_per_mm);
-        positive(decl, at("max_following_error_mm"), d.max_following_error_mm);
-        for (k, v) in [("kp", d.kp), ("ki", d.ki)] {
-            if !(v.is_finite() && v >= 0.0) {
-                decl.issue(&at(k), format!("must be zero or positive, got {v}"));
-            }
-        }
-        if !(d.velocity_ff.is_finite() && (0.0..=1.0).contains(&d.velocity_ff)) {
-            decl.issue(
-                &at("velocity_ff"),
-                format!("must be between 0 and 1 duty per mm/s, got {}", d.velocity_ff),
-            );
-        }
-        if !(d.accel_ff.is_finite() && (0.0..=0.1).contains(&d.accel_ff)) {
-            decl.issue(
-                &at("accel_ff"),
-                format!("must be between 0 and 0.1 duty per mm/s², got {}", d.accel_ff),
-            );
-        }
-        if !(d.output_limit > 0.0 && d.output_limit <= 1.0) {
-            decl.issue(
-                &at("output_limit"),
-                format!("must be in (0, 1], got {}", d.output_limit),
-            );
-        }
+        decl.within(&at("counts_per_mm"), d.counts_per_mm, &ranges::COUNTS_PER_MM);
+        decl.within(
+            &at("max_following_error_mm"),
+            d.max_following_error_mm,
+            &ranges::FOLLOWING_ERROR_MM,
+        );
+        decl.within(&at("kp"), d.kp, &ranges::PROPORTIONAL_GAIN);
+        decl.within(&at("ki"), d.ki, &ranges::INTEGRAL_GAIN);
+        decl.within(&at("velocity_ff"), d.velocity_ff, &ranges::VELOCITY_FF);
+        decl.within(&at("accel_ff"), d.accel_ff, &ranges::ACCEL_FF);
+        decl.within(&at("output_limit"), d.output_limit, &ranges::OUTPUT_LIMIT);
         if d.max_counts_per_cycle == 0 || d.max_counts_per_cycle >= 32_768 {
             decl.issue(
                 &at("max_counts_per_cycle"),
@@ -172,11 +154,8 @@ fn check(spec: &Spec, p: &DrivesParams, decl: &mut Declare<'_>) {
         }
     }
     match (spec.drive, p.pwm_period_us) {
-        (DriveKind::Dc, Some(us)) if !(10..=10_000).contains(&us) => {
-            decl.issue(
-                "params.pwm_period_us",
-                format!("must be between 10 and 10000 µs: 0 switches the bridges off, got {us}"),
-            );
+        (DriveKind::Dc, Some(us)) => {
+            decl.within("params.pwm_period_us", f64::from(us), &pkm_api::ranges::PWM_PERIOD_US);
         }
         (DriveKind::Dc, None) => decl.issue(
             "params.pwm_period_us",

@@ -62,7 +62,10 @@ impl TrijointParams {
                 ));
             }
         }
-        if !(self.m_along.is_finite() && self.m_perp.is_finite()) || self.m_along.hypot(self.m_perp) == 0.0 {
+        let inside =
+            pkm_api::ranges::check_into(p, format!("{at}.m_along"), self.m_along, &pkm_api::ranges::POSITION_MM)
+                & pkm_api::ranges::check_into(p, format!("{at}.m_perp"), self.m_perp, &pkm_api::ranges::POSITION_MM);
+        if inside && self.m_along.hypot(self.m_perp) == 0.0 {
             p.push(Problem::new(
                 format!("{at}.m_along"),
                 "the spindle point M must not coincide with the pivot A",

@@ -119,31 +119,18 @@ impl Control {
     /// Declares the program's variables.
     pub fn create(args: &ProgramArgs<'_>, decl: &mut Declare<'_>) -> Box<dyn Program> {
         let p: ControlParams = args.parse(decl);
-        for (k, v) in [("kp", p.kp), ("ki", p.ki)] {
-            if !(v.is_finite() && v >= 0.0) {
-                decl.issue(&format!("params.{k}"), format!("must be zero or positive, got {v}"));
-            }
-        }
-        if !(p.max_following_error_mm > 0.0 && p.max_following_error_mm <= 50.0) {
-            decl.issue(
+        {
+            use pkm_api::ranges;
+            decl.within("params.kp", p.kp, &ranges::PROPORTIONAL_GAIN);
+            decl.within("params.ki", p.ki, &ranges::INTEGRAL_GAIN);
+            decl.within(
                 "params.max_following_error_mm",
-                format!(
-                    "must be above 0 and at most 50 mm: 0 faults at once, a huge bound never does, got {}",
-                    p.max_following_error_mm
-                ),
+                p.max_following_error_mm,
+                &ranges::FOLLOWING_ERROR_MM,
             );
-        }
-        if !(p.velocity_ff.is_finite() && (0.0..=1.0).contains(&p.velocity_ff)) {
-            decl.issue(
-                "params.velocity_ff",
-                format!("must be between 0 and 1 duty per mm/s, got {}", p.velocity_ff),
-            );
-        }
-        if !(p.accel_ff.is_finite() && (0.0..=0.1).contains(&p.accel_ff)) {
-            decl.issue(
-                "params.accel_ff",
-                format!("must be between 0 and 0.1 duty per mm/s², got {}", p.accel_ff),
-            );
+            decl.within("params.velocity_ff", p.velocity_ff, &ranges::VELOCITY_FF);
+            decl.within("params.accel_ff", p.accel_ff, &ranges::ACCEL_FF);
+            decl.within("params.output_limit", p.output_limit, &ranges::OUTPUT_LIMIT);
         }
         fast_class_only(
             "trijoint.control",
@@ -151,12 +138,6 @@ impl Control {
             args,
             decl,
         );
-        if !(p.output_limit > 0.0 && p.output_limit <= 1.0) {
-            decl.issue(
-                "params.output_limit",
-                format!("must be in (0, 1], got {}", p.output_limit),
-            );
-        }
         let drive = |d: usize, decl: &mut Declare<'_>| Drive {
             position: decl.read(vars::POSITION_MM[d]),
             setpoint: decl.read(vars::SETPOINT_MM[d]),

@@ -70,12 +70,7 @@ impl Encoders {
     pub fn create(args: &ProgramArgs<'_>, decl: &mut Declare<'_>) -> Box<dyn Program> {
         let p: EncoderParams = args.parse(decl);
         super::control::fast_class_only("trijoint.encoders", "the encoder unwrap and touch probe", args, decl);
-        if !(p.counts_per_mm.is_finite() && p.counts_per_mm > 0.0) {
-            decl.issue(
-                "params.counts_per_mm",
-                format!("must be positive, got {}", p.counts_per_mm),
-            );
-        }
+        decl.within("params.counts_per_mm", p.counts_per_mm, &pkm_api::ranges::COUNTS_PER_MM);
         if p.max_counts_per_cycle == 0 || p.max_counts_per_cycle >= 32_768 {
             decl.issue(
                 "params.max_counts_per_cycle",

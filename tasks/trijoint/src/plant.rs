@@ -60,22 +60,39 @@ impl Default for DriveParams {
 impl DriveParams {
     /// Checks the parameters; problems as (path below `at`, message).
     pub fn check(&self, at: &str, problems: &mut Vec<Problem>) {
-        for (k, v) in [
-            ("v_max_mm_s", self.v_max_mm_s),
-            ("tau_s", self.tau_s),
-            ("counts_per_mm", self.counts_per_mm),
-        ] {
-            if !(v.is_finite() && v > 0.0) {
-                problems.push(Problem::new(format!("{at}.{k}"), format!("must be positive, got {v}")));
-            }
-        }
+        use pkm_api::ranges::{self, check_into};
+        check_into(
+            problems,
+            format!("{at}.v_max_mm_s"),
+            self.v_max_mm_s,
+            &ranges::MOTOR_SPEED_MM_S,
+        );
+        check_into(problems, format!("{at}.tau_s"), self.tau_s, &ranges::MOTOR_LAG_S);
+        check_into(
+            problems,
+            format!("{at}.counts_per_mm"),
+            self.counts_per_mm,
+            &ranges::COUNTS_PER_MM,
+        );
         let order = [
             self.hard_stop_min_mm,
             self.lower_switch_mm,
             self.upper_switch_mm,
             self.hard_stop_max_mm,
         ];
-        if !order.iter().all(|v| v.is_finite()) || !order.windows(2).all(|w| w[0] < w[1]) {
+        let mut inside = true;
+        for (k, v) in [
+            "hard_stop_min_mm",
+            "lower_switch_mm",
+            "upper_switch_mm",
+            "hard_stop_max_mm",
+        ]
+        .iter()
+        .zip(order)
+        {
+            inside &= check_into(problems, format!("{at}.{k}"), v, &ranges::POSITION_MM);
+        }
+        if inside && !order.windows(2).all(|w| w[0] < w[1]) {
             problems.push(Problem::new(
                 at.to_string(),
                 format!(

@@ -131,14 +131,16 @@ const POSE_NAMES: [&str; 6] = ["x", "y", "z", "a", "b", "c"];
 /// The joints' names on the status line.
 const JOINT_NAMES: [&str; 6] = ["q1", "q2", "q3", "q4", "q5", "q6"];
 
-/// Checks the main parameters against the machine and its kinematics.
+/// Checks the main parameters against the machine and its kinematics: every number within its
+/// range of [`pkm_api::ranges`], the lists as long as the machine needs.
 fn check(spec: &Spec, p: &MainParams, keys: &[&str], travel: &[[f64; 2]], decl: &mut Declare<'_>) {
+    use pkm_api::ranges;
     let n = spec.joints();
-    let positive = |decl: &mut Declare<'_>, at: &str, v: f64| {
-        if !(v.is_finite() && v > 0.0) {
-            decl.issue(at, format!("must be positive, got {v}"));
-        }
-    };
+    decl.within(
+        "params.stop_lockout_ms",
+        p.stop_lockout_ms as f64,
+        &ranges::STOP_LOCKOUT_MS,
+    );
     if p.joints.len() != n {
         decl.issue(
             "params.joints",
@@ -147,35 +149,41 @@ fn check(spec: &Spec, p: &MainParams, keys: &[&str], travel: &[[f64; 2]], decl: 
     }
     for (i, j) in p.joints.iter().enumerate() {
         let at = |k: &str| format!("params.joints[{i}].{k}");
-        positive(decl, &at("max_speed_mm_s"), j.max_speed_mm_s);
-        positive(decl, &at("max_accel_mm_s2"), j.max_accel_mm_s2);
-        positive(decl, &at("reference.search_speed_mm_s"), j.reference.search_speed_mm_s);
-        positive(decl, &at("reference.latch_speed_mm_s"), j.reference.latch_speed_mm_s);
-        positive(decl, &at("reference.back_off_mm"), j.reference.back_off_mm);
-        if j.reference.direction.abs() != 1.0 {
+        let r = &j.reference;
+        decl.within(&at("max_speed_mm_s"), j.max_speed_mm_s, &ranges::SPEED_MM_S);
+        decl.within(&at("max_accel_mm_s2"), j.max_accel_mm_s2, &ranges::ACCEL_MM_S2);
+        decl.within(
+            &at("reference.search_speed_mm_s"),
+            r.search_speed_mm_s,
+            &ranges::SPEED_MM_S.up_to(j.max_speed_mm_s.clamp(ranges::SPEED_MM_S.min, ranges::SPEED_MM_S.max)),
+        );
+        decl.within(
+            &at("reference.latch_speed_mm_s"),
+            r.latch_speed_mm_s,
+            &ranges::SLOW_SPEED_MM_S,
+        );
+        decl.within(&at("reference.back_off_mm"), r.back_off_mm, &ranges::SEARCH_DISTANCE_MM);
+        if r.direction.abs() != 1.0 {
             decl.issue(
                 &at("reference.direction"),
-                format!("must be 1 or -1, got {}", j.reference.direction),
+                format!("must be 1 or -1, got {}", r.direction),
             );
         }
-        if j.reference.latch_speed_mm_s > j.reference.search_speed_mm_s {
+        if r.latch_speed_mm_s > r.search_speed_mm_s {
             decl.issue(
                 &at("reference.latch_speed_mm_s"),
                 format!(
                     "must not exceed search_speed_mm_s ({}), got {}",
-                    j.reference.search_speed_mm_s, j.reference.latch_speed_mm_s
+                    r.search_speed_mm_s, r.latch_speed_mm_s
                 ),
             );
         }
         if let Some([lo, hi]) = travel.get(i)
-            && !(*lo..=*hi).contains(&j.reference.switch_mm)
+            && !(*lo..=*hi).contains(&r.switch_mm)
         {
             decl.issue(
                 &at("reference.switch_mm"),
-                format!(
-                    "must lie within the joint's travel {lo} … {hi} mm, got {}",
-                    j.reference.switch_mm
-                ),
+                format!("must lie within the joint's travel {lo} … {hi} mm, got {}", r.switch_mm),
             );
         }
     }
@@ -211,19 +219,13 @@ fn check(spec: &Spec, p: &MainParams, keys: &[&str], travel: &[[f64; 2]], decl: 
             format!("joint {} is never referenced", missing + 1),
         );
     }
-    positive(decl, "params.search_timeout_s", p.search_timeout_s);
+    decl.within("params.search_timeout_s", p.search_timeout_s, &ranges::TIMEOUT_S);
     let shortest = travel.iter().map(|[lo, hi]| hi - lo).fold(f64::INFINITY, f64::min);
-    if !(p.soft_limit_margin_mm.is_finite() && p.soft_limit_margin_mm >= 0.0 && p.soft_limit_margin_mm < shortest / 4.0)
-    {
-        decl.issue(
-            "params.soft_limit_margin_mm",
-            format!(
-                "must be at least 0 and below a quarter of the shortest travel ({} mm), got {}",
-                shortest / 4.0,
-                p.soft_limit_margin_mm
-            ),
-        );
-    }
+    decl.within(
+        "params.soft_limit_margin_mm",
+        p.soft_limit_margin_mm,
+        &ranges::SOFT_LIMIT_MARGIN_MM.up_to(shortest / 4.0),
+    );
     if p.world_limits.len() != keys.len() {
         decl.issue(
             "params.world_limits",
@@ -234,36 +236,40 @@ fn check(spec: &Spec, p: &MainParams, keys: &[&str], travel: &[[f64; 2]], decl: 
             ),
         );
     }
-    for (i, [lo, hi]) in p.world_limits.iter().enumerate() {
-        if !(lo.is_finite() && hi.is_finite() && lo < hi) {
-            decl.issue(
-                &format!("params.world_limits[{i}]"),
-                format!("must be [min, max] with min < max, got [{lo}, {hi}]"),
-            );
+    for (i, ([lo, hi], key)) in p.world_limits.iter().zip(keys).enumerate() {
+        let range = if matches!(*key, "a" | "b" | "c") {
+            ranges::ANGLE_DEG
+        } else {
+            ranges::POSITION_MM
+        };
+        let at = format!("params.world_limits[{i}]");
+        let inside = decl.within(&format!("{at}[0]"), *lo, &range) & decl.within(&format!("{at}[1]"), *hi, &range);
+        if inside && lo >= hi {
+            decl.issue(&at, format!("must be [min, max] with min < max, got [{lo}, {hi}]"));
         }
     }
-    if !(p.singularity_threshold.is_finite() && (0.001..=0.99).contains(&p.singularity_threshold)) {
-        decl.issue(
-            "params.singularity_threshold",
-            format!("must be between 0.001 and 0.99 (a ratio of singular values; 0 would let the tool reach a singularity), got {}", p.singularity_threshold),
-        );
-    }
+    decl.within(
+        "params.singularity_threshold",
+        p.singularity_threshold,
+        &ranges::SINGULARITY_THRESHOLD,
+    );
     let jog = &p.jog;
-    positive(decl, "params.jog.linear_speed_mm_s", jog.linear_speed_mm_s);
-    positive(decl, "params.jog.accel_mm_s2", jog.accel_mm_s2);
-    positive(decl, "params.jog.joint_speed_mm_s", jog.joint_speed_mm_s);
-    if keys.iter().any(|k| matches!(*k, "a" | "b" | "c")) {
-        positive(decl, "params.jog.angular_speed_deg_s", jog.angular_speed_deg_s);
-    }
-    if !(jog.dead_zone.is_finite() && (0.0..=0.9).contains(&jog.dead_zone)) {
-        decl.issue(
-            "params.jog.dead_zone",
-            format!(
-                "must be between 0 and 0.9 (a fraction of full deflection), got {}",
-                jog.dead_zone
-            ),
-        );
-    }
+    decl.within(
+        "params.jog.linear_speed_mm_s",
+        jog.linear_speed_mm_s,
+        &ranges::SPEED_MM_S,
+    );
+    decl.within("params.jog.accel_mm_s2", jog.accel_mm_s2, &ranges::ACCEL_MM_S2);
+    decl.within("params.jog.joint_speed_mm_s", jog.joint_speed_mm_s, &ranges::SPEED_MM_S);
+    // Checked on every machine: one without rotations ignores it (0 there says so), but its
+    // file gives it.
+    let angular = if keys.iter().any(|k| matches!(*k, "a" | "b" | "c")) {
+        ranges::ANGULAR_SPEED_DEG_S
+    } else {
+        ranges::ANGULAR_SPEED_DEG_S.from(0.0)
+    };
+    decl.within("params.jog.angular_speed_deg_s", jog.angular_speed_deg_s, &angular);
+    decl.within("params.jog.dead_zone", jog.dead_zone, &ranges::DEAD_ZONE);
     if jog.axis_pairs.is_empty() {
         decl.issue(
             "params.jog.axis_pairs",

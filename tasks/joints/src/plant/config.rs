@@ -129,10 +129,20 @@ impl PlantConfig {
 
 impl JointPlant {
     fn check(&self, at: &str, problems: &mut Vec<Problem>) {
+        use pkm_api::ranges::{self, check_into};
         let [min, max] = self.hard_stops_mm;
         let [neg, pos] = self.limit_switches_mm;
         let order = [min, neg, pos, max];
-        if !order.iter().all(|v| v.is_finite()) || !order.windows(2).all(|w| w[0] < w[1]) {
+        let mut inside = true;
+        for (k, v) in [
+            ("hard_stops_mm[0]", min),
+            ("limit_switches_mm[0]", neg),
+            ("limit_switches_mm[1]", pos),
+            ("hard_stops_mm[1]", max),
+        ] {
+            inside &= check_into(problems, format!("{at}.{k}"), v, &ranges::POSITION_MM);
+        }
+        if inside && !order.windows(2).all(|w| w[0] < w[1]) {
             problems.push(Problem::new(
                 at.to_string(),
                 format!(
@@ -158,13 +168,8 @@ impl JointPlant {
                 format!("must be 1 or -1, got {}", self.reference_direction),
             ));
         }
-        let positive = |problems: &mut Vec<Problem>, k: &str, v: f64| {
-            if !(v.is_finite() && v > 0.0) {
-                problems.push(Problem::new(
-                    format!("{at}.motor.{k}"),
-                    format!("must be positive, got {v}"),
-                ));
-            }
+        let motor = |problems: &mut Vec<Problem>, k: &str, v: f64, range: &ranges::Range| {
+            check_into(problems, format!("{at}.motor.{k}"), v, range);
         };
         if self.motor.stepper.is_some() == self.motor.dc.is_some() {
             problems.push(Problem::new(
@@ -173,10 +178,25 @@ impl JointPlant {
             ));
         }
         if let Some(m) = &self.motor.stepper {
-            positive(problems, "stepper.steps_per_mm", m.steps_per_mm);
-            positive(problems, "stepper.pull_out_speed_mm_s", m.pull_out_speed_mm_s);
-            positive(problems, "stepper.pull_out_accel_mm_s2", m.pull_out_accel_mm_s2);
-            positive(problems, "stepper.pull_in_speed_mm_s", m.pull_in_speed_mm_s);
+            motor(problems, "stepper.steps_per_mm", m.steps_per_mm, &ranges::COUNTS_PER_MM);
+            motor(
+                problems,
+                "stepper.pull_out_speed_mm_s",
+                m.pull_out_speed_mm_s,
+                &ranges::MOTOR_SPEED_MM_S,
+            );
+            motor(
+                problems,
+                "stepper.pull_out_accel_mm_s2",
+                m.pull_out_accel_mm_s2,
+                &ranges::ACCEL_MM_S2,
+            );
+            motor(
+                problems,
+                "stepper.pull_in_speed_mm_s",
+                m.pull_in_speed_mm_s,
+                &ranges::MOTOR_SPEED_MM_S,
+            );
             if m.pull_in_speed_mm_s > m.pull_out_speed_mm_s {
                 problems.push(Problem::new(
                     format!("{at}.motor.stepper.pull_in_speed_mm_s"),
@@ -188,9 +208,9 @@ impl JointPlant {
             }
         }
         if let Some(m) = &self.motor.dc {
-            positive(problems, "dc.v_max_mm_s", m.v_max_mm_s);
-            positive(problems, "dc.tau_s", m.tau_s);
-            positive(problems, "dc.counts_per_mm", m.counts_per_mm);
+            motor(problems, "dc.v_max_mm_s", m.v_max_mm_s, &ranges::MOTOR_SPEED_MM_S);
+            motor(problems, "dc.tau_s", m.tau_s, &ranges::MOTOR_LAG_S);
+            motor(problems, "dc.counts_per_mm", m.counts_per_mm, &ranges::COUNTS_PER_MM);
         }
     }
 }

@@ -96,17 +96,6 @@ impl MainProgram {
     /// Declares the program's variables.
     pub fn create(args: &ProgramArgs<'_>, decl: &mut Declare<'_>) -> Box<dyn Program> {
         let p: MainParams = args.parse(decl);
-        for (k, v) in [
-            ("init_speed_mm_s", p.init_speed_mm_s),
-            ("approach_speed_mm_s", p.approach_speed_mm_s),
-            ("creep_speed_mm_s", p.creep_speed_mm_s),
-            ("approach_distance_mm", p.approach_distance_mm),
-            ("creep_distance_mm", p.creep_distance_mm),
-        ] {
-            if !(v.is_finite() && v > 0.0) {
-                decl.issue(&format!("params.{k}"), format!("must be positive, got {v}"));
-            }
-        }
         let geometry = args
             .kinematics
             .and_then(|k| serde_json::from_value::<KinematicsConfig>(k.clone()).ok())

@@ -74,45 +74,73 @@ pub(super) const MAX_MAIN_CYCLE_US: u32 = 100_000;
 /// the step): 1 nm, far below the encoders' resolution, in about 21 halvings of a 2 mm step.
 pub(super) const BORDER_TOLERANCE_MM: f64 = 1e-6;
 
-/// The safety-relevant parameters' ranges (the other parameters need only be positive): a value
+/// Every parameter within its range of [`pkm_api::ranges`] (the searches ever slower, each
+/// approach shorter than the one before, the start inside the software limits): a value
 /// outside is refused by `check`, naming the key.
 pub(super) fn check_ranges(p: &MainParams, geometry: &TrijointParams, decl: &mut Declare<'_>) {
-    let mut within = |key: &str, v: f64, range: std::ops::RangeInclusive<f64>, why: &str| {
-        if !(v.is_finite() && range.contains(&v)) {
-            decl.issue(
-                &format!("params.{key}"),
-                format!("must be between {} and {}{why}, got {v}", range.start(), range.end()),
-            );
-        }
-    };
-    within(
-        "stop_lockout_ms",
+    use pkm_api::ranges;
+    let key = |k: &str| format!("params.{k}");
+    decl.within(
+        &key("stop_lockout_ms"),
         p.stop_lockout_ms as f64,
-        100.0..=10_000.0,
-        " ms: a shorter lockout lets a bouncing STOP contact acknowledge the error it caused",
+        &ranges::STOP_LOCKOUT_MS,
     );
-    within(
-        "pwm_period_us",
+    decl.within(
+        &key("pwm_period_us"),
         f64::from(p.pwm_period_us),
-        10.0..=10_000.0,
-        " µs: 0 switches the motor bridges off",
+        &ranges::PWM_PERIOD_US,
     );
-    within(
-        "singularity_threshold",
+    decl.within(
+        &key("singularity_threshold"),
         p.singularity_threshold,
-        0.01..=0.99,
-        " (a ratio of singular values; 0 would let M reach a singularity)",
+        &ranges::SINGULARITY_THRESHOLD,
     );
-    within("dead_zone", p.dead_zone, 0.0..=0.9, " (a fraction of full deflection)");
+    decl.within(&key("dead_zone"), p.dead_zone, &ranges::DEAD_ZONE);
     let shorter = (geometry.h1_travel[1] - geometry.h1_travel[0]).min(geometry.h2_travel[1] - geometry.h2_travel[0]);
-    within(
-        "soft_limit_margin_mm",
+    let margin = decl.within(
+        &key("soft_limit_margin_mm"),
         p.soft_limit_margin_mm,
-        0.1..=(shorter / 4.0).max(0.1),
-        " mm (at most a quarter of the shorter travel)",
+        &ranges::SOFT_LIMIT_MARGIN_MM.up_to((shorter / 4.0).max(ranges::SOFT_LIMIT_MARGIN_MM.min)),
     );
-    within("max_speed_mm_s", p.max_speed_mm_s, 0.1..=1000.0, " mm/s");
-    within("max_joint_speed_mm_s", p.max_joint_speed_mm_s, 0.1..=1000.0, " mm/s");
-    within("brake_decel_mm_s2", p.brake_decel_mm_s2, 1.0..=100_000.0, " mm/s²");
-    within("search_timeout_s", p.search_timeout_s, 1.0..=3600.0, " s");
+    decl.within(&key("max_speed_mm_s"), p.max_speed_mm_s, &ranges::SPEED_MM_S);
+    decl.within(
+        &key("max_joint_speed_mm_s"),
+        p.max_joint_speed_mm_s,
+        &ranges::SPEED_MM_S,
+    );
+    decl.within(&key("brake_decel_mm_s2"), p.brake_decel_mm_s2, &ranges::ACCEL_MM_S2);
+    decl.within(&key("search_timeout_s"), p.search_timeout_s, &ranges::TIMEOUT_S);
+    // The searches ever slower, each approach within the one before.
+    let slower = |faster: f64, range: ranges::Range| range.up_to(faster.clamp(range.min, range.max));
+    decl.within(&key("init_speed_mm_s"), p.init_speed_mm_s, &ranges::SPEED_MM_S);
+    decl.within(
+        &key("approach_speed_mm_s"),
+        p.approach_speed_mm_s,
+        &slower(p.init_speed_mm_s, ranges::SPEED_MM_S),
+    );
+    decl.within(
+        &key("creep_speed_mm_s"),
+        p.creep_speed_mm_s,
+        &slower(p.approach_speed_mm_s, ranges::SLOW_SPEED_MM_S),
+    );
+    decl.within(
+        &key("approach_distance_mm"),
+        p.approach_distance_mm,
+        &ranges::SEARCH_DISTANCE_MM,
+    );
+    decl.within(
+        &key("creep_distance_mm"),
+        p.creep_distance_mm,
+        &slower(p.approach_distance_mm, ranges::SEARCH_DISTANCE_MM),
+    );
+    // The start inside the software limits, counted from each lower switch.
+    if let (Some(start), true) = (p.start_position_mm, margin) {
+        for (i, travel) in [geometry.h1_travel, geometry.h2_travel].iter().enumerate() {
+            let length = travel[1] - travel[0];
+            let range = ranges::POSITION_MM
+                .from(p.soft_limit_margin_mm)
+                .up_to((length - p.soft_limit_margin_mm).max(p.soft_limit_margin_mm));
+            decl.within(&format!("{}[{i}]", key("start_position_mm")), start[i], &range);
+        }
+    }
 }
