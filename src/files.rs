@@ -13,7 +13,7 @@ use std::path::Path;
 pub const MAX_TEXT_BYTES: u64 = 16 << 20;
 
 /// What a non-regular file is, for messages.
-fn kind(t: std::fs::FileType) -> &'static str {
+pub fn kind(t: std::fs::FileType) -> &'static str {
     if t.is_dir() {
         "a directory"
     } else if t.is_fifo() {
@@ -47,10 +47,16 @@ pub fn open_regular(path: &Path) -> io::Result<File> {
     }
 }
 
-/// The contents of the regular file `path`, refused if it holds more than `limit` bytes.
+/// The contents of the regular file `path` (a leading byte order mark removed), refused if it
+/// holds more than `limit` bytes.
 pub fn read_text(path: &Path, limit: u64) -> io::Result<String> {
-    String::from_utf8(read_to_limit(open_regular(path)?, limit)?)
-        .map_err(|_| io::Error::new(io::ErrorKind::InvalidData, "stream did not contain valid UTF-8"))
+    let mut text = String::from_utf8(read_to_limit(open_regular(path)?, limit)?)
+        .map_err(|_| io::Error::new(io::ErrorKind::InvalidData, "stream did not contain valid UTF-8"))?;
+    // A byte order mark (Windows editors write one) is not part of the text.
+    if text.starts_with('\u{feff}') {
+        text.drain(..'\u{feff}'.len_utf8());
+    }
+    Ok(text)
 }
 
 /// The bytes of an opened file (see [`open_regular`]), refused if it holds more than `limit`.

@@ -226,10 +226,7 @@ pub fn programs(setup: &Setup, program: Option<&Path>, dir: Option<&Path>) -> Re
                 format!("--programs {}: cannot list the directory: {e}", dir.display()),
             )
         })?;
-        let mut files: Vec<std::path::PathBuf> = entries
-            .filter_map(|e| e.ok().map(|e| e.path()))
-            .filter(|p| p.is_file() && p.extension().is_some_and(|x| x == PROGRAM_EXTENSION))
-            .collect();
+        let mut files = program_files(dir, entries);
         files.sort();
         for file in files {
             // The program given to run is not offered twice.
@@ -246,6 +243,64 @@ pub fn programs(setup: &Setup, program: Option<&Path>, dir: Option<&Path>) -> Re
         library: library(first, offered),
         refused,
     })
+}
+
+/// The programs of `dir` to offer: its `*.ngc` regular files, and symbolic links to regular
+/// files inside it. Every other `*.ngc` entry is skipped and logged with why — a link out of the
+/// directory (the screen would offer files the operator never put there), a directory, a FIFO
+/// (reading it would wait for a writer), a device, a socket; other names are counted.
+fn program_files(dir: &Path, entries: std::fs::ReadDir) -> Vec<std::path::PathBuf> {
+    let root = dir.canonicalize().unwrap_or_else(|_| dir.to_path_buf());
+    let mut files = Vec::new();
+    let mut others = 0;
+    for entry in entries {
+        let path = match entry {
+            Ok(e) => e.path(),
+            Err(e) => {
+                tracing::warn!("--programs {}: an entry could not be read: {e}", dir.display());
+                continue;
+            }
+        };
+        if path.extension().is_none_or(|x| x != PROGRAM_EXTENSION) {
+            others += 1;
+            continue;
+        }
+        let skip = |why: String| tracing::warn!("--programs: skipped {}: {why}", path.display());
+        let Ok(meta) = std::fs::symlink_metadata(&path) else {
+            skip("cannot be read".into());
+            continue;
+        };
+        let target = if meta.file_type().is_symlink() {
+            match path.canonicalize() {
+                Ok(t) if t.starts_with(&root) => t,
+                Ok(t) => {
+                    skip(format!(
+                        "a symbolic link out of the directory (to {}): only the directory's own programs are offered",
+                        t.display()
+                    ));
+                    continue;
+                }
+                Err(e) => {
+                    skip(format!("a symbolic link that leads nowhere ({e})"));
+                    continue;
+                }
+            }
+        } else {
+            path.clone()
+        };
+        match std::fs::metadata(&target) {
+            Ok(m) if m.is_file() => files.push(path),
+            Ok(m) => skip(format!("{}, not a program file", crate::files::kind(m.file_type()))),
+            Err(e) => skip(format!("cannot be read ({e})")),
+        }
+    }
+    if others > 0 {
+        tracing::info!(
+            "--programs {}: {others} entries without the .{PROGRAM_EXTENSION} extension ignored",
+            dir.display()
+        );
+    }
+    files
 }
 
 /// The library of `first` (run by itself at the first READY) and `offered` (loaded from the

@@ -52,16 +52,14 @@ pub enum SinkError {
         file: String,
     },
     /// Writing failed: recording stopped there, the run went on.
-    #[error(
-        "{file}: writing the trace failed: {source}; recording stopped there, the run went on: the file holds {held}"
-    )]
+    #[error("{file}: writing the trace failed: {source}; recording stopped there, the run went on: {held}")]
     Write {
         /// The trace file.
         file: String,
         /// The write's error.
         source: std::io::Error,
-        /// What the file holds (`the first 12 records (up to t = 0.120 s) and perhaps part of
-        /// the next`, `no complete record`).
+        /// What the file holds, read back (`the file holds the first 12 records (up to t =
+        /// 0.120 s), as replay reads them`, `the file holds no complete record`).
         held: String,
     },
 }

@@ -103,6 +103,22 @@ pub enum FaultKind {
     JoystickPlugged,
 }
 
+impl FaultKind {
+    /// Its name in a scenario.
+    fn name(self) -> &'static str {
+        match self {
+            FaultKind::SwitchStuck => "switch_stuck",
+            FaultKind::SwitchFree => "switch_free",
+            FaultKind::EncoderGlitch => "encoder_glitch",
+            FaultKind::BridgeError => "bridge_error",
+            FaultKind::DriveDead => "drive_dead",
+            FaultKind::DriveAlive => "drive_alive",
+            FaultKind::JoystickUnplugged => "joystick_unplugged",
+            FaultKind::JoystickPlugged => "joystick_plugged",
+        }
+    }
+}
+
 /// A parsed scenario: actions in time order.
 #[derive(Clone, Debug, Default)]
 pub struct Scenario {
@@ -142,6 +158,16 @@ impl Scenario {
                     at: at.clone(),
                     message: ONE_KIND.into(),
                 });
+                continue;
+            }
+            let strays = stray_fields(e);
+            if !strays.is_empty() {
+                for (field, message) in strays {
+                    problems.push(Problem {
+                        at: format!("{at}.{field}"),
+                        message,
+                    });
+                }
                 continue;
             }
             let Some(t_ns) = e.at_ms.checked_mul(1_000_000) else {
@@ -188,6 +214,53 @@ impl Scenario {
         events.sort_by_key(|(t, _)| *t);
         Ok(Scenario { events })
     }
+}
+
+/// The fields an event gives that its kind does not take (a `value` on a joystick event, a
+/// `drive` on an input): each is a mistake the event would otherwise silently ignore.
+fn stray_fields(e: &EventEntry) -> Vec<(&'static str, String)> {
+    let (kind, takes): (String, &[&str]) = if e.input.is_some() {
+        ("an input event".into(), &["value"])
+    } else if e.joystick.is_some() {
+        ("a joystick event".into(), &[])
+    } else if e.program.is_some() {
+        ("a program event".into(), &[])
+    } else {
+        let takes: &[&str] = match e.fault {
+            Some(FaultKind::SwitchStuck) => &["switch", "value"],
+            Some(FaultKind::SwitchFree) => &["switch"],
+            Some(FaultKind::EncoderGlitch) => &["drive", "counts"],
+            Some(FaultKind::BridgeError | FaultKind::DriveDead | FaultKind::DriveAlive) => &["drive"],
+            Some(FaultKind::JoystickUnplugged | FaultKind::JoystickPlugged) | None => &[],
+        };
+        let name = e.fault.map_or("?", FaultKind::name);
+        (format!("the \"{name}\" fault"), takes)
+    };
+    let given = [
+        ("value", e.value.is_some()),
+        ("switch", e.switch.is_some()),
+        ("drive", e.drive.is_some()),
+        ("counts", e.counts.is_some()),
+    ];
+    given
+        .iter()
+        .filter(|(field, present)| *present && !takes.contains(field))
+        .map(|(field, _)| {
+            let allowed = if takes.is_empty() {
+                "nothing besides at_ms".to_string()
+            } else {
+                takes
+                    .iter()
+                    .map(|t| format!("\"{t}\""))
+                    .collect::<Vec<_>>()
+                    .join(" and ")
+            };
+            (
+                *field,
+                format!("{kind} takes {allowed}; \"{field}\" does not belong to it"),
+            )
+        })
+        .collect()
 }
 
 /// What every event must have exactly one of.

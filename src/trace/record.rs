@@ -87,22 +87,15 @@ impl Output {
 struct Written {
     records: u64,
     bytes: u64,
-    /// Records in the file as of the last successful flush, and the time of the newest (µs).
-    flushed: u64,
-    flushed_t_us: Option<u64>,
     error: Option<io::Error>,
 }
 
 impl Written {
-    /// Takes the outcome of writing the buffer out to the file: on success every record so far
-    /// is on disk, up to `last_t_us`.
-    fn settle(&mut self, result: io::Result<()>, last_t_us: Option<u64>) {
-        match result {
-            Ok(()) => {
-                self.flushed = self.records;
-                self.flushed_t_us = last_t_us;
-            }
-            Err(e) => self.fail(e),
+    /// Takes the outcome of writing the buffer out to the file (what it holds after an error is
+    /// read back at the end: [`on_disk`]).
+    fn settle(&mut self, result: io::Result<()>) {
+        if let Err(e) = result {
+            self.fail(e);
         }
     }
 
@@ -271,14 +264,7 @@ impl CycleSink for Recorder {
             Some(source) => Err(SinkError::Write {
                 file: self.path.clone(),
                 source,
-                held: match written.flushed_t_us {
-                    Some(t) => format!(
-                        "the first {} records (up to t = {:.3} s) and perhaps part of the next",
-                        written.flushed,
-                        t as f64 * 1e-6
-                    ),
-                    None => "no complete record".to_string(),
-                },
+                held: on_disk(Path::new(&self.path)),
             }),
             None => Ok(format!(
                 "trace {}: {} records, {:.1} MB of JSON; {} stalls, {} extra buffers",
@@ -289,6 +275,27 @@ impl CycleSink for Recorder {
                 self.allocations
             )),
         }
+    }
+}
+
+/// What a trace whose writing failed holds: its complete records, counted by reading it back as
+/// `replay` would (a buffer written out in part before the error may hold more of them than the
+/// last flush), and the time of the last; the records after them are lost.
+fn on_disk(path: &Path) -> String {
+    let Ok(mut reader) = super::read::TraceReader::open(path) else {
+        return "the file holds no complete record".to_string();
+    };
+    let (mut records, mut last_t_us) = (0u64, None);
+    while let Ok(Some(record)) = reader.next_record() {
+        records += 1;
+        last_t_us = Some(record.t_us);
+    }
+    match last_t_us {
+        Some(t) => format!(
+            "the file holds the first {records} records (up to t = {:.3} s), as replay reads them",
+            t as f64 * 1e-6
+        ),
+        None => "the file holds no complete record".to_string(),
     }
 }
 
@@ -304,11 +311,8 @@ fn write_all(
     let mut w = Written {
         records: 0,
         bytes: 0,
-        flushed: 0,
-        flushed_t_us: None,
         error: None,
     };
-    let mut last_t_us = None;
     let mut names: Vec<String> = Vec::new();
     let emit = |line: String, w: &mut Written, out: &mut Output| {
         if w.error.is_none() {
@@ -333,7 +337,7 @@ fn write_all(
         if flushed_at.elapsed() >= FLUSH_EVERY {
             flushed_at = Instant::now();
             if w.error.is_none() {
-                w.settle(out.flush(), last_t_us);
+                w.settle(out.flush());
             }
         }
         let Some(msg) = msg else { continue };
@@ -378,7 +382,6 @@ fn write_all(
                 emit(serde_json::Value::Object(line).to_string(), &mut w, &mut out);
                 if w.error.is_none() {
                     w.records += 1;
-                    last_t_us = Some(t_ns / 1000);
                 }
                 // Back to the pool; if it is full, this buffer is simply freed.
                 let _ = pool.try_send(changes);
@@ -386,7 +389,7 @@ fn write_all(
         }
     }
     if w.error.is_none() {
-        w.settle(out.finish(), last_t_us);
+        w.settle(out.finish());
     }
     w
 }

@@ -538,7 +538,7 @@ fn a_plant_section_problem_is_reported_once_by_run() {
     assert_eq!(
         stderr(&o),
         format!(
-            "error: {}: at plant.left.tau_s: must be positive, got -1\n",
+            "error: {}: at plant.left.tau_s: must be between 0.0001 and 10 s, got -1\n",
             path.display()
         )
     );
@@ -606,4 +606,63 @@ fn programs_to_load_need_the_screen_and_a_directory_that_can_be_listed() {
         "{}",
         stderr(&o)
     );
+}
+
+/// Issue 26: `--programs DIR` offers the directory's own programs only — a symbolic link out of
+/// it is skipped and logged, as are a directory, a FIFO (which would block the start) and other
+/// names; a link to a program inside it is offered.
+#[test]
+fn programs_never_come_from_outside_their_directory_and_what_is_skipped_is_logged() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let outside = tempfile::tempdir().expect("tempdir");
+    let root = crate::common::root();
+    let library = dir.path().join("library");
+    std::fs::create_dir(&library).expect("a directory");
+    std::fs::copy(root.join("programs/ox-x-target.ngc"), library.join("target.ngc")).expect("copy");
+    std::fs::copy(root.join("programs/ox-x-target.ngc"), outside.path().join("secret.ngc")).expect("copy");
+    std::os::unix::fs::symlink(outside.path().join("secret.ngc"), library.join("escape.ngc")).expect("symlink");
+    std::os::unix::fs::symlink(library.join("target.ngc"), library.join("again.ngc")).expect("symlink");
+    std::fs::create_dir(library.join("folder.ngc")).expect("a directory");
+    let fifo = std::ffi::CString::new(library.join("pipe.ngc").to_str().expect("utf-8")).expect("a path");
+    // SAFETY: mkfifo(3) with a NUL-terminated path we own.
+    assert_eq!(unsafe { libc::mkfifo(fifo.as_ptr(), 0o600) }, 0);
+    std::fs::write(library.join("notes.txt"), "not a program").expect("write");
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_pkm-plc"))
+        .args([
+            "run",
+            "--machine",
+            "ox-x",
+            "--duration",
+            "0.3",
+            "--hmi",
+            "127.0.0.1:0",
+            "--joystick",
+            "none",
+        ])
+        .args(["--programs", library.to_str().expect("utf-8")])
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .env("RUST_LOG", "info")
+        .output()
+        .expect("the binary runs");
+    let log = stderr(&o);
+    assert_eq!(o.status.code(), Some(0), "{log}");
+    let lib = library.display();
+    for skipped in [
+        format!(
+            "--programs: skipped {lib}/escape.ngc: a symbolic link out of the directory (to {}): only the directory's own programs are offered",
+            outside
+                .path()
+                .join("secret.ngc")
+                .canonicalize()
+                .expect("canonical")
+                .display()
+        ),
+        format!("--programs: skipped {lib}/folder.ngc: a directory, not a program file"),
+        format!("--programs: skipped {lib}/pipe.ngc: a FIFO, not a program file"),
+        format!("--programs {lib}: 1 entries without the .ngc extension ignored"),
+    ] {
+        assert!(log.contains(&skipped), "{skipped}\nnot in:\n{log}");
+    }
+    assert!(!log.contains("secret.ngc: "), "{log}");
+    assert!(!log.contains("not offered"), "{log}");
 }

@@ -140,11 +140,13 @@ fn a_jog_into_the_workspace_border_stops_there_without_an_error() {
     for name in MACHINES {
         let n = dof(name);
         let start = ready_ms(name) + 1000;
-        // World limits far away: the border is the mechanism's (joint software limits, no
-        // assembly, the singularity threshold).
+        // World limits far away (the widest their ranges allow): the border is the
+        // mechanism's (joint software limits, no assembly, the singularity threshold).
         let far = |c: &mut serde_json::Value| {
-            c["task_classes"][1]["programs"][0]["params"]["world_limits"] =
-                serde_json::json!(vec![[-1000.0, 1000.0]; n]);
+            let limits: Vec<[f64; 2]> = (0..n)
+                .map(|k| if k < 3 { [-1000.0, 1000.0] } else { [-180.0, 180.0] })
+                .collect();
+            c["task_classes"][1]["programs"][0]["params"]["world_limits"] = serde_json::json!(limits);
         };
         let mut plc = build(name, Some(&stick(start, 1.0, 0.0, 120_000)), far);
         let mut last: Vec<f64> = Vec::new();

@@ -336,3 +336,56 @@ fn a_trace_write_error_is_reported_with_exit_code_1_after_the_summary() {
     let s = common::read_json(&summary);
     assert_eq!(s["task_classes"][0]["cycles"], 200, "{s}");
 }
+
+/// Issue 26: a trace whose file stops growing mid-run (here a file size limit, as a full disk
+/// would) reports the records actually in the file — read back as `replay` reads them, not
+/// guessed from the last flush — and `replay` finds that many, identical.
+#[test]
+fn a_trace_write_error_reports_the_records_the_file_holds() {
+    use std::os::unix::process::CommandExt;
+    let dir = tempfile::tempdir().expect("tempdir");
+    let trace = dir.path().join("cut.jsonl");
+    let mut run = std::process::Command::new(env!("CARGO_BIN_EXE_pkm-plc"));
+    run.args([
+        "run",
+        "--virtual",
+        "--duration",
+        "30",
+        "--trace",
+        trace.to_str().expect("utf-8"),
+    ])
+    .current_dir(env!("CARGO_MANIFEST_DIR"))
+    .env("RUST_LOG", "warn");
+    // SAFETY: between fork and exec the child only sets its file size limit (200 kB) and
+    // ignores SIGXFSZ, so that a write beyond the limit fails with EFBIG: async-signal-safe calls.
+    unsafe {
+        run.pre_exec(|| {
+            let limit = libc::rlimit {
+                rlim_cur: 200_000,
+                rlim_max: 200_000,
+            };
+            if libc::setrlimit(libc::RLIMIT_FSIZE, &limit) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            libc::signal(libc::SIGXFSZ, libc::SIG_IGN);
+            Ok(())
+        });
+    }
+    let o = run.output().expect("runs");
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    let log = stderr(&o);
+    let held = log
+        .split("the file holds the first ")
+        .nth(1)
+        .unwrap_or_else(|| panic!("no count of the records held: {log}"));
+    let records: u64 = held.split(' ').next().and_then(|n| n.parse().ok()).expect("a count");
+    assert!(log.contains("File too large (os error 27)"), "{log}");
+    assert!(records > 100, "{records} records");
+    let o = pkm(&["replay", trace.to_str().expect("utf-8")]);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    assert!(
+        stdout(&o).contains(&format!("identical up to the cut: {records} records")),
+        "{} vs {records}",
+        stdout(&o)
+    );
+}

@@ -54,7 +54,12 @@ impl Range {
         } else {
             format!(" ({})", self.why)
         };
-        format!("must be between {} and {}{unit}{why}, got {v}", self.min, self.max)
+        format!(
+            "must be between {} and {}{unit}{why}, got {}",
+            shown(self.min),
+            shown(self.max),
+            shown(v)
+        )
     }
 
     /// `Err` with the refusal of `v` when it lies outside.
@@ -71,6 +76,16 @@ pub fn check_into(problems: &mut Vec<Problem>, at: impl Into<String>, value: f64
         problems.push(Problem::new(at, range.refusal(value)));
     }
     ok
+}
+
+/// A number as a message shows it: plain where that is short, else in exponent form (`1e308`,
+/// not 309 digits).
+pub fn shown(v: f64) -> String {
+    if v != 0.0 && v.is_finite() && !(1e-6..1e15).contains(&v.abs()) {
+        format!("{v:e}")
+    } else {
+        format!("{v}")
+    }
 }
 
 impl Declare<'_> {

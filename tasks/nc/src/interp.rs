@@ -17,6 +17,17 @@ pub type Pose = [f64; 6];
 /// The letters of the pose's coordinates, in [`Pose`] order.
 pub const AXES: [char; 6] = ['X', 'Y', 'Z', 'A', 'B', 'C'];
 
+/// The slowest feed accepted (program units per minute): slower, a millimetre takes hours and a
+/// typing error (F.01 for F10) runs for days.
+pub const MIN_FEED: f64 = 0.1;
+/// The longest dwell accepted (s): a day.
+pub const MAX_DWELL_S: f64 = 86_400.0;
+/// The most moves and other actions a program may have: its plan's memory is bounded by them
+/// (about 480 bytes a move: a million-line program is planned in 480 MB).
+pub const MAX_BLOCKS: usize = 2_000_000;
+/// The fastest spindle speed accepted (rpm).
+pub const MAX_SPINDLE_RPM: f64 = 100_000.0;
+
 /// The plane of arcs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Plane {
@@ -159,7 +170,8 @@ pub fn read(text: &str, machine: &Machine<'_>) -> Result<Program, NcError> {
     let mut state = State::new(machine);
     let mut blocks = Vec::new();
     let mut ended: Option<usize> = None;
-    for block in lexer::lex(text)? {
+    for block in lexer::blocks(text) {
+        let block = block?;
         if let Some(end) = ended {
             return Err(NcError::new(
                 block.line,
@@ -168,6 +180,15 @@ pub fn read(text: &str, machine: &Machine<'_>) -> Result<Program, NcError> {
             ));
         }
         state.block(&block, &mut blocks)?;
+        if blocks.len() > MAX_BLOCKS {
+            return Err(NcError::new(
+                block.line,
+                1,
+                format!(
+                    "the program has more than {MAX_BLOCKS} moves and other actions: split it (planning takes about half a kilobyte per move)"
+                ),
+            ));
+        }
         if matches!(
             blocks.last(),
             Some(Block {
@@ -389,11 +410,31 @@ impl<'a> State<'a> {
         {
             return Err(at(w, format!("the feed F must be positive, got {}", w.value)));
         }
+        if let Some(w) = get('F')
+            && w.value < MIN_FEED
+        {
+            return Err(at(
+                w,
+                format!(
+                    "the feed F must be at least {MIN_FEED} units/min (slower, a millimetre takes hours), got {}",
+                    w.value
+                ),
+            ));
+        }
         if let Some(w) = get('S') {
             if !(w.value.is_finite() && w.value >= 0.0) {
                 return Err(at(
                     w,
                     format!("the spindle speed S must be zero or positive, got {}", w.value),
+                ));
+            }
+            if w.value > MAX_SPINDLE_RPM {
+                return Err(at(
+                    w,
+                    format!(
+                        "the spindle speed S must be at most {MAX_SPINDLE_RPM} rpm, got {}",
+                        w.value
+                    ),
                 ));
             }
             self.speed_rpm = w.value;
@@ -444,6 +485,12 @@ impl<'a> State<'a> {
                 return Err(at(
                     p,
                     format!("the dwell P must be zero or positive seconds, got {}", p.value),
+                ));
+            }
+            if p.value > MAX_DWELL_S {
+                return Err(at(
+                    p,
+                    format!("the dwell P must be at most {MAX_DWELL_S} s (a day), got {}", p.value),
                 ));
             }
             out.push(Block {
@@ -956,8 +1003,40 @@ mod tests {
             ),
             ("S-5", "1:1: the spindle speed S must be zero or positive, got -5"),
             ("G1.25 X1", "1:1: G1.25 is not a code"),
+            // Issue 26: absurd values, refused where they are written.
+            (
+                "G1 X1 F0.01",
+                "1:7: the feed F must be at least 0.1 units/min (slower, a millimetre takes hours), got 0.01",
+            ),
+            (
+                "G4 P86401",
+                "1:4: the dwell P must be at most 86400 s (a day), got 86401",
+            ),
+            (
+                "S100001 M3",
+                "1:1: the spindle speed S must be at most 100000 rpm, got 100001",
+            ),
         ] {
             assert_eq!(refused(text), message, "{text:?}");
         }
+        let huge = format!("G1 X1{} F100", "9".repeat(400));
+        assert_eq!(
+            refused(&huge),
+            "1:4: X: the number is out of range (at most 1e9 in magnitude)"
+        );
+        assert_eq!(
+            refused("G0 X1\nG1 Y 1000000000.5 F1"),
+            "2:4: Y: the number is out of range (at most 1e9 in magnitude)"
+        );
+    }
+
+    #[test]
+    fn a_byte_order_mark_is_not_part_of_the_program() {
+        let m = machine(&XYZ);
+        let with = read("\u{feff}G0 X1\nM2", &m).expect("a BOM then a program");
+        let without = read("G0 X1\nM2", &m).expect("the program");
+        assert_eq!(format!("{:?}", with.blocks), format!("{:?}", without.blocks));
+        // Columns count from the first character after the mark.
+        assert_eq!(refused("\u{feff}G1 X1 F0"), refused("G1 X1 F0"));
     }
 }

@@ -30,16 +30,23 @@ pub struct Block {
 }
 
 /// The blocks of `text`: its lines with words, in order (lines with only comments, blank lines,
-/// `%` delimiters and block-deleted lines have none and are left out).
+/// `%` delimiters and block-deleted lines have none and are left out). A UTF-8 byte order mark
+/// (Windows editors write one) is not part of the program.
 pub fn lex(text: &str) -> Result<Vec<Block>, NcError> {
-    let mut blocks = Vec::new();
-    for (i, line) in text.lines().enumerate() {
-        let words = lex_line(line, i + 1)?;
-        if !words.is_empty() {
-            blocks.push(Block { line: i + 1, words });
-        }
-    }
-    Ok(blocks)
+    blocks(text).collect()
+}
+
+/// The blocks of `text` one at a time, as [`lex`] gives them: a program of a million lines is
+/// read without holding the words of all its lines at once.
+pub fn blocks(text: &str) -> impl Iterator<Item = Result<Block, NcError>> + '_ {
+    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
+    text.lines()
+        .enumerate()
+        .filter_map(|(i, line)| match lex_line(line, i + 1) {
+            Ok(words) if words.is_empty() => None,
+            Ok(words) => Some(Ok(Block { line: i + 1, words })),
+            Err(e) => Some(Err(e)),
+        })
 }
 
 /// The words of one line.
@@ -126,6 +133,14 @@ fn lex_line(line: &str, number: usize) -> Result<Vec<Word>, NcError> {
                 let value = text
                     .parse::<f64>()
                     .map_err(|_| NcError::new(number, column, format!("{letter}{text} is not a number")))?;
+                // A number of hundreds of digits parses to infinity (or to a value no machine
+                // can mean): refused where it is written.
+                if !(value.is_finite() && value.abs() <= MAX_NUMBER) {
+                    return err(
+                        column,
+                        format!("{letter}: the number is out of range (at most {MAX_NUMBER:e} in magnitude)"),
+                    );
+                }
                 words.push(Word { letter, value, column });
             }
             other => return err(column, format!("unexpected character '{other}'")),
@@ -133,6 +148,10 @@ fn lex_line(line: &str, number: usize) -> Result<Vec<Word>, NcError> {
     }
     Ok(words)
 }
+
+/// The largest magnitude of a number in a program: far beyond any coordinate, feed or speed a
+/// machine can mean, far below where a float loses whole units.
+pub const MAX_NUMBER: f64 = 1e9;
 
 #[cfg(test)]
 mod tests {

@@ -6,15 +6,17 @@ use std::f64::consts::TAU;
 
 use crate::interp::{Path, Pose};
 
-/// A move's geometry, ready to be sampled.
-#[derive(Clone, Copy, Debug, PartialEq)]
+/// A move's geometry, ready to be sampled. What only arcs and blends need is boxed: most moves
+/// of a CAM program are lines, and a program of a million of them is planned in a third of the
+/// memory.
+#[derive(Clone, Debug, PartialEq)]
 pub struct Segment {
     from: Pose,
     to: Pose,
-    arc: Option<Arc>,
+    arc: Option<Box<Arc>>,
     /// For a blend: the rates of a b c (per unit of the fraction u) at its start and end, so
     /// that the rotations join the lines' rates without a kink (cubic Hermite); `None`: linear.
-    rotation_rates: Option<([f64; 3], [f64; 3])>,
+    rotation_rates: Option<Box<([f64; 3], [f64; 3])>>,
 }
 
 /// A circular arc in x y z (a helix with `rise`): p(φ) = c + r·(cos φ·u + sin φ·v) + rise·φ/sweep·w
@@ -84,7 +86,7 @@ impl Segment {
                 let mut c = [from[0], from[1], from[2]];
                 c[a0] = center[0];
                 c[a1] = center[1];
-                Some(Arc {
+                Some(Box::new(Arc {
                     center: c,
                     u,
                     v,
@@ -92,7 +94,7 @@ impl Segment {
                     radius,
                     sweep,
                     rise: to[an] - from[an],
-                })
+                }))
             }
         };
         Segment {
@@ -127,7 +129,7 @@ impl Segment {
         Segment {
             from,
             to,
-            arc: Some(Arc {
+            arc: Some(Box::new(Arc {
                 center,
                 u,
                 v,
@@ -135,8 +137,8 @@ impl Segment {
                 radius,
                 sweep,
                 rise: 0.0,
-            }),
-            rotation_rates: Some((rates.0.map(|r| r * length), rates.1.map(|r| r * length))),
+            })),
+            rotation_rates: Some(Box::new((rates.0.map(|r| r * length), rates.1.map(|r| r * length)))),
         }
     }
 
@@ -147,7 +149,7 @@ impl Segment {
         if len <= 1e-12 {
             return ([0.0; 3], [0.0; 3]);
         }
-        match self.rotation_rates {
+        match self.rotation_rates.as_deref() {
             Some((m0, m1)) => (m0.map(|m| m / len), m1.map(|m| m / len)),
             None => {
                 let r: [f64; 3] = std::array::from_fn(|c| (self.to[c + 3] - self.from[c + 3]) / len);
@@ -165,7 +167,7 @@ impl Segment {
 
     /// The length of the tool point's path (mm).
     pub fn linear_length(&self) -> f64 {
-        match self.arc {
+        match self.arc.as_deref() {
             None => (0..3).map(|c| (self.to[c] - self.from[c]).powi(2)).sum::<f64>().sqrt(),
             Some(a) => (a.radius * a.sweep).hypot(a.rise),
         }
@@ -183,14 +185,14 @@ impl Segment {
             return self.to;
         }
         let mut p: Pose = std::array::from_fn(|c| self.from[c] + (self.to[c] - self.from[c]) * u);
-        if let Some(a) = self.arc {
+        if let Some(a) = self.arc.as_deref() {
             let phi = a.sweep * u;
             let (cos, sin) = (phi.cos(), phi.sin());
             for (c, x) in p.iter_mut().take(3).enumerate() {
                 *x = a.center[c] + a.radius * (cos * a.u[c] + sin * a.v[c]) + a.rise * u * a.w[c];
             }
         }
-        if let Some((m0, m1)) = self.rotation_rates {
+        if let Some((m0, m1)) = self.rotation_rates.as_deref() {
             // Cubic Hermite: the values at both ends, the rates of the lines at both ends.
             let (u2, u3) = (u * u, u * u * u);
             let (h00, h10, h01, h11) = (
@@ -218,7 +220,7 @@ impl Segment {
 
     /// The angle an arc turns (rad; 0 for a line).
     pub fn sweep(&self) -> f64 {
-        self.arc.map_or(0.0, |a| a.sweep)
+        self.arc.as_deref().map_or(0.0, |a| a.sweep)
     }
 
     /// Whether it is an arc (or a blend).
@@ -229,7 +231,7 @@ impl Segment {
     /// The unit direction of the tool point's travel at fraction `u` (zero when it does not
     /// move).
     pub fn direction(&self, u: f64) -> [f64; 3] {
-        let d = match self.arc {
+        let d = match self.arc.as_deref() {
             None => [
                 self.to[0] - self.from[0],
                 self.to[1] - self.from[1],

@@ -43,7 +43,7 @@ pub struct PlanLimits {
 }
 
 /// A piece of the planned path.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct Element {
     /// Its geometry.
     pub segment: Segment,
@@ -180,7 +180,8 @@ pub fn elements(program: &Program) -> (Vec<Element>, f64) {
 
 /// [`elements`], and the program's events with their lines.
 fn elements_and_events(program: &Program) -> (Vec<Element>, f64, Vec<Pending>) {
-    let mut out: Vec<Element> = Vec::new();
+    // At most one element a block: sized once, not grown by copies.
+    let mut out: Vec<Element> = Vec::with_capacity(program.blocks.len());
     let mut initial_dwell = 0.0;
     let mut events = Vec::new();
     // The dwell at the current stop so far (since the last move).
@@ -343,24 +344,31 @@ fn blend_corners(elements: Vec<Element>) -> Vec<Element> {
     out.push(current);
     // A line both its corners' blends took whole is gone; its stop (if any) goes to the piece
     // before it.
-    let mut kept: Vec<Element> = Vec::with_capacity(out.len());
-    for e in out {
-        if e.segment.length() > 1e-9 {
-            kept.push(e);
-        } else if let Some(last) = kept.last_mut() {
-            last.stop_after |= e.stop_after;
-            last.dwell_after_s += e.dwell_after_s;
+    // (Compacted in place: a copy would hold the program's elements twice.)
+    let mut kept = 0;
+    for r in 0..out.len() {
+        if out[r].segment.length() > 1e-9 {
+            out.swap(kept, r);
+            kept += 1;
+        } else if kept > 0 {
+            let (stop, dwell) = (out[r].stop_after, out[r].dwell_after_s);
+            out[kept - 1].stop_after |= stop;
+            out[kept - 1].dwell_after_s += dwell;
         }
     }
-    kept
+    out.truncate(kept);
+    out
 }
+
+/// How many points' poses and joints the caps need at once: the point, two before, two after.
+const WINDOW: usize = 5;
 
 /// Plans `program` on the machine `frame` within `limits`.
 pub fn plan(program: &Program, frame: &MachineFrame, limits: &PlanLimits) -> Result<Plan, PlanError> {
     let (elements, initial_dwell, pending) = elements_and_events(program);
     let n = frame.dof();
     // The points: each element split into at least two intervals.
-    let mut points: Vec<Point> = Vec::new();
+    let mut points: Vec<Point> = Vec::with_capacity(2 * elements.len() + 1);
     let mut s = 0.0;
     for (k, e) in elements.iter().enumerate() {
         let len = e.segment.length();
@@ -396,22 +404,29 @@ pub fn plan(program: &Program, frame: &MachineFrame, limits: &PlanLimits) -> Res
         });
     }
     let count = points.len();
-    // Poses and joints at every point.
-    let mut poses: Vec<Pose> = Vec::with_capacity(count);
-    let mut joints: Vec<[f64; MAX_DOF]> = Vec::with_capacity(count);
-    for p in &points {
-        let e = &elements[p.element as usize];
-        let pose = e.segment.at(p.u);
-        let mut q = [0.0; MAX_DOF];
-        frame.inverse(&pose[..n], &mut q[..n]).map_err(|err| PlanError {
-            line: e.line,
-            message: format!("the path leaves the workspace: {err}"),
-        })?;
-        poses.push(pose);
-        joints.push(q);
-    }
+    // Poses and joints of the points, computed as the caps below need them: at most two points
+    // on either side of the one at hand (a window of five), so that a program of a million
+    // lines does not hold a pose and joints for each of its points at once.
+    let mut poses: [Pose; WINDOW] = [[0.0; 6]; WINDOW];
+    let mut joints: [[f64; MAX_DOF]; WINDOW] = [[0.0; MAX_DOF]; WINDOW];
+    let mut computed = 0;
     // Caps and acceleration bounds from the derivatives along the path.
     for i in 0..count {
+        while computed < count && computed <= i + 2 {
+            let p = &points[computed];
+            let e = &elements[p.element as usize];
+            let pose = e.segment.at(p.u);
+            let mut q = [0.0; MAX_DOF];
+            frame.inverse(&pose[..n], &mut q[..n]).map_err(|err| PlanError {
+                line: e.line,
+                message: format!("the path leaves the workspace: {err}"),
+            })?;
+            poses[computed % WINDOW] = pose;
+            joints[computed % WINDOW] = q;
+            computed += 1;
+        }
+        let pose = |k: usize| &poses[k % WINDOW];
+        let joint = |k: usize| &joints[k % WINDOW];
         let (a, b) = (i.saturating_sub(1), (i + 1).min(count - 1));
         let ds = points[b].s - points[a].s;
         if ds <= 0.0 {
@@ -451,24 +466,24 @@ pub fn plan(program: &Program, frame: &MachineFrame, limits: &PlanLimits) -> Res
         };
         #[allow(clippy::needless_range_loop)] // c indexes the poses of three points and the limits
         for c in 0..n.min(6) {
-            let d1 = (poses[b][c] - poses[a][c]) / ds;
+            let d1 = (pose(b)[c] - pose(a)[c]) / ds;
             if d1.abs() > 1e-12 {
                 consider(limits.axis_speed[c] / d1.abs(), Limit::AxisSpeed(c));
                 accel = accel.min(0.5 * limits.axis_accel[c] / d1.abs());
             }
-            let d2 = curvature(&|k| poses[k][c]);
+            let d2 = curvature(&|k| pose(k)[c]);
             if d2 > 1e-12 {
                 consider((0.5 * limits.axis_accel[c] / d2).sqrt(), Limit::AxisCurvature(c));
             }
         }
         #[allow(clippy::needless_range_loop)] // j indexes the joints of three points and the limits
         for j in 0..n {
-            let d1 = (joints[b][j] - joints[a][j]) / ds;
+            let d1 = (joint(b)[j] - joint(a)[j]) / ds;
             if d1.abs() > 1e-12 {
                 consider(limits.joint_speed[j] / d1.abs(), Limit::JointSpeed(j));
                 accel = accel.min(0.5 * limits.joint_accel[j] / d1.abs());
             }
-            let d2 = curvature(&|k| joints[k][j]);
+            let d2 = curvature(&|k| joint(k)[j]);
             if d2 > 1e-12 {
                 consider((0.5 * limits.joint_accel[j] / d2).sqrt(), Limit::JointCurvature(j));
             }
@@ -539,7 +554,8 @@ pub fn plan(program: &Program, frame: &MachineFrame, limits: &PlanLimits) -> Res
         if !e.feed.is_finite() || p.cap >= e.feed * (1.0 - 1e-6) {
             continue;
         }
-        match limited.iter_mut().find(|l| l.line == e.line) {
+        // Points come in line order: a line's entry, if any, is the last.
+        match limited.last_mut().filter(|l| l.line == e.line) {
             Some(l) if p.cap * 60.0 < l.reachable_mm_min => {
                 l.reachable_mm_min = p.cap * 60.0;
                 l.why = p.limit;
