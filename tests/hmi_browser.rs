@@ -592,22 +592,29 @@ async fn watch_frames(ws_url: &str) -> tokio::sync::mpsc::UnboundedReceiver<(Str
     rx
 }
 
-/// Waits for a frame in `state` (at most `within`).
+/// Waits for a frame in `state` (at most `within`); `log` is the PLC's, shown if it never comes.
 async fn until_state(
     rx: &mut tokio::sync::mpsc::UnboundedReceiver<(String, bool, f64)>,
     state: &str,
     within: Duration,
+    log: impl Fn() -> String,
 ) {
     let start = Instant::now();
+    let mut last = String::new();
     loop {
         let (s, _, _) = tokio::time::timeout(within, rx.recv())
             .await
-            .expect("frames in time")
+            .unwrap_or_else(|_| panic!("no frame within {within:?}; the PLC's log:\n{}", log()))
             .expect("frames");
         if s == state {
             return;
         }
-        assert!(start.elapsed() < within, "{state} in time");
+        assert!(
+            start.elapsed() < within,
+            "{state} not within {within:?}: the page shows {s} (before: {last}); the PLC's log:\n{}",
+            log()
+        );
+        last = s;
     }
 }
 
@@ -633,7 +640,7 @@ async fn a_page_of_another_origin_or_a_rebound_name_reaches_nothing() {
     let plc = start_plc(&test_config(dir.path()), 90, &[]);
     let port = plc.port();
     let mut frames = watch_frames(&(plc.url.replacen("http://", "ws://", 1) + "ws")).await;
-    until_state(&mut frames, "READY", Duration::from_secs(60)).await;
+    until_state(&mut frames, "READY", Duration::from_secs(60), || plc.log()).await;
     // The attacker's page: opens the screen's WebSocket by its address and under its own name,
     // and sends STOP and a jog every 20 ms on whichever opens.
     let attack = |url: String| {
@@ -718,8 +725,13 @@ async fn a_watching_page_shows_its_controls_disabled_and_the_token_leaves_the_ad
     let token = "0123456789abcdef-token";
     let plc = start_plc(&test_config(dir.path()), 60, &["--hmi-token", token]);
     let controls = "[...document.querySelectorAll('button, select')]";
-    let all_disabled = format!("String({controls}.length > 5 && {controls}.every(b => b.disabled))");
-    let all_enabled = format!("String({controls}.length > 5 && {controls}.every(b => !b.disabled))");
+    // After the hello (`data-commands` set): every control disabled, or every one enabled.
+    let all_disabled = format!(
+        "String(document.body.dataset.commands === 'false' && {controls}.length > 5 && {controls}.every(b => b.disabled))"
+    );
+    let all_enabled = format!(
+        "String(document.body.dataset.commands === 'true' && {controls}.length > 5 && {controls}.every(b => !b.disabled))"
+    );
     page.goto(plc.url.as_str()).await.expect("loads");
     until(
         &page,

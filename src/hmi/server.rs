@@ -43,7 +43,7 @@ const FRAME_POLL: Duration = Duration::from_millis(2);
 /// The longest message a client may send (its commands are a few dozen bytes).
 pub const MAX_CLIENT_MESSAGE: usize = 4096;
 /// Commands (and text requests) a client may send per second, on average; as many at once. The
-/// page sends 50 a second while a jog is held.
+/// page sends 50 a second while a jog is held. STOP and a jog's release are never dropped.
 pub const COMMANDS_PER_S: f64 = 100.0;
 /// The most lines of a program's text sent in one answer.
 pub const TEXT_WINDOW: usize = 400;
@@ -351,6 +351,15 @@ impl Command {
     fn reads(&self) -> bool {
         matches!(self, Command::Text { .. } | Command::Path { .. })
     }
+
+    /// Whether it stops something: STOP, a jog's release. Never dropped for the rate.
+    fn stops(&self) -> bool {
+        match self {
+            Command::Stop {} => true,
+            Command::Jog { x, y, .. } => *x == 0.0 && *y == 0.0,
+            _ => false,
+        }
+    }
 }
 
 /// A client's allowance of messages: [`COMMANDS_PER_S`] a second on average, as many at once.
@@ -426,14 +435,16 @@ async fn client(mut socket: WebSocket, peer: SocketAddr, commands: bool, shared:
             },
             message = socket.recv() => match message {
                 Some(Ok(Message::Text(text))) => {
-                    if !budget.take() {
+                    let parsed = serde_json::from_str::<Command>(&text);
+                    // What stops is never dropped; everything else spends the allowance.
+                    if !parsed.as_ref().is_ok_and(Command::stops) && !budget.take() {
                         counts.throttled += 1;
                         if counts.throttled == 1 {
                             warn!("screen {peer}: more than {COMMANDS_PER_S} messages a second: the excess is dropped (counted from now)");
                         }
                         continue;
                     }
-                    let reply = match serde_json::from_str::<Command>(&text) {
+                    let reply = match parsed {
                         Ok(c) if c.reads() => shared.read(c),
                         Ok(_) if !commands => {
                             counts.watching += 1;

@@ -326,6 +326,9 @@ function padAt(e) {
   $("pad-dot").style.top = `${72 - y * 72}px`;
   startJog(x, y);
 }
+// Until the server says this page may command (its hello), the controls are disabled.
+for (const c of document.querySelectorAll("button, select")) c.disabled = true;
+pad.classList.add("disabled");
 pad.addEventListener("pointerdown", (e) => { pad.setPointerCapture(e.pointerId); padAt(e); });
 pad.addEventListener("pointermove", (e) => { if (jog && pad.hasPointerCapture(e.pointerId)) padAt(e); });
 for (const end of ["pointerup", "pointercancel", "lostpointercapture"]) pad.addEventListener(end, stopJog);
