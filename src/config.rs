@@ -74,6 +74,10 @@ pub struct NcConfig {
     /// Acceleration per world axis (mm/s², degrees/s²), one per coordinate.
     #[serde(default)]
     pub axis_accel: Option<Vec<f64>>,
+    /// The block-delete switch: on, a program's lines that start with `/` are skipped; off (the
+    /// default, as LinuxCNC's), they run.
+    #[serde(default)]
+    pub block_delete: bool,
 }
 
 impl NcConfig {

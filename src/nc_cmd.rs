@@ -38,6 +38,9 @@ enum NcOp {
         /// Also draw the tool path inside the machine's workspace as SVG to FILE.
         #[arg(long, value_name = "FILE")]
         svg: Option<PathBuf>,
+        /// List every block whose feed the machine lowers, not one line per cause.
+        #[arg(long)]
+        verbose: bool,
     },
 }
 
@@ -50,6 +53,7 @@ pub fn run(args: NcArgs, load: impl Fn(&ConfigArg) -> Result<LoadedConfig, Confi
         config,
         json,
         svg,
+        verbose,
     } = args.op;
     let fail = |code: u8, message: String| NcFailure { code, message };
     let loaded = load(&config).map_err(|e| fail(2, e.to_string()))?;
@@ -94,15 +98,7 @@ pub fn run(args: NcArgs, load: impl Fn(&ConfigArg) -> Result<LoadedConfig, Confi
                 p.feed_time_s / p.programmed_feed_time_s
             ));
         }
-        for l in &p.limited {
-            lines.push(format!(
-                "{name}:{}: F{} slows to {:.1} mm/min at its slowest point: {}",
-                l.line,
-                l.programmed_mm_min,
-                l.reachable_mm_min,
-                l.why.text()
-            ));
-        }
+        lines.extend(limited_lines(name, &p.limited, verbose));
     }
     if let Some(out) = json {
         let pose_json = |p: &[f64; 6]| -> Value {
@@ -163,6 +159,54 @@ pub fn run(args: NcArgs, load: impl Fn(&ConfigArg) -> Result<LoadedConfig, Confi
             prepared.unreachable_lines().join("\n")
         ),
     ))
+}
+
+/// What `nc check` says of the blocks whose feed the machine lowers: every block with `verbose`;
+/// else one line per cause (a CAM program's thousands of blocks would be thousands of lines),
+/// naming how many blocks it slows and the slowest of them — or, for a cause of one block, that
+/// block.
+fn limited_lines(name: &str, limited: &[pkm_nc::plan::Limited], verbose: bool) -> Vec<String> {
+    let one = |l: &pkm_nc::plan::Limited| {
+        format!(
+            "{name}:{}: F{} slows to {:.1} mm/min at its slowest point: {}",
+            l.line,
+            l.programmed_mm_min,
+            l.reachable_mm_min,
+            l.why.text()
+        )
+    };
+    if verbose {
+        return limited.iter().map(one).collect();
+    }
+    // Per cause, in the order of first appearance: its blocks and the slowest of them.
+    let mut causes: Vec<(pkm_nc::plan::Limit, usize, &pkm_nc::plan::Limited)> = Vec::new();
+    for l in limited {
+        match causes.iter_mut().find(|(why, _, _)| *why == l.why) {
+            Some((_, count, slowest)) => {
+                *count += 1;
+                if l.reachable_mm_min < slowest.reachable_mm_min {
+                    *slowest = l;
+                }
+            }
+            None => causes.push((l.why, 1, l)),
+        }
+    }
+    causes
+        .iter()
+        .map(|(why, count, slowest)| {
+            if *count == 1 {
+                one(slowest)
+            } else {
+                format!(
+                    "{name}: {count} blocks slow below their feed because of {}; the slowest, line {}: F{} → {:.1} mm/min (--verbose lists them all)",
+                    why.text(),
+                    slowest.line,
+                    slowest.programmed_mm_min,
+                    slowest.reachable_mm_min
+                )
+            }
+        })
+        .collect()
 }
 
 /// Draws `program`'s tool path over the machine's sampled workspace into `out`.

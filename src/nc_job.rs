@@ -151,6 +151,7 @@ pub fn prepare_text(setup: &Setup, name: String, text: String) -> Result<Prepare
             // The program starts at the reference point, the origin of the machine frame.
             start: [0.0; 6],
             work_offsets: nc.origins(n),
+            block_delete: nc.block_delete,
         },
     )
     .map_err(|e| fail(2, format!("{name}:{e}")))?;

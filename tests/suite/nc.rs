@@ -71,10 +71,37 @@ fn a_feed_the_joints_cannot_give_is_reported_with_the_reachable_feed_and_why() {
     );
 }
 
+/// Issue 27: a program with many blocks the machine slows gets one line per cause, not a line
+/// per block (a CAM program's 19 321 lines); `--verbose` lists every block.
+#[test]
+fn lowered_feeds_are_summed_up_per_cause_and_listed_with_verbose() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let file = program(dir.path(), "fast.ngc", "G61 G1 X20 F6000\nX0\nX20\nX0\nM2\n");
+    let o = pkm(&["nc", "check", &file, "--machine", "pn101"]);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    assert!(
+        stdout(&o).contains(&format!(
+            "{file}: 4 blocks slow below their feed because of the speed of joint 1; the slowest, line 1: F6000 → 480.0 mm/min (--verbose lists them all)\n"
+        )),
+        "{}",
+        stdout(&o)
+    );
+    let o = pkm(&["nc", "check", &file, "--machine", "pn101", "--verbose"]);
+    for line in 1..=4 {
+        assert!(
+            stdout(&o).contains(&format!(
+                "{file}:{line}: F6000 slows to 480.0 mm/min at its slowest point: the speed of joint 1\n"
+            )),
+            "{}",
+            stdout(&o)
+        );
+    }
+}
+
 #[test]
 fn unreachable_points_are_named_by_line_and_nothing_else_is_said_to_pass() {
     let dir = tempfile::tempdir().expect("tempdir");
-    let file = program(dir.path(), "far.ngc", "G1 X1 F100\nG1 X200\nG1 X0\n");
+    let file = program(dir.path(), "far.ngc", "G1 X1 F100\nG1 X200\nG1 X0\nM2\n");
     let o = pkm(&["nc", "check", &file, "--machine", "pn101"]);
     assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
     assert_eq!(
@@ -106,7 +133,7 @@ fn a_refused_word_is_named_with_file_line_and_column() {
         format!("error: {file}:1:4: A: this machine's axes are X Y Z\n")
     );
     // The hexapod has rotations; a few degrees of tilt are inside its workspace.
-    let file = program(dir.path(), "tilt.ngc", "G1 X5 A3 B-3 F100\nG1 X0 A0 B0\n");
+    let file = program(dir.path(), "tilt.ngc", "G1 X5 A3 B-3 F100\nG1 X0 A0 B0\nM2\n");
     let o = pkm(&["nc", "check", &file, "--machine", "hexapod"]);
     assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
 }
@@ -228,4 +255,132 @@ fn work_offsets_and_axis_limits_come_from_the_configuration() {
             "error: {config}: at nc.work_offsets.G60: a work coordinate system is one of G54, G55, G56, G57, G58, G59\n"
         )
     );
+}
+
+/// One move as both interpreters give it: rapid, feed or arc, its end (x y z) and, for an arc
+/// in X–Y, its centre and direction.
+#[derive(Debug, PartialEq)]
+struct Canonical {
+    kind: &'static str,
+    end: [f64; 3],
+    arc: Option<([f64; 2], bool)>,
+}
+
+fn rounded(v: [f64; 3]) -> [f64; 3] {
+    v.map(|x| (x * 1e4).round() / 1e4)
+}
+
+/// Our moves of `text` (a machine with X Y Z, no work offsets, starting at 0).
+fn ours(text: &str) -> Vec<Canonical> {
+    use pkm_nc::interp::{Action, Machine, Path, read};
+    let program = read(
+        text,
+        &Machine {
+            axes: &["x", "y", "z"],
+            start: [0.0; 6],
+            work_offsets: [[0.0; 6]; 6],
+            block_delete: false,
+        },
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    program
+        .blocks
+        .iter()
+        .filter_map(|b| match b.action {
+            Action::Move {
+                to, path, feed_mm_min, ..
+            } => Some(Canonical {
+                kind: match (path, feed_mm_min) {
+                    (Path::Arc { .. }, _) => "arc",
+                    (_, None) => "rapid",
+                    _ => "feed",
+                },
+                end: rounded([to[0], to[1], to[2]]),
+                arc: match path {
+                    Path::Arc { center, clockwise, .. } => Some(([center[0], center[1]], clockwise)),
+                    Path::Line => None,
+                },
+            }),
+            _ => None,
+        })
+        .collect()
+}
+
+/// LinuxCNC's moves of `text`, from its `rs274` (canonical calls); moves that go nowhere (the
+/// zero-length feed it issues for a motion mode set alone) left out.
+fn linuxcnc(rs274: &std::path::Path, text: &str) -> Vec<Canonical> {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let file = dir.path().join("p.ngc");
+    std::fs::write(&file, text).expect("write");
+    let out = std::process::Command::new(rs274)
+        .arg("-g")
+        .arg(&file)
+        .current_dir(dir.path())
+        .output()
+        .expect("rs274 runs");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let mut at = [0.0; 3];
+    let mut moves = Vec::new();
+    // rs274 prints lengths in the units in force (inches after G20).
+    let mut unit = 1.0;
+    for line in stdout.lines() {
+        let Some((call, args)) = line.split_once('(') else {
+            continue;
+        };
+        let call = call.rsplit(' ').next().unwrap_or("");
+        if call == "USE_LENGTH_UNITS" {
+            unit = if args.contains("INCHES") { 25.4 } else { 1.0 };
+            continue;
+        }
+        let n: Vec<f64> = args
+            .trim_end_matches(')')
+            .split(',')
+            .filter_map(|x| x.trim().parse::<f64>().ok())
+            .map(|x| x * unit)
+            .collect();
+        let (kind, end, arc) = match call {
+            "STRAIGHT_TRAVERSE" => ("rapid", [n[0], n[1], n[2]], None),
+            "STRAIGHT_FEED" => ("feed", [n[0], n[1], n[2]], None),
+            // In X–Y: first end, second end, first centre, second centre, rotation, z end, …
+            "ARC_FEED" => ("arc", [n[0], n[1], n[5]], Some(([n[2], n[3]], n[4] < 0.0))),
+            _ => continue,
+        };
+        let end = rounded(end);
+        if kind != "arc" && end == rounded(at) {
+            continue;
+        }
+        at = end;
+        moves.push(Canonical { kind, end, arc });
+    }
+    moves
+}
+
+/// Issue 27: the dialect CAM programs use, read by our interpreter and by LinuxCNC 2.9's
+/// `rs274` (Debian's `linuxcnc-uspace`), give the same moves. Without `rs274` here the test says
+/// so and passes; the interpreter's own tests check the same programs against the moves written
+/// in them.
+#[test]
+fn the_cam_dialect_gives_the_moves_linuxcnc_gives() {
+    let Some(rs274) = ["/usr/bin/rs274", "/usr/local/bin/rs274"]
+        .iter()
+        .map(std::path::Path::new)
+        .find(|p| p.exists())
+    else {
+        eprintln!(
+            "SKIPPED nc::the_cam_dialect_gives_the_moves_linuxcnc_gives: no rs274 here (apt-get install linuxcnc-uspace)"
+        );
+        return;
+    };
+    let programs = [
+        "G21 G90 G17\nG1 F600\nX10\nY5\nG0 X0 Y0\nM2\n",
+        "%\nG40 G49 G80 G94 G17 G21 G90\nG0 X1 Y1\nG1 Z-1 F300\nX5 Y 1 0.5\nG0 Z2\n%\n",
+        "G1 X1 F100\nM2\nG1 X5\nnot G-code at all\n",
+        "G1 X1 F100\n/G1 X5\nM2\n",
+        "G0 X10 Y0\nG2 I-10 F100\nG3 X0 Y10 I-10 J0\nG90.1 G2 X10 Y0 I0 J0\nG91.1 G3 X0 Y10 I-10\nM30\n",
+        "G61.1 G1 X1 F100\nG64 P0 X2\nG64 P0.01 Q0.01 X3\nG64 P-1 X4\nG64 X5\nG61 X6\nM2\n",
+        "G20 G1 X1 F10\nG21 G91 X1 Y2\nG90 X0 Y0\nM2\n",
+    ];
+    for text in programs {
+        assert_eq!(ours(text), linuxcnc(rs274, text), "{text}");
+    }
 }

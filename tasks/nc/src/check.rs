@@ -174,8 +174,10 @@ mod tests {
         let n = f.dof();
         let world = vec![[-1000.0, 1000.0]; n];
         let program = read(
-            text,
+            // A program ends (M2); what follows an end is never read.
+            &format!("{text}\nM2"),
             &Machine {
+                block_delete: false,
                 axes: f.kinematics().pose_keys(),
                 start: [0.0; 6],
                 work_offsets: [[0.0; 6]; 6],

@@ -8,7 +8,7 @@
 //! as the machine has them. Everything else is refused with its line, column and reason.
 
 use crate::NcError;
-use crate::lexer::{self, Word};
+use crate::lexer::{self, Line, Word};
 
 /// A pose in the machine's world coordinates: x y z (mm), a b c (degrees); the machine's
 /// coordinates first, unused ones zero.
@@ -82,9 +82,16 @@ pub enum Path {
 pub enum Blend {
     /// G61: at rest at its end point.
     ExactStop,
-    /// G64: blended into the next move, within this distance of the corner (mm); `None`: as
-    /// close as the limits allow at the best speed (LinuxCNC's G64 without P).
-    Within(Option<f64>),
+    /// G64: blended into the next move, within `tolerance` of the corner (mm; `None`: as close
+    /// as the limits allow at the best speed — LinuxCNC's G64 without P, with P0 or P-1); lines
+    /// that deviate less than `merge` (mm, G64 Q: LinuxCNC's naive CAM detector) from one
+    /// straight line are run as that line.
+    Within {
+        /// The largest distance from a corner (G64 P).
+        tolerance: Option<f64>,
+        /// The deviation within which consecutive lines merge (G64 Q).
+        merge: Option<f64>,
+    },
 }
 
 /// The spindle's direction.
@@ -151,6 +158,9 @@ pub struct Machine<'a> {
     pub start: Pose,
     /// The work offsets of G54 … G59 (machine coordinates of each system's origin).
     pub work_offsets: [Pose; 6],
+    /// The block-delete switch: on, lines starting with `/` are skipped; off (LinuxCNC's
+    /// default), they run.
+    pub block_delete: bool,
 }
 
 /// A program read into blocks.
@@ -169,35 +179,69 @@ const ARC_TOLERANCE_RELATIVE: f64 = 0.001;
 pub fn read(text: &str, machine: &Machine<'_>) -> Result<Program, NcError> {
     let mut state = State::new(machine);
     let mut blocks = Vec::new();
-    let mut ended: Option<usize> = None;
-    for block in lexer::blocks(text) {
-        let block = block?;
-        if let Some(end) = ended {
-            return Err(NcError::new(
-                block.line,
-                block.words[0].column,
-                format!("the program ends at line {end} (M2/M30): this block would never run"),
-            ));
+    // A '%' on the first line that is not blank opens the program, and the next closes it;
+    // without it the program ends at M2 or M30. What follows the end is never read (LinuxCNC
+    // ignores it).
+    let (mut seen, mut opened, mut ended) = (false, false, false);
+    let mut last_line = 1;
+    for line in lexer::lines(text, machine.block_delete) {
+        match line? {
+            Line::Percent(number) => {
+                last_line = number;
+                if !seen {
+                    opened = true;
+                } else if opened {
+                    blocks.push(Block {
+                        line: number,
+                        action: Action::End,
+                    });
+                    ended = true;
+                    break;
+                } else {
+                    return Err(NcError::new(
+                        number,
+                        1,
+                        "'%' opens a program only on its first line (and then closes it)".to_string(),
+                    ));
+                }
+            }
+            Line::Nothing => {}
+            Line::Words(block) => {
+                last_line = block.line;
+                state.block(&block, &mut blocks)?;
+                if blocks.len() > MAX_BLOCKS {
+                    return Err(NcError::new(
+                        block.line,
+                        1,
+                        format!(
+                            "the program has more than {MAX_BLOCKS} moves and other actions: split it (planning takes about half a kilobyte per move)"
+                        ),
+                    ));
+                }
+                if matches!(
+                    blocks.last(),
+                    Some(Block {
+                        action: Action::End,
+                        ..
+                    })
+                ) {
+                    ended = true;
+                    break;
+                }
+            }
         }
-        state.block(&block, &mut blocks)?;
-        if blocks.len() > MAX_BLOCKS {
-            return Err(NcError::new(
-                block.line,
-                1,
-                format!(
-                    "the program has more than {MAX_BLOCKS} moves and other actions: split it (planning takes about half a kilobyte per move)"
-                ),
-            ));
-        }
-        if matches!(
-            blocks.last(),
-            Some(Block {
-                action: Action::End,
-                ..
-            })
-        ) {
-            ended = Some(block.line);
-        }
+        seen = true;
+    }
+    if !ended {
+        return Err(NcError::new(
+            last_line,
+            1,
+            if opened {
+                "the file ended without the closing '%' (or M2, M30): is the program complete?"
+            } else {
+                "the file ended with no program end (M2, M30) and no '%' delimiters: is the program complete?"
+            },
+        ));
     }
     Ok(Program { blocks })
 }
@@ -218,19 +262,26 @@ struct State<'a> {
     feed_mm_min: Option<f64>,
     speed_rpm: f64,
     blend: Blend,
+    /// G90.1: an arc's I J K are absolute program coordinates (G91.1, the default: offsets from
+    /// its start).
+    arc_absolute: bool,
 }
 
 /// The modal groups of the supported G codes (RS274NGC's numbering), for the one-per-group rule.
 fn g_group(code: u16) -> Option<u8> {
     match code {
-        0 | 10 | 20 | 30 => Some(1),
+        0 | 10 | 20 | 30 | 800 => Some(1),
         40 => Some(0),
         170 | 180 | 190 => Some(2),
         200 | 210 => Some(6),
         530 | 920 => Some(0),
         540..=590 => Some(12),
-        610 | 640 => Some(13),
+        610 | 611 | 640 => Some(13),
         900 | 910 => Some(3),
+        901 | 911 => Some(4),
+        940 => Some(5),
+        400 => Some(7),
+        490 => Some(8),
         _ => None,
     }
 }
@@ -247,9 +298,8 @@ fn g_refusal(code: u16) -> String {
         400..=429 => "cutter compensation",
         430..=499 => "tool length compensation",
         800..=899 => "canned cycles",
-        911 | 901 => "arc distance modes",
         921..=923 => "G92 variants",
-        930 | 940 | 950 => "feed modes other than units per minute",
+        930 | 950 => "feed modes other than units per minute",
         960 | 970 => "spindle speed modes",
         981 | 990 | 980 => "canned-cycle return levels",
         _ => "",
@@ -283,7 +333,11 @@ impl<'a> State<'a> {
             g92: [0.0; 6],
             feed_mm_min: None,
             speed_rpm: 0.0,
-            blend: Blend::Within(None),
+            arc_absolute: false,
+            blend: Blend::Within {
+                tolerance: None,
+                merge: None,
+            },
         }
     }
 
@@ -366,7 +420,7 @@ impl<'a> State<'a> {
                         return Err(at(w, "a line number (N) comes first in its block".into()));
                     }
                 }
-                'X' | 'Y' | 'Z' | 'A' | 'B' | 'C' | 'I' | 'J' | 'K' | 'R' | 'F' | 'S' | 'P' => {
+                'X' | 'Y' | 'Z' | 'A' | 'B' | 'C' | 'I' | 'J' | 'K' | 'R' | 'F' | 'S' | 'P' | 'Q' => {
                     let slot = &mut values[(w.letter as u8 - b'A') as usize];
                     if slot.is_some() {
                         return Err(at(w, format!("{} twice in one block", w.letter)));
@@ -375,7 +429,7 @@ impl<'a> State<'a> {
                 }
                 'T' => return Err(at(w, "tool selection (T) is not supported".into())),
                 'D' | 'H' => return Err(at(w, format!("{} (tool compensation) is not supported", w.letter))),
-                'L' | 'Q' => {
+                'L' => {
                     return Err(at(
                         w,
                         format!("{} (G10 tables, canned cycles) is not supported", w.letter),
@@ -471,6 +525,14 @@ impl<'a> State<'a> {
                 "P belongs to G4 (dwell), G64 (tolerance) or an arc (turns)".into(),
             ));
         }
+        if let Some(w) = get('Q')
+            && !has_g(640)
+        {
+            return Err(at(
+                w,
+                "Q belongs to G64 (merging lines within it); canned cycles are not supported".into(),
+            ));
+        }
         for letter in ['R', 'I', 'J', 'K'] {
             if let Some(w) = get(letter)
                 && !arc_now
@@ -515,21 +577,30 @@ impl<'a> State<'a> {
         if let Some(w) = get('F') {
             self.feed_mm_min = Some(w.value * self.unit());
         }
-        if has_g(610) {
+        // G61 and G61.1 (exact path: the same here, as every move follows its programmed path).
+        if has_g(610) || has_g(611) {
             self.blend = Blend::ExactStop;
         }
         if has_g(640) {
-            let tolerance = match get('P') {
-                Some(p) if !(p.value.is_finite() && p.value >= 0.0) => {
+            // P0, and a negative P (LinuxCNC reads P-1 so), is G64 without P: no tolerance.
+            let tolerance = get('P').map(|p| p.value * self.unit()).filter(|p| *p > 0.0);
+            let merge = match get('Q') {
+                Some(q) if q.value < 0.0 => {
                     return Err(at(
-                        p,
-                        format!("the blending tolerance P must be zero or positive, got {}", p.value),
+                        q,
+                        format!("the merging tolerance Q must be zero or positive, got {}", q.value),
                     ));
                 }
-                Some(p) => Some(p.value * self.unit()),
+                Some(q) => Some(q.value * self.unit()).filter(|q| *q > 0.0),
                 None => None,
             };
-            self.blend = Blend::Within(tolerance);
+            self.blend = Blend::Within { tolerance, merge };
+        }
+        if has_g(901) {
+            self.arc_absolute = true;
+        }
+        if has_g(911) {
+            self.arc_absolute = false;
         }
         if has_g(900) {
             self.incremental = false;
@@ -559,10 +630,30 @@ impl<'a> State<'a> {
             }
         }
         let machine_coords = has_g(530);
+        if let Some(w) = g_word(800) {
+            // G80 (canned cycle cancel) sets no motion mode; CAM programs write it in their
+            // preamble.
+            if let Some((_, a)) = axis_words.first() {
+                return Err(at(
+                    a,
+                    format!(
+                        "axis words cannot go with G80 (it cancels the motion mode; {} does not)",
+                        format_code('G', 800)
+                    ),
+                ));
+            }
+            let _ = w;
+            self.motion = None;
+        }
         if let Some((code, _)) = motion_word {
             self.motion = Some(code as u8);
         }
-        let moves = !has_g(920) && !axis_words.is_empty();
+        // An arc without axis words but with its centre is a full circle where the tool stands.
+        let full_circle = matches!(motion_word, Some((20 | 30, _))) && axis_words.is_empty() && {
+            let [o0, o1] = self.plane.offsets();
+            get(o0).is_some() || get(o1).is_some()
+        };
+        let moves = !has_g(920) && (!axis_words.is_empty() || full_circle);
         if let Some(w) = g_word(530) {
             if !matches!(self.motion, Some(0 | 10)) || !moves {
                 return Err(at(w, "G53 goes with a G0 or G1 move in this block".into()));
@@ -571,12 +662,16 @@ impl<'a> State<'a> {
                 return Err(at(w, "G53 needs absolute distances (G90)".into()));
             }
         }
-        if let Some((code, w)) = motion_word
-            && axis_words.is_empty()
+        // G0 or G1 alone sets the motion mode for the lines that follow (LinuxCNC's meaning);
+        // an arc alone needs its centre.
+        if let Some((20 | 30, w)) = motion_word
+            && !moves
+            && !has_g(920)
         {
+            let [o0, o1] = self.plane.offsets();
             return Err(at(
                 w,
-                format!("{} needs at least one axis word", format_code('G', code)),
+                format!("an arc needs its centre ({o0} {o1}) or its end and radius (R)"),
             ));
         }
         if moves {
@@ -598,7 +693,9 @@ impl<'a> State<'a> {
                     v + offset[*c]
                 };
             }
-            let first = axis_words[0].1;
+            let first = axis_words
+                .first()
+                .map_or_else(|| motion_word.map(|(_, w)| w).unwrap_or(&block.words[0]), |(_, w)| *w);
             let feed = match mode {
                 0 => None,
                 _ => Some(self.feed_mm_min.ok_or_else(|| {
@@ -716,10 +813,22 @@ impl<'a> State<'a> {
                 ));
             }
             (None, i, j) => {
-                let c = [
-                    s[0] + i.map_or(0.0, |w| w.value) * self.unit(),
-                    s[1] + j.map_or(0.0, |w| w.value) * self.unit(),
-                ];
+                let c = if self.arc_absolute {
+                    // G90.1: the centre in program coordinates, both of its words given.
+                    let (Some(i), Some(j)) = (i, j) else {
+                        return Err(at(
+                            first,
+                            format!("in G90.1 (absolute arc centres) an arc needs both {o0} and {o1}"),
+                        ));
+                    };
+                    let offset = self.offset();
+                    [i.value * self.unit() + offset[a0], j.value * self.unit() + offset[a1]]
+                } else {
+                    [
+                        s[0] + i.map_or(0.0, |w| w.value) * self.unit(),
+                        s[1] + j.map_or(0.0, |w| w.value) * self.unit(),
+                    ]
+                };
                 let r_start = (s[0] - c[0]).hypot(s[1] - c[1]);
                 let r_end = (e[0] - c[0]).hypot(e[1] - c[1]);
                 if r_start < 1e-9 {
@@ -760,15 +869,23 @@ mod tests {
             axes,
             start: [0.0; 6],
             work_offsets,
+            block_delete: false,
         }
     }
 
+    /// `text` with an end: a program must end (M2), and what follows an end is never read.
+    fn ended(text: &str) -> String {
+        format!("{text}\nM2")
+    }
+
     fn run(text: &str) -> Vec<Block> {
-        read(text, &machine(&XYZ)).unwrap_or_else(|e| panic!("{e}")).blocks
+        read(&ended(text), &machine(&XYZ))
+            .unwrap_or_else(|e| panic!("{e}"))
+            .blocks
     }
 
     fn refused(text: &str) -> String {
-        read(text, &machine(&XYZ)).expect_err("refused").to_string()
+        read(&ended(text), &machine(&XYZ)).expect_err("refused").to_string()
     }
 
     fn moves(blocks: &[Block]) -> Vec<(Pose, Path, Option<f64>)> {
@@ -797,7 +914,11 @@ mod tests {
             "G20: inches"
         );
         assert_eq!(m[5], ([0.0; 6], Path::Line, None));
-        assert!(b.iter().all(|b| b.line >= 1 && b.line <= 6));
+        assert!(
+            b.iter()
+                .filter(|b| matches!(b.action, Action::Move { .. }))
+                .all(|b| b.line >= 1 && b.line <= 6)
+        );
         assert_eq!(b[1].line, 2);
     }
 
@@ -863,7 +984,9 @@ mod tests {
             matches!(actions[0], Action::Spindle { direction: Spindle::Clockwise, speed_rpm } if speed_rpm == 1200.0)
         );
         assert_eq!(actions[1], Action::Dwell(1.5));
-        assert!(matches!(actions[2], Action::Move { blend: Blend::Within(Some(t)), .. } if t == 0.05));
+        assert!(
+            matches!(actions[2], Action::Move { blend: Blend::Within { tolerance: Some(t), .. }, .. } if t == 0.05)
+        );
         assert_eq!(actions[3], Action::Pause { optional: true });
         assert!(matches!(
             actions[4],
@@ -895,13 +1018,13 @@ mod tests {
 
     #[test]
     fn rotations_on_the_hexapod_only() {
-        let b = read("G1 X1 A2 B-3 C4 F100", &machine(&XYZABC)).expect("hexapod");
+        let b = read(&ended("G1 X1 A2 B-3 C4 F100"), &machine(&XYZABC)).expect("hexapod");
         assert_eq!(moves(&b.blocks)[0].0, [1.0, 0.0, 0.0, 2.0, -3.0, 4.0]);
         // G20 scales lengths, not angles.
-        let b = read("G20 G1 X1 A2 F1", &machine(&XYZABC)).expect("hexapod");
+        let b = read(&ended("G20 G1 X1 A2 F1"), &machine(&XYZABC)).expect("hexapod");
         assert_eq!(moves(&b.blocks)[0].0, [25.4, 0.0, 0.0, 2.0, 0.0, 0.0]);
         assert_eq!(refused("G1 X1 A2 F100"), "1:7: A: this machine's axes are X Y Z");
-        let planar = read("G1 X1 Z2 F100", &machine(&["x", "y"])).expect_err("refused");
+        let planar = read(&ended("G1 X1 Z2 F100"), &machine(&["x", "y"])).expect_err("refused");
         assert_eq!(planar.to_string(), "1:7: Z: this machine's axes are X Y");
     }
 
@@ -919,7 +1042,6 @@ mod tests {
                 "G93",
                 "1:1: G93 is not supported (feed modes other than units per minute)",
             ),
-            ("G91.1", "1:1: G91.1 is not supported (arc distance modes)"),
             ("G54.1", "1:1: G54.1 is not supported"),
             ("G1.5", "1:1: G1.5 is not supported"),
             ("T1 M6", "1:1: tool selection (T) is not supported"),
@@ -950,7 +1072,34 @@ mod tests {
                 "1:4: no feed rate: an F word is needed before the first G1, G2 or G3",
             ),
             ("X1", "1:1: an axis word needs a motion mode: G0, G1, G2 or G3 first"),
-            ("G1 F100", "1:1: G1 needs at least one axis word"),
+            (
+                "G2 F100",
+                "1:1: an arc needs its centre (I J) or its end and radius (R)",
+            ),
+            (
+                "G80 X1",
+                "1:5: axis words cannot go with G80 (it cancels the motion mode; G80 does not)",
+            ),
+            (
+                "G1 X1 F100\nG80\nX2",
+                "3:1: an axis word needs a motion mode: G0, G1, G2 or G3 first",
+            ),
+            (
+                "G1 X1 Q0.1 F100",
+                "1:7: Q belongs to G64 (merging lines within it); canned cycles are not supported",
+            ),
+            (
+                "G64 P0.1 Q-1",
+                "1:10: the merging tolerance Q must be zero or positive, got -1",
+            ),
+            (
+                "G90.1 G2 X10 I5 F100",
+                "1:10: in G90.1 (absolute arc centres) an arc needs both I and J",
+            ),
+            (
+                "G1 X1 F100\n%",
+                "2:1: '%' opens a program only on its first line (and then closes it)",
+            ),
             ("G1 X1 F0", "1:7: the feed F must be positive, got 0"),
             ("G4", "1:1: G4 needs P, the dwell in seconds"),
             ("G4 P-1", "1:4: the dwell P must be zero or positive seconds, got -1"),
@@ -992,15 +1141,7 @@ mod tests {
                 "1:1: G92 needs at least one axis word: the program coordinates the tool is at",
             ),
             ("G0 X1 N5", "1:7: a line number (N) comes first in its block"),
-            (
-                "M2\nG0 X1",
-                "2:1: the program ends at line 1 (M2/M30): this block would never run",
-            ),
             ("G0 X1 E2", "1:7: E (extruders) is not supported"),
-            (
-                "G64 P-1",
-                "1:5: the blending tolerance P must be zero or positive, got -1",
-            ),
             ("S-5", "1:1: the spindle speed S must be zero or positive, got -5"),
             ("G1.25 X1", "1:1: G1.25 is not a code"),
             // Issue 26: absurd values, refused where they are written.
@@ -1027,6 +1168,75 @@ mod tests {
         assert_eq!(
             refused("G0 X1\nG1 Y 1000000000.5 F1"),
             "2:4: Y: the number is out of range (at most 1e9 in magnitude)"
+        );
+    }
+
+    /// Issue 27: the dialect CAM programs use, with the moves LinuxCNC 2.9's `rs274` prints for
+    /// the same text (checked by hand against it; `tests/suite/nc.rs` compares where it is
+    /// installed).
+    #[test]
+    fn the_cam_dialect_means_what_linuxcnc_reads() {
+        // A motion mode set alone carries to lines with only axis words.
+        let m = moves(&run("G1 F600\nX10\nY5\nG0 X0 Y0"));
+        assert_eq!(m.len(), 3);
+        assert_eq!(m[0], ([10.0, 0.0, 0.0, 0.0, 0.0, 0.0], Path::Line, Some(600.0)));
+        assert_eq!(m[1].0, [10.0, 5.0, 0.0, 0.0, 0.0, 0.0]);
+        assert_eq!(m[2], ([0.0; 6], Path::Line, None));
+        // The usual preamble sets states; G80 leaves no motion mode.
+        let m = moves(&run("G40 G49 G80 G94 G17 G21 G90\nG1 X1 F100"));
+        assert_eq!(m[0].0, [1.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+        // An arc with its centre and no axis word: a full circle where the tool stands.
+        let m = moves(&run("G2 I5 F100"));
+        assert_eq!(m[0].0, [0.0; 6]);
+        assert!(matches!(m[0].1, Path::Arc { center, clockwise: true, .. } if center == [5.0, 0.0]));
+        // Absolute arc centres (G90.1), and back (G91.1).
+        let m = moves(&run("G0 X2\nG90.1 G2 X10 Y0 I6 J0 F100\nG91.1 G2 X2 Y0 I-4 J0"));
+        assert!(matches!(m[1].1, Path::Arc { center, .. } if center == [6.0, 0.0]));
+        assert!(matches!(m[2].1, Path::Arc { center, .. } if center == [6.0, 0.0]));
+        // G61.1 stops exactly; G64 P0 and P-1 are G64 without a tolerance; Q merges.
+        let b = run("G61.1\nG1 X1 F100\nG64 P0\nG1 X2\nG64 P0.01 Q0.02\nX3\nG64 P-1\nX4");
+        let blends: Vec<Blend> = b
+            .iter()
+            .filter_map(|b| match b.action {
+                Action::Move { blend, .. } => Some(blend),
+                _ => None,
+            })
+            .collect();
+        let within = |tolerance, merge| Blend::Within { tolerance, merge };
+        assert_eq!(
+            blends,
+            [
+                Blend::ExactStop,
+                within(None, None),
+                within(Some(0.01), Some(0.02)),
+                within(None, None)
+            ]
+        );
+        // What follows the end is never read (LinuxCNC ignores it), even what is not G-code.
+        let p = read("G1 X1 F100\nM2\nG1 X5\nnot a program", &machine(&XYZ)).expect("read to M2");
+        assert_eq!(moves(&p.blocks).len(), 1);
+        let p = read("%\nG1 X1 F100\n%\nG1 X5\n", &machine(&XYZ)).expect("read to the closing %");
+        assert_eq!(moves(&p.blocks).len(), 1);
+        // Block delete: off (the default) the line runs; on it is skipped.
+        let text = "G1 X1 F100\n/G1 X5\nM2";
+        assert_eq!(moves(&read(text, &machine(&XYZ)).expect("read").blocks).len(), 2);
+        let on = Machine {
+            block_delete: true,
+            ..machine(&XYZ)
+        };
+        assert_eq!(moves(&read(text, &on).expect("read").blocks).len(), 1);
+        // A program must end, as LinuxCNC says.
+        assert_eq!(
+            read("G1 X1 F100\nG1 X2", &machine(&XYZ))
+                .expect_err("no end")
+                .to_string(),
+            "2:1: the file ended with no program end (M2, M30) and no '%' delimiters: is the program complete?"
+        );
+        assert_eq!(
+            read("%\nG1 X1 F100\n", &machine(&XYZ))
+                .expect_err("no closing %")
+                .to_string(),
+            "2:1: the file ended without the closing '%' (or M2, M30): is the program complete?"
         );
     }
 

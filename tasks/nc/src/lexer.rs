@@ -1,9 +1,10 @@
 //! A program's text as words with their positions.
 //!
 //! RS274NGC as LinuxCNC reads it, in the subset of motion.md: a line holds words — a letter
-//! (either case) and a number (`G1`, `x-2.5`, `F 1200`, spaces allowed between them) —,
-//! comments in parentheses and after `;`, and may start with `/` (block delete: the line is
-//! skipped) or be a `%` delimiter. What the subset does not have is refused here, where it
+//! (either case) and a number (`G1`, `x-2.5`, `F 1200`; spaces are allowed anywhere in a word,
+//! `X1 0.5` is 10.5, as LinuxCNC ignores them) —, comments in parentheses and after `;`, and may
+//! start with `/` (block delete: the line is skipped while the block-delete switch is on, run
+//! while it is off, LinuxCNC's default) or be a `%` delimiter. What the subset does not have is refused here, where it
 //! stands: parameters `#…`, expressions `[…]`, O-words (subroutines, loops, conditionals) and any
 //! other character.
 
@@ -29,28 +30,58 @@ pub struct Block {
     pub words: Vec<Word>,
 }
 
-/// The blocks of `text`: its lines with words, in order (lines with only comments, blank lines,
-/// `%` delimiters and block-deleted lines have none and are left out). A UTF-8 byte order mark
-/// (Windows editors write one) is not part of the program.
+/// The blocks of `text`: its lines with words, in order, the block-delete switch off (lines with
+/// only comments, blank lines and `%` delimiters have none and are left out). A UTF-8 byte order
+/// mark (Windows editors write one) is not part of the program.
 pub fn lex(text: &str) -> Result<Vec<Block>, NcError> {
-    blocks(text).collect()
-}
-
-/// The blocks of `text` one at a time, as [`lex`] gives them: a program of a million lines is
-/// read without holding the words of all its lines at once.
-pub fn blocks(text: &str) -> impl Iterator<Item = Result<Block, NcError>> + '_ {
-    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
-    text.lines()
-        .enumerate()
-        .filter_map(|(i, line)| match lex_line(line, i + 1) {
-            Ok(words) if words.is_empty() => None,
-            Ok(words) => Some(Ok(Block { line: i + 1, words })),
+    lines(text, false)
+        .filter_map(|l| match l {
+            Ok(Line::Words(b)) => Some(Ok(b)),
+            Ok(_) => None,
             Err(e) => Some(Err(e)),
         })
+        .collect()
+}
+
+/// A line of a program as the interpreter takes it.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Line {
+    /// A line with words.
+    Words(Block),
+    /// A `%` delimiter (its line).
+    Percent(usize),
+    /// A line with only comments, or one the block-delete switch skips.
+    Nothing,
+}
+
+/// The lines of `text` one at a time (blank lines are left out): a program of a million lines
+/// is read without holding the words of all its lines at once, and what follows its end is never
+/// read. `block_delete`: the block-delete switch, on (lines starting with `/` are skipped) or off
+/// (they run, the `/` ignored).
+pub fn lines(text: &str, block_delete: bool) -> impl Iterator<Item = Result<Line, NcError>> + '_ {
+    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
+    text.lines().enumerate().filter_map(move |(i, line)| {
+        if line.trim().is_empty() {
+            return None;
+        }
+        Some(lex_line(line, i + 1, block_delete).map(|l| match l {
+            Lexed::Words(words) if words.is_empty() => Line::Nothing,
+            Lexed::Words(words) => Line::Words(Block { line: i + 1, words }),
+            Lexed::Percent => Line::Percent(i + 1),
+            Lexed::Deleted => Line::Nothing,
+        }))
+    })
+}
+
+/// What one line holds.
+enum Lexed {
+    Words(Vec<Word>),
+    Percent,
+    Deleted,
 }
 
 /// The words of one line.
-fn lex_line(line: &str, number: usize) -> Result<Vec<Word>, NcError> {
+fn lex_line(line: &str, number: usize, block_delete: bool) -> Result<Lexed, NcError> {
     let chars: Vec<char> = line.chars().collect();
     let err = |column: usize, message: String| Err(NcError::new(number, column, message));
     let mut words = Vec::new();
@@ -61,9 +92,21 @@ fn lex_line(line: &str, number: usize) -> Result<Vec<Word>, NcError> {
         }
     };
     skip_blanks(&mut i);
-    // Block delete: the line is skipped (LinuxCNC with the block-delete switch on).
+    // Block delete: with the switch on the line is skipped; off, it runs without its '/'.
     if chars.get(i) == Some(&'/') {
-        return Ok(words);
+        if block_delete {
+            return Ok(Lexed::Deleted);
+        }
+        i += 1;
+    }
+    if chars[i..].first() == Some(&'%') {
+        if chars[i + 1..].iter().all(|c| c.is_whitespace()) {
+            return Ok(Lexed::Percent);
+        }
+        return err(
+            i + 1,
+            "'%' stands on a line of its own (it delimits the program)".into(),
+        );
     }
     while i < chars.len() {
         let c = chars[i];
@@ -76,14 +119,10 @@ fn lex_line(line: &str, number: usize) -> Result<Vec<Word>, NcError> {
             },
             ';' => break,
             '%' => {
-                if words.is_empty() && chars[i + 1..].iter().all(|c| c.is_whitespace()) {
-                    i = chars.len();
-                } else {
-                    return err(
-                        column,
-                        "'%' stands on a line of its own (it delimits the program)".into(),
-                    );
-                }
+                return err(
+                    column,
+                    "'%' stands on a line of its own (it delimits the program)".into(),
+                );
             }
             '#' => return err(column, "parameters (#) are not supported: write the number".into()),
             '[' => return err(column, "expressions ([…]) are not supported: write the number".into()),
@@ -104,17 +143,34 @@ fn lex_line(line: &str, number: usize) -> Result<Vec<Word>, NcError> {
                 i += 1;
                 skip_blanks(&mut i);
                 let start = i;
-                if matches!(chars.get(i), Some('+' | '-')) {
+                let mut text = String::new();
+                if let Some(sign @ ('+' | '-')) = chars.get(i) {
+                    text.push(*sign);
                     i += 1;
+                    skip_blanks(&mut i);
                 }
-                let digits_from = i;
                 let mut dot = false;
-                while i < chars.len() && (chars[i].is_ascii_digit() || (chars[i] == '.' && !dot)) {
-                    dot |= chars[i] == '.';
-                    i += 1;
+                let mut has_digit = false;
+                // Digits and a point, spaces between them ignored (`X1 0.5` is 10.5).
+                while i < chars.len() {
+                    let c = chars[i];
+                    if c.is_ascii_digit() || (c == '.' && !dot) {
+                        dot |= c == '.';
+                        has_digit |= c.is_ascii_digit();
+                        text.push(c);
+                        i += 1;
+                    } else if c.is_whitespace()
+                        && !text.is_empty()
+                        && chars[i..]
+                            .iter()
+                            .find(|c| !c.is_whitespace())
+                            .is_some_and(|n| n.is_ascii_digit() || (*n == '.' && !dot))
+                    {
+                        i += 1;
+                    } else {
+                        break;
+                    }
                 }
-                let text: String = chars[start..i].iter().collect();
-                let has_digit = chars[digits_from..i].iter().any(|c| c.is_ascii_digit());
                 match chars.get(start) {
                     Some('#') => {
                         return err(start + 1, "parameters (#) are not supported: write the number".into());
@@ -146,7 +202,7 @@ fn lex_line(line: &str, number: usize) -> Result<Vec<Word>, NcError> {
             other => return err(column, format!("unexpected character '{other}'")),
         }
     }
-    Ok(words)
+    Ok(Lexed::Words(words))
 }
 
 /// The largest magnitude of a number in a program: far beyond any coordinate, feed or speed a
@@ -179,12 +235,29 @@ mod tests {
                         word('F', 1200.0, 18)
                     ]
                 },
+                // Block delete off (LinuxCNC's default): the line runs without its '/'.
+                Block {
+                    line: 4,
+                    words: vec![word('G', 0.0, 2), word('X', 99.0, 5)]
+                },
                 Block {
                     line: 6,
                     words: vec![word('G', 2.0, 3), word('X', 0.5, 5), word('I', -1.25, 9)]
                 },
             ]
         );
+        // Block delete on: it is skipped.
+        let on: Vec<Line> = lines(text, true).collect::<Result<_, _>>().expect("lexes");
+        assert_eq!(on[0], Line::Percent(1));
+        assert_eq!(on[3], Line::Nothing);
+        assert_eq!(on[5], Line::Percent(7));
+    }
+
+    #[test]
+    fn spaces_inside_numbers_are_ignored_as_linuxcnc_ignores_them() {
+        let blocks = lex("G1 X1 0.5 F1 00 Y- 2 . 5").expect("lexes");
+        let values: Vec<(char, f64)> = blocks[0].words.iter().map(|w| (w.letter, w.value)).collect();
+        assert_eq!(values, [('G', 1.0), ('X', 10.5), ('F', 100.0), ('Y', -2.5)]);
     }
 
     #[test]

@@ -17,7 +17,7 @@ use pkm_kinematics::frame::MachineFrame;
 
 use pkm_api::trajectory::{TrajectoryEvent, TrajectoryEventKind};
 
-use crate::interp::{AXES, Action, Blend, Pose, Program, Spindle};
+use crate::interp::{AXES, Action, Blend, Path, Pose, Program, Spindle};
 use crate::path::Segment;
 
 /// The largest distance between two points of the velocity profile (mm, or degrees where only
@@ -57,6 +57,26 @@ pub struct Element {
     pub dwell_after_s: f64,
     /// The G64 tolerance in force at its end (`None`: exact stop or no limit).
     tolerance: Option<Option<f64>>,
+}
+
+/// The most program lines G64 Q merges into one straight line (the deviation check of a new
+/// line looks at every vertex merged before it).
+const MAX_MERGED: usize = 64;
+
+/// Whether every point of `vertices` lies within `q` (mm, in all coordinates) of the straight
+/// line from `a` to `b`.
+fn within_line(vertices: &[Pose], a: &Pose, b: &Pose, q: f64) -> bool {
+    let d: Pose = std::array::from_fn(|c| b[c] - a[c]);
+    let len2: f64 = d.iter().map(|x| x * x).sum();
+    vertices.iter().all(|p| {
+        let t = if len2 > 0.0 {
+            ((0..6).map(|c| (p[c] - a[c]) * d[c]).sum::<f64>() / len2).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        let dist2: f64 = (0..6).map(|c| (a[c] + t * d[c] - p[c]).powi(2)).sum();
+        dist2 <= q * q
+    })
 }
 
 /// What limits a point's speed below the feed.
@@ -186,6 +206,8 @@ fn elements_and_events(program: &Program) -> (Vec<Element>, f64, Vec<Pending>) {
     let mut events = Vec::new();
     // The dwell at the current stop so far (since the last move).
     let mut dwelt = 0.0;
+    // G64 Q: the vertices the last element has swallowed (its start first).
+    let mut merged: Vec<Pose> = Vec::new();
     for block in &program.blocks {
         match block.action {
             Action::Move {
@@ -200,16 +222,38 @@ fn elements_and_events(program: &Program) -> (Vec<Element>, f64, Vec<Pending>) {
                     continue;
                 }
                 dwelt = 0.0;
+                let feed = feed_mm_min.map_or(f64::INFINITY, |f| f / 60.0);
+                let (tolerance, merge) = match blend {
+                    Blend::ExactStop => (None, None),
+                    Blend::Within { tolerance, merge } => (Some(tolerance), merge),
+                };
+                // G64 Q: a line that continues the last one within Q is merged into it.
+                if let (Some(q), Some(last), Path::Line) = (merge, out.last_mut(), path) {
+                    let joins = !last.segment.is_arc()
+                        && !last.stop_after
+                        && last.feed == feed
+                        && last.tolerance == tolerance
+                        && merged.len() < MAX_MERGED
+                        && merged.last().is_some_and(|_| {
+                            let mut inner = merged[1..].to_vec();
+                            inner.push(from);
+                            within_line(&inner, &merged[0], &to, q)
+                        });
+                    if joins {
+                        merged.push(from);
+                        last.segment = Segment::new(merged[0], to, Path::Line);
+                        continue;
+                    }
+                }
+                merged.clear();
+                merged.push(from);
                 out.push(Element {
                     segment,
                     line: block.line,
-                    feed: feed_mm_min.map_or(f64::INFINITY, |f| f / 60.0),
+                    feed,
                     stop_after: blend == Blend::ExactStop,
                     dwell_after_s: 0.0,
-                    tolerance: match blend {
-                        Blend::ExactStop => None,
-                        Blend::Within(p) => Some(p),
-                    },
+                    tolerance,
                 });
             }
             Action::Dwell(s) => {
@@ -706,8 +750,10 @@ mod tests {
     fn planned(model: pkm_kinematics::Machine, text: &str, l: &PlanLimits) -> Plan {
         let f = frame(model);
         let program = read(
-            text,
+            // A program ends (M2); what follows an end is never read.
+            &format!("{text}\nM2"),
             &Machine {
+                block_delete: false,
                 axes: f.kinematics().pose_keys(),
                 start: [0.0; 6],
                 work_offsets: [[0.0; 6]; 6],
@@ -722,6 +768,45 @@ mod tests {
         let mut cursor = 0;
         let steps = (p.duration_s / dt).ceil() as usize + 1;
         (0..=steps).map(|i| p.sample(i as f64 * dt, &mut cursor)).collect()
+    }
+
+    /// G64 Q (LinuxCNC's naive CAM detector): a CAM program's run of short lines that stray less
+    /// than Q from one straight line is run as that line — fewer corners, a shorter time — and
+    /// lines that turn more than Q stay lines of their own.
+    #[test]
+    fn g64_q_merges_nearly_collinear_lines_within_q() {
+        let zigzag: String = (1..=100)
+            .map(|i| format!("X{} Y{}\n", i as f64 * 0.5, if i % 2 == 0 { 0.0 } else { 0.004 }))
+            .collect();
+        let l = limits(3, 20.0, 100.0);
+        let without = planned(
+            pkm_kinematics::Machine::OxX,
+            &format!("G64 P0.01\nG1 F600\n{zigzag}"),
+            &l,
+        );
+        let merged = planned(
+            pkm_kinematics::Machine::OxX,
+            &format!("G64 P0.01 Q0.01\nG1 F600\n{zigzag}"),
+            &l,
+        );
+        // Without Q every corner is blended: a hundred pieces and more.
+        assert!(without.elements().len() > 100, "{}", without.elements().len());
+        // At most 64 lines a merge: two lines of 32 and 18 mm.
+        let lines: Vec<f64> = merged.elements().iter().map(|e| e.segment.length()).collect();
+        assert_eq!(lines.len(), 2, "{lines:?}");
+        assert!(
+            merged.duration_s < without.duration_s,
+            "{} vs {}",
+            merged.duration_s,
+            without.duration_s
+        );
+        // A turn beyond Q is not merged away.
+        let corner = planned(
+            pkm_kinematics::Machine::OxX,
+            "G64 P0.01 Q0.01\nG1 F600 X10\nX20 Y1\n",
+            &l,
+        );
+        assert!(corner.elements().len() >= 2);
     }
 
     const SQUARE_AND_CIRCLE: &str = "G64 P0.05\nG1 X20 Y0 F1200\nY20\nX0\nY0\nG0 X10\nG2 X10 Y0 I-10 F900\nM2\n";
