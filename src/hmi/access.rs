@@ -15,8 +15,8 @@
 
 use std::net::IpAddr;
 
-use axum::http::HeaderMap;
 use axum::http::header::{AUTHORIZATION, COOKIE, HOST, ORIGIN};
+use axum::http::{HeaderMap, HeaderName};
 use subtle::ConstantTimeEq;
 
 /// The cookie that carries the token once the page was opened with it.
@@ -38,7 +38,7 @@ pub struct Access {
 impl Access {
     /// Whether a request that names `Host: host` may be served.
     pub fn host_allowed(&self, headers: &HeaderMap) -> bool {
-        let Some(host) = headers.get(HOST).and_then(|h| h.to_str().ok()) else {
+        let Some(host) = header_text(headers, HOST) else {
             // HTTP/1.1 requires Host; a request without one is not a browser's.
             return false;
         };
@@ -60,7 +60,7 @@ impl Access {
         let Ok(origin) = origin.to_str() else {
             return false;
         };
-        let host = headers.get(HOST).and_then(|h| h.to_str().ok()).unwrap_or("");
+        let host = header_text(headers, HOST).unwrap_or("");
         let own = ["http://", "https://"].iter().any(|scheme| {
             origin
                 .strip_prefix(scheme)
@@ -75,10 +75,7 @@ impl Access {
         let Some(token) = &self.token else {
             return true;
         };
-        let bearer = headers
-            .get(AUTHORIZATION)
-            .and_then(|h| h.to_str().ok())
-            .and_then(|h| h.strip_prefix("Bearer "));
+        let bearer = header_text(headers, AUTHORIZATION).and_then(|h| h.strip_prefix("Bearer "));
         let cookie = cookie(headers, TOKEN_COOKIE);
         [query_token, bearer, cookie.as_deref()]
             .into_iter()
@@ -93,6 +90,11 @@ impl Access {
         let given = query_token?;
         same(given, token).then(|| format!("{TOKEN_COOKIE}={token}; Path=/; HttpOnly; SameSite=Strict"))
     }
+}
+
+/// The text of header `name`; `None` when it is absent or not visible ASCII.
+pub fn header_text(headers: &HeaderMap, name: HeaderName) -> Option<&str> {
+    headers.get(name).and_then(|h| h.to_str().ok())
 }
 
 /// Whether `a` and `b` are the same token, in time that does not depend on where they differ.

@@ -30,7 +30,7 @@ use tracing::{info, warn};
 
 use pkm_api::hmi::JOG_AXIS_RANGE;
 
-use super::access::Access;
+use super::access::{Access, header_text};
 use super::commands::{CommandSink, press};
 use super::frame::{Frame, FrameReader};
 use super::listener::Peer;
@@ -203,10 +203,7 @@ async fn guard(State(shared): State<Arc<Shared>>, request: Request, next: Next) 
     let mut response = if shared.options.access.host_allowed(request.headers()) {
         next.run(request).await
     } else {
-        let host = request
-            .headers()
-            .get(header::HOST)
-            .and_then(|h| h.to_str().ok())
+        let host = header_text(request.headers(), header::HOST)
             .map(crate::config::shorten)
             .unwrap_or_default();
         warn!(
@@ -292,9 +289,7 @@ async fn socket(
 ) -> Response {
     let access = &shared.options.access;
     if !access.origin_allowed(&headers) {
-        let origin = headers
-            .get(header::ORIGIN)
-            .and_then(|o| o.to_str().ok())
+        let origin = header_text(&headers, header::ORIGIN)
             .map(crate::config::shorten)
             .unwrap_or_default();
         warn!(
