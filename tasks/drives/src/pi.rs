@@ -1,6 +1,9 @@
 //! The PI position regulator of one drive, with velocity and acceleration feed-forward
 //! (LinuxCNC's FF1 and FF2) and anti-windup by conditional integration.
 
+use pkm_api::image::Declare;
+use pkm_api::ranges;
+
 /// Gains and limit of a [`Pi`] regulator.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PiGains {
@@ -19,6 +22,18 @@ pub struct PiGains {
     pub accel_ff: f64,
     /// Output limit (symmetric, > 0).
     pub output_limit: f64,
+}
+
+impl PiGains {
+    /// Checks each gain against its range (the same for every machine); problems against
+    /// `at(key)`, the key named as in the parameter files (`kp`, `ki`, `velocity_ff`, …).
+    pub fn check(&self, decl: &mut Declare<'_>, at: impl Fn(&str) -> String) {
+        decl.within(&at("kp"), self.kp, &ranges::PROPORTIONAL_GAIN);
+        decl.within(&at("ki"), self.ki, &ranges::INTEGRAL_GAIN);
+        decl.within(&at("velocity_ff"), self.velocity_ff, &ranges::VELOCITY_FF);
+        decl.within(&at("accel_ff"), self.accel_ff, &ranges::ACCEL_FF);
+        decl.within(&at("output_limit"), self.output_limit, &ranges::OUTPUT_LIMIT);
+    }
 }
 
 /// One drive's PI regulator.

@@ -138,11 +138,7 @@ fn check(spec: &Spec, p: &DrivesParams, decl: &mut Declare<'_>) {
             d.max_following_error_mm,
             &ranges::FOLLOWING_ERROR_MM,
         );
-        decl.within(&at("kp"), d.kp, &ranges::PROPORTIONAL_GAIN);
-        decl.within(&at("ki"), d.ki, &ranges::INTEGRAL_GAIN);
-        decl.within(&at("velocity_ff"), d.velocity_ff, &ranges::VELOCITY_FF);
-        decl.within(&at("accel_ff"), d.accel_ff, &ranges::ACCEL_FF);
-        decl.within(&at("output_limit"), d.output_limit, &ranges::OUTPUT_LIMIT);
+        d.gains().check(decl, at);
         if d.max_counts_per_cycle == 0 || d.max_counts_per_cycle >= 32_768 {
             decl.issue(
                 &at("max_counts_per_cycle"),
@@ -215,13 +211,7 @@ impl Drives {
                         let units = d.counts_per_mm;
                         (
                             Outputs::Dc {
-                                gains: PiGains {
-                                    kp: d.kp,
-                                    ki: d.ki,
-                                    velocity_ff: d.velocity_ff,
-                                    accel_ff: d.accel_ff,
-                                    output_limit: d.output_limit,
-                                },
+                                gains: d.gains(),
                                 p: d,
                                 pwm: decl.write(vars::PWM[j], 0),
                                 bridge_error: decl.read(vars::BRIDGE_ERROR[j]),

@@ -6,6 +6,7 @@
 
 use pkm_api::image::Declare;
 use pkm_api::program::ProgramArgs;
+use pkm_drives::pi::PiGains;
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 
@@ -98,6 +99,19 @@ pub struct DcDrive {
     pub output_limit: f64,
     /// A following error beyond this (mm) is a fault.
     pub max_following_error_mm: f64,
+}
+
+impl DcDrive {
+    /// The regulator's gains (duty per mm, per mm·s, per mm/s, per mm/s²; duty limit).
+    pub fn gains(&self) -> PiGains {
+        PiGains {
+            kp: self.kp,
+            ki: self.ki,
+            velocity_ff: self.velocity_ff,
+            accel_ff: self.accel_ff,
+            output_limit: self.output_limit,
+        }
+    }
 }
 
 /// The drive program's parameters.

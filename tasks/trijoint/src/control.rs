@@ -119,19 +119,12 @@ impl Control {
     /// Declares the program's variables.
     pub fn create(args: &ProgramArgs<'_>, decl: &mut Declare<'_>) -> Box<dyn Program> {
         let p: ControlParams = args.parse(decl);
-        {
-            use pkm_api::ranges;
-            decl.within("params.kp", p.kp, &ranges::PROPORTIONAL_GAIN);
-            decl.within("params.ki", p.ki, &ranges::INTEGRAL_GAIN);
-            decl.within(
-                "params.max_following_error_mm",
-                p.max_following_error_mm,
-                &ranges::FOLLOWING_ERROR_MM,
-            );
-            decl.within("params.velocity_ff", p.velocity_ff, &ranges::VELOCITY_FF);
-            decl.within("params.accel_ff", p.accel_ff, &ranges::ACCEL_FF);
-            decl.within("params.output_limit", p.output_limit, &ranges::OUTPUT_LIMIT);
-        }
+        decl.within(
+            "params.max_following_error_mm",
+            p.max_following_error_mm,
+            &pkm_api::ranges::FOLLOWING_ERROR_MM,
+        );
+        p.gains().check(decl, |k| format!("params.{k}"));
         fast_class_only(
             "trijoint.control",
             "the fast interlock (STOP and switches to PWM zero)",
