@@ -113,7 +113,7 @@ impl NcConfig {
                 });
             }
             for (i, (x, key)) in v.iter().zip(keys).enumerate() {
-                let range = if matches!(*key, "a" | "b" | "c") {
+                let range = if pkm_kinematics::is_rotation(key) {
                     angular
                 } else {
                     linear
