@@ -630,19 +630,15 @@ impl<'a> State<'a> {
             }
         }
         let machine_coords = has_g(530);
-        if let Some(w) = g_word(800) {
+        if has_g(800) {
             // G80 (canned cycle cancel) sets no motion mode; CAM programs write it in their
             // preamble.
             if let Some((_, a)) = axis_words.first() {
                 return Err(at(
                     a,
-                    format!(
-                        "axis words cannot go with G80 (it cancels the motion mode; {} does not)",
-                        format_code('G', 800)
-                    ),
+                    "axis words cannot go with G80 (it cancels the motion mode; G80 does not)".into(),
                 ));
             }
-            let _ = w;
             self.motion = None;
         }
         if let Some((code, _)) = motion_word {
