@@ -65,10 +65,10 @@ const MAX_MERGED: usize = 64;
 
 /// Whether every point of `vertices` lies within `q` (mm, in all coordinates) of the straight
 /// line from `a` to `b`.
-fn within_line(vertices: &[Pose], a: &Pose, b: &Pose, q: f64) -> bool {
+fn within_line<'a>(vertices: impl IntoIterator<Item = &'a Pose>, a: &Pose, b: &Pose, q: f64) -> bool {
     let d: Pose = std::array::from_fn(|c| b[c] - a[c]);
     let len2: f64 = d.iter().map(|x| x * x).sum();
-    vertices.iter().all(|p| {
+    vertices.into_iter().all(|p| {
         let t = if len2 > 0.0 {
             ((0..6).map(|c| (p[c] - a[c]) * d[c]).sum::<f64>() / len2).clamp(0.0, 1.0)
         } else {
@@ -234,11 +234,9 @@ fn elements_and_events(program: &Program) -> (Vec<Element>, f64, Vec<Pending>) {
                         && last.feed == feed
                         && last.tolerance == tolerance
                         && merged.len() < MAX_MERGED
-                        && merged.last().is_some_and(|_| {
-                            let mut inner = merged[1..].to_vec();
-                            inner.push(from);
-                            within_line(&inner, &merged[0], &to, q)
-                        });
+                        && merged
+                            .split_first()
+                            .is_some_and(|(start, inner)| within_line(inner.iter().chain([&from]), start, &to, q));
                     if joins {
                         merged.push(from);
                         last.segment = Segment::new(merged[0], to, Path::Line);
