@@ -32,6 +32,13 @@ impl Range {
         Range { max, ..self }
     }
 
+    /// The same range up to `bound`, kept within the range: a value that must not exceed another
+    /// (a search no faster than the joint's top speed) and still lie in its own range when the
+    /// other does not.
+    pub fn up_to_within(self, bound: f64) -> Range {
+        self.up_to(bound.clamp(self.min, self.max))
+    }
+
     /// The same range with another lower bound.
     pub const fn from(self, min: f64) -> Range {
         Range { min, ..self }
@@ -182,5 +189,9 @@ mod tests {
             SPEED_MM_S.up_to(5.0).check(6.0),
             Err("must be between 0.01 and 5 mm/s, got 6".into())
         );
+        // A bound from another value stays within the range's own.
+        assert_eq!(SPEED_MM_S.up_to_within(5.0).max, 5.0);
+        assert_eq!(SPEED_MM_S.up_to_within(1e9).max, SPEED_MM_S.max);
+        assert_eq!(SPEED_MM_S.up_to_within(0.0).max, SPEED_MM_S.min);
     }
 }

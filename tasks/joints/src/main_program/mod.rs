@@ -155,7 +155,7 @@ fn check(spec: &Spec, p: &MainParams, keys: &[&str], travel: &[[f64; 2]], decl: 
         decl.within(
             &at("reference.search_speed_mm_s"),
             r.search_speed_mm_s,
-            &ranges::SPEED_MM_S.up_to(j.max_speed_mm_s.clamp(ranges::SPEED_MM_S.min, ranges::SPEED_MM_S.max)),
+            &ranges::SPEED_MM_S.up_to_within(j.max_speed_mm_s),
         );
         decl.within(
             &at("reference.latch_speed_mm_s"),

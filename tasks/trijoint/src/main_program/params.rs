@@ -111,17 +111,16 @@ pub(super) fn check_ranges(p: &MainParams, geometry: &TrijointParams, decl: &mut
     decl.within(&key("brake_decel_mm_s2"), p.brake_decel_mm_s2, &ranges::ACCEL_MM_S2);
     decl.within(&key("search_timeout_s"), p.search_timeout_s, &ranges::TIMEOUT_S);
     // The searches ever slower, each approach within the one before.
-    let slower = |faster: f64, range: ranges::Range| range.up_to(faster.clamp(range.min, range.max));
     decl.within(&key("init_speed_mm_s"), p.init_speed_mm_s, &ranges::SPEED_MM_S);
     decl.within(
         &key("approach_speed_mm_s"),
         p.approach_speed_mm_s,
-        &slower(p.init_speed_mm_s, ranges::SPEED_MM_S),
+        &ranges::SPEED_MM_S.up_to_within(p.init_speed_mm_s),
     );
     decl.within(
         &key("creep_speed_mm_s"),
         p.creep_speed_mm_s,
-        &slower(p.approach_speed_mm_s, ranges::SLOW_SPEED_MM_S),
+        &ranges::SLOW_SPEED_MM_S.up_to_within(p.approach_speed_mm_s),
     );
     decl.within(
         &key("approach_distance_mm"),
@@ -131,7 +130,7 @@ pub(super) fn check_ranges(p: &MainParams, geometry: &TrijointParams, decl: &mut
     decl.within(
         &key("creep_distance_mm"),
         p.creep_distance_mm,
-        &slower(p.approach_distance_mm, ranges::SEARCH_DISTANCE_MM),
+        &ranges::SEARCH_DISTANCE_MM.up_to_within(p.approach_distance_mm),
     );
     // The start inside the software limits, counted from each lower switch.
     if let (Some(start), true) = (p.start_position_mm, margin) {
