@@ -96,8 +96,7 @@ function hello(m) {
   $("access").textContent = commands ? "" : "watching only: commands need the token (?token=…)";
   document.body.dataset.commands = commands;
   // A watching page shows what it cannot do: its controls disabled.
-  for (const c of document.querySelectorAll("button, select")) c.disabled = !commands;
-  $("pad").classList.toggle("disabled", !commands);
+  enableControls(commands);
   // The token has done its work (the server keeps it in an HttpOnly cookie for this page's
   // reconnections): it leaves the address bar and the history.
   if (token && commands && history.replaceState) history.replaceState(null, "", location.pathname);
@@ -164,6 +163,12 @@ function followLine(line) {
   const nearStart = line < w.from + 50 && w.from > 1;
   const nearEnd = line > last - 50 && last < w.total;
   if (line < w.from || line > last || nearStart || nearEnd) askText(Math.max(1, line - 100));
+}
+
+// Enables or disables every control: the buttons, the program choice, the jog pad.
+function enableControls(on) {
+  for (const c of document.querySelectorAll("button, select")) c.disabled = !on;
+  $("pad").classList.toggle("disabled", !on);
 }
 
 function escape(s) {
@@ -327,8 +332,7 @@ function padAt(e) {
   startJog(x, y);
 }
 // Until the server says this page may command (its hello), the controls are disabled.
-for (const c of document.querySelectorAll("button, select")) c.disabled = true;
-pad.classList.add("disabled");
+enableControls(false);
 pad.addEventListener("pointerdown", (e) => { pad.setPointerCapture(e.pointerId); padAt(e); });
 pad.addEventListener("pointermove", (e) => { if (jog && pad.hasPointerCapture(e.pointerId)) padAt(e); });
 for (const end of ["pointerup", "pointercancel", "lostpointercapture"]) pad.addEventListener(end, stopJog);
