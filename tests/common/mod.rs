@@ -96,6 +96,18 @@ pub fn joint_plant(plc: &Plc) -> &pkm_joints::plant::Plant {
     plant_of(plc)
 }
 
+/// A joint-driven machine's simulated plant, to act on it as a person at the machine would.
+pub fn joint_plant_mut(plc: &mut Plc) -> &mut pkm_joints::plant::Plant {
+    plc.bus_mut()
+        .as_any_mut()
+        .downcast_mut::<SimBus>()
+        .expect("the simulated bus")
+        .plant_mut()
+        .as_any_mut()
+        .downcast_mut::<pkm_joints::plant::Plant>()
+        .expect("a joint plant")
+}
+
 /// A seeded generator for the soaks' random scenarios: uniform in [0, 1).
 pub struct Rng(pub u64);
 

@@ -15,11 +15,10 @@ use common::soak::{self, Fault, HOUR_MS};
 use std::collections::BTreeMap;
 use std::time::Instant;
 
-use common::{get, joint_plant, machine_config};
+use common::{get, joint_plant, joint_plant_mut, machine_config};
 use pkm_joints::vars;
 use pkm_plc::plc::Plc;
 use pkm_plc::run::VirtualClock;
-use pkm_plc::sim::bus::SimBus;
 
 /// Picks one of `items` with `rng`.
 fn pick<'a>(rng: &mut Rng, items: &[&'a str]) -> &'a str {
@@ -101,15 +100,7 @@ fn operator_recovers(plc: &mut Plc, n: usize, shared: bool, reason: &str, from_i
     if !on_limit && !park {
         return false;
     }
-    let plant = plc
-        .bus_mut()
-        .as_any_mut()
-        .downcast_mut::<SimBus>()
-        .expect("the simulated bus")
-        .plant_mut()
-        .as_any_mut()
-        .downcast_mut::<pkm_joints::plant::Plant>()
-        .expect("a joint plant");
+    let plant = joint_plant_mut(plc);
     let mut moved = false;
     for j in 0..n {
         let q = plant.position_mm(j);
