@@ -113,11 +113,7 @@ impl NcConfig {
                 });
             }
             for (i, (x, key)) in v.iter().zip(keys).enumerate() {
-                let range = if pkm_kinematics::is_rotation(key) {
-                    angular
-                } else {
-                    linear
-                };
+                let range = if ranges::is_rotation(key) { angular } else { linear };
                 ranges::check_into(problems, format!("{at}[{i}]"), *x, &range);
             }
         };

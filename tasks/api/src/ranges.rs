@@ -75,6 +75,12 @@ impl Range {
     }
 }
 
+/// Whether pose coordinate `key` (as a machine's kinematics names them, `x` … `c`) is a
+/// rotation in degrees (`a`, `b`, `c`), not a position in mm: it takes the angular of two ranges.
+pub fn is_rotation(key: &str) -> bool {
+    matches!(key, "a" | "b" | "c")
+}
+
 /// Records a problem at `at` in `problems` when `value` lies outside `range`; true when it lies
 /// in. For the checks that collect [`Problem`]s themselves (a plant section, say).
 pub fn check_into(problems: &mut Vec<Problem>, at: impl Into<String>, value: f64, range: &Range) -> bool {

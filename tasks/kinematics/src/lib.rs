@@ -108,12 +108,6 @@ pub enum KinError {
     },
 }
 
-/// Whether pose coordinate `key` (one of [`Kinematics::pose_keys`]) is a rotation, in degrees
-/// (`a`, `b`, `c`), not a position in mm.
-pub fn is_rotation(key: &str) -> bool {
-    matches!(key, "a" | "b" | "c")
-}
-
 /// The kinematics of one machine.
 pub trait Kinematics: Send + Sync {
     /// Which machine this is.

@@ -307,7 +307,7 @@ impl Main {
         home[..n].copy_from_slice(frame.home_joints());
         let mut axis_speed = [0.0; MAX_DOF];
         for (s, key) in axis_speed.iter_mut().zip(frame.kinematics().pose_keys()) {
-            *s = if pkm_kinematics::is_rotation(key) {
+            *s = if pkm_api::ranges::is_rotation(key) {
                 p.jog.angular_speed_deg_s
             } else {
                 p.jog.linear_speed_mm_s

@@ -237,7 +237,7 @@ fn check(spec: &Spec, p: &MainParams, keys: &[&str], travel: &[[f64; 2]], decl: 
         );
     }
     for (i, ([lo, hi], key)) in p.world_limits.iter().zip(keys).enumerate() {
-        let range = if pkm_kinematics::is_rotation(key) {
+        let range = if ranges::is_rotation(key) {
             ranges::ANGLE_DEG
         } else {
             ranges::POSITION_MM
@@ -263,7 +263,7 @@ fn check(spec: &Spec, p: &MainParams, keys: &[&str], travel: &[[f64; 2]], decl: 
     decl.within("params.jog.joint_speed_mm_s", jog.joint_speed_mm_s, &ranges::SPEED_MM_S);
     // Checked on every machine: one without rotations ignores it (0 there says so), but its
     // file gives it.
-    let angular = if keys.iter().any(|k| pkm_kinematics::is_rotation(k)) {
+    let angular = if keys.iter().any(|k| ranges::is_rotation(k)) {
         ranges::ANGULAR_SPEED_DEG_S
     } else {
         ranges::ANGULAR_SPEED_DEG_S.from(0.0)
