@@ -118,12 +118,12 @@ fn unreachable_points_are_named_by_line_and_nothing_else_is_said_to_pass() {
 #[test]
 fn a_refused_word_is_named_with_file_line_and_column() {
     let dir = tempfile::tempdir().expect("tempdir");
-    let file = program(dir.path(), "cycle.ngc", "G1 X1 F100\n  G81 X1 Z-1 R1\n");
+    let file = program(dir.path(), "cycle.ngc", "G1 X1 F100\n  G84 X1 Z-1 R1\n");
     let o = pkm(&["nc", "check", &file, "--machine", "pn101"]);
     assert_eq!(o.status.code(), Some(2));
     assert_eq!(
         stderr(&o),
-        format!("error: {file}:2:3: G81 is not supported (canned cycles)\n")
+        format!("error: {file}:2:3: G84 is not supported (canned cycles other than G81, G82, G83)\n")
     );
     let file = program(dir.path(), "tilt.ngc", "G1 A5 F100\n");
     let o = pkm(&["nc", "check", &file, "--machine", "ox-o"]);
@@ -355,6 +355,22 @@ fn linuxcnc(rs274: &std::path::Path, text: &str) -> Vec<Canonical> {
     moves
 }
 
+/// Subroutines with arguments, defined after M2 (LinuxCNC finds them), named and numbered
+/// parameters set in parallel.
+const PARAMETERS_AND_SUBROUTINES: &str = "#1 = 5\n#<r> = [#1 * 2]\nG1 X#1 Y[#<r>+1] F[100*2]\n#2 = 3 #3 = #2\nG0 X#3\no100 call [1] [2]\nG1 X#1\no<foo> call [7]\nG0 Z#<_value>\nM2\no100 sub\nG1 X#1 Y#2\no100 endsub\no<foo> sub\nG1 Z#1\no<foo> endsub [#1 + 1]\n";
+
+/// LinuxCNC's operators, functions and precedence.
+const EXPRESSIONS: &str = "G1 F100 X[round[2.5]] Y[round[-2.5]] Z[-7 mod 3]\nX[2**3**2] Y[1+2*3-4/2] Z[1 lt 2 and 3 gt 4]\nX[atan[1]/[1]] Y[fix[-1.5]] Z[fup[-1.5]]\nX[1 eq 1.00009] Y[1 eq 1.00011] Z[-[2]]\nX-#1 Y[exists[#<nope>]] Z[sqrt[16]+abs[-2]]\n#<_g> = 3\nX#<_g> Y[2 - 3 - 4] Z[8/2/2]\nX[5 mod -3] Y[1 or 0 xor 1] Z[2*-3]\nX[sin[30]] Y[cos[60]] Z[tan[45]]\nX[exp[0]] Y[ln[1]] Z[acos[0]+asin[1]]\nX[1 ne 2] Y[3 ge 3] Z[2 le 1]\nX [ 1 + 2 ] Y # 1 Z 1 0\nG55 G0 X#5420 Y#5220\nG54 X#<_coord_system> Y#<_motion_mode> Z#<_feed>\nM2\n";
+
+/// Conditionals and every kind of loop, break and continue. (Not `continue` in a `do` loop:
+/// LinuxCNC 2.9 then runs a later `repeat` twice over, a fault of its own we do not copy.)
+const LOOPS: &str = "#1 = 0\no1 while [#1 LT 4]\n#1 = [#1 + 1]\no2 if [#1 EQ 2]\no1 continue\no2 endif\nG1 X#1 F100\no1 endwhile\no6 do\nG1 X[#1 * 2]\n#1 = [#1 - 1]\no6 while [#1 GT 2]\no3 repeat [2.6]\nG1 Y[#1 + 1]\n#1 = [#1 + 1]\no3 endrepeat\n#2 = 0\no4 while [1]\n#2 = [#2 + 1]\no5 if [#2 GT 3]\no4 break\no5 elseif [#2 EQ 2]\nG1 Z-2\no5 else\nG1 Z[-#2]\no5 endif\no4 endwhile\nM2\n";
+
+/// G83 pecks from above R, G98 back to the series' start, G91 with three repeats (the moves of
+/// LinuxCNC 2.9's `rs274`).
+const CANNED_CYCLES: &str =
+    "G0 Z10\nG83 X1 Y1 Z-5 R2 Q2 F100\nG98 G81 X5 Z-1 R1\nG91 G81 X2 Y0 R-3 Z-1 L3\nG90 G0 X0\nM2\n";
+
 /// Issue 27: the dialect CAM programs use, read by our interpreter and by LinuxCNC 2.9's
 /// `rs274` (Debian's `linuxcnc-uspace`), give the same moves. Without `rs274` here the test says
 /// so and passes; the interpreter's own tests check the same programs against the moves written
@@ -367,7 +383,7 @@ fn the_cam_dialect_gives_the_moves_linuxcnc_gives() {
         .find(|p| p.exists())
     else {
         eprintln!(
-            "SKIPPED nc::the_cam_dialect_gives_the_moves_linuxcnc_gives: no rs274 here (apt-get install linuxcnc-uspace)"
+            "SKIPPED nc::the_cam_dialect_gives_the_moves_linuxcnc_gives: no rs274 here (apt-get install linuxcnc-uspace; .ci/run installs it)"
         );
         return;
     };
@@ -379,6 +395,14 @@ fn the_cam_dialect_gives_the_moves_linuxcnc_gives() {
         "G0 X10 Y0\nG2 I-10 F100\nG3 X0 Y10 I-10 J0\nG90.1 G2 X10 Y0 I0 J0\nG91.1 G3 X0 Y10 I-10\nM30\n",
         "G61.1 G1 X1 F100\nG64 P0 X2\nG64 P0.01 Q0.01 X3\nG64 P-1 X4\nG64 X5\nG61 X6\nM2\n",
         "G20 G1 X1 F10\nG21 G91 X1 Y2\nG90 X0 Y0\nM2\n",
+        // Parameters, expressions, subroutines, conditionals and loops.
+        PARAMETERS_AND_SUBROUTINES,
+        EXPRESSIONS,
+        LOOPS,
+        // Canned cycles: G83 pecks, G98 and G99, G91 with L repeats, another plane.
+        CANNED_CYCLES,
+        "G0 Z5\nG18 G81 X-3 Y1 Z2 R4 F50\nX-6\nG80\nG0 Y5\nG19 G99 G82 X-2 Y1 Z-2 R3 P0.5\nM2\n",
+        "G20 G0 Z1\nG83 X0.5 Z-0.3 R0.1 Q0.1 F4\nM2\n",
     ];
     for text in programs {
         assert_eq!(ours(text), linuxcnc(rs274, text), "{text}");

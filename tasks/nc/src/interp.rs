@@ -4,11 +4,14 @@
 //! Supported (motion.md): G0 G1 G2 G3 (centre by I J K, incremental as in LinuxCNC, or by R;
 //! helical with the axis normal to the plane; P full turns), G4 P (dwell, s), G17 G18 G19,
 //! G20 G21, G53 (machine coordinates, this block), G54–G59 (work offsets), G61, G64 [P], G90 G91,
-//! G92, F (per minute), S, M0 M1 M2 M30 M3 M4 M5, N, axis words X Y Z and A B C (degrees) as far
-//! as the machine has them. Everything else is refused with its line, column and reason.
+//! G92, the canned cycles G81 G82 G83 with G98 G99 and G80, F (per minute), S, M0 M1 M2 M30 M3
+//! M4 M5, N, axis words X Y Z and A B C (degrees) as far as the machine has them; parameters,
+//! expressions and O-words ([`crate::flow`]). Everything else is refused with its line, column
+//! and reason.
 
 use crate::NcError;
-use crate::lexer::{self, Line, Word};
+use crate::flow::{self, Event, Flow};
+use crate::lexer::{self, Word};
 
 /// A pose in the machine's world coordinates: x y z (mm), a b c (degrees); the machine's
 /// coordinates first, unused ones zero.
@@ -179,15 +182,13 @@ const ARC_TOLERANCE_RELATIVE: f64 = 0.001;
 pub fn read(text: &str, machine: &Machine<'_>) -> Result<Program, NcError> {
     let mut state = State::new(machine);
     let mut blocks = Vec::new();
-    // A '%' on the first line that is not blank opens the program, and the next closes it;
-    // without it the program ends at M2 or M30. What follows the end is never read (LinuxCNC
-    // ignores it).
-    let (mut seen, mut opened, mut ended) = (false, false, false);
-    let mut last_line = 1;
-    for line in lexer::lines(text, machine.block_delete) {
-        match line? {
-            Line::Percent(number) => {
-                last_line = number;
+    let mut flow = Flow::new(text, machine.block_delete);
+    // A '%' before any other line opens the program, and the next closes it; without it the
+    // program ends at M2 or M30. What follows the end is never read (LinuxCNC ignores it).
+    let (mut seen, mut opened) = (false, false);
+    loop {
+        match flow.next(&state)? {
+            Event::Percent(number) => {
                 if !seen {
                     opened = true;
                 } else if opened {
@@ -195,7 +196,6 @@ pub fn read(text: &str, machine: &Machine<'_>) -> Result<Program, NcError> {
                         line: number,
                         action: Action::End,
                     });
-                    ended = true;
                     break;
                 } else {
                     return Err(NcError::new(
@@ -205,9 +205,7 @@ pub fn read(text: &str, machine: &Machine<'_>) -> Result<Program, NcError> {
                     ));
                 }
             }
-            Line::Nothing => {}
-            Line::Words(block) => {
-                last_line = block.line;
+            Event::Block(block) => {
                 state.block(&block, &mut blocks)?;
                 if blocks.len() > MAX_BLOCKS {
                     return Err(NcError::new(
@@ -225,23 +223,25 @@ pub fn read(text: &str, machine: &Machine<'_>) -> Result<Program, NcError> {
                         ..
                     })
                 ) {
-                    ended = true;
                     break;
                 }
             }
+            Event::End(last_line) => {
+                if let Some(open) = flow.unclosed() {
+                    return Err(open);
+                }
+                return Err(NcError::new(
+                    last_line,
+                    1,
+                    if opened {
+                        "the file ended without the closing '%' (or M2, M30): is the program complete?"
+                    } else {
+                        "the file ended with no program end (M2, M30) and no '%' delimiters: is the program complete?"
+                    },
+                ));
+            }
         }
         seen = true;
-    }
-    if !ended {
-        return Err(NcError::new(
-            last_line,
-            1,
-            if opened {
-                "the file ended without the closing '%' (or M2, M30): is the program complete?"
-            } else {
-                "the file ended with no program end (M2, M30) and no '%' delimiters: is the program complete?"
-            },
-        ));
     }
     Ok(Program { blocks })
 }
@@ -251,7 +251,8 @@ struct State<'a> {
     machine: &'a Machine<'a>,
     /// The tool's position (machine world coordinates).
     position: Pose,
-    motion: Option<u8>,
+    /// The motion mode (G code in tenths: 0, 10, 20, 30, 810, 820, 830).
+    motion: Option<u16>,
     plane: Plane,
     inches: bool,
     incremental: bool,
@@ -265,12 +266,34 @@ struct State<'a> {
     /// G90.1: an arc's I J K are absolute program coordinates (G91.1, the default: offsets from
     /// its start).
     arc_absolute: bool,
+    /// G99 (the default, as LinuxCNC's): a canned cycle retracts to its R plane; G98: to where
+    /// the first cycle of a series started, if that is higher.
+    retract_to_r: bool,
+    /// The canned cycle's values that carry to the next block of the same cycle.
+    cycle: Cycle,
+    /// The height (normal coordinate, program units) where the present series of canned
+    /// cycles started; `None` after any other motion.
+    cycle_initial: Option<f64>,
 }
+
+/// A canned cycle's values as its last block gave them (program units, as written: in G91, R
+/// from the initial level and Z from R).
+#[derive(Clone, Copy, Debug, Default)]
+struct Cycle {
+    r: f64,
+    bottom: f64,
+    dwell: f64,
+    peck: f64,
+}
+
+/// How far above the bottom of the last peck a G83 rapid returns (mm): LinuxCNC 2.9's
+/// `G83_RAPID_DELTA`, 0.010 inch.
+const PECK_CLEARANCE_MM: f64 = 0.254;
 
 /// The modal groups of the supported G codes (RS274NGC's numbering), for the one-per-group rule.
 fn g_group(code: u16) -> Option<u8> {
     match code {
-        0 | 10 | 20 | 30 | 800 => Some(1),
+        0 | 10 | 20 | 30 | 800 | 810 | 820 | 830 => Some(1),
         40 => Some(0),
         170 | 180 | 190 => Some(2),
         200 | 210 => Some(6),
@@ -282,6 +305,7 @@ fn g_group(code: u16) -> Option<u8> {
         940 => Some(5),
         400 => Some(7),
         490 => Some(8),
+        980 | 990 => Some(10),
         _ => None,
     }
 }
@@ -297,11 +321,10 @@ fn g_refusal(code: u16) -> String {
         382..=385 => "probing",
         400..=429 => "cutter compensation",
         430..=499 => "tool length compensation",
-        800..=899 => "canned cycles",
+        730..=899 => "canned cycles other than G81, G82, G83",
         921..=923 => "G92 variants",
         930 | 950 => "feed modes other than units per minute",
         960 | 970 => "spindle speed modes",
-        981 | 990 | 980 => "canned-cycle return levels",
         _ => "",
     };
     if why.is_empty() {
@@ -311,12 +334,87 @@ fn g_refusal(code: u16) -> String {
     }
 }
 
+/// A word that counts (an arc's turns, a cycle's repeats): a whole number from 1 to `max`, 1
+/// where the block has none; the word when it is not such a number.
+fn count(word: Option<&Word>, max: u32) -> Result<u32, &Word> {
+    match word {
+        None => Ok(1),
+        Some(w) if w.value >= 1.0 && w.value.fract() == 0.0 && w.value <= f64::from(max) => Ok(w.value as u32),
+        Some(w) => Err(w),
+    }
+}
+
+/// The program stops of a block (M0, M1, M2, M30), after its motion.
+fn stops(line: usize, m: &[(u16, &Word)], out: &mut Vec<Block>) {
+    for (code, _) in m {
+        match code {
+            0 | 10 => out.push(Block {
+                line,
+                action: Action::Pause { optional: *code == 10 },
+            }),
+            20 | 300 => out.push(Block {
+                line,
+                action: Action::End,
+            }),
+            _ => {}
+        }
+    }
+}
+
 /// `G1`, `G64`, `G92.1` from a code in tenths.
 fn format_code(letter: char, code: u16) -> String {
     if code.is_multiple_of(10) {
         format!("{letter}{}", code / 10)
     } else {
         format!("{letter}{}.{}", code / 10, code % 10)
+    }
+}
+
+/// The state as LinuxCNC's system parameters give it, in program units.
+impl flow::System for State<'_> {
+    fn numbered(&self, index: usize) -> Option<f64> {
+        let position = self.program_position();
+        match index {
+            // G92's offsets.
+            5211..=5216 => Some(self.g92[index - 5211] / self.scale(index - 5211)),
+            // The coordinate system in force, 1 for G54.
+            5220 => Some((self.system + 1) as f64),
+            // G54 … G59's origins, 20 parameters per system (X Y Z A B C first).
+            5221..=5326 if (index - 5221) % 20 < 6 => {
+                let (system, c) = ((index - 5221) / 20, (index - 5221) % 20);
+                Some(self.machine.work_offsets[system][c] / self.scale(c))
+            }
+            // The tool's position in the coordinate system in force.
+            5420..=5425 => Some(position[index - 5420]),
+            _ => None,
+        }
+    }
+
+    fn named(&self, name: &str) -> Option<f64> {
+        let truth = |b: bool| if b { 1.0 } else { 0.0 };
+        let position = self.program_position();
+        Some(match name {
+            "_x" | "_y" | "_z" | "_a" | "_b" | "_c" => {
+                let c = AXES
+                    .iter()
+                    .position(|a| name[1..].eq_ignore_ascii_case(&a.to_string()))?;
+                position[c]
+            }
+            "_feed" => self.feed_mm_min.map_or(0.0, |f| f / self.unit()),
+            "_rpm" => self.speed_rpm,
+            "_metric" => truth(!self.inches),
+            "_imperial" => truth(self.inches),
+            "_absolute" => truth(!self.incremental),
+            "_incremental" => truth(self.incremental),
+            "_coord_system" => 540.0 + 10.0 * self.system as f64,
+            "_motion_mode" => f64::from(self.motion.unwrap_or(800)),
+            "_plane" => match self.plane {
+                Plane::Xy => 170.0,
+                Plane::Zx => 180.0,
+                Plane::Yz => 190.0,
+            },
+            _ => return None,
+        })
     }
 }
 
@@ -334,6 +432,9 @@ impl<'a> State<'a> {
             feed_mm_min: None,
             speed_rpm: 0.0,
             arc_absolute: false,
+            retract_to_r: true,
+            cycle: Cycle::default(),
+            cycle_initial: None,
             blend: Blend::Within {
                 tolerance: None,
                 merge: None,
@@ -350,6 +451,23 @@ impl<'a> State<'a> {
     fn offset(&self) -> Pose {
         let w = self.machine.work_offsets[self.system];
         std::array::from_fn(|c| w[c] + self.g92[c])
+    }
+
+    /// Machine units (mm, degrees) per program unit of coordinate `c`.
+    fn scale(&self, c: usize) -> f64 {
+        if c < 3 { self.unit() } else { 1.0 }
+    }
+
+    /// The tool's position in program coordinates and units.
+    fn program_position(&self) -> Pose {
+        let offset = self.offset();
+        std::array::from_fn(|c| (self.position[c] - offset[c]) / self.scale(c))
+    }
+
+    /// Machine coordinates of a point given in program coordinates and units.
+    fn machine_position(&self, program: &Pose) -> Pose {
+        let offset = self.offset();
+        std::array::from_fn(|c| program[c] * self.scale(c) + offset[c])
     }
 
     fn block(&mut self, block: &lexer::Block, out: &mut Vec<Block>) -> Result<(), NcError> {
@@ -420,7 +538,7 @@ impl<'a> State<'a> {
                         return Err(at(w, "a line number (N) comes first in its block".into()));
                     }
                 }
-                'X' | 'Y' | 'Z' | 'A' | 'B' | 'C' | 'I' | 'J' | 'K' | 'R' | 'F' | 'S' | 'P' | 'Q' => {
+                'X' | 'Y' | 'Z' | 'A' | 'B' | 'C' | 'I' | 'J' | 'K' | 'R' | 'F' | 'S' | 'P' | 'Q' | 'L' => {
                     let slot = &mut values[(w.letter as u8 - b'A') as usize];
                     if slot.is_some() {
                         return Err(at(w, format!("{} twice in one block", w.letter)));
@@ -429,12 +547,6 @@ impl<'a> State<'a> {
                 }
                 'T' => return Err(at(w, "tool selection (T) is not supported".into())),
                 'D' | 'H' => return Err(at(w, format!("{} (tool compensation) is not supported", w.letter))),
-                'L' => {
-                    return Err(at(
-                        w,
-                        format!("{} (G10 tables, canned cycles) is not supported", w.letter),
-                    ));
-                }
                 'E' => return Err(at(w, "E (extruders) is not supported".into())),
                 'U' | 'V' | 'W' => {
                     return Err(at(w, format!("{}: axes U V W are not supported", w.letter)));
@@ -508,37 +620,59 @@ impl<'a> State<'a> {
                 },
             });
         }
-        // P belongs to G4, G64 or an arc; R, I, J, K to an arc.
+        // P belongs to G4, G64, an arc or G82; Q to G64 or G83; I, J, K to an arc; R to an arc
+        // or a canned cycle, L to a canned cycle.
         let motion_word = g
             .iter()
-            .find(|(c, _)| matches!(c, 0 | 10 | 20 | 30))
+            .find(|(c, _)| matches!(c, 0 | 10 | 20 | 30 | 810 | 820 | 830))
             .map(|(c, w)| (*c, *w));
-        let arc_now = match motion_word {
-            Some((c, _)) => matches!(c, 20 | 30),
-            None => matches!(self.motion, Some(20 | 30)) && AXES.iter().any(|a| get(*a).is_some()),
+        let has_axis_word = AXES.iter().any(|a| get(*a).is_some());
+        // The motion this block makes, if any.
+        let motion_now = match motion_word {
+            Some((c, _)) => Some(c),
+            None if has_axis_word && !has_g(800) => self.motion,
+            None => None,
         };
+        let arc_now = matches!(motion_now, Some(20 | 30));
+        let cycle_now = matches!(motion_now, Some(810 | 820 | 830));
         if let Some(w) = get('P')
-            && !(has_g(40) || has_g(640) || arc_now)
+            && !(has_g(40) || has_g(640) || arc_now || motion_now == Some(820))
         {
             return Err(at(
                 w,
-                "P belongs to G4 (dwell), G64 (tolerance) or an arc (turns)".into(),
+                "P belongs to G4 (dwell), G64 (tolerance), an arc (turns) or G82 (dwell)".into(),
             ));
         }
         if let Some(w) = get('Q')
-            && !has_g(640)
+            && !(has_g(640) || motion_now == Some(830))
         {
             return Err(at(
                 w,
-                "Q belongs to G64 (merging lines within it); canned cycles are not supported".into(),
+                "Q belongs to G64 (merging lines within it) or G83 (the peck depth)".into(),
             ));
         }
-        for letter in ['R', 'I', 'J', 'K'] {
+        for letter in ['I', 'J', 'K'] {
             if let Some(w) = get(letter)
                 && !arc_now
             {
                 return Err(at(w, format!("{letter} belongs to an arc (G2, G3)")));
             }
+        }
+        if let Some(w) = get('R')
+            && !(arc_now || cycle_now)
+        {
+            return Err(at(
+                w,
+                "R belongs to an arc (G2, G3) or a canned cycle (G81 … G83)".into(),
+            ));
+        }
+        if let Some(w) = get('L')
+            && !cycle_now
+        {
+            return Err(at(
+                w,
+                "L belongs to a canned cycle (its repeats); G10 tables are not supported".into(),
+            ));
         }
         let g_word = |code: u16| g.iter().find(|(c, _)| *c == code).map(|(_, w)| *w);
         if let Some(w) = g_word(40) {
@@ -608,6 +742,12 @@ impl<'a> State<'a> {
         if has_g(910) {
             self.incremental = true;
         }
+        if has_g(980) {
+            self.retract_to_r = false;
+        }
+        if has_g(990) {
+            self.retract_to_r = true;
+        }
         let axis_words: Vec<(usize, &Word)> = AXES
             .iter()
             .enumerate()
@@ -640,9 +780,19 @@ impl<'a> State<'a> {
                 ));
             }
             self.motion = None;
+            self.cycle_initial = None;
         }
+        let previous_motion = self.motion;
         if let Some((code, _)) = motion_word {
-            self.motion = Some(code as u8);
+            self.motion = Some(code);
+        }
+        if cycle_now {
+            if let Some(w) = g_word(530) {
+                return Err(at(w, "G53 goes with a G0 or G1 move in this block".into()));
+            }
+            let first = axis_words.first().map_or(&block.words[0], |(_, w)| *w);
+            let code = self.motion.unwrap_or_default();
+            return self.cycle(line, code, previous_motion, first, &get, &axis_words, &m, out);
         }
         // An arc without axis words but with its centre is a full circle where the tool stands.
         let full_circle = matches!(motion_word, Some((20 | 30, _))) && axis_words.is_empty() && {
@@ -671,6 +821,7 @@ impl<'a> State<'a> {
             ));
         }
         if moves {
+            self.cycle_initial = None;
             let Some(mode) = self.motion else {
                 return Err(at(
                     axis_words[0].1,
@@ -717,19 +868,173 @@ impl<'a> State<'a> {
             });
             self.position = to;
         }
-        for (code, _) in &m {
-            match code {
-                0 | 10 => out.push(Block {
-                    line,
-                    action: Action::Pause { optional: *code == 10 },
-                }),
-                20 | 300 => out.push(Block {
-                    line,
-                    action: Action::End,
-                }),
-                _ => {}
-            }
+        stops(line, &m, out);
+        Ok(())
+    }
+
+    /// A canned cycle (G81, G82, G83: `code`) at the block's position, as LinuxCNC's
+    /// `convert_cycle_xy` (and its other planes) makes it: up to the R plane if below it, over
+    /// the hole, down to R, the cycle, back to the clearance level (R in G99, the series'
+    /// starting height in G98); L times. Every move stops exactly at its end.
+    #[allow(clippy::too_many_arguments)]
+    fn cycle<'w>(
+        &mut self,
+        line: usize,
+        code: u16,
+        previous: Option<u16>,
+        first: &Word,
+        get: &dyn Fn(char) -> Option<&'w Word>,
+        axis_words: &[(usize, &Word)],
+        m: &[(u16, &Word)],
+        out: &mut Vec<Block>,
+    ) -> Result<(), NcError> {
+        let at = |w: &Word, message: String| NcError::new(line, w.column, message);
+        let name = format_code('G', code);
+        let [a0, a1, n] = self.plane.axes();
+        if let Some((_, w)) = axis_words.iter().find(|(c, _)| *c >= 3) {
+            return Err(at(
+                w,
+                format!("{name} moves X Y Z only: {} cannot move in a canned cycle", w.letter),
+            ));
         }
+        let Some(feed) = self.feed_mm_min else {
+            return Err(at(first, format!("no feed rate: an F word is needed before {name}")));
+        };
+        // The values that carry from the cycle's last block when it continues.
+        let same = previous == Some(code);
+        let normal = AXES[n];
+        let carried = |letter: char, last: f64, what: &str| match get(letter) {
+            Some(w) => Ok(w.value),
+            None if same => Ok(last),
+            None => Err(at(first, format!("{name} needs {letter}, {what}"))),
+        };
+        let r_given = carried('R', self.cycle.r, "the retract plane")?;
+        let bottom_given = carried(normal, self.cycle.bottom, "the bottom of the hole")?;
+        let dwell = if code == 820 {
+            let p = carried('P', self.cycle.dwell, "the dwell at the bottom in seconds")?;
+            if !(0.0..=MAX_DWELL_S).contains(&p) {
+                return Err(at(
+                    get('P').unwrap_or(first),
+                    format!("the dwell P must be between 0 and {MAX_DWELL_S} s, got {p}"),
+                ));
+            }
+            p
+        } else {
+            self.cycle.dwell
+        };
+        let peck = if code == 830 {
+            let q = carried('Q', self.cycle.peck, "the depth of each peck")?;
+            if q <= 0.0 {
+                return Err(at(
+                    get('Q').unwrap_or(first),
+                    format!("the peck depth Q must be positive, got {q}"),
+                ));
+            }
+            q
+        } else {
+            self.cycle.peck
+        };
+        let repeats = count(get('L'), 10_000).map_err(|l| {
+            at(
+                l,
+                format!(
+                    "L, the number of repeats, is a whole number from 1 to 10000, got {}",
+                    l.value
+                ),
+            )
+        })?;
+        // In program coordinates: a0, a1 the plane's axes, n its normal (Z in G17).
+        let mut p = self.program_position();
+        let initial = *self.cycle_initial.get_or_insert(p[n]);
+        let given = |c: usize| axis_words.iter().find(|(k, _)| *k == c).map(|(_, w)| w.value);
+        let (mut aa, mut bb, step, r, bottom);
+        if self.incremental {
+            step = [given(a0).unwrap_or(0.0), given(a1).unwrap_or(0.0)];
+            r = r_given + initial;
+            bottom = r + bottom_given;
+            (aa, bb) = (p[a0], p[a1]);
+        } else {
+            step = [0.0, 0.0];
+            (r, bottom) = (r_given, bottom_given);
+            (aa, bb) = (given(a0).unwrap_or(p[a0]), given(a1).unwrap_or(p[a1]));
+        }
+        if r < bottom {
+            return Err(at(
+                get('R').unwrap_or(first),
+                format!("{name}: the retract plane R ({r}) is below the bottom {normal} ({bottom})"),
+            ));
+        }
+        let mut old = initial;
+        let mut current = p[n];
+        let here = [p[a0], p[a1]];
+        let feed = Some(feed);
+        let mut go = |this: &mut Self, out: &mut Vec<Block>, point: [f64; 3], feed: Option<f64>| {
+            (p[a0], p[a1], p[n]) = (point[0], point[1], point[2]);
+            let to = this.machine_position(&p);
+            // LinuxCNC writes moves that go nowhere (over the hole when the tool is there
+            // already); they change nothing.
+            if to != this.position {
+                out.push(Block {
+                    line,
+                    action: Action::Move {
+                        from: this.position,
+                        to,
+                        path: Path::Line,
+                        feed_mm_min: feed,
+                        blend: Blend::ExactStop,
+                    },
+                });
+                this.position = to;
+            }
+        };
+        // Below the R plane: straight up to it first.
+        if old < r {
+            go(self, out, [here[0], here[1], r], None);
+            old = r;
+            current = r;
+        }
+        let clear = if self.retract_to_r { r } else { old };
+        let unit = self.unit();
+        for turn in 0..repeats {
+            aa += step[0];
+            bb += step[1];
+            if turn == 0 && current > r {
+                go(self, out, [aa, bb, current], None);
+                go(self, out, [aa, bb, r], None);
+            } else {
+                go(self, out, [aa, bb, clear], None);
+                if clear > r {
+                    go(self, out, [aa, bb, r], None);
+                }
+            }
+            if code == 830 {
+                let mut depth = r - peck;
+                while depth > bottom {
+                    go(self, out, [aa, bb, depth], feed);
+                    go(self, out, [aa, bb, r], None);
+                    go(self, out, [aa, bb, depth + PECK_CLEARANCE_MM / unit], None);
+                    depth -= peck;
+                }
+            }
+            go(self, out, [aa, bb, bottom], feed);
+            if code == 820 {
+                out.push(Block {
+                    line,
+                    action: Action::Dwell(dwell),
+                });
+            }
+            go(self, out, [aa, bb, clear], None);
+        }
+        self.cycle = Cycle {
+            r: r_given,
+            bottom: bottom_given,
+            dwell,
+            peck,
+        };
+        if out.len() > MAX_BLOCKS {
+            return Err(at(first, format!("{name}: more than {MAX_BLOCKS} moves")));
+        }
+        stops(line, m, out);
         Ok(())
     }
 
@@ -745,19 +1050,15 @@ impl<'a> State<'a> {
         let at = |w: &Word, message: String| NcError::new(line, w.column, message);
         let [a0, a1, _] = self.plane.axes();
         let (s, e) = ([self.position[a0], self.position[a1]], [to[a0], to[a1]]);
-        let turns = match get('P') {
-            None => 1,
-            Some(p) if p.value >= 1.0 && p.value.fract() == 0.0 && p.value <= 1000.0 => p.value as u32,
-            Some(p) => {
-                return Err(at(
-                    p,
-                    format!(
-                        "an arc's P is its number of turns, a whole number from 1, got {}",
-                        p.value
-                    ),
-                ));
-            }
-        };
+        let turns = count(get('P'), 1000).map_err(|p| {
+            at(
+                p,
+                format!(
+                    "an arc's P is its number of turns, a whole number from 1, got {}",
+                    p.value
+                ),
+            )
+        })?;
         let [o0, o1] = self.plane.offsets();
         let plane_name = match self.plane {
             Plane::Xy => "G17 (X–Y)",
@@ -1028,7 +1329,10 @@ mod tests {
     fn what_the_subset_lacks_is_refused_with_line_column_and_reason() {
         for (text, message) in [
             ("G41 X1", "1:1: G41 is not supported (cutter compensation)"),
-            ("G1 X1 F10\nG81 X1 Z-1 R1", "2:1: G81 is not supported (canned cycles)"),
+            (
+                "G1 X1 F10\nG84 X1 Z-1 R1",
+                "2:1: G84 is not supported (canned cycles other than G81, G82, G83)",
+            ),
             ("G43 H1", "1:1: G43 is not supported (tool length compensation)"),
             (
                 "G28",
@@ -1082,7 +1386,7 @@ mod tests {
             ),
             (
                 "G1 X1 Q0.1 F100",
-                "1:7: Q belongs to G64 (merging lines within it); canned cycles are not supported",
+                "1:7: Q belongs to G64 (merging lines within it) or G83 (the peck depth)",
             ),
             (
                 "G64 P0.1 Q-1",
@@ -1101,7 +1405,7 @@ mod tests {
             ("G4 P-1", "1:4: the dwell P must be zero or positive seconds, got -1"),
             (
                 "G1 X1 P2 F1",
-                "1:7: P belongs to G4 (dwell), G64 (tolerance) or an arc (turns)",
+                "1:7: P belongs to G4 (dwell), G64 (tolerance), an arc (turns) or G82 (dwell)",
             ),
             ("G1 X1 I2 F1", "1:7: I belongs to an arc (G2, G3)"),
             ("G2 X1 F1", "1:4: an arc needs its centre (I J) or its radius (R)"),
@@ -1234,6 +1538,137 @@ mod tests {
                 .to_string(),
             "2:1: the file ended without the closing '%' (or M2, M30): is the program complete?"
         );
+    }
+
+    /// The moves LinuxCNC 2.9's `rs274` prints for the same program (also compared with it in
+    /// `tests/suite/nc.rs` where it is installed): G83 from above R, G98, G91 with L3.
+    #[test]
+    fn canned_cycles_make_linuxcncs_moves() {
+        let b = run("G0 Z10\nG83 X1 Y1 Z-5 R2 Q2 F100\nG98 G81 X5 Z-1 R1\nG91 G81 X2 Y0 R-3 Z-1 L3\nG90 G0 X0");
+        let r = |x: f64, y: f64, z: f64| ([x, y, z, 0.0, 0.0, 0.0], Path::Line, None);
+        let f = |x: f64, y: f64, z: f64| ([x, y, z, 0.0, 0.0, 0.0], Path::Line, Some(100.0));
+        let expected = [
+            r(0.0, 0.0, 10.0),
+            // G83: over the hole, down to R, pecks of 2 with a rapid back to R and to 0.254 mm
+            // above the last peck, the bottom, back to R (G99).
+            r(1.0, 1.0, 10.0),
+            r(1.0, 1.0, 2.0),
+            f(1.0, 1.0, 0.0),
+            r(1.0, 1.0, 2.0),
+            r(1.0, 1.0, 0.254),
+            f(1.0, 1.0, -2.0),
+            r(1.0, 1.0, 2.0),
+            r(1.0, 1.0, -1.746),
+            f(1.0, 1.0, -4.0),
+            r(1.0, 1.0, 2.0),
+            r(1.0, 1.0, -3.746),
+            f(1.0, 1.0, -5.0),
+            r(1.0, 1.0, 2.0),
+            // G98: back to where the series started (Z10).
+            r(5.0, 1.0, 2.0),
+            r(5.0, 1.0, 1.0),
+            f(5.0, 1.0, -1.0),
+            r(5.0, 1.0, 10.0),
+            // G91 L3: X2 each time, R 3 below the start (7), the bottom 1 below R.
+            r(7.0, 1.0, 10.0),
+            r(7.0, 1.0, 7.0),
+            f(7.0, 1.0, 6.0),
+            r(7.0, 1.0, 10.0),
+            r(9.0, 1.0, 10.0),
+            r(9.0, 1.0, 7.0),
+            f(9.0, 1.0, 6.0),
+            r(9.0, 1.0, 10.0),
+            r(11.0, 1.0, 10.0),
+            r(11.0, 1.0, 7.0),
+            f(11.0, 1.0, 6.0),
+            r(11.0, 1.0, 10.0),
+            r(0.0, 1.0, 10.0),
+        ];
+        let got = moves(&b);
+        assert_eq!(got.len(), expected.len(), "{got:?}");
+        for (g, e) in got.iter().zip(&expected) {
+            assert!(
+                g.0.iter().zip(&e.0).all(|(a, b)| (a - b).abs() < 1e-9) && g.1 == e.1 && g.2 == e.2,
+                "{g:?} vs {e:?}"
+            );
+        }
+        // Every move of a cycle stops exactly; G82 dwells at the bottom; a block with only X
+        // and Y repeats the cycle with its values.
+        let b = run("G64 G0 Z5\nG82 X1 Z-1 R1 P0.5 F60\nX2\nG80");
+        assert!(b.iter().skip(1).filter(|b| b.action != Action::End).all(|b| matches!(
+            b.action,
+            Action::Move {
+                blend: Blend::ExactStop,
+                ..
+            } | Action::Dwell(_)
+        )));
+        let dwells: Vec<Action> = b
+            .iter()
+            .map(|b| b.action)
+            .filter(|a| matches!(a, Action::Dwell(_)))
+            .collect();
+        assert_eq!(dwells, [Action::Dwell(0.5), Action::Dwell(0.5)]);
+        let last_move = b.iter().rev().find(|b| matches!(b.action, Action::Move { .. }));
+        assert_eq!(last_move.map(|b| b.line), Some(3), "X2 drilled again");
+        for (text, message) in [
+            ("G81 X1 Z-1 F10", "1:5: G81 needs R, the retract plane"),
+            ("G81 X1 R1 F10", "1:5: G81 needs Z, the bottom of the hole"),
+            ("G83 X1 Z-1 R1 F10", "1:5: G83 needs Q, the depth of each peck"),
+            ("G83 X1 Z-1 R1 Q0 F10", "1:15: the peck depth Q must be positive, got 0"),
+            (
+                "G82 X1 Z-1 R1 F10",
+                "1:5: G82 needs P, the dwell at the bottom in seconds",
+            ),
+            (
+                "G81 X1 Z1 R-1 F10",
+                "1:11: G81: the retract plane R (-1) is below the bottom Z (1)",
+            ),
+            (
+                "G81 X1 Z-1 R1 L0 F10",
+                "1:15: L, the number of repeats, is a whole number from 1 to 10000, got 0",
+            ),
+            ("G81 X1 Z-1 R1", "1:5: no feed rate: an F word is needed before G81"),
+            (
+                "G1 X1 L2 F10",
+                "1:7: L belongs to a canned cycle (its repeats); G10 tables are not supported",
+            ),
+            (
+                "G1 X1 R2 F10",
+                "1:7: R belongs to an arc (G2, G3) or a canned cycle (G81 … G83)",
+            ),
+        ] {
+            assert_eq!(refused(text), message, "{text}");
+        }
+        let hexapod = read(&ended("G81 X1 A1 Z-1 R1 F10"), &machine(&XYZABC)).expect_err("refused");
+        assert_eq!(
+            hexapod.to_string(),
+            "1:8: G81 moves X Y Z only: A cannot move in a canned cycle"
+        );
+    }
+
+    /// The interpreter's state as LinuxCNC's system parameters, in program units.
+    #[test]
+    fn system_parameters_give_the_state() {
+        // G55's origin is at machine x 100.
+        let m = moves(&run(
+            "G55 G0 X5\nG1 X#5420 Y#5220 Z#5241 F#<_coord_system>\nG20\nG0 X[#<_x>] Y#<_metric> Z#<_motion_mode>\nG21 G92 X0\nG0 Y#5211",
+        ));
+        assert_eq!(m[0].0[0], 105.0);
+        assert_eq!(
+            m[1].0[..3],
+            [105.0, 2.0, 100.0],
+            "position 5, system 2 (G55), G55's x origin 100"
+        );
+        assert_eq!(m[1].2, Some(550.0));
+        let inch = 25.4;
+        // A line's values are read before its own codes act: G20 on a line of its own.
+        assert!((m[2].0[0] - 105.0).abs() < 1e-9, "#<_x> in inches, moved to in inches");
+        assert_eq!(m[2].0[1], 0.0, "G20: not metric");
+        assert!(
+            (m[2].0[2] - 10.0 * inch).abs() < 1e-9,
+            "G1 before the line: motion mode 10"
+        );
+        assert_eq!(m[3].0[1], 5.0, "G92 X0 at 5: its offset #5211 reads 5");
     }
 
     #[test]

@@ -1,11 +1,13 @@
 //! NC programs (motion.md): the documented subset of RS274NGC, LinuxCNC's dialect, read into
 //! moves in the machine's world coordinates.
 //!
-//! - [`lexer`]: a program's text as words (`G1`, `X-2.5`) with their line and column; comments,
-//!   line numbers, block delete and `%` delimiters handled; parameters, expressions and O-words
-//!   refused where they stand.
+//! - [`lexer`]: a program's line as words (`G1`, `X-2.5`, `X[#1 * 2]`) with their values, line
+//!   and column, the parameters it sets, or its O-word statement; comments, line numbers, block
+//!   delete and `%` delimiters handled; expressions computed as LinuxCNC computes them.
+//! - [`flow`]: the order lines run in (O-word subroutines, conditionals, loops) and the
+//!   parameters (numbered, named, local to a call or global).
 //! - [`interp`]: the modal state (plane, units, distance mode, work offsets, feed, exact stop or
-//!   blending) applied block by block: every block becomes a [`interp::Block`] — a rapid, a line,
+//!   blending, canned cycles) applied block by block: every block becomes a [`interp::Block`] — a rapid, a line,
 //!   an arc or helix, a dwell, a pause, a spindle change or the end — with its line. Anything the
 //!   subset does not have is refused with its line and column and the reason, before anything
 //!   moves.
@@ -20,10 +22,10 @@
 //!
 //! A small parser of our own rather than the `gcode` crate: that one reads values as `f32`
 //! (seven digits: a 1 µm step is lost beyond 10 m, and 0.1 µm beyond 1 m), is built to skip what
-//! it cannot read and go on, and knows nothing of RS274NGC's parameters, expressions or O-words,
-//! which must be refused with their position, not skipped.
+//! it cannot read and go on, and knows nothing of RS274NGC's parameters, expressions or O-words.
 
 pub mod check;
+pub mod flow;
 pub mod interp;
 pub mod job;
 pub mod lexer;
