@@ -757,6 +757,28 @@ mod tests {
         }
     }
 
+    proptest::proptest! {
+        /// Any text made of O-word statements, parameter settings and moves is run or refused
+        /// with a line and a message; nothing panics and every run ends.
+        #[test]
+        fn any_program_runs_or_is_refused(lines in proptest::collection::vec(proptest::sample::select(vec![
+            "o1 if [#1 LT 3]", "o1 elseif [#2]", "o1 else", "o1 endif", "o2 while [#1 LT 3]", "o2 endwhile",
+            "o3 do", "o3 while [#1 LT 2]", "o4 repeat [2]", "o4 endrepeat", "o2 break", "o2 continue",
+            "o5 sub", "o5 endsub [#1]", "o5 call [#1 + 1]", "o5 return", "#1 = [#1 + 1]", "#<a> = #1",
+            "X#<a>", "X#1", "M2", "%", "/X1", "(comment)", "N5 o1 if [1]",
+        ]), 0..24)) {
+            let text = lines.join("\n");
+            let mut flow = Flow::new(&text, false);
+            flow.limit = 10_000;
+            for _ in 0..20_000 {
+                match flow.next(&Plain) {
+                    Ok(Event::End(_)) | Err(_) => break,
+                    Ok(_) => {}
+                }
+            }
+        }
+    }
+
     #[test]
     fn a_loop_that_does_not_end_is_refused() {
         let mut flow = Flow::new("#1=0\no1 while [1]\n#1=[#1+1]\no1 endwhile\n", false);

@@ -1163,6 +1163,16 @@ mod tests {
             prop_assert_eq!(v[0], ('X', text.parse::<f64>().expect("a number")));
         }
 
+        /// Any line of the characters programs are made of is read or refused with a column
+        /// inside it (or just past its end); nothing panics.
+        #[test]
+        fn any_line_is_read_or_refused(line in "[gGxXoO#<>=\\[\\]()+\\-*/.0-9 a-z%;]{0,40}") {
+            if let Err(e) = read(&line) {
+                prop_assert_eq!(e.line, 1);
+                prop_assert!(e.column >= 1 && e.column <= line.chars().count() + 1, "{}: {}", line, e);
+            }
+        }
+
         /// An expression of sums and products of small whole numbers has the value Rust computes
         /// with the usual precedence.
         #[test]
