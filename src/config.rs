@@ -78,9 +78,19 @@ pub struct NcConfig {
     /// default, as LinuxCNC's), they run.
     #[serde(default)]
     pub block_delete: bool,
+    /// The share of each joint's and world axis' acceleration a program's plan uses (1 by
+    /// default): a machine whose drives follow the planned (trapezoidal) speed profile within
+    /// the contour tolerance only at less sets it lower.
+    #[serde(default)]
+    pub accel_share: Option<f64>,
 }
 
 impl NcConfig {
+    /// The share of the accelerations a program's plan uses (`accel_share`, 1 without it).
+    pub fn accel_share(&self) -> f64 {
+        self.accel_share.unwrap_or(1.0)
+    }
+
     /// The origin of each work coordinate system, G54 first (the reference point where the
     /// section gives none); `n` values each.
     pub fn origins(&self, n: usize) -> [[f64; 6]; 6] {
@@ -145,6 +155,9 @@ impl NcConfig {
                 ranges::ACCEL_MM_S2,
                 ranges::ACCEL_MM_S2,
             );
+        }
+        if let Some(share) = self.accel_share {
+            ranges::check_into(&mut problems, "nc.accel_share", share, &ranges::ACCEL_SHARE);
         }
         problems
     }

@@ -175,11 +175,12 @@ pub fn prepare_text(setup: &Setup, name: String, text: String) -> Result<Prepare
             }
             a
         };
+        let share = nc.accel_share();
         let limits = PlanLimits {
             joint_speed: motion.joint_speed.clone(),
-            joint_accel: motion.joint_accel.clone(),
+            joint_accel: motion.joint_accel.iter().map(|a| a * share).collect(),
             axis_speed: per_axis(&nc.axis_speed),
-            axis_accel: per_axis(&nc.axis_accel),
+            axis_accel: per_axis(&nc.axis_accel).map(|a| a * share),
         };
         Some(plan(&program, &frame, &limits).map_err(|e| fail(1, format!("{name}: {e}")))?)
     } else {

@@ -134,6 +134,8 @@ pub const SLOW_SPEED_MM_S: Range = Range::new(0.001, 100.0, "mm/s", "");
 pub const ANGULAR_SPEED_DEG_S: Range = Range::new(0.01, 360.0, "degrees/s", "");
 /// An acceleration or deceleration (mm/s², degrees/s²).
 pub const ACCEL_MM_S2: Range = Range::new(0.1, 100_000.0, "mm/s²", "");
+/// The share of the joints' and axes' accelerations an NC program's plan uses.
+pub const ACCEL_SHARE: Range = Range::new(0.05, 1.0, "", "a fraction of each acceleration");
 /// A distance a search backs off or approaches from (mm).
 pub const SEARCH_DISTANCE_MM: Range = Range::new(0.001, 100.0, "mm", "");
 /// How long a search or a move in INIT may take before it is an INIT timeout (s).

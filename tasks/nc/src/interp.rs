@@ -85,8 +85,8 @@ pub enum Path {
 pub enum Blend {
     /// G61: at rest at its end point.
     ExactStop,
-    /// G64: blended into the next move, within `tolerance` of the corner (mm; `None`: as close
-    /// as the limits allow at the best speed — LinuxCNC's G64 without P, with P0 or P-1); lines
+    /// G64: blended into the next move, within `tolerance` of the corner (mm; `None`:
+    /// within [`crate::plan::PLAIN_G64_MM`] — LinuxCNC's G64 without P, with P0 or P-1); lines
     /// that deviate less than `merge` (mm, G64 Q: LinuxCNC's naive CAM detector) from one
     /// straight line are run as that line.
     Within {

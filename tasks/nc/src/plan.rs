@@ -29,6 +29,15 @@ pub const GRID_SPACING: f64 = 0.5;
 /// along a bisector of length 2 sin(θ/2)) loses its precision — two 0.03 mm CAM lines written to
 /// three decimals turned by 2e-8 rad and gave a centre that was not a number.
 const STRAIGHT: f64 = 1e-6;
+/// How far from its corner the path may pass under G64 without a tolerance (mm): LinuxCNC
+/// rounds a 40 mm square's corners by 1.47 mm at F1200 on the O-X glide's limits (more at higher
+/// feeds); here the bound is fixed, whatever the feed.
+pub const PLAIN_G64_MM: f64 = 1.0;
+/// How far from a curve a long line gets a point of its own (mm).
+const JUNCTION: f64 = 0.05;
+/// The share of an axis' or joint's acceleration a curve may take at its highest speed (the
+/// rest is left for the change of speed): LinuxCNC's √3/2 for the normal acceleration on arcs.
+const NORMAL_SHARE: f64 = 0.866;
 /// Lines turning by more than this (rad) reverse: the tool stops.
 const REVERSAL: f64 = std::f64::consts::PI - 1e-3;
 
@@ -119,8 +128,11 @@ struct Point {
     /// Speed cap and what sets it.
     cap: f64,
     limit: Limit,
-    /// Tangential acceleration bound.
+    /// Tangential acceleration bound at rest (mm/s²); at speed v it is `accel − bend · v²`
+    /// (what the path's curvature leaves of the axes' and joints' accelerations).
     accel: f64,
+    /// How the bound falls with the speed squared (1/mm).
+    bend: f64,
     /// Planned speed.
     v: f64,
     /// When the tool passes (s).
@@ -344,10 +356,10 @@ fn blend_corners(elements: Vec<Element>) -> Vec<Element> {
         }
         let (len_a, len_b) = (current.segment.linear_length(), next.segment.linear_length());
         let half = (theta / 2.0).tan();
-        let by_tolerance = match current.tolerance.flatten() {
-            Some(p) => p / (1.0 / (theta / 2.0).cos() - 1.0),
-            None => f64::INFINITY,
-        };
+        // G64 without P (or P0, P-1) rounds within PLAIN_G64_MM, so that a corner is never cut
+        // by more than that, whatever the feed and the lines' lengths.
+        let tolerance = current.tolerance.flatten().unwrap_or(PLAIN_G64_MM);
+        let by_tolerance = tolerance / (1.0 / (theta / 2.0).cos() - 1.0);
         let room = ((len_a + trimmed_start) / 2.0).min(len_a).min(len_b / 2.0);
         let radius = by_tolerance.min(room / half);
         if radius.is_nan() || radius <= 1e-9 {
@@ -415,23 +427,35 @@ pub fn plan(program: &Program, frame: &MachineFrame, limits: &PlanLimits) -> Res
     // The points: each element split into at least two intervals.
     let mut points: Vec<Point> = Vec::with_capacity(2 * elements.len() + 1);
     let mut s = 0.0;
+    let curved = |k: Option<usize>| k.and_then(|k| elements.get(k)).is_some_and(|e| e.segment.is_arc());
     for (k, e) in elements.iter().enumerate() {
         let len = e.segment.length();
         // Arcs and blends at least every 22.5°, so that their curvature is seen.
         let turns = e.segment.sweep() * 8.0 / std::f64::consts::PI;
         let steps = ((len / GRID_SPACING).ceil().max(turns.ceil()) as usize).max(2);
+        // A long line next to a curve gets a point JUNCTION from their junction: the bound there
+        // (the curve's) then holds over that short piece, not over a whole interval of the line.
+        let line = !e.segment.is_arc() && len > 4.0 * JUNCTION;
+        let near_start = line && curved(k.checked_sub(1));
+        let near_end = line && curved(Some(k + 1));
         for i in 0..steps {
-            points.push(Point {
-                s: s + len * i as f64 / steps as f64,
-                element: k as u32,
-                u: i as f64 / steps as f64,
-                cap: e.feed,
-                limit: Limit::Feed,
-                accel: f64::INFINITY,
-                v: 0.0,
-                t: 0.0,
-                hold: 0.0,
-            });
+            let grid = i as f64 / steps as f64;
+            let extra_start = (i == 0 && near_start).then_some(JUNCTION / len);
+            let extra_end = (i + 1 == steps && near_end).then_some(1.0 - JUNCTION / len);
+            for u in std::iter::once(grid).chain(extra_start).chain(extra_end) {
+                points.push(Point {
+                    s: s + len * u,
+                    element: k as u32,
+                    u,
+                    cap: e.feed,
+                    limit: Limit::Feed,
+                    accel: f64::INFINITY,
+                    bend: 0.0,
+                    v: 0.0,
+                    t: 0.0,
+                    hold: 0.0,
+                });
+            }
         }
         s += len;
     }
@@ -443,6 +467,7 @@ pub fn plan(program: &Program, frame: &MachineFrame, limits: &PlanLimits) -> Res
             cap: 0.0,
             limit: Limit::Feed,
             accel: f64::INFINITY,
+            bend: 0.0,
             v: 0.0,
             t: 0.0,
             hold: 0.0,
@@ -509,37 +534,66 @@ pub fn plan(program: &Program, frame: &MachineFrame, limits: &PlanLimits) -> Res
                 limit = l;
             }
         };
+        // Per world axis and joint: its limit of acceleration, its first and second derivative
+        // along the path here.
+        let mut rates: [(f64, f64, f64); 6 + MAX_DOF] = [(0.0, 0.0, 0.0); 6 + MAX_DOF];
         #[allow(clippy::needless_range_loop)] // c indexes the poses of three points and the limits
         for c in 0..n.min(6) {
             let d1 = (pose(b)[c] - pose(a)[c]) / ds;
             if d1.abs() > 1e-12 {
                 consider(limits.axis_speed[c] / d1.abs(), Limit::AxisSpeed(c));
-                accel = accel.min(0.5 * limits.axis_accel[c] / d1.abs());
             }
             let d2 = curvature(&|k| pose(k)[c]);
             if d2 > 1e-12 {
-                consider((0.5 * limits.axis_accel[c] / d2).sqrt(), Limit::AxisCurvature(c));
+                consider(
+                    (NORMAL_SHARE * limits.axis_accel[c] / d2).sqrt(),
+                    Limit::AxisCurvature(c),
+                );
             }
+            rates[c] = (limits.axis_accel[c], d1.abs(), d2);
         }
         #[allow(clippy::needless_range_loop)] // j indexes the joints of three points and the limits
         for j in 0..n {
             let d1 = (joint(b)[j] - joint(a)[j]) / ds;
             if d1.abs() > 1e-12 {
                 consider(limits.joint_speed[j] / d1.abs(), Limit::JointSpeed(j));
-                accel = accel.min(0.5 * limits.joint_accel[j] / d1.abs());
             }
             let d2 = curvature(&|k| joint(k)[j]);
             if d2 > 1e-12 {
-                consider((0.5 * limits.joint_accel[j] / d2).sqrt(), Limit::JointCurvature(j));
+                consider(
+                    (NORMAL_SHARE * limits.joint_accel[j] / d2).sqrt(),
+                    Limit::JointCurvature(j),
+                );
             }
+            rates[6 + j] = (limits.joint_accel[j], d1.abs(), d2);
         }
+        // The change of speed gets what the path's curvature leaves of each acceleration at the
+        // speed the tool has (q̈ = q′ s̈ + q″ ṡ²): |s̈| ≤ (A − |q″| v²) / |q′|, all of it where
+        // the tool stands or the path is straight. One bound for all, accel − bend · v²: the
+        // chord of their lower envelope from v = 0 to the cap, below every coordinate's there
+        // (the envelope of lines in v² is concave), and positive at the cap (each coordinate
+        // keeps 1 − NORMAL_SHARE of its acceleration there).
         // The start, and every stop, at rest.
         let stop = i == 0 || (points[i].u == 0.0 && elements[points[i - 1].element as usize].stop_after);
+        let top = if stop { 0.0 } else { cap * cap };
+        let mut at_cap = f64::INFINITY;
+        for (limit, d1, d2) in rates {
+            if d1 > 1e-12 {
+                accel = accel.min(limit / d1);
+                at_cap = at_cap.min((limit - d2 * top) / d1);
+            }
+        }
+        let bend = if top.is_finite() && top > 0.0 && at_cap.is_finite() {
+            ((accel - at_cap) / top).max(0.0)
+        } else {
+            0.0
+        };
         let p = &mut points[i];
         p.cap = if stop { 0.0 } else { cap };
         // A stop is the program's, not a limit of the machine.
         p.limit = if stop { Limit::Feed } else { limit };
         p.accel = accel;
+        p.bend = bend;
     }
     // Dwells: held at the stop after their element.
     for i in 1..count {
@@ -558,23 +612,26 @@ pub fn plan(program: &Program, frame: &MachineFrame, limits: &PlanLimits) -> Res
     if let Some(first) = points.first_mut() {
         first.hold += initial_dwell;
     }
-    // Forward and backward passes.
+    // Forward and backward passes: over an interval the speed changes by at most the bound of
+    // each end at that end's speed (v₁² − v₀² ≤ 2 ds (accel − bend · v²)); each point's bound
+    // holds up to its cap, which its speed never passes.
+    let reachable = |from: f64, ds: f64, p: &Point, q: &Point| {
+        let by_start = from * from + 2.0 * ds * (p.accel - p.bend * from * from);
+        let by_end = (from * from + 2.0 * ds * q.accel) / (1.0 + 2.0 * ds * q.bend);
+        by_start.min(by_end).max(0.0).sqrt()
+    };
     for i in 0..count {
         let v = if i == 0 {
             0.0
         } else {
             let ds = points[i].s - points[i - 1].s;
-            let a = points[i - 1].accel.min(points[i].accel);
-            (points[i - 1].v * points[i - 1].v + 2.0 * a * ds)
-                .sqrt()
-                .min(points[i].cap)
+            reachable(points[i - 1].v, ds, &points[i - 1], &points[i]).min(points[i].cap)
         };
         points[i].v = v;
     }
     for i in (0..count.saturating_sub(1)).rev() {
         let ds = points[i + 1].s - points[i].s;
-        let a = points[i].accel.min(points[i + 1].accel);
-        let v = (points[i + 1].v * points[i + 1].v + 2.0 * a * ds).sqrt();
+        let v = reachable(points[i + 1].v, ds, &points[i + 1], &points[i]);
         points[i].v = points[i].v.min(v);
     }
     // Times.
@@ -720,11 +777,15 @@ impl Plan {
         // Within the interval's element (the last interval of an element ends at its u = 1).
         let u = (p.u + travelled / e.segment.length()).min(1.0);
         let element = p.element as usize;
+        let speed = p.v + a * tau;
+        // The bound at this speed; where a mixed bound of several joints leaves less, the share
+        // a curve leaves at its cap.
+        let (rest, bend) = (p.accel.min(q.accel), p.bend.max(q.bend));
         Sample {
             pose: self.elements[element].segment.at(u),
             line: self.elements[element].line,
-            speed: p.v + a * tau,
-            accel: p.accel.min(q.accel),
+            speed,
+            accel: (rest - bend * speed * speed).max((1.0 - NORMAL_SHARE) * rest),
             rapid: !e.feed.is_finite(),
         }
     }
@@ -874,6 +935,16 @@ mod tests {
             .fold(0.0, f64::max);
         assert!(worst <= 0.05 + 1e-9, "{worst} mm off the programmed path");
         assert!(worst > 0.01, "the corners are rounded, not stopped at: {worst}");
+        // G64 without P: within PLAIN_G64_MM, not half of each 20 mm line (5.8 mm before).
+        let plain = planned(pkm_kinematics::Machine::OxX, "G64\nG1 X20 F1200\nY20\nX0\nY0\nM2\n", &l);
+        let worst = samples(&plain, 0.001)
+            .iter()
+            .map(|s| distance(s.pose[0], s.pose[1]))
+            .fold(0.0, f64::max);
+        assert!(worst <= PLAIN_G64_MM + 1e-9, "{worst} mm off the programmed path");
+        // A 90° corner's arc passes the corner at the bound, the lines at 1 − cos 45° of its
+        // radius: 0.707 of the bound.
+        assert!(worst > 0.7 * PLAIN_G64_MM, "rounded up to the bound: {worst}");
         // G61: the tool stops at each corner; it takes longer.
         let exact = planned(pkm_kinematics::Machine::OxX, "G61\nG1 X20 F1200\nY20\nX0\nY0\nM2\n", &l);
         assert!(
