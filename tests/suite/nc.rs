@@ -197,6 +197,21 @@ fn the_tool_path_is_drawn_inside_the_workspace() {
     // The workspace's samples and the path's moves (16, each a polyline).
     assert!(text.matches("<circle").count() > 1000, "workspace samples");
     assert!(text.matches("<polyline").count() >= 16, "the moves");
+    // A part cut in x–z is drawn in x–z, the plane that shows it.
+    let file = program(dir.path(), "xz.ngc", "G1 X10 F300\nG1 Z-2\nG1 X0\nG0 Z0\nM2\n");
+    let svg = dir.path().join("xz.svg");
+    let o = pkm(&[
+        "nc",
+        "check",
+        &file,
+        "--machine",
+        "ox-x",
+        "--svg",
+        svg.to_str().expect("utf-8"),
+    ]);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    let text = std::fs::read_to_string(&svg).expect("svg");
+    assert!(text.contains("xz.ngc on ox-x: x-z"), "the caption names the x–z plane");
 }
 
 /// The O-X glide's configuration with `nc` set, written to `dir`.
