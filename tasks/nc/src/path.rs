@@ -173,6 +173,36 @@ impl Segment {
         }
     }
 
+    /// The part of it from fraction `u0` to `u1` (0 ≤ u0 < u1 ≤ 1): the same line or arc,
+    /// shorter. A blend's rotation rates are not kept (only program moves are trimmed).
+    pub fn trimmed(&self, u0: f64, u1: f64) -> Segment {
+        let (from, to) = (self.at(u0), self.at(u1));
+        let arc = self.arc.as_deref().map(|a| {
+            let phi = a.sweep * u0;
+            let (cos, sin) = (phi.cos(), phi.sin());
+            Box::new(Arc {
+                center: std::array::from_fn(|c| a.center[c] + a.rise * u0 * a.w[c]),
+                u: std::array::from_fn(|c| cos * a.u[c] + sin * a.v[c]),
+                v: std::array::from_fn(|c| -sin * a.u[c] + cos * a.v[c]),
+                w: a.w,
+                radius: a.radius,
+                sweep: a.sweep * (u1 - u0),
+                rise: a.rise * (u1 - u0),
+            })
+        });
+        Segment {
+            from,
+            to,
+            arc,
+            rotation_rates: None,
+        }
+    }
+
+    /// Whether its rotations a b c stay as they are.
+    pub fn keeps_rotations(&self) -> bool {
+        (3..6).all(|c| self.from[c] == self.to[c]) && self.rotation_rates.is_none()
+    }
+
     /// The largest change of a rotation a b c (degrees).
     pub fn angular(&self) -> f64 {
         (3..6).map(|c| (self.to[c] - self.from[c]).abs()).fold(0.0, f64::max)
@@ -302,6 +332,21 @@ mod tests {
         );
         let turn_only = Segment::new([0.0; 6], [0.0, 0.0, 0.0, 3.0, -4.0, 0.0], Path::Line);
         assert_eq!(turn_only.length(), 4.0, "rotations alone: the largest, in degrees");
+    }
+
+    #[test]
+    fn a_trimmed_arc_or_line_runs_on_the_same_path() {
+        let p = |x: f64, y: f64, z: f64| [x, y, z, 0.0, 0.0, 0.0];
+        let helix = Segment::new(p(10.0, 0.0, 0.0), p(0.0, 10.0, 4.0), arc(false, 0));
+        let part = helix.trimmed(0.25, 0.75);
+        for i in 0..=10 {
+            let u = f64::from(i) / 10.0;
+            let (a, b) = (part.at(u), helix.at(0.25 + 0.5 * u));
+            assert!((0..3).all(|c| (a[c] - b[c]).abs() < 1e-9), "{a:?} vs {b:?}");
+        }
+        assert!((part.length() - helix.length() / 2.0).abs() < 1e-9);
+        let line = Segment::new(p(0.0, 0.0, 0.0), p(10.0, 0.0, 0.0), Path::Line);
+        assert_eq!(line.trimmed(0.1, 1.0).from()[0], 1.0);
     }
 
     proptest! {

@@ -346,6 +346,35 @@ fn blend_corners(elements: Vec<Element>) -> Vec<Element> {
             trimmed_start = 0.0;
             continue;
         }
+        let rotations_stay = current.segment.keeps_rotations() && next.segment.keeps_rotations();
+        if !both_lines && same_kind && moving && rotations_stay && theta > 1e-3 && theta < REVERSAL {
+            // A line into an arc, an arc into a line or an arc: two arcs tangent to both and
+            // to each other (a biarc) within the tolerance, where they coplanar.
+            let room = (current.segment.linear_length() + trimmed_start) / 2.0;
+            let tolerance = current.tolerance.flatten().unwrap_or(PLAIN_G64_MM);
+            if let Some((before, pieces, after, cut)) =
+                biarc_blend(&current.segment, &next.segment, theta, tolerance, room)
+            {
+                current.segment = before;
+                let feed = current.feed.min(next.feed);
+                let tolerance = current.tolerance;
+                out.push(current);
+                for piece in pieces {
+                    out.push(Element {
+                        segment: piece,
+                        line: next.line,
+                        feed,
+                        stop_after: false,
+                        dwell_after_s: 0.0,
+                        tolerance,
+                    });
+                }
+                next.segment = after;
+                trimmed_start = cut;
+                current = next;
+                continue;
+            }
+        }
         if !(both_lines && same_kind && moving && theta > STRAIGHT && theta < REVERSAL) {
             // Tangent-continuous arcs go on; anything else stops at the corner.
             current.stop_after = !(moving && same_kind && theta < 1e-3 && rates_continue);
@@ -417,6 +446,123 @@ fn blend_corners(elements: Vec<Element>) -> Vec<Element> {
     out
 }
 
+/// The blend of the corner where `a` meets `b` (turning by `theta`) when one of them is an arc:
+/// `a` shortened at its end and `b` at its start by the same length, joined by two arcs tangent
+/// to both and to each other, that pass the corner within `tolerance`; `room`: the most `a`
+/// may give. `None` where no such blend exists (the two do not lie in one plane, or they are too
+/// short): the tool stops there.
+fn biarc_blend(
+    a: &Segment,
+    b: &Segment,
+    theta: f64,
+    tolerance: f64,
+    room: f64,
+) -> Option<(Segment, [Segment; 2], Segment, f64)> {
+    let (len_a, len_b) = (a.linear_length(), b.linear_length());
+    let corner = *a.to();
+    // As between two lines: the arc that passes the corner at the tolerance, at most half of
+    // each move; smaller while the biarc passes farther.
+    let half = (theta / 2.0).tan();
+    let mut cut = (tolerance / (1.0 / (theta / 2.0).cos() - 1.0) * half)
+        .min(room)
+        .min(len_a)
+        .min(len_b / 2.0);
+    for _ in 0..8 {
+        if cut <= 1e-6 {
+            return None;
+        }
+        let before = a.trimmed(0.0, 1.0 - cut / len_a);
+        let after = b.trimmed(cut / len_b, 1.0);
+        if let Some(pieces) = biarc(*before.to(), before.direction(1.0), *after.from(), after.direction(0.0)) {
+            let nearest = pieces
+                .iter()
+                .flat_map(|p| (0..=16).map(move |i| p.at(f64::from(i) / 16.0)))
+                .map(|q| distance3(&q, &corner))
+                .fold(f64::INFINITY, f64::min);
+            if nearest <= tolerance {
+                return Some((before, pieces, after, cut));
+            }
+        }
+        cut /= 2.0;
+    }
+    None
+}
+
+fn sub3(a: &Pose, b: &Pose) -> [f64; 3] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
+fn dot3(a: [f64; 3], b: [f64; 3]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+fn distance3(a: &Pose, b: &Pose) -> f64 {
+    let d = sub3(a, b);
+    dot3(d, d).sqrt()
+}
+
+/// Two arcs from `p0` (leaving along `t0`) to `p1` (arriving along `t1`), tangent to each other
+/// where they meet (the biarc whose tangent lines from both ends are equally long); `None` when
+/// the ends and their tangents do not lie in one plane or no such pair exists.
+fn biarc(p0: Pose, t0: [f64; 3], p1: Pose, t1: [f64; 3]) -> Option<[Segment; 2]> {
+    let v = sub3(&p1, &p0);
+    let n = [
+        t0[1] * t1[2] - t0[2] * t1[1],
+        t0[2] * t1[0] - t0[0] * t1[2],
+        t0[0] * t1[1] - t0[1] * t1[0],
+    ];
+    let (vn, nn) = (dot3(v, v).sqrt(), dot3(n, n).sqrt());
+    if vn < 1e-12 || (nn > 1e-9 && dot3(v, n).abs() > 1e-6 * vn * nn) {
+        return None;
+    }
+    let t = [t0[0] + t1[0], t0[1] + t1[1], t0[2] + t1[2]];
+    let (vt, vv, denom) = (dot3(v, t), dot3(v, v), 2.0 * (1.0 - dot3(t0, t1)));
+    let d = if denom.abs() < 1e-12 {
+        vv / (2.0 * vt)
+    } else {
+        (-vt + (vt * vt + denom * vv).sqrt()) / denom
+    };
+    if !(d.is_finite() && d > 0.0) {
+        return None;
+    }
+    let mut joint = p0;
+    for c in 0..3 {
+        joint[c] = (p0[c] + d * t0[c] + p1[c] - d * t1[c]) / 2.0;
+    }
+    let (first, tj) = arc_from(p0, t0, joint)?;
+    let (second, end) = arc_from(joint, tj, p1)?;
+    (dot3(end, t1) > 1.0 - 1e-6).then_some([first, second])
+}
+
+/// The circular arc from `from` leaving along `t0` to `to` (a line where `to` lies ahead on the
+/// tangent), and its direction at `to`.
+fn arc_from(from: Pose, t0: [f64; 3], to: Pose) -> Option<(Segment, [f64; 3])> {
+    let c = sub3(&to, &from);
+    let along = dot3(c, t0);
+    let perp = [c[0] - along * t0[0], c[1] - along * t0[1], c[2] - along * t0[2]];
+    let (cn, pn) = (dot3(c, c).sqrt(), dot3(perp, perp).sqrt());
+    if cn < 1e-12 {
+        return None;
+    }
+    if pn < 1e-9 * cn {
+        return (along > 0.0).then(|| (Segment::new(from, to, crate::interp::Path::Line), t0));
+    }
+    let normal = perp.map(|x| x / pn);
+    let radius = cn * cn / (2.0 * pn);
+    let center: [f64; 3] = std::array::from_fn(|k| from[k] + radius * normal[k]);
+    let u = normal.map(|x| -x);
+    let rel = [to[0] - center[0], to[1] - center[1], to[2] - center[2]];
+    let mut sweep = dot3(rel, t0).atan2(dot3(rel, u));
+    if sweep <= 0.0 {
+        sweep += std::f64::consts::TAU;
+    }
+    let end: [f64; 3] = std::array::from_fn(|k| -sweep.sin() * u[k] + sweep.cos() * t0[k]);
+    Some((
+        Segment::blend(from, to, center, u, t0, radius, sweep, ([0.0; 3], [0.0; 3])),
+        end,
+    ))
+}
+
 /// How many points' poses and joints the caps need at once: the point, two before, two after.
 const WINDOW: usize = 5;
 
@@ -433,11 +579,11 @@ pub fn plan(program: &Program, frame: &MachineFrame, limits: &PlanLimits) -> Res
         // Arcs and blends at least every 22.5°, so that their curvature is seen.
         let turns = e.segment.sweep() * 8.0 / std::f64::consts::PI;
         let steps = ((len / GRID_SPACING).ceil().max(turns.ceil()) as usize).max(2);
-        // A long line next to a curve gets a point JUNCTION from their junction: the bound there
-        // (the curve's) then holds over that short piece, not over a whole interval of the line.
-        let line = !e.segment.is_arc() && len > 4.0 * JUNCTION;
-        let near_start = line && curved(k.checked_sub(1));
-        let near_end = line && curved(Some(k + 1));
+        // A move next to a curve gets a point JUNCTION from their junction: the bound there (the
+        // curve's) then holds over that short piece, not over a whole interval of the move.
+        let long = len > 4.0 * JUNCTION;
+        let near_start = long && curved(k.checked_sub(1));
+        let near_end = long && curved(Some(k + 1));
         for i in 0..steps {
             let grid = i as f64 / steps as f64;
             let extra_start = (i == 0 && near_start).then_some(JUNCTION / len);
@@ -974,6 +1120,49 @@ mod tests {
         for s in samples(&p, 0.002) {
             assert!(s.pose.iter().all(|v| v.is_finite()), "{s:?}");
         }
+    }
+
+    /// Issue 27: a line into an arc at an angle (90° here) is blended within G64 P by two arcs
+    /// instead of stopping: the tool keeps moving through the corner, passes it within P, and
+    /// the part takes less time than with G61.
+    #[test]
+    fn a_line_into_an_arc_is_blended_within_the_tolerance() {
+        let l = limits(3, 100.0, 1000.0);
+        let text = |mode: &str| format!("{mode}\nG1 X10 F600\nG3 X20 Y0 I5 J0\nG1 X30\nM2\n");
+        let blended = planned(pkm_kinematics::Machine::OxX, &text("G64 P0.01"), &l);
+        let exact = planned(pkm_kinematics::Machine::OxX, &text("G61"), &l);
+        assert!(
+            blended.duration_s < exact.duration_s,
+            "{} vs {}",
+            blended.duration_s,
+            exact.duration_s
+        );
+        let samples = samples(&blended, 0.0005);
+        // Through both corners the tool never stands.
+        let moving = samples
+            .iter()
+            .filter(|s| (s.pose[0] - 10.0).hypot(s.pose[1]) < 0.2 || (s.pose[0] - 20.0).hypot(s.pose[1]) < 0.2)
+            .map(|s| s.speed)
+            .fold(f64::INFINITY, f64::min);
+        assert!(moving > 0.5, "the slowest speed at the corners: {moving} mm/s");
+        // Within P of the programmed path: the lines (y = 0 outside 10 … 20) and the lower half
+        // circle about (15, 0).
+        let off = |s: &Sample| {
+            let (x, y) = (s.pose[0], s.pose[1]);
+            let to_circle = if y <= 0.0 {
+                ((x - 15.0).hypot(y) - 5.0).abs()
+            } else {
+                f64::INFINITY
+            };
+            let to_lines = if x <= 10.0 || x >= 20.0 {
+                y.abs()
+            } else {
+                (x - 10.0).hypot(y).min((x - 20.0).hypot(y))
+            };
+            to_circle.min(to_lines)
+        };
+        let worst = samples.iter().map(off).fold(0.0, f64::max);
+        assert!(worst <= 0.01 + 1e-9, "{worst} mm off the programmed path");
     }
 
     #[test]
