@@ -158,7 +158,8 @@ impl<'t> Flow<'t> {
             last: 1,
             block_delete,
             numbered: vec![0.0; MAX_USER_PARAMETER + 1],
-            globals: HashMap::new(),
+            // What the last subroutine returned: nothing yet (LinuxCNC's defaults).
+            globals: HashMap::from([("_value".to_string(), 0.0), ("_value_returned".to_string(), 0.0)]),
             frames: vec![Frame {
                 call: None,
                 named: HashMap::new(),
@@ -293,8 +294,9 @@ impl<'t> Flow<'t> {
                 self.next = end + 1;
             }
             Keyword::EndSub | Keyword::Return => {
-                let in_call = self.frame().call.as_ref().is_some_and(|call| call.label == c.label);
-                if !in_call {
+                // Any endsub or return ends the call in progress, whatever its label, as in
+                // LinuxCNC (its own examples return from o1000 with `o1010 return`).
+                if self.frame().call.is_none() {
                     return Err(at(format!("{} outside a call of o{}", c.name(), c.label)));
                 }
                 let frame = self.frames.pop().expect("a call's frame");
@@ -703,6 +705,11 @@ mod tests {
     #[test]
     fn system_parameters_are_read_only() {
         assert_eq!(xs("X#<_x>\n"), Ok(vec![7.0]));
+        assert_eq!(
+            xs("X#<_value> X#<_value_returned>\n"),
+            Ok(vec![0.0, 0.0]),
+            "before any call"
+        );
         assert_eq!(
             refused("#<_x>=1\n"),
             "1:1: #<_x> is read-only: it describes the machine's state"

@@ -461,6 +461,16 @@ impl Cursor<'_> {
                         "'/' only starts a line (block delete); a division is written in brackets: [1/2]",
                     ));
                 }
+                '@' | '^' => {
+                    return Err(self.error(
+                        ch.column,
+                        format!(
+                            "polar coordinates ({} as {}) are not supported: write X and Y",
+                            ch.c,
+                            if ch.c == '@' { "the distance" } else { "the angle" }
+                        ),
+                    ));
+                }
                 _ => return Err(self.error(ch.column, format!("unexpected character '{}'", ch.written))),
             }
             first = false;
@@ -1115,7 +1125,11 @@ mod tests {
                 "G1 X1/2",
                 "1:6: '/' only starts a line (block delete); a division is written in brackets: [1/2]",
             ),
-            ("G1 X1 @", "1:7: unexpected character '@'"),
+            ("G1 X1 !", "1:7: unexpected character '!'"),
+            (
+                "G1 @5 ^30",
+                "1:4: polar coordinates (@ as the distance) are not supported: write X and Y",
+            ),
             ("G1 X-", "1:4: X needs a number"),
             ("G1 X[1+2", "1:5: the expression is not closed: ']' is missing"),
             (
