@@ -334,12 +334,25 @@ fn linuxcnc(rs274: &std::path::Path, text: &str) -> Vec<Canonical> {
     let dir = tempfile::tempdir().expect("tempdir");
     let file = dir.path().join("p.ngc");
     std::fs::write(&file, text).expect("write");
-    let out = std::process::Command::new(rs274)
-        .arg("-g")
-        .arg(&file)
-        .current_dir(dir.path())
-        .output()
-        .expect("rs274 runs");
+    // One rs274 at a time: two run at once (two tests) have printed nothing for one of them.
+    static ONE_AT_A_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+    // A run that ends without PROGRAM_END (seen once in CI, not reproduced) is tried again.
+    let run = || {
+        std::process::Command::new(rs274)
+            .arg("-g")
+            .arg(&file)
+            .current_dir(dir.path())
+            .output()
+            .expect("rs274 runs")
+    };
+    let mut out = run();
+    for _ in 0..2 {
+        if String::from_utf8_lossy(&out.stdout).contains("PROGRAM_END") {
+            break;
+        }
+        out = run();
+    }
     let stdout = String::from_utf8_lossy(&out.stdout);
     let mut at = [0.0; 3];
     let mut moves = Vec::new();
