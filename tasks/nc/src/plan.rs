@@ -332,7 +332,7 @@ fn blend_corners(elements: Vec<Element>) -> Vec<Element> {
         }
         let d1 = current.segment.direction(1.0);
         let d2 = next.segment.direction(0.0);
-        let cos = (d1[0] * d2[0] + d1[1] * d2[1] + d1[2] * d2[2]).clamp(-1.0, 1.0);
+        let cos = dot3(d1, d2).clamp(-1.0, 1.0);
         let theta = cos.acos();
         let both_lines = !current.segment.is_arc() && !next.segment.is_arc();
         // The rotations' rates must continue too where the path goes on without a blend.
@@ -405,11 +405,11 @@ fn blend_corners(elements: Vec<Element>) -> Vec<Element> {
         let b_start = next.segment.at(cut / len_b);
         let corner = *current.segment.to();
         let bisector = [d2[0] - d1[0], d2[1] - d1[1], d2[2] - d1[2]];
-        let norm = (bisector[0].powi(2) + bisector[1].powi(2) + bisector[2].powi(2)).sqrt();
+        let norm = dot3(bisector, bisector).sqrt();
         let reach = radius / (theta / 2.0).cos();
         let center: [f64; 3] = std::array::from_fn(|c| corner[c] + bisector[c] / norm * reach);
         let u_raw: [f64; 3] = std::array::from_fn(|c| a_end[c] - center[c]);
-        let un = (u_raw[0].powi(2) + u_raw[1].powi(2) + u_raw[2].powi(2)).sqrt();
+        let un = dot3(u_raw, u_raw).sqrt();
         let u = u_raw.map(|x| x / un);
         current.segment = Segment::new(a_from, a_end, crate::interp::Path::Line);
         let rates = (current.segment.rotation_rates().1, next.segment.rotation_rates().0);
