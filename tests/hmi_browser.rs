@@ -724,7 +724,7 @@ async fn a_watching_page_shows_its_controls_disabled_and_the_token_leaves_the_ad
     let page = browser.new_page("about:blank").await.expect("a page");
     let token = "0123456789abcdef-token";
     let plc = start_plc(&test_config(dir.path()), 60, &["--hmi-token", token]);
-    let controls = "[...document.querySelectorAll('button, select')]";
+    let controls = "[...document.querySelectorAll('button, select, .overrides input')]";
     // After the hello (`data-commands` set): every control disabled, or every one enabled.
     let all_disabled = format!(
         "String(document.body.dataset.commands === 'false' && {controls}.length > 5 && {controls}.every(b => b.disabled))"
@@ -904,4 +904,127 @@ async fn the_screen_bounds_clients_messages_and_rates_and_checks_host_and_origin
     let log = plc.log();
     assert!(log.contains("more than 100 messages a second"), "{log}");
     assert!(log.contains("messages over the rate"), "{log}");
+}
+
+/// The watch table's value of the process-image variable `name`.
+async fn watched(page: &Page, name: &str) -> String {
+    text(
+        page,
+        &format!(
+            "(document.querySelector('#watch tr[data-name=\"{}\"] td:last-child') || {{}}).textContent || ''",
+            name.to_lowercase()
+        ),
+    )
+    .await
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_screen_sets_the_overrides_and_steps_a_program_line_by_line_in_single_block() {
+    let Some(chromium) = chromium() else {
+        eprintln!(
+            "SKIPPED hmi_browser::the_screen_sets_the_overrides_and_steps_a_program_line_by_line_in_single_block: no Chromium here"
+        );
+        return;
+    };
+    let _serial = SERIAL.lock().await;
+    let dir = tempfile::tempdir().expect("tempdir");
+    let programs = dir.path().join("programs");
+    std::fs::create_dir(&programs).expect("a directory");
+    // Three lines of motion from the reference pose (the program's start), then back.
+    std::fs::write(
+        programs.join("steps.ngc"),
+        "G21 G90 G64 P0.01\nG1 X4 F600\nY4\nX0\nG0 Y0\nM2\n",
+    )
+    .expect("the program");
+    let trace = dir.path().join("screen.jsonl");
+    let (mut browser, events) = launch(chromium, dir.path(), &[]).await;
+    let page = browser.new_page("about:blank").await.expect("a page");
+    let config = test_config(dir.path());
+    let mut plc = start_plc(
+        &config,
+        120,
+        &[
+            "--programs",
+            programs.to_str().expect("utf-8"),
+            "--trace",
+            trace.to_str().expect("utf-8"),
+        ],
+    );
+    page.goto(plc.url.as_str()).await.expect("loads");
+    until(&page, Duration::from_secs(60), "READY shown", async |p| {
+        state(p).await == "READY"
+    })
+    .await;
+    // Without a touch of the sliders the PLC runs at 100 %.
+    assert_eq!(watched(&page, "NC_FEED_OVERRIDE").await, "100");
+    assert_eq!(watched(&page, "NC_RAPID_OVERRIDE").await, "100");
+    // The sliders as a hand moves them: the PLC takes their values.
+    for (id, value) in [("feed-override", 50), ("rapid-override", 30)] {
+        page.evaluate(format!(
+            "(() => {{ const s = document.getElementById('{id}'); s.value = {value}; s.dispatchEvent(new Event('input')); }})()"
+        ))
+        .await
+        .expect("the slider moves");
+    }
+    until(&page, Duration::from_secs(5), "the overrides in the PLC", async |p| {
+        watched(p, "NC_FEED_OVERRIDE").await == "50" && watched(p, "NC_RAPID_OVERRIDE").await == "30"
+    })
+    .await;
+    assert_eq!(
+        text(&page, "document.getElementById('feed-value').textContent").await,
+        "50 %"
+    );
+    // Single block on, then start: the program stands after its first line.
+    click(&page, "#single-block").await;
+    until(&page, Duration::from_secs(5), "single block in the PLC", async |p| {
+        watched(p, "NC_SINGLE_BLOCK").await == "true"
+    })
+    .await;
+    click(&page, "#nc-start").await;
+    let note = async |p: &Page| text(p, "document.getElementById('note').textContent").await;
+    let stands = "single block: the line is done; NC_RESUME runs the next";
+    for line in ["3", "4"] {
+        until(&page, Duration::from_secs(20), "standing after a line", async |p| {
+            note(p).await == stands && watched(p, "NC_LINE").await == line
+        })
+        .await;
+        assert_eq!(state(&page).await, "AUTO");
+        click(&page, "#nc-resume").await;
+    }
+    // Single block off: a resume runs the rest.
+    until(
+        &page,
+        Duration::from_secs(20),
+        "standing before the last line",
+        async |p| note(p).await == stands && watched(p, "NC_LINE").await == "5",
+    )
+    .await;
+    click(&page, "#single-block").await;
+    click(&page, "#nc-resume").await;
+    until(
+        &page,
+        Duration::from_secs(30),
+        "READY at the program's end",
+        async |p| state(p).await == "READY" && watched(p, "NC_COMPLETED").await == "true",
+    )
+    .await;
+    let _ = browser.close().await;
+    let _ = browser.wait().await;
+    events.abort();
+    // The overrides and single block are inputs like the panel's: in the trace, and replayed.
+    let stopped = Command::new("kill")
+        .args(["-TERM", &plc.child.id().to_string()])
+        .status()
+        .expect("kill runs");
+    assert!(stopped.success());
+    assert!(plc.child.wait().expect("the run ends").success(), "{}", plc.log());
+    let recorded = std::fs::read_to_string(&trace).expect("the trace");
+    for recorded_input in [
+        r#""NC_FEED_OVERRIDE":50"#,
+        r#""NC_RAPID_OVERRIDE":30"#,
+        r#""NC_SINGLE_BLOCK":true"#,
+    ] {
+        assert!(recorded.contains(recorded_input), "{recorded_input} in the trace");
+    }
+    common::assert_replays_identically(&trace, &["--config", config.to_str().expect("utf-8")]);
 }

@@ -6,6 +6,7 @@
 use std::sync::{Arc, Mutex};
 
 use pkm_api::hmi::{HMI_AXES, HMI_JOG, HMI_JOG_AXIS, HMI_NC, HMI_NC_PROGRAM, HMI_STOP, JOG_AXIS_RANGE};
+use pkm_api::trajectory::{OVERRIDE_DEFAULT, vars};
 
 use crate::bus::Bus;
 use crate::image::{Value, VarIndex, VarTable, VarType, Writer};
@@ -14,9 +15,9 @@ use crate::image::{Value, VarIndex, VarTable, VarType, Writer};
 /// that the main program sees it whatever its phase.
 pub const PRESS_NS: u64 = 100_000_000;
 
-/// What the screen commands now: a count of presses per button (a new count is a new press) and
-/// the jog's deflection.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+/// What the screen commands now: a count of presses per button (a new count is a new press),
+/// the jog's deflection, the program's overrides and single block.
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Commands {
     /// Presses of STOP, the axis button, and the program's start, hold and resume.
     pub presses: [u64; 5],
@@ -27,7 +28,33 @@ pub struct Commands {
     pub jog_axis: i16,
     /// The program to load (its number from 1; 0: no choice made).
     pub program: i16,
+    /// The feed override (percent, 0 … 150).
+    pub feed_override: i16,
+    /// The rapid override (percent, 0 … 100).
+    pub rapid_override: i16,
+    /// Single block.
+    pub single_block: bool,
 }
+
+impl Default for Commands {
+    /// No press, no jog, no program chosen, 100 % overrides, single block off.
+    fn default() -> Self {
+        Commands {
+            presses: [0; 5],
+            jog: [0.0; 2],
+            jog_axis: 0,
+            program: 0,
+            feed_override: OVERRIDE_DEFAULT,
+            rapid_override: OVERRIDE_DEFAULT,
+            single_block: false,
+        }
+    }
+}
+
+/// The feed override's range on the screen (percent).
+pub const FEED_OVERRIDE_RANGE: std::ops::RangeInclusive<i16> = 0..=150;
+/// The rapid override's range on the screen (percent).
+pub const RAPID_OVERRIDE_RANGE: std::ops::RangeInclusive<i16> = 0..=100;
 
 /// Which of [`Commands::presses`] is which.
 pub mod press {
@@ -66,8 +93,8 @@ pub struct HmiBus {
     class: usize,
     output: triple_buffer::Output<Commands>,
     /// The variables: the five presses' (in [`press`] order), the jog's x and y, its axis, the
-    /// program to load.
-    vars: [VarIndex; 9],
+    /// program to load, the feed and rapid overrides, single block.
+    vars: [VarIndex; 12],
     seen: [u64; 5],
     /// Until when each press holds its variable on (ns of the schedule).
     until: [u64; 5],
@@ -81,7 +108,7 @@ impl HmiBus {
             inner,
             class,
             output,
-            vars: [0; 9],
+            vars: [0; 12],
             seen: [0; 5],
             until: [0; 5],
         };
@@ -112,6 +139,17 @@ impl Bus for HmiBus {
             declare(HMI_JOG[1].name(), VarType::Real, Value::Real(0.0)),
             declare(HMI_JOG_AXIS.name(), VarType::Int, Value::Int(0)),
             declare(HMI_NC_PROGRAM.name(), VarType::Int, Value::Int(0)),
+            declare(
+                vars::NC_FEED_OVERRIDE.name(),
+                VarType::Int,
+                Value::Int(OVERRIDE_DEFAULT),
+            ),
+            declare(
+                vars::NC_RAPID_OVERRIDE.name(),
+                VarType::Int,
+                Value::Int(OVERRIDE_DEFAULT),
+            ),
+            declare(vars::NC_SINGLE_BLOCK.name(), VarType::Bool, Value::Bool(false)),
         ];
     }
 
@@ -137,6 +175,10 @@ impl Bus for HmiBus {
         }
         image[usize::from(self.vars[7])] = Value::Int(c.jog_axis.clamp(*JOG_AXIS_RANGE.start(), *JOG_AXIS_RANGE.end()));
         image[usize::from(self.vars[8])] = Value::Int(c.program.max(0));
+        let clamp = |v: i16, r: &std::ops::RangeInclusive<i16>| v.clamp(*r.start(), *r.end());
+        image[usize::from(self.vars[9])] = Value::Int(clamp(c.feed_override, &FEED_OVERRIDE_RANGE));
+        image[usize::from(self.vars[10])] = Value::Int(clamp(c.rapid_override, &RAPID_OVERRIDE_RANGE));
+        image[usize::from(self.vars[11])] = Value::Bool(c.single_block);
     }
 
     fn write_outputs(&mut self, class: usize, t_ns: u64, image: &[Value]) {

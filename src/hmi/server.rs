@@ -31,7 +31,7 @@ use tracing::{info, warn};
 use pkm_api::hmi::JOG_AXIS_RANGE;
 
 use super::access::{Access, header_text};
-use super::commands::{CommandSink, press};
+use super::commands::{CommandSink, FEED_OVERRIDE_RANGE, RAPID_OVERRIDE_RANGE, press};
 use super::frame::{Frame, FrameReader};
 use super::listener::Peer;
 use crate::image::Value;
@@ -368,6 +368,15 @@ enum Command {
     Program { what: String },
     /// Load the run's program of this number (from 1) in place of the loaded one.
     Load { program: i16 },
+    /// The feed override, the rapid override, or both (percent).
+    Override {
+        #[serde(default)]
+        feed: Option<i16>,
+        #[serde(default)]
+        rapid: Option<i16>,
+    },
+    /// Single block on or off.
+    SingleBlock { on: bool },
     /// Lines `from` … of program `program`'s text (a read: watchers may ask too).
     Text { program: usize, from: usize },
     /// The programmed path of program `program` (a read).
@@ -555,6 +564,31 @@ impl Shared {
                 }
                 info!("screen {peer}: load program {program}");
                 self.sink.update(|c| c.program = program);
+            }
+            Command::Override { feed, rapid } => {
+                let check = |what: &str, v: Option<i16>, range: &std::ops::RangeInclusive<i16>| match v {
+                    Some(v) if !range.contains(&v) => Err(format!(
+                        "{what} override {v} % is outside {} … {} %",
+                        range.start(),
+                        range.end()
+                    )),
+                    _ => Ok(()),
+                };
+                check("feed", feed, &FEED_OVERRIDE_RANGE)?;
+                check("rapid", rapid, &RAPID_OVERRIDE_RANGE)?;
+                let now = self.sink.current();
+                let (feed, rapid) = (feed.unwrap_or(now.feed_override), rapid.unwrap_or(now.rapid_override));
+                if (feed, rapid) != (now.feed_override, now.rapid_override) {
+                    info!("screen {peer}: feed override {feed} %, rapid override {rapid} %");
+                    self.sink.update(|c| {
+                        c.feed_override = feed;
+                        c.rapid_override = rapid;
+                    });
+                }
+            }
+            Command::SingleBlock { on } => {
+                info!("screen {peer}: single block {}", if on { "on" } else { "off" });
+                self.sink.update(|c| c.single_block = on);
             }
             Command::Stop {} => {
                 info!("screen {peer}: STOP");

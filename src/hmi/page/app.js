@@ -167,7 +167,7 @@ function followLine(line) {
 
 // Enables or disables every control: the buttons, the program choice, the jog pad.
 function enableControls(on) {
-  for (const c of document.querySelectorAll("button, select")) c.disabled = !on;
+  for (const c of document.querySelectorAll("button, select, .overrides input")) c.disabled = !on;
   $("pad").classList.toggle("disabled", !on);
 }
 
@@ -204,6 +204,7 @@ function frame(m) {
     const cell = document.getElementById("v-" + i);
     if (cell) cell.textContent = typeof v === "number" && !Number.isInteger(v) ? v.toFixed(4) : String(v);
   });
+  showOverrides(m);
   // The loaded program, as the PLC says (a load takes effect outside AUTO).
   if ("NC_PROGRAM" in index && m.image[index.NC_PROGRAM] !== shownProgram) showProgram(m.image[index.NC_PROGRAM]);
   drawPath(m);
@@ -225,11 +226,24 @@ function frame(m) {
   }
 }
 
+// The overrides and single block as the PLC has them (a slider being dragged shows its own).
+function showOverrides(m) {
+  for (const [name, id] of [["NC_FEED_OVERRIDE", "feed"], ["NC_RAPID_OVERRIDE", "rapid"]]) {
+    if (!(name in index)) continue;
+    const v = m.image[index[name]];
+    const slider = $(id + "-override");
+    if (document.activeElement !== slider) slider.value = v;
+    $(id + "-value").textContent = `${v} %`;
+  }
+  if ("NC_SINGLE_BLOCK" in index) $("single-block").checked = m.image[index.NC_SINGLE_BLOCK];
+}
+
 function drawPath(m) {
   if (programmed.length < 2) return;
   const value = (name) => (name in index ? m.image[index[name]] : null);
   const tool = ["NC_TOOL_X", "NC_TOOL_Y", "NC_TOOL_Z"].map(value);
-  const running = [1, 2, 3, 4].includes(value("NC_STATE"));
+  // Running, holding, held, paused at an M0, standing after a line in single block.
+  const running = [1, 2, 3, 4, 6].includes(value("NC_STATE"));
   if (running && tool[plane[0]] !== null && tool[plane[1]] !== null) {
     cut.push([tool[plane[0]], tool[plane[1]]]);
     if (cut.length > 20000) cut.shift();
@@ -347,6 +361,13 @@ $("nc-load").addEventListener("click", () => { $("access").textContent = ""; sen
 $("nc-start").addEventListener("click", () => send({ cmd: "program", what: "start" }));
 $("nc-hold").addEventListener("click", () => send({ cmd: "program", what: "hold" }));
 $("nc-resume").addEventListener("click", () => send({ cmd: "program", what: "resume" }));
+for (const id of ["feed", "rapid"]) {
+  $(id + "-override").addEventListener("input", (e) => {
+    $(id + "-value").textContent = `${e.target.value} %`;
+    send({ cmd: "override", [id]: Number(e.target.value) });
+  });
+}
+$("single-block").addEventListener("change", (e) => send({ cmd: "single_block", on: e.target.checked }));
 $("filter").addEventListener("input", filter);
 
 connect();

@@ -289,6 +289,9 @@ pub struct VarInfo {
     pub readers: Vec<Reader>,
     /// The value written on shutdown and on entry to a safe state (outputs only).
     pub safe: Value,
+    /// The value it holds when nothing writes it (the readers' default; zero unless one gave
+    /// another).
+    pub unwritten: Option<Value>,
 }
 
 /// The variable table being built from the declarations of programs and the bus.
@@ -371,6 +374,7 @@ impl VarTable {
             writer: None,
             readers: Vec::new(),
             safe: Value::zero(ty),
+            unwritten: None,
         });
         self.by_name.insert(name.to_string(), index);
         index
@@ -404,6 +408,26 @@ impl VarTable {
         let i = self.intern(name, ty, &reader.at.clone());
         self.vars[usize::from(i)].readers.push(reader);
         i
+    }
+
+    /// Says that `name`, read by a reader configured at `at`, holds `value` when nothing writes
+    /// it (a feed override reads 100 %, not 0). Two readers that want different values are a
+    /// problem.
+    pub fn declare_unwritten(&mut self, index: VarIndex, value: Value, at: &str) {
+        let var = &mut self.vars[usize::from(index)];
+        match var.unwritten {
+            Some(v) if v != value => {
+                let message = format!(
+                    "variable \"{}\" is read with two defaults for when nothing writes it: {v:?} and {value:?}",
+                    var.name
+                );
+                self.issues.push(Problem {
+                    at: at.to_string(),
+                    message,
+                });
+            }
+            _ => var.unwritten = Some(value),
+        }
     }
 
     /// Problems of I/O variables exchanged by a slower class than the programs that use them:
@@ -459,6 +483,12 @@ impl VarTable {
 
     /// Finishes the table: every variable that is read must have a writer.
     pub fn finish(mut self) -> Result<VarTable, Vec<Problem>> {
+        // A variable nobody writes holds its readers' default from the first cycle on.
+        for var in self.vars.iter_mut().filter(|v| v.writer.is_none()) {
+            if let Some(value) = var.unwritten {
+                var.safe = value;
+            }
+        }
         for var in self.vars.iter().filter(|_| !self.inputs_unknown) {
             if var.writer.is_none() {
                 for r in var.readers.iter().filter(|r| r.needs_writer) {
@@ -556,6 +586,15 @@ impl<'a> Declare<'a> {
         self.optional_input(var.name)
     }
 
+    /// Declares that this program reads `var` if something writes it, and reads `default` when
+    /// nothing does (see [`Declare::optional_input`]).
+    pub fn read_optional_or<T: PlcType>(&mut self, var: Var<T>, default: T) -> Input<T> {
+        let input = self.optional_input(var.name);
+        self.table
+            .declare_unwritten(input.index, default.into_value(), &self.at);
+        input
+    }
+
     /// Declares that this program writes `var`; `safe` is its value on shutdown.
     pub fn write<T: PlcType>(&mut self, var: Var<T>, safe: T) -> Output<T> {
         self.output(var.name, safe)
@@ -614,5 +653,31 @@ mod tests {
                 "variable \"nobody\" read by \"b\" has no writer: no program writes it and no bus input is bound to it",
             ]
         );
+    }
+
+    #[test]
+    fn an_optional_input_with_a_default_holds_it_until_something_writes_the_variable() {
+        const OVERRIDE: Var<i16> = Var::new("OVERRIDE");
+        // Nothing writes it: the first image holds the default.
+        let mut t = VarTable::new();
+        let input = Declare::new(&mut t, 0, "a", "p0").read_optional_or(OVERRIDE, 100);
+        let t = t.finish().expect("no problem");
+        assert_eq!(t.initial_image()[usize::from(input.index)], Value::Int(100));
+        // A writer's safe value stands where one writes it.
+        let mut t = VarTable::new();
+        Declare::new(&mut t, 0, "w", "p1").output::<i16>("OVERRIDE", 50);
+        let input = Declare::new(&mut t, 0, "a", "p0").read_optional_or(OVERRIDE, 100);
+        let t = t.finish().expect("no problem");
+        assert_eq!(t.initial_image()[usize::from(input.index)], Value::Int(50));
+        // Two readers that disagree on the default are a problem.
+        let mut t = VarTable::new();
+        Declare::new(&mut t, 0, "a", "p0").read_optional_or(OVERRIDE, 100);
+        Declare::new(&mut t, 0, "b", "p1").read_optional_or(OVERRIDE, 0);
+        let issues = t.finish().unwrap_err();
+        assert_eq!(
+            issues[0].message,
+            "variable \"OVERRIDE\" is read with two defaults for when nothing writes it: Int(100) and Int(0)"
+        );
+        assert_eq!(issues[0].at, "p1");
     }
 }

@@ -72,6 +72,17 @@ pub mod vars {
     /// The loaded program: its number in the run's [`NcLibrary`](super::NcLibrary), from 1 (the
     /// main program's choice; the drive program executes it).
     pub const NC_PROGRAM: Var<i16> = Var::new("NC_PROGRAM");
+    /// The feed override (percent, 0 … 150; clamped there): how fast feed moves go against
+    /// their programmed feed, the machine's limits kept. Written by the screen (or an I/O map's
+    /// input); 100 when nothing writes it.
+    pub const NC_FEED_OVERRIDE: Var<i16> = Var::new("NC_FEED_OVERRIDE");
+    /// The rapid override (percent, 0 … 100; clamped there): how fast rapids (G0) go against
+    /// the machine's speed. Written as `NC_FEED_OVERRIDE`; 100 when nothing writes it.
+    pub const NC_RAPID_OVERRIDE: Var<i16> = Var::new("NC_RAPID_OVERRIDE");
+    /// Single block: the program stands after each line (braking to the end of the line it is
+    /// in, or of the first it can still stop at), and NC_RESUME runs the next. A level, taken
+    /// whenever it changes; off when nothing writes it.
+    pub const NC_SINGLE_BLOCK: Var<bool> = Var::new("NC_SINGLE_BLOCK");
     /// The executor met a pose of the program that has no joints (which its check rules out):
     /// it stands where it was; the main program makes it an ERROR.
     pub const NC_FAULT: Var<bool> = Var::new("NC_FAULT");
@@ -79,6 +90,14 @@ pub mod vars {
 
 /// The most joints or pose coordinates a trajectory has (x y z a b c).
 pub const MAX_AXES: usize = 6;
+
+/// The highest feed override (a fraction of the programmed feed): the planner plans each
+/// program's profile for it too, so that the executor knows how fast it may go there.
+pub const MAX_FEED_OVERRIDE: f64 = 1.5;
+
+/// The override's value when nothing writes `vars::NC_FEED_OVERRIDE` or
+/// `vars::NC_RAPID_OVERRIDE` (percent).
+pub const OVERRIDE_DEFAULT: i16 = 100;
 
 /// The trajectory at one instant.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -89,10 +108,17 @@ pub struct TrajectorySample {
     pub joints: [f64; MAX_AXES],
     /// The program line executing (1-based; 0 before the first block).
     pub line: u32,
+    /// The distance along the path from the program's start (mm, or degrees where only
+    /// rotations move).
+    pub s: f64,
     /// The planned speed along the path (mm/s, or degrees/s where only rotations move).
     pub speed: f64,
-    /// The largest change of speed along the path the machine's limits allow here (mm/s²): a
-    /// feed hold brakes, and a resume accelerates, with it.
+    /// The speed the profile planned at the highest feed override has here (never below
+    /// `speed`): how fast a feed override above 100 % may go.
+    pub speed_max: f64,
+    /// The largest change of speed along the path the machine's limits allow here at the
+    /// planned speed (mm/s²): a feed hold brakes, a resume and an override's change accelerate,
+    /// with it.
     pub accel: f64,
     /// A rapid (G0) executes: no programmed feed, no contour to keep.
     pub rapid: bool,
@@ -137,6 +163,10 @@ pub trait Trajectory: Send + Sync {
     fn sample(&self, t: f64, cursor: &mut usize) -> TrajectorySample;
     /// The events, in time order.
     fn events(&self) -> &[TrajectoryEvent];
+    /// The first place after `s` (mm along the path) where one program line's motion ends and
+    /// the next one's begins: its distance along the path and its planned time (s). `None`
+    /// after the last line's motion began. Single block stands there.
+    fn block_end(&self, s: f64) -> Option<(f64, f64)>;
     /// The tool pose for `joints` (forward kinematics, machine frame), found from `hint` (the
     /// last pose); false where the mechanism has no pose for them.
     fn forward(&self, joints: &[f64], hint: &[f64; MAX_AXES], pose: &mut [f64; MAX_AXES]) -> bool;

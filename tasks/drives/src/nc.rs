@@ -12,7 +12,9 @@ use std::sync::Arc;
 
 use pkm_api::image::{Declare, Input, Output};
 use pkm_api::program::Cycle;
-use pkm_api::trajectory::{MAX_AXES, NcLibrary, Trajectory, TrajectoryEventKind, TrajectorySample};
+use pkm_api::trajectory::{
+    MAX_AXES, MAX_FEED_OVERRIDE, NcLibrary, OVERRIDE_DEFAULT, Trajectory, TrajectoryEventKind, TrajectorySample,
+};
 
 use crate::automaton::MainState;
 
@@ -55,17 +57,21 @@ pub enum RunState {
     Paused = 4,
     /// At the program's end.
     Done = 5,
+    /// Standing at the end of a line in single block, until the main program holds and
+    /// resumes (as at an M0).
+    BlockDone = 6,
 }
 
 impl RunState {
     /// Every state, in code order.
-    pub const ALL: [RunState; 6] = [
+    pub const ALL: [RunState; 7] = [
         RunState::Idle,
         RunState::Running,
         RunState::Holding,
         RunState::Held,
         RunState::Paused,
         RunState::Done,
+        RunState::BlockDone,
     ];
 
     /// The state with this code.
@@ -82,6 +88,41 @@ impl RunState {
             RunState::Held => "held",
             RunState::Paused => "paused (M0)",
             RunState::Done => "done",
+            RunState::BlockDone => "single block: line done",
+        }
+    }
+}
+
+/// What the operator sets besides the command: the overrides and single block.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Operator {
+    /// The feed override: a fraction of the programmed feed, 0 … [`MAX_FEED_OVERRIDE`].
+    pub feed: f64,
+    /// The rapid override: a fraction of the rapids' speed, 0 … 1.
+    pub rapid: f64,
+    /// Stand at the end of every line.
+    pub single_block: bool,
+}
+
+impl Default for Operator {
+    /// 100 % feed and rapids, no single block.
+    fn default() -> Self {
+        Operator {
+            feed: 1.0,
+            rapid: 1.0,
+            single_block: false,
+        }
+    }
+}
+
+impl Operator {
+    /// The overrides in percent (as `NC_FEED_OVERRIDE` and `NC_RAPID_OVERRIDE` hold them),
+    /// clamped to 0 … 150 % and 0 … 100 %.
+    pub fn from_percent(feed: i16, rapid: i16, single_block: bool) -> Operator {
+        Operator {
+            feed: (f64::from(feed) / 100.0).clamp(0.0, MAX_FEED_OVERRIDE),
+            rapid: (f64::from(rapid) / 100.0).clamp(0.0, 1.0),
+            single_block,
         }
     }
 }
@@ -92,8 +133,15 @@ pub struct Executor {
     state: RunState,
     /// Where on the planned time line (s).
     t: f64,
-    /// How fast the time line is walked (0 … 1): a feed hold brings it to 0.
+    /// How fast the time line is walked (0 … 1, up to the fast profile's speed over the planned
+    /// one under a feed override above 100 %): a feed hold brings it to 0.
     rate: f64,
+    /// In single block: the end of a line it brakes to and stands at (distance along the path,
+    /// planned time), and the lowest tangential acceleration bound met on the way there (mm/s²).
+    block_stop: Option<(f64, f64)>,
+    braking_accel: f64,
+    /// The plan comes to rest at that end by itself.
+    plan_stops: bool,
     cursor: usize,
     ahead: usize,
     next_event: usize,
@@ -124,6 +172,9 @@ impl Executor {
             state: RunState::Idle,
             t: 0.0,
             rate: 0.0,
+            block_stop: None,
+            braking_accel: f64::INFINITY,
+            plan_stops: false,
             cursor: 0,
             ahead: 0,
             next_event: 0,
@@ -180,10 +231,11 @@ impl Executor {
         &self.trajectory
     }
 
-    /// One cycle of `dt` seconds under `command`; `frozen` (the drives' interlock is engaged)
-    /// stands still where it is. Afterwards [`Executor::sample`] is the set-point for this
-    /// cycle and [`Executor::velocities`] the joints' velocities towards the next one.
-    pub fn step(&mut self, command: Command, dt: f64, frozen: bool) {
+    /// One cycle of `dt` seconds under `command` and the operator's settings `operator`;
+    /// `frozen` (the drives' interlock is engaged) stands still where it is. Afterwards
+    /// [`Executor::sample`] is the set-point for this cycle and [`Executor::velocities`] the
+    /// joints' velocities towards the next one.
+    pub fn step(&mut self, command: Command, operator: Operator, dt: f64, frozen: bool) {
         match (command, self.state) {
             (Command::Off, _) => {
                 self.state = RunState::Idle;
@@ -196,6 +248,7 @@ impl Executor {
                 self.fault = false;
                 self.t = 0.0;
                 self.rate = 1.0;
+                self.block_stop = None;
                 self.cursor = 0;
                 self.next_event = 0;
             }
@@ -205,9 +258,13 @@ impl Executor {
                     // The M0 it stood at is done.
                     self.next_event += 1;
                 }
+                // A line's end it stood at is done: the next one is looked for.
+                if self.block_stop.is_some_and(|(_, t)| self.t >= t) {
+                    self.block_stop = None;
+                }
             }
             (Command::Hold, RunState::Running) => self.state = RunState::Holding,
-            (Command::Hold, RunState::Paused) => self.state = RunState::Held,
+            (Command::Hold, RunState::Paused | RunState::BlockDone) => self.state = RunState::Held,
             _ => {}
         }
         self.velocities = [0.0; MAX_AXES];
@@ -275,13 +332,40 @@ impl Executor {
         if !moving || self.state == RunState::Done {
             return;
         }
+        if !operator.single_block {
+            self.block_stop = None;
+        } else if self.state == RunState::Running {
+            if self.block_stop.is_some_and(|(_, t)| self.t >= t) {
+                // At the end of the line: stand until the main program holds and resumes.
+                self.state = RunState::BlockDone;
+                self.rate = 0.0;
+                return;
+            }
+            if self.block_stop.is_none() {
+                self.block_stop = self.reachable_block_end();
+                // The bound where it will stand (a corner's is often the lowest on the way).
+                // Where the plan itself comes to rest there (within a cycle of its bound), it
+                // brakes by itself: a second braking on top of its own would be harsher than
+                // either.
+                if let Some((_, t_stop)) = self.block_stop {
+                    let mut cursor = self.cursor;
+                    let there = self.trajectory.sample(t_stop, &mut cursor);
+                    self.braking_accel = there.accel;
+                    self.plan_stops = there.speed <= there.accel * dt;
+                }
+            }
+            self.braking_accel = self.braking_accel.min(self.current.accel);
+        }
+        let speed = self.current.speed;
         // The rate changes so that the speed along the path changes by at most the
         // trajectory's tangential acceleration bound: v·dr/dt ≤ a.
-        let change = if self.current.speed > 1e-9 {
-            self.current.accel * dt / self.current.speed
+        let change = if speed > 1e-9 {
+            self.current.accel * dt / speed
         } else {
             1.0
         };
+        let before = self.rate;
+        let mut target = f64::INFINITY;
         if self.state == RunState::Holding {
             self.rate = (self.rate - change).max(0.0);
             if self.rate == 0.0 {
@@ -289,19 +373,41 @@ impl Executor {
                 return;
             }
         } else {
-            self.rate = (self.rate + change).min(1.0);
+            target = target_rate(&self.current, operator);
+            self.rate = if self.rate < target {
+                (self.rate + change).min(target)
+            } else {
+                (self.rate - change).max(target)
+            };
+            // Never faster than the fast profile where it stands (where the override was
+            // lowered, the tool brakes towards the new rate, within what it can brake from).
+            self.rate = self.rate.min(envelope(&self.current));
+            if let Some((s_stop, _)) = self.block_stop
+                && speed > 1e-9
+                && !self.plan_stops
+            {
+                self.rate = self.rate.min(self.braking_speed(s_stop - self.current.s, dt) / speed);
+            }
         }
-        // Where the next cycle stands: not past the next pause.
-        let mut next = (self.t + self.rate * dt).min(duration);
-        if let Some(pause) = events[self.next_event.min(events.len())..]
-            .iter()
-            .take_while(|e| e.t <= next)
-            .find(|e| e.kind == TrajectoryEventKind::Pause)
-        {
-            next = pause.t.max(self.t);
-        }
+        let mut next = self.next_time(dt);
         self.ahead = self.cursor;
-        let ahead = self.trajectory.sample(next, &mut self.ahead);
+        let mut ahead = self.trajectory.sample(next, &mut self.ahead);
+        // Above the planned profile the rate is also kept where the step ends: where the fast
+        // profile brakes, the rate of its start would carry the tool past what it can brake
+        // from.
+        if self.rate > 1.0 {
+            let mut ceiling = envelope(&ahead);
+            if before >= target {
+                // Following the operator's profile down.
+                ceiling = ceiling.min(target_rate(&ahead, operator).max(before - change));
+            }
+            if self.rate > ceiling {
+                self.rate = ceiling.max(1.0);
+                next = self.next_time(dt);
+                self.ahead = self.cursor;
+                ahead = self.trajectory.sample(next, &mut self.ahead);
+            }
+        }
         if ahead.joints.iter().any(|q| !q.is_finite()) {
             // The next pose has none: stand here (and fault at it next cycle).
             self.t = next;
@@ -317,6 +423,85 @@ impl Executor {
         }
         self.t = next;
     }
+
+    /// Where the next cycle stands at the rate: not past the program's end, the next pause,
+    /// nor the end of the line single block stands at.
+    fn next_time(&self, dt: f64) -> f64 {
+        let events = self.trajectory.events();
+        let mut next = (self.t + self.rate * dt).min(self.trajectory.duration_s());
+        if let Some(pause) = events[self.next_event.min(events.len())..]
+            .iter()
+            .take_while(|e| e.t <= next)
+            .find(|e| e.kind == TrajectoryEventKind::Pause)
+        {
+            next = pause.t.max(self.t);
+        }
+        if let Some((s_stop, t_stop)) = self.block_stop {
+            // Within one cycle of the bound of the end, the last step goes there (the braking
+            // rate, measured against a plan that may brake too, would only approach it).
+            let last = self.braking_accel * dt * dt;
+            next = if s_stop - self.current.s <= last && self.rate > 0.0 {
+                t_stop.max(self.t)
+            } else {
+                next.min(t_stop.max(self.t))
+            };
+        }
+        next
+    }
+
+    /// The highest speed from which the tool, braking at the lowest bound met on the way to the
+    /// line's end, comes to rest within `distance` (mm) in whole cycles of `dt`: v·dt + (v − a·dt)·dt + … ≤ distance.
+    fn braking_speed(&self, distance: f64, dt: f64) -> f64 {
+        let a = self.braking_accel;
+        if !(a.is_finite() && a > 0.0) {
+            return f64::INFINITY;
+        }
+        let step = a * dt;
+        (step * (-0.5 + (0.25 + 2.0 * distance.max(0.0) / (step * dt)).sqrt())).max(0.0)
+    }
+
+    /// The first end of a line ahead that the tool can still stop at from its speed now.
+    fn reachable_block_end(&self) -> Option<(f64, f64)> {
+        let here = &self.current;
+        let v = self.rate * here.speed;
+        let needed = if here.accel > 0.0 {
+            v * v / (2.0 * here.accel)
+        } else {
+            0.0
+        };
+        let mut end = self.trajectory.block_end(here.s);
+        while let Some((s_end, _)) = end
+            && s_end - here.s < needed
+        {
+            end = self.trajectory.block_end(s_end);
+        }
+        end
+    }
+}
+
+/// The rate the operator's overrides ask for at `s`: the rapid override on a rapid; on a feed
+/// move the feed override up to 100 %, and above it a blend of the planned profile and the fast
+/// one in speed squared (each keeps the machine's limits, so their blend does).
+fn target_rate(s: &TrajectorySample, operator: Operator) -> f64 {
+    if s.rapid {
+        return operator.rapid;
+    }
+    if operator.feed <= 1.0 {
+        return operator.feed;
+    }
+    let share = (operator.feed - 1.0) / (MAX_FEED_OVERRIDE - 1.0);
+    let fast = envelope(s);
+    (1.0 + share * (fast * fast - 1.0)).sqrt()
+}
+
+/// The fastest rate at `s`: the fast profile's speed over the planned one (1 where the tool
+/// stands on the plan, or on a rapid).
+fn envelope(s: &TrajectorySample) -> f64 {
+    if s.speed > 1e-9 && !s.rapid {
+        (s.speed_max / s.speed).max(1.0)
+    } else {
+        1.0
+    }
 }
 
 /// The process-image side of program execution, declared by a machine's drive program when a
@@ -329,6 +514,9 @@ pub struct NcChannel {
     loaded: i16,
     program: Input<i16>,
     command: Input<i16>,
+    feed_override: Input<i16>,
+    rapid_override: Input<i16>,
+    single_block: Input<bool>,
     state: Output<i16>,
     line: Output<i32>,
     time: Output<f64>,
@@ -367,6 +555,9 @@ impl NcChannel {
             loaded: 1,
             program: decl.read(vars::NC_PROGRAM),
             command: decl.read(vars::NC_COMMAND),
+            feed_override: decl.read_optional_or(vars::NC_FEED_OVERRIDE, OVERRIDE_DEFAULT),
+            rapid_override: decl.read_optional_or(vars::NC_RAPID_OVERRIDE, OVERRIDE_DEFAULT),
+            single_block: decl.read_optional(vars::NC_SINGLE_BLOCK),
             state: decl.write(vars::NC_STATE, RunState::Idle as i16),
             line: decl.write(vars::NC_LINE, 0),
             time: decl.write(vars::NC_TIME_S, 0.0),
@@ -441,8 +632,13 @@ impl NcChannel {
         } else {
             Command::Off
         };
+        let operator = Operator::from_percent(
+            ctx.get(self.feed_override),
+            ctx.get(self.rapid_override),
+            ctx.get(self.single_block),
+        );
         let before = self.executor.state();
-        self.executor.step(command, dt, interlock);
+        self.executor.step(command, operator, dt, interlock);
         let state = self.executor.state();
         if before == RunState::Idle && state != RunState::Idle {
             self.new_run(ctx);
@@ -515,6 +711,8 @@ pub struct ProgramControl {
     held: bool,
     /// A resume pressed, taken once the program stands.
     resume_pending: bool,
+    /// It stands at the end of a line in single block (not at a feed hold or an M0).
+    block_done: bool,
     /// The last start was refused: the tool is not where the program starts.
     refused: bool,
     /// The next READY starts the program by itself.
@@ -530,6 +728,8 @@ pub struct ProgramControl {
 pub mod notes {
     /// A start refused in READY.
     pub const NOT_AT_START: &str = "program not started: the tool is not at the program's start, the reference pose (STOP, acknowledge and reference to return there)";
+    /// Standing at the end of a line in single block.
+    pub const BLOCK_DONE: &str = "single block: the line is done; NC_RESUME runs the next";
 }
 
 impl ProgramControl {
@@ -598,9 +798,10 @@ impl ProgramControl {
     /// One cycle of AUTO with the executor in `state`: false once the program has ended.
     pub fn auto(&mut self, state: Option<RunState>) -> bool {
         let [_, hold, resume] = self.pressed;
-        if hold || state == Some(RunState::Paused) {
+        if hold || matches!(state, Some(RunState::Paused | RunState::BlockDone)) {
             self.held = true;
             self.resume_pending = false;
+            self.block_done = state == Some(RunState::BlockDone);
         }
         self.resume_pending |= resume && self.held;
         // A resume goes through once the executor stands held (an M0 becomes held one cycle
@@ -608,6 +809,7 @@ impl ProgramControl {
         if self.resume_pending && state == Some(RunState::Held) {
             self.held = false;
             self.resume_pending = false;
+            self.block_done = false;
         }
         self.command = Some(if self.held { Command::Hold } else { Command::Run });
         state != Some(RunState::Done)
@@ -636,10 +838,12 @@ impl ProgramControl {
         }
         Some(match state {
             Some(RunState::Holding) => "feed hold: braking on the path",
+            Some(RunState::Held) if !self.resume_pending && self.held && self.block_done => notes::BLOCK_DONE,
             Some(RunState::Held) if !self.resume_pending && self.held => {
                 "the program stands (feed hold or M0): NC_RESUME goes on"
             }
             Some(RunState::Paused) => "M0: the program stands; NC_RESUME goes on",
+            Some(RunState::BlockDone) => notes::BLOCK_DONE,
             Some(RunState::Done) => "program done",
             _ => "running the program",
         })
@@ -770,7 +974,9 @@ mod tests {
             let x = x + if second { 10.0 } else { 0.0 };
             let mut s = TrajectorySample {
                 line: if second { 4 } else { 2 },
+                s: x,
                 speed: v,
+                speed_max: v,
                 accel: A,
                 ..TrajectorySample::default()
             };
@@ -780,6 +986,9 @@ mod tests {
         }
         fn events(&self) -> &[TrajectoryEvent] {
             &self.events
+        }
+        fn block_end(&self, s: f64) -> Option<(f64, f64)> {
+            (s < 10.0).then_some((10.0, MOVE_S))
         }
         fn forward(&self, joints: &[f64], _hint: &[f64; MAX_AXES], pose: &mut [f64; MAX_AXES]) -> bool {
             pose[0] = joints[0];
@@ -800,7 +1009,7 @@ mod tests {
     fn walk(e: &mut Executor, command: Command, max: usize, until: impl Fn(&Executor) -> bool) -> Vec<f64> {
         let mut seen = Vec::new();
         for _ in 0..max {
-            e.step(command, DT, false);
+            e.step(command, Operator::default(), DT, false);
             seen.push(e.sample().joints[0]);
             if until(e) {
                 break;
@@ -845,7 +1054,7 @@ mod tests {
         let mut last: Option<(f64, f64)> = None;
         let mut cycles = 0;
         while e.state() != RunState::Done {
-            e.step(Command::Run, DT, false);
+            e.step(Command::Run, Operator::default(), DT, false);
             let x = e.sample().joints[0];
             if let Some((x0, v0)) = last {
                 assert!((x - (x0 + v0 * DT)).abs() < 1e-9, "the velocity led to this set-point");
@@ -867,7 +1076,7 @@ mod tests {
         assert!((241..=242).contains(&cycles), "{cycles} cycles");
         assert_eq!(e.sample().joints[0], 20.0);
         assert_eq!(e.line(), 4);
-        e.step(Command::Off, DT, false);
+        e.step(Command::Off, Operator::default(), DT, false);
         assert_eq!(e.state(), RunState::Idle);
     }
 
@@ -905,7 +1114,7 @@ mod tests {
         assert_eq!(e.sample().joints[0], 10.0);
         assert_eq!((e.line(), e.sample().line), (3, 3));
         assert_eq!(e.spindle(), (1, 1000.0), "the spindle turns through the pause");
-        e.step(Command::Hold, DT, false);
+        e.step(Command::Hold, Operator::default(), DT, false);
         assert_eq!((e.state(), e.line()), (RunState::Held, 3));
         walk(&mut e, Command::Run, 1000, |e| e.state() == RunState::Done);
         assert_eq!(e.state(), RunState::Done);
@@ -918,7 +1127,7 @@ mod tests {
         walk(&mut e, Command::Run, 30, |_| false);
         let at = e.time_s();
         for _ in 0..10 {
-            e.step(Command::Run, DT, true);
+            e.step(Command::Run, Operator::default(), DT, true);
             assert_eq!(e.time_s(), at);
             assert_eq!(e.velocities()[0], 0.0);
         }
@@ -941,8 +1150,8 @@ mod tests {
         assert_eq!(e.sample().joints[0], stood, "standing");
         assert_eq!(e.velocities()[0], 0.0);
         // Off, then a new start: the fault is forgotten (and met again).
-        e.step(Command::Off, DT, false);
-        e.step(Command::Run, DT, false);
+        e.step(Command::Off, Operator::default(), DT, false);
+        e.step(Command::Run, Operator::default(), DT, false);
         assert!(!e.fault());
     }
 }

@@ -70,7 +70,9 @@ impl Trajectory for PlannedProgram {
             pose: s.pose,
             joints,
             line: u32::try_from(s.line).unwrap_or(u32::MAX),
+            s: s.s,
             speed: s.speed,
+            speed_max: s.speed_max,
             accel: s.accel,
             rapid: s.rapid,
         }
@@ -78,6 +80,10 @@ impl Trajectory for PlannedProgram {
 
     fn events(&self) -> &[TrajectoryEvent] {
         &self.plan.events
+    }
+
+    fn block_end(&self, s: f64) -> Option<(f64, f64)> {
+        self.plan.block_end(s)
     }
 
     fn forward(&self, joints: &[f64], hint: &[f64; MAX_AXES], pose: &mut [f64; MAX_AXES]) -> bool {

@@ -15,7 +15,7 @@
 use pkm_kinematics::MAX_DOF;
 use pkm_kinematics::frame::MachineFrame;
 
-use pkm_api::trajectory::{TrajectoryEvent, TrajectoryEventKind};
+use pkm_api::trajectory::{MAX_FEED_OVERRIDE, TrajectoryEvent, TrajectoryEventKind};
 
 use crate::interp::{AXES, Action, Blend, Path, Pose, Program, Spindle};
 use crate::path::Segment;
@@ -128,13 +128,20 @@ struct Point {
     /// Speed cap and what sets it.
     cap: f64,
     limit: Limit,
+    /// The cap at the highest feed override (the feed times [`MAX_FEED_OVERRIDE`], the
+    /// machine's limits unchanged).
+    cap_fast: f64,
     /// Tangential acceleration bound at rest (mm/s²); at speed v it is `accel − bend · v²`
     /// (what the path's curvature leaves of the axes' and joints' accelerations).
     accel: f64,
     /// How the bound falls with the speed squared (1/mm).
     bend: f64,
+    /// The same up to `cap_fast`.
+    bend_fast: f64,
     /// Planned speed.
     v: f64,
+    /// The speed of the profile planned at the highest feed override.
+    v_fast: f64,
     /// When the tool passes (s).
     t: f64,
     /// Standing still here this long before going on (s).
@@ -180,8 +187,12 @@ pub struct Sample {
     pub pose: Pose,
     /// The program line executing.
     pub line: usize,
+    /// The distance along the path from the start (mm).
+    pub s: f64,
     /// The speed along the path (mm/s).
     pub speed: f64,
+    /// The speed of the profile planned at the highest feed override (mm/s; at least `speed`).
+    pub speed_max: f64,
     /// The tangential acceleration bound there (mm/s²).
     pub accel: f64,
     /// A rapid (G0) executes.
@@ -595,9 +606,12 @@ pub fn plan(program: &Program, frame: &MachineFrame, limits: &PlanLimits) -> Res
                     u,
                     cap: e.feed,
                     limit: Limit::Feed,
+                    cap_fast: e.feed,
                     accel: f64::INFINITY,
                     bend: 0.0,
+                    bend_fast: 0.0,
                     v: 0.0,
+                    v_fast: 0.0,
                     t: 0.0,
                     hold: 0.0,
                 });
@@ -612,9 +626,12 @@ pub fn plan(program: &Program, frame: &MachineFrame, limits: &PlanLimits) -> Res
             u: 1.0,
             cap: 0.0,
             limit: Limit::Feed,
+            cap_fast: 0.0,
             accel: f64::INFINITY,
             bend: 0.0,
+            bend_fast: 0.0,
             v: 0.0,
+            v_fast: 0.0,
             t: 0.0,
             hold: 0.0,
         });
@@ -651,6 +668,8 @@ pub fn plan(program: &Program, frame: &MachineFrame, limits: &PlanLimits) -> Res
         let e = &elements[points[i].element as usize];
         let mut cap = e.feed;
         let mut limit = Limit::Feed;
+        // The machine's own cap, whatever the feed.
+        let mut machine = f64::INFINITY;
         let mut accel = f64::INFINITY;
         // The second derivative across the point, and within each element on either side of
         // it: at the junction of a line and a blend the curve starts, and an average over both
@@ -675,6 +694,7 @@ pub fn plan(program: &Program, frame: &MachineFrame, limits: &PlanLimits) -> Res
                 .fold(0.0, f64::max)
         };
         let mut consider = |value: f64, l: Limit| {
+            machine = machine.min(value);
             if value < cap {
                 cap = value;
                 limit = l;
@@ -721,21 +741,32 @@ pub fn plan(program: &Program, frame: &MachineFrame, limits: &PlanLimits) -> Res
         // keeps 1 − NORMAL_SHARE of its acceleration there).
         // The start, and every stop, at rest.
         let stop = i == 0 || (points[i].u == 0.0 && elements[points[i - 1].element as usize].stop_after);
-        let top = if stop { 0.0 } else { cap * cap };
-        let mut at_cap = f64::INFINITY;
-        for (limit, d1, d2) in rates {
+        let cap_fast = (e.feed * MAX_FEED_OVERRIDE).min(machine);
+        for (limit, d1, _) in rates {
             if d1 > 1e-12 {
                 accel = accel.min(limit / d1);
-                at_cap = at_cap.min((limit - d2 * top) / d1);
             }
         }
-        let bend = if top.is_finite() && top > 0.0 && at_cap.is_finite() {
-            ((accel - at_cap) / top).max(0.0)
-        } else {
-            0.0
+        // The chord up to the cap, and up to the cap at the highest override (the envelope is
+        // concave: a chord to a higher speed lies lower, so each holds up to its own cap only).
+        let bend_to = |top: f64| {
+            let top = if stop { 0.0 } else { top * top };
+            let at_cap = rates
+                .iter()
+                .filter(|(_, d1, _)| *d1 > 1e-12)
+                .map(|(limit, d1, d2)| (limit - d2 * top) / d1)
+                .fold(f64::INFINITY, f64::min);
+            if top.is_finite() && top > 0.0 && at_cap.is_finite() {
+                ((accel - at_cap) / top).max(0.0)
+            } else {
+                0.0
+            }
         };
+        let (bend, bend_fast) = (bend_to(cap), bend_to(cap_fast));
         let p = &mut points[i];
         p.cap = if stop { 0.0 } else { cap };
+        p.cap_fast = if stop { 0.0 } else { cap_fast };
+        p.bend_fast = bend_fast;
         // A stop is the program's, not a limit of the machine.
         p.limit = if stop { Limit::Feed } else { limit };
         p.accel = accel;
@@ -752,34 +783,17 @@ pub fn plan(program: &Program, frame: &MachineFrame, limits: &PlanLimits) -> Res
     }
     if let Some(last) = points.last_mut() {
         last.cap = 0.0;
+        last.cap_fast = 0.0;
         last.limit = Limit::Feed;
         last.hold = elements.last().map_or(0.0, |e| e.dwell_after_s);
     }
     if let Some(first) = points.first_mut() {
         first.hold += initial_dwell;
     }
-    // Forward and backward passes: over an interval the speed changes by at most the bound of
-    // each end at that end's speed (v₁² − v₀² ≤ 2 ds (accel − bend · v²)); each point's bound
-    // holds up to its cap, which its speed never passes.
-    let reachable = |from: f64, ds: f64, p: &Point, q: &Point| {
-        let by_start = from * from + 2.0 * ds * (p.accel - p.bend * from * from);
-        let by_end = (from * from + 2.0 * ds * q.accel) / (1.0 + 2.0 * ds * q.bend);
-        by_start.min(by_end).max(0.0).sqrt()
-    };
-    for i in 0..count {
-        let v = if i == 0 {
-            0.0
-        } else {
-            let ds = points[i].s - points[i - 1].s;
-            reachable(points[i - 1].v, ds, &points[i - 1], &points[i]).min(points[i].cap)
-        };
-        points[i].v = v;
-    }
-    for i in (0..count.saturating_sub(1)).rev() {
-        let ds = points[i + 1].s - points[i].s;
-        let v = reachable(points[i + 1].v, ds, &points[i + 1], &points[i]);
-        points[i].v = points[i].v.min(v);
-    }
+    // The profile as programmed, and at the highest feed override (the executor walks the
+    // first and may go as fast as the second where the override asks).
+    profile(&mut points, |p| (p.cap, p.bend), |p| &mut p.v);
+    profile(&mut points, |p| (p.cap_fast, p.bend_fast), |p| &mut p.v_fast);
     // Times.
     let mut t = 0.0;
     for i in 0..count {
@@ -861,12 +875,59 @@ pub fn plan(program: &Program, frame: &MachineFrame, limits: &PlanLimits) -> Res
     })
 }
 
+/// Forward and backward passes over `points`, with each point's cap and bend as `limits` gives
+/// them: over an interval the speed changes by at most the bound of each end at that end's
+/// speed (v₁² − v₀² ≤ 2 ds (accel − bend · v²)); each point's bound holds up to its cap, which
+/// its speed never passes. `speed` is the field the profile is written to.
+fn profile(points: &mut [Point], limits: impl Fn(&Point) -> (f64, f64), speed: fn(&mut Point) -> &mut f64) {
+    let reachable = |from: f64, ds: f64, p: &Point, q: &Point| {
+        let (pb, qb) = (limits(p).1, limits(q).1);
+        let by_start = from * from + 2.0 * ds * (p.accel - pb * from * from);
+        let by_end = (from * from + 2.0 * ds * q.accel) / (1.0 + 2.0 * ds * qb);
+        by_start.min(by_end).max(0.0).sqrt()
+    };
+    let count = points.len();
+    for i in 0..count {
+        let v = if i == 0 {
+            0.0
+        } else {
+            let ds = points[i].s - points[i - 1].s;
+            let from = *speed(&mut points[i - 1]);
+            reachable(from, ds, &points[i - 1], &points[i]).min(limits(&points[i]).0)
+        };
+        *speed(&mut points[i]) = v;
+    }
+    for i in (0..count.saturating_sub(1)).rev() {
+        let ds = points[i + 1].s - points[i].s;
+        let from = *speed(&mut points[i + 1]);
+        let v = reachable(from, ds, &points[i + 1], &points[i]);
+        let here = speed(&mut points[i]);
+        *here = here.min(v);
+    }
+}
+
 /// The second derivative through three points at `sa < si < sb`.
 fn second(ya: f64, yi: f64, yb: f64, sa: f64, si: f64, sb: f64) -> f64 {
     2.0 * ((yb - yi) / (sb - si) - (yi - ya) / (si - sa)) / (sb - sa)
 }
 
 impl Plan {
+    /// The first place after `s` (mm) where the motion of one program line ends and the next
+    /// line's begins: its distance along the path and its planned time (s, when the tool
+    /// arrives there). Allocates nothing.
+    pub fn block_end(&self, s: f64) -> Option<(f64, f64)> {
+        let points = &self.points;
+        let first = points.partition_point(|p| p.s <= s);
+        let mut element = points.get(first.checked_sub(1)?)?.element as usize;
+        let line = self.elements.get(element)?.line;
+        // The next element of another line.
+        while self.elements.get(element)?.line == line {
+            element += 1;
+        }
+        let at = points.partition_point(|p| (p.element as usize) < element);
+        points.get(at).map(|p| (p.s, p.t))
+    }
+
     /// The path's elements.
     pub fn elements(&self) -> &[Element] {
         &self.elements
@@ -885,7 +946,9 @@ impl Plan {
             return Sample {
                 pose: [0.0; 6],
                 line: 0,
+                s: 0.0,
                 speed: 0.0,
+                speed_max: 0.0,
                 accel: f64::INFINITY,
                 rapid: false,
             };
@@ -899,7 +962,9 @@ impl Plan {
         let i = *cursor;
         let p = &points[i];
         let e = &self.elements[p.element as usize];
-        if i + 1 >= points.len() || t <= p.t + p.hold {
+        // Standing at the point through its hold (at its time exactly only where it has one:
+        // a point the tool passes has the speed of its interval's start).
+        if i + 1 >= points.len() || t < p.t + p.hold || (p.hold > 0.0 && t == p.t + p.hold) {
             let (element, u) = if i + 1 >= points.len() {
                 (last.element as usize, 1.0)
             } else {
@@ -908,7 +973,9 @@ impl Plan {
             return Sample {
                 pose: self.elements[element].segment.at(u),
                 line: self.elements[element].line,
+                s: if i + 1 >= points.len() { last.s } else { p.s },
                 speed: 0.0,
+                speed_max: 0.0,
                 accel: p.accel,
                 rapid: !self.elements[element].feed.is_finite(),
             };
@@ -927,10 +994,18 @@ impl Plan {
         // The bound at this speed; where a mixed bound of several joints leaves less, the share
         // a curve leaves at its cap.
         let (rest, bend) = (p.accel.min(q.accel), p.bend.max(q.bend));
+        // The fast profile over the same interval: constant acceleration too, so its speed
+        // squared is linear in the distance.
+        let share = if ds > 0.0 { travelled / ds } else { 0.0 };
+        let fast = (p.v_fast * p.v_fast + (q.v_fast * q.v_fast - p.v_fast * p.v_fast) * share)
+            .max(0.0)
+            .sqrt();
         Sample {
             pose: self.elements[element].segment.at(u),
             line: self.elements[element].line,
+            s: p.s + travelled,
             speed,
+            speed_max: fast.max(speed),
             accel: (rest - bend * speed * speed).max((1.0 - NORMAL_SHARE) * rest),
             rapid: !e.feed.is_finite(),
         }
