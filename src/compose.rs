@@ -403,8 +403,13 @@ fn modbus_bus(map: &IoMap, transport: Transport, options: &Options) -> Result<Bo
 /// Builds a PLC: every problem of the configuration and its I/O map is reported at once.
 pub fn build(setup: Setup, options: Options) -> Result<Built, BuildError> {
     // A program that cannot run is refused before anything is built.
-    let programs = crate::nc_job::programs(&setup, options.program.as_deref(), options.programs.as_deref())
-        .map_err(|e| BuildError(e.message))?;
+    let programs = crate::nc_job::programs(
+        &setup,
+        options.program.as_deref(),
+        options.programs.as_deref(),
+        options.hmi,
+    )
+    .map_err(|e| BuildError(e.message))?;
     // A bus that cannot be made for a problem of the files (the I/O map, the plant section) does
     // not hide the configuration's other problems: they are checked on a stand-in bus.
     let (bus, joystick, bus_problem) = match make_bus(&setup, &options) {

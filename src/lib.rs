@@ -18,6 +18,7 @@ pub mod machines;
 pub mod nc_job;
 pub mod plc;
 pub mod run;
+pub mod screen_job;
 pub mod selftest;
 pub mod signals;
 pub mod sim;

@@ -676,7 +676,7 @@ fn screen_info(
             .map(|j| pkm_plc::hmi::server::ScreenProgram {
                 file: j.file.clone(),
                 text: j.text.clone(),
-                path: preview(j.trajectory.as_ref()),
+                path: pkm_plc::hmi::server::preview(j.trajectory.as_ref()),
             })
             .collect(),
         refused,
@@ -688,24 +688,10 @@ fn screen_info(
         joints: motion
             .map(|m| m.joint_vars.iter().map(|v| v.to_string()).collect())
             .unwrap_or_default(),
+        jobs: library
+            .zip(pkm_plc::screen_job::StandingPose::of(setup, plc))
+            .map(|(l, standing)| pkm_plc::hmi::jobs::JobDesk::new(setup.clone(), l.clone(), standing)),
     }
-}
-
-/// The programmed path for the screen's preview: at most 4000 points along the time line.
-fn preview(trajectory: &dyn pkm_api::trajectory::Trajectory) -> Vec<[f64; 3]> {
-    const POINTS: usize = 4000;
-    let duration = trajectory.duration_s();
-    let mut cursor = 0;
-    let mut points: Vec<[f64; 3]> = Vec::with_capacity(POINTS + 1);
-    for i in 0..=POINTS {
-        let p = trajectory.sample(duration * i as f64 / POINTS as f64, &mut cursor).pose;
-        let point = [p[0], p[1], p[2]];
-        // Where the tool stands (dwells, stops), one point is enough.
-        if points.last() != Some(&point) {
-            points.push(point);
-        }
-    }
-    points
 }
 
 fn run_realtime(plc: Plc, options: RealTimeOptions, screen: Option<Screen>) -> Result<run::RealTimeOutcome, Failure> {

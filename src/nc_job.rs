@@ -29,7 +29,7 @@ pub struct NcFailure {
     pub message: String,
 }
 
-fn fail(code: u8, message: impl Into<String>) -> NcFailure {
+pub(crate) fn fail(code: u8, message: impl Into<String>) -> NcFailure {
     NcFailure {
         code,
         message: message.into(),
@@ -102,6 +102,25 @@ pub fn prepare(setup: &Setup, file: &Path) -> Result<Prepared, NcFailure> {
 
 /// Checks and plans the program `text` (from the file `name`) against `setup`'s machine.
 pub fn prepare_text(setup: &Setup, name: String, text: String) -> Result<Prepared, NcFailure> {
+    prepare_from(setup, name, text, [0.0; 6], Ok)
+}
+
+/// `setup`'s machine with its motion, kinematics and machine frame.
+pub struct MachineOf {
+    /// The machine.
+    pub machine: &'static dyn Machine,
+    /// Its motion limits and home.
+    pub motion: Motion,
+    /// Its geometry.
+    pub kinematics: KinematicsConfig,
+    /// Its kinematic model.
+    pub model: Model,
+    /// Its machine frame (origin at the reference pose).
+    pub frame: MachineFrame,
+}
+
+/// `setup`'s machine, or why programs cannot run on it.
+pub fn machine_of(setup: &Setup) -> Result<MachineOf, NcFailure> {
     let origin = setup.origin().to_string();
     let invalid = |problems| {
         fail(
@@ -137,6 +156,42 @@ pub fn prepare_text(setup: &Setup, name: String, text: String) -> Result<Prepare
             format!("{origin}: the machine's home is not a pose of its kinematics: {e}"),
         )
     })?;
+    Ok(MachineOf {
+        machine,
+        motion,
+        kinematics,
+        model,
+        frame,
+    })
+}
+
+/// Reads `text` (from the file `name`) with the tool at `start` (machine frame), gives the
+/// program read to `edit`, then checks and plans what `edit` makes of it.
+pub(crate) fn prepare_from(
+    setup: &Setup,
+    name: String,
+    text: String,
+    start: [f64; 6],
+    edit: impl FnOnce(Program) -> Result<Program, NcFailure>,
+) -> Result<Prepared, NcFailure> {
+    let MachineOf {
+        machine,
+        motion,
+        kinematics,
+        model,
+        frame,
+    } = machine_of(setup)?;
+    let origin = setup.origin().to_string();
+    let invalid = |problems| {
+        fail(
+            2,
+            ConfigError::Invalid {
+                file: origin.clone(),
+                problems,
+            }
+            .to_string(),
+        )
+    };
     let n = frame.dof();
     let keys = frame.kinematics().pose_keys();
     let nc = &setup.loaded.config.nc;
@@ -148,13 +203,15 @@ pub fn prepare_text(setup: &Setup, name: String, text: String) -> Result<Prepare
         &text,
         &interp::Machine {
             axes: keys,
-            // The program starts at the reference point, the origin of the machine frame.
-            start: [0.0; 6],
+            // A program starts at the reference point, the origin of the machine frame; a
+            // screen job where the tool stands.
+            start,
             work_offsets: nc.origins(n),
             block_delete: nc.block_delete,
         },
     )
     .map_err(|e| fail(2, format!("{name}:{e}")))?;
+    let program = edit(program)?;
     let report = check(
         &program,
         &Limits {
@@ -215,7 +272,15 @@ pub const PROGRAM_EXTENSION: &str = "ngc";
 
 /// Reads, checks and plans `program` (refused with its reason if it cannot run) and every
 /// `*.ngc` of `dir` (in name order; one that cannot run is listed in [`Programs::refused`]).
-pub fn programs(setup: &Setup, program: Option<&Path>, dir: Option<&Path>) -> Result<Programs, NcFailure> {
+///
+/// With the operator's `screen` the run has a library even without programs: the screen makes
+/// jobs (MDI, a program from a line) into it.
+pub fn programs(
+    setup: &Setup,
+    program: Option<&Path>,
+    dir: Option<&Path>,
+    screen: bool,
+) -> Result<Programs, NcFailure> {
     let first = program
         .map(|p| prepare(setup, p).and_then(Prepared::into_job))
         .transpose()?;
@@ -242,7 +307,7 @@ pub fn programs(setup: &Setup, program: Option<&Path>, dir: Option<&Path>) -> Re
         }
     }
     Ok(Programs {
-        library: library(first, offered),
+        library: library(first, offered, screen && setup.machine.is_some()),
         refused,
     })
 }
@@ -306,11 +371,11 @@ fn program_files(dir: &Path, entries: std::fs::ReadDir) -> Vec<std::path::PathBu
 }
 
 /// The library of `first` (run by itself at the first READY) and `offered` (loaded from the
-/// screen), if there is any program.
-pub fn library(first: Option<NcJob>, offered: Vec<NcJob>) -> Option<NcLibrary> {
+/// screen), if there is any program or the run has a `screen` (which makes jobs into it).
+pub fn library(first: Option<NcJob>, offered: Vec<NcJob>, screen: bool) -> Option<NcLibrary> {
     let autostart = first.is_some();
     let jobs: Vec<NcJob> = first.into_iter().chain(offered).collect();
-    (!jobs.is_empty()).then_some(NcLibrary { jobs, autostart })
+    (screen || !jobs.is_empty()).then(|| NcLibrary::new(jobs, autostart))
 }
 
 fn same_file(a: &Path, b: &Path) -> bool {

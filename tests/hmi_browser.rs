@@ -919,10 +919,10 @@ async fn watched(page: &Page, name: &str) -> String {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn the_screen_sets_the_overrides_and_steps_a_program_line_by_line_in_single_block() {
+async fn the_screen_sets_the_overrides_steps_a_program_line_by_line_runs_mdi_and_runs_from_a_line() {
     let Some(chromium) = chromium() else {
         eprintln!(
-            "SKIPPED hmi_browser::the_screen_sets_the_overrides_and_steps_a_program_line_by_line_in_single_block: no Chromium here"
+            "SKIPPED hmi_browser::the_screen_sets_the_overrides_steps_a_program_line_by_line_runs_mdi_and_runs_from_a_line: no Chromium here"
         );
         return;
     };
@@ -1008,6 +1008,79 @@ async fn the_screen_sets_the_overrides_and_steps_a_program_line_by_line_in_singl
         async |p| state(p).await == "READY" && watched(p, "NC_COMPLETED").await == "true",
     )
     .await;
+    // MDI: two lines typed, run from where the tool stands (the program's end, the origin).
+    page.evaluate("document.getElementById('mdi-text').value = 'G1 X3 Y2 F600\\nG1 X3.5'")
+        .await
+        .expect("typed");
+    click(&page, "#nc-mdi").await;
+    let file = async |p: &Page| text(p, "document.getElementById('program-file').textContent").await;
+    until(
+        &page,
+        Duration::from_secs(30),
+        "the MDI lines run to their end",
+        async |p| {
+            watched(p, "NC_PROGRAM").await == "2"
+                && state(p).await == "READY"
+                && watched(p, "NC_COMPLETED").await == "true"
+                && file(p).await == "MDI"
+        },
+    )
+    .await;
+    until(
+        &page,
+        Duration::from_secs(5),
+        "the tool where the lines took it",
+        async |p| (x(p).await - 3.5).abs() < 0.01 && (shown(p, "y").await - 2.0).abs() < 0.01,
+    )
+    .await;
+    // An MDI line that cannot run says why, with its line and column, and nothing starts.
+    page.evaluate("document.getElementById('mdi-text').value = 'G1 X5'")
+        .await
+        .expect("typed");
+    click(&page, "#nc-mdi").await;
+    until(&page, Duration::from_secs(10), "the refusal shown", async |p| {
+        text(p, "document.getElementById('access').textContent").await
+            == "MDI:1:4: no feed rate: an F word is needed before the first G1, G2 or G3"
+    })
+    .await;
+    assert_eq!(watched(&page, "NC_PROGRAM").await, "2");
+    // The program again, from its fourth line (X0): the tool goes to (4, 4) first.
+    page.evaluate("document.getElementById('program-choice').value = '1'")
+        .await
+        .expect("chosen");
+    click(&page, "#nc-load").await;
+    until(&page, Duration::from_secs(5), "the program loaded", async |p| {
+        file(p).await.ends_with("steps.ngc") && text(p, "String(!!document.getElementById('line-4'))").await == "true"
+    })
+    .await;
+    click(&page, "#line-4").await;
+    assert_eq!(text(&page, "document.getElementById('from-line').value").await, "4");
+    click(&page, "#nc-from-line").await;
+    until(
+        &page,
+        Duration::from_secs(30),
+        "the program run from line 4 to its end",
+        async |p| {
+            watched(p, "NC_PROGRAM").await == "3"
+                && state(p).await == "READY"
+                && watched(p, "NC_COMPLETED").await == "true"
+        },
+    )
+    .await;
+    until(
+        &page,
+        Duration::from_secs(5),
+        "the tool at the program's end",
+        async |p| x(p).await.abs() < 0.01 && shown(p, "y").await.abs() < 0.01,
+    )
+    .await;
+    // A page opened now draws what was cut: the server kept the run's path (from (3.5, 2) to
+    // (4, 4), then around to the origin).
+    let late = browser.new_page(plc.url.as_str()).await.expect("a second page");
+    until(&late, Duration::from_secs(10), "the cut path on a late page", async |p| {
+        text(p, "String(cut.length > 20 && Math.hypot(...cut[cut.length - 1].slice(0, 2)) < 0.05 && Math.hypot(cut[0][0] - 3.5, cut[0][1] - 2) < 0.1)").await == "true"
+    })
+    .await;
     let _ = browser.close().await;
     let _ = browser.wait().await;
     events.abort();
@@ -1023,6 +1096,8 @@ async fn the_screen_sets_the_overrides_and_steps_a_program_line_by_line_in_singl
         r#""NC_FEED_OVERRIDE":50"#,
         r#""NC_RAPID_OVERRIDE":30"#,
         r#""NC_SINGLE_BLOCK":true"#,
+        r#""mdi":"G1 X3 Y2 F600\nG1 X3.5""#,
+        r#""from_line":{"program":1,"line":4}"#,
     ] {
         assert!(recorded.contains(recorded_input), "{recorded_input} in the trace");
     }

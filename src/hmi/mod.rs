@@ -13,7 +13,9 @@
 
 pub mod access;
 pub mod commands;
+pub mod cut;
 pub mod frame;
+pub mod jobs;
 pub mod listener;
 pub mod mechanism;
 pub mod server;

@@ -32,7 +32,9 @@ use pkm_api::hmi::JOG_AXIS_RANGE;
 
 use super::access::{Access, header_text};
 use super::commands::{CommandSink, FEED_OVERRIDE_RANGE, RAPID_OVERRIDE_RANGE, press};
+use super::cut::CutPath;
 use super::frame::{Frame, FrameReader};
+use super::jobs::JobDesk;
 use super::listener::Peer;
 use crate::image::Value;
 
@@ -45,6 +47,8 @@ pub const MAX_CLIENT_MESSAGE: usize = 4096;
 /// Commands (and text requests) a client may send per second, on average; as many at once. The
 /// page sends 50 a second while a jog is held. STOP and a jog's release are never dropped.
 pub const COMMANDS_PER_S: f64 = 100.0;
+/// How often a client may ask for the cut path (it is up to about 100 kB).
+pub const CUT_EVERY: Duration = Duration::from_secs(1);
 /// The most lines of a program's text sent in one answer.
 pub const TEXT_WINDOW: usize = 400;
 /// A line of a program's text is sent cut to this many characters.
@@ -81,6 +85,10 @@ pub struct Shared {
     running: AtomicBool,
     /// The run's programs: text and path, served on request.
     programs: Vec<Served>,
+    /// Where jobs are made.
+    jobs: Option<JobDesk>,
+    /// The backplot's cut path, if the run has programs.
+    cut: Option<std::sync::Mutex<CutPath>>,
 }
 
 /// What the screen is told once, at connection: the machine and its variables.
@@ -101,9 +109,12 @@ pub struct HmiInfo {
     pub joints: Vec<String>,
     /// The drawing of the mechanism, if its kinematics draws one.
     pub mechanism: Option<super::mechanism::Mechanism>,
+    /// Where the screen makes jobs (MDI, a program from a line), if the run has a library.
+    pub jobs: Option<JobDesk>,
 }
 
 /// An NC program as the screen shows it.
+#[derive(Clone)]
 pub struct ScreenProgram {
     /// Its file.
     pub file: String,
@@ -118,6 +129,7 @@ pub struct ScreenProgram {
 /// so that a window costs at most two windows' lines, not the whole text: the last window of a
 /// 16 MB text (500 000 lines) took 18–33 ms when the text was counted and skipped through for
 /// every request — which a watching client may send 100 times a second — and takes 29 µs.
+#[derive(Clone)]
 struct Served {
     program: ScreenProgram,
     /// How many lines the text has.
@@ -178,6 +190,7 @@ pub fn router(info: HmiInfo, mut frames: FrameReader, sink: CommandSink, options
         "refused_more": info.refused.len().saturating_sub(MAX_REFUSED_LISTED),
         "axes": info.axes,
         "joints": info.joints,
+        "jobs": info.jobs.is_some(),
     });
     let (tx, _) = broadcast::channel::<Arc<str>>(16);
     let shared = Arc::new(Shared {
@@ -190,6 +203,8 @@ pub fn router(info: HmiInfo, mut frames: FrameReader, sink: CommandSink, options
         jog_owner: std::sync::Mutex::new(None),
         running: AtomicBool::new(false),
         programs,
+        jobs: info.jobs,
+        cut: CutPath::of(&info.variables).map(std::sync::Mutex::new),
     });
     let pump = Arc::clone(&shared);
     let mut mechanism = info.mechanism;
@@ -203,6 +218,12 @@ pub fn router(info: HmiInfo, mut frames: FrameReader, sink: CommandSink, options
             let newer = frames.newer();
             if let Some(frame) = &newer {
                 pump.running.store(frame.status.state == "AUTO", Ordering::Relaxed);
+                if let Some(desk) = &pump.jobs {
+                    desk.observe(&frame.status.state, &frame.image);
+                }
+                if let Some(cut) = &pump.cut {
+                    cut.lock().unwrap_or_else(|p| p.into_inner()).observe(&frame.image);
+                }
             }
             if let Some(frame) = newer
                 && tx.receiver_count() > 0
@@ -381,12 +402,18 @@ enum Command {
     Text { program: usize, from: usize },
     /// The programmed path of program `program` (a read).
     Path { program: usize },
+    /// The backplot's cut path so far (a read).
+    Cut {},
+    /// Run these lines (MDI) from where the tool stands, from READY.
+    Mdi { text: String },
+    /// Run program `program` from line `line` on (the tool goes there first), from READY.
+    RunFrom { program: i16, line: u32 },
 }
 
 impl Command {
     /// Whether it only reads (a watching client may send it).
     fn reads(&self) -> bool {
-        matches!(self, Command::Text { .. } | Command::Path { .. })
+        matches!(self, Command::Text { .. } | Command::Path { .. } | Command::Cut {})
     }
 
     /// Whether it stops something: STOP, a jog's release. Never dropped for the rate.
@@ -458,6 +485,7 @@ async fn client(mut socket: WebSocket, peer: SocketAddr, commands: bool, shared:
     }
     let mut budget = Budget::new();
     let mut counts = Refusals::default();
+    let mut cut_asked: Option<Instant> = None;
     loop {
         tokio::select! {
             frame = frames.recv() => match frame {
@@ -482,7 +510,23 @@ async fn client(mut socket: WebSocket, peer: SocketAddr, commands: bool, shared:
                         continue;
                     }
                     let reply = match parsed {
-                        Ok(c) if c.reads() => shared.read(c),
+                        Ok(Command::Cut {}) if cut_asked.is_some_and(|at| at.elapsed() < CUT_EVERY) => {
+                            counts.refused += 1;
+                            Some(json!({"type": "refused", "why": "the cut path is sent once a second at most"}))
+                        }
+                        Ok(c) if c.reads() => {
+                            if matches!(c, Command::Cut {}) {
+                                cut_asked = Some(Instant::now());
+                            }
+                            shared.read(c)
+                        }
+                        Ok(c @ (Command::Mdi { .. } | Command::RunFrom { .. })) if commands => {
+                            let reply = shared.make_job(peer, c).await;
+                            if reply["type"] == "refused" {
+                                counts.refused += 1;
+                            }
+                            Some(reply)
+                        }
                         Ok(_) if !commands => {
                             counts.watching += 1;
                             if counts.watching == 1 {
@@ -532,27 +576,125 @@ async fn client(mut socket: WebSocket, peer: SocketAddr, commands: bool, shared:
 impl Shared {
     /// Answers a read: a window of a program's text, or its path.
     fn read(&self, command: Command) -> Option<Json> {
-        let program = |k: usize| k.checked_sub(1).and_then(|i| self.programs.get(i));
         Some(match command {
-            Command::Text { program: k, from } => match program(k) {
+            Command::Text { program: k, from } => match self.served(k) {
                 Some(p) => {
                     let (lines, total) = p.window(from);
-                    json!({"type": "text", "program": k, "from": from.max(1), "lines": lines, "total": total})
+                    json!({"type": "text", "program": k, "file": self.file(k), "from": from.max(1), "lines": lines, "total": total})
                 }
                 None => json!({"type": "refused", "why": format!("no program {k}")}),
             },
-            Command::Path { program: k } => match program(k) {
-                Some(p) => json!({"type": "path", "program": k, "path": p.program.path}),
-                None => json!({"type": "refused", "why": format!("no program {k}")}),
+            Command::Path { program: k } => match (k.checked_sub(1).and_then(|i| self.programs.get(i)), self.job(k)) {
+                (Some(p), _) => json!({"type": "path", "program": k, "path": p.program.path}),
+                (None, Some(job)) => json!({"type": "path", "program": k, "path": preview(job.trajectory.as_ref())}),
+                (None, None) => json!({"type": "refused", "why": format!("no program {k}")}),
+            },
+            Command::Cut {} => match &self.cut {
+                Some(cut) => cut.lock().unwrap_or_else(|p| p.into_inner()).json(),
+                None => json!({"type": "refused", "why": "this run has no programs"}),
             },
             _ => return None,
         })
     }
 
+    /// The screen job of number `k`, if it was made.
+    fn job(&self, k: usize) -> Option<&pkm_api::trajectory::NcJob> {
+        let library = self.jobs.as_ref()?.library();
+        let k = i16::try_from(k).ok()?;
+        (usize::try_from(k).ok()? > library.jobs.len())
+            .then(|| library.numbered(k))
+            .flatten()
+    }
+
+    /// The file name of program or job `k`.
+    fn file(&self, k: usize) -> String {
+        match k.checked_sub(1).and_then(|i| self.programs.get(i)) {
+            Some(p) => p.program.file.clone(),
+            None => self.job(k).map(|j| j.file.clone()).unwrap_or_default(),
+        }
+    }
+
+    /// The text of program or job `k` as served: a job from a line is its program's text; an
+    /// MDI job's few lines are counted on each request.
+    fn served(&self, k: usize) -> Option<std::borrow::Cow<'_, Served>> {
+        if let Some(p) = k.checked_sub(1).and_then(|i| self.programs.get(i)) {
+            return Some(std::borrow::Cow::Borrowed(p));
+        }
+        let desk = self.jobs.as_ref()?;
+        let slot = k.checked_sub(desk.library().jobs.len() + 1)?;
+        let made = desk.library().screen.get(slot)?;
+        match made.spec.kind {
+            pkm_api::trajectory::ScreenJobKind::FromLine { program, .. } => usize::try_from(program)
+                .ok()
+                .and_then(|p| p.checked_sub(1))
+                .and_then(|i| self.programs.get(i))
+                .map(std::borrow::Cow::Borrowed),
+            pkm_api::trajectory::ScreenJobKind::Mdi { .. } => {
+                Some(std::borrow::Cow::Owned(Served::new(ScreenProgram {
+                    file: made.job.file.clone(),
+                    text: made.job.text.clone(),
+                    path: Vec::new(),
+                })))
+            }
+        }
+    }
+
+    /// Makes a screen job (MDI, a program from a line) and has it loaded and started; the
+    /// reply says its number, or why not.
+    async fn make_job(&self, peer: SocketAddr, command: Command) -> Json {
+        let Some(desk) = &self.jobs else {
+            return json!({"type": "refused", "why": "this run makes no jobs: it has no machine to plan them for"});
+        };
+        let kind = match command {
+            Command::Mdi { text } => {
+                info!(
+                    "screen {peer}: MDI {}",
+                    crate::config::shorten(&text.replace('\n', " / "))
+                );
+                pkm_api::trajectory::ScreenJobKind::Mdi { text }
+            }
+            Command::RunFrom { program, line } => {
+                info!("screen {peer}: run program {program} from line {line}");
+                pkm_api::trajectory::ScreenJobKind::FromLine { program, line }
+            }
+            _ => return json!({"type": "refused", "why": "not a job"}),
+        };
+        match desk.make(kind).await {
+            Ok(made) => {
+                info!(
+                    "screen {peer}: job {} ({}, {:.2} s planned) loaded and started",
+                    made.number,
+                    made.job.file,
+                    made.job.trajectory.duration_s()
+                );
+                let number = made.number;
+                self.sink.update(|c| {
+                    c.program = number;
+                    c.presses[press::NC[0]] += 1;
+                });
+                json!({
+                    "type": "job",
+                    "program": number,
+                    "file": made.job.file,
+                    "lines": made.job.text.lines().count(),
+                    "planned_s": made.job.trajectory.duration_s(),
+                })
+            }
+            Err(why) => {
+                info!("screen {peer}: job refused: {}", why.lines().next().unwrap_or_default());
+                json!({"type": "refused", "why": why})
+            }
+        }
+    }
+
     /// Carries out a client's command; a refused one says why.
     fn apply(&self, id: u64, peer: SocketAddr, command: Command) -> Result<(), String> {
         match command {
-            Command::Text { .. } | Command::Path { .. } => {}
+            Command::Text { .. }
+            | Command::Path { .. }
+            | Command::Cut {}
+            | Command::Mdi { .. }
+            | Command::RunFrom { .. } => {}
             Command::Load { program } => {
                 let known = usize::try_from(program).is_ok_and(|k| (1..=self.programs.len()).contains(&k));
                 if !known {
@@ -656,6 +798,23 @@ impl Shared {
             self.sink.update(|c| c.jog = [0.0; 2]);
         }
     }
+}
+
+/// The programmed path for the screen's preview: at most 4000 points along the time line.
+pub fn preview(trajectory: &dyn pkm_api::trajectory::Trajectory) -> Vec<[f64; 3]> {
+    const POINTS: usize = 4000;
+    let duration = trajectory.duration_s();
+    let mut cursor = 0;
+    let mut points: Vec<[f64; 3]> = Vec::with_capacity(POINTS + 1);
+    for i in 0..=POINTS {
+        let p = trajectory.sample(duration * i as f64 / POINTS as f64, &mut cursor).pose;
+        let point = [p[0], p[1], p[2]];
+        // Where the tool stands (dwells, stops), one point is enough.
+        if points.last() != Some(&point) {
+            points.push(point);
+        }
+    }
+    points
 }
 
 fn finite(v: f64) -> f64 {

@@ -67,6 +67,75 @@ impl Header {
     }
 }
 
+/// A job the operator made on the screen (MDI lines, a program from a line), as a trace
+/// carries it: in the record of the cycle whose `HMI_NC_PROGRAM` first took its number, so
+/// that a replay plans it again before that cycle.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TraceJob {
+    /// Its number, as `NC_PROGRAM` holds it.
+    pub number: i16,
+    /// Where the tool stood (machine frame).
+    pub start: [f64; 6],
+    /// The MDI lines.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mdi: Option<String>,
+    /// The program and line it runs from.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub from_line: Option<TraceFromLine>,
+}
+
+/// A program run from a line, in a [`TraceJob`].
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TraceFromLine {
+    /// The program's number.
+    pub program: i16,
+    /// The line.
+    pub line: u32,
+}
+
+impl TraceJob {
+    /// The job of number `number` made of `spec`.
+    pub fn of(number: i16, spec: &pkm_api::trajectory::ScreenJobSpec) -> TraceJob {
+        use pkm_api::trajectory::ScreenJobKind;
+        let mut start = [0.0; 6];
+        start.copy_from_slice(&spec.start[..6]);
+        let (mdi, from_line) = match &spec.kind {
+            ScreenJobKind::Mdi { text } => (Some(text.clone()), None),
+            ScreenJobKind::FromLine { program, line } => (
+                None,
+                Some(TraceFromLine {
+                    program: *program,
+                    line: *line,
+                }),
+            ),
+        };
+        TraceJob {
+            number,
+            start,
+            mdi,
+            from_line,
+        }
+    }
+
+    /// What the job was made of, or why the record does not say (neither or both kinds).
+    pub fn spec(&self) -> Result<pkm_api::trajectory::ScreenJobSpec, String> {
+        use pkm_api::trajectory::{ScreenJobKind, ScreenJobSpec};
+        let kind = match (&self.mdi, &self.from_line) {
+            (Some(text), None) => ScreenJobKind::Mdi { text: text.clone() },
+            (None, Some(f)) => ScreenJobKind::FromLine {
+                program: f.program,
+                line: f.line,
+            },
+            _ => return Err(format!("job {}: exactly one of \"mdi\" and \"from_line\"", self.number)),
+        };
+        let mut start = [0.0; pkm_api::trajectory::MAX_AXES];
+        start[..6].copy_from_slice(&self.start);
+        Ok(ScreenJobSpec { kind, start })
+    }
+}
+
 /// An NC program as a trace carries it.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]

@@ -90,6 +90,8 @@ struct Line<'a> {
     reason: Option<std::borrow::Cow<'a, str>>,
     #[serde(default)]
     violation: bool,
+    #[serde(default)]
+    job: Option<super::TraceJob>,
 }
 
 /// A JSON object as (key, value) pairs borrowing the keys from the line.
@@ -136,6 +138,8 @@ pub struct Record {
     pub reason: Option<Arc<str>>,
     /// Whether a cycle time violation was delivered in this cycle.
     pub violation: bool,
+    /// A job the operator made on the screen, loaded in this cycle.
+    pub job: Option<Box<super::TraceJob>>,
 }
 
 /// What reading one line found.
@@ -433,6 +437,7 @@ impl TraceReader {
             record.state = f.state.map(|s| Self::intern(&mut self.names, s));
             record.reason = f.reason.map(|s| Self::intern(&mut self.names, s));
             record.violation = f.violation;
+            record.job = None;
             return Ok(());
         }
         let l: Line<'_> = serde_json::from_str(text).map_err(|e| self.err(format!("malformed record: {e}")))?;
@@ -469,6 +474,7 @@ impl TraceReader {
         record.state = l.state.map(|s| Self::intern(&mut self.names, &s));
         record.reason = l.reason.map(|s| Self::intern(&mut self.names, &s));
         record.violation = l.violation;
+        record.job = l.job.map(Box::new);
         Ok(())
     }
 

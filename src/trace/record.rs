@@ -133,6 +133,7 @@ impl Recorder {
         config_digest: &str,
         library: Option<&pkm_api::trajectory::NcLibrary>,
     ) -> io::Result<Recorder> {
+        let nc = library;
         let (program, library) = Header::programs(library);
         let file = Output::create(path)?;
         let vars = plc.vars().vars();
@@ -156,6 +157,14 @@ impl Recorder {
             library,
         };
         let var_names: Vec<String> = vars.iter().map(|v| v.name.clone()).collect();
+        // The screen's jobs go into the trace where the screen loads them.
+        let jobs = nc
+            .zip(plc.vars().index_of(pkm_api::hmi::HMI_NC_PROGRAM.name()))
+            .map(|(l, var)| JobWatch {
+                library: l.clone(),
+                var,
+                written: vec![false; pkm_api::trajectory::MAX_SCREEN_JOBS],
+            });
         let class_names: Vec<String> = plc.classes().map(|c| c.name.to_string()).collect();
         let (tx, rx) = sync_channel::<Msg>(CHANNEL);
         let (pool_tx, pool) = sync_channel::<Vec<(VarIndex, Value)>>(POOL * 2);
@@ -166,7 +175,7 @@ impl Recorder {
         }
         let writer = std::thread::Builder::new()
             .name("trace-writer".into())
-            .spawn(move || write_all(file, &header, &var_names, &class_names, rx, pool_tx))?;
+            .spawn(move || write_all(file, &header, &var_names, &class_names, rx, pool_tx, jobs))?;
         let n = plc.classes().count();
         Ok(Recorder {
             path: path.display().to_string(),
@@ -299,6 +308,32 @@ fn on_disk(path: &Path) -> String {
     }
 }
 
+/// What the writer needs to put the screen's jobs into the trace.
+struct JobWatch {
+    library: pkm_api::trajectory::NcLibrary,
+    /// `HMI_NC_PROGRAM`.
+    var: VarIndex,
+    /// Per slot: its job is in the trace.
+    written: Vec<bool>,
+}
+
+impl JobWatch {
+    /// The job a record with these input changes loads for the first time, if any.
+    fn loaded(&mut self, inputs: &[(VarIndex, Value)]) -> Option<super::TraceJob> {
+        let number = inputs.iter().find_map(|(i, v)| match v {
+            Value::Int(k) if *i == self.var => Some(*k),
+            _ => None,
+        })?;
+        let slot = usize::try_from(number).ok()?.checked_sub(self.library.jobs.len() + 1)?;
+        let made = self.library.screen.get(slot)?;
+        let written = self.written.get_mut(slot)?;
+        if std::mem::replace(written, true) {
+            return None;
+        }
+        Some(super::TraceJob::of(number, &made.spec))
+    }
+}
+
 /// The writer thread: formats every message as one JSON line.
 fn write_all(
     mut out: Output,
@@ -307,6 +342,7 @@ fn write_all(
     classes: &[String],
     rx: Receiver<Msg>,
     pool: SyncSender<Vec<(VarIndex, Value)>>,
+    mut jobs: Option<JobWatch>,
 ) -> Written {
     let mut w = Written {
         records: 0,
@@ -378,6 +414,11 @@ fn write_all(
                 }
                 if violation {
                     line.insert("violation".into(), true.into());
+                }
+                if let Some(job) = jobs.as_mut().and_then(|j| j.loaded(&changes[..inputs]))
+                    && let Ok(json) = serde_json::to_value(job)
+                {
+                    line.insert("job".into(), json);
                 }
                 emit(serde_json::Value::Object(line).to_string(), &mut w, &mut out);
                 if w.error.is_none() {

@@ -91,11 +91,12 @@ pub fn replay(trace: &Path, setup: &Setup, force: bool) -> Result<ReplayReport, 
     };
     let first = header.program.as_ref().map(plan).transpose()?;
     let offered = header.library.iter().map(plan).collect::<Result<Vec<_>, _>>()?;
-    let library = crate::nc_job::library(first, offered);
+    let screen = header.variables.contains_key(pkm_api::hmi::HMI_STOP.name());
+    let library = crate::nc_job::library(first, offered, screen && setup.machine.is_some());
     // The bus only declares the I/O map's variables (and the operator screen's, if the run had
     // one): replayed cycles never call it.
     let mut bus = setup.declaring_bus()?;
-    if header.variables.contains_key(pkm_api::hmi::HMI_STOP.name()) {
+    if screen {
         bus = setup.with_screen(bus).0;
     }
     let mut plc = setup.plc_with(bus, library.as_ref())?;
@@ -160,6 +161,28 @@ pub fn replay(trace: &Path, setup: &Setup, force: bool) -> Result<ReplayReport, 
             ));
         }
         cycles[r.class] += 1;
+        // A job the screen made, planned again before the cycle that loads it.
+        if let Some(job) = &r.job {
+            let library = library
+                .as_ref()
+                .ok_or_else(|| refused(format!("line {}: a screen job in a run without programs", r.line)))?;
+            let spec = job.spec().map_err(|m| refused(format!("line {}: {m}", r.line)))?;
+            let made = crate::screen_job::plan(setup, library, &spec)
+                .map_err(|e| refused(format!("line {}: screen job {}: {e}", r.line, job.number)))?;
+            let slot = usize::try_from(job.number)
+                .ok()
+                .and_then(|k| k.checked_sub(library.jobs.len() + 1))
+                .ok_or_else(|| {
+                    refused(format!(
+                        "line {}: job number {} is a library program's",
+                        r.line, job.number
+                    ))
+                })?;
+            library
+                .screen
+                .set(slot, pkm_api::trajectory::ScreenJob { spec, job: made })
+                .map_err(|e| refused(format!("line {}: {e}", r.line)))?;
+        }
         for &(k, v) in &r.inputs {
             inputs[r.class][usize::from(by_position[k])] = v;
         }

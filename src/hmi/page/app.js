@@ -18,13 +18,17 @@ let jog = null; // [x, y, axis] while held
 // The run's programs (numbered from 1 as NC_PROGRAM holds the loaded one's) and the one shown.
 let programs = [];
 let shownProgram = 0;
+// The screen makes jobs (MDI, a program from a line).
+let jobs = false;
 // The programs offered that cannot run on this machine, with why.
 let refused = [];
 let jogTimer = null;
 let lastLine = 0;
-// The tool path: programmed (from the hello), cut (the measured tool point while a program runs).
+// The tool path: programmed (from the server), cut (the measured tool point x y z while a
+// program runs: what the server kept of the run before this page saw it, then every frame).
 let programmed = [];
 let cut = [];
+let cutAsked = false;
 let plane = [0, 1];
 let index = {};
 // The mechanism's views: the planes of its largest extents, each with a frame that grows to
@@ -57,6 +61,8 @@ function connect() {
     else if (m.type === "frame") frame(m);
     else if (m.type === "text") text(m);
     else if (m.type === "path") path(m);
+    else if (m.type === "job") job(m);
+    else if (m.type === "cut" && m.program === shownProgram) cut = m.points;
     else if (m.type === "refused") $("access").textContent = m.why;
   };
 }
@@ -65,9 +71,14 @@ function hello(m) {
   index = {};
   m.variables.forEach(([n], i) => { index[n] = i; });
   programs = m.programs || [];
+  jobs = !!m.jobs;
+  cutAsked = false;
+  $("mdi-box").hidden = !jobs;
+  $("from-line-box").hidden = !jobs;
   shownProgram = 0;
   $("program-choice").innerHTML = programs.map((p, i) => `<option value="${i + 1}">${escape(p.file)}</option>`).join("");
-  $("library").hidden = programs.length < 2;
+  // The choice of programs, where there is one to make (or one to go back to after a job).
+  $("library").hidden = programs.length < 2 && !(m.jobs && programs.length);
   // Each reason starts with its file's name.
   refused = m.refused || [];
   $("refused").innerHTML = refused.map((r) => `<div>not offered: ${escape(r.why.split("\n")[0])}</div>`).join("") +
@@ -110,8 +121,10 @@ function hello(m) {
 // them, nothing cut yet.
 function showProgram(k) {
   shownProgram = k;
+  // A job made on the screen (by this page or another): its file and text come from the server.
+  if (k > 0 && !programs[k - 1] && jobs) programs[k - 1] = { file: `job ${k}`, lines: 0 };
   const program = programs[k - 1];
-  $("program-box").hidden = !program && !refused.length;
+  $("program-box").hidden = !program && !refused.length && !jobs;
   programmed = [];
   cut = [];
   lastLine = 0;
@@ -125,6 +138,12 @@ function showProgram(k) {
   send({ cmd: "path", program: k });
 }
 
+// A job this page made: loaded and started by the server; shown once the PLC has loaded it.
+function job(m) {
+  programs[m.program - 1] = { file: m.file, lines: m.lines };
+  $("access").textContent = `${m.file}: planned ${m.planned_s.toFixed(2)} s, started`;
+}
+
 // Asks for the window of the shown program's text that starts at line `from`.
 function askText(from) {
   if (textAsked === from) return;
@@ -135,6 +154,10 @@ function askText(from) {
 function text(m) {
   if (m.program !== shownProgram) return;
   textAsked = 0;
+  if (m.file && programs[m.program - 1]) {
+    programs[m.program - 1].file = m.file;
+    $("program-file").textContent = m.file;
+  }
   textWindow = { program: m.program, from: m.from, lines: m.lines, total: m.total };
   $("program-text").innerHTML = m.lines
     .map((l, i) => `<div class="line" id="line-${m.from + i}">${String(m.from + i).padStart(4)}  ${escape(l)}</div>`)
@@ -167,7 +190,7 @@ function followLine(line) {
 
 // Enables or disables every control: the buttons, the program choice, the jog pad.
 function enableControls(on) {
-  for (const c of document.querySelectorAll("button, select, .overrides input")) c.disabled = !on;
+  for (const c of document.querySelectorAll("button, select, .overrides input, #from-line, #mdi-text")) c.disabled = !on;
   $("pad").classList.toggle("disabled", !on);
 }
 
@@ -207,6 +230,11 @@ function frame(m) {
   showOverrides(m);
   // The loaded program, as the PLC says (a load takes effect outside AUTO).
   if ("NC_PROGRAM" in index && m.image[index.NC_PROGRAM] !== shownProgram) showProgram(m.image[index.NC_PROGRAM]);
+  // What was cut before this page connected (once the loaded program is known).
+  if ("NC_PROGRAM" in index && !cutAsked) {
+    cutAsked = true;
+    send({ cmd: "cut" });
+  }
   drawPath(m);
   drawMechanism(m.links);
   const lineIndex = variables.findIndex(([n]) => n === "NC_LINE");
@@ -244,8 +272,8 @@ function drawPath(m) {
   const tool = ["NC_TOOL_X", "NC_TOOL_Y", "NC_TOOL_Z"].map(value);
   // Running, holding, held, paused at an M0, standing after a line in single block.
   const running = [1, 2, 3, 4, 6].includes(value("NC_STATE"));
-  if (running && tool[plane[0]] !== null && tool[plane[1]] !== null) {
-    cut.push([tool[plane[0]], tool[plane[1]]]);
+  if (running && tool[0] !== null && tool[1] !== null) {
+    cut.push(tool.map((v) => v ?? 0));
     if (cut.length > 20000) cut.shift();
   }
   const canvas = $("path");
@@ -263,8 +291,9 @@ function drawPath(m) {
     g.stroke();
   };
   line(pts, "#bbb", 3);
-  line(cut, "#06c", 1.5);
-  const at = cut[cut.length - 1];
+  const cutIn = cut.map((p) => [p[plane[0]], p[plane[1]]]);
+  line(cutIn, "#06c", 1.5);
+  const at = cutIn[cutIn.length - 1];
   if (at) { const [x, y] = px(at); g.fillStyle = "#c00"; g.beginPath(); g.arc(x, y, 4, 0, 2 * Math.PI); g.fill(); }
 }
 
@@ -368,6 +397,18 @@ for (const id of ["feed", "rapid"]) {
   });
 }
 $("single-block").addEventListener("change", (e) => send({ cmd: "single_block", on: e.target.checked }));
+$("nc-mdi").addEventListener("click", () => {
+  $("access").textContent = "";
+  send({ cmd: "mdi", text: $("mdi-text").value });
+});
+$("nc-from-line").addEventListener("click", () => {
+  $("access").textContent = "";
+  send({ cmd: "run_from", program: shownProgram, line: Number($("from-line").value) });
+});
+$("program-text").addEventListener("click", (e) => {
+  const line = e.target.closest(".line");
+  if (line && line.id.startsWith("line-")) $("from-line").value = line.id.slice(5);
+});
 $("filter").addEventListener("input", filter);
 
 connect();

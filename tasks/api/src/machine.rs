@@ -81,6 +81,10 @@ pub struct Motion {
     /// Per joint: the variable holding its measured position in the kinematics' joint
     /// coordinates (once referenced), for drawings of the mechanism.
     pub joint_vars: Vec<&'static str>,
+    /// Per joint: the variable holding its position set-point in the kinematics' joint
+    /// coordinates: the forward kinematics of these is where the tool stands commanded (a
+    /// job made on the screen starts there).
+    pub setpoint_vars: Vec<&'static str>,
 }
 
 /// Where a machine frame's origin is.

@@ -189,20 +189,163 @@ pub struct NcJob {
 
 /// The NC programs of a run, each read, checked and planned against the machine before the PLC
 /// is built: the one loaded at start first, then those the operator may load instead (`run
-/// --programs DIR`, from the screen). The main program chooses which one is loaded
-/// (`vars::NC_PROGRAM`), never while one runs; the drive program executes that one.
+/// --programs DIR`, from the screen); after them the jobs the operator makes on the screen
+/// while the PLC runs ([`ScreenJobs`]: MDI lines, a program run from a chosen line). The main
+/// program chooses which one is loaded (`vars::NC_PROGRAM`), never while one runs; the drive
+/// program executes that one.
 #[derive(Clone, Debug)]
 pub struct NcLibrary {
     /// The programs; the first is loaded at start.
     pub jobs: Vec<NcJob>,
     /// The program loaded at start starts by itself at the first READY (`run --program`).
     pub autostart: bool,
+    /// The screen's jobs, numbered after `jobs`.
+    pub screen: Arc<ScreenJobs>,
 }
 
 impl NcLibrary {
-    /// The program of the (1-based) number `k` as `vars::NC_PROGRAM` holds it.
+    /// A library of `jobs` (the first starts by itself at the first READY if `autostart`),
+    /// with room for the screen's jobs.
+    pub fn new(jobs: Vec<NcJob>, autostart: bool) -> NcLibrary {
+        NcLibrary {
+            jobs,
+            autostart,
+            screen: Arc::new(ScreenJobs::new()),
+        }
+    }
+
+    /// The program of the (1-based) number `k` as `vars::NC_PROGRAM` holds it: one of `jobs`,
+    /// or a screen job made so far. Wait-free and allocation-free (the cyclic programs call it).
     pub fn numbered(&self, k: i16) -> Option<&NcJob> {
-        usize::try_from(k).ok()?.checked_sub(1).and_then(|i| self.jobs.get(i))
+        let i = usize::try_from(k).ok()?.checked_sub(1)?;
+        match i.checked_sub(self.jobs.len()) {
+            None => self.jobs.get(i),
+            Some(j) => self.screen.get(j).map(|s| &s.job),
+        }
+    }
+
+    /// The number `vars::NC_PROGRAM` gives the screen job in slot `slot`.
+    pub fn screen_number(&self, slot: usize) -> Option<i16> {
+        i16::try_from(self.jobs.len() + slot + 1).ok()
+    }
+}
+
+/// The most jobs the screen makes in one run (each stays in memory until the run ends, so that
+/// the cyclic programs never free one).
+pub const MAX_SCREEN_JOBS: usize = 1000;
+
+/// What a screen job is made of: enough to plan it again (a replay does).
+#[derive(Clone, Debug, PartialEq)]
+pub struct ScreenJobSpec {
+    /// MDI lines, or a program of the library from a line.
+    pub kind: ScreenJobKind,
+    /// Where the tool stood when the job was made: where it starts (machine frame).
+    pub start: [f64; MAX_AXES],
+}
+
+/// The kinds of screen jobs.
+#[derive(Clone, Debug, PartialEq)]
+pub enum ScreenJobKind {
+    /// Lines typed on the screen (MDI), run as a program that ends after them.
+    Mdi {
+        /// The lines.
+        text: String,
+    },
+    /// A program of the library from a line on: the tool goes to where that line's motion
+    /// begins first.
+    FromLine {
+        /// The program's number (from 1; one of the library's programs).
+        program: i16,
+        /// The line (1-based).
+        line: u32,
+    },
+}
+
+/// A planned screen job.
+#[derive(Clone, Debug)]
+pub struct ScreenJob {
+    /// What it was made of.
+    pub spec: ScreenJobSpec,
+    /// The job.
+    pub job: NcJob,
+}
+
+/// The jobs the operator makes while the PLC runs, each planned off the cyclic path and stored
+/// once in a slot of its own: the cyclic programs read a slot without a lock, and no job is
+/// freed before the run ends.
+pub struct ScreenJobs {
+    slots: Box<[std::sync::OnceLock<ScreenJob>]>,
+    /// The next free slot (only the makers of jobs take it).
+    next: std::sync::Mutex<usize>,
+}
+
+/// Why a screen job was not stored.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum ScreenJobsError {
+    /// Every slot is taken.
+    Full,
+    /// The slot was taken already (a replay's trace that gives a job twice).
+    Taken(usize),
+}
+
+impl std::fmt::Display for ScreenJobsError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            ScreenJobsError::Full => write!(
+                f,
+                "the run has made its {MAX_SCREEN_JOBS} screen jobs: restart the PLC for more"
+            ),
+            ScreenJobsError::Taken(i) => write!(f, "screen job {} was made already", i + 1),
+        }
+    }
+}
+
+impl std::error::Error for ScreenJobsError {}
+
+impl Default for ScreenJobs {
+    fn default() -> Self {
+        ScreenJobs::new()
+    }
+}
+
+impl ScreenJobs {
+    /// Room for [`MAX_SCREEN_JOBS`] jobs, none made.
+    pub fn new() -> ScreenJobs {
+        ScreenJobs {
+            slots: (0..MAX_SCREEN_JOBS).map(|_| std::sync::OnceLock::new()).collect(),
+            next: std::sync::Mutex::new(0),
+        }
+    }
+
+    /// The job in slot `i`, if it was made. Wait-free.
+    pub fn get(&self, i: usize) -> Option<&ScreenJob> {
+        self.slots.get(i)?.get()
+    }
+
+    /// Stores `job` in the next free slot; its slot.
+    pub fn push(&self, job: ScreenJob) -> Result<usize, ScreenJobsError> {
+        let mut next = self.next.lock().unwrap_or_else(|p| p.into_inner());
+        let i = *next;
+        self.set(i, job)?;
+        *next = i + 1;
+        Ok(i)
+    }
+
+    /// Stores `job` in slot `i` (a replay puts each job where the run had it).
+    pub fn set(&self, i: usize, job: ScreenJob) -> Result<(), ScreenJobsError> {
+        let slot = self.slots.get(i).ok_or(ScreenJobsError::Full)?;
+        slot.set(job).map_err(|_| ScreenJobsError::Taken(i))
+    }
+
+    /// How many slots are filled, from the first.
+    pub fn made(&self) -> usize {
+        self.slots.iter().take_while(|s| s.get().is_some()).count()
+    }
+}
+
+impl std::fmt::Debug for ScreenJobs {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ScreenJobs").field("made", &self.made()).finish()
     }
 }
 

@@ -504,12 +504,46 @@ fn envelope(s: &TrajectorySample) -> f64 {
     }
 }
 
+/// The trajectory of a run whose library has no program yet (only screen jobs to come): it
+/// stands at the origin and is never started (nothing is loaded).
+struct Nothing {
+    dof: usize,
+}
+
+impl Trajectory for Nothing {
+    fn dof(&self) -> usize {
+        self.dof
+    }
+    fn duration_s(&self) -> f64 {
+        0.0
+    }
+    fn length_mm(&self) -> f64 {
+        0.0
+    }
+    fn sample(&self, _t: f64, _cursor: &mut usize) -> TrajectorySample {
+        TrajectorySample::default()
+    }
+    fn events(&self) -> &[pkm_api::trajectory::TrajectoryEvent] {
+        &[]
+    }
+    fn block_end(&self, _s: f64) -> Option<(f64, f64)> {
+        None
+    }
+    fn forward(&self, _joints: &[f64], _hint: &[f64; MAX_AXES], _pose: &mut [f64; MAX_AXES]) -> bool {
+        false
+    }
+    fn path_distance(&self, _pose: &[f64; MAX_AXES], _t: f64) -> f64 {
+        0.0
+    }
+}
+
 /// The process-image side of program execution, declared by a machine's drive program when a
 /// program is loaded.
 pub struct NcChannel {
     executor: Executor,
-    /// The run's programs' trajectories (kept here, so that swapping one in never frees one).
-    jobs: Vec<Arc<dyn Trajectory>>,
+    /// The run's programs (kept here, so that swapping one in never frees one; the screen's
+    /// jobs stay in the library until the run ends).
+    library: NcLibrary,
     /// The number of the one the executor walks (1-based, as `NC_PROGRAM`).
     loaded: i16,
     program: Input<i16>,
@@ -539,20 +573,20 @@ pub struct NcChannel {
 }
 
 impl NcChannel {
-    /// Declares the execution's variables for `library`'s programs (it has at least one) on a
-    /// machine whose pose coordinates are `coordinates` long (the first ones of x y z a b c).
+    /// Declares the execution's variables for `library`'s programs (the first loaded; a library
+    /// without programs waits for a screen job) on a machine of `coordinates` joints and pose
+    /// coordinates (the first ones of x y z a b c).
     pub fn declare(library: &NcLibrary, coordinates: usize, decl: &mut Declare<'_>) -> NcChannel {
-        let jobs: Vec<Arc<dyn Trajectory>> = library.jobs.iter().map(|j| Arc::clone(&j.trajectory)).collect();
-        let Some(first) = jobs.first() else {
-            panic!("a program library without a program: the runtime builds one only with programs")
-        };
+        let first = library.numbered(1).map(|j| Arc::clone(&j.trajectory));
+        let loaded = if first.is_some() { 1 } else { 0 };
+        let first = first.unwrap_or_else(|| Arc::new(Nothing { dof: coordinates }));
         let n = first.dof();
-        let executor = Executor::new(Arc::clone(first));
+        let executor = Executor::new(first);
         let measured = executor.sample().pose;
         NcChannel {
             executor,
-            jobs,
-            loaded: 1,
+            library: library.clone(),
+            loaded,
             program: decl.read(vars::NC_PROGRAM),
             command: decl.read(vars::NC_COMMAND),
             feed_override: decl.read_optional_or(vars::NC_FEED_OVERRIDE, OVERRIDE_DEFAULT),
@@ -620,9 +654,9 @@ impl NcChannel {
         let k = ctx.get(self.program);
         if k != self.loaded
             && self.executor.state() == RunState::Idle
-            && let Some(trajectory) = usize::try_from(k).ok().and_then(|k| self.jobs.get(k.wrapping_sub(1)))
+            && let Some(job) = self.library.numbered(k)
         {
-            self.executor = Executor::new(Arc::clone(trajectory));
+            self.executor = Executor::new(Arc::clone(&job.trajectory));
             self.loaded = k;
             // The figures of the last run were another program's.
             self.new_run(ctx);
@@ -719,9 +753,9 @@ pub struct ProgramControl {
     autostart: bool,
     /// The command to the executor.
     command: Option<Command>,
-    /// The loaded program's number (1-based, as `NC_PROGRAM`), and how many there are.
+    /// The loaded program's number (1-based, as `NC_PROGRAM`; 0: none), and the run's programs.
     loaded: i16,
-    programs: usize,
+    library: Option<NcLibrary>,
 }
 
 /// The operator's notes about the program.
@@ -733,26 +767,27 @@ pub mod notes {
 }
 
 impl ProgramControl {
-    /// The control of `library`'s programs, if the run has any (the first loaded; it starts by
-    /// itself at the first READY after `run --program`); without, nothing ever starts.
+    /// The control of `library`'s programs, if the run has a library (the first program loaded;
+    /// it starts by itself at the first READY after `run --program`); without, nothing ever
+    /// starts.
     pub fn of(library: Option<&NcLibrary>) -> ProgramControl {
         match library {
             Some(l) => ProgramControl {
                 autostart: l.autostart,
                 command: Some(Command::Off),
-                loaded: 1,
-                programs: l.jobs.len(),
+                loaded: if l.jobs.is_empty() { 0 } else { 1 },
+                library: Some(l.clone()),
                 ..ProgramControl::default()
             },
             None => ProgramControl::default(),
         }
     }
 
-    /// Outside AUTO: loads program `request` (1-based; 0 or an unknown number: no request) in
-    /// place of the loaded one. True when the loaded program changed; a program loaded this way
-    /// starts by NC_START only.
+    /// Outside AUTO: loads program `request` (1-based: the library's, then the screen's jobs; 0
+    /// or an unknown number: no request) in place of the loaded one. True when the loaded
+    /// program changed; a program loaded this way starts by NC_START only.
     pub fn select(&mut self, request: i16, auto: bool) -> bool {
-        let known = usize::try_from(request).is_ok_and(|r| (1..=self.programs).contains(&r));
+        let known = self.library.as_ref().is_some_and(|l| l.numbered(request).is_some());
         if auto || !known || request == self.loaded {
             return false;
         }
@@ -762,12 +797,12 @@ impl ProgramControl {
         true
     }
 
-    /// The loaded program's index in the library (0-based), if the run has programs.
-    pub fn loaded(&self) -> Option<usize> {
-        (self.programs > 0).then(|| usize::from(self.loaded.unsigned_abs()).saturating_sub(1))
+    /// The loaded program's trajectory, if a program is loaded.
+    pub fn trajectory(&self) -> Option<&Arc<dyn Trajectory>> {
+        self.library.as_ref()?.numbered(self.loaded).map(|j| &j.trajectory)
     }
 
-    /// The loaded program's number, as `NC_PROGRAM` holds it (1-based).
+    /// The loaded program's number, as `NC_PROGRAM` holds it (1-based; 0: none).
     pub fn number(&self) -> i16 {
         self.loaded
     }
@@ -1026,25 +1061,26 @@ mod tests {
             text: String::new(),
             trajectory: Arc::new(TwoMoves::new(false)),
         };
-        let library = NcLibrary {
-            jobs: vec![job("a.ngc"), job("b.ngc")],
-            autostart: true,
-        };
+        let library = NcLibrary::new(vec![job("a.ngc"), job("b.ngc")], true);
         let mut control = ProgramControl::of(Some(&library));
-        assert_eq!((control.loaded(), control.number()), (Some(0), 1));
+        assert_eq!(control.number(), 1);
+        assert!(control.trajectory().is_some());
         // Unknown numbers and the loaded one change nothing; in AUTO nothing is loaded.
         for (request, auto) in [(0, false), (3, false), (-1, false), (1, false), (2, true)] {
             assert!(!control.select(request, auto), "{request} {auto}");
         }
         assert_eq!(control.number(), 1);
         assert!(control.select(2, false));
-        assert_eq!((control.loaded(), control.number()), (Some(1), 2));
+        assert_eq!(control.number(), 2);
         // A program loaded from the screen does not start by itself at READY.
         assert!(!control.start(true));
         control.buttons([true, false, false]);
         assert!(control.start(true), "NC_START starts it");
         // Without programs nothing is loaded.
-        assert_eq!(ProgramControl::of(None).loaded(), None);
+        assert!(ProgramControl::of(None).trajectory().is_none());
+        let empty = NcLibrary::new(Vec::new(), false);
+        let control = ProgramControl::of(Some(&empty));
+        assert_eq!((control.number(), control.trajectory().is_some()), (0, false));
     }
 
     #[test]

@@ -213,6 +213,7 @@ impl Machine for JointMachine {
             joint_speed: p.joints.iter().map(|j| j.max_speed_mm_s).collect(),
             joint_accel: p.joints.iter().map(|j| j.max_accel_mm_s2).collect(),
             joint_vars: vars::JOINT_POSITION[..kin.dof()].iter().map(|v| v.name()).collect(),
+            setpoint_vars: vars::SETPOINT[..kin.dof()].iter().map(|v| v.name()).collect(),
         })
     }
 

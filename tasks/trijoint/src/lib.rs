@@ -123,6 +123,7 @@ impl Machine for Trijoint {
             joint_speed: vec![p.max_joint_speed_mm_s; 2],
             joint_accel: vec![p.brake_decel_mm_s2; 2],
             joint_vars: vars::POSITION_MM.iter().map(|v| v.name()).collect(),
+            setpoint_vars: vars::SETPOINT_MM.iter().map(|v| v.name()).collect(),
         })
     }
 

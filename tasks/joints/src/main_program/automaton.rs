@@ -138,8 +138,6 @@ pub struct Main {
     pub(super) ret_s: f64,
     pub(super) ret_rate: f64,
     pub(super) ret_since_s: f64,
-    /// The start pose (machine frame) of each of the run's programs.
-    pub(super) program_starts: Vec<[f64; MAX_DOF]>,
 }
 
 /// How close the tool must be to the program's start pose for a start (mm, degrees).
@@ -212,9 +210,11 @@ impl Application for Main {
     }
 
     fn start_auto(&mut self, io: &mut Io) -> bool {
-        let Some(&start) = io.program.loaded().and_then(|k| self.program_starts.get(k)) else {
+        let Some(trajectory) = io.program.trajectory() else {
             return false;
         };
+        let mut cursor = 0;
+        let start = trajectory.sample(0.0, &mut cursor).pose;
         // A program starts where it was checked and planned from: the reference pose.
         let n = self.n;
         let at_start = (0..n).all(|c| (self.pose[c] - start[c]).abs() <= START_TOLERANCE);
@@ -333,7 +333,6 @@ impl Main {
             ret_s: 0.0,
             ret_rate: 0.0,
             ret_since_s: 0.0,
-            program_starts: Vec::new(),
         }
     }
 

@@ -396,14 +396,7 @@ impl MainProgram {
             hmi: HmiVars::declare(decl),
         };
         let stop = StopButton::new(p.stop_lockout_ms as f64 * 1e-3);
-        let mut main = Main::new(p, frame, soft, pairs, Switches::of(spec).shared());
-        for job in args.nc.map_or(&[][..], |l| &l.jobs) {
-            let mut cursor = 0;
-            let start = job.trajectory.sample(0.0, &mut cursor).pose;
-            let mut pose = [0.0; MAX_DOF];
-            pose[..n.min(MAX_DOF)].copy_from_slice(&start[..n.min(MAX_DOF)]);
-            main.program_starts.push(pose);
-        }
+        let main = Main::new(p, frame, soft, pairs, Switches::of(spec).shared());
         let io = Io {
             program: nc::ProgramControl::of(args.nc),
             ..Io::default()

@@ -138,7 +138,7 @@ impl Application for Main {
     }
 
     fn start_auto(&mut self, io: &mut Io) -> bool {
-        let Some(trajectory) = io.program.loaded().and_then(|k| self.trajectories.get(k)) else {
+        let Some(trajectory) = io.program.trajectory() else {
             return false;
         };
         // A program starts where it was checked and planned from: the start position.
@@ -157,7 +157,7 @@ impl Application for Main {
         // No jog in AUTO: the controller takes the set-points from the program; these follow
         // it, so that READY takes over where it ends.
         io.hold();
-        let trajectory = io.program.loaded().and_then(|k| self.trajectories.get(k));
+        let trajectory = io.program.trajectory();
         if let (Some(trajectory), Some(limits)) = (trajectory, &self.limits) {
             let joints = trajectory.sample(io.nc_time_s, &mut self.cursor).joints;
             let mut m = [0.0; 2];

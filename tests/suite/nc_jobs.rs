@@ -1,0 +1,178 @@
+//! The screen's jobs (issue 27), in virtual time: MDI lines and a program run from a chosen
+//! line are planned from where the tool stands, loaded and started through the screen's
+//! inputs, run to their end on the simulated O-X glide, and go into the trace — whose replay
+//! plans them again and agrees on every cycle.
+
+use crate::common;
+
+use common::{get, machine_config};
+use pkm_api::trajectory::{ScreenJob, ScreenJobKind, ScreenJobSpec, vars};
+use pkm_joints::vars::TOOL;
+use pkm_plc::compose::{self, Built, Options, Setup};
+use pkm_plc::hmi::commands::press;
+use pkm_plc::plc::Plc;
+use pkm_plc::run::VirtualClock;
+use pkm_plc::screen_job::{self, StandingPose};
+
+/// A run in virtual time that goes on where it stood (the screen's commands come between).
+struct Virtual {
+    plc: Plc,
+    clock: VirtualClock,
+}
+
+impl Virtual {
+    fn new(mut plc: Plc) -> Virtual {
+        let mut clock = VirtualClock::default();
+        plc.init(0, &mut clock);
+        Virtual { plc, clock }
+    }
+
+    /// Runs until `until_ms`; the main program's states on the way, and `each(plc)` after
+    /// every pass.
+    fn until(&mut self, until_ms: u64, mut each: impl FnMut(&Plc)) -> Vec<String> {
+        let mut states: Vec<String> = Vec::new();
+        while self.plc.next_release() < until_ms * 1_000_000 {
+            let t = self.plc.next_release();
+            self.clock.advance_to(t);
+            self.plc.run_due(&mut self.clock, u64::MAX);
+            let state = common::state(&self.plc);
+            if states.last().is_none_or(|s| s != state) {
+                states.push(state.to_string());
+            }
+            each(&self.plc);
+        }
+        states
+    }
+}
+
+/// A program of the O-X glide's plane: a 10 mm square from its start, the reference pose.
+const SQUARE: &str = "G21 G90 G61\nG1 X10 F600\nY10\nX0\nY0\nM2\n";
+
+#[test]
+fn mdi_lines_and_a_run_from_a_line_start_where_the_tool_stands_and_replay_identically() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let programs = dir.path().join("programs");
+    std::fs::create_dir(&programs).expect("a directory");
+    std::fs::write(programs.join("square.ngc"), SQUARE).expect("the program");
+    let setup = Setup::new(machine_config("ox-x", |_| {})).expect("ox-x");
+    let options = Options {
+        programs: Some(programs),
+        hmi: true,
+        ..Options::default()
+    };
+    let Built {
+        setup,
+        plc,
+        library,
+        hmi,
+        ..
+    } = compose::build(setup, options).unwrap_or_else(|e| panic!("{e}"));
+    let (library, sink) = (library.expect("a library"), hmi.expect("the screen's inputs"));
+    let trace = dir.path().join("jobs.jsonl");
+    let digest = setup.digest().expect("a digest");
+    let recorder =
+        pkm_plc::trace::record::Recorder::create_with(&trace, &plc, &digest, Some(&library)).expect("the trace");
+    let mut plc = plc;
+    plc.set_recorder(Box::new(recorder));
+    let mut run = Virtual::new(plc);
+    let standing = StandingPose::of(&setup, &run.plc).expect("the O-X glide's set-points");
+    // O-X is READY after referencing (11.65 s).
+    let seen = run.until(13_000, |_| {});
+    assert_eq!(seen.last().map(String::as_str), Some("READY"), "{seen:?}");
+    // A job as the screen makes one: planned from where the tool stands, loaded and started.
+    let make = |plc: &Plc, kind: ScreenJobKind| {
+        let start = standing.pose(plc.global_image()).expect("a pose");
+        let mut at = [0.0; 6];
+        at.copy_from_slice(&start);
+        let spec = ScreenJobSpec { kind, start: at };
+        let job = screen_job::plan(&setup, &library, &spec).unwrap_or_else(|e| panic!("{e}"));
+        let slot = library.screen.push(ScreenJob { spec, job }).expect("room");
+        let number = library.screen_number(slot).expect("a number");
+        sink.update(|c| {
+            c.program = number;
+            c.presses[press::NC[0]] += 1;
+        });
+        number
+    };
+    let mdi = make(
+        &run.plc,
+        ScreenJobKind::Mdi {
+            text: "G1 X4 Y3 F600\nG0 X6".into(),
+        },
+    );
+    assert_eq!(mdi, 2, "numbered after the library's one program");
+    let seen = run.until(20_000, |_| {});
+    assert_eq!(seen, ["AUTO", "READY"]);
+    let at = |plc: &Plc| [get(plc, TOOL[0]), get(plc, TOOL[1])];
+    let [x, y] = at(&run.plc);
+    assert!(
+        (x - 6.0).abs() < 0.01 && (y - 3.0).abs() < 0.01,
+        "the MDI lines ended at ({x}, {y})"
+    );
+    assert!(get(&run.plc, vars::NC_COMPLETED));
+    assert_eq!(get(&run.plc, vars::NC_PROGRAM), 2);
+    // The square from its third line (Y10): to (10, 0) first, then up, across and down.
+    let from = make(&run.plc, ScreenJobKind::FromLine { program: 1, line: 3 });
+    assert_eq!(from, 3);
+    let mut lines = Vec::new();
+    let seen = run.until(40_000, |plc| {
+        let line = get(plc, vars::NC_LINE);
+        if get(plc, vars::NC_STATE) == 1 && lines.last() != Some(&line) {
+            lines.push(line);
+        }
+    });
+    assert_eq!(seen, ["AUTO", "READY"]);
+    assert_eq!(lines, [3, 4, 5], "the lines it ran");
+    let [x, y] = at(&run.plc);
+    assert!(
+        x.abs() < 0.01 && y.abs() < 0.01,
+        "the square ended at its start: ({x}, {y})"
+    );
+    assert!(get(&run.plc, vars::NC_CONTOUR_MAX) <= 0.02);
+    // The trace holds both jobs, and its replay plans them again and agrees.
+    let recorder = run.plc.take_recorder().expect("the recorder");
+    recorder.finish().expect("the trace is written");
+    let text = std::fs::read_to_string(&trace).expect("the trace");
+    assert!(text.contains(r#""job":{"number":2,"#), "the MDI job is in the trace");
+    assert!(
+        text.contains(r#""from_line":{"program":1,"line":3}"#),
+        "the run from a line is in it"
+    );
+    let report = pkm_plc::trace::replay::replay(&trace, &setup, false).unwrap_or_else(|e| panic!("{e}"));
+    assert!(report.records > 1000, "{} records", report.records);
+}
+
+#[test]
+fn a_job_that_cannot_run_is_refused_with_its_line_and_nothing_is_stored() {
+    let setup = Setup::new(machine_config("ox-x", |_| {})).expect("ox-x");
+    let library = pkm_plc::nc_job::library(None, Vec::new(), true).expect("a screen's library");
+    let spec = |text: &str| ScreenJobSpec {
+        kind: ScreenJobKind::Mdi { text: text.into() },
+        start: [0.0; 6],
+    };
+    let refused = |text: &str| {
+        screen_job::plan(&setup, &library, &spec(text))
+            .map(|_| ())
+            .expect_err("refused")
+            .message
+    };
+    assert_eq!(
+        refused("G1 X5"),
+        "MDI:1:4: no feed rate: an F word is needed before the first G1, G2 or G3"
+    );
+    assert!(
+        refused("G0 X900").starts_with("MDI: the program leaves what ox-x can reach"),
+        "{}",
+        refused("G0 X900")
+    );
+    assert_eq!(refused("  \n"), "MDI: no line to run");
+    let from = ScreenJobSpec {
+        kind: ScreenJobKind::FromLine { program: 1, line: 3 },
+        start: [0.0; 6],
+    };
+    let e = screen_job::plan(&setup, &library, &from)
+        .map(|_| ())
+        .expect_err("no program 1");
+    assert_eq!(e.message, "no program 1 to run from a line: the run has 0");
+    assert_eq!(library.screen.made(), 0);
+}
