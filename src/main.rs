@@ -604,6 +604,11 @@ struct Screen {
 
 /// The screen `args` ask for: `None` in virtual time or with `--hmi none`.
 fn screen_options(args: &RunArgs) -> Result<Option<pkm_plc::hmi::HmiOptions>, Failure> {
+    let next_ports = if args.hmi.is_none() {
+        pkm_plc::hmi::DEFAULT_NEXT_PORTS
+    } else {
+        0
+    };
     let addr = match (args.hmi, args.virtual_time) {
         (Some(HmiAddr::Off), _) | (None, true) => return Ok(None),
         (Some(HmiAddr::At(_)), true) => {
@@ -634,6 +639,7 @@ fn screen_options(args: &RunArgs) -> Result<Option<pkm_plc::hmi::HmiOptions>, Fa
             .map(|o| o.trim_end_matches('/').to_ascii_lowercase())
             .collect(),
         max_clients: args.hmi_max_clients,
+        next_ports,
     };
     options.check().map_err(Failure::usage)?;
     Ok(Some(options))
@@ -694,6 +700,29 @@ fn screen_info(
     }
 }
 
+/// The screen's listener: on its address, or — for the default address, when its port is taken
+/// (a second PLC on this computer) — on the next free one of [`pkm_plc::hmi::DEFAULT_NEXT_PORTS`],
+/// said in a warning. The first error when none can be had.
+async fn bind_screen(options: &pkm_plc::hmi::HmiOptions) -> std::io::Result<tokio::net::TcpListener> {
+    let first = tokio::net::TcpListener::bind(options.addr).await;
+    let Err(taken) = first else { return first };
+    if taken.kind() != std::io::ErrorKind::AddrInUse {
+        return Err(taken);
+    }
+    for k in 1..=options.next_ports {
+        let mut addr = options.addr;
+        addr.set_port(options.addr.port().saturating_add(k));
+        if let Ok(listener) = tokio::net::TcpListener::bind(addr).await {
+            warn!(
+                "operator screen: {} is taken (another pkm-plc?): serving on {addr} instead",
+                options.addr
+            );
+            return Ok(listener);
+        }
+    }
+    Err(taken)
+}
+
 fn run_realtime(plc: Plc, options: RealTimeOptions, screen: Option<Screen>) -> Result<run::RealTimeOutcome, Failure> {
     let runtime = tokio::runtime::Builder::new_current_thread()
         .enable_all()
@@ -710,7 +739,7 @@ fn run_realtime(plc: Plc, options: RealTimeOptions, screen: Option<Screen>) -> R
         None => None,
         Some(Screen { options, info, sink }) => {
             let _inside = runtime.enter();
-            match runtime.block_on(tokio::net::TcpListener::bind(options.addr)) {
+            match runtime.block_on(bind_screen(&options)) {
                 Ok(listener) => {
                     let (publisher, reader) = pkm_plc::hmi::frame::frames(&plc);
                     let server_options = pkm_plc::hmi::server::ServerOptions {
@@ -740,12 +769,19 @@ fn run_realtime(plc: Plc, options: RealTimeOptions, screen: Option<Screen>) -> R
                     });
                     Some(publisher)
                 }
+                // Before anything moves: a page open on that port shows another PLC (a second
+                // one started by mistake), so running on without a screen would mislead.
                 Err(e) => {
-                    warn!(
-                        "operator screen: cannot listen on {}: {e}; running without it (--hmi ADDR, or --hmi none)",
+                    let busy = if e.kind() == std::io::ErrorKind::AddrInUse {
+                        " (another pkm-plc, or another server, has it)"
+                    } else {
+                        ""
+                    };
+                    return Err(Failure::usage(format!(
+                        "operator screen: cannot listen on {}: {e}{busy}; give another address with --hmi ADDR \
+                         (port 0: any free one, logged), or run without a screen with --hmi none",
                         options.addr
-                    );
-                    None
+                    )));
                 }
             }
         }

@@ -9,6 +9,9 @@ use std::time::{Duration, Instant};
 
 use tracing::{info, warn};
 
+// A snapshot keeps room for every value a main program may show (no allocation, no cut).
+use pkm_api::program::MAX_STATUS_VALUES;
+
 use crate::config::TimeSourceKind;
 use crate::plc::Plc;
 use crate::program::Clock;
@@ -192,9 +195,6 @@ impl Snapshot {
         }
     }
 }
-
-/// How many of the main program's values a snapshot keeps (its capacity, so no allocation).
-const MAX_STATUS_VALUES: usize = 12;
 
 /// Why a real-time run failed.
 #[derive(Debug, thiserror::Error)]

@@ -34,7 +34,14 @@ pub struct HmiOptions {
     pub allowed_origins: Vec<String>,
     /// WebSocket clients at once.
     pub max_clients: usize,
+    /// The next ports tried when `addr`'s is taken: some for the default address (a second PLC
+    /// on the same computer gets a screen of its own, and says where), none for one the user
+    /// gave.
+    pub next_ports: u16,
 }
+
+/// The next ports tried for the default address when its port is taken.
+pub const DEFAULT_NEXT_PORTS: u16 = 9;
 
 /// The default address: loopback, port 8080.
 pub const DEFAULT_ADDR: &str = "127.0.0.1:8080";
@@ -82,6 +89,7 @@ mod tests {
     #[test]
     fn only_loopback_goes_without_a_token() {
         let at = |a: &str, token: Option<&str>| HmiOptions {
+            next_ports: 0,
             addr: a.parse().expect("an address"),
             token: token.map(str::to_string),
             allowed_origins: Vec::new(),

@@ -666,3 +666,18 @@ fn programs_never_come_from_outside_their_directory_and_what_is_skipped_is_logge
     assert!(!log.contains("secret.ngc: "), "{log}");
     assert!(!log.contains("not offered"), "{log}");
 }
+
+#[test]
+fn a_screen_address_that_is_taken_is_refused_before_anything_runs() {
+    let taken = std::net::TcpListener::bind("127.0.0.1:0").expect("a port");
+    let addr = taken.local_addr().expect("its address").to_string();
+    let o = pkm(&["run", "--machine", "ox-x", "--hmi", &addr, "--duration", "0.3"]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    let err = stderr(&o);
+    assert!(
+        err.contains(&format!("operator screen: cannot listen on {addr}: "))
+            && err.contains("(another pkm-plc, or another server, has it); give another address with --hmi ADDR"),
+        "{err}"
+    );
+    assert!(!err.contains("READY") && !err.contains("INIT"), "nothing ran: {err}");
+}

@@ -357,3 +357,23 @@ fn trace_path_draws_the_programmed_and_the_actual_path_of_a_run_with_a_program()
         stderr(&o)
     );
 }
+
+#[test]
+fn the_hexapod_in_auto_shows_the_line_its_six_pose_coordinates_and_all_six_joints() {
+    let program = common::root().join("programs/hexapod-tilted-circle.ngc");
+    let mut plc = build("hexapod", &program, "[]");
+    let mut shown: Option<Vec<String>> = None;
+    common::run(&mut plc, 40_000, |plc, _| {
+        if shown.is_none()
+            && let Some(s) = plc.app_status().filter(|s| s.state == "AUTO")
+        {
+            shown = Some(s.values.iter().map(|(n, _)| n.to_string()).collect());
+        }
+    });
+    let shown = shown.expect("the program ran");
+    assert_eq!(
+        shown,
+        ["line", "x", "y", "z", "a", "b", "c", "q1", "q2", "q3", "q4", "q5", "q6"],
+        "nothing cut"
+    );
+}

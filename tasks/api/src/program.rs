@@ -127,9 +127,14 @@ pub struct AppStatus<'a> {
     pub reason: Option<&'a str>,
     /// What the operator should know in this state besides an error (what INIT waits for, say).
     pub note: Option<&'a str>,
-    /// Values worth showing with the state (name, value), e.g. positions; at most 12 are shown.
+    /// Values worth showing with the state (name, value), e.g. positions: at most
+    /// [`MAX_STATUS_VALUES`], every one of them shown.
     pub values: &'a [(&'static str, f64)],
 }
+
+/// The most values a main program shows with its state (the runtime keeps room for all of
+/// them): the program line, six pose coordinates and six joints fit, with room to spare.
+pub const MAX_STATUS_VALUES: usize = 16;
 
 /// An application program.
 pub trait Program: Send {

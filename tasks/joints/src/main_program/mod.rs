@@ -108,6 +108,11 @@ struct JointVars {
     offset: Output<f64>,
 }
 
+/// The values the main program shows: the program line, the tool pose and the joints — all of
+/// them, whatever the machine (the runtime keeps room for every one).
+const SHOWN: usize = 1 + 2 * MAX_DOF;
+const _: () = assert!(SHOWN <= pkm_api::program::MAX_STATUS_VALUES);
+
 /// The main program.
 pub struct MainProgram {
     machine: StateMachine<Automaton>,
@@ -120,7 +125,7 @@ pub struct MainProgram {
     /// The tool pose from the last cycle (machine frame), the Newton start of the next.
     tool: [f64; MAX_DOF],
     /// Tool pose and joints for the status line: at most 12 values.
-    shown: [(&'static str, f64); 12],
+    shown: [(&'static str, f64); SHOWN],
     shown_len: usize,
     /// The reason with the program line executing when ERROR was entered from AUTO.
     line_reason: nc::LineReason,
@@ -410,7 +415,7 @@ impl MainProgram {
             axes_was_pressed: false,
             texts,
             tool: [0.0; MAX_DOF],
-            shown: [("", f64::NAN); 12],
+            shown: [("", f64::NAN); SHOWN],
             shown_len: 0,
             line_reason: nc::LineReason::default(),
         })
@@ -573,12 +578,12 @@ impl MainProgram {
                     ctx.set(*out, pose[c]);
                 }
             }
-            for (name, value) in POSE_NAMES.iter().zip(&self.tool).take(coords.min(12 - shown)) {
+            for (name, value) in POSE_NAMES.iter().zip(&self.tool).take(coords) {
                 self.shown[shown] = (name, *value);
                 shown += 1;
             }
         }
-        for (name, value) in JOINT_NAMES.iter().zip(&io.positions).take(n.min(12 - shown)) {
+        for (name, value) in JOINT_NAMES.iter().zip(&io.positions).take(n) {
             self.shown[shown] = (name, *value);
             shown += 1;
         }
