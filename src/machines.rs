@@ -2,7 +2,11 @@
 //! a machine is a crate under `tasks/` that implements [`Machine`], a dependency in Cargo.toml,
 //! and one line in [`BUILTIN`].
 
+use std::path::PathBuf;
+
 use pkm_api::machine::Machine;
+
+use crate::config::{self, ConfigError, LoadedConfig};
 
 /// Every machine this build links, by the name config.json gives (`"machine": NAME`).
 pub static BUILTIN: &[&dyn Machine] = &[
@@ -42,4 +46,58 @@ pub fn all_programs() -> pkm_api::program::Registry {
         registry.register(*info);
     }
     registry
+}
+
+/// The configuration of machine `name` (`--machine NAME`): its file (`machines/NAME.json`; the
+/// TRIJOINT's `config.json`) where it is in the working directory, else the copy built into the
+/// binary. `None` for a machine this build does not have.
+pub fn configuration(name: &str) -> Option<Result<LoadedConfig, ConfigError>> {
+    let file = find(name)?.configuration();
+    let path = PathBuf::from(file.name);
+    Some(if path.is_file() {
+        config::load(Some(&path))
+    } else {
+        config::parse(file.text, &format!("<built-in {}>", file.name))
+    })
+}
+
+/// The machine whose configuration (as [`configuration`] loads it) has the digest `digest` — a
+/// trace's `config_digest` — if one has.
+pub fn with_digest(digest: &str) -> Option<&'static str> {
+    BUILTIN.iter().map(|m| m.name()).find(|name| {
+        configuration(name)
+            .and_then(Result::ok)
+            .and_then(|loaded| crate::compose::Setup::new(loaded).ok())
+            .and_then(|setup| setup.digest().ok())
+            .is_some_and(|d| d == digest)
+    })
+}
+
+/// The machines whose own I/O map binds an input variable `name` (for a hint when a scenario
+/// names an input the configured machine has not).
+pub fn with_input(name: &str) -> Vec<&'static str> {
+    BUILTIN
+        .iter()
+        .map(|m| m.name())
+        .filter(|machine| {
+            configuration(machine)
+                .and_then(Result::ok)
+                .and_then(|loaded| crate::compose::Setup::new(loaded).ok())
+                .and_then(|setup| setup.io_map().ok().flatten())
+                .is_some_and(|map| {
+                    map.bindings
+                        .iter()
+                        .any(|b| b.variable == name && b.direction == crate::io::catalogue::Direction::Input)
+                })
+        })
+        .collect()
+}
+
+/// A hint that names the machines in `names` (`--machine NAME`), or nothing without any.
+pub fn hint(names: &[&str]) -> String {
+    match names {
+        [] => String::new(),
+        [one] => format!(" (machine {one} has it: --machine {one})"),
+        more => format!(" (machines {} have it: --machine NAME)", more.join(", ")),
+    }
 }

@@ -418,18 +418,8 @@ fn init_logging() {
 
 /// Loads the configuration named on the command line, or the default one.
 fn load_config(arg: &ConfigArg) -> Result<LoadedConfig, ConfigError> {
-    if let Some(file) = arg
-        .machine
-        .as_deref()
-        .and_then(pkm_plc::machines::find)
-        .map(|m| m.configuration())
-    {
-        let path = PathBuf::from(file.name);
-        return if path.is_file() {
-            config::load(Some(&path))
-        } else {
-            config::parse(file.text, &format!("<built-in {}>", file.name))
-        };
+    if let Some(loaded) = arg.machine.as_deref().and_then(pkm_plc::machines::configuration) {
+        return loaded;
     }
     let path = arg.config.clone().or_else(config::default_path);
     config::load(path.as_deref())
@@ -840,7 +830,17 @@ fn finish_trace(plc: &mut Plc) -> Result<(), Failure> {
 
 fn cmd_replay(args: ReplayArgs) -> Result<(), Failure> {
     use pkm_plc::trace::replay::{ReplayError, replay};
-    let setup = load_setup(&args.config)?;
+    let setup = if args.config.config.is_none() && args.config.machine.is_none() {
+        // The trace says which machine it was recorded on.
+        let machine = recorded_machine(&args.trace);
+        let arg = ConfigArg {
+            config: None,
+            machine: machine.map(str::to_string),
+        };
+        load_setup(&arg)?
+    } else {
+        load_setup(&args.config)?
+    };
     match replay(&args.trace, &setup, args.force) {
         Ok(r) => {
             let (identical, cut) = match &r.cut {
@@ -860,6 +860,13 @@ fn cmd_replay(args: ReplayArgs) -> Result<(), Failure> {
         Err(e @ ReplayError::Differs(_)) => Err(Failure::run(format!("{}: {e}", args.trace.display()))),
         Err(e) => Err(Failure::usage(e.to_string())),
     }
+}
+
+/// The machine whose own configuration a trace was recorded with (its header's digest is that
+/// configuration's), if one's is.
+fn recorded_machine(trace: &std::path::Path) -> Option<&'static str> {
+    let reader = pkm_plc::trace::read::TraceReader::open(trace).ok()?;
+    pkm_plc::machines::with_digest(&reader.header().config_digest)
 }
 
 fn cmd_trace(args: TraceArgs) -> Result<(), Failure> {

@@ -267,6 +267,39 @@ pub struct Programs {
     pub refused: Vec<(String, String)>,
 }
 
+/// `e` (why `file` cannot run on `setup`'s machine) with the machines it runs on, if any.
+fn with_hint(setup: &Setup, file: &Path, mut e: NcFailure) -> NcFailure {
+    let Ok(text) = crate::files::read_text(file, crate::files::MAX_TEXT_BYTES) else {
+        return e;
+    };
+    let current = setup.machine.map(|m| m.name());
+    let runs_on: Vec<&str> = crate::machines::BUILTIN
+        .iter()
+        .map(|m| m.name())
+        .filter(|name| Some(*name) != current)
+        .filter(|name| {
+            crate::machines::configuration(name)
+                .and_then(Result::ok)
+                .and_then(|loaded| Setup::new(loaded).ok())
+                .is_some_and(|other| {
+                    prepare_text(&other, file.display().to_string(), text.clone())
+                        .and_then(Prepared::into_job)
+                        .is_ok()
+                })
+        })
+        .collect();
+    match runs_on.as_slice() {
+        [] => {}
+        [one] => e
+            .message
+            .push_str(&format!("\n(it runs on machine {one}: --machine {one})")),
+        more => e
+            .message
+            .push_str(&format!("\n(it runs on machines {}: --machine NAME)", more.join(", "))),
+    }
+    e
+}
+
 /// The extension of the programs a directory offers.
 pub const PROGRAM_EXTENSION: &str = "ngc";
 
@@ -282,7 +315,11 @@ pub fn programs(
     screen: bool,
 ) -> Result<Programs, NcFailure> {
     let first = program
-        .map(|p| prepare(setup, p).and_then(Prepared::into_job))
+        .map(|p| {
+            prepare(setup, p)
+                .and_then(Prepared::into_job)
+                .map_err(|e| with_hint(setup, p, e))
+        })
         .transpose()?;
     let mut offered = Vec::new();
     let mut refused = Vec::new();

@@ -326,7 +326,11 @@ fn event_action(
             )),
             None => Err((
                 "input",
-                format!("no input variable \"{name}\" in {} wired to the machine", map.origin),
+                format!(
+                    "no input variable \"{name}\" in {} wired to the machine{}",
+                    map.origin,
+                    crate::machines::hint(&crate::machines::with_input(name))
+                ),
             )),
         };
     }

@@ -37,6 +37,10 @@ pub struct Header {
     pub version: u32,
     /// Digest of the configuration and I/O map the trace was recorded with.
     pub config_digest: String,
+    /// The machine it was recorded on (`replay` without `--config` or `--machine` takes that
+    /// machine's own configuration where the digest is its).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub machine: Option<String>,
     /// The bus it was recorded on (`sim`, `none`, …).
     pub bus: String,
     /// The task classes with the variables each latches and publishes.

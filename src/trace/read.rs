@@ -207,6 +207,7 @@ impl TraceReader {
                 format: String::new(),
                 version: 0,
                 config_digest: String::new(),
+                machine: None,
                 bus: String::new(),
                 task_classes: Vec::new(),
                 variables: Default::default(),

@@ -142,6 +142,10 @@ impl Recorder {
             format: FORMAT.into(),
             version: VERSION,
             config_digest: config_digest.into(),
+            machine: plc
+                .app_program()
+                .and_then(crate::machines::owner_of)
+                .map(|m| m.name().to_string()),
             bus: plc.bus_name().into(),
             task_classes: plc
                 .classes()

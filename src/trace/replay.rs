@@ -76,8 +76,18 @@ pub fn replay(trace: &Path, setup: &Setup, force: bool) -> Result<ReplayReport, 
     let header = reader.header().clone();
     let digest = setup.digest()?;
     if header.config_digest != digest && !force {
+        // Which configuration it was: a machine's own, or a file made for one.
+        let hint = match (crate::machines::with_digest(&header.config_digest), &header.machine) {
+            (Some(name), _) => {
+                format!("it was recorded with machine {name}'s own configuration: replay it with --machine {name}")
+            }
+            (None, Some(name)) => format!(
+                "it was recorded on machine {name} with a configuration file of its own: give that file with --config FILE"
+            ),
+            (None, None) => "give the configuration it was recorded with (--config FILE or --machine NAME)".to_string(),
+        };
         return Err(ReplayError::Refused(format!(
-            "{}: recorded with another configuration or I/O map (digest {}, this one {digest}); use --force to replay anyway",
+            "{}: recorded with another configuration or I/O map (digest {}, this one {digest}); {hint}, or use --force to replay anyway",
             trace.display(),
             header.config_digest
         )));

@@ -681,3 +681,44 @@ fn a_screen_address_that_is_taken_is_refused_before_anything_runs() {
     );
     assert!(!err.contains("READY") && !err.contains("INIT"), "nothing ran: {err}");
 }
+
+#[test]
+fn a_program_or_a_scenario_of_another_machine_names_the_machine_it_is_for() {
+    let o = pkm(&[
+        "run",
+        "--virtual",
+        "--duration",
+        "1",
+        "--program",
+        "programs/hexapod-tilted-circle.ngc",
+    ]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(
+        stderr(&o).contains(
+            "programs/hexapod-tilted-circle.ngc:4:11: Z: this machine's axes are X Y\n(it runs on machine hexapod: --machine hexapod)"
+        ),
+        "{}",
+        stderr(&o)
+    );
+    let dir = tempfile::tempdir().expect("tempdir");
+    let scenario = dir.path().join("scenario.json");
+    std::fs::write(
+        &scenario,
+        r#"{"events":[{"at_ms":100,"input":"BUTTON_AXES","value":true}]}"#,
+    )
+    .expect("write");
+    let o = pkm(&[
+        "run",
+        "--virtual",
+        "--duration",
+        "1",
+        "--scenario",
+        scenario.to_str().expect("utf-8"),
+    ]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(
+        stderr(&o).contains("no input variable \"BUTTON_AXES\" in io-map/trijoint.json wired to the machine (machines pn101, ox-x, ox-o, hexapod have it: --machine NAME)"),
+        "{}",
+        stderr(&o)
+    );
+}

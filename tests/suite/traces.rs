@@ -389,3 +389,28 @@ fn a_trace_write_error_reports_the_records_the_file_holds() {
         stdout(&o)
     );
 }
+
+#[test]
+fn a_trace_knows_its_machine_replay_takes_it_and_a_wrong_one_is_named() {
+    let root = common::root();
+    let trace = root.join("tests/traces/hexapod-jog-bridge-fault.jsonl.gz");
+    let trace = trace.to_str().expect("utf-8");
+    // Without --machine: the trace's digest is the hexapod's own configuration's.
+    let o = common::pkm(&["replay", trace]);
+    assert_eq!(o.status.code(), Some(0), "{}", common::stderr(&o));
+    assert!(common::stdout(&o).contains(": identical: "), "{}", common::stdout(&o));
+    // Another machine's configuration: refused, and the right one suggested.
+    let o = common::pkm(&["replay", trace, "--machine", "ox-x"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(
+        common::stderr(&o).contains("it was recorded with machine hexapod's own configuration: replay it with --machine hexapod, or use --force to replay anyway"),
+        "{}",
+        common::stderr(&o)
+    );
+    // A new trace names its machine in the header.
+    let dir = tempfile::tempdir().expect("tempdir");
+    let recorded = common::record_machine_trace(dir.path(), "pn101.jsonl", 1, "[]", &["--machine", "pn101"]);
+    let header = std::fs::read_to_string(&recorded).expect("the trace");
+    let header: serde_json::Value = serde_json::from_str(header.lines().next().expect("a header")).expect("JSON");
+    assert_eq!(header["machine"], "pn101");
+}
