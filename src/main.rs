@@ -563,7 +563,7 @@ fn cmd_run(args: RunArgs) -> Result<(), Failure> {
                 );
             }
         }
-        trace_failure = finish_trace(&mut outcome.plc);
+        trace_failure = finish_trace(&mut outcome.plc).and_then(|()| bus_came_up(&outcome.plc));
         let mut s = Summary::collect(&outcome.plc, "real-time", &loaded.origin, outcome.elapsed_ns)
             .with_program(&outcome.plc, library.as_ref());
         s.time_source = Some(outcome.source.name());
@@ -813,6 +813,25 @@ fn run_realtime(plc: Plc, options: RealTimeOptions, screen: Option<Screen>) -> R
         run.join()
     });
     outcome.map_err(|e| Failure::run(e.to_string()))
+}
+
+/// A run over a Modbus link that never made one exchange failed (exit 1), with why: the machine
+/// was never under control.
+fn bus_came_up(plc: &Plc) -> Result<(), Failure> {
+    let Some(link) = plc.bus().as_any().downcast_ref::<pkm_plc::io::modbus::ModbusBus>() else {
+        return Ok(());
+    };
+    if link.stats().exchanges.load(std::sync::atomic::Ordering::Relaxed) > 0 {
+        return Ok(());
+    }
+    let mut cause = String::new();
+    if !plc.bus().write_fault_cause(&mut cause) {
+        cause = "no exchange succeeded".into();
+    }
+    Err(Failure::run(format!(
+        "{}: the bus never came up: {cause}",
+        plc.bus_name()
+    )))
 }
 
 /// Flushes and closes the trace, if one is being recorded; a write error is the run's failure,

@@ -216,7 +216,8 @@ fn a_lost_link_is_a_bus_fault_without_hang() {
     let reason = s["main"]["error_reason"].as_str().unwrap_or_default();
     assert!(
         reason.starts_with(&format!("bus fault: tcp:{address}: "))
-            && reason.ends_with("failed exchanges in a row, the last: the connection was lost or refused"),
+            && reason
+                .ends_with("failed exchanges in a row, the last: cannot connect: Connection refused (os error 111)"),
         "{reason}"
     );
     assert!(

@@ -88,7 +88,9 @@ fn serve_badly(mut s: TcpStream, how: Misbehaviour) {
     }
 }
 
-fn run_against(port: u16, seconds: &str) -> (serde_json::Value, String) {
+/// Runs the PLC against the station on `port` for `seconds`; the summary, the log and the exit
+/// code (1 when no exchange ever succeeded: the bus never came up).
+fn run_against(port: u16, seconds: &str) -> (serde_json::Value, String, Option<i32>) {
     let dir = tempfile::tempdir().expect("tempdir");
     let summary = dir.path().join("s.json");
     let o = Command::new(env!("CARGO_BIN_EXE_pkm-plc"))
@@ -98,9 +100,8 @@ fn run_against(port: u16, seconds: &str) -> (serde_json::Value, String) {
         .env("RUST_LOG", "info")
         .output()
         .expect("run");
-    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
     let s = common::read_json(&summary);
-    (s, stderr(&o))
+    (s, stderr(&o), o.status.code())
 }
 
 #[test]
@@ -115,16 +116,29 @@ fn garbage_slow_and_exceptional_stations_are_bus_faults() {
         (Misbehaviour::Late, "late"),
     ] {
         let port = bad_station(how);
-        let (s, log) = run_against(port, "2");
+        let (s, log, code) = run_against(port, "2");
         assert_eq!(s["main"]["state"], "ERROR", "{name}: {s}");
+        // A station that never answered right: the bus never came up, the run failed.
+        let came_up = matches!(how, Misbehaviour::Late);
+        assert_eq!(code, Some(if came_up { 0 } else { 1 }), "{name}: {log}");
+        if !came_up {
+            assert!(log.contains("the bus never came up: "), "{name}: {log}");
+        }
         // The reason names the link and why it failed.
         let reason = s["main"]["error_reason"].as_str().unwrap_or_default();
         let cause = match how {
-            Misbehaviour::Garbage | Misbehaviour::Short => {
-                "failed exchanges in a row, the last: a response that could not be decoded"
+            Misbehaviour::Garbage => {
+                "failed exchanges in a row, the last: a response to read discrete inputs 0 … 17 that could not be decoded: "
             }
-            Misbehaviour::Slow => "failed exchanges in a row, the last: no response within the timeout",
-            Misbehaviour::Exception => "failed exchanges in a row, the last: an exception response",
+            Misbehaviour::Short => {
+                "failed exchanges in a row, the last: a response to read discrete inputs 0 … 17 with 8 values, not the 18 asked for (another register map?)"
+            }
+            Misbehaviour::Slow => {
+                "failed exchanges in a row, the last: no response to read discrete inputs 0 … 17 within 100 ms"
+            }
+            Misbehaviour::Exception => {
+                "failed exchanges in a row, the last: exception 4 (Server device failure) to read discrete inputs 0 … 17"
+            }
             Misbehaviour::Late => "",
         };
         assert!(
@@ -172,7 +186,8 @@ fn the_link_comes_back_when_the_station_returns_but_error_stays_until_acknowledg
         std::thread::sleep(Duration::from_millis(1500));
         start(port).0 // ...and comes back on the same port
     });
-    let (s, log) = run_against(port, "6");
+    let (s, log, code) = run_against(port, "6");
+    assert_eq!(code, Some(0), "{log}");
     drop(restart.join().expect("restart"));
     assert!(log.contains("failed exchanges in a row"), "{log}");
     assert!(log.contains("the link works again"), "{log}");
@@ -227,7 +242,8 @@ fn delaying_proxy(upstream: std::net::SocketAddr, delay: Duration) -> u16 {
 fn a_link_slower_than_the_regulators_were_tuned_for_is_a_bus_fault_that_says_so() {
     let (_sim, address) = common::start_io_sim("127.0.0.1:0", &[]);
     let port = delaying_proxy(address, Duration::from_millis(8));
-    let (s, log) = run_against(port, "3");
+    let (s, log, code) = run_against(port, "3");
+    assert_eq!(code, Some(0), "exchanges succeeded, slowly: {log}");
     assert_eq!(s["main"]["state"], "ERROR", "{s}");
     let reason = s["main"]["error_reason"].as_str().unwrap_or_default();
     assert!(
@@ -356,4 +372,40 @@ fn declaring_the_variables_opens_nothing_starting_the_bus_opens_the_link() {
     assert!(listener.accept().is_ok(), "start did not connect");
     assert!(bus.fault(), "no bus fault from a station that never answers");
     bus.write_safe(&table.initial_image());
+}
+
+/// Issue 28: a wrong port and a missing serial device say why, and a run whose bus never came up
+/// fails.
+#[test]
+fn a_link_that_never_comes_up_names_its_cause_and_fails_the_run() {
+    // A port nobody listens on (bound, then let go).
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .expect("a port")
+        .port();
+    for (bus, cause) in [
+        (format!("tcp:127.0.0.1:{port}"), "cannot connect: Connection refused"),
+        (
+            "serial:/dev/pkm-plc-no-such-port".to_string(),
+            "cannot connect: No such file or directory",
+        ),
+    ] {
+        let o = Command::new(env!("CARGO_BIN_EXE_pkm-plc"))
+            .args(["run", "--bus", &bus, "--duration", "1", "--hmi", "none"])
+            .current_dir(env!("CARGO_MANIFEST_DIR"))
+            .env("RUST_LOG", "info")
+            .output()
+            .expect("run");
+        let log = stderr(&o);
+        assert_eq!(o.status.code(), Some(1), "{bus}: {log}");
+        assert!(log.contains(&format!("bus fault: {bus}")), "{bus}: {log}");
+        assert!(log.contains(cause), "{bus}: {log}");
+        let last = log.lines().last().unwrap_or_default();
+        assert!(
+            last.starts_with(&format!("error: {bus}"))
+                && last.contains(": the bus never came up: ")
+                && last.contains(cause),
+            "{bus}: {last}"
+        );
+    }
 }

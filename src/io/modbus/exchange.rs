@@ -35,6 +35,23 @@ pub(super) enum Failure {
     Disconnected,
 }
 
+/// A failed exchange: what the link counts, and what happened — the request, the exception's
+/// code, the operating system's error — for the fault's cause.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub(super) struct Failed {
+    pub kind: Failure,
+    pub cause: String,
+}
+
+impl From<Failure> for Failed {
+    fn from(kind: Failure) -> Failed {
+        Failed {
+            kind,
+            cause: kind.describe().to_string(),
+        }
+    }
+}
+
 impl Failure {
     /// What the failure was, for a fault's cause.
     pub(super) fn describe(self) -> &'static str {
@@ -68,7 +85,7 @@ impl Exchange {
         received: &AtomicU64,
         in_values: &mut [Value],
         out_values: &[Value],
-    ) -> Result<(), Failure> {
+    ) -> Result<(), Failed> {
         match self.mode {
             ExchangeMode::Image => self.image(ctx, received, in_values, out_values).await,
             ExchangeMode::Tables | ExchangeMode::Auto => self.tables(ctx, received, in_values, out_values).await,
@@ -82,7 +99,7 @@ impl Exchange {
         received: &AtomicU64,
         in_values: &mut [Value],
         out_values: &[Value],
-    ) -> Result<(), Failure> {
+    ) -> Result<(), Failed> {
         let layout = ImageLayout::of(self.sizes);
         let (coil_bits, mut holding) = self.output_tables(out_values);
         let mut out_image = vec![0u16; usize::from(layout.output_bits)];
@@ -90,11 +107,15 @@ impl Exchange {
         out_image.append(&mut holding);
         let request =
             Request::ReadWriteMultipleRegisters(INPUT_IMAGE, layout.input_len, OUTPUT_IMAGE, out_image.into());
-        let image = read_exactly(self.timeout, received, ctx, request, layout.input_len)
+        let what = format!(
+            "read/write registers (the packed image: {} words read at {INPUT_IMAGE}, written at {OUTPUT_IMAGE})",
+            layout.input_len
+        );
+        let image = read_exactly(self.timeout, received, ctx, request, layout.input_len, &what)
             .await?
             .words()?;
         let (bits, regs) = image.split_at(usize::from(layout.input_bits));
-        self.decode_inputs(in_values, |a| packed_bit(bits, a), regs)
+        Ok(self.decode_inputs(in_values, |a| packed_bit(bits, a), regs)?)
     }
 
     /// The four standard tables, one request each.
@@ -104,28 +125,44 @@ impl Exchange {
         received: &AtomicU64,
         in_values: &mut [Value],
         out_values: &[Value],
-    ) -> Result<(), Failure> {
+    ) -> Result<(), Failed> {
         let t = self.timeout;
         let [coils, discrete, input_regs, holding] = self.sizes;
         let bits = match discrete {
             0 => Vec::new(),
-            n => read_exactly(t, received, ctx, Request::ReadDiscreteInputs(0, n), n)
-                .await?
-                .bits()?,
+            n => read_exactly(
+                t,
+                received,
+                ctx,
+                Request::ReadDiscreteInputs(0, n),
+                n,
+                &span("read discrete inputs", n),
+            )
+            .await?
+            .bits()?,
         };
         let regs = match input_regs {
             0 => Vec::new(),
-            n => read_exactly(t, received, ctx, Request::ReadInputRegisters(0, n), n)
-                .await?
-                .words()?,
+            n => read_exactly(
+                t,
+                received,
+                ctx,
+                Request::ReadInputRegisters(0, n),
+                n,
+                &span("read input registers", n),
+            )
+            .await?
+            .words()?,
         };
         self.decode_inputs(in_values, |a| bits[a], &regs)?;
         let (coil_bits, words) = self.output_tables(out_values);
         if coils > 0 {
-            within(t, received, ctx.write_multiple_coils(0, &coil_bits)).await?;
+            let what = span("write coils", coils);
+            within(t, received, &what, ctx.write_multiple_coils(0, &coil_bits)).await?;
         }
         if holding > 0 {
-            within(t, received, ctx.write_multiple_registers(0, &words)).await?;
+            let what = span("write holding registers", holding);
+            within(t, received, &what, ctx.write_multiple_registers(0, &words)).await?;
         }
         Ok(())
     }
@@ -163,6 +200,11 @@ impl Exchange {
     }
 }
 
+/// A request on `n` items from address 0, as a fault's cause names it.
+fn span(request: &str, n: u16) -> String {
+    format!("{request} 0 … {}", n.saturating_sub(1))
+}
+
 /// What a read request returned, its length checked.
 enum Read {
     /// Bits of a read-bits response (exactly the quantity asked for).
@@ -197,9 +239,22 @@ async fn read_exactly(
     ctx: &mut client::Context,
     request: Request<'_>,
     quantity: u16,
-) -> Result<Read, Failure> {
+    what: &str,
+) -> Result<Read, Failed> {
     let n = usize::from(quantity);
-    match within(t, received, ctx.call(request)).await? {
+    let response = within(t, received, what, ctx.call(request)).await?;
+    let got = match &response {
+        Response::ReadCoils(b) | Response::ReadDiscreteInputs(b) => b.len(),
+        Response::ReadInputRegisters(w)
+        | Response::ReadHoldingRegisters(w)
+        | Response::ReadWriteMultipleRegisters(w) => w.len(),
+        _ => 0,
+    };
+    let short = Failed {
+        kind: Failure::Corrupt,
+        cause: format!("a response to {what} with {got} values, not the {quantity} asked for (another register map?)"),
+    };
+    match response {
         // Bits come packed: the response's byte count times 8, padding included.
         Response::ReadCoils(mut bits) | Response::ReadDiscreteInputs(mut bits) if bits.len() == n.div_ceil(8) * 8 => {
             bits.truncate(n);
@@ -212,27 +267,42 @@ async fn read_exactly(
         {
             Ok(Read::Words(words))
         }
-        _ => Err(Failure::Corrupt),
+        _ => Err(short),
     }
 }
 
-/// A request under a timeout, its outcome sorted into what the loop counts; `received` counts
-/// the bytes received on the link.
-async fn within<T, E>(
+/// A request (`what`) under a timeout, its outcome sorted into what the loop counts, with its
+/// cause; `received` counts the bytes received on the link.
+async fn within<T>(
     t: Duration,
     received: &AtomicU64,
-    f: impl std::future::Future<Output = Result<Result<T, E>, tokio_modbus::Error>>,
-) -> Result<T, Failure> {
+    what: &str,
+    f: impl std::future::Future<Output = Result<Result<T, tokio_modbus::ExceptionCode>, tokio_modbus::Error>>,
+) -> Result<T, Failed> {
     let before = received.load(Ordering::Relaxed);
+    let failed = |kind: Failure, cause: String| Err(Failed { kind, cause });
     match tokio::time::timeout(t, f).await {
         // The RTU decoder drops bytes with a bad CRC and waits on: bytes but no frame.
-        Err(_) if received.load(Ordering::Relaxed) != before => Err(Failure::Corrupt),
-        Err(_) => Err(Failure::Timeout),
-        Ok(Err(tokio_modbus::Error::Transport(e))) if e.kind() == std::io::ErrorKind::InvalidData => {
-            Err(Failure::Corrupt)
-        }
-        Ok(Err(_)) => Err(Failure::Disconnected),
-        Ok(Ok(Err(_))) => Err(Failure::Exception),
+        Err(_) if received.load(Ordering::Relaxed) != before => failed(
+            Failure::Corrupt,
+            format!(
+                "bytes but no valid response to {what} within {} ms (a bad CRC, another speed?)",
+                t.as_millis()
+            ),
+        ),
+        Err(_) => failed(
+            Failure::Timeout,
+            format!("no response to {what} within {} ms", t.as_millis()),
+        ),
+        Ok(Err(tokio_modbus::Error::Transport(e))) if e.kind() == std::io::ErrorKind::InvalidData => failed(
+            Failure::Corrupt,
+            format!("a response to {what} that could not be decoded: {e}"),
+        ),
+        Ok(Err(e)) => failed(Failure::Disconnected, format!("{what}: {e}")),
+        Ok(Ok(Err(code))) => failed(
+            Failure::Exception,
+            format!("exception {} ({code}) to {what}", u8::from(code)),
+        ),
         Ok(Ok(Ok(v))) => Ok(v),
     }
 }

@@ -12,7 +12,7 @@ use tokio_modbus::Slave;
 use tokio_modbus::client::{self, rtu, tcp};
 use tokio_serial::SerialStream;
 
-use super::exchange::{Exchange, Failure};
+use super::exchange::{Exchange, Failed, Failure};
 use super::stats::LinkStats;
 use crate::bus::{MailboxReader, MailboxWriter};
 use crate::image::Value;
@@ -192,9 +192,17 @@ impl Link {
             let connected = tokio::time::timeout(self.exchange.timeout, self.transport.connect(&received)).await;
             let mut ctx = match connected {
                 Ok(Ok(ctx)) => ctx,
-                _ => {
-                    shared.stats.failed(Failure::Disconnected);
-                    self.failed(&mut failures, Failure::Disconnected);
+                other => {
+                    let cause = match other {
+                        Ok(Err(e)) => format!("cannot connect: {e}"),
+                        _ => format!("no connection within {} ms", self.exchange.timeout.as_millis()),
+                    };
+                    let failed = Failed {
+                        kind: Failure::Disconnected,
+                        cause,
+                    };
+                    shared.stats.failed(failed.kind);
+                    self.failed(&mut failures, &failed);
                     tokio::time::sleep(backoff).await;
                     backoff = (backoff * 2).min(RECONNECT_MAX);
                     continue;
@@ -247,9 +255,9 @@ impl Link {
                         }
                     }
                     Err(f) => {
-                        shared.stats.failed(f);
-                        self.failed(&mut failures, f);
-                        if self.reconnects_after(f) {
+                        shared.stats.failed(f.kind);
+                        self.failed(&mut failures, &f);
+                        if self.reconnects_after(f.kind) {
                             tokio::time::sleep(backoff).await;
                             backoff = (backoff * 2).min(RECONNECT_MAX);
                             break;
@@ -271,12 +279,12 @@ impl Link {
         }
     }
 
-    fn failed(&self, failures: &mut u32, last: Failure) {
+    fn failed(&self, failures: &mut u32, last: &Failed) {
         *failures += 1;
         if *failures > self.max_failures {
             self.shared.declare_fault(
                 &self.name,
-                format!("{failures} failed exchanges in a row, the last: {}", last.describe()),
+                format!("{failures} failed exchanges in a row, the last: {}", last.cause),
             );
         }
     }
