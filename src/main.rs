@@ -50,7 +50,8 @@ enum Command {
     Nc(nc_cmd::NcArgs),
     /// Replay a trace: feed its inputs to the programs, compare every output and state.
     Replay(ReplayArgs),
-    /// Export a trace: VCD for GTKWave, or SVG time plots.
+    /// Look into a trace: VCD for GTKWave, SVG time plots, the tool path of a run with a program,
+    /// the summary a reviewer diffs.
     Trace(TraceArgs),
     /// Print the Modbus register map that the configuration's I/O map gives.
     Registers(ConfigArg),

@@ -56,6 +56,9 @@ pub fn format_line(s: &Snapshot) -> String {
         // NaN means "not known yet" (M before referencing, say).
         if value.is_nan() {
             line.push_str(&format!(" {name}=-"));
+        } else if *name == "line" {
+            // A program line is a whole number.
+            line.push_str(&format!(" {name}={value:.0}"));
         } else {
             line.push_str(&format!(" {name}={value:.2}"));
         }
@@ -104,5 +107,21 @@ pub fn finish() {
     if ACTIVE.swap(false, Ordering::Relaxed) {
         let _guard = STDERR.lock().unwrap_or_else(|p| p.into_inner());
         let _ = write!(io::stderr(), "\r\x1b[2K");
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_program_line_is_a_whole_number_and_positions_have_two_decimals() {
+        let s = Snapshot {
+            state: "AUTO".into(),
+            values: vec![("line", 12.0), ("x", 1.23456), ("q6", f64::NAN)],
+            ..Snapshot::default()
+        };
+        let line = format_line(&s);
+        assert!(line.ends_with("  AUTO line=12 x=1.23 q6=-"), "{line}");
     }
 }

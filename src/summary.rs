@@ -129,10 +129,13 @@ impl Summary {
                 .values
                 .iter()
                 .map(|(name, v)| {
-                    (
-                        name.to_string(),
-                        serde_json::Number::from_f64(*v).map_or(serde_json::Value::Null, Into::into),
-                    )
+                    // A program line is a whole number.
+                    let value = if *name == "line" && v.is_finite() {
+                        serde_json::Value::from(*v as i64)
+                    } else {
+                        serde_json::Number::from_f64(*v).map_or(serde_json::Value::Null, Into::into)
+                    };
+                    (name.to_string(), value)
                 })
                 .collect(),
         });
@@ -230,9 +233,10 @@ impl Summary {
                 let values: Vec<String> = m
                     .values
                     .iter()
-                    .map(|(k, v)| match v.as_f64() {
-                        Some(x) => format!("{k}={x:.3}"),
-                        None => format!("{k}=-"),
+                    .map(|(k, v)| match (v.as_i64(), v.as_f64()) {
+                        (Some(line), _) if k == "line" => format!("{k}={line}"),
+                        (_, Some(x)) => format!("{k}={x:.3}"),
+                        _ => format!("{k}=-"),
                     })
                     .collect();
                 lines.push(format!("final values {}", values.join(" ")));

@@ -216,7 +216,7 @@ function frame(m) {
   $("note").textContent = m.note;
   document.body.dataset.state = m.state;
   $("values").innerHTML = m.values
-    .map(([n, v]) => `<tr><td>${n}</td><td class="num" data-value="${n}">${num(v, 3)}</td></tr>`).join("");
+    .map(([n, v]) => `<tr><td>${n}</td><td class="num" data-value="${n}">${num(v, n === "line" ? 0 : 3)}</td></tr>`).join("");
   $("classes").innerHTML = "<tr><th>class</th><th>cycles</th><th>late mean / max µs</th><th>exec mean / max µs</th><th>overruns</th></tr>" +
     m.classes.map((c) => `<tr><td>${c.name}</td><td class="num">${c.cycles}</td><td class="num">${num(c.late_mean_us, 1)} / ${num(c.late_max_us, 1)}</td><td class="num">${num(c.exec_mean_us, 1)} / ${num(c.exec_max_us, 1)}</td><td class="num">${c.overruns}</td></tr>`).join("") +
     `<tr><td>bus</td><td colspan="4">${m.bus_fault ? "FAULT" : "ok"}</td></tr>` +

@@ -293,8 +293,8 @@ impl MainProgram {
         }
         let line = (automaton.state == MainState::Auto).then_some(("line", f64::from(io.nc_line)));
         let shown = [
-            ("Mx", m[0]),
-            ("My", m[1]),
+            ("M_x", m[0]),
+            ("M_y", m[1]),
             ("h1", io.positions[0]),
             ("h2", io.positions[1]),
             // The joystick's axes; "-" while it is not connected.
