@@ -43,6 +43,10 @@ pub struct SimBus {
     plant: Box<dyn Plant>,
     /// The wired input signals (plant → channel).
     inputs: Wired,
+    /// Per task class, the wired input signals its bindings latch: a class's cycle reads only
+    /// those from the plant (the fast class's hundred exchanges a second do not read the
+    /// panel's switches, which the main class latches).
+    class_inputs: Vec<Wired>,
     /// The wired output signals (channel → plant).
     outputs: Wired,
     /// Every signal's value as last exchanged, indexed by signal (allocated once).
@@ -64,6 +68,24 @@ impl SimBus {
         let vars = vec![0; map.bindings.len()];
         let inputs = Wired::of(&wiring, plant.as_ref(), Direction::Input);
         let outputs = Wired::of(&wiring, plant.as_ref(), Direction::Output);
+        let classes = map.bindings.iter().map(|b| b.class + 1).max().unwrap_or(0);
+        let class_inputs = (0..classes)
+            .map(|class| {
+                let latched = |&(m, c): &(usize, usize)| {
+                    map.bindings
+                        .iter()
+                        .any(|b| b.class == class && b.direction == Direction::Input && (b.module, b.channel) == (m, c))
+                };
+                let (signals, channels) = inputs
+                    .signals
+                    .iter()
+                    .zip(&inputs.channels)
+                    .filter(|(_, at)| latched(at))
+                    .map(|(s, at)| (*s, *at))
+                    .unzip();
+                Wired { signals, channels }
+            })
+            .collect();
         let signal_values = plant.signals().iter().map(|s| Value::zero(s.ty)).collect();
         SimBus {
             map,
@@ -71,6 +93,7 @@ impl SimBus {
             vars,
             plant,
             inputs,
+            class_inputs,
             outputs,
             signal_values,
             scenario,
@@ -182,7 +205,13 @@ impl Bus for SimBus {
     }
 
     fn read_inputs(&mut self, class: usize, t_ns: u64, image: &mut [Value]) {
-        self.refresh(t_ns);
+        self.advance_to(t_ns);
+        if let Some(wired) = self.class_inputs.get(class) {
+            self.plant.read_into(&wired.signals, &mut self.signal_values);
+            for (&signal, &(m, c)) in wired.signals.iter().zip(&wired.channels) {
+                self.channels[m][c] = self.signal_values[signal];
+            }
+        }
         for (b, &var) in self.map.bindings.iter().zip(&self.vars) {
             if b.class == class && b.direction == Direction::Input {
                 image[usize::from(var)] = self.channels[b.module][b.channel];
