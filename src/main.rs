@@ -140,9 +140,8 @@ enum TraceOp {
         trace: PathBuf,
         /// The SVG file to write.
         out: PathBuf,
-        /// The variables to plot [default: the positions the trace has: the TRIJOINT's
-        /// position_left_mm, position_right_mm, M_x, M_y; the other machines' JOINTn_POSITION and
-        /// TOOL_X …].
+        /// The variables to plot [default: the positions the trace has: every machine's
+        /// JOINTn_POSITION and TOOL_X …].
         #[arg(long, value_delimiter = ',')]
         vars: Vec<String>,
     },

@@ -149,8 +149,8 @@ fn a_capture_through_a_fifo_drives_m_and_an_unplug_stops_it() {
         "at {} s",
         c.t_s
     );
-    let dx = value(c, "M_x") - value(&cycles[right - 1], "M_x");
-    assert!(dx > 10.0, "M_x moved {dx} mm");
+    let dx = value(c, "TOOL_X") - value(&cycles[right - 1], "TOOL_X");
+    assert!(dx > 10.0, "TOOL_X moved {dx} mm");
     assert!(
         (2.5..3.5).contains(&(c.t_s - cycles[right].t_s)),
         "unplugged {} s after the deflection",
@@ -169,8 +169,8 @@ fn a_capture_through_a_fifo_drives_m_and_an_unplug_stops_it() {
             .iter()
             .position(|c| value(c, "JOYSTICK_Y") == 0.0)
             .expect("the stick came back to the centre");
-    let dy = value(&cycles[centred], "M_y") - value(&cycles[pulled - 1], "M_y");
-    assert!(dy < -10.0, "M_y moved {dy} mm");
+    let dy = value(&cycles[centred], "TOOL_Y") - value(&cycles[pulled - 1], "TOOL_Y");
+    assert!(dy < -10.0, "TOOL_Y moved {dy} mm");
     assert_eq!(cycles.last().map(|c| c.state.as_str()), Some("READY"));
 
     // The joystick's values are inputs like any other: the run replays identically from its trace.

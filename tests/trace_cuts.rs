@@ -266,7 +266,7 @@ fn a_plot_of_values_near_the_limits_of_f64_ends() {
     for line in &lines[1..] {
         let mut record: serde_json::Value = serde_json::from_str(line).expect("json");
         if record["task"] == "main" && main < 3 {
-            record["out"]["M_x"] = serde_json::json!([1e308, -1e308, f64::MAX][main]);
+            record["out"]["TOOL_X"] = serde_json::json!([1e308, -1e308, f64::MAX][main]);
             main += 1;
         }
         out.push(record.to_string());
@@ -280,8 +280,8 @@ fn a_plot_of_values_near_the_limits_of_f64_ends() {
         trace.to_str().expect("utf-8"),
         svg.to_str().expect("utf-8"),
         "--vars",
-        "M_x",
+        "TOOL_X",
     ]);
     assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
-    assert!(std::fs::read_to_string(&svg).expect("svg").contains("M_x"));
+    assert!(std::fs::read_to_string(&svg).expect("svg").contains("TOOL_X"));
 }

@@ -162,13 +162,9 @@ pub fn to_vcd(trace: &Path, out: &Path) -> Result<Exported, ExportError> {
     })
 }
 
-/// What `to_svg` plots when it is given no variables: those of these the trace has — the
-/// TRIJOINT's carriages and spindle point, the other machines' joints and tool pose.
-const DEFAULT_PLOT: [&str; 16] = [
-    "position_left_mm",
-    "position_right_mm",
-    "M_x",
-    "M_y",
+/// What `to_svg` plots when it is given no variables: those of these the trace has — every
+/// machine's joints and tool pose (the TRIJOINT's two carriages and spindle point too).
+const DEFAULT_PLOT: [&str; 12] = [
     "JOINT1_POSITION",
     "JOINT2_POSITION",
     "JOINT3_POSITION",

@@ -228,14 +228,14 @@ fn the_screen_draws_the_mechanisms_at_the_measured_joints() {
     let plc = setup.plc(setup.declaring_bus().expect("a bus")).expect("a PLC");
     let mut mechanism = Mechanism::of(&setup, &plc).expect("the TRIJOINT's kinematics draws");
     let mut image = plc.global_image().to_vec();
-    for name in ["position_left_mm", "position_right_mm"] {
+    for name in ["JOINT1_POSITION", "JOINT2_POSITION"] {
         let i = plc.vars().index_of(name).expect("a position");
         image[usize::from(i)] = Value::Real(125.0);
     }
     let links = mechanism.links(&image).expect("a pose at mid-travel");
     assert_eq!(links.len(), 6, "two guides, the rod, the arm's triangle");
     // Outside the travel: no pose, nothing drawn.
-    let i = plc.vars().index_of("position_left_mm").expect("a position");
+    let i = plc.vars().index_of("JOINT1_POSITION").expect("a position");
     image[usize::from(i)] = Value::Real(1e6);
     assert!(mechanism.links(&image).is_none());
     // The hexapod's: six struts and the outlines of base and platform, at its home lengths.

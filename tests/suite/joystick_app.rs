@@ -86,8 +86,8 @@ fn the_joystick_drives_m_a_disconnect_stops_it_and_a_reconnect_drives_again() {
     run.advance(READY_MS + 2000, |_, _| {});
     assert_eq!(state(&run.plc), "MOTION");
     let moved = m(&run.plc);
-    assert!(moved[0] - start[0] > 10.0, "M_x {} → {}", start[0], moved[0]);
-    assert!((moved[1] - start[1]).abs() < 0.5, "M_y {} → {}", start[1], moved[1]);
+    assert!(moved[0] - start[0] > 10.0, "TOOL_X {} → {}", start[0], moved[0]);
+    assert!((moved[1] - start[1]).abs() < 0.5, "TOOL_Y {} → {}", start[1], moved[1]);
 
     // Unplugged in the middle of the motion: the next main cycle is READY, the set-points stop.
     feed.publish(JoystickState::DISCONNECTED);
@@ -131,7 +131,7 @@ fn the_joystick_drives_m_a_disconnect_stops_it_and_a_reconnect_drives_again() {
     run.advance(READY_MS + 6500, |_, _| {});
     assert_eq!(state(&run.plc), "MOTION");
     let down = m(&run.plc);
-    assert!(still[1] - down[1] > 10.0, "M_y {} → {}", still[1], down[1]);
+    assert!(still[1] - down[1] > 10.0, "TOOL_Y {} → {}", still[1], down[1]);
     assert_eq!(state(&run.plc), "MOTION");
 }
 
@@ -330,8 +330,8 @@ fn a_capture_file_plays_on_the_simulated_clock_in_virtual_time() {
         std::fs::read(&first).expect("trace") == std::fs::read(&second).expect("trace"),
         "two runs of one capture differ"
     );
-    let (before, after) = (traced(&first, "M_x", 44.95), traced(&first, "M_x", 50.0));
-    assert!(after - before > 20.0, "M_x {before:.3} → {after:.3} mm");
+    let (before, after) = (traced(&first, "TOOL_X", 44.95), traced(&first, "TOOL_X", 50.0));
+    assert!(after - before > 20.0, "TOOL_X {before:.3} → {after:.3} mm");
     // The stick's deflection is in the trace at its capture time, and the run replays.
     assert_eq!(traced(&first, "JOYSTICK_X", 44.99), 0.0);
     assert_eq!(traced(&first, "JOYSTICK_X", 45.0), 1.0);

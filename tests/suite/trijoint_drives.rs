@@ -98,8 +98,8 @@ fn registry() -> Registry {
             decl.output::<bool>("encoder_fault_ack", false);
             Box::new(MainStandIn {
                 p,
-                position: decl.input("position_left_mm"),
-                right_position: decl.input("position_right_mm"),
+                position: decl.input("JOINT1_POSITION"),
+                right_position: decl.input("JOINT2_POSITION"),
                 state: decl.output("main_state", 0),
                 enable: decl.output("drives_enable", false),
                 setpoints: [

@@ -37,7 +37,7 @@ pub const BRIDGE_ERROR: [Var<bool>; 2] = [Var::new("bridge_error_left"), Var::ne
 /// Unwrapped encoder counts (encoder program).
 pub const COUNTS: [Var<i32>; 2] = [Var::new("counts_left"), Var::new("counts_right")];
 /// Carriage positions (mm, encoder program).
-pub const POSITION_MM: [Var<f64>; 2] = [Var::new("position_left_mm"), Var::new("position_right_mm")];
+pub const POSITION_MM: [Var<f64>; 2] = [Var::new("JOINT1_POSITION"), Var::new("JOINT2_POSITION")];
 /// Carriage velocities (mm/s, encoder program).
 pub const VELOCITY_MM_S: [Var<f64>; 2] = [Var::new("velocity_left_mm_s"), Var::new("velocity_right_mm_s")];
 /// Encoder faults (a counter jump no carriage can make).
@@ -76,7 +76,7 @@ pub const PERIOD_DURATION: Var<u16> = Var::new("period_duration");
 /// Whether the machine is referenced.
 pub const REFERENCED: Var<bool> = Var::new("referenced");
 /// The spindle point M (mm): x and y.
-pub const M: [Var<f64>; 2] = [Var::new("M_x"), Var::new("M_y")];
+pub const M: [Var<f64>; 2] = [Var::new("TOOL_X"), Var::new("TOOL_Y")];
 
 /// The PWM pulse widths (drive controller).
 pub const VELOCITY_SET: [Var<i16>; 2] = [Var::new("velocity_left_set"), Var::new("velocity_right_set")];

@@ -293,10 +293,11 @@ impl MainProgram {
         }
         let line = (automaton.state == MainState::Auto).then_some(("line", f64::from(io.nc_line)));
         let shown = [
-            ("M_x", m[0]),
-            ("M_y", m[1]),
-            ("h1", io.positions[0]),
-            ("h2", io.positions[1]),
+            // As every machine shows them: the tool point, then the joints.
+            ("x", m[0]),
+            ("y", m[1]),
+            ("q1", io.positions[0]),
+            ("q2", io.positions[1]),
             // The joystick's axes; "-" while it is not connected.
             (
                 "jx",
