@@ -195,8 +195,10 @@ pub struct NcJob {
 /// program executes that one.
 #[derive(Clone, Debug)]
 pub struct NcLibrary {
-    /// The programs; the first is loaded at start.
-    pub jobs: Vec<NcJob>,
+    /// The programs; the first is loaded at start. Shared: the programs that hold the library
+    /// (the main program, the drive program, the screen, the recorder) share one copy of the
+    /// texts, which may be megabytes.
+    pub jobs: Arc<[NcJob]>,
     /// The program loaded at start starts by itself at the first READY (`run --program`).
     pub autostart: bool,
     /// The screen's jobs, numbered after `jobs`.
@@ -208,7 +210,7 @@ impl NcLibrary {
     /// with room for the screen's jobs.
     pub fn new(jobs: Vec<NcJob>, autostart: bool) -> NcLibrary {
         NcLibrary {
-            jobs,
+            jobs: jobs.into(),
             autostart,
             screen: Arc::new(ScreenJobs::new()),
         }
