@@ -1,7 +1,9 @@
 //! Executing an NC program in the fast class (motion.md, Execution): the [`Executor`] walks the
-//! planned trajectory once per cycle — feed hold and resume as a change of the rate at which
-//! it walks, M0 as a pause at its block, M3/M4/M5 as the spindle's state — and the
-//! [`NcChannel`] is its process-image side: the main program's command in, the joints'
+//! planned trajectory once per cycle — feed hold and resume, the feed and rapid overrides as the
+//! rate at which it walks (above 100 % up to the profile planned for the highest override), single
+//! block as a stand at the end of each line, M0 as a pause at its block, M3/M4/M5 as the
+//! spindle's state — and the [`NcChannel`] is its process-image side: the main program's command
+//! and the operator's overrides and single block in, the joints'
 //! set-points out to the drive program, the executing line, the commanded pose, the spindle
 //! outputs, and the run's measured contour and following errors for the summary.
 //!

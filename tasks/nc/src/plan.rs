@@ -9,7 +9,9 @@
 //! The profile is computed on points at most [`GRID_SPACING`] apart: at each, a speed cap (the
 //! feed; each axis' and joint's speed; the part of each acceleration the path's curvature uses)
 //! and a tangential acceleration bound; a forward and a backward pass bring the speed within
-//! reach of its neighbours'. Half of each acceleration limit is given to the curvature and half
+//! reach of its neighbours' — twice: as programmed, and with every feed times
+//! [`MAX_FEED_OVERRIDE`] (the machine's limits unchanged), the speed a feed override above 100 %
+//! may take at each point. Half of each acceleration limit is given to the curvature and half
 //! to the change of speed, so their sum stays within the limit.
 
 use pkm_kinematics::MAX_DOF;
