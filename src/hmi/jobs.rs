@@ -71,7 +71,11 @@ impl JobDesk {
     pub async fn make(&self, kind: ScreenJobKind) -> Result<Made, String> {
         let Some(start) = *self.here.lock().unwrap_or_else(|p| p.into_inner()) else {
             let state = self.state.lock().unwrap_or_else(|p| p.into_inner()).clone();
-            return Err(format!("a job runs from READY: the machine is {state}"));
+            return Err(if state.is_empty() {
+                "a job runs from READY: the PLC has not published its state yet".to_string()
+            } else {
+                format!("a job runs from READY: the machine is {state}")
+            });
         };
         if self.planning.swap(true, Ordering::AcqRel) {
             return Err("another job is being planned".into());
