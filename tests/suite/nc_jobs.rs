@@ -176,3 +176,43 @@ fn a_job_that_cannot_run_is_refused_with_its_line_and_nothing_is_stored() {
     assert_eq!(e.message, "no program 1 to run from a line: the run has 0");
     assert_eq!(library.screen.made(), 0);
 }
+
+#[test]
+fn the_screen_makes_a_job_from_ready_only_numbered_after_the_programs() {
+    use pkm_plc::hmi::jobs::JobDesk;
+    let setup = Setup::new(machine_config("ox-x", |_| {})).expect("ox-x");
+    let options = Options {
+        hmi: true,
+        ..Options::default()
+    };
+    let Built {
+        setup, plc, library, ..
+    } = compose::build(setup, options).unwrap_or_else(|e| panic!("{e}"));
+    let library = library.expect("a screen's run has a library");
+    let standing = StandingPose::of(&setup, &plc).expect("the set-points");
+    let desk = JobDesk::new(setup.clone(), library.clone(), standing);
+    let runtime = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .expect("a runtime");
+    let mdi = || ScreenJobKind::Mdi {
+        text: "G1 X2 F300".into(),
+    };
+    let refused = runtime
+        .block_on(desk.make(mdi()))
+        .map(|m| m.number)
+        .expect_err("no frame yet");
+    assert_eq!(
+        refused,
+        "a job runs from READY: the PLC has not published its state yet"
+    );
+    desk.observe("INIT", plc.global_image());
+    let refused = runtime.block_on(desk.make(mdi())).map(|m| m.number).expect_err("INIT");
+    assert_eq!(refused, "a job runs from READY: the machine is INIT");
+    desk.observe("READY", plc.global_image());
+    let made = runtime.block_on(desk.make(mdi())).unwrap_or_else(|e| panic!("{e}"));
+    // No program in the library: the first job is number 1; its text ends as a program does.
+    assert_eq!((made.number, made.job.file.as_str()), (1, "MDI"));
+    assert_eq!(made.job.text, "G1 X2 F300\nM2\n");
+    assert_eq!(library.screen.made(), 1);
+}
