@@ -691,21 +691,25 @@ fn screen_info(
 }
 
 /// The screen's listener: on its address, or — for the default address, when its port is taken
-/// (a second PLC on this computer) — on the next free one of [`pkm_plc::hmi::DEFAULT_NEXT_PORTS`],
-/// said in a warning. The first error when none can be had.
+/// (a second PLC on this computer) — on the next free one of [`pkm_plc::hmi::DEFAULT_NEXT_PORTS`]
+/// or else any free port, said in a warning. The first error when none can be had.
 async fn bind_screen(options: &pkm_plc::hmi::HmiOptions) -> std::io::Result<tokio::net::TcpListener> {
     let first = tokio::net::TcpListener::bind(options.addr).await;
     let Err(taken) = first else { return first };
     if taken.kind() != std::io::ErrorKind::AddrInUse {
         return Err(taken);
     }
-    for k in 1..=options.next_ports {
+    // The next ports, then any free one (the log says which).
+    let next = (1..=options.next_ports).map(|k| options.addr.port().saturating_add(k));
+    let any = (options.next_ports > 0).then_some(0);
+    for port in next.chain(any) {
         let mut addr = options.addr;
-        addr.set_port(options.addr.port().saturating_add(k));
+        addr.set_port(port);
         if let Ok(listener) = tokio::net::TcpListener::bind(addr).await {
             warn!(
-                "operator screen: {} is taken (another pkm-plc?): serving on {addr} instead",
-                options.addr
+                "operator screen: {} is taken (another pkm-plc?): serving on {} instead",
+                options.addr,
+                listener.local_addr().map_or(addr, |a| a)
             );
             return Ok(listener);
         }
