@@ -61,16 +61,21 @@ pub fn configuration(name: &str) -> Option<Result<LoadedConfig, ConfigError>> {
     })
 }
 
+/// Machine `name` with its own configuration (as [`configuration`] loads it), if this build has
+/// it and the configuration loads: for the hints that look through every machine.
+pub fn setup(name: &str) -> Option<crate::compose::Setup> {
+    configuration(name)
+        .and_then(Result::ok)
+        .and_then(|loaded| crate::compose::Setup::new(loaded).ok())
+}
+
 /// The machine whose configuration (as [`configuration`] loads it) has the digest `digest` — a
 /// trace's `config_digest` — if one has.
 pub fn with_digest(digest: &str) -> Option<&'static str> {
-    BUILTIN.iter().map(|m| m.name()).find(|name| {
-        configuration(name)
-            .and_then(Result::ok)
-            .and_then(|loaded| crate::compose::Setup::new(loaded).ok())
-            .and_then(|setup| setup.digest().ok())
-            .is_some_and(|d| d == digest)
-    })
+    BUILTIN
+        .iter()
+        .map(|m| m.name())
+        .find(|name| setup(name).and_then(|s| s.digest().ok()).is_some_and(|d| d == digest))
 }
 
 /// The machines whose own I/O map binds an input variable `name` (for a hint when a scenario
@@ -80,9 +85,7 @@ pub fn with_input(name: &str) -> Vec<&'static str> {
         .iter()
         .map(|m| m.name())
         .filter(|machine| {
-            configuration(machine)
-                .and_then(Result::ok)
-                .and_then(|loaded| crate::compose::Setup::new(loaded).ok())
+            setup(machine)
                 .and_then(|setup| setup.io_map().ok().flatten())
                 .is_some_and(|map| {
                     map.bindings

@@ -119,19 +119,22 @@ pub struct MachineOf {
     pub frame: MachineFrame,
 }
 
+/// `setup`'s configuration refused for `problems` (exit code 2).
+fn invalid(setup: &Setup, problems: Vec<pkm_api::problem::Problem>) -> NcFailure {
+    fail(
+        2,
+        ConfigError::Invalid {
+            file: setup.origin().to_string(),
+            problems,
+        }
+        .to_string(),
+    )
+}
+
 /// `setup`'s machine, or why programs cannot run on it.
 pub fn machine_of(setup: &Setup) -> Result<MachineOf, NcFailure> {
     let origin = setup.origin().to_string();
-    let invalid = |problems| {
-        fail(
-            2,
-            ConfigError::Invalid {
-                file: origin.clone(),
-                problems,
-            }
-            .to_string(),
-        )
-    };
+    let invalid = |problems| invalid(setup, problems);
     let machine = setup.machine.ok_or_else(|| {
         fail(
             2,
@@ -181,23 +184,12 @@ pub(crate) fn prepare_from(
         model,
         frame,
     } = machine_of(setup)?;
-    let origin = setup.origin().to_string();
-    let invalid = |problems| {
-        fail(
-            2,
-            ConfigError::Invalid {
-                file: origin.clone(),
-                problems,
-            }
-            .to_string(),
-        )
-    };
     let n = frame.dof();
     let keys = frame.kinematics().pose_keys();
     let nc = &setup.loaded.config.nc;
     let problems = nc.check(keys);
     if !problems.is_empty() {
-        return Err(invalid(problems));
+        return Err(invalid(setup, problems));
     }
     let program = interp::read(
         &text,
@@ -278,14 +270,11 @@ fn with_hint(setup: &Setup, file: &Path, mut e: NcFailure) -> NcFailure {
         .map(|m| m.name())
         .filter(|name| Some(*name) != current)
         .filter(|name| {
-            crate::machines::configuration(name)
-                .and_then(Result::ok)
-                .and_then(|loaded| Setup::new(loaded).ok())
-                .is_some_and(|other| {
-                    prepare_text(&other, file.display().to_string(), text.clone())
-                        .and_then(Prepared::into_job)
-                        .is_ok()
-                })
+            crate::machines::setup(name).is_some_and(|other| {
+                prepare_text(&other, file.display().to_string(), text.clone())
+                    .and_then(Prepared::into_job)
+                    .is_ok()
+            })
         })
         .collect();
     match runs_on.as_slice() {

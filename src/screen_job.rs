@@ -37,12 +37,7 @@ pub fn plan(setup: &Setup, library: &NcLibrary, spec: &ScreenJobSpec) -> Result<
         }
         ScreenJobKind::FromLine { program, line } => {
             // A job that runs a program from a line runs it from another line as well.
-            let program = &match usize::try_from(*program)
-                .ok()
-                .and_then(|k| k.checked_sub(library.jobs.len() + 1))
-                .and_then(|slot| library.screen.get(slot))
-                .map(|made| &made.spec.kind)
-            {
+            let program = &match library.screen_job(*program).map(|made| &made.spec.kind) {
                 Some(ScreenJobKind::FromLine { program, .. }) => *program,
                 Some(ScreenJobKind::Mdi { .. }) => {
                     return Err(fail(

@@ -586,7 +586,9 @@ impl Shared {
             },
             Command::Path { program: k } => match (k.checked_sub(1).and_then(|i| self.programs.get(i)), self.job(k)) {
                 (Some(p), _) => json!({"type": "path", "program": k, "path": p.program.path}),
-                (None, Some(job)) => json!({"type": "path", "program": k, "path": preview(job.trajectory.as_ref())}),
+                (None, Some(made)) => {
+                    json!({"type": "path", "program": k, "path": preview(made.job.trajectory.as_ref())})
+                }
                 (None, None) => json!({"type": "refused", "why": format!("no program {k}")}),
             },
             Command::Cut {} => match &self.cut {
@@ -598,19 +600,15 @@ impl Shared {
     }
 
     /// The screen job of number `k`, if it was made.
-    fn job(&self, k: usize) -> Option<&pkm_api::trajectory::NcJob> {
-        let library = self.jobs.as_ref()?.library();
-        let k = i16::try_from(k).ok()?;
-        (usize::try_from(k).ok()? > library.jobs.len())
-            .then(|| library.numbered(k))
-            .flatten()
+    fn job(&self, k: usize) -> Option<&pkm_api::trajectory::ScreenJob> {
+        self.jobs.as_ref()?.library().screen_job(i16::try_from(k).ok()?)
     }
 
     /// The file name of program or job `k`.
     fn file(&self, k: usize) -> String {
         match k.checked_sub(1).and_then(|i| self.programs.get(i)) {
             Some(p) => p.program.file.clone(),
-            None => self.job(k).map(|j| j.file.clone()).unwrap_or_default(),
+            None => self.job(k).map(|j| j.job.file.clone()).unwrap_or_default(),
         }
     }
 
@@ -620,9 +618,7 @@ impl Shared {
         if let Some(p) = k.checked_sub(1).and_then(|i| self.programs.get(i)) {
             return Some(std::borrow::Cow::Borrowed(p));
         }
-        let desk = self.jobs.as_ref()?;
-        let slot = k.checked_sub(desk.library().jobs.len() + 1)?;
-        let made = desk.library().screen.get(slot)?;
+        let made = self.job(k)?;
         match made.spec.kind {
             pkm_api::trajectory::ScreenJobKind::FromLine { program, .. } => usize::try_from(program)
                 .ok()

@@ -328,7 +328,7 @@ impl JobWatch {
             Value::Int(k) if *i == self.var => Some(*k),
             _ => None,
         })?;
-        let slot = usize::try_from(number).ok()?.checked_sub(self.library.jobs.len() + 1)?;
+        let slot = self.library.screen_slot(number)?;
         let made = self.library.screen.get(slot)?;
         let written = self.written.get_mut(slot)?;
         if std::mem::replace(written, true) {

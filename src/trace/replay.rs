@@ -179,15 +179,12 @@ pub fn replay(trace: &Path, setup: &Setup, force: bool) -> Result<ReplayReport, 
             let spec = job.spec().map_err(|m| refused(format!("line {}: {m}", r.line)))?;
             let made = crate::screen_job::plan(setup, library, &spec)
                 .map_err(|e| refused(format!("line {}: screen job {}: {e}", r.line, job.number)))?;
-            let slot = usize::try_from(job.number)
-                .ok()
-                .and_then(|k| k.checked_sub(library.jobs.len() + 1))
-                .ok_or_else(|| {
-                    refused(format!(
-                        "line {}: job number {} is a library program's",
-                        r.line, job.number
-                    ))
-                })?;
+            let slot = library.screen_slot(job.number).ok_or_else(|| {
+                refused(format!(
+                    "line {}: job number {} is a library program's",
+                    r.line, job.number
+                ))
+            })?;
             library
                 .screen
                 .set(slot, pkm_api::trajectory::ScreenJob { spec, job: made })

@@ -219,11 +219,20 @@ impl NcLibrary {
     /// The program of the (1-based) number `k` as `vars::NC_PROGRAM` holds it: one of `jobs`,
     /// or a screen job made so far. Wait-free and allocation-free (the cyclic programs call it).
     pub fn numbered(&self, k: i16) -> Option<&NcJob> {
-        let i = usize::try_from(k).ok()?.checked_sub(1)?;
-        match i.checked_sub(self.jobs.len()) {
-            None => self.jobs.get(i),
-            Some(j) => self.screen.get(j).map(|s| &s.job),
+        match self.screen_slot(k) {
+            Some(slot) => self.screen.get(slot).map(|s| &s.job),
+            None => self.jobs.get(usize::try_from(k).ok()?.checked_sub(1)?),
         }
+    }
+
+    /// The slot of screen job number `k` (a number past the library's programs), made or not.
+    pub fn screen_slot(&self, k: i16) -> Option<usize> {
+        usize::try_from(k).ok()?.checked_sub(self.jobs.len() + 1)
+    }
+
+    /// The screen job of number `k`, if it was made.
+    pub fn screen_job(&self, k: i16) -> Option<&ScreenJob> {
+        self.screen.get(self.screen_slot(k)?)
     }
 
     /// The number `vars::NC_PROGRAM` gives the screen job in slot `slot`.

@@ -150,6 +150,28 @@ struct Point {
     hold: f64,
 }
 
+impl Point {
+    /// A point at `s` (`u` along `element`) capped at `cap` (both profiles), before its bounds,
+    /// speeds and time are found.
+    fn new(s: f64, element: u32, u: f64, cap: f64) -> Point {
+        Point {
+            s,
+            element,
+            u,
+            cap,
+            limit: Limit::Feed,
+            cap_fast: cap,
+            accel: f64::INFINITY,
+            bend: 0.0,
+            bend_fast: 0.0,
+            v: 0.0,
+            v_fast: 0.0,
+            t: 0.0,
+            hold: 0.0,
+        }
+    }
+}
+
 /// A block whose speed the machine limits below its feed.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Limited {
@@ -602,41 +624,13 @@ pub fn plan(program: &Program, frame: &MachineFrame, limits: &PlanLimits) -> Res
             let extra_start = (i == 0 && near_start).then_some(JUNCTION / len);
             let extra_end = (i + 1 == steps && near_end).then_some(1.0 - JUNCTION / len);
             for u in std::iter::once(grid).chain(extra_start).chain(extra_end) {
-                points.push(Point {
-                    s: s + len * u,
-                    element: k as u32,
-                    u,
-                    cap: e.feed,
-                    limit: Limit::Feed,
-                    cap_fast: e.feed,
-                    accel: f64::INFINITY,
-                    bend: 0.0,
-                    bend_fast: 0.0,
-                    v: 0.0,
-                    v_fast: 0.0,
-                    t: 0.0,
-                    hold: 0.0,
-                });
+                points.push(Point::new(s + len * u, k as u32, u, e.feed));
             }
         }
         s += len;
     }
     if let Some(last) = elements.len().checked_sub(1) {
-        points.push(Point {
-            s,
-            element: last as u32,
-            u: 1.0,
-            cap: 0.0,
-            limit: Limit::Feed,
-            cap_fast: 0.0,
-            accel: f64::INFINITY,
-            bend: 0.0,
-            bend_fast: 0.0,
-            v: 0.0,
-            v_fast: 0.0,
-            t: 0.0,
-            hold: 0.0,
-        });
+        points.push(Point::new(s, last as u32, 1.0, 0.0));
     }
     let count = points.len();
     // Poses and joints of the points, computed as the caps below need them: at most two points
