@@ -192,8 +192,25 @@ impl Setup {
     pub fn with_screen(&self, bus: Box<dyn Bus>) -> (Box<dyn Bus>, crate::hmi::commands::CommandSink) {
         let classes = &self.loaded.config.task_classes;
         let fastest = (0..classes.len()).min_by_key(|&c| classes[c].cycle_us).unwrap_or(0);
-        let (bus, sink) = crate::hmi::commands::HmiBus::new(bus, fastest);
+        let (bus, sink) = crate::hmi::commands::HmiBus::new(bus, fastest, self.stop_lockout_ns());
         (Box::new(bus), sink)
+    }
+
+    /// The longest STOP lockout of the configuration's programs (`params.stop_lockout_ms`, the
+    /// main programs' parameter; 500 ms where none sets it): after a STOP press is taken, the
+    /// button is ignored this long, so an acknowledgement must come later.
+    fn stop_lockout_ns(&self) -> u64 {
+        const DEFAULT_MS: u64 = 500;
+        let programs = self.loaded.json["task_classes"]
+            .as_array()
+            .into_iter()
+            .flatten()
+            .filter_map(|c| c["programs"].as_array())
+            .flatten();
+        let ms = programs
+            .filter_map(|p| p["params"]["stop_lockout_ms"].as_f64())
+            .fold(DEFAULT_MS as f64, f64::max);
+        (ms * 1e6) as u64
     }
 
     /// A bus that only declares the I/O map's variables (inputs written by the bus, outputs read

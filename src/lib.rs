@@ -16,6 +16,7 @@ pub mod io;
 pub mod link_bench;
 pub mod machines;
 pub mod nc_job;
+pub mod opcua;
 pub mod plc;
 pub mod run;
 pub mod screen_job;

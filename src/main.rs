@@ -27,6 +27,7 @@ mod cli_enums;
 mod kin_cmd;
 mod kin_svg;
 mod nc_cmd;
+mod opcua_cmd;
 
 /// A soft-PLC for parallel-kinematic machine models.
 #[derive(Parser, Debug)]
@@ -260,6 +261,22 @@ struct RunArgs {
     /// The most clients the screen serves at once.
     #[arg(long, value_name = "N", default_value_t = pkm_plc::hmi::DEFAULT_MAX_CLIENTS)]
     hmi_max_clients: usize,
+    /// The OPC UA server: `opc.tcp://HOST:PORT` to serve it at, or `none`. Real time only;
+    /// default opc.tcp://127.0.0.1:4840 (another address than loopback needs --opcua-users).
+    #[arg(long, value_name = "URL|none", env = "PKM_PLC_OPCUA")]
+    opcua: Option<String>,
+    /// The users who may command over OPC UA (a JSON file of names with a password or a
+    /// certificate); without it the server is read-only.
+    #[arg(long, value_name = "FILE")]
+    opcua_users: Option<PathBuf>,
+    /// The OPC UA server's certificate store: its certificate and key (made on first use) and
+    /// the clients' trusted/ and rejected/ certificates. Default
+    /// $XDG_DATA_HOME/pkm-plc/opcua-pki (~/.local/share/pkm-plc/opcua-pki).
+    #[arg(long, value_name = "DIR")]
+    opcua_pki: Option<PathBuf>,
+    /// The most OPC UA sessions at once.
+    #[arg(long, value_name = "N", default_value_t = pkm_plc::opcua::DEFAULT_MAX_SESSIONS)]
+    opcua_max_sessions: usize,
     /// Override the configured time source (real time only).
     #[arg(long, value_enum, value_name = "SOURCE", conflicts_with = "virtual_time")]
     time_source: Option<TimeSource>,
@@ -407,7 +424,11 @@ fn main() -> ExitCode {
 }
 
 fn init_logging() {
-    let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new("info"));
+    // The OPC UA crates say at info what the server's own line says once (endpoints, every
+    // connection): their warnings and errors only, unless RUST_LOG asks for more.
+    let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| {
+        EnvFilter::new("info,opcua_server=warn,opcua_core=warn,opcua_crypto=warn,opcua_types=warn,opcua_nodes=warn")
+    });
     tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(status::LogWriter)
@@ -456,6 +477,16 @@ fn cmd_check(args: ConfigArg) -> Result<(), Failure> {
 
 fn cmd_run(args: RunArgs) -> Result<(), Failure> {
     let screen = screen_options(&args)?;
+    let opcua = opcua_cmd::options(
+        args.opcua.as_deref(),
+        args.opcua_users.as_ref(),
+        args.opcua_pki.as_ref(),
+        args.opcua_max_sessions,
+        args.virtual_time,
+    )
+    .map_err(Failure::usage)?;
+    // Programs are loaded, and commands come, from the screen or over OPC UA.
+    let served = screen.is_some() || opcua.is_some();
     // In virtual time a joystick path is a capture file, played on the simulated clock;
     // `auto` (a live device) is off.
     let joystick = match (&args.joystick, args.virtual_time) {
@@ -463,7 +494,7 @@ fn cmd_run(args: RunArgs) -> Result<(), Failure> {
         (_, true) => JoystickChoice::Live(JoystickSpec::None),
         (spec, false) => JoystickChoice::Live(spec.clone()),
     };
-    let programs = program_library(&args, screen.is_some())?;
+    let programs = program_library(&args, served)?;
     let options = Options {
         bus: args.bus,
         link: pkm_plc::io::modbus::ModbusOptions {
@@ -476,7 +507,7 @@ fn cmd_run(args: RunArgs) -> Result<(), Failure> {
         joystick,
         program: args.program.clone(),
         programs,
-        hmi: screen.is_some(),
+        hmi: served,
     };
     let Built {
         setup,
@@ -545,6 +576,22 @@ fn cmd_run(args: RunArgs) -> Result<(), Failure> {
             }
             None => None,
         };
+        let program_files: Vec<String> = library
+            .as_ref()
+            .map_or(&[][..], |l| &l.jobs)
+            .iter()
+            .map(|j| j.file.clone())
+            .collect();
+        let opcua = match (opcua, &hmi) {
+            (Some((options, next_ports)), Some(sink)) => Some(OpcUa {
+                info: opcua_cmd::space_info(&plc, &setup, program_files),
+                options,
+                explicit: args.opcua.is_some(),
+                next_ports,
+                sink: sink.clone(),
+            }),
+            _ => None,
+        };
         let screen = match (screen, hmi) {
             (Some(options), Some(sink)) => Some(Screen {
                 info: screen_info(&plc, &setup, library.as_ref(), refused),
@@ -553,7 +600,7 @@ fn cmd_run(args: RunArgs) -> Result<(), Failure> {
             }),
             _ => None,
         };
-        let mut outcome = run_realtime(plc, options, screen)?;
+        let mut outcome = run_realtime(plc, options, screen, opcua)?;
         if let Some((probe, stop)) = probe {
             stop.store(true, std::sync::atomic::Ordering::Relaxed);
             if let Some(l) = probe.summary(outcome.epoch_ns) {
@@ -589,6 +636,17 @@ fn cmd_run(args: RunArgs) -> Result<(), Failure> {
 struct Screen {
     options: pkm_plc::hmi::HmiOptions,
     info: pkm_plc::hmi::server::HmiInfo,
+    sink: pkm_plc::hmi::commands::CommandSink,
+}
+
+/// The OPC UA server of a real-time run: where, what it shows, where its commands go.
+struct OpcUa {
+    options: pkm_plc::opcua::OpcUaOptions,
+    /// The next ports tried when the address's is taken (the default address only).
+    next_ports: u16,
+    /// Asked for with --opcua (a server that cannot start ends the run), not the default.
+    explicit: bool,
+    info: pkm_plc::opcua::space::SpaceInfo,
     sink: pkm_plc::hmi::commands::CommandSink,
 }
 
@@ -641,7 +699,7 @@ fn program_library(args: &RunArgs, screen: bool) -> Result<Option<PathBuf>, Fail
     match &args.programs {
         Some(dir) if dir.as_os_str() == "none" => Ok(None),
         Some(dir) if !screen => Err(Failure::usage(format!(
-            "--programs {}: programs are loaded from the operator's screen, which is served in real time only (and not with --hmi none)",
+            "--programs {}: programs are loaded from the operator's screen or over OPC UA, which are served in real time only (and not with both --hmi none and --opcua none)",
             dir.display()
         ))),
         Some(dir) => Ok(Some(dir.clone())),
@@ -690,26 +748,28 @@ fn screen_info(
     }
 }
 
-/// The screen's listener: on its address, or — for the default address, when its port is taken
-/// (a second PLC on this computer) — on the next free one of [`pkm_plc::hmi::DEFAULT_NEXT_PORTS`]
-/// or else any free port, said in a warning. The first error when none can be had.
-async fn bind_screen(options: &pkm_plc::hmi::HmiOptions) -> std::io::Result<tokio::net::TcpListener> {
-    let first = tokio::net::TcpListener::bind(options.addr).await;
+/// A server's listener: on `addr`, or — when its port is taken (a second PLC on this computer)
+/// — on the next free one of the `next_ports` after it or else any free port, said in a warning
+/// (`what` names the server). The first error when none can be had.
+async fn bind_with_fallback(
+    addr: std::net::SocketAddr,
+    next_ports: u16,
+    what: &str,
+) -> std::io::Result<tokio::net::TcpListener> {
+    let first = tokio::net::TcpListener::bind(addr).await;
     let Err(taken) = first else { return first };
-    if taken.kind() != std::io::ErrorKind::AddrInUse {
+    if taken.kind() != std::io::ErrorKind::AddrInUse || next_ports == 0 {
         return Err(taken);
     }
     // The next ports, then any free one (the log says which).
-    let next = (1..=options.next_ports).map(|k| options.addr.port().saturating_add(k));
-    let any = (options.next_ports > 0).then_some(0);
-    for port in next.chain(any) {
-        let mut addr = options.addr;
-        addr.set_port(port);
-        if let Ok(listener) = tokio::net::TcpListener::bind(addr).await {
+    let next = (1..=next_ports).map(|k| addr.port().saturating_add(k));
+    for port in next.chain([0]) {
+        let mut at = addr;
+        at.set_port(port);
+        if let Ok(listener) = tokio::net::TcpListener::bind(at).await {
             warn!(
-                "operator screen: {} is taken (another pkm-plc?): serving on {} instead",
-                options.addr,
-                listener.local_addr().map_or(addr, |a| a)
+                "{what}: {addr} is taken (another pkm-plc?): serving on {} instead",
+                listener.local_addr().map_or(at, |a| a)
             );
             return Ok(listener);
         }
@@ -717,7 +777,22 @@ async fn bind_screen(options: &pkm_plc::hmi::HmiOptions) -> std::io::Result<toki
     Err(taken)
 }
 
-fn run_realtime(plc: Plc, options: RealTimeOptions, screen: Option<Screen>) -> Result<run::RealTimeOutcome, Failure> {
+/// Why a server's address cannot be had, as the usage error that ends the run before it starts.
+fn cannot_listen(what: &str, addr: std::net::SocketAddr, e: &std::io::Error, instead: &str) -> Failure {
+    let busy = if e.kind() == std::io::ErrorKind::AddrInUse {
+        " (another pkm-plc, or another server, has it)"
+    } else {
+        ""
+    };
+    Failure::usage(format!("{what}: cannot listen on {addr}: {e}{busy}; {instead}"))
+}
+
+fn run_realtime(
+    plc: Plc,
+    options: RealTimeOptions,
+    screen: Option<Screen>,
+    opcua: Option<OpcUa>,
+) -> Result<run::RealTimeOutcome, Failure> {
     let runtime = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()
@@ -727,59 +802,104 @@ fn run_realtime(plc: Plc, options: RealTimeOptions, screen: Option<Screen>) -> R
         let _inside = runtime.enter();
         pkm_plc::signals::Terminating::register()
     };
-    // The screen: served on this runtime, off the cyclic thread. A port that cannot be had is
-    // no reason not to run the machine: a warning, and no screen.
-    let publisher = match screen {
+    let _inside = runtime.enter();
+    // The listeners first: an address that cannot be had ends the run before anything moves —
+    // a page or a SCADA open on that port shows another PLC (a second one started by mistake),
+    // so running on without the server would mislead.
+    let screen = match screen {
         None => None,
-        Some(Screen { options, info, sink }) => {
-            let _inside = runtime.enter();
-            match runtime.block_on(bind_screen(&options)) {
-                Ok(listener) => {
-                    let (publisher, reader) = pkm_plc::hmi::frame::frames(&plc);
-                    let server_options = pkm_plc::hmi::server::ServerOptions {
-                        access: pkm_plc::hmi::access::Access {
-                            token: options.token.clone(),
-                            allowed_origins: options.allowed_origins.clone(),
-                        },
-                        max_clients: options.max_clients,
-                    };
-                    let router = pkm_plc::hmi::server::router(info, reader, sink, server_options);
-                    let at = listener.local_addr().map_or(options.addr, |a| a);
-                    info!(
-                        "operator screen at http://{at}/{}",
-                        if options.token.is_some() {
-                            " (commands need the token: ?token=…)"
-                        } else {
-                            ""
-                        }
-                    );
-                    // Connections: the clients', and room for pages and assets loading.
-                    let listener = pkm_plc::hmi::listener::Bounded::new(listener, options.max_clients + 8);
-                    runtime.spawn(async move {
-                        let service = router.into_make_service_with_connect_info::<pkm_plc::hmi::listener::Peer>();
-                        if let Err(e) = axum::serve(listener, service).await {
-                            warn!("operator screen: {e}");
-                        }
-                    });
-                    Some(publisher)
-                }
-                // Before anything moves: a page open on that port shows another PLC (a second
-                // one started by mistake), so running on without a screen would mislead.
+        Some(screen) => {
+            let next = screen.options.next_ports;
+            match runtime.block_on(bind_with_fallback(screen.options.addr, next, "operator screen")) {
+                Ok(listener) => Some((screen, listener)),
                 Err(e) => {
-                    let busy = if e.kind() == std::io::ErrorKind::AddrInUse {
-                        " (another pkm-plc, or another server, has it)"
-                    } else {
-                        ""
-                    };
-                    return Err(Failure::usage(format!(
-                        "operator screen: cannot listen on {}: {e}{busy}; give another address with --hmi ADDR \
-                         (port 0: any free one, logged), or run without a screen with --hmi none",
-                        options.addr
-                    )));
+                    return Err(cannot_listen(
+                        "operator screen",
+                        screen.options.addr,
+                        &e,
+                        "give another address with --hmi ADDR (port 0: any free one, logged), or run without a screen with --hmi none",
+                    ));
                 }
             }
         }
     };
+    let opcua = match opcua {
+        None => None,
+        Some(server) => match runtime.block_on(bind_with_fallback(server.options.addr, server.next_ports, "OPC UA")) {
+            Ok(listener) => Some((server, listener)),
+            Err(e) => {
+                return Err(cannot_listen(
+                    "OPC UA",
+                    server.options.addr,
+                    &e,
+                    "give another endpoint with --opcua opc.tcp://HOST:PORT (port 0: any free one, logged), or run without OPC UA with --opcua none",
+                ));
+            }
+        },
+    };
+    // Both are fed from one publication per main cycle.
+    let (publisher, feed) = if screen.is_some() || opcua.is_some() {
+        let (publisher, reader) = pkm_plc::hmi::frame::frames(&plc);
+        (Some(publisher), Some(pkm_plc::hmi::frame::FrameFeed::spawn(reader)))
+    } else {
+        (None, None)
+    };
+    if let (Some((Screen { options, info, sink }, listener)), Some(feed)) = (screen, &feed) {
+        let server_options = pkm_plc::hmi::server::ServerOptions {
+            access: pkm_plc::hmi::access::Access {
+                token: options.token.clone(),
+                allowed_origins: options.allowed_origins.clone(),
+            },
+            max_clients: options.max_clients,
+        };
+        let router = pkm_plc::hmi::server::router(info, feed.clone(), sink, server_options);
+        let at = listener.local_addr().map_or(options.addr, |a| a);
+        info!(
+            "operator screen at http://{at}/{}",
+            if options.token.is_some() {
+                " (commands need the token: ?token=…)"
+            } else {
+                ""
+            }
+        );
+        // Connections: the clients', and room for pages and assets loading.
+        let listener = pkm_plc::hmi::listener::Bounded::new(listener, options.max_clients + 8);
+        runtime.spawn(async move {
+            let service = router.into_make_service_with_connect_info::<pkm_plc::hmi::listener::Peer>();
+            if let Err(e) = axum::serve(listener, service).await {
+                warn!("operator screen: {e}");
+            }
+        });
+    }
+    if let (Some((server, listener)), Some(feed)) = (opcua, &feed) {
+        let main_period_ns = plc.app_period_ns().unwrap_or(50_000_000);
+        let OpcUa {
+            options,
+            info,
+            sink,
+            explicit,
+            ..
+        } = server;
+        match pkm_plc::opcua::server::start(&options, listener, info, feed.clone(), sink, main_period_ns) {
+            Ok(running) => info!(
+                "OPC UA server at {} ({})",
+                running.url,
+                match &options.users {
+                    Some(u) => format!(
+                        "anonymous sessions read; the {} users of {} also command",
+                        u.users.len(),
+                        u.origin.display()
+                    ),
+                    None => "read-only: commands need --opcua-users".to_string(),
+                }
+            ),
+            // Asked for: nothing runs without it. The default: the machine runs, said once.
+            Err(e) if explicit => return Err(Failure::usage(format!("OPC UA: cannot start the server: {e}"))),
+            Err(e) => warn!(
+                "OPC UA: not served: {e}; give a certificate store with --opcua-pki DIR, or turn OPC UA off with --opcua none"
+            ),
+        }
+    }
     let run = run::start_realtime_with(plc, options, publisher).map_err(|e| Failure::run(e.to_string()))?;
     let stop = run.stop_flag();
     let snapshot = run.snapshot();

@@ -72,7 +72,7 @@ fn test_config(dir: &std::path::Path) -> std::path::PathBuf {
 /// Starts `pkm-plc run` in real time on the configuration `config` with the screen on a free
 /// loopback port (and `more` arguments); returns when the screen's address is logged.
 fn start_plc(config: &std::path::Path, seconds: u32, more: &[&str]) -> Plc {
-    let mut child = Command::new(env!("CARGO_BIN_EXE_pkm-plc"))
+    let mut child = common::pkm_command()
         .args([
             "run",
             "--config",

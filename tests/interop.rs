@@ -15,50 +15,7 @@ const PYMODBUS: &str = "pymodbus==3.8.6";
 fn python() -> Result<PathBuf, &'static str> {
     static READY: std::sync::OnceLock<Result<PathBuf, String>> = std::sync::OnceLock::new();
     READY
-        .get_or_init(|| {
-            let venv = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("pymodbus-venv");
-            let python = venv.join("bin/python");
-            let has = |python: &PathBuf| {
-                Command::new(python)
-                    .args(["-c", "import pymodbus"])
-                    .stderr(Stdio::null())
-                    .status()
-                    .is_ok_and(|s| s.success())
-            };
-            if has(&python) {
-                return Ok(python);
-            }
-            let made = Command::new("python3")
-                .args(["-m", "venv", "--clear"])
-                .arg(&venv)
-                .output()
-                .map_err(|e| format!("python3 does not run ({e})"))?;
-            if !made.status.success() {
-                return Err(format!(
-                    "python3 -m venv failed (Debian: apt-get install python3-venv): {}",
-                    String::from_utf8_lossy(&made.stderr).lines().last().unwrap_or("")
-                ));
-            }
-            let pip = Command::new(&python)
-                .args([
-                    "-m",
-                    "pip",
-                    "install",
-                    "--quiet",
-                    "--disable-pip-version-check",
-                    PYMODBUS,
-                ])
-                .output()
-                .map_err(|e| format!("the virtual environment's python does not run ({e})"))?;
-            if !pip.status.success() || !has(&python) {
-                return Err(format!(
-                    "pip install {PYMODBUS} into {} failed: {}",
-                    venv.display(),
-                    String::from_utf8_lossy(&pip.stderr).lines().last().unwrap_or("")
-                ));
-            }
-            Ok(python)
-        })
+        .get_or_init(|| common::python_with("pymodbus-venv", PYMODBUS, "pymodbus"))
         .clone()
         .map_err(|e| {
             // Said once per test that needs it.
@@ -116,9 +73,8 @@ fn the_soft_plc_runs_against_a_pymodbus_server() {
     let mut lines = BufReader::new(server.stdout.take().expect("stdout")).lines();
     assert_eq!(lines.next().and_then(Result::ok).as_deref(), Some("ready"));
     std::thread::sleep(std::time::Duration::from_millis(500));
-    let run = Command::new(env!("CARGO_BIN_EXE_pkm-plc"))
+    let run = common::pkm_command()
         .args(["run", "--bus", &format!("tcp:127.0.0.1:{port}"), "--duration", "2"])
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
         .env("RUST_LOG", "warn")
         .output()
         .expect("run");

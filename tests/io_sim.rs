@@ -3,7 +3,7 @@
 mod common;
 
 use std::net::SocketAddr;
-use std::process::{Command, Stdio};
+use std::process::Stdio;
 use std::time::Duration;
 
 use common::IoSim;
@@ -159,7 +159,7 @@ fn the_soft_plc_references_and_jogs_over_modbus_tcp() {
     let scenario = common::jog_right_at(dir.path(), &[common::FAST_READY_S + 4.35, common::FAST_READY_S + 12.35]);
     let (_sim, address) = start_with(&scenario);
     let (s, t) = (dir.path().join("summary.json"), dir.path().join("trace.jsonl"));
-    let o = Command::new(env!("CARGO_BIN_EXE_pkm-plc"))
+    let o = common::pkm_command()
         .args([
             "run",
             "--bus",
@@ -192,7 +192,7 @@ fn a_lost_link_is_a_bus_fault_without_hang() {
     let (sim, address) = start();
     let dir = tempfile::tempdir().expect("tempdir");
     let s = dir.path().join("summary.json");
-    let run = Command::new(env!("CARGO_BIN_EXE_pkm-plc"))
+    let run = common::pkm_command()
         .args([
             "run",
             "--bus",
@@ -229,7 +229,7 @@ fn a_lost_link_is_a_bus_fault_without_hang() {
 #[test]
 fn the_soft_plc_exchanges_the_packed_image_over_tcp_too() {
     let (_sim, address) = start();
-    let o = Command::new(env!("CARGO_BIN_EXE_pkm-plc"))
+    let o = common::pkm_command()
         .args(["run", "--bus", &format!("tcp:{address}"), "--exchange", "image"])
         .args(["--duration", "1", "--joystick", "none"])
         .current_dir(env!("CARGO_MANIFEST_DIR"))
@@ -282,7 +282,7 @@ fn the_hexapod_references_and_jogs_over_modbus_tcp() {
         ],
     );
     let (s, t) = (dir.path().join("summary.json"), dir.path().join("trace.jsonl"));
-    let o = Command::new(env!("CARGO_BIN_EXE_pkm-plc"))
+    let o = common::pkm_command()
         .args(["run", "--bus", &format!("tcp:{address}"), "--duration", "20"])
         .args(["--summary", s.to_str().expect("utf-8")])
         .args(["--trace", t.to_str().expect("utf-8")])

@@ -82,7 +82,7 @@ fn a_capture_through_a_fifo_drives_m_and_an_unplug_stops_it() {
     // The script's times, from the start: READY at 15.65 s, then as in the comments below.
     let at = |s: f64| common::FAST_READY_S + s;
     let start = Instant::now();
-    let child = Command::new(env!("CARGO_BIN_EXE_pkm-plc"))
+    let child = common::pkm_command()
         .args(["run", "--config", config.to_str().expect("utf-8")])
         .args(["--duration", &format!("{}", at(13.4)), "--joystick"])
         .arg(&fifo)

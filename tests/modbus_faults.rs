@@ -7,7 +7,6 @@ mod common;
 
 use std::io::{Read, Write};
 use std::net::{TcpListener, TcpStream};
-use std::process::Command;
 use std::time::Duration;
 
 use common::stderr;
@@ -93,7 +92,7 @@ fn serve_badly(mut s: TcpStream, how: Misbehaviour) {
 fn run_against(port: u16, seconds: &str) -> (serde_json::Value, String, Option<i32>) {
     let dir = tempfile::tempdir().expect("tempdir");
     let summary = dir.path().join("s.json");
-    let o = Command::new(env!("CARGO_BIN_EXE_pkm-plc"))
+    let o = common::pkm_command()
         .args(["run", "--bus", &format!("tcp:127.0.0.1:{port}"), "--duration", seconds])
         .args(["--summary", summary.to_str().expect("utf-8")])
         .current_dir(env!("CARGO_MANIFEST_DIR"))
@@ -390,7 +389,7 @@ fn a_link_that_never_comes_up_names_its_cause_and_fails_the_run() {
             "cannot connect: No such file or directory",
         ),
     ] {
-        let o = Command::new(env!("CARGO_BIN_EXE_pkm-plc"))
+        let o = common::pkm_command()
             .args(["run", "--bus", &bus, "--duration", "1", "--hmi", "none"])
             .current_dir(env!("CARGO_MANIFEST_DIR"))
             .env("RUST_LOG", "info")

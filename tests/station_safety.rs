@@ -7,7 +7,7 @@ mod common;
 
 use std::io::{Read, Write};
 use std::net::{SocketAddr, TcpStream};
-use std::process::{Child, Command, Stdio};
+use std::process::{Child, Stdio};
 use std::time::{Duration, Instant};
 
 use common::IoSim;
@@ -115,7 +115,7 @@ fn a_malformed_rtu_frame_is_answered_and_io_sim_serial_keeps_serving() {
     let path = slave.name().expect("the pty's path");
     master.set_timeout(Duration::from_secs(10)).expect("timeout");
     let mut sim = IoSim(
-        Command::new(env!("CARGO_BIN_EXE_pkm-plc"))
+        common::pkm_command()
             .args(["io-sim", "--serial", &path])
             .current_dir(env!("CARGO_MANIFEST_DIR"))
             .env("RUST_LOG", "warn")
@@ -184,7 +184,7 @@ fn plc_against(address: SocketAddr, log: &std::path::Path) -> Child {
 
 /// Starts `pkm-plc run` with `args`, its log (at info) going to `log`.
 fn run_logging(args: &[&str], log: &std::path::Path) -> Child {
-    Command::new(env!("CARGO_BIN_EXE_pkm-plc"))
+    common::pkm_command()
         .arg("run")
         .args(args)
         .current_dir(env!("CARGO_MANIFEST_DIR"))

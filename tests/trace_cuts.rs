@@ -37,7 +37,7 @@ fn killed_run_leaves_a_replayable_trace(name: &str) {
     let dir = tempfile::tempdir().expect("tempdir");
     let config = write_realtime_config(dir.path());
     let trace = dir.path().join(name);
-    let mut child = Command::new(env!("CARGO_BIN_EXE_pkm-plc"))
+    let mut child = common::pkm_command()
         .args(["run", "--config", config.to_str().expect("utf-8"), "--joystick", "none"])
         .arg("--trace")
         .arg(&trace)

@@ -19,8 +19,15 @@ pub const PRESS_NS: u64 = 100_000_000;
 /// the jog's deflection, the program's overrides and single block.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Commands {
-    /// Presses of STOP, the axis button, and the program's start, hold and resume.
+    /// Presses of STOP, the axis button, and the program's start, hold and resume. A press
+    /// while the previous one of its button is still held merges with it (a double click is one
+    /// press).
     pub presses: [u64; 5],
+    /// Acknowledgements of an error: each is a STOP press that starts only once STOP has been
+    /// released for the programs' STOP lockout — so an acknowledgement sent right after STOP is
+    /// a press of its own, neither merged with the STOP nor ignored by the lockout (OPC UA's
+    /// Acknowledge).
+    pub acknowledgements: u64,
     /// The jog (x, y in −1 … 1); 0 when nothing is held.
     pub jog: [f64; 2],
     /// Which axis the jog moves (0: the stick's pair; k ≥ 1: the k-th pose coordinate alone;
@@ -41,6 +48,7 @@ impl Default for Commands {
     fn default() -> Self {
         Commands {
             presses: [0; 5],
+            acknowledgements: 0,
             jog: [0.0; 2],
             jog_axis: 0,
             program: 0,
@@ -98,11 +106,17 @@ pub struct HmiBus {
     seen: [u64; 5],
     /// Until when each press holds its variable on (ns of the schedule).
     until: [u64; 5],
+    /// Acknowledgements seen, and whether one waits for STOP's release.
+    acknowledged: u64,
+    acknowledgement_waits: bool,
+    /// How long STOP must have been released before an acknowledgement presses it (ns).
+    acknowledgement_gap_ns: u64,
 }
 
 impl HmiBus {
-    /// Wraps `inner`; the screen's variables are latched by the task class `class`.
-    pub fn new(inner: Box<dyn Bus>, class: usize) -> (HmiBus, CommandSink) {
+    /// Wraps `inner`; the screen's variables are latched by the task class `class`; the programs
+    /// ignore STOP for `stop_lockout_ns` after a press is taken.
+    pub fn new(inner: Box<dyn Bus>, class: usize, stop_lockout_ns: u64) -> (HmiBus, CommandSink) {
         let (input, output) = triple_buffer::triple_buffer(&Commands::default());
         let bus = HmiBus {
             inner,
@@ -111,6 +125,9 @@ impl HmiBus {
             vars: [0; 12],
             seen: [0; 5],
             until: [0; 5],
+            acknowledged: 0,
+            acknowledgement_waits: false,
+            acknowledgement_gap_ns: stop_lockout_ns.max(PRESS_NS),
         };
         (bus, CommandSink(Arc::new(Mutex::new((input, Commands::default())))))
     }
@@ -163,6 +180,15 @@ impl Bus for HmiBus {
             return;
         }
         let c = *self.output.read();
+        if c.acknowledgements != self.acknowledged {
+            self.acknowledged = c.acknowledgements;
+            self.acknowledgement_waits = true;
+        }
+        let stop = press::STOP;
+        if self.acknowledgement_waits && t_ns >= self.until[stop].saturating_add(self.acknowledgement_gap_ns) {
+            self.acknowledgement_waits = false;
+            self.until[stop] = t_ns + PRESS_NS;
+        }
         for k in 0..5 {
             if c.presses[k] != self.seen[k] {
                 self.seen[k] = c.presses[k];
@@ -204,5 +230,60 @@ impl Bus for HmiBus {
 
     fn fault(&self) -> bool {
         self.inner.fault()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bus::NoBus;
+
+    /// An edit of the commands at a time (ms).
+    type Edit = (u64, fn(&mut Commands));
+
+    /// HMI_STOP as the bus writes it at each of `times_ms`, with `edits` applied to the
+    /// commands just before the time they are paired with.
+    fn stop_at(edits: &[Edit], times_ms: &[u64]) -> Vec<bool> {
+        let (mut bus, sink) = HmiBus::new(Box::new(NoBus), 0, 500_000_000);
+        let mut table = VarTable::new();
+        bus.declare(&mut table);
+        let stop = usize::from(table.index_of(HMI_STOP.name()).expect("declared"));
+        let mut image: Vec<Value> = table.vars().iter().map(|v| v.safe).collect();
+        times_ms
+            .iter()
+            .map(|&t| {
+                for (at, edit) in edits {
+                    if *at == t {
+                        sink.update(edit);
+                    }
+                }
+                bus.read_inputs(0, t * 1_000_000, &mut image);
+                image[stop] == Value::Bool(true)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_second_stop_while_the_first_is_held_is_the_same_press() {
+        let press: fn(&mut Commands) = |c| c.presses[press::STOP] += 1;
+        assert_eq!(
+            stop_at(&[(1000, press), (1050, press)], &[1000, 1050, 1090, 1100, 1150, 1200]),
+            [true, true, true, true, false, false],
+            "a double click is one press, held 100 ms from the second click: no release between"
+        );
+    }
+
+    #[test]
+    fn an_acknowledgement_presses_stop_once_the_lockout_after_its_release_has_passed() {
+        let press: fn(&mut Commands) = |c| c.presses[press::STOP] += 1;
+        let acknowledge: fn(&mut Commands) = |c| c.acknowledgements += 1;
+        assert_eq!(
+            stop_at(
+                &[(1000, press), (1010, acknowledge)],
+                &[1000, 1010, 1090, 1100, 1590, 1600, 1690, 1700, 2500]
+            ),
+            [true, true, true, false, false, true, true, false, false],
+            "STOP 1000 … 1100 ms, released for the 500 ms lockout, then the acknowledgement's press"
+        );
     }
 }

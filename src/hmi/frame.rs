@@ -1,7 +1,11 @@
-//! What the cycle publishes for the screen: the status (state, reason, note, values, per class
-//! figures) and the whole published process image, handed over through a triple buffer — the
-//! cyclic thread never waits on the network and allocates nothing once the buffers have grown
-//! to the longest texts.
+//! What the cycle publishes for the screen and the OPC UA server: the status (state, reason,
+//! note, values, per class figures) and the whole published process image, handed over through a
+//! triple buffer — the cyclic thread never waits on the network and allocates nothing once the
+//! buffers have grown to the longest texts. Off the cyclic thread, [`FrameFeed`] hands each new
+//! frame on to any number of servers.
+
+use std::sync::Arc;
+use std::time::Duration;
 
 use crate::image::Value;
 use crate::plc::Plc;
@@ -91,5 +95,58 @@ impl FrameReader {
         } else {
             None
         }
+    }
+}
+
+/// How often the feed looks for a newly published frame: a small fraction of the main cycle,
+/// so a frame reaches the servers within 2 ms of its publication.
+pub const FRAME_POLL: Duration = Duration::from_millis(2);
+
+/// The newest frame, for any number of servers on the tokio runtime (the screen, OPC UA): one
+/// task takes frames from the [`FrameReader`] and shares each new one, so the cyclic thread
+/// publishes once whoever listens.
+#[derive(Clone)]
+pub struct FrameFeed(tokio::sync::watch::Receiver<Arc<Frame>>);
+
+impl FrameFeed {
+    /// Starts the task that feeds frames from `reader` (call inside the tokio runtime). It ends
+    /// when every feed has been dropped.
+    pub fn spawn(mut reader: FrameReader) -> FrameFeed {
+        let first = Arc::new(reader.output.output_buffer().clone());
+        let (tx, rx) = tokio::sync::watch::channel(first);
+        tokio::spawn(async move {
+            let mut tick = tokio::time::interval(FRAME_POLL);
+            tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+            loop {
+                tick.tick().await;
+                if tx.is_closed() {
+                    break;
+                }
+                if let Some(frame) = reader.newer() {
+                    tx.send_replace(Arc::new(frame.clone()));
+                }
+            }
+        });
+        FrameFeed(rx)
+    }
+
+    /// The newest frame, if one came since the last call on this feed.
+    pub fn newer(&mut self) -> Option<Arc<Frame>> {
+        match self.0.has_changed() {
+            Ok(true) => Some(Arc::clone(&self.0.borrow_and_update())),
+            _ => None,
+        }
+    }
+
+    /// The newest frame (the first, not yet published one before the run's first main cycle).
+    pub fn latest(&self) -> Arc<Frame> {
+        Arc::clone(&self.0.borrow())
+    }
+
+    /// Waits for a frame newer than the last seen on this feed; `None` once the feed's task has
+    /// ended.
+    pub async fn next(&mut self) -> Option<Arc<Frame>> {
+        self.0.changed().await.ok()?;
+        Some(Arc::clone(&self.0.borrow_and_update()))
     }
 }

@@ -33,15 +33,15 @@ use pkm_api::hmi::JOG_AXIS_RANGE;
 use super::access::{Access, header_text};
 use super::commands::{CommandSink, FEED_OVERRIDE_RANGE, RAPID_OVERRIDE_RANGE, press};
 use super::cut::CutPath;
-use super::frame::{Frame, FrameReader};
+use super::frame::{Frame, FrameFeed};
 use super::jobs::JobDesk;
 use super::listener::Peer;
 use crate::image::Value;
 
 /// A jog not refreshed for this long stops (the page refreshes it every 20 ms while held).
 pub const JOG_TIMEOUT: Duration = Duration::from_millis(60);
-/// How often the server looks for a newly published frame.
-const FRAME_POLL: Duration = Duration::from_millis(2);
+/// How often, between frames, the server looks for a jog whose client went quiet.
+const STALE_JOG_POLL: Duration = Duration::from_millis(5);
 /// The longest message a client may send (its commands are a few dozen bytes).
 pub const MAX_CLIENT_MESSAGE: usize = 4096;
 /// Commands (and text requests) a client may send per second, on average; as many at once. The
@@ -178,7 +178,7 @@ impl Served {
 }
 
 /// Builds the router and the task that pushes frames.
-pub fn router(info: HmiInfo, mut frames: FrameReader, sink: CommandSink, options: ServerOptions) -> Router {
+pub fn router(info: HmiInfo, mut frames: FrameFeed, sink: CommandSink, options: ServerOptions) -> Router {
     let programs: Vec<Served> = info.programs.into_iter().map(Served::new).collect();
     let hello = json!({
         "type": "hello",
@@ -209,13 +209,19 @@ pub fn router(info: HmiInfo, mut frames: FrameReader, sink: CommandSink, options
     let pump = Arc::clone(&shared);
     let mut mechanism = info.mechanism;
     tokio::spawn(async move {
-        let mut tick = tokio::time::interval(FRAME_POLL);
+        // A held jog whose client went quiet is looked at between frames too.
+        let mut tick = tokio::time::interval(STALE_JOG_POLL);
         tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
         loop {
-            tick.tick().await;
+            let newer = tokio::select! {
+                frame = frames.next() => match frame {
+                    Some(frame) => Some(frame),
+                    None => break,
+                },
+                _ = tick.tick() => None,
+            };
             // Taken even with nobody listening, so that a client gets the newest next; written
             // out only for listeners.
-            let newer = frames.newer();
             if let Some(frame) = &newer {
                 pump.running.store(frame.status.state == "AUTO", Ordering::Relaxed);
                 if let Some(desk) = &pump.jobs {
@@ -234,7 +240,7 @@ pub fn router(info: HmiInfo, mut frames: FrameReader, sink: CommandSink, options
                     .as_mut()
                     .filter(|_| operating)
                     .and_then(|m| m.links(&frame.image));
-                let _ = tx.send(Arc::from(frame_json(frame, links).as_str()));
+                let _ = tx.send(Arc::from(frame_json(&frame, links).as_str()));
             }
             pump.release_stale_jog();
         }

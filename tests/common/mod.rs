@@ -255,14 +255,74 @@ pub fn record_machine_trace(dir: &Path, name: &str, seconds: u32, events: &str, 
     trace
 }
 
-/// Runs the `pkm-plc` binary in the repository with `RUST_LOG=warn`.
-pub fn pkm(args: &[&str]) -> std::process::Output {
-    std::process::Command::new(env!("CARGO_BIN_EXE_pkm-plc"))
-        .args(args)
+/// The `pkm-plc` binary of this build as a command, run in the repository. A real-time run
+/// serves no OPC UA unless a test asks for it (`PKM_PLC_OPCUA=none`, which `--opcua` overrides),
+/// and any data it keeps (the OPC UA certificate store) goes under `target/`, never into the
+/// user's home.
+pub fn pkm_command() -> std::process::Command {
+    let mut command = std::process::Command::new(env!("CARGO_BIN_EXE_pkm-plc"));
+    command
         .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .env("PKM_PLC_OPCUA", "none")
+        .env("XDG_DATA_HOME", Path::new(env!("CARGO_TARGET_TMPDIR")).join("xdg-data"));
+    command
+}
+
+/// Runs the `pkm-plc` binary in the repository with `RUST_LOG=warn` (see [`pkm_command`]).
+pub fn pkm(args: &[&str]) -> std::process::Output {
+    pkm_command()
+        .args(args)
         .env("RUST_LOG", "warn")
         .output()
         .expect("the binary runs")
+}
+
+/// A Python in a virtual environment `name` under `target/` with `requirement` installed
+/// (checked by importing `module`), made on first use — never the system's Python. `Err`: why
+/// there is none (no `python3-venv`, no network), for the test to say it skips.
+pub fn python_with(name: &str, requirement: &str, module: &str) -> Result<PathBuf, String> {
+    let venv = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(name);
+    let python = venv.join("bin/python");
+    let has = |python: &PathBuf| {
+        std::process::Command::new(python)
+            .args(["-c", &format!("import {module}")])
+            .stderr(std::process::Stdio::null())
+            .status()
+            .is_ok_and(|s| s.success())
+    };
+    if has(&python) {
+        return Ok(python);
+    }
+    let made = std::process::Command::new("python3")
+        .args(["-m", "venv", "--clear"])
+        .arg(&venv)
+        .output()
+        .map_err(|e| format!("python3 does not run ({e})"))?;
+    if !made.status.success() {
+        return Err(format!(
+            "python3 -m venv failed (Debian: apt-get install python3-venv): {}",
+            String::from_utf8_lossy(&made.stderr).lines().last().unwrap_or("")
+        ));
+    }
+    let pip = std::process::Command::new(&python)
+        .args([
+            "-m",
+            "pip",
+            "install",
+            "--quiet",
+            "--disable-pip-version-check",
+            requirement,
+        ])
+        .output()
+        .map_err(|e| format!("the virtual environment's python does not run ({e})"))?;
+    if !pip.status.success() || !has(&python) {
+        return Err(format!(
+            "pip install {requirement} into {} failed: {}",
+            venv.display(),
+            String::from_utf8_lossy(&pip.stderr).lines().last().unwrap_or("")
+        ));
+    }
+    Ok(python)
 }
 
 /// Replays `trace` with the configuration arguments `config` (`--config FILE` or `--machine

@@ -212,7 +212,7 @@ fn a_real_time_run_ends_after_its_duration_with_a_summary() {
 fn sigterm_stops_a_real_time_run_cleanly() {
     let dir = tempfile::tempdir().expect("tempdir");
     let path = dir.path().join("summary.json");
-    let mut child = Command::new(env!("CARGO_BIN_EXE_pkm-plc"))
+    let mut child = crate::common::pkm_command()
         .args(["run", "--summary", path.to_str().expect("utf-8 path")])
         .current_dir(env!("CARGO_MANIFEST_DIR"))
         .env("RUST_LOG", "info")
@@ -282,6 +282,7 @@ fn without_privileges_the_run_warns_and_goes_on() {
         .args(["run", "--duration", "0.3"])
         .current_dir(dir.path())
         .env("RUST_LOG", "warn")
+        .env("PKM_PLC_OPCUA", "none")
         .output()
         .expect("runs");
     assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
@@ -557,7 +558,7 @@ fn machine_names_a_machines_configuration_file_or_its_built_in_copy() {
     }
     // Elsewhere, without the file: the copy built into the binary, with its built-in I/O map.
     let dir = tempfile::tempdir().expect("tempdir");
-    let o = std::process::Command::new(env!("CARGO_BIN_EXE_pkm-plc"))
+    let o = crate::common::pkm_command()
         .args(["check", "--machine", "hexapod"])
         .current_dir(dir.path())
         .output()
@@ -586,7 +587,7 @@ fn programs_to_load_need_the_screen_and_a_directory_that_can_be_listed() {
     assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
     assert!(
         stderr(&o).contains(
-            "--programs programs: programs are loaded from the operator's screen, which is served in real time only (and not with --hmi none)"
+            "--programs programs: programs are loaded from the operator's screen or over OPC UA, which are served in real time only (and not with both --hmi none and --opcua none)"
         ),
         "{}",
         stderr(&o)
@@ -627,7 +628,7 @@ fn programs_never_come_from_outside_their_directory_and_what_is_skipped_is_logge
     // SAFETY: mkfifo(3) with a NUL-terminated path we own.
     assert_eq!(unsafe { libc::mkfifo(fifo.as_ptr(), 0o600) }, 0);
     std::fs::write(library.join("notes.txt"), "not a program").expect("write");
-    let o = std::process::Command::new(env!("CARGO_BIN_EXE_pkm-plc"))
+    let o = crate::common::pkm_command()
         .args([
             "run",
             "--machine",

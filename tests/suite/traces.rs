@@ -344,7 +344,7 @@ fn a_trace_write_error_reports_the_records_the_file_holds() {
     use std::os::unix::process::CommandExt;
     let dir = tempfile::tempdir().expect("tempdir");
     let trace = dir.path().join("cut.jsonl");
-    let mut run = std::process::Command::new(env!("CARGO_BIN_EXE_pkm-plc"));
+    let mut run = crate::common::pkm_command();
     run.args([
         "run",
         "--virtual",

@@ -1,0 +1,211 @@
+"""An OPC UA client nobody here wrote (Python's asyncua) against `pkm-plc run --opcua`.
+
+    opcua_client.py survey URL MACHINE
+        Browses PkmPlc/MACHINE and reads every variable: JSON on stdout with, per process-image
+        variable, its class folder, data type, IecType property, unit and value; the state; the
+        classes' figures; the methods and whether this (anonymous) session may execute them.
+    opcua_client.py subscribe URL MACHINE SECONDS [all]
+        Subscribes (publishing interval 50 ms, queue 4) to the main class's Cycles, the State and
+        every JOINTn_POSITION (with `all`: every process-image variable) for SECONDS; JSON with
+        the count of data changes per node and the latency of the Cycles updates (client receive
+        time - source timestamp, same computer).
+    opcua_client.py call URL MACHINE [options] METHOD [METHOD ...]
+        Calls the methods in turn (Load takes `Load=N`); between calls waits for the state a
+        call should bring (`wait=STATE`). Options: --user NAME --password PW, --secure DIR
+        (Basic256Sha256 SignAndEncrypt with a client certificate made in DIR) and --pki DIR (the
+        server's certificate store: a first connection is refused as untrusted, the server puts
+        the certificate into rejected/, and this moves it to trusted/ as an administrator would,
+        then connects again). JSON: per step, its status and result; "untrusted_first": whether
+        the first connection was refused.
+"""
+
+import asyncio
+import json
+import shutil
+import sys
+import time
+from pathlib import Path
+
+from asyncua import Client, ua
+from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
+
+NS = "urn:pkm-plc"
+
+
+async def machine_node(client, machine):
+    ns = await client.get_namespace_index(NS)
+    root = await client.nodes.objects.get_child([f"{ns}:PkmPlc", f"{ns}:{machine}"])
+    return ns, root
+
+
+async def child(node, ns, name):
+    return await node.get_child([f"{ns}:{name}"])
+
+
+async def survey(url, machine):
+    async with Client(url, timeout=10) as client:
+        ns, root = await machine_node(client, machine)
+        out = {"vars": {}, "classes": {}, "methods": {}, "program": []}
+        out["state"] = await (await child(root, ns, "State")).read_value()
+        classes = await child(root, ns, "TaskClasses")
+        for cls in await classes.get_children():
+            name = (await cls.read_browse_name()).Name
+            figures = {}
+            for fig in await cls.get_children():
+                fname = (await fig.read_browse_name()).Name
+                if fname == "Variables":
+                    continue
+                figures[fname] = await fig.read_value()
+            out["classes"][name] = figures
+            for var in await (await child(cls, ns, "Variables")).get_children():
+                vname = (await var.read_browse_name()).Name
+                dv = await var.read_data_value()
+                dtype = await var.read_data_type()
+                entry = {
+                    "class": name,
+                    "type": ua.object_ids.ObjectIdNames.get(dtype.Identifier, str(dtype)),
+                    "variant": dv.Value.VariantType.name,
+                    "value": dv.Value.Value,
+                }
+                for prop in await var.get_properties():
+                    pname = (await prop.read_browse_name()).Name
+                    value = await prop.read_value()
+                    if pname == "IecType":
+                        entry["iec"] = value
+                    elif pname == "EngineeringUnits":
+                        entry["unit"] = value.DisplayName.Text
+                        entry["unit_id"] = value.UnitId
+                out["vars"][vname] = entry
+        for node in await root.get_children(refs=ua.ObjectIds.HasComponent, nodeclassmask=ua.NodeClass.Method):
+            name = (await node.read_browse_name()).Name
+            executable = await node.read_attribute(ua.AttributeIds.UserExecutable)
+            out["methods"][name] = executable.Value.Value
+        for node in await (await child(root, ns, "Program")).get_children():
+            out["program"].append((await node.read_browse_name()).Name)
+        print(json.dumps(out))
+
+
+class Counter:
+    def __init__(self):
+        self.counts = {}
+        self.latencies_ms = []
+
+    def datachange_notification(self, node, val, data):
+        key = node.nodeid.to_string()
+        self.counts[key] = self.counts.get(key, 0) + 1
+        ts = data.monitored_item.Value.SourceTimestamp
+        if key.endswith("Cycles") and ts is not None:
+            self.latencies_ms.append((time.time() - ts.timestamp()) * 1000.0)
+
+
+async def subscribe(url, machine, seconds, every=False):
+    async with Client(url, timeout=10) as client:
+        ns, root = await machine_node(client, machine)
+        classes = await child(root, ns, "TaskClasses")
+        main = None
+        for cls in await classes.get_children():
+            if (await cls.read_browse_name()).Name == "main":
+                main = cls
+        nodes = [await child(main, ns, "Cycles"), await child(root, ns, "State")]
+        for cls in await classes.get_children():
+            for var in await (await child(cls, ns, "Variables")).get_children():
+                name = (await var.read_browse_name()).Name
+                if every or (name.startswith("JOINT") and name.endswith("_POSITION")):
+                    nodes.append(var)
+        handler = Counter()
+        sub = await client.create_subscription(50, handler)
+        await sub.subscribe_data_change(nodes, sampling_interval=50, queuesize=4)
+        await asyncio.sleep(seconds)
+        await sub.delete()
+        lat = sorted(handler.latencies_ms)
+        out = {
+            "counts": {k.split(";s=")[-1]: v for k, v in handler.counts.items()},
+            "latency_ms": {
+                "p50": lat[len(lat) // 2] if lat else None,
+                "p99": lat[min(len(lat) - 1, int(len(lat) * 0.99))] if lat else None,
+                "max": lat[-1] if lat else None,
+            },
+        }
+        print(json.dumps(out))
+
+
+async def call(url, machine, args):
+    user = password = secure = pki = None
+    steps = []
+    it = iter(args)
+    for a in it:
+        if a == "--user":
+            user = next(it)
+        elif a == "--password":
+            password = next(it)
+        elif a == "--secure":
+            secure = Path(next(it))
+        elif a == "--pki":
+            pki = Path(next(it))
+        else:
+            steps.append(a)
+    async def connect():
+        client = Client(url, timeout=10)
+        client.application_uri = "urn:pkm-plc-tests:asyncua"
+        if user:
+            client.set_user(user)
+            client.set_password(password)
+        if secure:
+            cert, key = await client.setup_self_signed_certificate(secure / "key.pem", secure / "cert.der")
+            await client.set_security(
+                SecurityPolicyBasic256Sha256, str(cert), str(key), mode=ua.MessageSecurityMode.SignAndEncrypt
+            )
+        await client.connect()
+        return client
+
+    untrusted_first = False
+    try:
+        client = await connect()
+    except ua.uaerrors.BadCertificateUntrusted:
+        if not pki:
+            raise
+        untrusted_first = True
+        for rejected in (pki / "rejected").iterdir():
+            shutil.move(str(rejected), str(pki / "trusted" / rejected.name))
+        client = await connect()
+    out = []
+    try:
+        ns, root = await machine_node(client, machine)
+        state = await child(root, ns, "State")
+        for step in steps:
+            if step.startswith("wait="):
+                want = step[5:]
+                deadline = time.time() + 30
+                seen = await state.read_value()
+                while seen != want and time.time() < deadline:
+                    await asyncio.sleep(0.05)
+                    seen = await state.read_value()
+                out.append({"step": step, "state": seen})
+                continue
+            name, _, arg = step.partition("=")
+            method = await child(root, ns, name)
+            inputs = [ua.Variant(int(arg), ua.VariantType.Int16)] if arg else []
+            try:
+                result = await root.call_method(method, *inputs)
+                out.append({"step": step, "status": "Good", "result": result})
+            except ua.UaStatusCodeError as e:
+                out.append({"step": step, "status": type(e).__name__})
+    finally:
+        await client.disconnect()
+    print(json.dumps({"untrusted_first": untrusted_first, "steps": out}))
+
+
+def main():
+    cmd, url, machine, *rest = sys.argv[1:]
+    if cmd == "survey":
+        asyncio.run(survey(url, machine))
+    elif cmd == "subscribe":
+        asyncio.run(subscribe(url, machine, float(rest[0]), rest[1:] == ["all"]))
+    elif cmd == "call":
+        asyncio.run(call(url, machine, rest))
+    else:
+        sys.exit(f"unknown command {cmd}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,411 @@
+//! The OPC UA server end to end, in real time, with a client nobody here wrote: Python's asyncua
+//! (from PyPI, in a virtual environment under `target/`; without python3-venv or PyPI the tests
+//! that need it say why on stderr and are skipped). It browses the address space and reads every
+//! variable's type, unit and value, subscribes and counts the updates over 10 s, is refused a
+//! method in an anonymous session, logs in over an encrypted channel (its certificate first
+//! rejected, then trusted as an administrator would) to stop the machine, acknowledge and load a
+//! program — and the trace of that run replays identically. A malformed hello is refused without
+//! harm, and the options that would expose the machine are refused before anything runs.
+
+mod common;
+
+use std::io::{BufRead, BufReader, Read, Write};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use serde_json::Value as Json;
+
+const ASYNCUA: &str = "asyncua==2.1.0";
+
+/// The virtual environment's Python with asyncua, made on first use; `Err`: why there is none.
+fn python() -> Result<PathBuf, &'static str> {
+    static READY: std::sync::OnceLock<Result<PathBuf, String>> = std::sync::OnceLock::new();
+    READY
+        .get_or_init(|| common::python_with("asyncua-venv", ASYNCUA, "asyncua"))
+        .clone()
+        .map_err(|e| {
+            eprintln!("asyncua unavailable: {e}");
+            "asyncua unavailable"
+        })
+}
+
+/// A running `pkm-plc run` with its OPC UA server, killed when dropped.
+struct Plc {
+    child: Child,
+    url: String,
+    log: Arc<Mutex<String>>,
+}
+
+impl Plc {
+    /// Starts `pkm-plc run ARGS --opcua opc.tcp://127.0.0.1:0` and waits for the server's URL.
+    fn start(args: &[&str]) -> Plc {
+        let mut child = common::pkm_command()
+            .args(["run", "--hmi", "none", "--opcua", "opc.tcp://127.0.0.1:0"])
+            .args(args)
+            .env("RUST_LOG", "info")
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("pkm-plc runs");
+        let log = Arc::new(Mutex::new(String::new()));
+        let (tx, rx) = std::sync::mpsc::channel();
+        let stderr = child.stderr.take().expect("stderr");
+        let sink = Arc::clone(&log);
+        std::thread::spawn(move || {
+            for line in BufReader::new(stderr).lines().map_while(Result::ok) {
+                if let Some(at) = line.find("OPC UA server at ") {
+                    let url = line[at + 17..].split_whitespace().next().unwrap_or("").to_string();
+                    let _ = tx.send(url);
+                }
+                let mut log = sink.lock().expect("log");
+                log.push_str(&line);
+                log.push('\n');
+            }
+        });
+        let url = rx
+            .recv_timeout(Duration::from_secs(60))
+            .unwrap_or_else(|_| panic!("no OPC UA server line: {}", log.lock().expect("log")));
+        Plc { child, url, log }
+    }
+
+    fn log(&self) -> String {
+        self.log.lock().expect("log").clone()
+    }
+
+    /// Waits for the run to end by itself (its `--duration`).
+    fn wait(mut self) -> std::process::ExitStatus {
+        let status = self.child.wait().expect("wait");
+        // The reader thread has the rest of the log once stderr closes.
+        std::thread::sleep(Duration::from_millis(100));
+        status
+    }
+}
+
+impl Drop for Plc {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// Runs the client script with `args`; its last stdout line as JSON.
+fn client(python: &Path, args: &[&str]) -> Json {
+    let script = format!("{}/tests/interop/opcua_client.py", env!("CARGO_MANIFEST_DIR"));
+    let o = Command::new(python)
+        .arg(script)
+        .args(args)
+        .output()
+        .expect("the client runs");
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        o.status.success(),
+        "client {args:?} failed:\n{stdout}\n{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let last = stdout.lines().last().unwrap_or_default();
+    serde_json::from_str(last).unwrap_or_else(|e| panic!("{e}: {stdout}"))
+}
+
+#[test]
+fn a_client_browses_every_variable_with_its_type_and_unit_and_subscribes_at_the_main_cycle_rate() {
+    let Ok(python) = python() else {
+        eprintln!("SKIPPED opcua::a_client_browses…: no asyncua (see above)");
+        return;
+    };
+    let plc = Plc::start(&["--duration", "60"]);
+    let survey = client(&python, &["survey", &plc.url, "trijoint"]);
+
+    // Every process-image variable, in the folder of its class, with its IEC type and the OPC
+    // UA type that carries it.
+    let vars = survey["vars"].as_object().expect("vars");
+    assert!(vars.len() >= 60, "{} variables", vars.len());
+    let mut types = std::collections::BTreeSet::new();
+    for (name, v) in vars {
+        let iec = v["iec"].as_str().unwrap_or_else(|| panic!("{name}: no IecType: {v}"));
+        let expected = match iec {
+            "BOOL" => "Boolean",
+            "INT" => "Int16",
+            "UINT" => "UInt16",
+            "DINT" => "Int32",
+            "REAL" => "Double",
+            other => panic!("{name}: IEC type {other}"),
+        };
+        assert_eq!(v["type"], expected, "{name}: {v}");
+        assert_eq!(v["variant"], expected, "{name}: the value's own type: {v}");
+        types.insert(iec.to_string());
+    }
+    assert_eq!(types.len(), 5, "every IEC type is read: {types:?}");
+    let var = |name: &str| &vars[name];
+    assert_eq!(var("JOINT1_POSITION")["class"], "fast");
+    assert_eq!(var("JOINT1_POSITION")["unit"], "mm");
+    assert_eq!(var("JOINT1_POSITION")["unit_id"], 5_066_068);
+    assert_eq!(var("TOOL_X")["unit"], "mm");
+    assert_eq!(var("TOOL_X")["class"], "main");
+    assert_eq!(var("setpoint_left_mm_s")["unit"], "mm/s");
+    assert_eq!(var("NC_FEED_OVERRIDE")["unit"], "%");
+    assert_eq!(var("counts_left")["iec"], "DINT");
+    assert!(var("counts_left").get("unit").is_none(), "a count has no unit");
+    assert_eq!(var("period_duration")["iec"], "UINT");
+    assert_eq!(var("HMI_STOP")["value"], false);
+    // The classes with their cycle times and figures; the program's variables; the state.
+    let classes = &survey["classes"];
+    for (class, ms) in [("fast", 10.0), ("main", 50.0), ("spare", 100.0)] {
+        assert_eq!(classes[class]["CycleTimeMs"], ms, "{classes}");
+        assert!(classes[class]["Cycles"].as_u64().is_some_and(|c| c > 0), "{classes}");
+    }
+    let program: Vec<&str> = survey["program"]
+        .as_array()
+        .expect("program")
+        .iter()
+        .filter_map(Json::as_str)
+        .collect();
+    assert!(
+        program.contains(&"NC_LINE") && program.contains(&"NC_STATE"),
+        "{program:?}"
+    );
+    assert!(
+        ["REBOOT", "INIT"].contains(&survey["state"].as_str().unwrap_or_default()),
+        "{survey}"
+    );
+    // Anonymous: the methods are there, none executable by this session.
+    let methods = survey["methods"].as_object().expect("methods");
+    let names: Vec<&str> = methods.keys().map(String::as_str).collect();
+    for m in ["Stop", "Acknowledge", "Start", "Hold", "Resume", "Load"] {
+        assert!(names.contains(&m), "{names:?}");
+        assert_eq!(methods[m], false, "{m} executable anonymously");
+    }
+
+    // Data changes at the main cycle's rate: 200 main cycles in 10 s.
+    let sub = client(&python, &["subscribe", &plc.url, "trijoint", "10"]);
+    let counts = &sub["counts"];
+    let cycles = counts["trijoint.TaskClasses.main.Cycles"].as_u64().unwrap_or(0);
+    assert!((170..=205).contains(&cycles), "main cycles updates in 10 s: {sub}");
+    let joints = counts["trijoint.JOINT1_POSITION"].as_u64().unwrap_or(0);
+    assert!(joints >= 100, "the referencing moves joint 1: {sub}");
+    assert!(counts["trijoint.State"].as_u64().unwrap_or(0) >= 1, "{sub}");
+    eprintln!("update latency to the client: {}", sub["latency_ms"]);
+
+    // An anonymous session is refused a command before it runs.
+    let refused = client(&python, &["call", &plc.url, "trijoint", "Stop"]);
+    assert_eq!(refused["steps"][0]["status"], "BadUserAccessDenied", "{refused}");
+    assert!(!plc.log().contains("ERROR (STOP)"), "{}", plc.log());
+}
+
+#[test]
+fn a_user_on_an_encrypted_channel_stops_acknowledges_and_loads_and_the_trace_replays() {
+    let Ok(python) = python() else {
+        eprintln!("SKIPPED opcua::a_user_on_an_encrypted_channel…: no asyncua (see above)");
+        return;
+    };
+    let dir = tempfile::tempdir().expect("tempdir");
+    let users = dir.path().join("users.json");
+    std::fs::write(
+        &users,
+        r#"{"users": [{"name": "operator", "password": "a-long-passphrase"}]}"#,
+    )
+    .expect("users");
+    use std::os::unix::fs::PermissionsExt;
+    std::fs::set_permissions(&users, std::fs::Permissions::from_mode(0o600)).expect("chmod");
+    let pki = dir.path().join("pki");
+    let trace = dir.path().join("opcua.jsonl");
+    let plc = Plc::start(&[
+        "--duration",
+        "8",
+        "--opcua-users",
+        users.to_str().expect("utf-8"),
+        "--opcua-pki",
+        pki.to_str().expect("utf-8"),
+        "--trace",
+        trace.to_str().expect("utf-8"),
+    ]);
+    let client_dir = dir.path().join("client");
+    let out = client(
+        &python,
+        &[
+            "call",
+            &plc.url,
+            "trijoint",
+            "--user",
+            "operator",
+            "--password",
+            "a-long-passphrase",
+            "--secure",
+            client_dir.to_str().expect("utf-8"),
+            "--pki",
+            pki.to_str().expect("utf-8"),
+            "Stop",
+            "wait=ERROR",
+            "Stop",
+            "Acknowledge",
+            "wait=INIT",
+            "Acknowledge",
+            "Load=1",
+            "Load=9",
+            "Start",
+        ],
+    );
+    assert_eq!(
+        out["untrusted_first"], true,
+        "an unknown client certificate is refused first: {out}"
+    );
+    let steps: Vec<(String, String)> = out["steps"]
+        .as_array()
+        .expect("steps")
+        .iter()
+        .map(|s| {
+            let what = s["step"].as_str().unwrap_or_default().to_string();
+            let outcome = s
+                .get("status")
+                .or_else(|| s.get("state"))
+                .and_then(Json::as_str)
+                .unwrap_or_default();
+            (what, outcome.to_string())
+        })
+        .collect();
+    let expected = [
+        ("Stop", "Good"),
+        ("wait=ERROR", "ERROR"),
+        ("Stop", "BadInvalidState"),
+        ("Acknowledge", "Good"),
+        ("wait=INIT", "INIT"),
+        ("Acknowledge", "BadInvalidState"),
+        ("Load=1", "Good"),
+        ("Load=9", "BadOutOfRange"),
+        ("Start", "BadInvalidState"),
+    ];
+    let expected: Vec<(String, String)> = expected.iter().map(|(a, b)| (a.to_string(), b.to_string())).collect();
+    assert_eq!(steps, expected, "{out}");
+    assert_eq!(
+        out["steps"][6]["result"], "program 1 (programs/trijoint-circle-square.ngc) loaded",
+        "{out}"
+    );
+    let log = plc.log();
+    for line in [
+        "OPC UA: user \"operator\" logged in (password)",
+        "OPC UA: Stop: STOP pressed",
+        "ERROR (STOP)",
+        "OPC UA: Acknowledge refused (BadInvalidState): there is no error to acknowledge: the machine is in INIT",
+        "OPC UA: Start refused (BadInvalidState): the machine is in INIT: a program starts in READY",
+    ] {
+        assert!(log.contains(line), "{line}\n{log}");
+    }
+    let status = plc.wait();
+    assert!(status.success(), "{status}");
+    // The commands entered the process image as inputs: the run replays.
+    common::assert_replays_identically(&trace, &[]);
+}
+
+#[test]
+fn a_malformed_hello_is_refused_and_the_server_serves_on() {
+    let plc = Plc::start(&["--duration", "30"]);
+    let addr = plc
+        .url
+        .trim_start_matches("opc.tcp://")
+        .trim_end_matches('/')
+        .to_string();
+    let attacks: [&[u8]; 3] = [
+        // Not OPC UA at all.
+        b"GET / HTTP/1.1\r\nHost: x\r\n\r\n",
+        // A hello that claims 4 GiB.
+        b"HELF\xff\xff\xff\xff\x00\x00\x00\x00",
+        // A hello whose fields end early, then garbage.
+        b"HELF\x20\x00\x00\x00\x00\x00\x00\x00\xff\xff\xff\xff\x01\x02\x03\x04\x05\x06\x07\x08",
+    ];
+    for attack in attacks {
+        let mut s = std::net::TcpStream::connect(&addr).expect("connects");
+        s.set_read_timeout(Some(Duration::from_secs(10))).expect("timeout");
+        s.write_all(attack).expect("sends");
+        let started = Instant::now();
+        let mut answer = Vec::new();
+        let _ = s.read_to_end(&mut answer);
+        assert!(
+            started.elapsed() < Duration::from_secs(8),
+            "the connection was closed ({} bytes answered)",
+            answer.len()
+        );
+        // Either closed at once or an ERR message first.
+        assert!(answer.is_empty() || answer.starts_with(b"ERRF"), "{answer:?}");
+    }
+    // The server still serves a proper client, and the machine ran on.
+    let mut proper = std::net::TcpStream::connect(&addr).expect("connects");
+    proper.set_read_timeout(Some(Duration::from_secs(10))).expect("timeout");
+    proper.write_all(&hello(&plc.url)).expect("hello");
+    let mut ack = [0u8; 8];
+    proper.read_exact(&mut ack).expect("an acknowledge");
+    assert_eq!(&ack[..4], b"ACKF", "{ack:?}");
+    let log = plc.log();
+    assert!(!log.contains("panic"), "{log}");
+    assert!(log.contains("t=0.050 s: INIT"), "{log}");
+}
+
+/// A well-formed OPC UA hello for `url` (OPC UA Part 6, 7.1.2.3).
+fn hello(url: &str) -> Vec<u8> {
+    let mut body = Vec::new();
+    for v in [0u32, 65_536, 65_536, 0, 0] {
+        body.extend_from_slice(&v.to_le_bytes());
+    }
+    body.extend_from_slice(&(url.len() as i32).to_le_bytes());
+    body.extend_from_slice(url.as_bytes());
+    let mut m = b"HELF".to_vec();
+    m.extend_from_slice(&((body.len() + 8) as u32).to_le_bytes());
+    m.extend_from_slice(&body);
+    m
+}
+
+#[test]
+fn serving_beyond_loopback_needs_users_and_the_options_are_checked_before_anything_runs() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let run = |args: &[&str]| {
+        let o = common::pkm_command()
+            .args(["run", "--hmi", "none", "--duration", "1"])
+            .args(args)
+            .env("RUST_LOG", "warn")
+            .output()
+            .expect("runs");
+        (o.status.code(), common::stderr(&o))
+    };
+    let (code, err) = run(&["--opcua", "opc.tcp://0.0.0.0:0"]);
+    assert_eq!(code, Some(2), "{err}");
+    assert!(
+        err.contains(
+            "--opcua 0.0.0.0:0: serving OPC UA beyond this computer needs users who may command (--opcua-users FILE)"
+        ),
+        "{err}"
+    );
+    let (code, err) = run(&["--virtual", "--opcua", "opc.tcp://127.0.0.1:0"]);
+    assert_eq!(code, Some(2), "{err}");
+    assert!(err.contains("--opcua serves OPC UA in real time only"), "{err}");
+    let (code, err) = run(&["--opcua", "http://127.0.0.1:4840"]);
+    assert_eq!(code, Some(2), "{err}");
+    assert!(err.contains("an OPC UA endpoint is opc.tcp://HOST:PORT"), "{err}");
+    let users = dir.path().join("users.json");
+    std::fs::write(
+        &users,
+        r#"{"users": [{"name": "operator", "password": "a-long-passphrase"}]}"#,
+    )
+    .expect("users");
+    use std::os::unix::fs::PermissionsExt;
+    std::fs::set_permissions(&users, std::fs::Permissions::from_mode(0o644)).expect("chmod");
+    let users = users.to_str().expect("utf-8");
+    let (code, err) = run(&["--opcua", "opc.tcp://127.0.0.1:0", "--opcua-users", users]);
+    assert_eq!(code, Some(2), "{err}");
+    assert!(
+        err.contains("it holds passwords and others may read it (mode 644): chmod 600"),
+        "{err}"
+    );
+    let (code, err) = run(&["--opcua-users", users]);
+    assert_eq!(code, Some(2), "{err}");
+    assert!(
+        err.contains("--opcua-users and --opcua-pki configure the OPC UA server, which is off (--opcua none, or PKM_PLC_OPCUA=none in the environment)"),
+        "{err}"
+    );
+    // A port someone has: an address given is exit 2 with why.
+    let taken = std::net::TcpListener::bind("127.0.0.1:0").expect("a port");
+    let at = format!("opc.tcp://{}", taken.local_addr().expect("addr"));
+    let (code, err) = run(&["--opcua", &at]);
+    assert_eq!(code, Some(2), "{err}");
+    assert!(err.contains("OPC UA: cannot listen on 127.0.0.1:"), "{err}");
+    assert!(err.contains("or run without OPC UA with --opcua none"), "{err}");
+}
