@@ -36,7 +36,15 @@ pub fn options(
         (Some(url), false) => (url, 0),
         (None, false) => (opcua::DEFAULT_URL, DEFAULT_NEXT_PORTS),
     };
-    let (addr, host) = opcua::parse_url(url)?;
+    let (addr, mut host) = opcua::parse_url(url)?;
+    // Listening on every address: the endpoints announce this computer's name, which clients
+    // elsewhere can reach, rather than 0.0.0.0.
+    if addr.ip().is_unspecified()
+        && let Ok(name) = std::fs::read_to_string("/proc/sys/kernel/hostname")
+        && !name.trim().is_empty()
+    {
+        host = name.trim().to_string();
+    }
     let users = users
         .map(|path| opcua::users::Users::load(path).map_err(|e| format!("--opcua-users {e}")))
         .transpose()?;

@@ -41,8 +41,14 @@ struct Plc {
 impl Plc {
     /// Starts `pkm-plc run ARGS --opcua opc.tcp://127.0.0.1:0` and waits for the server's URL.
     fn start(args: &[&str]) -> Plc {
+        Plc::serving("opc.tcp://127.0.0.1:0", args)
+    }
+
+    /// Starts `pkm-plc run ARGS --opcua URL` and waits for the server's URL (with its host
+    /// replaced by 127.0.0.1: a server on every address announces this computer's name).
+    fn serving(url: &str, args: &[&str]) -> Plc {
         let mut child = common::pkm_command()
-            .args(["run", "--hmi", "none", "--opcua", "opc.tcp://127.0.0.1:0"])
+            .args(["run", "--hmi", "none", "--opcua", url])
             .args(args)
             .env("RUST_LOG", "info")
             .stdout(Stdio::null())
@@ -115,6 +121,18 @@ fn a_client_browses_every_variable_with_its_type_and_unit_and_subscribes_at_the_
         return;
     };
     let plc = Plc::start(&["--duration", "60"]);
+    // On loopback: the unsecured endpoint besides the secure ones; anonymous sessions only
+    // (no users file).
+    let endpoints = client(&python, &["endpoints", &plc.url]);
+    assert_eq!(
+        endpoints,
+        serde_json::json!([
+            ["Aes256_Sha256_RsaPss", "SignAndEncrypt", ["Anonymous"]],
+            ["Basic256Sha256", "Sign", ["Anonymous"]],
+            ["Basic256Sha256", "SignAndEncrypt", ["Anonymous"]],
+            ["None", "None_", ["Anonymous"]]
+        ])
+    );
     let survey = client(&python, &["survey", &plc.url, "trijoint"]);
 
     // Every process-image variable, in the folder of its class, with its IEC type and the OPC
@@ -194,47 +212,67 @@ fn a_client_browses_every_variable_with_its_type_and_unit_and_subscribes_at_the_
 }
 
 #[test]
-fn a_user_on_an_encrypted_channel_stops_acknowledges_and_loads_and_the_trace_replays() {
+fn users_on_encrypted_channels_stop_acknowledge_and_load_beyond_loopback_and_the_trace_replays() {
     let Ok(python) = python() else {
-        eprintln!("SKIPPED opcua::a_user_on_an_encrypted_channel…: no asyncua (see above)");
+        eprintln!("SKIPPED opcua::users_on_encrypted_channels…: no asyncua (see above)");
         return;
     };
     let dir = tempfile::tempdir().expect("tempdir");
+    let path = |name: &str| dir.path().join(name).to_str().expect("utf-8").to_string();
+    // A user who logs in with a password, one with a certificate (made by the client's tools).
+    client(&python, &["usercert", &path("cell-7")]);
     let users = dir.path().join("users.json");
     std::fs::write(
         &users,
-        r#"{"users": [{"name": "operator", "password": "a-long-passphrase"}]}"#,
+        r#"{"users": [{"name": "operator", "password": "a-long-passphrase"}, {"name": "cell-7", "certificate": "cell-7/cert.der"}]}"#,
     )
     .expect("users");
     use std::os::unix::fs::PermissionsExt;
     std::fs::set_permissions(&users, std::fs::Permissions::from_mode(0o600)).expect("chmod");
-    let pki = dir.path().join("pki");
-    let trace = dir.path().join("opcua.jsonl");
-    let plc = Plc::start(&[
-        "--duration",
-        "8",
-        "--opcua-users",
-        users.to_str().expect("utf-8"),
-        "--opcua-pki",
-        pki.to_str().expect("utf-8"),
-        "--trace",
-        trace.to_str().expect("utf-8"),
-    ]);
-    let client_dir = dir.path().join("client");
-    let out = client(
-        &python,
+    let (pki, trace) = (path("pki"), path("opcua.jsonl"));
+    // On every address (so with users), as on the lab's network.
+    let plc = Plc::serving(
+        "opc.tcp://0.0.0.0:0",
         &[
-            "call",
-            &plc.url,
-            "trijoint",
-            "--user",
-            "operator",
-            "--password",
-            "a-long-passphrase",
-            "--secure",
-            client_dir.to_str().expect("utf-8"),
-            "--pki",
-            pki.to_str().expect("utf-8"),
+            "--duration",
+            "14",
+            "--opcua-users",
+            &path("users.json"),
+            "--opcua-pki",
+            &pki,
+            "--trace",
+            &trace,
+        ],
+    );
+    // Beyond loopback: the secure endpoints only, each with every kind of login.
+    let endpoints = client(&python, &["endpoints", &plc.url]);
+    let logins = serde_json::json!(["Anonymous", "Certificate", "UserName"]);
+    assert_eq!(
+        endpoints,
+        serde_json::json!([
+            ["Aes256_Sha256_RsaPss", "SignAndEncrypt", logins],
+            ["Basic256Sha256", "Sign", logins],
+            ["Basic256Sha256", "SignAndEncrypt", logins]
+        ])
+    );
+    let secure = ["--secure".to_string(), path("client"), "--pki".to_string(), pki.clone()];
+    let call = |login: &[&str], steps: &[&str]| {
+        let mut args = vec!["call", plc.url.as_str(), "trijoint"];
+        args.extend(secure.iter().map(String::as_str));
+        args.extend_from_slice(login);
+        args.extend_from_slice(steps);
+        client(&python, &args)
+    };
+    // A wrong password: no session. The client's certificate was unknown, so its first
+    // connection was refused and the administrator trusted it.
+    let wrong = call(&["--user", "operator", "--password", "a-wrong-passphrase"], &["Stop"]);
+    assert_eq!(wrong["refused"], "BadUserAccessDenied", "{wrong}");
+    assert_eq!(wrong["untrusted_first"], true, "{wrong}");
+
+    let operator = ["--user", "operator", "--password", "a-long-passphrase"];
+    let out = call(
+        &operator,
+        &[
             "Stop",
             "wait=ERROR",
             "Stop",
@@ -246,10 +284,7 @@ fn a_user_on_an_encrypted_channel_stops_acknowledges_and_loads_and_the_trace_rep
             "Start",
         ],
     );
-    assert_eq!(
-        out["untrusted_first"], true,
-        "an unknown client certificate is refused first: {out}"
-    );
+    assert_eq!(out["untrusted_first"], false, "trusted now: {out}");
     let steps: Vec<(String, String)> = out["steps"]
         .as_array()
         .expect("steps")
@@ -281,9 +316,16 @@ fn a_user_on_an_encrypted_channel_stops_acknowledges_and_loads_and_the_trace_rep
         out["steps"][6]["result"], "program 1 (programs/trijoint-circle-square.ngc) loaded",
         "{out}"
     );
+    // The user with a certificate stops the machine too.
+    let cell = call(&["--user-cert", &path("cell-7")], &["Stop", "wait=ERROR"]);
+    assert_eq!(cell["steps"][0]["status"], "Good", "{cell}");
+    assert_eq!(cell["steps"][1]["state"], "ERROR", "{cell}");
+
     let log = plc.log();
     for line in [
+        "OPC UA: login refused: user \"operator\": unknown user or wrong password",
         "OPC UA: user \"operator\" logged in (password)",
+        "OPC UA: user \"cell-7\" logged in (certificate)",
         "OPC UA: Stop: STOP pressed",
         "ERROR (STOP)",
         "OPC UA: Acknowledge refused (BadInvalidState): there is no error to acknowledge: the machine is in INIT",
@@ -294,7 +336,7 @@ fn a_user_on_an_encrypted_channel_stops_acknowledges_and_loads_and_the_trace_rep
     let status = plc.wait();
     assert!(status.success(), "{status}");
     // The commands entered the process image as inputs: the run replays.
-    common::assert_replays_identically(&trace, &[]);
+    common::assert_replays_identically(Path::new(&trace), &[]);
 }
 
 #[test]

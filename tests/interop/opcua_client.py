@@ -9,9 +9,14 @@
         every JOINTn_POSITION (with `all`: every process-image variable) for SECONDS; JSON with
         the count of data changes per node and the latency of the Cycles updates (client receive
         time - source timestamp, same computer).
+    opcua_client.py endpoints URL
+        The server's endpoints: JSON list of [security policy, mode, [user token types]].
+    opcua_client.py usercert DIR
+        Makes a user certificate and key in DIR (cert.der, key.pem) for an X.509 identity token.
     opcua_client.py call URL MACHINE [options] METHOD [METHOD ...]
         Calls the methods in turn (Load takes `Load=N`); between calls waits for the state a
-        call should bring (`wait=STATE`). Options: --user NAME --password PW, --secure DIR
+        call should bring (`wait=STATE`). Options: --user NAME --password PW, --user-cert DIR (log
+        in with the certificate and key of `usercert DIR`), --secure DIR
         (Basic256Sha256 SignAndEncrypt with a client certificate made in DIR) and --pki DIR (the
         server's certificate store: a first connection is refused as untrusted, the server puts
         the certificate into rejected/, and this moves it to trusted/ as an administrator would,
@@ -130,7 +135,7 @@ async def subscribe(url, machine, seconds, every=False):
 
 
 async def call(url, machine, args):
-    user = password = secure = pki = None
+    user = password = secure = pki = user_cert = None
     steps = []
     it = iter(args)
     for a in it:
@@ -138,6 +143,8 @@ async def call(url, machine, args):
             user = next(it)
         elif a == "--password":
             password = next(it)
+        elif a == "--user-cert":
+            user_cert = Path(next(it))
         elif a == "--secure":
             secure = Path(next(it))
         elif a == "--pki":
@@ -150,6 +157,9 @@ async def call(url, machine, args):
         if user:
             client.set_user(user)
             client.set_password(password)
+        if user_cert:
+            await client.load_client_certificate(str(user_cert / "cert.der"))
+            await client.load_private_key(user_cert / "key.pem")
         if secure:
             cert, key = await client.setup_self_signed_certificate(secure / "key.pem", secure / "cert.der")
             await client.set_security(
@@ -160,14 +170,19 @@ async def call(url, machine, args):
 
     untrusted_first = False
     try:
-        client = await connect()
-    except ua.uaerrors.BadCertificateUntrusted:
-        if not pki:
-            raise
-        untrusted_first = True
-        for rejected in (pki / "rejected").iterdir():
-            shutil.move(str(rejected), str(pki / "trusted" / rejected.name))
-        client = await connect()
+        try:
+            client = await connect()
+        except ua.uaerrors.BadCertificateUntrusted:
+            if not pki:
+                raise
+            untrusted_first = True
+            for rejected in (pki / "rejected").iterdir():
+                shutil.move(str(rejected), str(pki / "trusted" / rejected.name))
+            client = await connect()
+    except ua.UaStatusCodeError as e:
+        # A refused login (or channel): said, not raised.
+        print(json.dumps({"untrusted_first": untrusted_first, "refused": type(e).__name__}))
+        return
     out = []
     try:
         ns, root = await machine_node(client, machine)
@@ -195,8 +210,31 @@ async def call(url, machine, args):
     print(json.dumps({"untrusted_first": untrusted_first, "steps": out}))
 
 
+async def endpoints(url):
+    client = Client(url, timeout=10)
+    out = []
+    for e in await client.connect_and_get_server_endpoints():
+        tokens = sorted(t.TokenType.name for t in e.UserIdentityTokens)
+        out.append([e.SecurityPolicyUri.split("#")[-1], e.SecurityMode.name, tokens])
+    print(json.dumps(out))
+
+
+async def usercert(directory):
+    client = Client("opc.tcp://unused:4840")
+    client.application_uri = "urn:pkm-plc-tests:cell-7"
+    await client.setup_self_signed_certificate(directory / "key.pem", directory / "cert.der")
+    print(json.dumps({"cert": str(directory / "cert.der")}))
+
+
 def main():
-    cmd, url, machine, *rest = sys.argv[1:]
+    cmd, *rest = sys.argv[1:]
+    if cmd == "endpoints":
+        asyncio.run(endpoints(rest[0]))
+        return
+    if cmd == "usercert":
+        asyncio.run(usercert(Path(rest[0])))
+        return
+    url, machine, *rest = rest
     if cmd == "survey":
         asyncio.run(survey(url, machine))
     elif cmd == "subscribe":
