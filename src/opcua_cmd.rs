@@ -39,11 +39,8 @@ pub fn options(
     let (addr, mut host) = opcua::parse_url(url)?;
     // Listening on every address: the endpoints announce this computer's name, which clients
     // elsewhere can reach, rather than 0.0.0.0.
-    if addr.ip().is_unspecified()
-        && let Ok(name) = std::fs::read_to_string("/proc/sys/kernel/hostname")
-        && !name.trim().is_empty()
-    {
-        host = name.trim().to_string();
+    if addr.ip().is_unspecified() {
+        host = opcua::server::host_name();
     }
     let users = users
         .map(|path| opcua::users::Users::load(path).map_err(|e| format!("--opcua-users {e}")))

@@ -60,7 +60,8 @@ pub fn start(
     let anonymous = vec![opcua::server::ANONYMOUS_USER_TOKEN_ID.to_string()];
     let mut builder = ServerBuilder::new()
         .application_name(format!("pkm-plc ({})", info.machine))
-        .application_uri(format!("urn:pkm-plc:{}", info.machine))
+        // One certificate per computer, whichever machine runs: the URI names the computer.
+        .application_uri(format!("urn:{}:pkm-plc", host_name()))
         .product_uri("urn:pkm-plc")
         .build_info(BuildInfo {
             product_uri: "urn:pkm-plc".into(),
@@ -179,6 +180,15 @@ fn private_store(pki: &std::path::Path) -> Result<(), String> {
         .map_err(|e| format!("cannot make the certificate store {}: {e}", private.display()))?;
     std::fs::set_permissions(&private, std::fs::Permissions::from_mode(0o700))
         .map_err(|e| format!("{}: {e}", private.display()))
+}
+
+/// This computer's name (`localhost` where it cannot be read).
+pub fn host_name() -> String {
+    std::fs::read_to_string("/proc/sys/kernel/hostname")
+        .map(|n| n.trim().to_string())
+        .ok()
+        .filter(|n| !n.is_empty())
+        .unwrap_or_else(|| "localhost".into())
 }
 
 /// The host as it stands in a URL (an IPv6 address in brackets).
