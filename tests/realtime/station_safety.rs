@@ -3,7 +3,7 @@
 //! dies without a safe stop; terminating signals other than SIGINT/SIGTERM stop the PLC safely;
 //! io-sim bounds its clients and summarises repeated errors.
 
-mod common;
+use crate::common;
 
 use std::io::{Read, Write};
 use std::net::{SocketAddr, TcpStream};

@@ -1,6 +1,6 @@
 //! The I/O simulator as a Modbus TCP slave, driven by a Modbus client over loopback.
 
-mod common;
+use crate::common;
 
 use std::net::SocketAddr;
 use std::process::Stdio;

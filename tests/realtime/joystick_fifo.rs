@@ -5,7 +5,7 @@
 //! READY. The writer comes back and pulls the stick towards the operator — M moves down. The
 //! trace of the run replays identically. The run takes 29 s.
 
-mod common;
+use crate::common;
 
 use std::collections::HashMap;
 use std::io::Write;

@@ -3,7 +3,7 @@
 //! a virtual environment under `target/` (never into the system's Python); where one cannot be
 //! made (no `python3-venv`, no network), the tests say why on stderr and are skipped.
 
-mod common;
+use crate::common;
 
 use std::io::{BufRead, BufReader};
 use std::path::PathBuf;

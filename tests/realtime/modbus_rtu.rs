@@ -7,7 +7,7 @@
 //! The driver's default exchange on a serial line is the packed image, one transaction per
 //! exchange.
 
-mod common;
+use crate::common;
 
 use pkm_plc::io::line::LineTiming;
 use pkm_plc::io::modbus::{ExchangeMode, ModbusBus, Transport};

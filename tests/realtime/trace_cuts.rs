@@ -2,7 +2,7 @@
 //! up to the cut; cut, out-of-order and oversized traces are read as far as they are sound and
 //! the rest is a clear message.
 
-mod common;
+use crate::common;
 
 use std::io::{BufRead, Write};
 use std::path::{Path, PathBuf};

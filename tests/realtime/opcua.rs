@@ -7,7 +7,7 @@
 //! program — and the trace of that run replays identically. A malformed hello is refused without
 //! harm, and the options that would expose the machine are refused before anything runs.
 
-mod common;
+use crate::common;
 
 use std::io::{BufRead, BufReader, Read, Write};
 use std::path::{Path, PathBuf};

@@ -3,7 +3,7 @@
 //! (ERROR "bus fault: LINK: CAUSE", PWM zero),
 //! never a hang or a panic; a returning station brings the link back.
 
-mod common;
+use crate::common;
 
 use std::io::{Read, Write};
 use std::net::{TcpListener, TcpStream};

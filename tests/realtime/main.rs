@@ -1,0 +1,27 @@
+//! The end-to-end tests that run `pkm-plc` (or its Modbus link) in real time, in one binary so
+//! that they run side by side: each spends most of its time waiting on real time (a machine
+//! referencing, a station's watchdog, a client's subscription), not on the CPU.
+//!
+//! - [`interop`]: against an independent Modbus implementation (pymodbus).
+//! - [`io_sim`]: the I/O simulator as a Modbus TCP slave.
+//! - [`joystick_fifo`]: a joystick through a FIFO.
+//! - [`modbus_faults`]: link faults on Modbus TCP and RTU.
+//! - [`modbus_rtu`]: Modbus RTU over pseudo-terminals at an emulated baud rate.
+//! - [`opcua`]: the OPC UA server with Python's asyncua.
+//! - [`station_safety`]: what the station and the soft-PLC do when things go wrong.
+//! - [`trace_cuts`]: traces that a crash cut short.
+//!
+//! The operator screen's browser tests (`tests/hmi_browser.rs`) stay a binary of their own: they
+//! run one at a time.
+
+#[path = "../common/mod.rs"]
+mod common;
+
+mod interop;
+mod io_sim;
+mod joystick_fifo;
+mod modbus_faults;
+mod modbus_rtu;
+mod opcua;
+mod station_safety;
+mod trace_cuts;
