@@ -844,61 +844,16 @@ fn run_realtime(
     } else {
         (None, None)
     };
-    if let (Some((Screen { options, info, sink }, listener)), Some(feed)) = (screen, &feed) {
-        let server_options = pkm_plc::hmi::server::ServerOptions {
-            access: pkm_plc::hmi::access::Access {
-                token: options.token.clone(),
-                allowed_origins: options.allowed_origins.clone(),
-            },
-            max_clients: options.max_clients,
-        };
-        let router = pkm_plc::hmi::server::router(info, feed.clone(), sink, server_options);
-        let at = listener.local_addr().map_or(options.addr, |a| a);
-        info!(
-            "operator screen at http://{at}/{}",
-            if options.token.is_some() {
-                " (commands need the token: ?token=…)"
-            } else {
-                ""
-            }
-        );
-        // Connections: the clients', and room for pages and assets loading.
-        let listener = pkm_plc::hmi::listener::Bounded::new(listener, options.max_clients + 8);
-        runtime.spawn(async move {
-            let service = router.into_make_service_with_connect_info::<pkm_plc::hmi::listener::Peer>();
-            if let Err(e) = axum::serve(listener, service).await {
-                warn!("operator screen: {e}");
-            }
-        });
+    if let (Some((screen, listener)), Some(feed)) = (screen, &feed) {
+        serve_screen(screen, listener, feed.clone());
     }
     if let (Some((server, listener)), Some(feed)) = (opcua, &feed) {
-        let main_period_ns = plc.app_period_ns().unwrap_or(50_000_000);
-        let OpcUa {
-            options,
-            info,
-            sink,
-            explicit,
-            ..
-        } = server;
-        match pkm_plc::opcua::server::start(&options, listener, info, feed.clone(), sink, main_period_ns) {
-            Ok(running) => info!(
-                "OPC UA server at {} ({})",
-                running.url,
-                match &options.users {
-                    Some(u) => format!(
-                        "anonymous sessions read; the {} users of {} also command",
-                        u.users.len(),
-                        u.origin.display()
-                    ),
-                    None => "read-only: commands need --opcua-users".to_string(),
-                }
-            ),
-            // Asked for: nothing runs without it. The default: the machine runs, said once.
-            Err(e) if explicit => return Err(Failure::usage(format!("OPC UA: cannot start the server: {e}"))),
-            Err(e) => warn!(
-                "OPC UA: not served: {e}; give a certificate store with --opcua-pki DIR, or turn OPC UA off with --opcua none"
-            ),
-        }
+        serve_opcua(
+            server,
+            listener,
+            feed.clone(),
+            plc.app_period_ns().unwrap_or(50_000_000),
+        )?;
     }
     let run = run::start_realtime_with(plc, options, publisher).map_err(|e| Failure::run(e.to_string()))?;
     let stop = run.stop_flag();
@@ -937,6 +892,73 @@ fn run_realtime(
         run.join()
     });
     outcome.map_err(|e| Failure::run(e.to_string()))
+}
+
+/// Serves the operator's screen on `listener` (inside the tokio runtime).
+fn serve_screen(screen: Screen, listener: tokio::net::TcpListener, feed: pkm_plc::hmi::frame::FrameFeed) {
+    let Screen { options, info, sink } = screen;
+    let server_options = pkm_plc::hmi::server::ServerOptions {
+        access: pkm_plc::hmi::access::Access {
+            token: options.token.clone(),
+            allowed_origins: options.allowed_origins.clone(),
+        },
+        max_clients: options.max_clients,
+    };
+    let router = pkm_plc::hmi::server::router(info, feed, sink, server_options);
+    let at = listener.local_addr().map_or(options.addr, |a| a);
+    info!(
+        "operator screen at http://{at}/{}",
+        if options.token.is_some() {
+            " (commands need the token: ?token=…)"
+        } else {
+            ""
+        }
+    );
+    // Connections: the clients', and room for pages and assets loading.
+    let listener = pkm_plc::hmi::listener::Bounded::new(listener, options.max_clients + 8);
+    tokio::spawn(async move {
+        let service = router.into_make_service_with_connect_info::<pkm_plc::hmi::listener::Peer>();
+        if let Err(e) = axum::serve(listener, service).await {
+            warn!("operator screen: {e}");
+        }
+    });
+}
+
+/// Starts the OPC UA server behind `listener` (inside the tokio runtime). One asked for with
+/// `--opcua` that cannot start ends the run before it starts; the default's failure is a warning.
+fn serve_opcua(
+    server: OpcUa,
+    listener: tokio::net::TcpListener,
+    feed: pkm_plc::hmi::frame::FrameFeed,
+    main_period_ns: u64,
+) -> Result<(), Failure> {
+    let OpcUa {
+        options,
+        info,
+        sink,
+        explicit,
+        ..
+    } = server;
+    match pkm_plc::opcua::server::start(&options, listener, info, feed, sink, main_period_ns) {
+        Ok(running) => info!(
+            "OPC UA server at {} ({})",
+            running.url,
+            match &options.users {
+                Some(u) => format!(
+                    "anonymous sessions read; the {} users of {} also command",
+                    u.users.len(),
+                    u.origin.display()
+                ),
+                None => "read-only: commands need --opcua-users".to_string(),
+            }
+        ),
+        // Asked for: nothing runs without it. The default: the machine runs, said once.
+        Err(e) if explicit => return Err(Failure::usage(format!("OPC UA: cannot start the server: {e}"))),
+        Err(e) => warn!(
+            "OPC UA: not served: {e}; give a certificate store with --opcua-pki DIR, or turn OPC UA off with --opcua none"
+        ),
+    }
+    Ok(())
 }
 
 /// A run over a Modbus link that never made one exchange failed (exit 1), with why: the machine
