@@ -750,41 +750,41 @@ fn screen_info(
 
 /// A server's listener: on `addr`, or — when its port is taken (a second PLC on this computer)
 /// — on the next free one of the `next_ports` after it or else any free port, said in a warning
-/// (`what` names the server). The first error when none can be had.
-async fn bind_with_fallback(
+/// (`what` names the server). When none can be had, the usage error that ends the run before it
+/// starts, with the first error and what to do `instead`.
+async fn listen(
     addr: std::net::SocketAddr,
     next_ports: u16,
     what: &str,
-) -> std::io::Result<tokio::net::TcpListener> {
-    let first = tokio::net::TcpListener::bind(addr).await;
-    let Err(taken) = first else { return first };
-    if taken.kind() != std::io::ErrorKind::AddrInUse || next_ports == 0 {
-        return Err(taken);
-    }
-    // The next ports, then any free one (the log says which).
-    let next = (1..=next_ports).map(|k| addr.port().saturating_add(k));
-    for port in next.chain([0]) {
-        let mut at = addr;
-        at.set_port(port);
-        if let Ok(listener) = tokio::net::TcpListener::bind(at).await {
-            warn!(
-                "{what}: {addr} is taken (another pkm-plc?): serving on {} instead",
-                listener.local_addr().map_or(at, |a| a)
-            );
-            return Ok(listener);
+    instead: &str,
+) -> Result<tokio::net::TcpListener, Failure> {
+    let taken = match tokio::net::TcpListener::bind(addr).await {
+        Ok(listener) => return Ok(listener),
+        Err(e) => e,
+    };
+    if taken.kind() == std::io::ErrorKind::AddrInUse && next_ports > 0 {
+        // The next ports, then any free one (the log says which).
+        let next = (1..=next_ports).map(|k| addr.port().saturating_add(k));
+        for port in next.chain([0]) {
+            let mut at = addr;
+            at.set_port(port);
+            if let Ok(listener) = tokio::net::TcpListener::bind(at).await {
+                warn!(
+                    "{what}: {addr} is taken (another pkm-plc?): serving on {} instead",
+                    listener.local_addr().map_or(at, |a| a)
+                );
+                return Ok(listener);
+            }
         }
     }
-    Err(taken)
-}
-
-/// Why a server's address cannot be had, as the usage error that ends the run before it starts.
-fn cannot_listen(what: &str, addr: std::net::SocketAddr, e: &std::io::Error, instead: &str) -> Failure {
-    let busy = if e.kind() == std::io::ErrorKind::AddrInUse {
+    let busy = if taken.kind() == std::io::ErrorKind::AddrInUse {
         " (another pkm-plc, or another server, has it)"
     } else {
         ""
     };
-    Failure::usage(format!("{what}: cannot listen on {addr}: {e}{busy}; {instead}"))
+    Err(Failure::usage(format!(
+        "{what}: cannot listen on {addr}: {taken}{busy}; {instead}"
+    )))
 }
 
 fn run_realtime(
@@ -806,37 +806,24 @@ fn run_realtime(
     // The listeners first: an address that cannot be had ends the run before anything moves —
     // a page or a SCADA open on that port shows another PLC (a second one started by mistake),
     // so running on without the server would mislead.
-    let screen = match screen {
-        None => None,
-        Some(screen) => {
-            let next = screen.options.next_ports;
-            match runtime.block_on(bind_with_fallback(screen.options.addr, next, "operator screen")) {
-                Ok(listener) => Some((screen, listener)),
-                Err(e) => {
-                    return Err(cannot_listen(
-                        "operator screen",
-                        screen.options.addr,
-                        &e,
-                        "give another address with --hmi ADDR (port 0: any free one, logged), or run without a screen with --hmi none",
-                    ));
-                }
-            }
-        }
-    };
-    let opcua = match opcua {
-        None => None,
-        Some(server) => match runtime.block_on(bind_with_fallback(server.options.addr, server.next_ports, "OPC UA")) {
-            Ok(listener) => Some((server, listener)),
-            Err(e) => {
-                return Err(cannot_listen(
-                    "OPC UA",
-                    server.options.addr,
-                    &e,
-                    "give another endpoint with --opcua opc.tcp://HOST:PORT (port 0: any free one, logged), or run without OPC UA with --opcua none",
-                ));
-            }
-        },
-    };
+    let screen = screen
+        .map(|screen| {
+            let (addr, next) = (screen.options.addr, screen.options.next_ports);
+            let instead = "give another address with --hmi ADDR (port 0: any free one, logged), or run without a screen with --hmi none";
+            runtime
+                .block_on(listen(addr, next, "operator screen", instead))
+                .map(|listener| (screen, listener))
+        })
+        .transpose()?;
+    let opcua = opcua
+        .map(|server| {
+            let (addr, next) = (server.options.addr, server.next_ports);
+            let instead = "give another endpoint with --opcua opc.tcp://HOST:PORT (port 0: any free one, logged), or run without OPC UA with --opcua none";
+            runtime
+                .block_on(listen(addr, next, "OPC UA", instead))
+                .map(|listener| (server, listener))
+        })
+        .transpose()?;
     // Both are fed from one publication per main cycle.
     let (publisher, feed) = if screen.is_some() || opcua.is_some() {
         let (publisher, reader) = pkm_plc::hmi::frame::frames(&plc);

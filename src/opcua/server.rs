@@ -3,7 +3,8 @@
 //! never touches the cyclic thread), commanding through the screen's [`CommandSink`].
 
 use std::os::unix::fs::PermissionsExt;
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
 
 use opcua::crypto::SecurityPolicy;
 use opcua::server::diagnostics::NamespaceMetadata;
@@ -215,13 +216,61 @@ fn publish(manager: &SimpleNodeManager, handle: &ServerHandle, space: &mut Space
     }
 }
 
+/// The most method calls taken per second, all sessions together: far more than an operator or
+/// a SCADA sends; a client calling in a loop is refused (`BadTooManyOperations`) rather than
+/// flooding the process image and the log.
+pub const MAX_CALLS_PER_S: u32 = 20;
+
+/// Counts method calls per second against [`MAX_CALLS_PER_S`].
+#[derive(Debug)]
+pub struct CallRate {
+    window: Instant,
+    calls: u32,
+    refused: u32,
+}
+
+impl CallRate {
+    /// A rate whose first window starts `now`.
+    pub fn new(now: Instant) -> CallRate {
+        CallRate {
+            window: now,
+            calls: 0,
+            refused: 0,
+        }
+    }
+
+    /// Whether a call at `now` is taken. Refusals are logged once per window, as a count.
+    pub fn allow(&mut self, now: Instant) -> bool {
+        if now.duration_since(self.window) >= Duration::from_secs(1) {
+            if self.refused > 0 {
+                warn!(
+                    "OPC UA: {} method calls refused in a second: at most {MAX_CALLS_PER_S} are taken",
+                    self.refused
+                );
+            }
+            *self = CallRate::new(now);
+        }
+        self.calls += 1;
+        let allowed = self.calls <= MAX_CALLS_PER_S;
+        if !allowed {
+            self.refused += 1;
+        }
+        allowed
+    }
+}
+
 /// The methods' callbacks: each enters the process image through `sink` as the screen's
 /// buttons do, after the checks the screen makes, against the newest frame's state.
 fn add_methods(manager: &SimpleNodeManager, space: &Space, info: &SpaceInfo, feed: FrameFeed, sink: CommandSink) {
     let programs = info.programs.clone();
+    let rate = Arc::new(Mutex::new(CallRate::new(Instant::now())));
     for (method, node) in &space.methods {
         let (method, feed, sink, programs) = (*method, feed.clone(), sink.clone(), programs.clone());
+        let rate = Arc::clone(&rate);
         manager.inner().add_method_callback(node.clone(), move |args| {
+            if !rate.lock().unwrap_or_else(|p| p.into_inner()).allow(Instant::now()) {
+                return Err(StatusCode::BadTooManyOperations);
+            }
             let state = feed.latest().status.state.clone();
             let outcome = command(method, args, &state, &programs, &sink);
             match &outcome {
@@ -299,5 +348,70 @@ pub fn command(
             sink.update(|c| c.program = n);
             Ok(format!("program {n} ({}) loaded", programs[n as usize - 1]))
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn method_calls_beyond_the_rate_are_refused_until_the_next_second() {
+        let start = Instant::now();
+        let mut rate = CallRate::new(start);
+        let taken = (0..30).filter(|_| rate.allow(start)).count();
+        assert_eq!(taken, MAX_CALLS_PER_S as usize);
+        assert!(!rate.allow(start + Duration::from_millis(999)));
+        assert!(
+            rate.allow(start + Duration::from_secs(1)),
+            "a new second takes calls again"
+        );
+    }
+
+    #[test]
+    fn methods_check_the_state_and_their_argument() {
+        let (_bus, sink) = crate::hmi::commands::HmiBus::new(Box::new(crate::bus::NoBus), 0, 500_000_000);
+        let programs = vec!["programs/a.ngc".to_string()];
+        let run = |m: Method, args: &[Variant], state: &str| command(m, args, state, &programs, &sink);
+        assert_eq!(run(Method::Stop, &[], "READY"), Ok("STOP pressed".into()));
+        assert_eq!(sink.current().presses[press::STOP], 1);
+        assert_eq!(
+            run(Method::Stop, &[], "ERROR"),
+            Err((
+                StatusCode::BadInvalidState,
+                "the machine is in ERROR already; Acknowledge acknowledges the error".into()
+            ))
+        );
+        assert_eq!(sink.current().presses[press::STOP], 1, "no press for a refused call");
+        assert!(run(Method::Acknowledge, &[], "ERROR").is_ok());
+        assert_eq!(sink.current().acknowledgements, 1);
+        assert_eq!(
+            run(Method::Start, &[], "AUTO"),
+            Err((
+                StatusCode::BadInvalidState,
+                "the machine is in AUTO: a program starts in READY".into()
+            ))
+        );
+        assert!(run(Method::Hold, &[], "AUTO").is_ok());
+        assert_eq!(
+            run(Method::Load, &[Variant::Int16(2)], "READY"),
+            Err((StatusCode::BadOutOfRange, "no program 2: the run has 1".into()))
+        );
+        assert_eq!(
+            run(Method::Load, &[Variant::Int32(1)], "READY"),
+            Err((
+                StatusCode::BadInvalidArgument,
+                "Load takes the program's number (Int16)".into()
+            ))
+        );
+        assert_eq!(
+            run(Method::Load, &[Variant::Int16(1)], "READY"),
+            Ok("program 1 (programs/a.ngc) loaded".into())
+        );
+        assert_eq!(sink.current().program, 1);
+        assert!(
+            run(Method::Load, &[Variant::Int16(1)], "AUTO").is_err(),
+            "not while a program runs"
+        );
     }
 }

@@ -278,9 +278,20 @@ pub fn pkm(args: &[&str]) -> std::process::Output {
 }
 
 /// A Python in a virtual environment `name` under `target/` with `requirement` installed
-/// (checked by importing `module`), made on first use — never the system's Python. `Err`: why
-/// there is none (no `python3-venv`, no network), for the test to say it skips.
+/// (checked by importing `module`), made on first use — never the system's Python — once per
+/// test binary, however many tests ask at once. `Err`: why there is none (no `python3-venv`, no
+/// network), for the test to say it skips.
 pub fn python_with(name: &str, requirement: &str, module: &str) -> Result<PathBuf, String> {
+    type Made = std::collections::HashMap<String, Result<PathBuf, String>>;
+    static MADE: std::sync::Mutex<Option<Made>> = std::sync::Mutex::new(None);
+    let mut made = MADE.lock().unwrap_or_else(|p| p.into_inner());
+    made.get_or_insert_with(Made::new)
+        .entry(name.to_string())
+        .or_insert_with(|| make_venv(name, requirement, module))
+        .clone()
+}
+
+fn make_venv(name: &str, requirement: &str, module: &str) -> Result<PathBuf, String> {
     let venv = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(name);
     let python = venv.join("bin/python");
     let has = |python: &PathBuf| {

@@ -13,15 +13,11 @@ const PYMODBUS: &str = "pymodbus==3.8.6";
 
 /// The virtual environment's Python with pymodbus, made on first use; `Err`: why there is none.
 fn python() -> Result<PathBuf, &'static str> {
-    static READY: std::sync::OnceLock<Result<PathBuf, String>> = std::sync::OnceLock::new();
-    READY
-        .get_or_init(|| common::python_with("pymodbus-venv", PYMODBUS, "pymodbus"))
-        .clone()
-        .map_err(|e| {
-            // Said once per test that needs it.
-            eprintln!("pymodbus unavailable: {e}");
-            "pymodbus unavailable"
-        })
+    common::python_with("pymodbus-venv", PYMODBUS, "pymodbus").map_err(|e| {
+        // Said once per test that needs it.
+        eprintln!("pymodbus unavailable: {e}");
+        "pymodbus unavailable"
+    })
 }
 
 fn script(name: &str) -> String {

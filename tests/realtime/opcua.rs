@@ -21,14 +21,11 @@ const ASYNCUA: &str = "asyncua==2.1.0";
 
 /// The virtual environment's Python with asyncua, made on first use; `Err`: why there is none.
 fn python() -> Result<PathBuf, &'static str> {
-    static READY: std::sync::OnceLock<Result<PathBuf, String>> = std::sync::OnceLock::new();
-    READY
-        .get_or_init(|| common::python_with("asyncua-venv", ASYNCUA, "asyncua"))
-        .clone()
-        .map_err(|e| {
-            eprintln!("asyncua unavailable: {e}");
-            "asyncua unavailable"
-        })
+    common::python_with("asyncua-venv", ASYNCUA, "asyncua").map_err(|e| {
+        // Said once per test that needs it.
+        eprintln!("asyncua unavailable: {e}");
+        "asyncua unavailable"
+    })
 }
 
 /// A running `pkm-plc run` with its OPC UA server, killed when dropped.
