@@ -8,6 +8,8 @@
 //!   the operator's screen (off the cyclic thread), its commands entering the process image
 //!   through the screen's [`crate::hmi::commands::CommandSink`] — traced and replayed like the
 //!   screen's.
+//! - [`nodes`]: the node manager: the nodes in memory, the methods called with the session's
+//!   user.
 //! - [`auth`]: anonymous sessions read; users of the users file ([`users`]) also command.
 //! - [`units`]: engineering units from the variables' names.
 //! - [`gate`]: the bound on connections held at once.
@@ -18,6 +20,7 @@
 
 pub mod auth;
 pub mod gate;
+pub mod nodes;
 pub mod server;
 pub mod space;
 pub mod units;

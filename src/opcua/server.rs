@@ -7,15 +7,14 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use opcua::crypto::SecurityPolicy;
-use opcua::server::diagnostics::NamespaceMetadata;
-use opcua::server::node_manager::memory::{SimpleNodeManager, simple_node_manager};
 use opcua::server::{ServerBuilder, ServerEndpoint, ServerHandle};
 use opcua::types::{BuildInfo, DataValue, MessageSecurityMode, NodeId, StatusCode, Variant};
 use tokio::net::TcpListener;
-use tracing::{info, warn};
+use tracing::warn;
 
 use super::OpcUaOptions;
 use super::auth::Auth;
+use super::nodes::{Commander, PlcNodeManager};
 use super::space::{Method, NAMESPACE, Space, SpaceInfo};
 use crate::hmi::commands::{CommandSink, press};
 use crate::hmi::frame::FrameFeed;
@@ -85,13 +84,7 @@ pub fn start(
         // main cycle: the rate data changes come at.
         .subscription_poll_interval_ms((main_period_ns / 5_000_000).max(1))
         .with_authenticator(Arc::new(Auth::new(options.users.clone())))
-        .with_node_manager(simple_node_manager(
-            NamespaceMetadata {
-                namespace_uri: NAMESPACE.to_owned(),
-                ..Default::default()
-            },
-            "pkm-plc",
-        ))
+        .with_node_manager(super::nodes::builder())
         .add_endpoint(
             "basic256sha256_sign",
             ServerEndpoint::new(
@@ -139,7 +132,7 @@ pub fn start(
     }
     let manager = handle
         .node_managers()
-        .get_of_type::<SimpleNodeManager>()
+        .get_of_type::<PlcNodeManager>()
         .ok_or("the node manager is missing (a broken invariant of the server's build)")?;
     let ns = handle
         .get_namespace_index(NAMESPACE)
@@ -150,7 +143,16 @@ pub fn start(
         let mut address_space = manager.address_space().write();
         Space::build(&mut address_space, ns, &info, &first)
     };
-    add_methods(&manager, &space, &info, feed.clone(), sink);
+    let commander = Commander {
+        methods: space.methods.iter().map(|(m, node)| (node.clone(), *m)).collect(),
+        feed: feed.clone(),
+        sink,
+        programs: info.programs.clone(),
+        rate: Mutex::new(CallRate::new(Instant::now())),
+    };
+    if !manager.inner().set_commander(commander) {
+        return Err("the methods were given twice (a broken invariant of the server's start)".into());
+    }
     // The first frame's values (state texts, figures) before any client reads.
     publish(&manager, &handle, &mut space, &first);
 
@@ -202,7 +204,7 @@ fn url_host(host: &str) -> String {
 }
 
 /// Writes `frame`'s changes and notifies the subscriptions.
-fn publish(manager: &SimpleNodeManager, handle: &ServerHandle, space: &mut Space, frame: &crate::hmi::frame::Frame) {
+fn publish(manager: &PlcNodeManager, handle: &ServerHandle, space: &mut Space, frame: &crate::hmi::frame::Frame) {
     let changes = {
         let mut address_space = manager.address_space().write();
         space.changes(&mut address_space, frame)
@@ -256,29 +258,6 @@ impl CallRate {
             self.refused += 1;
         }
         allowed
-    }
-}
-
-/// The methods' callbacks: each enters the process image through `sink` as the screen's
-/// buttons do, after the checks the screen makes, against the newest frame's state.
-fn add_methods(manager: &SimpleNodeManager, space: &Space, info: &SpaceInfo, feed: FrameFeed, sink: CommandSink) {
-    let programs = info.programs.clone();
-    let rate = Arc::new(Mutex::new(CallRate::new(Instant::now())));
-    for (method, node) in &space.methods {
-        let (method, feed, sink, programs) = (*method, feed.clone(), sink.clone(), programs.clone());
-        let rate = Arc::clone(&rate);
-        manager.inner().add_method_callback(node.clone(), move |args| {
-            if !rate.lock().unwrap_or_else(|p| p.into_inner()).allow(Instant::now()) {
-                return Err(StatusCode::BadTooManyOperations);
-            }
-            let state = feed.latest().status.state.clone();
-            let outcome = command(method, args, &state, &programs, &sink);
-            match &outcome {
-                Ok(done) => info!("OPC UA: {}: {done}", method.name()),
-                Err((code, why)) => info!("OPC UA: {} refused ({code}): {why}", method.name()),
-            }
-            outcome.map(|done| vec![Variant::from(done)]).map_err(|(code, _)| code)
-        });
     }
 }
 

@@ -323,10 +323,13 @@ fn users_on_encrypted_channels_stop_acknowledge_and_load_beyond_loopback_and_the
         "OPC UA: login refused: user \"operator\": unknown user or wrong password",
         "OPC UA: user \"operator\" logged in (password)",
         "OPC UA: user \"cell-7\" logged in (certificate)",
-        "OPC UA: Stop: STOP pressed",
+        // Who commanded, and what came of it.
+        "OPC UA: user \"operator\": Stop: STOP pressed",
         "ERROR (STOP)",
-        "OPC UA: Acknowledge refused (BadInvalidState): there is no error to acknowledge: the machine is in INIT",
-        "OPC UA: Start refused (BadInvalidState): the machine is in INIT: a program starts in READY",
+        "OPC UA: user \"operator\": Acknowledge refused (BadInvalidState): there is no error to acknowledge: the machine is in INIT",
+        "OPC UA: user \"operator\": Start refused (BadInvalidState): the machine is in INIT: a program starts in READY",
+        "OPC UA: user \"operator\": Load: program 1 (programs/trijoint-circle-square.ngc) loaded",
+        "OPC UA: user \"cell-7\": Stop: STOP pressed",
     ] {
         assert!(log.contains(line), "{line}\n{log}");
     }
