@@ -927,9 +927,8 @@ fn serve_opcua(
         ..
     } = server;
     match pkm_plc::opcua::server::start(&options, listener, info, feed, sink, main_period_ns) {
-        Ok(running) => info!(
-            "OPC UA server at {} ({})",
-            running.url,
+        Ok(url) => info!(
+            "OPC UA server at {url} ({})",
             match &options.users {
                 Some(u) => format!(
                     "anonymous sessions read; the {} users of {} also command",

@@ -10,8 +10,7 @@
 #[path = "common/mod.rs"]
 mod common;
 
-use std::io::BufRead;
-use std::process::{Child, Command, Stdio};
+use std::process::Command;
 use std::time::{Duration, Instant};
 
 use chromiumoxide::cdp::browser_protocol::input::{DispatchMouseEventParams, DispatchMouseEventType, MouseButton};
@@ -24,16 +23,14 @@ static SERIAL: tokio::sync::Mutex<()> = tokio::sync::Mutex::const_new(());
 
 /// A running `pkm-plc run` with its screen, killed when dropped.
 struct Plc {
-    child: Child,
+    run: common::Logged,
     url: String,
-    /// Its log so far.
-    log: std::sync::Arc<std::sync::Mutex<String>>,
 }
 
 impl Plc {
     /// The log so far.
     fn log(&self) -> String {
-        self.log.lock().map(|l| l.clone()).unwrap_or_default()
+        self.run.log()
     }
 
     /// The screen's port.
@@ -44,13 +41,6 @@ impl Plc {
             .next()
             .and_then(|p| p.parse().ok())
             .expect("a port in the screen's address")
-    }
-}
-
-impl Drop for Plc {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
     }
 }
 
@@ -72,7 +62,8 @@ fn test_config(dir: &std::path::Path) -> std::path::PathBuf {
 /// Starts `pkm-plc run` in real time on the configuration `config` with the screen on a free
 /// loopback port (and `more` arguments); returns when the screen's address is logged.
 fn start_plc(config: &std::path::Path, seconds: u32, more: &[&str]) -> Plc {
-    let mut child = common::pkm_command()
+    let mut command = common::pkm_command();
+    command
         .args([
             "run",
             "--config",
@@ -85,32 +76,9 @@ fn start_plc(config: &std::path::Path, seconds: u32, more: &[&str]) -> Plc {
             &seconds.to_string(),
         ])
         .args(more)
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .env("RUST_LOG", "info")
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("pkm-plc starts");
-    let stderr = child.stderr.take().expect("stderr");
-    let (tx, rx) = std::sync::mpsc::channel();
-    let log = std::sync::Arc::new(std::sync::Mutex::new(String::new()));
-    let kept = std::sync::Arc::clone(&log);
-    // Drains the log for the whole run (a full pipe would block the PLC's logging).
-    std::thread::spawn(move || {
-        for line in std::io::BufReader::new(stderr).lines().map_while(Result::ok) {
-            if let Some(at) = line.split("operator screen at ").nth(1) {
-                let _ = tx.send(at.split_whitespace().next().unwrap_or("").to_string());
-            }
-            if let Ok(mut l) = kept.lock() {
-                l.push_str(&line);
-                l.push('\n');
-            }
-        }
-    });
-    let url = rx
-        .recv_timeout(Duration::from_secs(30))
-        .expect("the screen's address is logged");
-    Plc { child, url, log }
+        .env("RUST_LOG", "info");
+    let (run, url) = common::Logged::start(command, "operator screen at ", Duration::from_secs(30));
+    Plc { run, url }
 }
 
 /// Debian's `chromium`, or another Chromium or Chrome on the PATH.
@@ -351,11 +319,11 @@ async fn the_page_shows_referencing_jogs_while_held_stops_and_acknowledges() {
     events.abort();
     // The screen's commands are inputs like the panel's: in the trace, and replayed.
     let stopped = Command::new("kill")
-        .args(["-TERM", &plc.child.id().to_string()])
+        .args(["-TERM", &plc.run.child.id().to_string()])
         .status()
         .expect("kill runs");
     assert!(stopped.success());
-    assert!(plc.child.wait().expect("the run ends").success());
+    assert!(plc.run.wait().success());
     let recorded = std::fs::read_to_string(&trace).expect("the trace");
     assert!(
         recorded.contains(r#""HMI_STOP":true"#),
@@ -1086,11 +1054,11 @@ async fn the_screen_sets_the_overrides_steps_a_program_line_by_line_runs_mdi_and
     events.abort();
     // The overrides and single block are inputs like the panel's: in the trace, and replayed.
     let stopped = Command::new("kill")
-        .args(["-TERM", &plc.child.id().to_string()])
+        .args(["-TERM", &plc.run.child.id().to_string()])
         .status()
         .expect("kill runs");
     assert!(stopped.success());
-    assert!(plc.child.wait().expect("the run ends").success(), "{}", plc.log());
+    assert!(plc.run.wait().success(), "{}", plc.log());
     let recorded = std::fs::read_to_string(&trace).expect("the trace");
     for recorded_input in [
         r#""NC_FEED_OVERRIDE":50"#,

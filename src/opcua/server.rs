@@ -25,21 +25,14 @@ const ENDPOINT_PATH: &str = "/";
 /// How long a client may take to say hello after connecting (s).
 const HELLO_TIMEOUT_S: u32 = 5;
 
-/// A running OPC UA server.
-pub struct Running {
-    /// Its handle (cancel() stops it).
-    pub handle: ServerHandle,
-    /// The endpoint URL clients connect to.
-    pub url: String,
-}
-
 /// Connections held beyond the sessions: clients that only ask for the endpoints, one opening
 /// a session while another closes.
 const SPARE_CONNECTIONS: usize = 4;
 
 /// Builds the server for `info` and starts it behind `public` (inside the tokio runtime): the
 /// address space from the first frame, a task that writes every newer frame's changes, the
-/// methods that command through `sink`, the gate that bounds the connections.
+/// methods that command through `sink`, the gate that bounds the connections. Returns the
+/// endpoint URL clients connect to.
 pub fn start(
     options: &OpcUaOptions,
     public: TcpListener,
@@ -47,7 +40,7 @@ pub fn start(
     feed: FrameFeed,
     sink: CommandSink,
     main_period_ns: u64,
-) -> Result<Running, String> {
+) -> Result<String, String> {
     let port = public.local_addr().map_err(|e| e.to_string())?.port();
     // The server itself listens on a loopback port of its own, behind the gate.
     let listener = std::net::TcpListener::bind("127.0.0.1:0")
@@ -172,7 +165,7 @@ pub fn start(
         }
     });
     super::gate::spawn(public, inner, options.max_sessions + SPARE_CONNECTIONS);
-    Ok(Running { handle, url })
+    Ok(url)
 }
 
 /// Makes the certificate store's directories, the private key's readable by its owner only (the

@@ -408,3 +408,75 @@ pub fn rtu_frame(pdu: &[u8]) -> Vec<u8> {
     frame.extend_from_slice(&crc.to_le_bytes());
     frame
 }
+
+/// A running `pkm-plc` whose log (stderr) is kept for the whole run — a full pipe would block its
+/// logging —, killed when dropped.
+pub struct Logged {
+    /// The process.
+    pub child: std::process::Child,
+    log: std::sync::Arc<std::sync::Mutex<String>>,
+    reader: Option<std::thread::JoinHandle<()>>,
+}
+
+impl Logged {
+    /// Spawns `command` (stdout discarded, stderr kept) and waits up to `wait` for a log line
+    /// with `marker`; returns the run and the first word after the marker (an address, say).
+    /// Panics with the log so far when no such line comes.
+    pub fn start(
+        mut command: std::process::Command,
+        marker: &'static str,
+        wait: std::time::Duration,
+    ) -> (Logged, String) {
+        use std::io::BufRead;
+        let mut child = command
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .expect("pkm-plc starts");
+        let stderr = child.stderr.take().expect("stderr");
+        let (tx, rx) = std::sync::mpsc::channel();
+        let log = std::sync::Arc::new(std::sync::Mutex::new(String::new()));
+        let kept = std::sync::Arc::clone(&log);
+        let reader = std::thread::spawn(move || {
+            for line in std::io::BufReader::new(stderr).lines().map_while(Result::ok) {
+                if let Some(at) = line.split(marker).nth(1) {
+                    let _ = tx.send(at.split_whitespace().next().unwrap_or("").to_string());
+                }
+                if let Ok(mut l) = kept.lock() {
+                    l.push_str(&line);
+                    l.push('\n');
+                }
+            }
+        });
+        let run = Logged {
+            child,
+            log,
+            reader: Some(reader),
+        };
+        let found = rx
+            .recv_timeout(wait)
+            .unwrap_or_else(|_| panic!("no log line with \"{marker}\": {}", run.log()));
+        (run, found)
+    }
+
+    /// The log so far.
+    pub fn log(&self) -> String {
+        self.log.lock().map(|l| l.clone()).unwrap_or_default()
+    }
+
+    /// Waits for the run to end; its whole log is kept by then.
+    pub fn wait(&mut self) -> std::process::ExitStatus {
+        let status = self.child.wait().expect("the run ends");
+        if let Some(reader) = self.reader.take() {
+            let _ = reader.join();
+        }
+        status
+    }
+}
+
+impl Drop for Logged {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}

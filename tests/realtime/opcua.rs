@@ -9,10 +9,9 @@
 
 use crate::common;
 
-use std::io::{BufRead, BufReader, Read, Write};
+use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
-use std::sync::{Arc, Mutex};
+use std::process::Command;
 use std::time::{Duration, Instant};
 
 use serde_json::Value as Json;
@@ -30,9 +29,8 @@ fn python() -> Result<PathBuf, &'static str> {
 
 /// A running `pkm-plc run` with its OPC UA server, killed when dropped.
 struct Plc {
-    child: Child,
+    run: common::Logged,
     url: String,
-    log: Arc<Mutex<String>>,
 }
 
 impl Plc {
@@ -44,52 +42,24 @@ impl Plc {
     /// Starts `pkm-plc run ARGS --opcua URL` and waits for the server's URL (with its host
     /// replaced by 127.0.0.1: a server on every address announces this computer's name).
     fn serving(url: &str, args: &[&str]) -> Plc {
-        let mut child = common::pkm_command()
+        let mut command = common::pkm_command();
+        command
             .args(["run", "--hmi", "none", "--opcua", url])
             .args(args)
-            .env("RUST_LOG", "info")
-            .stdout(Stdio::null())
-            .stderr(Stdio::piped())
-            .spawn()
-            .expect("pkm-plc runs");
-        let log = Arc::new(Mutex::new(String::new()));
-        let (tx, rx) = std::sync::mpsc::channel();
-        let stderr = child.stderr.take().expect("stderr");
-        let sink = Arc::clone(&log);
-        std::thread::spawn(move || {
-            for line in BufReader::new(stderr).lines().map_while(Result::ok) {
-                if let Some(at) = line.find("OPC UA server at ") {
-                    let url = line[at + 17..].split_whitespace().next().unwrap_or("").to_string();
-                    let _ = tx.send(url);
-                }
-                let mut log = sink.lock().expect("log");
-                log.push_str(&line);
-                log.push('\n');
-            }
-        });
-        let url = rx
-            .recv_timeout(Duration::from_secs(60))
-            .unwrap_or_else(|_| panic!("no OPC UA server line: {}", log.lock().expect("log")));
-        Plc { child, url, log }
+            .env("RUST_LOG", "info");
+        let (run, announced) = common::Logged::start(command, "OPC UA server at ", Duration::from_secs(60));
+        let port = announced.rsplit(':').next().unwrap_or_default().trim_end_matches('/');
+        let url = format!("opc.tcp://127.0.0.1:{port}/");
+        Plc { run, url }
     }
 
     fn log(&self) -> String {
-        self.log.lock().expect("log").clone()
+        self.run.log()
     }
 
     /// Waits for the run to end by itself (its `--duration`).
     fn wait(mut self) -> std::process::ExitStatus {
-        let status = self.child.wait().expect("wait");
-        // The reader thread has the rest of the log once stderr closes.
-        std::thread::sleep(Duration::from_millis(100));
-        status
-    }
-}
-
-impl Drop for Plc {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
+        self.run.wait()
     }
 }
 
