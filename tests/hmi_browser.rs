@@ -383,12 +383,20 @@ async fn a_websocket_dropped_mid_jog_stops_the_jog_within_a_main_cycle() {
     });
     // READY first.
     let start = Instant::now();
+    let mut last = String::new();
     loop {
-        let (_, _, _, state) = rx.recv().await.expect("frames");
+        let Some((_, _, _, state)) = rx.recv().await else {
+            panic!("the frames ended in {last} before READY; the log:\n{}", plc.log());
+        };
         if state == "READY" {
             break;
         }
-        assert!(start.elapsed() < Duration::from_secs(60), "READY in time");
+        assert!(
+            start.elapsed() < Duration::from_secs(60),
+            "READY in time; the log:\n{}",
+            plc.log()
+        );
+        last = state;
     }
     // Jog, refreshed every 20 ms for a second.
     for _ in 0..50 {
