@@ -10,8 +10,12 @@ use std::io::BufRead;
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
-use chromiumoxide::{Browser, BrowserConfig};
-use futures::StreamExt;
+// The tests' small Chrome DevTools Protocol client.
+#[path = "../tests/common/cdp.rs"]
+#[allow(dead_code)]
+mod cdp;
+
+use cdp::Browser;
 
 fn fail(message: String) -> ! {
     eprintln!("hmi_latency: {message}");
@@ -63,29 +67,15 @@ async fn main() {
     let url = rx
         .recv_timeout(Duration::from_secs(30))
         .unwrap_or_else(|_| fail("the screen's address was not logged".into()));
-    let chromium = Command::new("which")
-        .arg("chromium")
-        .output()
-        .ok()
-        .and_then(|o| String::from_utf8(o.stdout).ok())
-        .map(|p| p.trim().to_string())
-        .filter(|p| !p.is_empty());
+    let chromium = cdp::chromium();
     let mut open = Vec::new();
     for i in 0..browsers {
         let Some(chromium) = chromium.as_deref() else {
             fail("no chromium on the PATH (apt-get install chromium)".into())
         };
-        let config = BrowserConfig::builder()
-            .chrome_executable(chromium)
-            .no_sandbox()
-            .user_data_dir(dir.join(format!("profile-{i}")))
-            .arg("--disable-gpu")
-            .build()
-            .unwrap_or_else(|e| fail(e));
-        let (browser, mut handler) = Browser::launch(config)
+        let browser = Browser::launch(chromium, &dir.join(format!("profile-{i}")), &[])
             .await
             .unwrap_or_else(|e| fail(format!("Chromium: {e}")));
-        tokio::spawn(async move { while handler.next().await.is_some() {} });
         let page = browser
             .new_page(url.as_str())
             .await
@@ -99,13 +89,12 @@ async fn main() {
             .evaluate("window.latency")
             .await
             .ok()
-            .and_then(|r| r.into_value().ok())
+            .and_then(|r| serde_json::from_value(r).ok())
             .unwrap_or_default();
         all.extend(latency);
     }
-    for (mut browser, _) in open {
-        let _ = browser.close().await;
-        let _ = browser.wait().await;
+    for (browser, _) in open {
+        browser.close().await;
     }
     let status = plc.wait().unwrap_or_else(|e| fail(e.to_string()));
     if !status.success() {

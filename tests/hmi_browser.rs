@@ -13,8 +13,7 @@ mod common;
 use std::process::Command;
 use std::time::{Duration, Instant};
 
-use chromiumoxide::cdp::browser_protocol::input::{DispatchMouseEventParams, DispatchMouseEventType, MouseButton};
-use chromiumoxide::{Browser, BrowserConfig, Page};
+use common::cdp::{Browser, Page, chromium};
 use futures::StreamExt;
 
 /// The tests run one at a time: each runs a PLC in real time (and one a browser), and on a small
@@ -48,11 +47,33 @@ impl Plc {
 /// the scheduler's timing, so a late cycle on a busy machine is logged rather than an ERROR (as
 /// the other real-time end-to-end tests do; timing has its own benchmarks).
 fn test_config(dir: &std::path::Path) -> std::path::PathBuf {
+    write_config(dir, |_| {})
+}
+
+/// As [`test_config`], referencing at twice the search speed and four times the latch speed
+/// (READY after about 5 s instead of 11.65 s), for the tests that need READY, not referencing.
+fn quick_config(dir: &std::path::Path) -> std::path::PathBuf {
+    write_config(dir, |program| {
+        if program["program"] == "ox-x.main" {
+            for joint in program["params"]["joints"].as_array_mut().expect("joints") {
+                joint["reference"]["search_speed_mm_s"] = 20.0.into();
+                joint["reference"]["latch_speed_mm_s"] = 2.0.into();
+            }
+        }
+    })
+}
+
+/// The O-X glide's configuration with cycle time violations logged and `edit` applied to each
+/// program, written to `dir`.
+fn write_config(dir: &std::path::Path, edit: impl Fn(&mut serde_json::Value)) -> std::path::PathBuf {
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
     let mut config = common::read_json(&root.join("machines/ox-x.json"));
     config["io_map"] = root.join("io-map/ox-x.json").to_str().expect("utf-8").into();
     for class in config["task_classes"].as_array_mut().expect("classes") {
         class["on_violation"] = "log".into();
+        for program in class["programs"].as_array_mut().expect("programs") {
+            edit(program);
+        }
     }
     let path = dir.join("ox-x.json");
     std::fs::write(&path, config.to_string()).expect("write the configuration");
@@ -81,24 +102,12 @@ fn start_plc(config: &std::path::Path, seconds: u32, more: &[&str]) -> Plc {
     Plc { run, url }
 }
 
-/// Debian's `chromium`, or another Chromium or Chrome on the PATH.
-fn chromium() -> Option<std::path::PathBuf> {
-    ["chromium", "chromium-browser", "google-chrome", "google-chrome-stable"]
-        .iter()
-        .find_map(|name| {
-            let out = Command::new("which").arg(name).output().ok()?;
-            let path = String::from_utf8(out.stdout).ok()?.trim().to_string();
-            (out.status.success() && !path.is_empty()).then(|| path.into())
-        })
-}
-
 /// A text of the page: the value of a JavaScript expression.
 async fn text(page: &Page, expression: &str) -> String {
-    page.evaluate(expression)
-        .await
-        .ok()
-        .and_then(|r| r.into_value::<String>().ok())
-        .unwrap_or_default()
+    match page.evaluate(expression).await {
+        Ok(serde_json::Value::String(text)) => text,
+        _ => String::new(),
+    }
 }
 
 /// The state shown.
@@ -142,28 +151,15 @@ async fn centre(page: &Page, selector: &str) -> (f64, f64) {
             "(() => {{ const e = document.querySelector({selector:?}); e.scrollIntoView({{block: 'center'}}); const r = e.getBoundingClientRect(); return [r.x + r.width / 2, r.y + r.height / 2]; }})()"
         ))
         .await
-        .expect("evaluates")
-        .into_value()
-        .expect("two numbers");
+        .ok()
+        .and_then(|r| serde_json::from_value(r).ok())
+        .unwrap_or_else(|| panic!("{selector}: no such element to click"));
     (r[0], r[1])
 }
 
 /// Presses (or releases) the mouse's left button at `at`, as a hand on the page would.
 async fn mouse(page: &Page, at: (f64, f64), pressed: bool) {
-    let kind = if pressed {
-        DispatchMouseEventType::MousePressed
-    } else {
-        DispatchMouseEventType::MouseReleased
-    };
-    let event = DispatchMouseEventParams::builder()
-        .r#type(kind)
-        .x(at.0)
-        .y(at.1)
-        .button(MouseButton::Left)
-        .click_count(1)
-        .build()
-        .expect("a mouse event");
-    page.execute(event).await.expect("the mouse event is dispatched");
+    page.mouse(at, pressed).await.expect("the mouse event is dispatched");
 }
 
 /// A WebSocket client of the screen.
@@ -201,16 +197,7 @@ async fn the_page_shows_referencing_jogs_while_held_stops_and_acknowledges() {
     let trace = profile.path().join("screen.jsonl");
     // The browser first: a cold start on a busy machine takes seconds, and the page must load
     // while the machine still references.
-    let config = BrowserConfig::builder()
-        .chrome_executable(chromium)
-        .no_sandbox()
-        .user_data_dir(profile.path().join("profile"))
-        .arg("disable-gpu")
-        .window_size(1280, 1400)
-        .build()
-        .expect("a browser configuration");
-    let (mut browser, mut handler) = Browser::launch(config).await.expect("Chromium starts");
-    let events = tokio::spawn(async move { while handler.next().await.is_some() {} });
+    let browser = launch(chromium, profile.path(), &[]).await;
     let blank = browser.new_page("about:blank").await.expect("a page");
     let config = test_config(profile.path());
     let mut plc = start_plc(&config, 90, &["--trace", trace.to_str().expect("utf-8")]);
@@ -314,9 +301,7 @@ async fn the_page_shows_referencing_jogs_while_held_stops_and_acknowledges() {
         async |p| matches!(state(p).await.as_str(), "REBOOT" | "INIT"),
     )
     .await;
-    let _ = browser.close().await;
-    let _ = browser.wait().await;
-    events.abort();
+    browser.close().await;
     // The screen's commands are inputs like the panel's: in the trace, and replayed.
     let stopped = Command::new("kill")
         .args(["-TERM", &plc.run.child.id().to_string()])
@@ -346,7 +331,7 @@ async fn a_websocket_dropped_mid_jog_stops_the_jog_within_a_main_cycle() {
     use tokio_tungstenite::tungstenite::Message;
     let _serial = SERIAL.lock().await;
     let dir = tempfile::tempdir().expect("tempdir");
-    let plc = start_plc(&test_config(dir.path()), 60, &[]);
+    let plc = start_plc(&quick_config(dir.path()), 60, &[]);
     let ws = plc.url.replacen("http://", "ws://", 1) + "ws";
     // A watcher, and a client that jogs.
     let (mut watcher, _) = tokio_tungstenite::connect_async(ws.as_str()).await.expect("connects");
@@ -362,13 +347,20 @@ async fn a_websocket_dropped_mid_jog_stops_the_jog_within_a_main_cycle() {
         .expect("HMI_JOG_X in the image");
     // Every frame as it arrives: (when, seq, the jog, the state).
     let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel();
+    // Why the watcher's connection ended, for a failure's message.
+    let (ended_tx, ended) = tokio::sync::oneshot::channel::<String>();
     tokio::spawn(async move {
-        loop {
+        let why = loop {
             // Ends with the connection (the PLC ends with the test).
             let f = match watcher.next().await {
-                Some(Ok(Message::Text(t))) => serde_json::from_str::<serde_json::Value>(&t).expect("JSON"),
+                Some(Ok(Message::Text(t))) => match serde_json::from_str::<serde_json::Value>(&t) {
+                    Ok(f) => f,
+                    Err(e) => break format!("a frame that is not JSON ({e}): {t}"),
+                },
+                Some(Ok(Message::Close(c))) => break format!("closed by the screen: {c:?}"),
                 Some(Ok(_)) => continue,
-                _ => break,
+                Some(Err(e)) => break format!("error: {e}"),
+                None => break "the stream ended".to_string(),
             };
             let entry = (
                 Instant::now(),
@@ -377,16 +369,21 @@ async fn a_websocket_dropped_mid_jog_stops_the_jog_within_a_main_cycle() {
                 f["state"].as_str().unwrap_or("").to_string(),
             );
             if tx.send(entry).is_err() {
-                break;
+                break "the test stopped listening".to_string();
             }
-        }
+        };
+        let _ = ended_tx.send(why);
     });
     // READY first.
     let start = Instant::now();
     let mut last = String::new();
     loop {
         let Some((_, _, _, state)) = rx.recv().await else {
-            panic!("the frames ended in {last} before READY; the log:\n{}", plc.log());
+            let why = ended.await.unwrap_or_default();
+            panic!(
+                "the frames ended in {last} before READY ({why}); the log:\n{}",
+                plc.log()
+            );
         };
         if state == "READY" {
             break;
@@ -492,26 +489,11 @@ fn serving_beyond_loopback_needs_a_token() {
 }
 
 /// Starts headless Chromium with its profile in `dir` and the switches `args` (name, value)
-/// besides the usual; returns it and the task that drives its events.
-async fn launch(
-    chromium: std::path::PathBuf,
-    dir: &std::path::Path,
-    args: &[(&str, &str)],
-) -> (Browser, tokio::task::JoinHandle<()>) {
-    let mut config = BrowserConfig::builder()
-        .chrome_executable(chromium)
-        .no_sandbox()
-        .user_data_dir(dir.join("profile"))
-        .arg("disable-gpu")
-        .window_size(1280, 1400);
-    for (name, value) in args {
-        config = config.arg((*name, *value));
-    }
-    let (browser, mut handler) = Browser::launch(config.build().expect("a browser configuration"))
+/// besides the usual.
+async fn launch(chromium: std::path::PathBuf, dir: &std::path::Path, args: &[(&str, &str)]) -> Browser {
+    Browser::launch(&chromium, &dir.join("profile"), args)
         .await
-        .expect("Chromium starts");
-    let events = tokio::spawn(async move { while handler.next().await.is_some() {} });
-    (browser, events)
+        .unwrap_or_else(|e| panic!("Chromium starts: {e}"))
 }
 
 /// Serves `html` to every request on a free loopback port (another origin than the screen's).
@@ -606,14 +588,14 @@ async fn a_page_of_another_origin_or_a_rebound_name_reaches_nothing() {
     };
     let _serial = SERIAL.lock().await;
     let dir = tempfile::tempdir().expect("tempdir");
-    let (mut browser, events) = launch(
+    let browser = launch(
         chromium,
         dir.path(),
         &[("host-resolver-rules", "MAP evil.test 127.0.0.1")],
     )
     .await;
     let page = browser.new_page("about:blank").await.expect("a page");
-    let plc = start_plc(&test_config(dir.path()), 90, &[]);
+    let plc = start_plc(&quick_config(dir.path()), 90, &[]);
     let port = plc.port();
     let mut frames = watch_frames(&(plc.url.replacen("http://", "ws://", 1) + "ws")).await;
     until_state(&mut frames, "READY", Duration::from_secs(60), || plc.log()).await;
@@ -678,9 +660,7 @@ async fn a_page_of_another_origin_or_a_rebound_name_reaches_nothing() {
         "{log}"
     );
     assert!(log.contains(r#"refused a request for Host "evil.test:"#), "{log}");
-    let _ = browser.close().await;
-    let _ = browser.wait().await;
-    events.abort();
+    browser.close().await;
 }
 
 /// With a token, a page opened without it shows every control disabled; opened with it, the
@@ -696,7 +676,7 @@ async fn a_watching_page_shows_its_controls_disabled_and_the_token_leaves_the_ad
     };
     let _serial = SERIAL.lock().await;
     let dir = tempfile::tempdir().expect("tempdir");
-    let (mut browser, events) = launch(chromium, dir.path(), &[]).await;
+    let browser = launch(chromium, dir.path(), &[]).await;
     let page = browser.new_page("about:blank").await.expect("a page");
     let token = "0123456789abcdef-token";
     let plc = start_plc(&test_config(dir.path()), 60, &["--hmi-token", token]);
@@ -738,9 +718,7 @@ async fn a_watching_page_shows_its_controls_disabled_and_the_token_leaves_the_ad
         async |p| text(p, &all_enabled).await == "true",
     )
     .await;
-    let _ = browser.close().await;
-    let _ = browser.wait().await;
-    events.abort();
+    browser.close().await;
 }
 
 /// One HTTP/1.1 GET of `path` with `host` as its Host header; the response's head and body.
@@ -913,9 +891,9 @@ async fn the_screen_sets_the_overrides_steps_a_program_line_by_line_runs_mdi_and
     )
     .expect("the program");
     let trace = dir.path().join("screen.jsonl");
-    let (mut browser, events) = launch(chromium, dir.path(), &[]).await;
+    let browser = launch(chromium, dir.path(), &[]).await;
     let page = browser.new_page("about:blank").await.expect("a page");
-    let config = test_config(dir.path());
+    let config = quick_config(dir.path());
     let mut plc = start_plc(
         &config,
         120,
@@ -1057,9 +1035,7 @@ async fn the_screen_sets_the_overrides_steps_a_program_line_by_line_runs_mdi_and
         text(p, "String(cut.length > 20 && Math.hypot(...cut[cut.length - 1].slice(0, 2)) < 0.05 && Math.hypot(cut[0][0] - 3.5, cut[0][1] - 2) < 0.1)").await == "true"
     })
     .await;
-    let _ = browser.close().await;
-    let _ = browser.wait().await;
-    events.abort();
+    browser.close().await;
     // The overrides and single block are inputs like the panel's: in the trace, and replayed.
     let stopped = Command::new("kill")
         .args(["-TERM", &plc.run.child.id().to_string()])

@@ -2,6 +2,7 @@
 //! uses a part of them.
 #![allow(dead_code)]
 
+pub mod cdp;
 pub mod soak;
 
 use std::path::{Path, PathBuf};
