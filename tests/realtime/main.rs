@@ -12,7 +12,7 @@
 //! - [`trace_cuts`]: traces that a crash cut short.
 //!
 //! The operator screen's browser tests (`tests/hmi_browser.rs`) stay a binary of their own: they
-//! run one at a time.
+//! run one at a time, since a browser beside these tests slows them beyond their links' limits.
 
 #[path = "../common/mod.rs"]
 mod common;
@@ -25,3 +25,23 @@ mod modbus_rtu;
 mod opcua;
 mod station_safety;
 mod trace_cuts;
+
+/// How many tests run at once unless `RUST_TEST_THREADS` or `--test-threads` says otherwise.
+/// These tests wait far more than they compute: eight at once took 40 s on 2 cores where
+/// libtest's default, one per core, took 2 minutes.
+const TEST_THREADS: &str = "8";
+
+/// libtest has no setting per test binary, only the environment it reads when it starts: this
+/// binary sets that default before `main`, from the ELF constructors the loader runs first.
+#[used]
+#[unsafe(link_section = ".init_array")]
+static DEFAULT_TEST_THREADS: extern "C" fn() = {
+    extern "C" fn set() {
+        if std::env::var_os("RUST_TEST_THREADS").is_none() {
+            // SAFETY: constructors run before `main`, while the process has a single thread, so
+            // nothing reads the environment meanwhile.
+            unsafe { std::env::set_var("RUST_TEST_THREADS", TEST_THREADS) };
+        }
+    }
+    set
+};

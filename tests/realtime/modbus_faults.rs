@@ -179,15 +179,22 @@ fn the_link_comes_back_when_the_station_returns_but_error_stays_until_acknowledg
     let start = |port: u16| common::start_io_sim(&format!("127.0.0.1:{port}"), &[]);
     let (first, address) = start(0);
     let port = address.port();
-    let restart = std::thread::spawn(move || {
-        std::thread::sleep(Duration::from_millis(1500));
-        drop(first); // the station disappears...
-        std::thread::sleep(Duration::from_millis(1500));
-        start(port).0 // ...and comes back on the same port
-    });
-    let (s, log, code) = run_against(port, "6");
-    assert_eq!(code, Some(0), "{log}");
-    drop(restart.join().expect("restart"));
+    let dir = tempfile::tempdir().expect("tempdir");
+    let summary = dir.path().join("s.json");
+    let mut command = common::pkm_command();
+    command
+        .args(["run", "--bus", &format!("tcp:127.0.0.1:{port}"), "--duration", "6"])
+        .args(["--summary", summary.to_str().expect("utf-8")])
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .env("RUST_LOG", "info");
+    // The cycles start once the link has brought the first image: INIT says the link is up.
+    let (mut run, _) = common::Logged::start(command, "s: INIT", Duration::from_secs(30));
+    drop(first); // the station disappears...
+    std::thread::sleep(Duration::from_millis(1500));
+    let second = start(port).0; // ...and comes back on the same port
+    assert!(run.wait().success(), "{}", run.log());
+    drop(second);
+    let (s, log) = (common::read_json(&summary), run.log());
     assert!(log.contains("failed exchanges in a row"), "{log}");
     assert!(log.contains("the link works again"), "{log}");
     assert_eq!(s["main"]["state"], "ERROR");
