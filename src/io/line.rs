@@ -17,6 +17,24 @@ use std::time::{Duration, Instant};
 
 use serialport::{SerialPort as _, TTYPort};
 
+/// A pseudo-terminal pair (its master, its slave) whose descriptors no child process inherits.
+///
+/// `serialport`'s `TTYPort::pair` opens both ends without close-on-exec, so a process spawned
+/// meanwhile by any thread (a test beside this one, a helper) kept the master open: closing it
+/// then no longer hung the slave up, and a vanished station went unnoticed. The flag is set as
+/// soon as the pair exists; a fork within those microseconds is the only way left to inherit it.
+pub fn pty_pair() -> io::Result<(TTYPort, TTYPort)> {
+    use std::os::fd::AsRawFd as _;
+    let (master, slave) = TTYPort::pair().map_err(io::Error::from)?;
+    for fd in [master.as_raw_fd(), slave.as_raw_fd()] {
+        // SAFETY: `fd` belongs to a port alive here; F_SETFD only changes its descriptor flags.
+        if unsafe { libc::fcntl(fd, libc::F_SETFD, libc::FD_CLOEXEC) } == -1 {
+            return Err(io::Error::last_os_error());
+        }
+    }
+    Ok((master, slave))
+}
+
 /// Bits per character on a Modbus RTU line: start, 8 data, parity (or a second stop bit), stop.
 pub const BITS_PER_CHAR: u64 = 11;
 
@@ -132,6 +150,17 @@ mod tests {
     use super::*;
 
     #[test]
+    fn a_pty_pair_is_not_inherited_by_child_processes() {
+        use std::os::fd::AsRawFd as _;
+        let (master, slave) = pty_pair().expect("pty");
+        for fd in [master.as_raw_fd(), slave.as_raw_fd()] {
+            // SAFETY: F_GETFD on a descriptor of a port alive here.
+            let flags = unsafe { libc::fcntl(fd, libc::F_GETFD) };
+            assert_eq!(flags & libc::FD_CLOEXEC, libc::FD_CLOEXEC, "fd {fd}");
+        }
+    }
+
+    #[test]
     fn modbus_rtu_timing() {
         let t = LineTiming::modbus_rtu(115_200);
         assert_eq!(t.char_ns, 95_486);
@@ -143,8 +172,8 @@ mod tests {
 
     #[test]
     fn a_frame_arrives_when_the_line_has_carried_it() {
-        let (mut master, relay_a) = TTYPort::pair().expect("pty");
-        let (relay_b, mut slave) = TTYPort::pair().expect("pty");
+        let (mut master, relay_a) = pty_pair().expect("pty");
+        let (relay_b, mut slave) = pty_pair().expect("pty");
         // 1200 baud: 9.17 ms a character, so 10 characters take 92 ms.
         let _line = PacedLine::start(relay_a, relay_b, LineTiming::modbus_rtu(1200)).expect("line");
         slave.set_timeout(Duration::from_secs(2)).expect("timeout");

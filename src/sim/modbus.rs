@@ -346,8 +346,8 @@ impl StationOnLine {
         timing: crate::io::line::LineTiming,
         options: ServerOptions,
     ) -> std::io::Result<(StationOnLine, serialport::TTYPort)> {
-        let (station_end, line_a) = serialport::TTYPort::pair()?;
-        let (line_b, driver_end) = serialport::TTYPort::pair()?;
+        let (station_end, line_a) = crate::io::line::pty_pair()?;
+        let (line_b, driver_end) = crate::io::line::pty_pair()?;
         // Built here, so that a failure is an error of the caller's rather than a silent thread.
         let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
         let (stop, stopped) = tokio::sync::oneshot::channel::<()>();

@@ -6,13 +6,13 @@
 //! - [`io_sim`]: the I/O simulator as a Modbus TCP slave.
 //! - [`joystick_fifo`]: a joystick through a FIFO.
 //! - [`modbus_faults`]: link faults on Modbus TCP and RTU.
-//! - [`modbus_rtu`]: Modbus RTU over pseudo-terminals at an emulated baud rate.
 //! - [`opcua`]: the OPC UA server with Python's asyncua.
 //! - [`station_safety`]: what the station and the soft-PLC do when things go wrong.
 //! - [`trace_cuts`]: traces that a crash cut short.
 //!
-//! The operator screen's browser tests (`tests/hmi_browser.rs`) stay a binary of their own: they
-//! run one at a time, since a browser beside these tests slows them beyond their links' limits.
+//! Two kinds stay binaries of their own, run one test at a time: the operator screen's browser
+//! tests (`tests/hmi_browser.rs`) and Modbus RTU over an emulated line (`tests/modbus_rtu.rs`);
+//! beside these tests they were slowed beyond their links' limits.
 
 #[path = "../common/mod.rs"]
 mod common;
@@ -21,7 +21,6 @@ mod interop;
 mod io_sim;
 mod joystick_fifo;
 mod modbus_faults;
-mod modbus_rtu;
 mod opcua;
 mod station_safety;
 mod trace_cuts;

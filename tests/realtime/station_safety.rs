@@ -111,7 +111,7 @@ fn malformed_requests_are_answered_with_exceptions_and_io_sim_keeps_serving() {
 #[test]
 fn a_malformed_rtu_frame_is_answered_and_io_sim_serial_keeps_serving() {
     use serialport::SerialPort as _;
-    let (mut master, slave) = serialport::TTYPort::pair().expect("a pseudo-terminal pair");
+    let (mut master, slave) = pkm_plc::io::line::pty_pair().expect("a pseudo-terminal pair");
     let path = slave.name().expect("the pty's path");
     master.set_timeout(Duration::from_secs(10)).expect("timeout");
     let mut sim = IoSim(
