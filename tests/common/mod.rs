@@ -222,6 +222,28 @@ pub fn write_busy_machine_config(dir: &Path) -> PathBuf {
     path
 }
 
+/// `pkm-plc run` against the Modbus TCP station at `address` for `seconds`, logging at info, its
+/// summary to `dir/summary.json` (returned with the command). The tests that use it test bus
+/// faults and their reasons, so a late cycle on a busy machine must not be the ERROR: the run
+/// uses [`busy_machine_config`], written to `dir`.
+pub fn bus_fault_run(address: &str, seconds: &str, dir: &Path) -> (std::process::Command, PathBuf) {
+    let summary = dir.join("summary.json");
+    let config = write_busy_machine_config(dir);
+    let mut command = pkm_command();
+    command
+        .args(["run", "--bus", &format!("tcp:{address}"), "--duration", seconds])
+        .args(["--config", config.to_str().expect("utf-8")])
+        .args(["--summary", summary.to_str().expect("utf-8")])
+        .env("RUST_LOG", "info");
+    (command, summary)
+}
+
+/// Starts `command` (a run against a station) and returns once its cycles have started: they
+/// start when the link has brought the first image, and the main program's INIT says so.
+pub fn start_with_link_up(command: std::process::Command) -> Logged {
+    Logged::start(command, "s: INIT", std::time::Duration::from_secs(30)).0
+}
+
 /// Writes [`realtime_config`] to `dir`; returns its path.
 pub fn write_realtime_config(dir: &Path) -> PathBuf {
     let path = dir.join("realtime-config.json");

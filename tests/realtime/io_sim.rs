@@ -192,27 +192,8 @@ fn the_soft_plc_references_and_jogs_over_modbus_tcp() {
 fn a_lost_link_is_a_bus_fault_without_hang() {
     let (sim, address) = start();
     let dir = tempfile::tempdir().expect("tempdir");
-    let s = dir.path().join("summary.json");
-    let mut command = common::pkm_command();
-    command
-        .args([
-            "run",
-            "--bus",
-            &format!("tcp:{address}"),
-            "--duration",
-            "3",
-            "--summary",
-            s.to_str().expect("utf-8"),
-        ])
-        // A bus fault's reason is tested: a late cycle on a busy machine must not be the ERROR.
-        .args([
-            "--config",
-            common::write_busy_machine_config(dir.path()).to_str().expect("utf-8"),
-        ])
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .env("RUST_LOG", "info");
-    // The cycles start once the link has brought the first image: INIT says the link is up.
-    let (mut run, _) = common::Logged::start(command, "s: INIT", Duration::from_secs(30));
+    let (command, s) = common::bus_fault_run(&address.to_string(), "3", dir.path());
+    let mut run = common::start_with_link_up(command);
     drop(sim); // the station disappears
     assert!(run.wait().success(), "the run ends by itself: {}", run.log());
     let s = common::read_json(&s);

@@ -91,17 +91,8 @@ fn serve_badly(mut s: TcpStream, how: Misbehaviour) {
 /// code (1 when no exchange ever succeeded: the bus never came up).
 fn run_against(port: u16, seconds: &str) -> (serde_json::Value, String, Option<i32>) {
     let dir = tempfile::tempdir().expect("tempdir");
-    let summary = dir.path().join("s.json");
-    // A bus fault's reason is tested: a late cycle on a busy machine must not be the ERROR.
-    let config = common::write_busy_machine_config(dir.path());
-    let o = common::pkm_command()
-        .args(["run", "--bus", &format!("tcp:127.0.0.1:{port}"), "--duration", seconds])
-        .args(["--config", config.to_str().expect("utf-8")])
-        .args(["--summary", summary.to_str().expect("utf-8")])
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .env("RUST_LOG", "info")
-        .output()
-        .expect("run");
+    let (mut command, summary) = common::bus_fault_run(&format!("127.0.0.1:{port}"), seconds, dir.path());
+    let o = command.output().expect("run");
     let s = common::read_json(&summary);
     (s, stderr(&o), o.status.code())
 }
@@ -183,19 +174,8 @@ fn the_link_comes_back_when_the_station_returns_but_error_stays_until_acknowledg
     let (first, address) = start(0);
     let port = address.port();
     let dir = tempfile::tempdir().expect("tempdir");
-    let summary = dir.path().join("s.json");
-    let mut command = common::pkm_command();
-    command
-        .args(["run", "--bus", &format!("tcp:127.0.0.1:{port}"), "--duration", "6"])
-        .args([
-            "--config",
-            common::write_busy_machine_config(dir.path()).to_str().expect("utf-8"),
-        ])
-        .args(["--summary", summary.to_str().expect("utf-8")])
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .env("RUST_LOG", "info");
-    // The cycles start once the link has brought the first image: INIT says the link is up.
-    let (mut run, _) = common::Logged::start(command, "s: INIT", Duration::from_secs(30));
+    let (command, summary) = common::bus_fault_run(&format!("127.0.0.1:{port}"), "6", dir.path());
+    let mut run = common::start_with_link_up(command);
     drop(first); // the station disappears...
     std::thread::sleep(Duration::from_millis(1500));
     let second = start(port).0; // ...and comes back on the same port
