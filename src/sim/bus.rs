@@ -33,20 +33,33 @@ impl Wired {
     }
 }
 
+/// What one task class's exchange copies, its variables resolved by `declare`: the exchange's
+/// loops walk only their own class's bindings, and a wired input goes from the plant's signal
+/// straight to its variable.
+#[derive(Default)]
+struct ClassExchange {
+    /// The wired input signals the class latches, as the plant's batch read takes them.
+    signals: Vec<usize>,
+    /// Per input binding wired to a signal: the signal and the variable.
+    wired: Vec<(usize, VarIndex)>,
+    /// Per input binding of a channel no signal drives: the (module, channel) and the variable.
+    unwired: Vec<(usize, usize, VarIndex)>,
+    /// Per output binding: the (module, channel) and the variable.
+    outputs: Vec<(usize, usize, VarIndex)>,
+}
+
 /// The simulated bus.
 pub struct SimBus {
     map: IoMap,
     /// Per module, per channel.
     channels: Vec<Vec<Value>>,
-    /// Per binding, the variable's index (set by `declare`).
-    vars: Vec<VarIndex>,
     plant: Box<dyn Plant>,
     /// The wired input signals (plant → channel).
     inputs: Wired,
-    /// Per task class, the wired input signals its bindings latch: a class's cycle reads only
-    /// those from the plant (the fast class's hundred exchanges a second do not read the
-    /// panel's switches, which the main class latches).
-    class_inputs: Vec<Wired>,
+    /// Per task class, what its exchange copies (set by `declare`): a class's cycle reads only
+    /// the signals it latches from the plant (the fast class's hundred exchanges a second do not
+    /// read the panel's switches, which the main class latches).
+    classes: Vec<ClassExchange>,
     /// The wired output signals (channel → plant).
     outputs: Wired,
     /// Every signal's value as last exchanged, indexed by signal (allocated once).
@@ -65,35 +78,15 @@ impl SimBus {
             .iter()
             .map(|m| m.ty.channels.iter().map(|c| Value::zero(c.ty)).collect())
             .collect();
-        let vars = vec![0; map.bindings.len()];
         let inputs = Wired::of(&wiring, plant.as_ref(), Direction::Input);
         let outputs = Wired::of(&wiring, plant.as_ref(), Direction::Output);
-        let classes = map.bindings.iter().map(|b| b.class + 1).max().unwrap_or(0);
-        let class_inputs = (0..classes)
-            .map(|class| {
-                let latched = |&(m, c): &(usize, usize)| {
-                    map.bindings
-                        .iter()
-                        .any(|b| b.class == class && b.direction == Direction::Input && (b.module, b.channel) == (m, c))
-                };
-                let (signals, channels) = inputs
-                    .signals
-                    .iter()
-                    .zip(&inputs.channels)
-                    .filter(|(_, at)| latched(at))
-                    .map(|(s, at)| (*s, *at))
-                    .unzip();
-                Wired { signals, channels }
-            })
-            .collect();
         let signal_values = plant.signals().iter().map(|s| Value::zero(s.ty)).collect();
         SimBus {
             map,
             channels,
-            vars,
             plant,
             inputs,
-            class_inputs,
+            classes: Vec::new(),
             outputs,
             signal_values,
             scenario,
@@ -154,7 +147,8 @@ impl SimBus {
         &self.map
     }
 
-    /// A channel's current value.
+    /// A channel's value: an output's as last written, an input's as of the last
+    /// [`SimBus::refresh`] (a task class's exchange takes its inputs from the plant directly).
     pub fn channel(&self, module: usize, channel: usize) -> Value {
         self.channels[module][channel]
     }
@@ -176,9 +170,16 @@ impl SimBus {
     /// Copies the output variables of task class `class` (every class: `None`) from `image` into
     /// their channels and applies the output channels to the plant.
     fn outputs_to_plant(&mut self, class: Option<usize>, image: &[Value]) {
-        for (b, &var) in self.map.bindings.iter().zip(&self.vars) {
-            if b.direction == Direction::Output && class.is_none_or(|c| c == b.class) {
-                self.channels[b.module][b.channel] = image[usize::from(var)];
+        let classes = match class {
+            Some(c) => c..c + 1,
+            None => 0..self.classes.len(),
+        };
+        for c in classes {
+            let Some(exchange) = self.classes.get(c) else {
+                continue;
+            };
+            for &(m, ch, var) in &exchange.outputs {
+                self.channels[m][ch] = image[usize::from(var)];
             }
         }
         self.channels_to_plant();
@@ -199,22 +200,41 @@ impl Bus for SimBus {
     }
 
     fn declare(&mut self, table: &mut VarTable) {
-        for (i, b) in self.map.bindings.iter().enumerate() {
-            self.vars[i] = b.declare(table);
+        let vars: Vec<VarIndex> = self.map.bindings.iter().map(|b| b.declare(table)).collect();
+        let classes = self.map.bindings.iter().map(|b| b.class + 1).max().unwrap_or(0);
+        self.classes = (0..classes).map(|_| ClassExchange::default()).collect();
+        for (b, var) in self.map.bindings.iter().zip(vars) {
+            let exchange = &mut self.classes[b.class];
+            let at = (b.module, b.channel);
+            match b.direction {
+                Direction::Output => exchange.outputs.push((b.module, b.channel, var)),
+                Direction::Input => match self.inputs.channels.iter().position(|c| *c == at) {
+                    Some(k) => {
+                        let signal = self.inputs.signals[k];
+                        exchange.signals.push(signal);
+                        exchange.wired.push((signal, var));
+                    }
+                    None => exchange.unwired.push((b.module, b.channel, var)),
+                },
+            }
+        }
+        for exchange in &mut self.classes {
+            // The plant's batch read in its signal order.
+            exchange.signals.sort_unstable();
         }
     }
 
     fn read_inputs(&mut self, class: usize, t_ns: u64, image: &mut [Value]) {
         self.advance_to(t_ns);
-        if let Some(wired) = self.class_inputs.get(class) {
-            self.plant.read_into(&wired.signals, &mut self.signal_values);
-            for (&signal, &(m, c)) in wired.signals.iter().zip(&wired.channels) {
-                self.channels[m][c] = self.signal_values[signal];
+        // Wired inputs go from the plant to the image without their channels (which only a
+        // station serving the modules reads, after `refresh`).
+        if let Some(exchange) = self.classes.get(class) {
+            self.plant.read_into(&exchange.signals, &mut self.signal_values);
+            for &(signal, var) in &exchange.wired {
+                image[usize::from(var)] = self.signal_values[signal];
             }
-        }
-        for (b, &var) in self.map.bindings.iter().zip(&self.vars) {
-            if b.class == class && b.direction == Direction::Input {
-                image[usize::from(var)] = self.channels[b.module][b.channel];
+            for &(m, c, var) in &exchange.unwired {
+                image[usize::from(var)] = self.channels[m][c];
             }
         }
     }

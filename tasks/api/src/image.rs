@@ -106,23 +106,32 @@ mod private {
     pub trait Sealed {}
 }
 
+/// A handle's value of another type than it was declared with: a broken invariant.
+#[cold]
+#[inline(never)]
+fn type_invariant_broken(expected: VarType, found: Value) -> ! {
+    panic!(
+        "process image invariant broken: expected {expected}, found {}",
+        found.ty()
+    )
+}
+
 macro_rules! plc_type {
     ($t:ty, $variant:ident) => {
         impl private::Sealed for $t {}
         impl PlcType for $t {
             const TYPE: VarType = VarType::$variant;
+            // Inlined into the programs' reads and writes (every cycle, every variable).
+            #[inline]
             fn from_value(v: Value) -> Self {
                 match v {
                     Value::$variant(x) => x,
                     // The variable table checks every handle's type when it is declared, so a
                     // mismatch here is a broken invariant of the runtime, not a user error.
-                    other => panic!(
-                        "process image invariant broken: expected {}, found {}",
-                        VarType::$variant,
-                        other.ty()
-                    ),
+                    other => type_invariant_broken(VarType::$variant, other),
                 }
             }
+            #[inline]
             fn into_value(self) -> Value {
                 Value::$variant(self)
             }

@@ -10,7 +10,7 @@
 use pkm_api::image::{Declare, Input, Output};
 use pkm_api::program::{Cycle, Program, ProgramArgs};
 use pkm_drives::automaton::{MainState, StopInputs};
-use pkm_drives::counter::unwrap;
+use pkm_drives::counter::{round_count, unwrap};
 use pkm_drives::interlock::{InterlockInputs, following_error};
 use pkm_drives::nc::NcChannel;
 use pkm_drives::pi::{Pi, PiGains};
@@ -384,7 +384,7 @@ impl Program for Drives {
                         wanted.clamp(*commanded - step, *commanded + step)
                     };
                     *commanded = v;
-                    let rate = (v * p.steps_per_mm).round().clamp(-32767.0, 32767.0) as i16;
+                    let rate = round_count(v * p.steps_per_mm).clamp(-32767, 32767) as i16;
                     ctx.set(*enable, !interlock);
                     ctx.set(*speed, rate);
                 }
@@ -401,7 +401,8 @@ impl Program for Drives {
                     } else {
                         pi.step(gains, error, velocity, dt)
                     };
-                    ctx.set(*pwm, (duty * 32767.0).round() as i16);
+                    // As `f64 as i16` would: saturated at the type's ends.
+                    ctx.set(*pwm, round_count(duty * 32767.0).clamp(-32768, 32767) as i16);
                     ctx.set(*clear_error, ack);
                 }
             }

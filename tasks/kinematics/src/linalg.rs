@@ -10,14 +10,30 @@ pub type Mat = [f64; MAX * MAX];
 /// `a` is destroyed and `b` becomes x. Returns `false` when a pivot is smaller than `tiny`
 /// relative to the largest entry (numerically singular).
 pub fn solve(n: usize, a: &mut Mat, b: &mut [f64; MAX], tiny: f64) -> bool {
-    let scale = a[..]
+    // One elimination per dimension, its loops' bounds known to the compiler (the hexapod's
+    // Newton steps solve 6×6 systems every main cycle); the arithmetic is the same in each.
+    match n {
+        0 => true,
+        1 => solve_dim::<1>(a, b, tiny),
+        2 => solve_dim::<2>(a, b, tiny),
+        3 => solve_dim::<3>(a, b, tiny),
+        4 => solve_dim::<4>(a, b, tiny),
+        5 => solve_dim::<5>(a, b, tiny),
+        6 => solve_dim::<6>(a, b, tiny),
+        _ => panic!("linalg::solve: dimension {n} is above {MAX}"),
+    }
+}
+
+/// [`solve`] for dimension `N`.
+#[inline]
+fn solve_dim<const N: usize>(a: &mut Mat, b: &mut [f64; MAX], tiny: f64) -> bool {
+    let scale = a[..N * MAX]
         .iter()
-        .take(n * MAX)
         .fold(0.0f64, |m, v| m.max(v.abs()))
         .max(f64::MIN_POSITIVE);
-    for col in 0..n {
+    for col in 0..N {
         let mut piv = col;
-        for r in col + 1..n {
+        for r in col + 1..N {
             if a[r * MAX + col].abs() > a[piv * MAX + col].abs() {
                 piv = r;
             }
@@ -26,24 +42,24 @@ pub fn solve(n: usize, a: &mut Mat, b: &mut [f64; MAX], tiny: f64) -> bool {
             return false;
         }
         if piv != col {
-            for c in 0..n {
+            for c in 0..N {
                 a.swap(piv * MAX + c, col * MAX + c);
             }
             b.swap(piv, col);
         }
-        for r in col + 1..n {
+        for r in col + 1..N {
             let f = a[r * MAX + col] / a[col * MAX + col];
             if f != 0.0 {
-                for c in col..n {
+                for c in col..N {
                     a[r * MAX + c] -= f * a[col * MAX + c];
                 }
                 b[r] -= f * b[col];
             }
         }
     }
-    for col in (0..n).rev() {
+    for col in (0..N).rev() {
         let mut s = b[col];
-        for c in col + 1..n {
+        for c in col + 1..N {
             s -= a[col * MAX + c] * b[c];
         }
         b[col] = s / a[col * MAX + col];

@@ -12,6 +12,18 @@ pub struct DcAxis {
     velocity_mm_s: f64,
     /// The step the lag factor was computed for, and the factor 1 − e^(−dt/τ).
     lag: (f64, f64),
+    /// The span [`DcAxis::span`] last computed its factors for (step, number of steps), and
+    /// those factors: e^(−n·dt/τ) and Σₖ₌₁ⁿ e^(−k·dt/τ).
+    span_lag: ((f64, u64), f64, f64),
+}
+
+/// Where a carriage ends a span of steps ([`DcAxis::span`]), for [`DcAxis::commit_span`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SpanEnd {
+    /// The position at the span's end (mm).
+    pub position_mm: f64,
+    /// The speed at the span's end (mm/s).
+    pub velocity_mm_s: f64,
 }
 
 impl DcAxis {
@@ -25,6 +37,7 @@ impl DcAxis {
             position_mm: start_mm,
             velocity_mm_s: 0.0,
             lag: (f64::NAN, 0.0),
+            span_lag: ((f64::NAN, 0), 0.0, 0.0),
         }
     }
 
@@ -48,6 +61,44 @@ impl DcAxis {
         next
     }
 
+    /// Where `n` steps of [`DcAxis::advance`] at a constant `duty` would take the carriage, in
+    /// closed form (the simulated hour's hot path: one evaluation for a 10 ms cycle's ten 1 ms
+    /// steps); `None` where a hard stop may be reached within them (the caller then steps).
+    ///
+    /// The steps are `vₖ = u + (vₖ₋₁ − u)·a` and `xₖ = xₖ₋₁ + vₖ·dt` with `a = e^(−dt/τ)` and `u`
+    /// the duty's speed, so `vₙ = u + (v₀ − u)·aⁿ` and `xₙ = x₀ + dt·(n·u + (v₀ − u)·Σₖ₌₁ⁿ aᵏ)`:
+    /// the stepped result up to rounding. The speed moves monotonically from `v₀` to `u`, so no
+    /// step goes further than `n·dt·max(|v₀|, |u|)`: within that of a hard stop, the span is
+    /// refused.
+    #[inline]
+    pub fn span(&mut self, duty: f64, dt_s: f64, n: u64) -> Option<SpanEnd> {
+        if self.span_lag.0 != (dt_s, n) {
+            let a = (-dt_s / self.tau_s).exp();
+            let a_n = (-(n as f64) * dt_s / self.tau_s).exp();
+            // a·(1 − aⁿ)/(1 − a), with 1 − a from expm1 (dt ≪ τ loses digits otherwise).
+            let sum = a * (1.0 - a_n) / -(-dt_s / self.tau_s).exp_m1();
+            self.span_lag = ((dt_s, n), a_n, sum);
+        }
+        let (_, a_n, sum) = self.span_lag;
+        let u = duty.clamp(-1.0, 1.0) * self.v_max_mm_s;
+        let v0 = self.velocity_mm_s;
+        let reach = n as f64 * dt_s * v0.abs().max(u.abs());
+        if self.position_mm - reach <= self.hard_stops[0] || self.position_mm + reach >= self.hard_stops[1] {
+            return None;
+        }
+        Some(SpanEnd {
+            position_mm: self.position_mm + dt_s * (n as f64 * u + (v0 - u) * sum),
+            velocity_mm_s: u + (v0 - u) * a_n,
+        })
+    }
+
+    /// Takes the carriage to the end of a span ([`DcAxis::span`]).
+    #[inline]
+    pub fn commit_span(&mut self, end: SpanEnd) {
+        self.position_mm = end.position_mm;
+        self.velocity_mm_s = end.velocity_mm_s;
+    }
+
     /// Takes the carriage to `position_mm` (the result of [`DcAxis::advance`]).
     #[inline]
     pub fn commit(&mut self, position_mm: f64) {
@@ -61,11 +112,13 @@ impl DcAxis {
     }
 
     /// The carriage's true position (mm).
+    #[inline]
     pub fn position_mm(&self) -> f64 {
         self.position_mm
     }
 
     /// The carriage's true speed (mm/s).
+    #[inline]
     pub fn velocity_mm_s(&self) -> f64 {
         self.velocity_mm_s
     }
@@ -94,5 +147,69 @@ mod tests {
         assert!(next < 253.0, "it leaves the stop backwards");
         a.halt();
         assert_eq!(a.velocity_mm_s(), 0.0);
+    }
+
+    /// `n` steps of `advance` with `duty`, committed.
+    fn stepped(a: &mut DcAxis, duty: f64, dt: f64, n: u64) {
+        for _ in 0..n {
+            let next = a.advance(duty, dt);
+            a.commit(next);
+        }
+    }
+
+    #[test]
+    fn a_span_ends_where_its_steps_do_and_is_refused_near_a_hard_stop() {
+        let mut spanned = DcAxis::new(80.0, 0.05, [-3.0, 253.0], 125.0);
+        let mut steps = spanned.clone();
+        // Speeding up, reversing, slowing down: ten cycles of ten 1 ms steps each way.
+        for duty in [1.0, 1.0, -0.5, -0.5, 0.2, 0.0, 0.0, 2.0, -3.0, 0.3] {
+            let end = spanned.span(duty, 0.001, 10).expect("far from the stops");
+            spanned.commit_span(end);
+            stepped(&mut steps, duty, 0.001, 10);
+            assert!((spanned.position_mm() - steps.position_mm()).abs() < 1e-9);
+            assert!((spanned.velocity_mm_s() - steps.velocity_mm_s()).abs() < 1e-9);
+        }
+        // 0.4 mm from the stop at full speed: ten steps may reach it.
+        let mut near = DcAxis::new(40.0, 0.05, [-3.0, 253.0], 252.7);
+        assert_eq!(near.span(1.0, 0.001, 10), None);
+        assert!(
+            near.span(-1.0, 0.001, 10).is_none(),
+            "either way: the bound is symmetric"
+        );
+        let far = DcAxis::new(40.0, 0.05, [-3.0, 253.0], 252.5).span(1.0, 0.001, 10);
+        assert!(far.is_some_and(|e| e.position_mm < 253.0));
+    }
+
+    proptest::proptest! {
+        /// Any speed, duty, time constant and span: the closed form is the stepped result, and a
+        /// span it refuses is one whose steps come near a hard stop.
+        #[test]
+        fn a_span_is_its_steps(
+            v0 in -1.0f64..1.0,
+            duty in -1.5f64..1.5,
+            tau in 0.005f64..0.5,
+            v_max in 1.0f64..100.0,
+            start in -2.0f64..252.0,
+            n in 1u64..40,
+        ) {
+            let mut spanned = DcAxis::new(v_max, tau, [-3.0, 253.0], start);
+            // A start at speed v0·v_max: one long step at that duty from rest, then back to start.
+            stepped(&mut spanned, v0, 10.0, 1);
+            spanned.commit(start);
+            let mut steps = spanned.clone();
+            let before = steps.position_mm();
+            match spanned.span(duty, 0.001, n) {
+                Some(end) => {
+                    stepped(&mut steps, duty, 0.001, n);
+                    let scale = 1.0 + v_max;
+                    proptest::prop_assert!((end.position_mm - steps.position_mm()).abs() < 1e-11 * scale);
+                    proptest::prop_assert!((end.velocity_mm_s - steps.velocity_mm_s()).abs() < 1e-11 * scale);
+                }
+                None => {
+                    let reach = n as f64 * 0.001 * v_max * v0.abs().max(duty.abs().min(1.0));
+                    proptest::prop_assert!(before - reach <= -3.0 + 1e-9 || before + reach >= 253.0 - 1e-9);
+                }
+            }
+        }
     }
 }

@@ -138,11 +138,13 @@ impl Stepper {
     }
 
     /// The module's step counter: the steps emitted, 16-bit, wrapping.
+    #[inline]
     pub fn counter(&self) -> i16 {
         wrap(self.emitted_step_us.div_euclid(1_000_000))
     }
 
     /// The carriage's true position (mm).
+    #[inline]
     pub fn position_mm(&self) -> f64 {
         self.start_mm + self.moved_step_us as f64 * 1e-6 / self.p.steps_per_mm
     }
