@@ -46,6 +46,22 @@ struct Cursor<'a> {
     i: usize,
 }
 
+/// Whether `a` and `b` hold the same bytes: names are a few bytes long, and comparing them in
+/// words here costs less than the library's call (a record line matches a dozen).
+#[inline]
+fn same_bytes(a: &[u8], b: &[u8]) -> bool {
+    if a.len() != b.len() {
+        return false;
+    }
+    let (words_a, rest_a) = a.as_chunks::<8>();
+    let (words_b, rest_b) = b.as_chunks::<8>();
+    words_a
+        .iter()
+        .zip(words_b)
+        .all(|(x, y)| u64::from_ne_bytes(*x) == u64::from_ne_bytes(*y))
+        && rest_a.iter().zip(rest_b).all(|(x, y)| x == y)
+}
+
 impl<'a> Cursor<'a> {
     fn lit(&mut self, s: &[u8]) -> Option<()> {
         if self.b.get(self.i..self.i + s.len())? == s {
@@ -80,19 +96,28 @@ impl<'a> Cursor<'a> {
         self.i - start
     }
 
-    /// A JSON number token: its text and whether it is an integer (no fraction, no exponent).
-    fn number(&mut self) -> Option<(&'a str, bool)> {
+    /// A JSON number token: its text, whether it is an integer (no fraction, no exponent), and
+    /// for an integer of at most 18 digits its value (read while scanning: no second pass).
+    fn number(&mut self) -> Option<(&'a str, bool, Option<i64>)> {
         let start = self.i;
-        if self.peek() == Some(b'-') {
+        let negative = self.peek() == Some(b'-');
+        if negative {
             self.i += 1;
         }
+        let mut whole: i64 = 0;
+        let digits_from = self.i;
         match self.peek()? {
             b'0' => self.i += 1,
             b'1'..=b'9' => {
-                self.digits();
+                while let Some(c) = self.peek().filter(u8::is_ascii_digit) {
+                    // Wrapping: beyond 18 digits the value is not used (see below).
+                    whole = whole.wrapping_mul(10).wrapping_add(i64::from(c - b'0'));
+                    self.i += 1;
+                }
             }
             _ => return None,
         }
+        let small = self.i - digits_from <= 18;
         let mut integer = true;
         if self.peek() == Some(b'.') {
             self.i += 1;
@@ -111,16 +136,17 @@ impl<'a> Cursor<'a> {
             }
             integer = false;
         }
-        Some((self.s.get(start..self.i)?, integer))
+        // Within 18 digits the value is exact and its negation cannot overflow.
+        let value = (integer && small).then(|| if negative { -whole } else { whole });
+        Some((self.s.get(start..self.i)?, integer, value))
     }
 
-    /// An unsigned integer field (at most 19 digits, so it cannot overflow).
+    /// An unsigned integer field (at most 18 digits: it fits).
     fn uint(&mut self) -> Option<u64> {
-        let (text, integer) = self.number()?;
-        if !integer || text.starts_with('-') || text.len() > 19 {
-            return None;
+        match self.number()? {
+            (text, _, Some(v)) if !text.starts_with('-') => u64::try_from(v).ok(),
+            _ => None,
         }
-        text.parse().ok()
     }
 
     /// A value of type `ty`, read as `value_from_json` reads serde_json's value of the token.
@@ -132,19 +158,19 @@ impl<'a> Cursor<'a> {
             (b'-' | b'0'..=b'9', _) => {}
             _ => return None,
         }
-        let (text, integer) = self.number()?;
+        let (text, integer, int) = self.number()?;
         // serde_json reads "-0" as the float -0.0, and integers beyond 18 digits in ways this
         // path does not repeat: the slow path takes them.
-        let small_int = integer && text.trim_start_matches('-').len() <= 18 && text != "-0";
-        match ty {
-            VarType::Bool => None,
-            VarType::Real if small_int => Some(Value::Real(text.parse::<i64>().ok()? as f64)),
-            VarType::Real if integer => None,
-            VarType::Real => text.parse::<f64>().ok().filter(|x| x.is_finite()).map(Value::Real),
-            _ if !small_int => None,
-            VarType::Int => i16::try_from(text.parse::<i64>().ok()?).ok().map(Value::Int),
-            VarType::Uint => u16::try_from(text.parse::<i64>().ok()?).ok().map(Value::Uint),
-            VarType::Dint => i32::try_from(text.parse::<i64>().ok()?).ok().map(Value::Dint),
+        let int = int.filter(|_| text != "-0");
+        match (ty, int) {
+            (VarType::Bool, _) => None,
+            (VarType::Real, Some(v)) => Some(Value::Real(v as f64)),
+            (VarType::Real, None) if integer => None,
+            (VarType::Real, None) => text.parse::<f64>().ok().filter(|x| x.is_finite()).map(Value::Real),
+            (_, None) => None,
+            (VarType::Int, Some(v)) => i16::try_from(v).ok().map(Value::Int),
+            (VarType::Uint, Some(v)) => u16::try_from(v).ok().map(Value::Uint),
+            (VarType::Dint, Some(v)) => i32::try_from(v).ok().map(Value::Dint),
         }
     }
 
@@ -164,17 +190,25 @@ impl<'a> Cursor<'a> {
         loop {
             self.lit(b"\"")?;
             // Slot names hold no quote, backslash or control character (see `fast_names`): a
-            // name that matches one is that name, escapes and all.
-            let len = memchr::memchr(b'"', &self.b[self.i..])?;
-            let name = &self.b[self.i..self.i + len];
-            self.i += len + 1;
-            self.lit(b":")?;
+            // name that matches one is that name, escapes and all. Mostly it is the next slot's
+            // name, followed by its closing quote.
+            let expected = &slots[next].name;
             let mut k = next;
-            let mut left = slots.len();
-            while slots[k].name.len() != name.len() || *slots[k].name != *name {
-                left = left.checked_sub(1).filter(|&l| l > 0)?;
-                k = if k + 1 == slots.len() { 0 } else { k + 1 };
+            if self.b.get(self.i + expected.len()) == Some(&b'"')
+                && same_bytes(&self.b[self.i..self.i + expected.len()], expected)
+            {
+                self.i += expected.len() + 1;
+            } else {
+                let len = memchr::memchr(b'"', &self.b[self.i..])?;
+                let name = &self.b[self.i..self.i + len];
+                self.i += len + 1;
+                let mut left = slots.len();
+                while !same_bytes(&slots[k].name, name) {
+                    left = left.checked_sub(1).filter(|&l| l > 0)?;
+                    k = if k + 1 == slots.len() { 0 } else { k + 1 };
+                }
             }
+            self.lit(b":")?;
             next = if k + 1 == slots.len() { 0 } else { k + 1 };
             out.push((slots[k].index, self.value(slots[k].ty)?));
             match self.peek()? {
@@ -217,7 +251,7 @@ pub(super) fn parse<'a>(
     let t_us = c.uint()?;
     c.lit(b",\"task\":\"")?;
     let task = c.string()?;
-    let class = classes.iter().position(|k| *k.name == *task.as_bytes())?;
+    let class = classes.iter().position(|k| same_bytes(&k.name, task.as_bytes()))?;
     c.lit(b",\"cycle\":")?;
     let cycle = c.uint()?;
     c.lit(b",\"in\":")?;

@@ -11,6 +11,7 @@
 pub mod expected;
 pub mod export;
 mod fast;
+mod inflate;
 pub mod path;
 pub mod read;
 pub mod record;
@@ -233,6 +234,7 @@ pub fn value_from_json(v: &serde_json::Value, ty: VarType) -> Result<Value, Valu
 }
 
 /// Whether two values are the same for trace purposes (NaN equals NaN, as JSON null).
+#[inline]
 pub fn same(a: Value, b: Value) -> bool {
     match (a, b) {
         (Value::Real(x), Value::Real(y)) => x.to_bits() == y.to_bits() || (x.is_nan() && y.is_nan()),

@@ -155,7 +155,7 @@ enum Read1 {
 /// Reads a trace record by record.
 pub struct TraceReader {
     file: String,
-    input: BufReader<Box<dyn Read + Send>>,
+    input: Box<dyn BufRead + Send>,
     buffer: Vec<u8>,
     line: usize,
     header: Header,
@@ -190,17 +190,15 @@ impl TraceReader {
         };
         let file = crate::files::open_regular(path).map_err(|e| err(0, format!("cannot open: {e}")))?;
         // A name ending in .gz is a gzip-compressed trace.
-        let input: Box<dyn Read + Send> = if path.extension().is_some_and(|e| e == "gz") {
-            Box::new(flate2::read::MultiGzDecoder::new(BufReader::with_capacity(
-                1 << 16,
-                file,
-            )))
+        // The inflated blocks are read in place; a plain file through a buffer.
+        let input: Box<dyn BufRead + Send> = if path.extension().is_some_and(|e| e == "gz") {
+            Box::new(super::inflate::Inflated::start(file).map_err(|e| err(0, format!("cannot start reading: {e}")))?)
         } else {
-            Box::new(file)
+            Box::new(BufReader::with_capacity(1 << 18, file))
         };
         let mut reader = TraceReader {
             file: name.clone(),
-            input: BufReader::with_capacity(1 << 18, input),
+            input,
             buffer: Vec::new(),
             line: 0,
             header: Header {
@@ -410,10 +408,20 @@ impl TraceReader {
         Ok(())
     }
 
-    /// The state or reason name `s`, shared with earlier records that had it.
+    /// The state or reason name `s`, shared with earlier records that had it; the one found
+    /// last is looked at first (record after record has the same state).
     fn intern(names: &mut Vec<Arc<str>>, s: &str) -> Arc<str> {
-        match names.iter().find(|n| ***n == *s) {
-            Some(n) => Arc::clone(n),
+        if let Some(last) = names.last()
+            && **last == *s
+        {
+            return Arc::clone(last);
+        }
+        match names.iter().position(|n| **n == *s) {
+            Some(k) => {
+                let n = names.remove(k);
+                names.push(Arc::clone(&n));
+                n
+            }
             None => {
                 let n: Arc<str> = s.into();
                 names.push(Arc::clone(&n));
