@@ -598,7 +598,9 @@ async fn a_page_of_another_origin_or_a_rebound_name_reaches_nothing() {
     let plc = start_plc(&quick_config(dir.path()), 90, &[]);
     let port = plc.port();
     let mut frames = watch_frames(&(plc.url.replacen("http://", "ws://", 1) + "ws")).await;
-    until_state(&mut frames, "READY", Duration::from_secs(60), || plc.log()).await;
+    // Referencing (INIT) is as good a time to attack as READY: a STOP that got through would
+    // show as ERROR in either, and the test need not wait for the end of referencing.
+    until_state(&mut frames, "INIT", Duration::from_secs(60), || plc.log()).await;
     // The attacker's page: opens the screen's WebSocket by its address and under its own name,
     // and sends STOP and a jog every 20 ms on whichever opens.
     let attack = |url: String| {
@@ -635,14 +637,15 @@ async fn a_page_of_another_origin_or_a_rebound_name_reaches_nothing() {
         "{}",
         results(&page).await
     );
-    // Seconds of the page trying: the machine stands READY, the screen's inputs never moved.
+    // Seconds of the page trying: no ERROR (a STOP would be one), the screen's inputs never
+    // moved.
     let start = Instant::now();
     while start.elapsed() < Duration::from_secs(2) {
         let (state, stop, jog) = frames.recv().await.expect("frames");
-        assert_eq!(
-            (state.as_str(), stop, jog),
-            ("READY", false, 0.0),
-            "the other page reached the machine"
+        assert!(
+            matches!(state.as_str(), "INIT" | "READY") && !stop && jog == 0.0,
+            "the other page reached the machine: {state}, STOP {stop}, jog {jog}; the PLC's log:\n{}",
+            plc.log()
         );
     }
     // The rebound name does not even get the page.

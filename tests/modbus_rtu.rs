@@ -2,8 +2,8 @@
 //! simulator's station on the other, joined by an emulated RS-485 line at 115 200 baud (frames
 //! carried no faster than the baud rate, silent intervals kept), the TRIJOINT application running
 //! in real time — referencing (fast, with the real-time test configuration: about 17 s over this
-//! line) and a jog by direction button (pressed twice, at 20 s and 28 s: a busy machine may end
-//! referencing late), so this test takes 32 s.
+//! line) and a jog by direction button (pressed twice, at 19 s and 27 s: a busy machine may end
+//! referencing late), so this test takes `common::JOG_RUN_S` (32 s).
 //! The driver's default exchange on a serial line is the packed image, one transaction per
 //! exchange.
 //!
@@ -27,7 +27,7 @@ fn the_application_runs_over_modbus_rtu_on_a_pty_pair() {
     let loaded = common::loaded(&common::realtime_config());
     // The station's panel presses the direction button "right" after referencing.
     let dir = tempfile::tempdir().expect("tempdir");
-    let scenario = common::jog_right_at(dir.path(), &[common::FAST_READY_S + 4.35, common::FAST_READY_S + 12.35]);
+    let scenario = common::jog_right_at(dir.path(), &common::JOG_PRESSES_S);
     let setup = pkm_plc::compose::Setup::new(loaded.clone()).expect("known machine");
     let station = Station::new(setup.sim_bus(Some(&scenario)).expect("sim"));
     // This tests the exchange, not its timing: the station's watchdog waits longer than a busy
@@ -61,7 +61,7 @@ fn the_application_runs_over_modbus_rtu_on_a_pty_pair() {
         realtime_priority: 80,
         lock_memory: false,
         spin_ns: 0,
-        duration_ns: Some(32_000_000_000),
+        duration_ns: Some((common::JOG_RUN_S * 1e9) as u64),
     };
     let mut outcome = run::start_realtime(plc, options)
         .and_then(|r| r.join())
@@ -84,8 +84,9 @@ fn the_application_runs_over_modbus_rtu_on_a_pty_pair() {
     let stats = bus.stats();
     let exchanges = stats.exchanges.load(std::sync::atomic::Ordering::Relaxed);
     // About 7 ms an exchange at 115 200 baud: well over 2500 in 32 s.
-    assert!(exchanges > 2500, "{exchanges} exchanges in 32 s");
+    let run_s = common::JOG_RUN_S;
+    assert!(exchanges > 2500, "{exchanges} exchanges in {run_s} s");
     assert_eq!(stats.timeouts.load(std::sync::atomic::Ordering::Relaxed), 0);
     let mean_us = stats.exchange_ns_total.load(std::sync::atomic::Ordering::Relaxed) as f64 / exchanges as f64 / 1e3;
-    eprintln!("RTU at 115 200 baud (emulated line): {exchanges} exchanges in 32 s, mean {mean_us:.0} µs");
+    eprintln!("RTU at 115 200 baud (emulated line): {exchanges} exchanges in {run_s} s, mean {mean_us:.0} µs");
 }

@@ -175,6 +175,14 @@ pub fn transitions(plc: &mut Plc, until_ms: u64, mut each: impl FnMut(&Plc, u64)
 /// With [`realtime_config`], the machine is READY after this long (14.45 s of simulated time).
 pub const FAST_READY_S: f64 = 14.45;
 
+/// The jog tests over a link: READY, a press of the direction button 4.35 s later and again
+/// 8 s after that (on a busy machine referencing over the link may end late, and a press in INIT
+/// is lost), and 4.2 s more: how long they run (s).
+pub const JOG_RUN_S: f64 = FAST_READY_S + 17.55;
+
+/// When the jog tests press the direction button (s from the start; see [`JOG_RUN_S`]).
+pub const JOG_PRESSES_S: [f64; 2] = [FAST_READY_S + 4.35, FAST_READY_S + 12.35];
+
 /// The repository's configuration for real-time end-to-end tests, which test an exchange (Modbus,
 /// a joystick), not the scheduler's timing: referencing at up to 50 mm/s with short, quicker
 /// approaches (READY after [`FAST_READY_S`] instead of 40.2 s); cycle time violations logged

@@ -148,15 +148,15 @@ fn start_with(scenario: &std::path::Path) -> (IoSim, SocketAddr) {
     common::start_io_sim("127.0.0.1:0", &["--scenario", scenario.to_str().expect("utf-8")])
 }
 
-/// Real time, with the fast-referencing test configuration: READY after about 16 s (15.65 s and
-/// the link's latency), a jog by the station's direction button at 20 s and again at 28 s (on a
-/// busy machine referencing over the link may end later, and a press in INIT is lost); the test
-/// takes 32 s.
+/// Real time, with the fast-referencing test configuration: READY after about 15 s (and the
+/// link's latency), a jog by the station's direction button 4.35 s later and again 8 s after that
+/// (on a busy machine referencing over the link may end later, and a press in INIT is lost); the
+/// test takes `common::JOG_RUN_S` (32 s).
 #[test]
 fn the_soft_plc_references_and_jogs_over_modbus_tcp() {
     let dir = tempfile::tempdir().expect("tempdir");
     let config = common::write_realtime_config(dir.path());
-    let scenario = common::jog_right_at(dir.path(), &[common::FAST_READY_S + 4.35, common::FAST_READY_S + 12.35]);
+    let scenario = common::jog_right_at(dir.path(), &common::JOG_PRESSES_S);
     let (_sim, address) = start_with(&scenario);
     let (s, t) = (dir.path().join("summary.json"), dir.path().join("trace.jsonl"));
     let o = common::pkm_command()
@@ -165,7 +165,7 @@ fn the_soft_plc_references_and_jogs_over_modbus_tcp() {
             "--bus",
             &format!("tcp:{address}"),
             "--duration",
-            "32",
+            &common::JOG_RUN_S.to_string(),
             "--summary",
             s.to_str().expect("utf-8"),
         ])

@@ -1,6 +1,6 @@
 //! End to end, in real time: `pkm-plc run --joystick FIFO` on the simulated machine, fed a
 //! fabricated raw event capture (the documented 24-byte `struct input_event` layout) through a
-//! FIFO. After referencing (15.65 s with the fast-referencing test configuration) the stick goes full right — M moves in +x — then the writer
+//! FIFO. After referencing (about 15 s with the fast-referencing test configuration) the stick goes full right — M moves in +x — then the writer
 //! closes the FIFO in the middle of the motion (an unplugged device): axes at zero, a warning,
 //! READY. The writer comes back and pulls the stick towards the operator — M moves down. The
 //! trace of the run replays identically. The run takes 29 s.
@@ -79,7 +79,8 @@ fn a_capture_through_a_fifo_drives_m_and_an_unplug_stops_it() {
     assert!(made.success(), "mkfifo");
     let trace = dir.path().join("trace.jsonl");
     let config = common::write_realtime_config(dir.path());
-    // The script's times, from the start: READY at 15.65 s, then as in the comments below.
+    // The script's times, from the start: READY at `FAST_READY_S` (and a busy machine's
+    // delay), then as in the comments below.
     let at = |s: f64| common::FAST_READY_S + s;
     let start = Instant::now();
     let child = common::pkm_command()
