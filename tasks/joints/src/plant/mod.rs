@@ -693,4 +693,61 @@ mod tests {
             }
         }
     }
+
+    /// The hexapod's plant with its kinematics as the mechanism (their joint limits, narrower
+    /// than the hard stops: beyond them the mechanism does not assemble), and the signal index
+    /// of each key.
+    fn hexapod() -> (Plant, impl Fn(&str) -> usize) {
+        let spec = &crate::HEXAPOD;
+        let config = spec.default_plant();
+        let kinematics = pkm_kinematics::KinematicsConfig::from_section(None).expect("the defaults");
+        let signals = harness::signals(spec);
+        let keys: Vec<&'static str> = signals.iter().map(|(s, _, _)| s.key).collect();
+        let plant = Plant::new(
+            &config,
+            signals.into_iter().map(|(s, w, _)| (s, w)).collect(),
+            Some(kinematics.build(spec.model)),
+        );
+        (plant, move |key: &str| {
+            keys.iter().position(|k| *k == key).expect("a signal")
+        })
+    }
+
+    #[test]
+    fn spans_end_where_the_steps_do_through_a_jam() {
+        let (mut spanned, at) = hexapod();
+        let (mut stepped, _) = hexapod();
+        let mut values = vec![Value::Int(0); spanned.signals().len()];
+        let mut outputs = Vec::new();
+        for k in ["pwm_period1", "pwm_period2", "pwm_period3"] {
+            values[at(k)] = Value::Uint(50);
+            outputs.push(at(k));
+        }
+        // Joint 1 out at full duty, joint 4 in at half: they move until the mechanism refuses.
+        values[at("joint1_pwm")] = Value::Int(32767);
+        values[at("joint4_pwm")] = Value::Int(-16384);
+        outputs.extend([at("joint1_pwm"), at("joint4_pwm")]);
+        spanned.write_from(&outputs, &values);
+        stepped.write_from(&outputs, &values);
+        for cycle in 0..2000 {
+            spanned.steps(0.001, 10);
+            for _ in 0..10 {
+                stepped.step(0.001);
+            }
+            for j in 0..6 {
+                let (a, b) = (spanned.position_mm(j), stepped.position_mm(j));
+                assert!(
+                    (a - b).abs() < 1e-9,
+                    "cycle {cycle}, joint {}: {a} spanned, {b} stepped",
+                    j + 1
+                );
+            }
+        }
+        assert!(spanned.jams() > 0, "the mechanism refused the motion");
+        assert_eq!(spanned.jams(), stepped.jams());
+        assert!(
+            spanned.position_mm(0) > spanned.start_mm(0) + 10.0,
+            "joint 1 moved out first"
+        );
+    }
 }
