@@ -75,9 +75,7 @@ fn write_config(dir: &std::path::Path, edit: impl Fn(&mut serde_json::Value)) ->
             edit(program);
         }
     }
-    let path = dir.join("ox-x.json");
-    std::fs::write(&path, config.to_string()).expect("write the configuration");
-    path
+    common::write_config(dir, "ox-x.json", &config)
 }
 
 /// Starts `pkm-plc run` in real time on the configuration `config` with the screen on a free

@@ -3,7 +3,7 @@
 //! reader is what bounds a replay (its consumer, the replay's programs, runs on a third thread).
 
 use std::io::{self, BufRead, Read};
-use std::sync::mpsc::{Receiver, SyncSender, TryRecvError, sync_channel};
+use std::sync::mpsc::{Receiver, SyncSender, sync_channel};
 
 /// How much one block holds: large enough that handing it over costs nothing, small enough that
 /// the first one comes at once.
@@ -32,10 +32,7 @@ impl Inflated {
             .spawn(move || {
                 let mut gz = flate2::read::MultiGzDecoder::new(io::BufReader::with_capacity(1 << 16, compressed));
                 loop {
-                    let mut block = match returned.try_recv() {
-                        Ok(b) => b,
-                        Err(TryRecvError::Empty | TryRecvError::Disconnected) => Vec::with_capacity(BLOCK),
-                    };
+                    let mut block = returned.try_recv().unwrap_or_else(|_| Vec::with_capacity(BLOCK));
                     block.resize(BLOCK, 0);
                     let mut filled = 0;
                     let mut failed = None;

@@ -225,8 +225,13 @@ pub fn busy_machine_config() -> serde_json::Value {
 
 /// Writes [`busy_machine_config`] to `dir`; returns its path.
 pub fn write_busy_machine_config(dir: &Path) -> PathBuf {
-    let path = dir.join("busy-machine-config.json");
-    std::fs::write(&path, busy_machine_config().to_string()).expect("write the configuration");
+    write_config(dir, "busy-machine-config.json", &busy_machine_config())
+}
+
+/// Writes the configuration `config` to `dir/name`; returns its path.
+pub fn write_config(dir: &Path, name: &str, config: &serde_json::Value) -> PathBuf {
+    let path = dir.join(name);
+    std::fs::write(&path, config.to_string()).expect("write the configuration");
     path
 }
 
@@ -254,9 +259,7 @@ pub fn start_with_link_up(command: std::process::Command) -> Logged {
 
 /// Writes [`realtime_config`] to `dir`; returns its path.
 pub fn write_realtime_config(dir: &Path) -> PathBuf {
-    let path = dir.join("realtime-config.json");
-    std::fs::write(&path, realtime_config().to_string()).expect("write the configuration");
-    path
+    write_config(dir, "realtime-config.json", &realtime_config())
 }
 
 /// Writes a scenario to `dir` that presses the direction button "right" for a second from each

@@ -71,8 +71,7 @@ fn an_io_map_that_is_a_device_or_a_fifo_is_refused_at_once() {
     ] {
         let mut config = common::repo_config();
         config["io_map"] = map.into();
-        let path = dir.path().join("config.json");
-        std::fs::write(&path, config.to_string()).expect("write");
+        let path = common::write_config(dir.path(), "config.json", &config);
         let o = pkm(&["check", "--config", path.to_str().expect("utf-8")]);
         assert_eq!(o.status.code(), Some(2));
         assert_eq!(
@@ -500,8 +499,7 @@ fn a_program_of_a_machine_the_configuration_does_not_name_is_refused_with_its_ma
     for key in ["machine", "plant", "kinematics"] {
         object.remove(key);
     }
-    let path = dir.path().join("no-machine.json");
-    std::fs::write(&path, config.to_string()).expect("write");
+    let path = common::write_config(dir.path(), "no-machine.json", &config);
     let o = pkm(&["check", "--config", path.to_str().expect("utf-8")]);
     assert_eq!(o.status.code(), Some(2));
     let stderr = stderr(&o);
@@ -525,8 +523,7 @@ fn a_plant_section_problem_is_reported_once_by_run() {
         .expect("utf-8")
         .into();
     config["plant"] = serde_json::json!({"left": {"tau_s": -1}});
-    let path = dir.path().join("bad-plant.json");
-    std::fs::write(&path, config.to_string()).expect("write");
+    let path = common::write_config(dir.path(), "bad-plant.json", &config);
     let o = pkm(&[
         "run",
         "--virtual",

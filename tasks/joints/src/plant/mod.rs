@@ -110,6 +110,17 @@ pub struct Plant {
 /// at all (the hexapod's forward kinematics at every 1 ms step was 3/4 of its simulation).
 pub const JAM_CHECK_MM: f64 = 0.01;
 
+/// The duty (−1 … 1) a DC joint's bridge applies: its pulse width, once the bridge module has a
+/// PWM period, has no latched error and the motor is connected; none otherwise.
+#[inline]
+fn dc_duty(pwm_period: u16, pwm: i16, bridge_error: bool, dead: bool) -> f64 {
+    if pwm_period > 0 && !bridge_error && !dead {
+        f64::from(pwm) / 32767.0
+    } else {
+        0.0
+    }
+}
+
 /// The drives' names in scenario files, by joint.
 const DRIVES: [&str; 6] = ["joint1", "joint2", "joint3", "joint4", "joint5", "joint6"];
 
@@ -238,12 +249,7 @@ impl Plant {
             else {
                 return false;
             };
-            let period = self.pwm_period[j / 2];
-            let duty = if period > 0 && !*bridge_error && !joint.dead {
-                f64::from(*pwm) / 32767.0
-            } else {
-                0.0
-            };
+            let duty = dc_duty(self.pwm_period[j / 2], *pwm, *bridge_error, joint.dead);
             let Some(end) = axis.span(duty, dt_s, n) else {
                 return false;
             };
@@ -299,15 +305,7 @@ impl Plant {
                     pwm,
                     bridge_error,
                     ..
-                } => {
-                    let period = self.pwm_period[j / 2];
-                    let duty = if period > 0 && !*bridge_error && !joint.dead {
-                        f64::from(*pwm) / 32767.0
-                    } else {
-                        0.0
-                    };
-                    axis.advance(duty, dt_s)
-                }
+                } => axis.advance(dc_duty(self.pwm_period[j / 2], *pwm, *bridge_error, joint.dead), dt_s),
             };
             moved |= next[j] != joint.position_mm();
         }
@@ -613,9 +611,18 @@ mod tests {
     fn pn101(edit: impl FnOnce(&mut PlantConfig)) -> (Plant, impl Fn(&str) -> usize) {
         let mut config = crate::PN101.default_plant();
         edit(&mut config);
-        let signals = harness::signals(&crate::PN101);
+        built(&crate::PN101, &config, None)
+    }
+
+    /// The plant of `spec` with `config` and `mechanism`, and the index of each signal key.
+    fn built(
+        spec: &crate::spec::Spec,
+        config: &PlantConfig,
+        mechanism: Option<Box<dyn Kinematics>>,
+    ) -> (Plant, impl Fn(&str) -> usize + use<>) {
+        let signals = harness::signals(spec);
         let keys: Vec<&'static str> = signals.iter().map(|(s, _, _)| s.key).collect();
-        let plant = Plant::new(&config, signals.into_iter().map(|(s, w, _)| (s, w)).collect(), None);
+        let plant = Plant::new(config, signals.into_iter().map(|(s, w, _)| (s, w)).collect(), mechanism);
         (plant, move |key: &str| {
             keys.iter().position(|k| *k == key).expect("a signal")
         })
@@ -699,18 +706,8 @@ mod tests {
     /// of each key.
     fn hexapod() -> (Plant, impl Fn(&str) -> usize) {
         let spec = &crate::HEXAPOD;
-        let config = spec.default_plant();
         let kinematics = pkm_kinematics::KinematicsConfig::from_section(None).expect("the defaults");
-        let signals = harness::signals(spec);
-        let keys: Vec<&'static str> = signals.iter().map(|(s, _, _)| s.key).collect();
-        let plant = Plant::new(
-            &config,
-            signals.into_iter().map(|(s, w, _)| (s, w)).collect(),
-            Some(kinematics.build(spec.model)),
-        );
-        (plant, move |key: &str| {
-            keys.iter().position(|k| *k == key).expect("a signal")
-        })
+        built(spec, &spec.default_plant(), Some(kinematics.build(spec.model)))
     }
 
     #[test]
