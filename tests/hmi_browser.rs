@@ -16,9 +16,16 @@ use std::time::{Duration, Instant};
 use common::cdp::{Browser, Page, chromium};
 use futures::StreamExt;
 
-/// The tests run one at a time: each runs a PLC in real time (and one a browser), and on a small
-/// machine side by side they would starve each other.
-static SERIAL: tokio::sync::Mutex<()> = tokio::sync::Mutex::const_new(());
+/// At most two tests at once, whatever libtest's thread count: each runs a PLC in real time and
+/// most a browser, which take little CPU (the eight tests: 12 CPU-seconds in 51 s one at a time)
+/// but come in bursts; two side by side leave a 2-core machine room for those bursts (and for
+/// CI's clippy at the lowest priority), more would starve each other on a small machine.
+static SIDE_BY_SIDE: tokio::sync::Semaphore = tokio::sync::Semaphore::const_new(2);
+
+/// A place among the tests that run at once, held until dropped.
+async fn take_turn() -> tokio::sync::SemaphorePermit<'static> {
+    SIDE_BY_SIDE.acquire().await.expect("the semaphore is never closed")
+}
 
 /// A running `pkm-plc run` with its screen, killed when dropped.
 struct Plc {
@@ -190,7 +197,7 @@ async fn the_page_shows_referencing_jogs_while_held_stops_and_acknowledges() {
         );
         return;
     };
-    let _serial = SERIAL.lock().await;
+    let _turn = take_turn().await;
     let profile = tempfile::tempdir().expect("tempdir");
     let trace = profile.path().join("screen.jsonl");
     // The browser first: a cold start on a busy machine takes seconds, and the page must load
@@ -327,7 +334,7 @@ async fn the_page_shows_referencing_jogs_while_held_stops_and_acknowledges() {
 async fn a_websocket_dropped_mid_jog_stops_the_jog_within_a_main_cycle() {
     use futures::SinkExt;
     use tokio_tungstenite::tungstenite::Message;
-    let _serial = SERIAL.lock().await;
+    let _turn = take_turn().await;
     let dir = tempfile::tempdir().expect("tempdir");
     let plc = start_plc(&quick_config(dir.path()), 60, &[]);
     let ws = plc.url.replacen("http://", "ws://", 1) + "ws";
@@ -441,7 +448,7 @@ async fn with_a_token_a_page_without_it_only_watches() {
         }
         state
     }
-    let _serial = SERIAL.lock().await;
+    let _turn = take_turn().await;
     let dir = tempfile::tempdir().expect("tempdir");
     let plc = start_plc(&test_config(dir.path()), 30, &["--hmi-token", "s3cret"]);
     let ws = plc.url.replacen("http://", "ws://", 1) + "ws";
@@ -584,7 +591,7 @@ async fn a_page_of_another_origin_or_a_rebound_name_reaches_nothing() {
         eprintln!("SKIPPED hmi_browser::a_page_of_another_origin_or_a_rebound_name_reaches_nothing: no Chromium here");
         return;
     };
-    let _serial = SERIAL.lock().await;
+    let _turn = take_turn().await;
     let dir = tempfile::tempdir().expect("tempdir");
     let browser = launch(
         chromium,
@@ -675,7 +682,7 @@ async fn a_watching_page_shows_its_controls_disabled_and_the_token_leaves_the_ad
         );
         return;
     };
-    let _serial = SERIAL.lock().await;
+    let _turn = take_turn().await;
     let dir = tempfile::tempdir().expect("tempdir");
     let browser = launch(chromium, dir.path(), &[]).await;
     let page = browser.new_page("about:blank").await.expect("a page");
@@ -743,7 +750,7 @@ async fn the_screen_bounds_clients_messages_and_rates_and_checks_host_and_origin
     use futures::SinkExt;
     use tokio_tungstenite::tungstenite::Message;
     use tokio_tungstenite::tungstenite::client::IntoClientRequest;
-    let _serial = SERIAL.lock().await;
+    let _turn = take_turn().await;
     let dir = tempfile::tempdir().expect("tempdir");
     let token = "0123456789abcdef-token";
     let plc = start_plc(
@@ -881,7 +888,7 @@ async fn the_screen_sets_the_overrides_steps_a_program_line_by_line_runs_mdi_and
         );
         return;
     };
-    let _serial = SERIAL.lock().await;
+    let _turn = take_turn().await;
     let dir = tempfile::tempdir().expect("tempdir");
     let programs = dir.path().join("programs");
     std::fs::create_dir(&programs).expect("a directory");
