@@ -10,9 +10,9 @@
 //! - [`station_safety`]: what the station and the soft-PLC do when things go wrong.
 //! - [`trace_cuts`]: traces that a crash cut short.
 //!
-//! Two kinds stay binaries of their own, run one test at a time: the operator screen's browser
-//! tests (`tests/hmi_browser.rs`) and Modbus RTU over an emulated line (`tests/modbus_rtu.rs`);
-//! beside these tests they were slowed beyond their links' limits.
+//! Two kinds stay binaries of their own: the operator screen's browser tests
+//! (`tests/hmi_browser.rs`, two at a time) and Modbus RTU over an emulated line
+//! (`tests/modbus_rtu.rs`); beside these tests they were slowed beyond their links' limits.
 
 #[path = "../common/mod.rs"]
 mod common;
