@@ -237,8 +237,8 @@ impl Plant {
             position_mm: 0.0,
             velocity_mm_s: 0.0,
         }; MAX_DOF];
+        let mut next = [0.0; MAX_DOF];
         let mut moved = false;
-        let mut far = false;
         for (j, joint) in self.joints.iter_mut().enumerate() {
             let Drive::Dc {
                 axis,
@@ -254,33 +254,40 @@ impl Plant {
                 return false;
             };
             moved |= end.position_mm != axis.position_mm();
-            far |= (end.position_mm - self.checked[j]).abs() > JAM_CHECK_MM;
+            next[j] = end.position_mm;
             ends[j] = end;
         }
-        let n_joints = self.joints.len();
-        if moved && far {
-            if let Some(m) = &self.mechanism {
-                let mut next = [0.0; MAX_DOF];
-                for (q, end) in next.iter_mut().zip(&ends) {
-                    *q = end.position_mm;
-                }
-                let hint = self.pose;
-                if m.forward(&next[..n_joints], Some(&hint[..n_joints]), &mut self.pose[..n_joints])
-                    .is_err()
-                {
-                    self.pose = hint;
-                    return false;
-                }
-            }
-            for (c, end) in self.checked.iter_mut().zip(&ends[..n_joints]) {
-                *c = end.position_mm;
-            }
+        if !self.linkage_allows(&next, moved) {
+            return false;
         }
         for (joint, end) in self.joints.iter_mut().zip(ends) {
             if let Drive::Dc { axis, .. } = &mut joint.drive {
                 axis.commit_span(end);
             }
         }
+        true
+    }
+
+    /// Whether the mechanism lets the joints go to `next` (`moved`: whether any joint would
+    /// move): checked by forward kinematics from the last assembled pose once a joint is
+    /// [`JAM_CHECK_MM`] from where the linkage was last checked, which then becomes `next`.
+    /// Shared by [`Plant::step`] and [`Plant::span`], so that a span and its steps check alike.
+    fn linkage_allows(&mut self, next: &[f64; MAX_DOF], moved: bool) -> bool {
+        let n = self.joints.len();
+        let far = (0..n).any(|j| (next[j] - self.checked[j]).abs() > JAM_CHECK_MM);
+        if !(moved && far) {
+            return true;
+        }
+        if let Some(m) = &self.mechanism {
+            let hint = self.pose;
+            if m.forward(&next[..n], Some(&hint[..n]), &mut self.pose[..n]).is_err() {
+                // The last assembled pose stays the next check's start (the models write the
+                // pose only when they find one; this keeps it so whatever a model does).
+                self.pose = hint;
+                return false;
+            }
+        }
+        self.checked[..n].copy_from_slice(&next[..n]);
         true
     }
 
@@ -309,17 +316,7 @@ impl Plant {
             };
             moved |= next[j] != joint.position_mm();
         }
-        let n = self.joints.len();
-        let far = (0..n).any(|j| (next[j] - self.checked[j]).abs() > JAM_CHECK_MM);
-        let jammed = moved
-            && far
-            && self.mechanism.as_ref().is_some_and(|m| {
-                let hint = self.pose;
-                m.forward(&next[..n], Some(&hint[..n]), &mut self.pose[..n]).is_err()
-            });
-        if moved && far && !jammed {
-            self.checked[..n].copy_from_slice(&next[..n]);
-        }
+        let jammed = !self.linkage_allows(&next, moved);
         if jammed {
             self.jams += 1;
         }
