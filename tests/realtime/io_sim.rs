@@ -255,8 +255,7 @@ fn the_hexapod_references_and_jogs_over_modbus_tcp() {
     for class in config["task_classes"].as_array_mut().expect("classes") {
         class["on_violation"] = "log".into();
     }
-    let config_path = dir.path().join("hexapod.json");
-    std::fs::write(&config_path, config.to_string()).expect("write the configuration");
+    let config_path = common::write_config(dir.path(), "hexapod.json", &config);
     let scenario = common::jog_right_at(dir.path(), &[10.5, 16.5]);
     let (_sim, address) = common::start_io_sim(
         "127.0.0.1:0",

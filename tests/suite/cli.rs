@@ -42,8 +42,7 @@ fn check_reports_the_problems_of_the_configuration_and_its_io_map_together() {
     let mut config = common::repo_config();
     config["task_classes"][1]["programs"][0]["params"] = serde_json::json!({"dead_zone": 5});
     config["io_map"] = "map.json".into();
-    let config_path = dir.path().join("config.json");
-    std::fs::write(&config_path, config.to_string()).expect("write");
+    let config_path = common::write_config(dir.path(), "config.json", &config);
     let mut map = common::read_json(&common::root().join("io-map/trijoint.json"));
     map["bindings"][0]["module"] = "NOPE".into();
     std::fs::write(dir.path().join("map.json"), map.to_string()).expect("write");

@@ -123,8 +123,7 @@ fn a_trace_from_another_configuration_is_refused_unless_forced() {
     let mut config = common::repo_config();
     config["io_map"] = serde_json::json!(concat!(env!("CARGO_MANIFEST_DIR"), "/io-map/trijoint.json"));
     config["task_classes"][2]["tolerance_us"] = serde_json::json!(90000);
-    let other = dir.path().join("other.json");
-    std::fs::write(&other, config.to_string()).expect("write");
+    let other = common::write_config(dir.path(), "other.json", &config);
     let args = [
         "replay",
         trace.to_str().expect("utf-8"),
