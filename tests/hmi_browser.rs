@@ -229,12 +229,13 @@ async fn the_page_shows_referencing_jogs_while_held_stops_and_acknowledges() {
         file(p).await.ends_with("ox-x-text.ngc")
     })
     .await;
-    assert!(
-        text(&page, "document.getElementById('program-text').textContent")
+    // The name shows at once, the text once the page has asked the server for it.
+    until(&page, Duration::from_secs(5), "its text shown", async |p| {
+        text(p, "document.getElementById('program-text').textContent")
             .await
-            .contains("O-X GLIDE"),
-        "its text shown"
-    );
+            .contains("O-X GLIDE")
+    })
+    .await;
     // Hold +x: the tool moves while held.
     let before = x(&page).await;
     // The +x button (the first pose coordinate).
