@@ -466,13 +466,28 @@ impl Plc {
         }
     }
 
-    /// Runs one cycle of class `ci` with recorded inputs instead of latched ones (`inputs` holds
-    /// them at their variable indices) and the recorded violation event; the outputs are then in
-    /// [`Plc::class_image`]. Used by replay: no bus, no statistics but the cycle count.
-    pub fn replay_cycle(&mut self, ci: usize, release: u64, inputs: &[Value], violation: bool, clock: &mut dyn Clock) {
+    /// Runs one cycle of class `ci` with recorded inputs instead of latched ones and the
+    /// recorded violation event; the outputs are then in [`Plc::class_image`]. Used by replay:
+    /// no bus, no statistics but the cycle count.
+    ///
+    /// `changed` holds the inputs that changed since the class's previous cycle, each one of
+    /// the class's inputs ([`ClassView::inputs`]): the others keep their values in the class's
+    /// image, which only latching writes (programs write their own outputs only).
+    pub fn replay_cycle(
+        &mut self,
+        ci: usize,
+        release: u64,
+        changed: &[(VarIndex, Value)],
+        violation: bool,
+        clock: &mut dyn Clock,
+    ) {
         let class = &mut self.classes[ci];
-        for &i in &class.inputs {
-            class.image[usize::from(i)] = inputs[usize::from(i)];
+        for &(i, v) in changed {
+            debug_assert!(
+                class.inputs.contains(&i),
+                "replayed input {i} is not an input of class {ci}"
+            );
+            class.image[usize::from(i)] = v;
         }
         self.execute(ci, release, clock, Some(violation));
         self.publish(ci);

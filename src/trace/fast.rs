@@ -8,6 +8,8 @@
 //! the errors. What the fast path accepts it reads exactly as that slow path would (a property
 //! test holds the two to it).
 
+use std::collections::HashMap;
+
 use crate::image::{Value, VarType};
 
 /// A variable as a class's records name it.
@@ -20,28 +22,50 @@ pub(super) struct Slot {
     pub ty: VarType,
 }
 
+/// The variables a class latches, or those it publishes, as its records name them.
+pub(super) struct Slots {
+    /// In header order, the order the recorder writes them in.
+    pub list: Vec<Slot>,
+    /// Their positions in `list` by name: a record holds only the variables that changed, so
+    /// the next name is often not the next in order (a class may have a hundred).
+    by_name: HashMap<Box<[u8]>, usize, foldhash::fast::FixedState>,
+}
+
+impl Slots {
+    /// `list`, in header order, with its index by name.
+    pub fn new(list: Vec<Slot>) -> Slots {
+        let by_name = list.iter().enumerate().map(|(k, s)| (s.name.clone(), k)).collect();
+        Slots { list, by_name }
+    }
+}
+
 /// A task class as its records look.
 pub(super) struct ClassLayout {
     /// Its name.
     pub name: Box<[u8]>,
-    /// The variables it latches, in header order.
-    pub inputs: Vec<Slot>,
-    /// The variables it publishes, in header order.
-    pub outputs: Vec<Slot>,
+    /// The variables it latches.
+    pub inputs: Slots,
+    /// The variables it publishes.
+    pub outputs: Slots,
 }
 
 /// The fixed part of a record line.
 pub(super) struct Fields<'a> {
+    /// The task class's index in the header.
     pub class: usize,
+    /// Nominal start (µs).
     pub t_us: u64,
+    /// The cycle's number in its class.
     pub cycle: u64,
-    pub state: Option<&'a str>,
-    pub reason: Option<&'a str>,
+    /// The state's name, as its bytes (not yet checked as UTF-8).
+    pub state: Option<&'a [u8]>,
+    /// The reason, the same way.
+    pub reason: Option<&'a [u8]>,
+    /// Whether a cycle time violation was delivered.
     pub violation: bool,
 }
 
 struct Cursor<'a> {
-    s: &'a str,
     b: &'a [u8],
     i: usize,
 }
@@ -49,7 +73,7 @@ struct Cursor<'a> {
 /// Whether `a` and `b` hold the same bytes: names are a few bytes long, and comparing them in
 /// words here costs less than the library's call (a record line matches a dozen).
 #[inline]
-fn same_bytes(a: &[u8], b: &[u8]) -> bool {
+pub(crate) fn same_bytes(a: &[u8], b: &[u8]) -> bool {
     if a.len() != b.len() {
         return false;
     }
@@ -62,10 +86,25 @@ fn same_bytes(a: &[u8], b: &[u8]) -> bool {
         && rest_a.iter().zip(rest_b).all(|(x, y)| x == y)
 }
 
+/// How many of the eight bytes of `word` (in memory order) are ASCII digits before the first
+/// that is not. Per byte, `c - '0'` borrows (sets the high bit) below '0' and `c + 0x46` reaches
+/// the high bit above '9' (bytes from 0xB0 up have it already in `c - '0'`); a borrow or carry
+/// only moves towards later bytes, and only out of a byte that is not a digit, so the first such
+/// byte is always flagged and no digit before it is.
+#[inline]
+fn leading_digits(word: u64) -> usize {
+    let below = word.wrapping_sub(0x3030_3030_3030_3030);
+    let above = word.wrapping_add(0x4646_4646_4646_4646);
+    ((below | above) & 0x8080_8080_8080_8080).trailing_zeros() as usize / 8
+}
+
 impl<'a> Cursor<'a> {
-    fn lit(&mut self, s: &[u8]) -> Option<()> {
-        if self.b.get(self.i..self.i + s.len())? == s {
-            self.i += s.len();
+    /// Takes the literal `s` if it comes next. Its length is known when compiling, so the
+    /// comparison is a few word compares, not a call.
+    #[inline]
+    fn lit<const N: usize>(&mut self, s: &[u8; N]) -> Option<()> {
+        if self.b[self.i..].first_chunk::<N>()? == s {
+            self.i += N;
             Some(())
         } else {
             None
@@ -76,20 +115,30 @@ impl<'a> Cursor<'a> {
         self.b.get(self.i).copied()
     }
 
-    /// The text up to the closing quote (the opening one already read); `None` on an escape or
-    /// a control character, which only the slow path reads.
-    fn string(&mut self) -> Option<&'a str> {
+    /// The bytes up to the closing quote (the opening one already read); `None` on an escape or
+    /// a control character, which only the slow path reads. Not checked as UTF-8 here: the
+    /// reader compares them with the names it has seen and checks only a new one.
+    fn string(&mut self) -> Option<&'a [u8]> {
         let start = self.i;
         let len = self.b[start..]
             .iter()
             .position(|&c| c == b'"' || c == b'\\' || c < 0x20)?;
         self.i += len;
         self.lit(b"\"")?;
-        self.s.get(start..start + len)
+        Some(&self.b[start..start + len])
     }
 
+    /// Skips the ASCII digits from here; how many there were.
     fn digits(&mut self) -> usize {
         let start = self.i;
+        // Eight at a time while they last (a fraction has up to 17).
+        while let Some(word) = self.b[self.i..].first_chunk::<8>() {
+            let n = leading_digits(u64::from_le_bytes(*word));
+            self.i += n;
+            if n < 8 {
+                return self.i - start;
+            }
+        }
         while self.peek().is_some_and(|c| c.is_ascii_digit()) {
             self.i += 1;
         }
@@ -138,7 +187,11 @@ impl<'a> Cursor<'a> {
         }
         // Within 18 digits the value is exact and its negation cannot overflow.
         let value = (integer && small).then(|| if negative { -whole } else { whole });
-        Some((self.s.get(start..self.i)?, integer, value))
+        let token = &self.b[start..self.i];
+        // SAFETY: the token was scanned above and holds only ASCII bytes ('-', '+', '.', 'e',
+        // 'E' and digits), so it is UTF-8. Checking it again cost a sixth of reading a trace.
+        let text = unsafe { std::str::from_utf8_unchecked(token) };
+        Some((text, integer, value))
     }
 
     /// An unsigned integer field (at most 18 digits: it fits).
@@ -175,42 +228,38 @@ impl<'a> Cursor<'a> {
     }
 
     /// `{"NAME":VALUE,…}` with every name one of `slots`, pushed as (header index, value).
-    fn pairs(&mut self, slots: &[Slot], out: &mut Vec<(usize, Value)>) -> Option<()> {
+    fn pairs(&mut self, slots: &Slots, out: &mut Vec<(usize, Value)>) -> Option<()> {
         self.lit(b"{")?;
         if self.peek()? == b'}' {
             self.i += 1;
             return Some(());
         }
-        if slots.is_empty() {
+        let list = &slots.list;
+        if list.is_empty() {
             return None;
         }
-        // The recorder writes a class's variables in header order: look from the last match on,
-        // comparing lengths first.
+        // The recorder writes a class's variables in header order: the name is often the one
+        // after the last match, which is tried first; otherwise it is looked up.
         let mut next = 0;
         loop {
             self.lit(b"\"")?;
             // Slot names hold no quote, backslash or control character (see `fast_names`): a
-            // name that matches one is that name, escapes and all. Mostly it is the next slot's
-            // name, followed by its closing quote.
-            let expected = &slots[next].name;
-            let mut k = next;
-            if self.b.get(self.i + expected.len()) == Some(&b'"')
+            // name that matches one is that name, escapes and all.
+            let expected = &list[next].name;
+            let k = if self.b.get(self.i + expected.len()) == Some(&b'"')
                 && same_bytes(&self.b[self.i..self.i + expected.len()], expected)
             {
                 self.i += expected.len() + 1;
+                next
             } else {
                 let len = memchr::memchr(b'"', &self.b[self.i..])?;
                 let name = &self.b[self.i..self.i + len];
                 self.i += len + 1;
-                let mut left = slots.len();
-                while !same_bytes(&slots[k].name, name) {
-                    left = left.checked_sub(1).filter(|&l| l > 0)?;
-                    k = if k + 1 == slots.len() { 0 } else { k + 1 };
-                }
-            }
+                *slots.by_name.get(name)?
+            };
             self.lit(b":")?;
-            next = if k + 1 == slots.len() { 0 } else { k + 1 };
-            out.push((slots[k].index, self.value(slots[k].ty)?));
+            next = if k + 1 == list.len() { 0 } else { k + 1 };
+            out.push((list[k].index, self.value(list[k].ty)?));
             match self.peek()? {
                 b',' => self.i += 1,
                 b'}' => {
@@ -229,29 +278,30 @@ pub(super) fn fast_names(layouts: &[ClassLayout]) -> bool {
     let plain = |n: &[u8]| !n.iter().any(|&c| c == b'"' || c == b'\\' || c < 0x20);
     layouts
         .iter()
-        .all(|c| plain(&c.name) && c.inputs.iter().chain(&c.outputs).all(|s| plain(&s.name)))
+        .all(|c| plain(&c.name) && c.inputs.list.iter().chain(&c.outputs.list).all(|s| plain(&s.name)))
 }
 
-/// Reads `line` if it has exactly the recorder's form; the changed inputs and outputs go to
-/// `inputs` and `outputs` (cleared first). `None`: not that form (the slow path decides).
+/// Reads the record at the start of `bytes` if it has exactly the recorder's form; the changed
+/// inputs and outputs go to `inputs` and `outputs` (cleared first). Returns its fields and where
+/// it ends (just after its closing brace); `None`: not that form (the slow path decides).
+///
+/// Nothing the fast path accepts holds an end of line, so the record never reaches past the end
+/// of its line: the caller decides what must follow it (the line's end, or a `\n` when `bytes`
+/// is a reader's buffer holding the lines after it too).
 pub(super) fn parse<'a>(
-    line: &'a str,
+    bytes: &'a [u8],
     classes: &[ClassLayout],
     inputs: &mut Vec<(usize, Value)>,
     outputs: &mut Vec<(usize, Value)>,
-) -> Option<Fields<'a>> {
+) -> Option<(Fields<'a>, usize)> {
     inputs.clear();
     outputs.clear();
-    let mut c = Cursor {
-        s: line,
-        b: line.as_bytes(),
-        i: 0,
-    };
+    let mut c = Cursor { b: bytes, i: 0 };
     c.lit(b"{\"t_us\":")?;
     let t_us = c.uint()?;
     c.lit(b",\"task\":\"")?;
     let task = c.string()?;
-    let class = classes.iter().position(|k| same_bytes(&k.name, task.as_bytes()))?;
+    let class = classes.iter().position(|k| same_bytes(&k.name, task))?;
     c.lit(b",\"cycle\":")?;
     let cycle = c.uint()?;
     c.lit(b",\"in\":")?;
@@ -276,5 +326,22 @@ pub(super) fn parse<'a>(
         fields.violation = true;
     }
     c.lit(b"}")?;
-    (c.i == line.len()).then_some(fields)
+    Some((fields, c.i))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::leading_digits;
+    use proptest::prelude::*;
+
+    proptest! {
+        /// The word-wise count is the byte-wise one, for any bytes (digits made likely).
+        #[test]
+        fn leading_digits_counts_as_a_byte_loop_does(
+            bytes in proptest::array::uniform8(prop_oneof![3 => b'0'..=b'9', 1 => any::<u8>()])
+        ) {
+            let expected = bytes.iter().take_while(|c| c.is_ascii_digit()).count();
+            prop_assert_eq!(leading_digits(u64::from_le_bytes(bytes)), expected);
+        }
+    }
 }

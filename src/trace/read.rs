@@ -17,7 +17,7 @@ use std::thread::JoinHandle;
 use serde::Deserialize;
 use serde::de::{MapAccess, Visitor};
 
-use super::fast::{self, ClassLayout, Slot};
+use super::fast::{self, ClassLayout, Slot, Slots};
 use super::{FORMAT, Header, VERSION, value_from_json};
 use crate::config::{MAX_CYCLE_US, MIN_CYCLE_US};
 use crate::image::{Value, VarType};
@@ -168,6 +168,8 @@ pub struct TraceReader {
     layouts: Vec<ClassLayout>,
     /// Whether the fast path can read this trace's records.
     fast: bool,
+    /// An error the input gave while a record was read in place, for the line reader to report.
+    failed: Option<std::io::Error>,
     /// Per class: the previous record's time (µs).
     last_t: Vec<Option<u64>>,
     /// The newest record's time.
@@ -217,6 +219,7 @@ impl TraceReader {
             roles: Vec::new(),
             layouts: Vec::new(),
             fast: false,
+            failed: None,
             last_t: Vec::new(),
             newest_t: None,
             names: Vec::new(),
@@ -286,8 +289,8 @@ impl TraceReader {
             let [inputs, outputs] = slots;
             reader.layouts.push(ClassLayout {
                 name: c.name.as_bytes().into(),
-                inputs,
-                outputs,
+                inputs: Slots::new(inputs),
+                outputs: Slots::new(outputs),
             });
             reader.roles.push(roles);
         }
@@ -317,8 +320,12 @@ impl TraceReader {
     /// The next line into `buffer`, bounded by [`MAX_LINE_BYTES`].
     fn read_line(&mut self) -> Result<Read1, TraceError> {
         self.buffer.clear();
-        let mut bounded = (&mut self.input).take(MAX_LINE_BYTES as u64 + 1);
-        let read = bounded.read_until(b'\n', &mut self.buffer);
+        let read = match self.failed.take() {
+            Some(e) => Err(e),
+            None => (&mut self.input)
+                .take(MAX_LINE_BYTES as u64 + 1)
+                .read_until(b'\n', &mut self.buffer),
+        };
         self.line += 1;
         match read {
             Ok(0) => Ok(Read1::End),
@@ -355,6 +362,10 @@ impl TraceReader {
         if self.cut.is_some() {
             return Ok(false);
         }
+        if self.fast && self.read_in_place(record) {
+            self.check_time(record)?;
+            return Ok(true);
+        }
         let cut = match self.read_line()? {
             Read1::End => return Ok(false),
             Read1::Line => None,
@@ -376,6 +387,54 @@ impl TraceReader {
         }
         self.check_time(record)?;
         Ok(true)
+    }
+
+    /// Reads the next line by the fast path where it lies in the input's buffer, if it is whole
+    /// there: no copy into a line buffer, no search for its end before reading it, no check of
+    /// the whole line's encoding. `false` (nothing consumed): the line is not whole in the buffer
+    /// (it straddles the buffer's end; about one line in a thousand), the fast path declines it,
+    /// or the input failed (the error is kept for [`TraceReader::read_line`] to report).
+    fn read_in_place(&mut self, record: &mut Record) -> bool {
+        let bytes = match self.input.fill_buf() {
+            Ok(bytes) => bytes,
+            Err(e) => {
+                self.failed = Some(e);
+                return false;
+            }
+        };
+        let Some((f, end)) = fast::parse(bytes, &self.layouts, &mut record.inputs, &mut record.outputs) else {
+            return false;
+        };
+        if bytes.get(end) != Some(&b'\n') {
+            return false;
+        }
+        if !Self::set_fields(&mut self.names, record, f) {
+            return false;
+        }
+        self.line += 1;
+        record.line = self.line;
+        self.input.consume(end + 1);
+        true
+    }
+
+    /// Takes the fast path's fields into `record` (its inputs and outputs are already there);
+    /// `false` if a state or reason is not UTF-8 text (the slow path words the error).
+    fn set_fields(names: &mut Vec<Arc<str>>, record: &mut Record, f: fast::Fields<'_>) -> bool {
+        let name = |names: &mut Vec<Arc<str>>, s: Option<&[u8]>| match s {
+            Some(s) => Self::intern(names, s).map(Some),
+            None => Some(None),
+        };
+        let (Some(state), Some(reason)) = (name(names, f.state), name(names, f.reason)) else {
+            return false;
+        };
+        record.class = f.class;
+        record.t_us = f.t_us;
+        record.cycle = f.cycle;
+        record.state = state;
+        record.reason = reason;
+        record.violation = f.violation;
+        record.job = None;
+        true
     }
 
     /// A cycle's time must be a release of its class (a multiple of its cycle time), after the
@@ -409,46 +468,36 @@ impl TraceReader {
     }
 
     /// The state or reason name `s`, shared with earlier records that had it; the one found
-    /// last is looked at first (record after record has the same state).
-    fn intern(names: &mut Vec<Arc<str>>, s: &str) -> Arc<str> {
+    /// last is looked at first (record after record has the same state). Only a name not seen
+    /// before is checked as UTF-8 text: `None` if it is not.
+    fn intern(names: &mut Vec<Arc<str>>, s: &[u8]) -> Option<Arc<str>> {
         if let Some(last) = names.last()
-            && **last == *s
+            && fast::same_bytes(last.as_bytes(), s)
         {
-            return Arc::clone(last);
+            return Some(Arc::clone(last));
         }
-        match names.iter().position(|n| **n == *s) {
-            Some(k) => {
-                let n = names.remove(k);
-                names.push(Arc::clone(&n));
-                n
-            }
-            None => {
-                let n: Arc<str> = s.into();
-                names.push(Arc::clone(&n));
-                n
-            }
-        }
+        let n = match names.iter().position(|n| n.as_bytes() == s) {
+            Some(k) => names.remove(k),
+            None => std::str::from_utf8(s).ok()?.into(),
+        };
+        names.push(Arc::clone(&n));
+        Some(n)
     }
 
     /// Parses the line in the buffer into `record`.
     fn parse(&mut self, record: &mut Record) -> Result<(), TraceError> {
         record.line = self.line;
-        let text = std::str::from_utf8(&self.buffer)
-            .map_err(|e| self.err(format!("malformed record: not UTF-8 text: {e}")))?;
-        if let Some(f) = self
+        if let Some((f, _)) = self
             .fast
-            .then(|| fast::parse(text, &self.layouts, &mut record.inputs, &mut record.outputs))
+            .then(|| fast::parse(&self.buffer, &self.layouts, &mut record.inputs, &mut record.outputs))
             .flatten()
+            .filter(|&(_, end)| end == self.buffer.len())
+            && Self::set_fields(&mut self.names, record, f)
         {
-            record.class = f.class;
-            record.t_us = f.t_us;
-            record.cycle = f.cycle;
-            record.state = f.state.map(|s| Self::intern(&mut self.names, s));
-            record.reason = f.reason.map(|s| Self::intern(&mut self.names, s));
-            record.violation = f.violation;
-            record.job = None;
             return Ok(());
         }
+        let text = std::str::from_utf8(&self.buffer)
+            .map_err(|e| self.err(format!("malformed record: not UTF-8 text: {e}")))?;
         let l: Line<'_> = serde_json::from_str(text).map_err(|e| self.err(format!("malformed record: {e}")))?;
         let Some(&class) = self.classes.get(l.task) else {
             let known: Vec<&str> = self.header.task_classes.iter().map(|c| c.name.as_str()).collect();
@@ -480,8 +529,9 @@ impl TraceReader {
         record.class = class;
         record.t_us = l.t_us;
         record.cycle = l.cycle;
-        record.state = l.state.map(|s| Self::intern(&mut self.names, &s));
-        record.reason = l.reason.map(|s| Self::intern(&mut self.names, &s));
+        // Text from serde_json is UTF-8: interning it always finds or makes a name.
+        record.state = l.state.and_then(|s| Self::intern(&mut self.names, s.as_bytes()));
+        record.reason = l.reason.and_then(|s| Self::intern(&mut self.names, s.as_bytes()));
         record.violation = l.violation;
         record.job = l.job.map(Box::new);
         Ok(())
@@ -696,6 +746,69 @@ mod tests {
         }
     }
 
+    /// Every record of `path`, read with the fast path on or off.
+    fn read_all(path: &Path, fast: bool) -> Vec<Record> {
+        let mut reader = TraceReader::open(path).expect("header");
+        reader.fast &= fast;
+        let mut records = Vec::new();
+        while let Some(r) = reader.next_record().expect("valid") {
+            records.push(r);
+        }
+        assert!(reader.cut().is_none(), "whole");
+        records
+    }
+
+    #[test]
+    fn records_read_in_place_are_those_read_line_by_line_across_buffer_ends() {
+        // About 2 MB of lines of varying length: some straddle the ends of the plain reader's
+        // and the inflater's 256 KiB buffers, which the in-place reading leaves to the line
+        // reader; some take the slow path (spaces) in between.
+        let mut text = header();
+        for n in 0..20_000u64 {
+            let (t, c) = (n * 10_000, n);
+            let x = (n as f64 * 0.37).sin() * 10f64.powi((n % 7) as i32);
+            let line = match n % 5 {
+                0 => format!(
+                    r#"{{"t_us":{t},"task":"fast","cycle":{c},"in":{{"b":true,"u":{}}},"out":{{"r":{x},"position_mm":{}}},"state":"READY"}}"#,
+                    n % 65_536,
+                    -x
+                ),
+                1 => format!(
+                    r#"{{"t_us":{t},"task":"fast","cycle":{c},"in":{{}},"out":{{"d":{}}},"state":"MOTION","reason":"r{}"}}"#,
+                    n as i64 - 9_000,
+                    n % 3
+                ),
+                2 => format!(
+                    r#"{{"t_us":{t},"task":"fast","cycle":{c},"in":{{"i":-{}}},"out":{{"position_mm":null}},"violation":true}}"#,
+                    n % 30_000
+                ),
+                3 => format!(
+                    r#"{{"t_us": {t}, "task": "fast", "cycle": {c}, "in": {{"b": false}}, "out": {{"r": {x}}}}}"#
+                ),
+                _ => format!(
+                    r#"{{"t_us":{t},"task":"fast","cycle":{c},"in":{{"u":7,"b":false}},"out":{{"position_mm":{x},"r":1e-3,"d":0}}}}"#
+                ),
+            };
+            text.push('\n');
+            text.push_str(&line);
+        }
+        text.push('\n');
+        let dir = tempfile::tempdir().expect("tempdir");
+        let plain = dir.path().join("t.jsonl");
+        std::fs::write(&plain, &text).expect("write");
+        let gz = dir.path().join("t.jsonl.gz");
+        let mut e = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::fast());
+        std::io::Write::write_all(&mut e, text.as_bytes()).expect("in memory");
+        std::fs::write(&gz, e.finish().expect("in memory")).expect("write");
+        let slow = read_all(&plain, false);
+        assert_eq!(slow.len(), 20_000);
+        assert_eq!(slow.last().map(|r| r.line), Some(20_001));
+        // NaN (null) compares unequal to itself: compare as the debug form shows it.
+        let key = |records: &[Record]| format!("{records:?}");
+        assert_eq!(key(&read_all(&plain, true)), key(&slow));
+        assert_eq!(key(&read_all(&gz, true)), key(&slow));
+    }
+
     #[test]
     fn the_fast_path_takes_the_recorders_lines() {
         let line = r#"{"t_us":0,"task":"fast","cycle":0,"in":{"b":true,"u":7},"out":{"r":-1.5,"position_mm":null},"state":"READY"}"#;
@@ -705,7 +818,8 @@ mod tests {
         let reader = TraceReader::open(&path).expect("header");
         assert!(reader.fast);
         let (mut inputs, mut outputs) = (Vec::new(), Vec::new());
-        assert!(fast::parse(line, &reader.layouts, &mut inputs, &mut outputs).is_some());
+        let (_, end) = fast::parse(line.as_bytes(), &reader.layouts, &mut inputs, &mut outputs).expect("fast");
+        assert_eq!(end, line.len());
         let mut record = read(line, true).expect("valid").expect("a record");
         record.line = 0;
         assert_eq!(record.inputs, vec![(0, Value::Bool(true)), (5, Value::Uint(7))]);

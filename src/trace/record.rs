@@ -44,14 +44,18 @@ enum Msg {
 /// The trace file: plain, or gzip-compressed when its name ends in `.gz`.
 enum Output {
     Plain(BufWriter<File>),
-    Gzip(flate2::write::GzEncoder<BufWriter<File>>),
+    /// Boxed: zlib-rs's encoder state is large, and there is one per recording.
+    Gzip(Box<flate2::write::GzEncoder<BufWriter<File>>>),
 }
 
 impl Output {
     fn create(path: &Path) -> io::Result<Output> {
         let file = BufWriter::with_capacity(1 << 20, File::create(path)?);
         Ok(if path.extension().is_some_and(|e| e == "gz") {
-            Output::Gzip(flate2::write::GzEncoder::new(file, flate2::Compression::default()))
+            Output::Gzip(Box::new(flate2::write::GzEncoder::new(
+                file,
+                flate2::Compression::default(),
+            )))
         } else {
             Output::Plain(file)
         })

@@ -8,7 +8,7 @@ use super::read::{Cut, ReadAhead, TraceError, TraceReader};
 use super::same;
 use crate::compose::Setup;
 use crate::config::ConfigError;
-use crate::image::{Value, VarIndex};
+use crate::image::{Value, VarIndex, VarType};
 use crate::run::VirtualClock;
 
 /// The first difference between a trace and its replay.
@@ -62,6 +62,33 @@ pub struct ReplayReport {
     /// Where the trace was cut short (a crash during the recording): the replay compared every
     /// record up to there.
     pub cut: Option<Cut>,
+}
+
+/// A task class of the trace as the replay runs it.
+struct ReplayedClass<'h> {
+    /// Its index in this configuration.
+    ci: usize,
+    /// Its outputs in the header's order (the first that differs is reported).
+    outputs: Vec<VarIndex>,
+    /// Their names, for a difference.
+    names: Vec<&'h str>,
+    /// The same outputs grouped by type, as they are compared after every cycle: comparing
+    /// values of one type after another, the processor predicts which comparison comes next
+    /// (in the header's order, mixed types cost the programs' thread a tenth of its time).
+    check: Vec<VarIndex>,
+    /// By the header's position of a variable: its index here if the class latches it.
+    input_at: Vec<Option<VarIndex>>,
+}
+
+/// Where values of type `ty` come among a class's compared outputs.
+fn type_rank(ty: VarType) -> u8 {
+    match ty {
+        VarType::Real => 0,
+        VarType::Bool => 1,
+        VarType::Int => 2,
+        VarType::Uint => 3,
+        VarType::Dint => 4,
+    }
 }
 
 fn show(v: Value) -> String {
@@ -126,6 +153,8 @@ pub fn replay(trace: &Path, setup: &Setup, force: bool) -> Result<ReplayReport, 
         index.insert(name.clone(), i);
         by_position.push(i);
     }
+    // Per class: its index here, its outputs (compared after every cycle) with their names,
+    // and for each of the header's variables where it goes if the class latches it here.
     let mut classes = Vec::new();
     for c in &header.task_classes {
         let ci = plc
@@ -137,12 +166,24 @@ pub fn replay(trace: &Path, setup: &Setup, force: bool) -> Result<ReplayReport, 
                     c.name, c.cycle_us
                 ))
             })?;
-        let outputs: Vec<(String, VarIndex)> = c.outputs.iter().map(|n| (n.clone(), index[n])).collect();
-        classes.push((ci, outputs));
+        let outputs: Vec<VarIndex> = c.outputs.iter().map(|n| index[n]).collect();
+        let names: Vec<&str> = c.outputs.iter().map(String::as_str).collect();
+        let mut check = outputs.clone();
+        check.sort_by_key(|&i| (type_rank(plc.vars().vars()[usize::from(i)].ty), i));
+        let latched = plc.classes().nth(ci).map(|k| k.inputs.to_vec()).unwrap_or_default();
+        // A recorded input this configuration's class does not latch (a forced replay) is not
+        // fed to it, as the class would not have read it.
+        let input_at: Vec<Option<VarIndex>> = by_position.iter().map(|i| latched.contains(i).then_some(*i)).collect();
+        classes.push(ReplayedClass {
+            ci,
+            outputs,
+            names,
+            check,
+            input_at,
+        });
     }
-    let initial = plc.global_image().to_vec();
-    let mut inputs = vec![initial.clone(); classes.len()];
-    let mut expected = vec![initial; classes.len()];
+    let mut expected = vec![plc.global_image().to_vec(); classes.len()];
+    let mut changed: Vec<(VarIndex, Value)> = Vec::new();
     let mut cycles = vec![0u64; classes.len()];
     let mut clock = VirtualClock::default();
     plc.init(0, &mut clock);
@@ -150,7 +191,7 @@ pub fn replay(trace: &Path, setup: &Setup, force: bool) -> Result<ReplayReport, 
     let mut ahead = ReadAhead::start(reader)
         .map_err(|e| ReplayError::Refused(format!("{}: cannot start reading: {e}", trace.display())))?;
     while let Some(r) = ahead.next_record()? {
-        let (ci, outputs) = &classes[r.class];
+        let class = &classes[r.class];
         let task = &header.task_classes[r.class].name;
         let differs = |what: &str, recorded: String, replayed: String| {
             ReplayError::Differs(Difference {
@@ -190,25 +231,27 @@ pub fn replay(trace: &Path, setup: &Setup, force: bool) -> Result<ReplayReport, 
                 .set(slot, pkm_api::trajectory::ScreenJob { spec, job: made })
                 .map_err(|e| refused(format!("line {}: {e}", r.line)))?;
         }
-        for &(k, v) in &r.inputs {
-            inputs[r.class][usize::from(by_position[k])] = v;
-        }
+        changed.clear();
+        changed.extend(r.inputs.iter().filter_map(|&(k, v)| class.input_at[k].map(|i| (i, v))));
+        let want = &mut expected[r.class];
         for &(k, v) in &r.outputs {
-            expected[r.class][usize::from(by_position[k])] = v;
+            want[usize::from(by_position[k])] = v;
         }
         clock.advance_to(r.t_us * 1000);
-        plc.replay_cycle(*ci, r.t_us * 1000, &inputs[r.class], r.violation, &mut clock);
-        let image = plc.class_image(*ci);
-        for (name, i) in outputs {
-            let (want, got) = (expected[r.class][usize::from(*i)], image[usize::from(*i)]);
-            if !same(want, got) {
-                return Err(differs(name, show(want), show(got)));
-            }
+        plc.replay_cycle(class.ci, r.t_us * 1000, &changed, r.violation, &mut clock);
+        let image = plc.class_image(class.ci);
+        let same_at = |&i: &VarIndex| same(want[usize::from(i)], image[usize::from(i)]);
+        if !class.check.iter().all(same_at)
+            && let Some(k) = class.outputs.iter().position(|i| !same_at(i))
+        {
+            let i = usize::from(class.outputs[k]);
+            return Err(differs(class.names[k], show(want[i]), show(image[i])));
         }
-        let status = plc.app_status();
         if let Some(state) = &r.state {
+            let status = plc.app_status();
             let got = status.map(|s| s.state).unwrap_or("(none)");
-            if got != &**state {
+            // Compared in words: a library call per record cost a fortieth of the replay.
+            if !super::fast::same_bytes(got.as_bytes(), state.as_bytes()) {
                 return Err(differs("state", state.to_string(), got.to_string()));
             }
             let got = status.and_then(|s| s.reason);
