@@ -467,8 +467,8 @@ impl Plc {
     }
 
     /// Runs one cycle of class `ci` with recorded inputs instead of latched ones and the
-    /// recorded violation event; the outputs are then in [`Plc::class_image`]. Used by replay:
-    /// no bus, no statistics but the cycle count.
+    /// recorded violation event; the outputs are then in [`Plc::class_image`] (and not in the
+    /// global image). Used by replay: no bus, no statistics but the cycle count.
     ///
     /// `changed` holds the inputs that changed since the class's previous cycle, each one of
     /// the class's inputs ([`ClassView::inputs`]): the others keep their values in the class's
@@ -490,7 +490,8 @@ impl Plc {
             class.image[usize::from(i)] = v;
         }
         self.execute(ci, release, clock, Some(violation));
-        self.publish(ci);
+        // Not published to the global image: in a replay every class's inputs come from the
+        // trace, so nothing reads it.
         self.classes[ci].stats.cycles += 1;
     }
 

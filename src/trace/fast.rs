@@ -98,6 +98,24 @@ fn leading_digits(word: u64) -> usize {
     ((below | above) & 0x8080_8080_8080_8080).trailing_zeros() as usize / 8
 }
 
+/// 10⁰ … 10⁸: what a value read so far is multiplied by when `n` more digits follow.
+const POWERS_OF_TEN: [u64; 9] = [1, 10, 100, 1_000, 10_000, 100_000, 1_000_000, 10_000_000, 100_000_000];
+
+/// The value of the first `n` bytes of `word` (in memory order), which are ASCII digits
+/// (`n` ≤ 8). Shifted so that they end the word, the bytes before them read as leading zeros;
+/// then pairs, quads and octets of digits are combined in three multiplications (the method of
+/// simdjson and fast_float).
+#[inline]
+fn digits_value(word: u64, n: usize) -> u64 {
+    if n == 0 {
+        return 0;
+    }
+    let w = (word << (8 * (8 - n))) & 0x0F0F_0F0F_0F0F_0F0F;
+    let w = (w.wrapping_mul(2561) >> 8) & 0x00FF_00FF_00FF_00FF;
+    let w = (w.wrapping_mul(6_553_601) >> 16) & 0x0000_FFFF_0000_FFFF;
+    w.wrapping_mul(42_949_672_960_001) >> 32
+}
+
 impl<'a> Cursor<'a> {
     /// Takes the literal `s` if it comes next. Its length is known when compiling, so the
     /// comparison is a few word compares, not a call.
@@ -145,6 +163,32 @@ impl<'a> Cursor<'a> {
         self.i - start
     }
 
+    /// Reads the ASCII digits from here, eight at a time where the line has eight more bytes:
+    /// how many there were, and their value if there were at most 18 (then it is exact).
+    fn digits_value(&mut self) -> (usize, Option<i64>) {
+        let start = self.i;
+        let mut value: u64 = 0;
+        loop {
+            let Some(word) = self.b[self.i..].first_chunk::<8>() else {
+                while let Some(c) = self.peek().filter(u8::is_ascii_digit) {
+                    // Wrapping: beyond 18 digits the value is not used.
+                    value = value.wrapping_mul(10).wrapping_add(u64::from(c - b'0'));
+                    self.i += 1;
+                }
+                break;
+            };
+            let word = u64::from_le_bytes(*word);
+            let n = leading_digits(word);
+            value = value.wrapping_mul(POWERS_OF_TEN[n]).wrapping_add(digits_value(word, n));
+            self.i += n;
+            if n < 8 {
+                break;
+            }
+        }
+        let count = self.i - start;
+        (count, (count <= 18).then_some(value as i64))
+    }
+
     /// A JSON number token: its text, whether it is an integer (no fraction, no exponent), and
     /// for an integer of at most 18 digits its value (read while scanning: no second pass).
     fn number(&mut self) -> Option<(&'a str, bool, Option<i64>)> {
@@ -153,20 +197,14 @@ impl<'a> Cursor<'a> {
         if negative {
             self.i += 1;
         }
-        let mut whole: i64 = 0;
-        let digits_from = self.i;
-        match self.peek()? {
-            b'0' => self.i += 1,
-            b'1'..=b'9' => {
-                while let Some(c) = self.peek().filter(u8::is_ascii_digit) {
-                    // Wrapping: beyond 18 digits the value is not used (see below).
-                    whole = whole.wrapping_mul(10).wrapping_add(i64::from(c - b'0'));
-                    self.i += 1;
-                }
+        let whole = match self.peek()? {
+            b'0' => {
+                self.i += 1;
+                Some(0)
             }
+            b'1'..=b'9' => self.digits_value().1,
             _ => return None,
-        }
-        let small = self.i - digits_from <= 18;
+        };
         let mut integer = true;
         if self.peek() == Some(b'.') {
             self.i += 1;
@@ -186,7 +224,7 @@ impl<'a> Cursor<'a> {
             integer = false;
         }
         // Within 18 digits the value is exact and its negation cannot overflow.
-        let value = (integer && small).then(|| if negative { -whole } else { whole });
+        let value = whole.filter(|_| integer).map(|w| if negative { -w } else { w });
         let token = &self.b[start..self.i];
         // SAFETY: the token was scanned above and holds only ASCII bytes ('-', '+', '.', 'e',
         // 'E' and digits), so it is UTF-8. Checking it again cost a sixth of reading a trace.
@@ -331,7 +369,7 @@ pub(super) fn parse<'a>(
 
 #[cfg(test)]
 mod tests {
-    use super::leading_digits;
+    use super::{digits_value, leading_digits};
     use proptest::prelude::*;
 
     proptest! {
@@ -342,6 +380,16 @@ mod tests {
         ) {
             let expected = bytes.iter().take_while(|c| c.is_ascii_digit()).count();
             prop_assert_eq!(leading_digits(u64::from_le_bytes(bytes)), expected);
+        }
+
+        /// The value of a word's leading digits is the one `str::parse` reads, whatever follows.
+        #[test]
+        fn digits_value_reads_as_parse_does(digits in "[0-9]{0,8}", tail in proptest::collection::vec(any::<u8>(), 8)) {
+            let mut bytes = [0u8; 8];
+            bytes[..digits.len()].copy_from_slice(digits.as_bytes());
+            bytes[digits.len()..].copy_from_slice(&tail[digits.len()..]);
+            let expected = if digits.is_empty() { 0 } else { digits.parse::<u64>().expect("digits") };
+            prop_assert_eq!(digits_value(u64::from_le_bytes(bytes), digits.len()), expected);
         }
     }
 }

@@ -72,22 +72,51 @@ struct ReplayedClass<'h> {
     outputs: Vec<VarIndex>,
     /// Their names, for a difference.
     names: Vec<&'h str>,
-    /// The same outputs grouped by type, as they are compared after every cycle: comparing
-    /// values of one type after another, the processor predicts which comparison comes next
-    /// (in the header's order, mixed types cost the programs' thread a tenth of its time).
-    check: Vec<VarIndex>,
+    /// The same outputs grouped by type, with their recorded values in the same order, as they
+    /// are compared after every cycle: one loop per type, each a plain comparison of the next
+    /// recorded value with the replayed one (compared in the header's order, values of mixed
+    /// types took the programs' thread a fifth of its instructions).
+    check: Vec<Recorded>,
+    /// By the header's position of a variable: where its recorded value is kept, if it is one
+    /// of the class's outputs (`check`'s group and place in it).
+    output_at: Vec<Option<(usize, usize)>>,
     /// By the header's position of a variable: its index here if the class latches it.
     input_at: Vec<Option<VarIndex>>,
 }
 
-/// Where values of type `ty` come among a class's compared outputs.
-fn type_rank(ty: VarType) -> u8 {
-    match ty {
-        VarType::Real => 0,
-        VarType::Bool => 1,
-        VarType::Int => 2,
-        VarType::Uint => 3,
-        VarType::Dint => 4,
+/// A class's outputs of one type and their recorded values.
+struct Recorded {
+    /// The type.
+    ty: VarType,
+    /// The outputs.
+    at: Vec<VarIndex>,
+    /// Their values as recorded so far, in the same order.
+    values: Vec<Value>,
+}
+
+impl Recorded {
+    /// Whether the replayed image `got` holds the recorded values (a value of another type
+    /// counts as different; REALs as [`same`] has them).
+    fn all_same(&self, got: &[Value]) -> bool {
+        macro_rules! each {
+            ($variant:ident, $eq:expr) => {
+                self.at
+                    .iter()
+                    .zip(&self.values)
+                    .all(|(&i, &want)| match (want, got[usize::from(i)]) {
+                        (Value::$variant(x), Value::$variant(y)) => $eq(x, y),
+                        _ => false,
+                    })
+            };
+        }
+        match self.ty {
+            VarType::Real => each!(Real, |x: f64, y: f64| x.to_bits() == y.to_bits()
+                || (x.is_nan() && y.is_nan())),
+            VarType::Bool => each!(Bool, |x, y| x == y),
+            VarType::Int => each!(Int, |x, y| x == y),
+            VarType::Uint => each!(Uint, |x, y| x == y),
+            VarType::Dint => each!(Dint, |x, y| x == y),
+        }
     }
 }
 
@@ -153,6 +182,13 @@ pub fn replay(trace: &Path, setup: &Setup, force: bool) -> Result<ReplayReport, 
         index.insert(name.clone(), i);
         by_position.push(i);
     }
+    let initial = plc.global_image().to_vec();
+    let positions: std::collections::HashMap<&str, usize> = header
+        .variables
+        .keys()
+        .enumerate()
+        .map(|(k, n)| (n.as_str(), k))
+        .collect();
     // Per class: its index here, its outputs (compared after every cycle) with their names,
     // and for each of the header's variables where it goes if the class latches it here.
     let mut classes = Vec::new();
@@ -168,8 +204,30 @@ pub fn replay(trace: &Path, setup: &Setup, force: bool) -> Result<ReplayReport, 
             })?;
         let outputs: Vec<VarIndex> = c.outputs.iter().map(|n| index[n]).collect();
         let names: Vec<&str> = c.outputs.iter().map(String::as_str).collect();
-        let mut check = outputs.clone();
-        check.sort_by_key(|&i| (type_rank(plc.vars().vars()[usize::from(i)].ty), i));
+        let mut check: Vec<Recorded> = Vec::new();
+        let mut output_at = vec![None; by_position.len()];
+        for (&i, name) in outputs.iter().zip(&c.outputs) {
+            let position = positions[name.as_str()];
+            // A name listed twice is kept once.
+            if output_at[position].is_some() {
+                continue;
+            }
+            let ty = plc.vars().vars()[usize::from(i)].ty;
+            let g = match check.iter().position(|r| r.ty == ty) {
+                Some(g) => g,
+                None => {
+                    check.push(Recorded {
+                        ty,
+                        at: Vec::new(),
+                        values: Vec::new(),
+                    });
+                    check.len() - 1
+                }
+            };
+            output_at[position] = Some((g, check[g].at.len()));
+            check[g].at.push(i);
+            check[g].values.push(initial[usize::from(i)]);
+        }
         let latched = plc.classes().nth(ci).map(|k| k.inputs.to_vec()).unwrap_or_default();
         // A recorded input this configuration's class does not latch (a forced replay) is not
         // fed to it, as the class would not have read it.
@@ -179,10 +237,10 @@ pub fn replay(trace: &Path, setup: &Setup, force: bool) -> Result<ReplayReport, 
             outputs,
             names,
             check,
+            output_at,
             input_at,
         });
     }
-    let mut expected = vec![plc.global_image().to_vec(); classes.len()];
     let mut changed: Vec<(VarIndex, Value)> = Vec::new();
     let mut cycles = vec![0u64; classes.len()];
     let mut clock = VirtualClock::default();
@@ -233,19 +291,27 @@ pub fn replay(trace: &Path, setup: &Setup, force: bool) -> Result<ReplayReport, 
         }
         changed.clear();
         changed.extend(r.inputs.iter().filter_map(|&(k, v)| class.input_at[k].map(|i| (i, v))));
-        let want = &mut expected[r.class];
+        let class = &mut classes[r.class];
         for &(k, v) in &r.outputs {
-            want[usize::from(by_position[k])] = v;
+            // The reader took only the class's outputs from the record.
+            if let Some((g, at)) = class.output_at[k] {
+                class.check[g].values[at] = v;
+            }
         }
         clock.advance_to(r.t_us * 1000);
         plc.replay_cycle(class.ci, r.t_us * 1000, &changed, r.violation, &mut clock);
         let image = plc.class_image(class.ci);
-        let same_at = |&i: &VarIndex| same(want[usize::from(i)], image[usize::from(i)]);
-        if !class.check.iter().all(same_at)
-            && let Some(k) = class.outputs.iter().position(|i| !same_at(i))
-        {
-            let i = usize::from(class.outputs[k]);
-            return Err(differs(class.names[k], show(want[i]), show(image[i])));
+        if !class.check.iter().all(|r| r.all_same(image)) {
+            // The first in the header's order.
+            for (k, &i) in class.outputs.iter().enumerate() {
+                let name = class.names[k];
+                if let Some((g, at)) = class.output_at[positions[name]]
+                    && let want = class.check[g].values[at]
+                    && !same(want, image[usize::from(i)])
+                {
+                    return Err(differs(name, show(want), show(image[usize::from(i)])));
+                }
+            }
         }
         if let Some(state) = &r.state {
             let status = plc.app_status();

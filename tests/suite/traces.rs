@@ -54,6 +54,44 @@ fn a_recorded_run_replays_identically_and_a_tampered_one_names_cycle_and_variabl
 }
 
 #[test]
+fn of_two_outputs_that_differ_in_one_cycle_the_first_in_the_headers_order_is_reported() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let trace = record(dir.path(), "t.jsonl", 1, "[]");
+    let path = trace.to_str().expect("utf-8");
+    // JOINT1_POSITION (REAL) comes before counts_right (DINT) among the fast class's outputs;
+    // the replay compares the DINTs before the REALs, yet names JOINT1_POSITION.
+    let text = std::fs::read_to_string(&trace).expect("trace");
+    let header: serde_json::Value = serde_json::from_str(text.lines().next().expect("header")).expect("json");
+    let outputs: Vec<&str> = header["task_classes"]
+        .as_array()
+        .and_then(|c| c.iter().find(|c| c["name"] == "fast"))
+        .and_then(|c| c["outputs"].as_array())
+        .expect("fast outputs")
+        .iter()
+        .filter_map(|o| o.as_str())
+        .collect();
+    let at = |name: &str| outputs.iter().position(|o| *o == name).expect(name);
+    assert!(at("JOINT1_POSITION") < at("counts_right"));
+    let mut lines: Vec<String> = text.lines().map(str::to_string).collect();
+    let n = lines
+        .iter()
+        .position(|l| l.contains(r#""task":"fast""#) && l.contains(r#""t_us":500000"#))
+        .expect("a fast record at 0.5 s");
+    let mut tampered: serde_json::Value = serde_json::from_str(&lines[n]).expect("json");
+    tampered["out"]["counts_right"] = serde_json::json!(-7);
+    tampered["out"]["JOINT1_POSITION"] = serde_json::json!(12345.5);
+    lines[n] = tampered.to_string();
+    std::fs::write(&trace, lines.join("\n") + "\n").expect("write");
+    let o = pkm(&["replay", path]);
+    assert_eq!(o.status.code(), Some(1));
+    let expected = format!(
+        "error: {path}: replay differs at line {} (task fast, cycle 50, t = 0.500 s): JOINT1_POSITION recorded 12345.5, replayed ",
+        n + 1
+    );
+    assert!(stderr(&o).starts_with(&expected), "{}", stderr(&o));
+}
+
+#[test]
 fn malformed_traces_are_clear_errors_with_line_numbers() {
     let dir = tempfile::tempdir().expect("tempdir");
     let trace = record(dir.path(), "ok.jsonl", 1, "[]");
