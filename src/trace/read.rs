@@ -682,6 +682,17 @@ mod tests {
             (-40_000i32..70_000).prop_map(|i| i.to_string()),
             any::<f64>().prop_map(|x| serde_json::json!(x).to_string()),
             (-1e6f64..1e6).prop_map(|x| serde_json::json!(x).to_string()),
+            // Decimals of few digits and exponents near the ends of the exact powers of ten.
+            (any::<i32>(), 0u64..10_000_000, 1usize..12)
+                .prop_map(|(a, b, k)| format!("{a}.{b:0k$}")),
+            (any::<i64>(), -40i32..40).prop_map(|(m, e)| format!("{m}e{e}")),
+            // Significands on both sides of 2^53, where `str::parse` changes method.
+            (0u64..1 << 54, 1usize..19, any::<bool>()).prop_map(|(m, k, neg)| {
+                let digits = format!("{m:020}");
+                let whole = digits[..20 - k].trim_start_matches('0');
+                let whole = if whole.is_empty() { "0" } else { whole };
+                format!("{}{whole}.{}", if neg { "-" } else { "" }, &digits[20 - k..])
+            }),
             prop::sample::select(vec![
                 "-0",
                 "0.0",
@@ -699,6 +710,20 @@ mod tests {
                 "18446744073709551615",
                 "-9223372036854775808",
                 "9007199254740993",
+                "9007199254740992.0",
+                "9007199254740993.0",
+                "0.000123",
+                "-0.5",
+                "123.456e-7",
+                "4.5E+21",
+                "0.1e23",
+                "1e22",
+                "1e-22",
+                "1.7976931348623157e308",
+                "5e-324",
+                "2.2250738585072014e-308",
+                "1.00000000000000000001",
+                "12345678901234567.89",
                 "\"x\"",
                 "[]",
                 "1 ",
