@@ -683,8 +683,7 @@ mod tests {
             any::<f64>().prop_map(|x| serde_json::json!(x).to_string()),
             (-1e6f64..1e6).prop_map(|x| serde_json::json!(x).to_string()),
             // Decimals of few digits and exponents near the ends of the exact powers of ten.
-            (any::<i32>(), 0u64..10_000_000, 1usize..12)
-                .prop_map(|(a, b, k)| format!("{a}.{b:0k$}")),
+            (any::<i32>(), 0u64..10_000_000, 1usize..12).prop_map(|(a, b, k)| format!("{a}.{b:0k$}")),
             (any::<i64>(), -40i32..40).prop_map(|(m, e)| format!("{m}e{e}")),
             // Significands on both sides of 2^53, where `str::parse` changes method.
             (0u64..1 << 54, 1usize..19, any::<bool>()).prop_map(|(m, k, neg)| {
