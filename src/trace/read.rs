@@ -393,7 +393,8 @@ impl TraceReader {
     /// there: no copy into a line buffer, no search for its end before reading it, no check of
     /// the whole line's encoding. `false` (nothing consumed): the line is not whole in the buffer
     /// (it straddles the buffer's end; about one line in a thousand), the fast path declines it,
-    /// or the input failed (the error is kept for [`TraceReader::read_line`] to report).
+    /// or the input failed (the error is kept for [`TraceReader::read_line`] to report). A line
+    /// read here lies within one buffer (256 KiB), far below [`MAX_LINE_BYTES`].
     fn read_in_place(&mut self, record: &mut Record) -> bool {
         let bytes = match self.input.fill_buf() {
             Ok(bytes) => bytes,

@@ -301,7 +301,7 @@ pub fn replay(trace: &Path, setup: &Setup, force: bool) -> Result<ReplayReport, 
         clock.advance_to(r.t_us * 1000);
         plc.replay_cycle(class.ci, r.t_us * 1000, &changed, r.violation, &mut clock);
         let image = plc.class_image(class.ci);
-        if !class.check.iter().all(|r| r.all_same(image)) {
+        if !class.check.iter().all(|group| group.all_same(image)) {
             // The first in the header's order.
             for (k, &i) in class.outputs.iter().enumerate() {
                 let name = class.names[k];
