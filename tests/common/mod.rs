@@ -331,26 +331,32 @@ pub fn pkm(args: &[&str]) -> std::process::Output {
         .expect("the binary runs")
 }
 
-/// A Python in a virtual environment `name` under `target/` with `requirement` installed
-/// (checked by importing `module`), made on first use — never the system's Python — once per
-/// test binary, however many tests ask at once. `Err`: why there is none (no `python3-venv`, no
-/// network), for the test to say it skips.
-pub fn python_with(name: &str, requirement: &str, module: &str) -> Result<PathBuf, String> {
-    type Made = std::collections::HashMap<String, Result<PathBuf, String>>;
-    static MADE: std::sync::Mutex<Option<Made>> = std::sync::Mutex::new(None);
+/// The Python packages the interoperability tests use: (pip requirement, module to import).
+pub const PYTHON_PACKAGES: [(&str, &str); 2] = [("pymodbus==3.8.6", "pymodbus"), ("asyncua==2.1.0", "asyncua")];
+
+/// A Python in a virtual environment under `target/` with every one of [`PYTHON_PACKAGES`]
+/// installed (checked by importing them), made on first use — never the system's Python — once
+/// per test binary, however many tests ask at once: one environment and one `pip install` for
+/// both (each environment made cost 4 CPU-seconds). `Err`: why there is none (no
+/// `python3-venv`, no network), for the test to say it skips.
+pub fn python_interop() -> Result<PathBuf, String> {
+    static MADE: std::sync::Mutex<Option<Result<PathBuf, String>>> = std::sync::Mutex::new(None);
     let mut made = MADE.lock().unwrap_or_else(|p| p.into_inner());
-    made.get_or_insert_with(Made::new)
-        .entry(name.to_string())
-        .or_insert_with(|| make_venv(name, requirement, module))
+    made.get_or_insert_with(|| make_venv("interop-venv", &PYTHON_PACKAGES))
         .clone()
 }
 
-fn make_venv(name: &str, requirement: &str, module: &str) -> Result<PathBuf, String> {
+fn make_venv(name: &str, packages: &[(&str, &str)]) -> Result<PathBuf, String> {
     let venv = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(name);
     let python = venv.join("bin/python");
+    let imports = packages
+        .iter()
+        .map(|(_, m)| format!("import {m}"))
+        .collect::<Vec<_>>()
+        .join("; ");
     let has = |python: &PathBuf| {
         std::process::Command::new(python)
-            .args(["-c", &format!("import {module}")])
+            .args(["-c", &imports])
             .stderr(std::process::Stdio::null())
             .status()
             .is_ok_and(|s| s.success())
@@ -369,20 +375,16 @@ fn make_venv(name: &str, requirement: &str, module: &str) -> Result<PathBuf, Str
             String::from_utf8_lossy(&made.stderr).lines().last().unwrap_or("")
         ));
     }
+    let requirements: Vec<&str> = packages.iter().map(|(r, _)| *r).collect();
     let pip = std::process::Command::new(&python)
-        .args([
-            "-m",
-            "pip",
-            "install",
-            "--quiet",
-            "--disable-pip-version-check",
-            requirement,
-        ])
+        .args(["-m", "pip", "install", "--quiet", "--disable-pip-version-check"])
+        .args(&requirements)
         .output()
         .map_err(|e| format!("the virtual environment's python does not run ({e})"))?;
     if !pip.status.success() || !has(&python) {
         return Err(format!(
-            "pip install {requirement} into {} failed: {}",
+            "pip install {} into {} failed: {}",
+            requirements.join(" "),
             venv.display(),
             String::from_utf8_lossy(&pip.stderr).lines().last().unwrap_or("")
         ));

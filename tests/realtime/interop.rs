@@ -9,11 +9,9 @@ use std::io::{BufRead, BufReader};
 use std::path::PathBuf;
 use std::process::{Command, Stdio};
 
-const PYMODBUS: &str = "pymodbus==3.8.6";
-
-/// The virtual environment's Python with pymodbus, made on first use; `Err`: why there is none.
+/// The virtual environment's Python (with pymodbus), made on first use; `Err`: why there is none.
 fn python() -> Result<PathBuf, &'static str> {
-    common::python_with("pymodbus-venv", PYMODBUS, "pymodbus").map_err(|e| {
+    common::python_interop().map_err(|e| {
         // Said once per test that needs it.
         eprintln!("pymodbus unavailable: {e}");
         "pymodbus unavailable"

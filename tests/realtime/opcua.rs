@@ -16,11 +16,9 @@ use std::time::{Duration, Instant};
 
 use serde_json::Value as Json;
 
-const ASYNCUA: &str = "asyncua==2.1.0";
-
-/// The virtual environment's Python with asyncua, made on first use; `Err`: why there is none.
+/// The virtual environment's Python (with asyncua), made on first use; `Err`: why there is none.
 fn python() -> Result<PathBuf, &'static str> {
-    common::python_with("asyncua-venv", ASYNCUA, "asyncua").map_err(|e| {
+    common::python_interop().map_err(|e| {
         // Said once per test that needs it.
         eprintln!("asyncua unavailable: {e}");
         "asyncua unavailable"
