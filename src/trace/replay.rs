@@ -68,8 +68,9 @@ pub struct ReplayReport {
 struct ReplayedClass<'h> {
     /// Its index in this configuration.
     ci: usize,
-    /// Its outputs in the header's order (the first that differs is reported).
-    outputs: Vec<VarIndex>,
+    /// Its outputs in the header's order (the first that differs is reported): each one's
+    /// position among the header's variables and its index here.
+    outputs: Vec<(usize, VarIndex)>,
     /// Their names, for a difference.
     names: Vec<&'h str>,
     /// The same outputs grouped by type, with their recorded values in the same order, as they
@@ -166,9 +167,10 @@ pub fn replay(trace: &Path, setup: &Setup, force: bool) -> Result<ReplayReport, 
         bus = setup.with_screen(bus).0;
     }
     let mut plc = setup.plc_with(bus, library.as_ref())?;
+    // By name: the position among the header's variables, and the index here.
     let mut index = std::collections::HashMap::new();
     let mut by_position: Vec<VarIndex> = Vec::new();
-    for (name, ty) in &header.variables {
+    for (position, (name, ty)) in header.variables.iter().enumerate() {
         let i = plc
             .vars()
             .index_of(name)
@@ -179,16 +181,10 @@ pub fn replay(trace: &Path, setup: &Setup, force: bool) -> Result<ReplayReport, 
                 "variable \"{name}\" is {ty} in the trace but {have} here"
             )));
         }
-        index.insert(name.clone(), i);
+        index.insert(name.as_str(), (position, i));
         by_position.push(i);
     }
     let initial = plc.global_image().to_vec();
-    let positions: std::collections::HashMap<&str, usize> = header
-        .variables
-        .keys()
-        .enumerate()
-        .map(|(k, n)| (n.as_str(), k))
-        .collect();
     // Per class: its index here, its outputs (compared after every cycle) with their names,
     // and for each of the header's variables where it goes if the class latches it here.
     let mut classes = Vec::new();
@@ -202,12 +198,11 @@ pub fn replay(trace: &Path, setup: &Setup, force: bool) -> Result<ReplayReport, 
                     c.name, c.cycle_us
                 ))
             })?;
-        let outputs: Vec<VarIndex> = c.outputs.iter().map(|n| index[n]).collect();
+        let outputs: Vec<(usize, VarIndex)> = c.outputs.iter().map(|n| index[n.as_str()]).collect();
         let names: Vec<&str> = c.outputs.iter().map(String::as_str).collect();
         let mut check: Vec<Recorded> = Vec::new();
         let mut output_at = vec![None; by_position.len()];
-        for (&i, name) in outputs.iter().zip(&c.outputs) {
-            let position = positions[name.as_str()];
+        for &(position, i) in &outputs {
             // A name listed twice is kept once.
             if output_at[position].is_some() {
                 continue;
@@ -303,9 +298,9 @@ pub fn replay(trace: &Path, setup: &Setup, force: bool) -> Result<ReplayReport, 
         let image = plc.class_image(class.ci);
         if !class.check.iter().all(|group| group.all_same(image)) {
             // The first in the header's order.
-            for (k, &i) in class.outputs.iter().enumerate() {
+            for (k, &(position, i)) in class.outputs.iter().enumerate() {
                 let name = class.names[k];
-                if let Some((g, at)) = class.output_at[positions[name]]
+                if let Some((g, at)) = class.output_at[position]
                     && let want = class.check[g].values[at]
                     && !same(want, image[usize::from(i)])
                 {
