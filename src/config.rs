@@ -83,9 +83,48 @@ pub struct NcConfig {
     /// the contour tolerance only at less sets it lower.
     #[serde(default)]
     pub accel_share: Option<f64>,
+    /// The most moves and other actions one program may make (1 000 000 by default): a
+    /// program that makes more is refused at the line where it passes the bound.
+    #[serde(default)]
+    pub max_moves: Option<u64>,
+    /// The most memory one program and its plan may take (MiB, 1024 by default), as counted
+    /// from its moves and its path's length while it is read.
+    #[serde(default)]
+    pub max_plan_mib: Option<u64>,
+    /// The longest a program's reading, check and plan may take (s, 30 by default): a job of
+    /// the screen, a program at start, `nc check`.
+    #[serde(default)]
+    pub max_planning_s: Option<f64>,
 }
 
+/// How long a program's preparation may take unless `nc.max_planning_s` says otherwise (s).
+pub const DEFAULT_MAX_PLANNING_S: f64 = 30.0;
+
 impl NcConfig {
+    /// What one program may cost (`max_moves`, `max_plan_mib`; the defaults without them).
+    pub fn bounds(&self) -> pkm_nc::budget::Bounds {
+        let default = pkm_nc::budget::Bounds::default();
+        pkm_nc::budget::Bounds {
+            max_moves: self
+                .max_moves
+                .and_then(|m| usize::try_from(m).ok())
+                .unwrap_or(default.max_moves),
+            max_bytes: self
+                .max_plan_mib
+                .map_or(default.max_bytes, |m| m.saturating_mul(1 << 20)),
+        }
+    }
+
+    /// How long a program's preparation may take (`max_planning_s`, else
+    /// [`DEFAULT_MAX_PLANNING_S`]).
+    pub fn max_planning(&self) -> std::time::Duration {
+        std::time::Duration::from_secs_f64(
+            self.max_planning_s
+                .filter(|s| ranges::NC_MAX_PLANNING_S.contains(*s))
+                .unwrap_or(DEFAULT_MAX_PLANNING_S),
+        )
+    }
+
     /// The share of the accelerations a program's plan uses (`accel_share`, 1 without it).
     pub fn accel_share(&self) -> f64 {
         self.accel_share.unwrap_or(1.0)
@@ -158,6 +197,15 @@ impl NcConfig {
         }
         if let Some(share) = self.accel_share {
             ranges::check_into(&mut problems, "nc.accel_share", share, &ranges::ACCEL_SHARE);
+        }
+        if let Some(moves) = self.max_moves {
+            ranges::check_into(&mut problems, "nc.max_moves", moves as f64, &ranges::NC_MAX_MOVES);
+        }
+        if let Some(mib) = self.max_plan_mib {
+            ranges::check_into(&mut problems, "nc.max_plan_mib", mib as f64, &ranges::NC_MAX_PLAN_MIB);
+        }
+        if let Some(s) = self.max_planning_s {
+            ranges::check_into(&mut problems, "nc.max_planning_s", s, &ranges::NC_MAX_PLANNING_S);
         }
         problems
     }

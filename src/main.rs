@@ -744,7 +744,13 @@ fn screen_info(
             .unwrap_or_default(),
         jobs: library
             .zip(pkm_plc::screen_job::StandingPose::of(setup, plc))
-            .map(|(l, standing)| pkm_plc::hmi::jobs::JobDesk::new(setup.clone(), l.clone(), standing)),
+            .map(|(l, standing)| {
+                let loaded = plc
+                    .vars()
+                    .index_of(pkm_api::trajectory::vars::NC_PROGRAM.name())
+                    .map(usize::from);
+                pkm_plc::hmi::jobs::JobDesk::new(setup.clone(), l.clone(), standing, loaded)
+            }),
     }
 }
 
@@ -878,6 +884,11 @@ fn run_realtime(
         status::finish();
         run.join()
     });
+    // The run is over (its outputs are safe): the runtime is left without waiting for what it
+    // still does — a screen job being planned on its blocking pool would hold its drop until
+    // the plan ended, and the summary and the exit with it.
+    drop(_inside);
+    runtime.shutdown_background();
     outcome.map_err(|e| Failure::run(e.to_string()))
 }
 

@@ -3,17 +3,20 @@
 //! — where every point is reachable — planned within the machine's limits. A program that is
 //! refused, or leaves what the machine can reach, or cannot be planned, never reaches the PLC.
 
+use std::cell::Cell;
 use std::path::Path;
 use std::sync::Arc;
+use std::time::{Duration, Instant};
 
 use pkm_api::machine::{Home, Machine, Motion};
 use pkm_api::trajectory::{NcJob, NcLibrary};
 use pkm_kinematics::frame::{Home as FrameHome, MachineFrame};
 use pkm_kinematics::{KinematicsConfig, Machine as Model};
-use pkm_nc::check::{Limits, Report, check, format_pose};
+use pkm_nc::budget::Watch;
+use pkm_nc::check::{Limits, Report, check_watched, format_pose};
 use pkm_nc::interp::{self, Program};
 use pkm_nc::job::PlannedProgram;
-use pkm_nc::plan::{Plan, PlanLimits, plan};
+use pkm_nc::plan::{Plan, PlanLimits, plan_watched};
 
 use crate::compose::Setup;
 use crate::config::ConfigError;
@@ -92,17 +95,99 @@ impl Prepared {
     }
 }
 
-/// Reads the program `file` and checks and plans it against `setup`'s machine.
+/// The watch over one program's preparation (reading, check, plan): its time bound
+/// (`nc.max_planning_s`) and, for a screen job, what else abandons it (the operator's cancel,
+/// the machine leaving READY). It remembers whether it stopped the work.
+pub struct Deadline<'a> {
+    start: Instant,
+    /// The time bound; `None`: none (a replay plans again what the run planned in time).
+    bound: Option<Duration>,
+    /// Why the job is abandoned, if it is.
+    abandon: Option<&'a (dyn Fn() -> Option<String> + Sync)>,
+    stopped: Cell<bool>,
+}
+
+impl<'a> Deadline<'a> {
+    /// From now on, within `setup`'s `nc.max_planning_s`.
+    pub fn of(setup: &Setup) -> Deadline<'a> {
+        Deadline {
+            start: Instant::now(),
+            bound: Some(setup.loaded.config.nc.max_planning()),
+            abandon: None,
+            stopped: Cell::new(false),
+        }
+    }
+
+    /// No bound: the work goes on to its end.
+    pub fn none() -> Deadline<'a> {
+        Deadline {
+            start: Instant::now(),
+            bound: None,
+            abandon: None,
+            stopped: Cell::new(false),
+        }
+    }
+
+    /// The same, and abandoned when `abandon` gives a reason.
+    pub fn or_abandoned(self, abandon: &'a (dyn Fn() -> Option<String> + Sync)) -> Deadline<'a> {
+        Deadline {
+            abandon: Some(abandon),
+            ..self
+        }
+    }
+
+    /// Whether it stopped the work.
+    pub fn stopped(&self) -> bool {
+        self.stopped.get()
+    }
+
+    /// Whether its time is up (work that would start now would be stopped at once).
+    fn expired(&self) -> bool {
+        self.bound.is_some_and(|b| self.start.elapsed() > b)
+    }
+}
+
+impl Watch for Deadline<'_> {
+    fn go_on(&self) -> Result<(), String> {
+        if let Some(why) = self.abandon.and_then(|f| f()) {
+            self.stopped.set(true);
+            return Err(why);
+        }
+        if let Some(bound) = self.bound.filter(|b| self.start.elapsed() > *b) {
+            self.stopped.set(true);
+            return Err(format!(
+                "stopped: reading, checking and planning the program took longer than {} s (the bound: nc.max_planning_s)",
+                bound.as_secs_f64()
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// Reads the program `file` and checks and plans it against `setup`'s machine, within the
+/// configuration's time bound.
 pub fn prepare(setup: &Setup, file: &Path) -> Result<Prepared, NcFailure> {
+    prepare_file(setup, file, &Deadline::of(setup))
+}
+
+/// [`prepare`] under `watch`.
+fn prepare_file(setup: &Setup, file: &Path, watch: &Deadline<'_>) -> Result<Prepared, NcFailure> {
     let name = file.display().to_string();
     let text = crate::files::read_text(file, crate::files::MAX_TEXT_BYTES)
         .map_err(|e| fail(2, format!("{name}: cannot read the program: {e}")))?;
-    prepare_text(setup, name, text)
+    prepare_watched(setup, name, text, watch)
 }
 
-/// Checks and plans the program `text` (from the file `name`) against `setup`'s machine.
+/// Checks and plans the program `text` (from the file `name`) against `setup`'s machine,
+/// without a time bound (a replay plans again what the run planned in time).
 pub fn prepare_text(setup: &Setup, name: String, text: String) -> Result<Prepared, NcFailure> {
-    prepare_from(setup, name, text, [0.0; 6], Ok)
+    prepare_watched(setup, name, text, &Deadline::none())
+}
+
+/// Checks and plans the program `text` (from the file `name`) against `setup`'s machine, under
+/// `watch`.
+pub fn prepare_watched(setup: &Setup, name: String, text: String, watch: &Deadline<'_>) -> Result<Prepared, NcFailure> {
+    prepare_from(setup, name, text, [0.0; 6], Ok, watch)
 }
 
 /// `setup`'s machine with its motion, kinematics and machine frame.
@@ -176,6 +261,7 @@ pub(crate) fn prepare_from(
     text: String,
     start: [f64; 6],
     edit: impl FnOnce(Program) -> Result<Program, NcFailure>,
+    watch: &Deadline<'_>,
 ) -> Result<Prepared, NcFailure> {
     let MachineOf {
         machine,
@@ -191,7 +277,7 @@ pub(crate) fn prepare_from(
     if !problems.is_empty() {
         return Err(invalid(setup, problems));
     }
-    let program = interp::read(
+    let program = interp::read_bounded(
         &text,
         &interp::Machine {
             axes: keys,
@@ -201,10 +287,12 @@ pub(crate) fn prepare_from(
             work_offsets: nc.origins(n),
             block_delete: nc.block_delete,
         },
+        &nc.bounds(),
+        watch,
     )
     .map_err(|e| fail(2, format!("{name}:{e}")))?;
     let program = edit(program)?;
-    let report = check(
+    let report = check_watched(
         &program,
         &Limits {
             frame: &frame,
@@ -212,7 +300,9 @@ pub(crate) fn prepare_from(
             world: &motion.world_limits,
             singularity_threshold: motion.singularity_threshold,
         },
-    );
+        watch,
+    )
+    .map_err(|s| fail(2, format!("{name}:{}: {}", s.line, s.why)))?;
     // Planned only where every point is reachable: the planner needs the joints everywhere.
     let planned = if report.unreachable.is_empty() {
         // World-axis limits where the configuration gives them; else the joints' limits bound
@@ -231,7 +321,12 @@ pub(crate) fn prepare_from(
             axis_speed: per_axis(&nc.axis_speed),
             axis_accel: per_axis(&nc.axis_accel).map(|a| a * share),
         };
-        Some(plan(&program, &frame, &limits).map_err(|e| fail(1, format!("{name}: {e}")))?)
+        // A plan the watch stopped is refused like a program too large (2); one the machine
+        // cannot follow, as an unreachable one (1).
+        Some(
+            plan_watched(&program, &frame, &limits, watch)
+                .map_err(|e| fail(if watch.stopped() { 2 } else { 1 }, format!("{name}: {e}")))?,
+        )
     } else {
         None
     };
@@ -259,8 +354,12 @@ pub struct Programs {
     pub refused: Vec<(String, String)>,
 }
 
-/// `e` (why `file` cannot run on `setup`'s machine) with the machines it runs on, if any.
-fn with_hint(setup: &Setup, file: &Path, mut e: NcFailure) -> NcFailure {
+/// `e` (why `file` cannot run on `setup`'s machine) with the machines it runs on, if any: each
+/// tried within what is left of `watch`'s time (none when `watch` stopped the program).
+fn with_hint(setup: &Setup, file: &Path, mut e: NcFailure, watch: &Deadline<'_>) -> NcFailure {
+    if watch.stopped() || watch.expired() {
+        return e;
+    }
     let Ok(text) = crate::files::read_text(file, crate::files::MAX_TEXT_BYTES) else {
         return e;
     };
@@ -271,9 +370,10 @@ fn with_hint(setup: &Setup, file: &Path, mut e: NcFailure) -> NcFailure {
         .filter(|name| Some(*name) != current)
         .filter(|name| {
             crate::machines::setup(name).is_some_and(|other| {
-                prepare_text(&other, file.display().to_string(), text.clone())
-                    .and_then(Prepared::into_job)
-                    .is_ok()
+                !watch.expired()
+                    && prepare_watched(&other, file.display().to_string(), text.clone(), watch)
+                        .and_then(Prepared::into_job)
+                        .is_ok()
             })
         })
         .collect();
@@ -305,9 +405,10 @@ pub fn programs(
 ) -> Result<Programs, NcFailure> {
     let first = program
         .map(|p| {
-            prepare(setup, p)
+            let watch = Deadline::of(setup);
+            prepare_file(setup, p, &watch)
                 .and_then(Prepared::into_job)
-                .map_err(|e| with_hint(setup, p, e))
+                .map_err(|e| with_hint(setup, p, e, &watch))
         })
         .transpose()?;
     let mut offered = Vec::new();

@@ -11,7 +11,7 @@ use pkm_nc::interp::{Action, Blend, Block, Path, Program, Spindle};
 
 use crate::compose::Setup;
 use crate::image::Value;
-use crate::nc_job::{NcFailure, Prepared, fail, machine_of, prepare_from};
+use crate::nc_job::{Deadline, NcFailure, Prepared, fail, machine_of, prepare_from};
 use crate::plc::Plc;
 
 /// The most bytes of MDI text a job takes (the screen's messages are smaller still).
@@ -21,8 +21,19 @@ pub const MAX_MDI_BYTES: usize = 2048;
 pub const MDI_FILE: &str = "MDI";
 
 /// Reads, checks and plans the screen job `spec` against `setup`'s machine (the library's
-/// programs for a run from a line).
+/// programs for a run from a line), without a time bound (a replay plans again what the run
+/// planned in time).
 pub fn plan(setup: &Setup, library: &NcLibrary, spec: &ScreenJobSpec) -> Result<NcJob, NcFailure> {
+    plan_watched(setup, library, spec, &Deadline::none())
+}
+
+/// [`plan`] under `watch`: the configuration's time bound, the operator's cancel.
+pub fn plan_watched(
+    setup: &Setup,
+    library: &NcLibrary,
+    spec: &ScreenJobSpec,
+    watch: &Deadline<'_>,
+) -> Result<NcJob, NcFailure> {
     match &spec.kind {
         ScreenJobKind::Mdi { text } => {
             if text.len() > MAX_MDI_BYTES {
@@ -31,13 +42,12 @@ pub fn plan(setup: &Setup, library: &NcLibrary, spec: &ScreenJobSpec) -> Result<
             if text.trim().is_empty() {
                 return Err(fail(2, "MDI: no line to run"));
             }
-            // The lines run as a program of their own, which ends after them.
-            let program = format!("{}\nM2\n", text.trim_end());
-            prepare_from(setup, MDI_FILE.to_string(), program, spec.start, Ok).and_then(Prepared::into_job)
+            prepare_from(setup, MDI_FILE.to_string(), mdi_program(text), spec.start, Ok, watch)
+                .and_then(Prepared::into_job)
         }
         ScreenJobKind::FromLine { program, line } => {
             // A job that runs a program from a line runs it from another line as well.
-            let program = &match library.screen_job(*program).map(|made| &made.spec.kind) {
+            let program = &match library.screen_spec(*program).map(|spec| &spec.kind) {
                 Some(ScreenJobKind::FromLine { program, .. }) => *program,
                 Some(ScreenJobKind::Mdi { .. }) => {
                     return Err(fail(
@@ -64,12 +74,22 @@ pub fn plan(setup: &Setup, library: &NcLibrary, spec: &ScreenJobSpec) -> Result<
             let line = usize::try_from(*line).unwrap_or(usize::MAX);
             // Read as the program was (from the reference point): its blocks from the line on
             // are where they were.
-            prepare_from(setup, name, job.text.clone(), [0.0; 6], |p| {
-                from_line(p, line, spec.start)
-            })
+            prepare_from(
+                setup,
+                name,
+                job.text.clone(),
+                [0.0; 6],
+                |p| from_line(p, line, spec.start),
+                watch,
+            )
             .and_then(Prepared::into_job)
         }
     }
+}
+
+/// The program MDI lines run as: the lines, then an end (M2).
+pub fn mdi_program(lines: &str) -> String {
+    format!("{}\nM2\n", lines.trim_end())
 }
 
 /// The blocks of `program` from the first one, in the order they run, of line `line` or a

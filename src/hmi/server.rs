@@ -414,6 +414,8 @@ enum Command {
     Mdi { text: String },
     /// Run program `program` from line `line` on (the tool goes there first), from READY.
     RunFrom { program: i16, line: u32 },
+    /// Abandon the job being planned.
+    Cancel {},
 }
 
 impl Command {
@@ -422,10 +424,10 @@ impl Command {
         matches!(self, Command::Text { .. } | Command::Path { .. } | Command::Cut {})
     }
 
-    /// Whether it stops something: STOP, a jog's release. Never dropped for the rate.
+    /// Whether it stops something: STOP, a jog's release, a cancel. Never dropped for the rate.
     fn stops(&self) -> bool {
         match self {
-            Command::Stop {} => true,
+            Command::Stop {} | Command::Cancel {} => true,
             Command::Jog { x, y, .. } => *x == 0.0 && *y == 0.0,
             _ => false,
         }
@@ -473,7 +475,7 @@ struct Refusals {
     refused: u64,
 }
 
-async fn client(mut socket: WebSocket, peer: SocketAddr, commands: bool, shared: &Shared) {
+async fn client(mut socket: WebSocket, peer: SocketAddr, commands: bool, shared: &Arc<Shared>) {
     let id = shared.next_client.fetch_add(1, Ordering::Relaxed);
     let mut frames = shared.frames.subscribe();
     info!(
@@ -492,8 +494,21 @@ async fn client(mut socket: WebSocket, peer: SocketAddr, commands: bool, shared:
     let mut budget = Budget::new();
     let mut counts = Refusals::default();
     let mut cut_asked: Option<Instant> = None;
+    // A job this client asked for is planned beside the loop, which goes on taking its
+    // messages (a STOP, a Cancel) and sending frames; the reply comes here when it is done.
+    let (job_done, mut job_replies) = tokio::sync::mpsc::channel::<Json>(1);
+    let mut job_pending = false;
     loop {
         tokio::select! {
+            Some(reply) = job_replies.recv() => {
+                job_pending = false;
+                if reply["type"] == "refused" {
+                    counts.refused += 1;
+                }
+                if socket.send(Message::Text(reply.to_string().into())).await.is_err() {
+                    break;
+                }
+            },
             frame = frames.recv() => match frame {
                 Ok(text) => {
                     if socket.send(Message::Text(text.as_ref().into())).await.is_err() {
@@ -527,11 +542,18 @@ async fn client(mut socket: WebSocket, peer: SocketAddr, commands: bool, shared:
                             shared.read(c)
                         }
                         Ok(c @ (Command::Mdi { .. } | Command::RunFrom { .. })) if commands => {
-                            let reply = shared.make_job(peer, c).await;
-                            if reply["type"] == "refused" {
+                            if job_pending {
                                 counts.refused += 1;
+                                Some(json!({"type": "refused", "why": "your last job is being planned (Cancel abandons it)"}))
+                            } else {
+                                job_pending = true;
+                                let (shared, done) = (Arc::clone(shared), job_done.clone());
+                                tokio::spawn(async move {
+                                    let reply = shared.make_job(peer, c).await;
+                                    let _ = done.send(reply).await;
+                                });
+                                Some(json!({"type": "planning"}))
                             }
-                            Some(reply)
                         }
                         Ok(_) if !commands => {
                             counts.watching += 1;
@@ -590,12 +612,15 @@ impl Shared {
                 }
                 None => json!({"type": "refused", "why": format!("no program {k}")}),
             },
-            Command::Path { program: k } => match (k.checked_sub(1).and_then(|i| self.programs.get(i)), self.job(k)) {
-                (Some(p), _) => json!({"type": "path", "program": k, "path": p.program.path}),
-                (None, Some(made)) => {
-                    json!({"type": "path", "program": k, "path": preview(made.job.trajectory.as_ref())})
-                }
-                (None, None) => json!({"type": "refused", "why": format!("no program {k}")}),
+            Command::Path { program: k } => match k.checked_sub(1).and_then(|i| self.programs.get(i)) {
+                Some(p) => json!({"type": "path", "program": k, "path": p.program.path}),
+                None => match (self.job(k), self.spec(k)) {
+                    (Some(job), _) => json!({"type": "path", "program": k, "path": preview(job.trajectory.as_ref())}),
+                    (None, Some(_)) => {
+                        json!({"type": "refused", "why": format!("job {k} was replaced: its plan is released")})
+                    }
+                    (None, None) => json!({"type": "refused", "why": format!("no program {k}")}),
+                },
             },
             Command::Cut {} => match &self.cut {
                 Some(cut) => cut.lock().unwrap_or_else(|p| p.into_inner()).json(),
@@ -605,16 +630,30 @@ impl Shared {
         })
     }
 
-    /// The screen job of number `k`, if it was made.
-    fn job(&self, k: usize) -> Option<&pkm_api::trajectory::ScreenJob> {
-        self.jobs.as_ref()?.library().screen_job(i16::try_from(k).ok()?)
+    /// The plan of screen job `k`, if it was made and is not released.
+    fn job(&self, k: usize) -> Option<std::sync::Arc<pkm_api::trajectory::NcJob>> {
+        let library = self.jobs.as_ref()?.library();
+        library.screen.job(library.screen_slot(i16::try_from(k).ok()?)?)
+    }
+
+    /// What screen job `k` was made of, if it was made.
+    fn spec(&self, k: usize) -> Option<&pkm_api::trajectory::ScreenJobSpec> {
+        self.jobs.as_ref()?.library().screen_spec(i16::try_from(k).ok()?)
     }
 
     /// The file name of program or job `k`.
     fn file(&self, k: usize) -> String {
         match k.checked_sub(1).and_then(|i| self.programs.get(i)) {
             Some(p) => p.program.file.clone(),
-            None => self.job(k).map(|j| j.job.file.clone()).unwrap_or_default(),
+            None => self
+                .jobs
+                .as_ref()
+                .and_then(|desk| {
+                    let library = desk.library();
+                    library.screen.file(library.screen_slot(i16::try_from(k).ok()?)?)
+                })
+                .map(str::to_string)
+                .unwrap_or_default(),
         }
     }
 
@@ -624,17 +663,16 @@ impl Shared {
         if let Some(p) = k.checked_sub(1).and_then(|i| self.programs.get(i)) {
             return Some(std::borrow::Cow::Borrowed(p));
         }
-        let made = self.job(k)?;
-        match made.spec.kind {
-            pkm_api::trajectory::ScreenJobKind::FromLine { program, .. } => usize::try_from(program)
+        match &self.spec(k)?.kind {
+            pkm_api::trajectory::ScreenJobKind::FromLine { program, .. } => usize::try_from(*program)
                 .ok()
                 .and_then(|p| p.checked_sub(1))
                 .and_then(|i| self.programs.get(i))
                 .map(std::borrow::Cow::Borrowed),
-            pkm_api::trajectory::ScreenJobKind::Mdi { .. } => {
+            pkm_api::trajectory::ScreenJobKind::Mdi { text } => {
                 Some(std::borrow::Cow::Owned(Served::new(ScreenProgram {
-                    file: made.job.file.clone(),
-                    text: made.job.text.clone(),
+                    file: self.file(k),
+                    text: crate::screen_job::mdi_program(text),
                     path: Vec::new(),
                 })))
             }
@@ -645,7 +683,7 @@ impl Shared {
     /// reply says its number, or why not.
     async fn make_job(&self, peer: SocketAddr, command: Command) -> Json {
         let Some(desk) = &self.jobs else {
-            return json!({"type": "refused", "why": "this run makes no jobs: it has no machine to plan them for"});
+            return json!({"type": "refused", "why": "this run makes no jobs: it has no machine to plan them for", "job": true});
         };
         let kind = match command {
             Command::Mdi { text } => {
@@ -684,7 +722,7 @@ impl Shared {
             }
             Err(why) => {
                 info!("screen {peer}: job refused: {}", why.lines().next().unwrap_or_default());
-                json!({"type": "refused", "why": why})
+                json!({"type": "refused", "why": why, "job": true})
             }
         }
     }
@@ -697,6 +735,16 @@ impl Shared {
             | Command::Cut {}
             | Command::Mdi { .. }
             | Command::RunFrom { .. } => {}
+            Command::Cancel {} => {
+                let cancelled = self
+                    .jobs
+                    .as_ref()
+                    .is_some_and(|desk| desk.cancel("cancelled by the operator"));
+                if !cancelled {
+                    return Err("no job is being planned".into());
+                }
+                info!("screen {peer}: the job being planned is cancelled");
+            }
             Command::Load { program } => {
                 let known = usize::try_from(program).is_ok_and(|k| (1..=self.programs.len()).contains(&k));
                 if !known {
@@ -737,6 +785,10 @@ impl Shared {
             Command::Stop {} => {
                 info!("screen {peer}: STOP");
                 self.sink.update(|c| c.presses[press::STOP] += 1);
+                // A job being planned would find the machine in ERROR; it is abandoned now.
+                if self.jobs.as_ref().is_some_and(|desk| desk.cancel("STOP pressed")) {
+                    info!("screen {peer}: the job being planned is abandoned (STOP)");
+                }
             }
             Command::Axes {} => {
                 info!("screen {peer}: axis button");

@@ -333,12 +333,12 @@ impl JobWatch {
             _ => None,
         })?;
         let slot = self.library.screen_slot(number)?;
-        let made = self.library.screen.get(slot)?;
+        let spec = self.library.screen.spec(slot)?;
         let written = self.written.get_mut(slot)?;
         if std::mem::replace(written, true) {
             return None;
         }
-        Some(super::TraceJob::of(number, &made.spec))
+        Some(super::TraceJob::of(number, spec))
     }
 }
 

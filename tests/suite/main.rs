@@ -18,6 +18,7 @@ mod joystick;
 mod joystick_app;
 mod kinematics;
 mod nc;
+mod nc_bounds;
 mod nc_jobs;
 mod nc_operate;
 mod nc_run;

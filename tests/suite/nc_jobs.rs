@@ -190,7 +190,7 @@ fn the_screen_makes_a_job_from_ready_only_numbered_after_the_programs() {
     } = compose::build(setup, options).unwrap_or_else(|e| panic!("{e}"));
     let library = library.expect("a screen's run has a library");
     let standing = StandingPose::of(&setup, &plc).expect("the set-points");
-    let desk = JobDesk::new(setup.clone(), library.clone(), standing);
+    let desk = JobDesk::new(setup.clone(), library.clone(), standing, None);
     let runtime = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()

@@ -62,8 +62,12 @@ function connect() {
     else if (m.type === "text") text(m);
     else if (m.type === "path") path(m);
     else if (m.type === "job") job(m);
+    else if (m.type === "planning") planning(true);
     else if (m.type === "cut" && m.program === shownProgram) cut = m.points;
-    else if (m.type === "refused") $("access").textContent = m.why;
+    else if (m.type === "refused") {
+      if (m.job) planning(false);
+      $("access").textContent = m.why;
+    }
   };
 }
 
@@ -139,7 +143,14 @@ function showProgram(k) {
 }
 
 // A job this page made: loaded and started by the server; shown once the PLC has loaded it.
+// A job of this screen is being planned (its Cancel shown), or no longer.
+function planning(on) {
+  $("nc-cancel").hidden = !on;
+  if (on) $("access").textContent = "planning the job …";
+}
+
 function job(m) {
+  planning(false);
   programs[m.program - 1] = { file: m.file, lines: m.lines };
   $("access").textContent = `${m.file}: planned ${m.planned_s.toFixed(2)} s, started`;
 }
@@ -401,6 +412,7 @@ $("nc-mdi").addEventListener("click", () => {
   $("access").textContent = "";
   send({ cmd: "mdi", text: $("mdi-text").value });
 });
+$("nc-cancel").addEventListener("click", () => send({ cmd: "cancel" }));
 $("nc-from-line").addEventListener("click", () => {
   $("access").textContent = "";
   send({ cmd: "run_from", program: shownProgram, line: Number($("from-line").value) });

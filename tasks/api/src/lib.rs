@@ -15,5 +15,6 @@ pub mod machine;
 pub mod problem;
 pub mod program;
 pub mod ranges;
+pub mod screen_jobs;
 pub mod strict_json;
 pub mod trajectory;

@@ -134,6 +134,22 @@ pub const SLOW_SPEED_MM_S: Range = Range::new(0.001, 100.0, "mm/s", "");
 pub const ANGULAR_SPEED_DEG_S: Range = Range::new(0.01, 360.0, "degrees/s", "");
 /// An acceleration or deceleration (mm/s², degrees/s²).
 pub const ACCEL_MM_S2: Range = Range::new(0.1, 100_000.0, "mm/s²", "");
+/// The most moves and other actions one NC program may make (`nc.max_moves`).
+pub const NC_MAX_MOVES: Range = Range::new(
+    1000.0,
+    4_000_000.0,
+    "",
+    "a plan's memory grows with its moves; split longer programs",
+);
+/// The most memory one NC program and its plan may take (`nc.max_plan_mib`, MiB).
+pub const NC_MAX_PLAN_MIB: Range = Range::new(16.0, 16_384.0, "MiB", "");
+/// The longest one NC program's reading, check and plan may take (`nc.max_planning_s`).
+pub const NC_MAX_PLANNING_S: Range = Range::new(
+    1.0,
+    600.0,
+    "s",
+    "a job the operator waits for, which nothing else may hold up for longer",
+);
 /// The share of the joints' and axes' accelerations an NC program's plan uses.
 pub const ACCEL_SHARE: Range = Range::new(0.05, 1.0, "", "a fraction of each acceleration");
 /// A distance a search backs off or approaches from (mm).

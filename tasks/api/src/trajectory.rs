@@ -176,6 +176,26 @@ pub trait Trajectory: Send + Sync {
     fn path_distance(&self, pose: &[f64; MAX_AXES], t: f64) -> f64;
 }
 
+/// A program of an [`NcLibrary`]: one of its programs, or a screen job's plan (shared with its
+/// slot, so that it lives while this does).
+pub enum JobRef<'a> {
+    /// One of the library's programs.
+    Program(&'a NcJob),
+    /// A screen job.
+    Screen(Arc<NcJob>),
+}
+
+impl std::ops::Deref for JobRef<'_> {
+    type Target = NcJob;
+
+    fn deref(&self) -> &NcJob {
+        match self {
+            JobRef::Program(job) => job,
+            JobRef::Screen(job) => job,
+        }
+    }
+}
+
 /// An NC program ready to run: its file, its text and its trajectory.
 #[derive(Clone)]
 pub struct NcJob {
@@ -217,11 +237,33 @@ impl NcLibrary {
     }
 
     /// The program of the (1-based) number `k` as `vars::NC_PROGRAM` holds it: one of `jobs`,
-    /// or a screen job made so far. Wait-free and allocation-free (the cyclic programs call it).
-    pub fn numbered(&self, k: i16) -> Option<&NcJob> {
+    /// or a screen job made and not released. Lock-free and allocation-free (the cyclic programs
+    /// call it); dropping what it gives never frees the job.
+    pub fn numbered(&self, k: i16) -> Option<JobRef<'_>> {
         match self.screen_slot(k) {
-            Some(slot) => self.screen.get(slot).map(|s| &s.job),
-            None => self.jobs.get(usize::try_from(k).ok()?.checked_sub(1)?),
+            Some(slot) => self.screen.job(slot).map(JobRef::Screen),
+            None => self
+                .jobs
+                .get(usize::try_from(k).ok()?.checked_sub(1)?)
+                .map(JobRef::Program),
+        }
+    }
+
+    /// The trajectory of program `k` (as [`Self::numbered`]), for the cyclic programs to hold
+    /// while they run it: a reference count more, no allocation.
+    pub fn trajectory(&self, k: i16) -> Option<Arc<dyn Trajectory>> {
+        self.numbered(k).map(|job| Arc::clone(&job.trajectory))
+    }
+
+    /// Whether program `k` can be loaded: one of `jobs`, or a screen job made and not
+    /// released. Lock-free and allocation-free.
+    pub fn has(&self, k: i16) -> bool {
+        match self.screen_slot(k) {
+            Some(slot) => self.screen.has_job(slot),
+            None => usize::try_from(k)
+                .ok()
+                .and_then(|k| k.checked_sub(1))
+                .is_some_and(|i| i < self.jobs.len()),
         }
     }
 
@@ -230,9 +272,10 @@ impl NcLibrary {
         usize::try_from(k).ok()?.checked_sub(self.jobs.len() + 1)
     }
 
-    /// The screen job of number `k`, if it was made.
-    pub fn screen_job(&self, k: i16) -> Option<&ScreenJob> {
-        self.screen.get(self.screen_slot(k)?)
+    /// What screen job number `k` was made of, if it was made (kept after its plan is
+    /// released).
+    pub fn screen_spec(&self, k: i16) -> Option<&ScreenJobSpec> {
+        self.screen.spec(self.screen_slot(k)?)
     }
 
     /// The number `vars::NC_PROGRAM` gives the screen job in slot `slot`.
@@ -241,124 +284,7 @@ impl NcLibrary {
     }
 }
 
-/// The most jobs the screen makes in one run (each stays in memory until the run ends, so that
-/// the cyclic programs never free one).
-pub const MAX_SCREEN_JOBS: usize = 1000;
-
-/// What a screen job is made of: enough to plan it again (a replay does).
-#[derive(Clone, Debug, PartialEq)]
-pub struct ScreenJobSpec {
-    /// MDI lines, or a program of the library from a line.
-    pub kind: ScreenJobKind,
-    /// Where the tool stood when the job was made: where it starts (machine frame).
-    pub start: [f64; MAX_AXES],
-}
-
-/// The kinds of screen jobs.
-#[derive(Clone, Debug, PartialEq)]
-pub enum ScreenJobKind {
-    /// Lines typed on the screen (MDI), run as a program that ends after them.
-    Mdi {
-        /// The lines.
-        text: String,
-    },
-    /// A program of the library from a line on: the tool goes to where that line's motion
-    /// begins first.
-    FromLine {
-        /// The program's number (from 1; one of the library's programs).
-        program: i16,
-        /// The line (1-based).
-        line: u32,
-    },
-}
-
-/// A planned screen job.
-#[derive(Clone, Debug)]
-pub struct ScreenJob {
-    /// What it was made of.
-    pub spec: ScreenJobSpec,
-    /// The job.
-    pub job: NcJob,
-}
-
-/// The jobs the operator makes while the PLC runs, each planned off the cyclic path and stored
-/// once in a slot of its own: the cyclic programs read a slot without a lock, and no job is
-/// freed before the run ends.
-pub struct ScreenJobs {
-    slots: Box<[std::sync::OnceLock<ScreenJob>]>,
-    /// The next free slot (only the makers of jobs take it).
-    next: std::sync::Mutex<usize>,
-}
-
-/// Why a screen job was not stored.
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub enum ScreenJobsError {
-    /// Every slot is taken.
-    Full,
-    /// The slot was taken already (a replay's trace that gives a job twice).
-    Taken(usize),
-}
-
-impl std::fmt::Display for ScreenJobsError {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            ScreenJobsError::Full => write!(
-                f,
-                "the run has made its {MAX_SCREEN_JOBS} screen jobs: restart the PLC for more"
-            ),
-            ScreenJobsError::Taken(i) => write!(f, "screen job {} was made already", i + 1),
-        }
-    }
-}
-
-impl std::error::Error for ScreenJobsError {}
-
-impl Default for ScreenJobs {
-    fn default() -> Self {
-        ScreenJobs::new()
-    }
-}
-
-impl ScreenJobs {
-    /// Room for [`MAX_SCREEN_JOBS`] jobs, none made.
-    pub fn new() -> ScreenJobs {
-        ScreenJobs {
-            slots: (0..MAX_SCREEN_JOBS).map(|_| std::sync::OnceLock::new()).collect(),
-            next: std::sync::Mutex::new(0),
-        }
-    }
-
-    /// The job in slot `i`, if it was made. Wait-free.
-    pub fn get(&self, i: usize) -> Option<&ScreenJob> {
-        self.slots.get(i)?.get()
-    }
-
-    /// Stores `job` in the next free slot; its slot.
-    pub fn push(&self, job: ScreenJob) -> Result<usize, ScreenJobsError> {
-        let mut next = self.next.lock().unwrap_or_else(|p| p.into_inner());
-        let i = *next;
-        self.set(i, job)?;
-        *next = i + 1;
-        Ok(i)
-    }
-
-    /// Stores `job` in slot `i` (a replay puts each job where the run had it).
-    pub fn set(&self, i: usize, job: ScreenJob) -> Result<(), ScreenJobsError> {
-        let slot = self.slots.get(i).ok_or(ScreenJobsError::Full)?;
-        slot.set(job).map_err(|_| ScreenJobsError::Taken(i))
-    }
-
-    /// How many slots are filled, from the first.
-    pub fn made(&self) -> usize {
-        self.slots.iter().take_while(|s| s.get().is_some()).count()
-    }
-}
-
-impl std::fmt::Debug for ScreenJobs {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("ScreenJobs").field("made", &self.made()).finish()
-    }
-}
+pub use crate::screen_jobs::{MAX_SCREEN_JOBS, ScreenJob, ScreenJobKind, ScreenJobSpec, ScreenJobs, ScreenJobsError};
 
 impl std::fmt::Debug for NcJob {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {

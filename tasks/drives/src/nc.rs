@@ -579,7 +579,7 @@ impl NcChannel {
     /// without programs waits for a screen job) on a machine of `coordinates` joints and pose
     /// coordinates (the first ones of x y z a b c).
     pub fn declare(library: &NcLibrary, coordinates: usize, decl: &mut Declare<'_>) -> NcChannel {
-        let first = library.numbered(1).map(|j| Arc::clone(&j.trajectory));
+        let first = library.trajectory(1);
         let loaded = if first.is_some() { 1 } else { 0 };
         let first = first.unwrap_or_else(|| Arc::new(Nothing { dof: coordinates }));
         let n = first.dof();
@@ -651,14 +651,15 @@ impl NcChannel {
     ) -> Option<([f64; MAX_AXES], [f64; MAX_AXES])> {
         let dt = ctx.period_ns() as f64 * 1e-9;
         // The program the main program loaded, taken while the executor stands idle (the main
-        // program changes it only outside AUTO; the library keeps every trajectory alive, so
-        // the swap frees nothing in the cycle).
+        // program changes it only outside AUTO; the library keeps its programs alive, and a
+        // screen job's plan is freed off the cyclic path once nothing holds it, so the swap
+        // frees nothing in the cycle).
         let k = ctx.get(self.program);
         if k != self.loaded
             && self.executor.state() == RunState::Idle
-            && let Some(job) = self.library.numbered(k)
+            && let Some(trajectory) = self.library.trajectory(k)
         {
-            self.executor = Executor::new(Arc::clone(&job.trajectory));
+            self.executor = Executor::new(trajectory);
             self.loaded = k;
             // The figures of the last run were another program's.
             self.new_run(ctx);
@@ -755,9 +756,25 @@ pub struct ProgramControl {
     autostart: bool,
     /// The command to the executor.
     command: Option<Command>,
-    /// The loaded program's number (1-based, as `NC_PROGRAM`; 0: none), and the run's programs.
+    /// The loaded program's number (1-based, as `NC_PROGRAM`; 0: none), its trajectory, and the
+    /// run's programs.
     loaded: i16,
+    trajectory: Option<Held>,
     library: Option<NcLibrary>,
+}
+
+/// A trajectory the main program holds while it is loaded (taken from the library when it is
+/// loaded: a screen job's plan may leave the library once another program is loaded, and is
+/// freed off the cyclic path once nothing holds it).
+#[derive(Clone)]
+struct Held(Arc<dyn Trajectory>);
+
+impl std::fmt::Debug for Held {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Trajectory")
+            .field("duration_s", &self.0.duration_s())
+            .finish()
+    }
 }
 
 /// The operator's notes about the program.
@@ -778,6 +795,7 @@ impl ProgramControl {
                 autostart: l.autostart,
                 command: Some(Command::Off),
                 loaded: if l.jobs.is_empty() { 0 } else { 1 },
+                trajectory: l.trajectory(1).map(Held),
                 library: Some(l.clone()),
                 ..ProgramControl::default()
             },
@@ -788,12 +806,19 @@ impl ProgramControl {
     /// Outside AUTO: loads program `request` (1-based: the library's, then the screen's jobs; 0
     /// or an unknown number: no request) in place of the loaded one. True when the loaded
     /// program changed; a program loaded this way starts by NC_START only.
+    ///
+    /// The trajectory it held for the program loaded before is let go here: never the last
+    /// reference (the library keeps its programs; a screen job's plan is freed off the cyclic
+    /// path), so that nothing is freed in the cycle.
     pub fn select(&mut self, request: i16, auto: bool) -> bool {
-        let known = self.library.as_ref().is_some_and(|l| l.numbered(request).is_some());
-        if auto || !known || request == self.loaded {
+        if auto || request == self.loaded {
             return false;
         }
+        let Some(trajectory) = self.library.as_ref().and_then(|l| l.trajectory(request)) else {
+            return false;
+        };
         self.loaded = request;
+        self.trajectory = Some(Held(trajectory));
         self.autostart = false;
         self.refused = false;
         true
@@ -801,7 +826,7 @@ impl ProgramControl {
 
     /// The loaded program's trajectory, if a program is loaded.
     pub fn trajectory(&self) -> Option<&Arc<dyn Trajectory>> {
-        self.library.as_ref()?.numbered(self.loaded).map(|j| &j.trajectory)
+        self.trajectory.as_ref().map(|h| &h.0)
     }
 
     /// The loaded program's number, as `NC_PROGRAM` holds it (1-based; 0: none).

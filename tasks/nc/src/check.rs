@@ -8,6 +8,7 @@
 use pkm_kinematics::frame::MachineFrame;
 use pkm_kinematics::{LIMIT_TOLERANCE_MM, MAX_DOF};
 
+use crate::budget::{Stopped, Unwatched, Watch, Watched};
 use crate::interp::{AXES, Action, Pose, Program};
 use crate::path::Segment;
 
@@ -91,6 +92,15 @@ pub fn why_not(limits: &Limits<'_>, pose: &Pose) -> Option<String> {
 
 /// Checks every point of `program`'s path against `limits`.
 pub fn check(program: &Program, limits: &Limits<'_>) -> Report {
+    match check_watched(program, limits, &Unwatched) {
+        Ok(report) => report,
+        Err(_) => unreachable!("an unwatched check is never stopped"),
+    }
+}
+
+/// [`check`], asking `watch` every [`crate::budget::WATCH_EVERY`] samples whether to go on.
+pub fn check_watched(program: &Program, limits: &Limits<'_>, watch: &dyn Watch) -> Result<Report, Stopped> {
+    let mut watched = Watched::new(watch);
     let n = limits.frame.dof();
     let mut report = Report {
         moves: 0,
@@ -124,6 +134,7 @@ pub fn check(program: &Program, limits: &Limits<'_>) -> Report {
         let begin = if first { 0 } else { 1 };
         first = false;
         for i in begin..=samples {
+            watched.step().map_err(|why| Stopped { line: block.line, why })?;
             let pose = segment.at(i as f64 / samples as f64);
             if bbox.is_empty() {
                 bbox = (0..n).map(|c| [pose[c], pose[c]]).collect();
@@ -145,7 +156,7 @@ pub fn check(program: &Program, limits: &Limits<'_>) -> Report {
     if !bbox.is_empty() {
         report.bounding_box = Some(bbox);
     }
-    report
+    Ok(report)
 }
 
 /// A pose as `X1.000 Y2.000 Z3.000` over the machine's `n` coordinates.

@@ -16,6 +16,7 @@
 use std::collections::HashMap;
 
 use crate::NcError;
+use crate::budget::{Unwatched, Watch, Watched};
 use crate::lexer::{self, Assignment, Control, Keyword, Line, MAX_ARGUMENTS, Parameters, Target};
 
 /// The interpreter's state as parameters (`#5220`, `#5420`, `#<_x>`, …).
@@ -31,6 +32,10 @@ pub trait System {
 pub const MAX_USER_PARAMETER: usize = 5000;
 /// How deep calls nest (LinuxCNC's limit).
 pub const MAX_CALL_DEPTH: usize = 10;
+/// How many conditionals and loops may be open at once in one call (or the main program): a
+/// bound of the interpreter's memory that no program written by hand or by a CAM post
+/// approaches (LinuxCNC has none; its own examples nest three or four).
+pub const MAX_OPEN: usize = 64;
 /// The most lines a program may read, loops and skipped lines included: a loop that never ends
 /// is refused instead of read for ever.
 pub const MAX_LINES_READ: u64 = 20_000_000;
@@ -68,6 +73,8 @@ pub struct Flow<'t> {
     read: u64,
     /// The most lines it may read ([`MAX_LINES_READ`]).
     limit: u64,
+    /// Asked every [`crate::budget::WATCH_EVERY`] lines whether to go on.
+    watch: Watched<'t>,
 }
 
 /// The main program or a call in progress.
@@ -168,7 +175,14 @@ impl<'t> Flow<'t> {
             subs: HashMap::new(),
             read: 0,
             limit: MAX_LINES_READ,
+            watch: Watched::new(&Unwatched),
         }
+    }
+
+    /// The same flow, asking `watch` now and then whether to go on.
+    pub fn watched(mut self, watch: &'t dyn Watch) -> Flow<'t> {
+        self.watch = Watched::new(watch);
+        self
     }
 
     fn frame(&self) -> &Frame {
@@ -189,6 +203,7 @@ impl<'t> Flow<'t> {
 
     /// Counts a line read; refuses a program that reads too many.
     fn count(&mut self, index: usize) -> Result<(), NcError> {
+        self.watch.step().map_err(|why| NcError::new(index + 1, 1, why))?;
         self.read += 1;
         if self.read > self.limit {
             let innermost = self
@@ -344,7 +359,7 @@ impl<'t> Flow<'t> {
                     .last()
                     .is_some_and(|o| o.kind == Opened::Do && o.index == index);
                 if !again {
-                    self.open(&c, Opened::Do, index);
+                    self.open(&c, Opened::Do, index)?;
                 }
             }
             Keyword::While => {
@@ -362,7 +377,7 @@ impl<'t> Flow<'t> {
                 let again = top.is_some_and(|o| o.kind == Opened::While && o.index == index);
                 if value != 0.0 {
                     if !again {
-                        self.open(&c, Opened::While, index);
+                        self.open(&c, Opened::While, index)?;
                     }
                 } else {
                     if again {
@@ -385,7 +400,7 @@ impl<'t> Flow<'t> {
             Keyword::Repeat => {
                 let count = value.round();
                 if count >= 1.0 {
-                    self.open(&c, Opened::Repeat(count as u64), index);
+                    self.open(&c, Opened::Repeat(count as u64), index)?;
                 } else {
                     let (end, _) = self.skip(index + 1, &c, |k| k == Keyword::EndRepeat)?;
                     self.next = end + 1;
@@ -405,7 +420,7 @@ impl<'t> Flow<'t> {
             }
             Keyword::If => {
                 if value != 0.0 {
-                    self.open(&c, Opened::If, index);
+                    self.open(&c, Opened::If, index)?;
                 } else {
                     self.branch(index + 1, &c, system)?;
                 }
@@ -481,13 +496,25 @@ impl<'t> Flow<'t> {
         })
     }
 
-    /// Opens a conditional or loop at line `index`.
-    fn open(&mut self, c: &Control, kind: Opened, index: usize) {
+    /// Opens a conditional or loop at line `index`; refused past [`MAX_OPEN`] in one call.
+    fn open(&mut self, c: &Control, kind: Opened, index: usize) -> Result<(), NcError> {
+        if self.frame().open.len() >= MAX_OPEN {
+            return Err(NcError::new(
+                c.line,
+                c.column,
+                format!(
+                    "{} would be the {}th conditional or loop open at once: they nest at most {MAX_OPEN} deep in a subroutine or the main program",
+                    c.name(),
+                    MAX_OPEN + 1
+                ),
+            ));
+        }
         self.frame_mut().open.push(Open {
             label: c.label.clone(),
             kind,
             index,
         });
+        Ok(())
     }
 
     /// Closes the innermost open statement, which must be `what` with `c`'s label.
@@ -557,7 +584,7 @@ impl<'t> Flow<'t> {
             match found.keyword {
                 Keyword::EndIf => return Ok(()),
                 Keyword::Else => {
-                    self.open(&found, Opened::If, index);
+                    self.open(&found, Opened::If, index)?;
                     return Ok(());
                 }
                 _ => {
@@ -568,7 +595,7 @@ impl<'t> Flow<'t> {
                         unreachable!("line {} was an elseif a moment ago", index + 1)
                     };
                     if elseif.values.first().is_some_and(|v| *v != 0.0) {
-                        self.open(&elseif, Opened::If, index);
+                        self.open(&elseif, Opened::If, index)?;
                         return Ok(());
                     }
                     from = index + 1;
@@ -749,6 +776,10 @@ mod tests {
                 "o1 sub\no1 endsub\no1 sub\no1 endsub\n",
                 "3:1: o1 is defined twice (first at line 1)",
             ),
+            (
+                &"o1 if [1]\n".repeat(MAX_OPEN + 1),
+                "65:1: o1 if would be the 65th conditional or loop open at once: they nest at most 64 deep in a subroutine or the main program",
+            ),
         ] {
             let mut flow = Flow::new(text, false);
             let got = loop {
@@ -777,12 +808,19 @@ mod tests {
             let text = lines.join("\n");
             let mut flow = Flow::new(&text, false);
             flow.limit = 10_000;
-            for _ in 0..20_000 {
+            // Each call reads at least one line, and the flow reads at most its limit: the run
+            // ends (or is refused) within that many calls.
+            let mut ended = false;
+            for _ in 0..=10_001 {
                 match flow.next(&Plain) {
-                    Ok(Event::End(_)) | Err(_) => break,
+                    Ok(Event::End(_)) | Err(_) => {
+                        ended = true;
+                        break;
+                    }
                     Ok(_) => {}
                 }
             }
+            proptest::prop_assert!(ended, "{} lines read and still running:\n{}", flow.read, text);
         }
     }
 

@@ -10,6 +10,7 @@
 //! and reason.
 
 use crate::NcError;
+use crate::budget::{Bounds, Cost, Unwatched, Watch};
 use crate::flow::{self, Event, Flow};
 use crate::lexer::{self, Word};
 
@@ -25,9 +26,6 @@ pub const AXES: [char; 6] = ['X', 'Y', 'Z', 'A', 'B', 'C'];
 pub const MIN_FEED: f64 = 0.1;
 /// The longest dwell accepted (s): a day.
 pub const MAX_DWELL_S: f64 = 86_400.0;
-/// The most moves and other actions a program may have: its plan's memory is bounded by them
-/// (about 480 bytes a move: a million-line program is planned in 480 MB).
-pub const MAX_BLOCKS: usize = 2_000_000;
 /// The fastest spindle speed accepted (rpm).
 pub const MAX_SPINDLE_RPM: f64 = 100_000.0;
 
@@ -178,11 +176,20 @@ const ARC_TOLERANCE_MM: f64 = 0.002;
 /// … or this fraction of the radius, whichever is larger.
 const ARC_TOLERANCE_RELATIVE: f64 = 0.001;
 
-/// Reads `text` for `machine`; the first problem is returned with its position.
+/// Reads `text` for `machine` within the default [`Bounds`]; the first problem is returned with
+/// its position.
 pub fn read(text: &str, machine: &Machine<'_>) -> Result<Program, NcError> {
+    read_bounded(text, machine, &Bounds::default(), &Unwatched)
+}
+
+/// Reads `text` for `machine`; the first problem is returned with its position. The program is
+/// refused at the line where its moves or the memory of its plan pass `bounds`, and stops with
+/// `watch`'s reason when the watch says so.
+pub fn read_bounded(text: &str, machine: &Machine<'_>, bounds: &Bounds, watch: &dyn Watch) -> Result<Program, NcError> {
     let mut state = State::new(machine);
+    state.bounds = *bounds;
     let mut blocks = Vec::new();
-    let mut flow = Flow::new(text, machine.block_delete);
+    let mut flow = Flow::new(text, machine.block_delete).watched(watch);
     // A '%' before any other line opens the program, and the next closes it; without it the
     // program ends at M2 or M30. What follows the end is never read (LinuxCNC ignores it).
     let (mut seen, mut opened) = (false, false);
@@ -206,15 +213,13 @@ pub fn read(text: &str, machine: &Machine<'_>) -> Result<Program, NcError> {
                 }
             }
             Event::Block(block) => {
+                let before = blocks.len();
                 state.block(&block, &mut blocks)?;
-                if blocks.len() > MAX_BLOCKS {
-                    return Err(NcError::new(
-                        block.line,
-                        1,
-                        format!(
-                            "the program has more than {MAX_BLOCKS} moves and other actions: split it (planning takes about half a kilobyte per move)"
-                        ),
-                    ));
+                for made in &blocks[before..] {
+                    state.cost.add(made);
+                }
+                if let Some(why) = state.cost.beyond(bounds) {
+                    return Err(NcError::new(block.line, 1, why));
                 }
                 if matches!(
                     blocks.last(),
@@ -243,12 +248,17 @@ pub fn read(text: &str, machine: &Machine<'_>) -> Result<Program, NcError> {
         }
         seen = true;
     }
+    // Grown by doubling: the memory past the last block is given back.
+    blocks.shrink_to_fit();
     Ok(Program { blocks })
 }
 
 /// The modal state.
 struct State<'a> {
     machine: &'a Machine<'a>,
+    /// What the program may cost, and what its blocks so far cost.
+    bounds: Bounds,
+    cost: Cost,
     /// The tool's position (machine world coordinates).
     position: Pose,
     /// The motion mode (G code in tenths: 0, 10, 20, 30, 810, 820, 830).
@@ -422,6 +432,8 @@ impl<'a> State<'a> {
     fn new(machine: &'a Machine<'a>) -> State<'a> {
         State {
             machine,
+            bounds: Bounds::default(),
+            cost: Cost::default(),
             position: machine.start,
             motion: None,
             plane: Plane::Xy,
@@ -995,7 +1007,26 @@ impl<'a> State<'a> {
         }
         let clear = if self.retract_to_r { r } else { old };
         let unit = self.unit();
+        // A cycle's repeats and pecks make moves before the program's cost is counted: bounded
+        // here, so that a tiny Q or a large L cannot fill the memory within one block.
+        let (room, max_moves) = (
+            self.bounds.max_moves.saturating_sub(self.cost.moves),
+            self.bounds.max_moves,
+        );
+        let full = |out: &Vec<Block>| {
+            (out.len() > room).then(|| {
+                at(
+                    first,
+                    format!(
+                        "{name}: the cycle makes more than the {max_moves} moves the program may make (the bound: nc.max_moves): fewer repeats L, or a deeper peck Q"
+                    ),
+                )
+            })
+        };
         for turn in 0..repeats {
+            if let Some(e) = full(out) {
+                return Err(e);
+            }
             aa += step[0];
             bb += step[1];
             if turn == 0 && current > r {
@@ -1010,6 +1041,9 @@ impl<'a> State<'a> {
             if code == 830 {
                 let mut depth = r - peck;
                 while depth > bottom {
+                    if let Some(e) = full(out) {
+                        return Err(e);
+                    }
                     go(self, out, [aa, bb, depth], feed);
                     go(self, out, [aa, bb, r], None);
                     go(self, out, [aa, bb, depth + PECK_CLEARANCE_MM / unit], None);
@@ -1031,9 +1065,6 @@ impl<'a> State<'a> {
             dwell,
             peck,
         };
-        if out.len() > MAX_BLOCKS {
-            return Err(at(first, format!("{name}: more than {MAX_BLOCKS} moves")));
-        }
         stops(line, m, out);
         Ok(())
     }

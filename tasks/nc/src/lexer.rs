@@ -215,6 +215,7 @@ pub fn read_line(text: &str, number: usize, block_delete: bool, params: &dyn Par
         at: 0,
         line: number,
         params: Some(params),
+        depth: 0,
     };
     cursor.line_items()
 }
@@ -231,6 +232,7 @@ pub fn control_of(text: &str, number: usize, block_delete: bool) -> Result<Optio
         at: 0,
         line: number,
         params: None,
+        depth: 0,
     };
     cursor.skip_line_number()?;
     if cursor.peek() != Some('o') {
@@ -383,6 +385,8 @@ struct Cursor<'a> {
     line: usize,
     /// Where values come from; `None` when values are only skipped over.
     params: Option<&'a dyn Parameters>,
+    /// How many values are being read inside one another ([`MAX_NESTING`]).
+    depth: usize,
 }
 
 impl Cursor<'_> {
@@ -555,7 +559,27 @@ impl Cursor<'_> {
     /// A value: a number, a parameter, an expression, a function, or a sign before any of them.
     /// `word`: the letter and column of the word it belongs to (for the message when there is
     /// none).
+    ///
+    /// Values nest (`[[1]]`, `--[1]`, `##1`, `SIN[COS[1]]`) and each level is a call of this
+    /// function: beyond [`MAX_NESTING`] levels the value is refused where it crosses the bound,
+    /// so that no text can overflow the reader's stack (which aborts the whole process).
     fn value(&mut self, word: Option<(char, usize)>) -> Result<f64, NcError> {
+        if self.depth >= MAX_NESTING {
+            return Err(self.error(
+                self.column(),
+                format!(
+                    "the value nests deeper than {MAX_NESTING} levels (brackets, signs, parameters of parameters and functions, counted together): write it in steps with parameters"
+                ),
+            ));
+        }
+        self.depth += 1;
+        let value = self.nested_value(word);
+        self.depth -= 1;
+        value
+    }
+
+    /// [`Self::value`] inside the depth's bound.
+    fn nested_value(&mut self, word: Option<(char, usize)>) -> Result<f64, NcError> {
         let column = self.column();
         let missing = |this: &Self| match word {
             Some((letter, column)) => this.error(column, format!("{letter} needs a number")),
@@ -894,6 +918,13 @@ impl Cursor<'_> {
     }
 }
 
+/// How deep values may nest in one another: brackets, signs before a bracket or parameter,
+/// parameters whose number is a parameter (`##1`) and functions, counted together. LinuxCNC
+/// sets no bound; programs written by hand or by CAM posts nest a few levels, and 64 levels
+/// read in well under 256 KiB of stack (a test's thread has that much), far below the 2 MiB of
+/// the threads that read programs.
+pub const MAX_NESTING: usize = 64;
+
 /// The highest parameter number (LinuxCNC's table has 5602 entries, from #1).
 pub const MAX_PARAMETER: usize = 5601;
 /// The most arguments a call passes (#1 … #30).
@@ -1163,6 +1194,29 @@ mod tests {
             refused(&huge),
             "1:4: X: the number is out of range (at most 1e9 in magnitude)"
         );
+    }
+
+    #[test]
+    fn values_nest_up_to_the_bound_and_are_refused_beyond_it_where_they_cross_it() {
+        // X's value is the first level, each bracket one more.
+        let brackets = |k: usize| format!("G1 X{}1{} F100", "[".repeat(k), "]".repeat(k));
+        assert_eq!(values(&brackets(MAX_NESTING - 1))[1], ('X', 1.0));
+        let refusal = format!(
+            "the value nests deeper than {MAX_NESTING} levels (brackets, signs, parameters of parameters and functions, counted together): write it in steps with parameters"
+        );
+        // The level past the bound starts inside the 64th bracket: column 4 + 64 + 1.
+        assert_eq!(refused(&brackets(MAX_NESTING)), format!("1:69: {refusal}"));
+        // What aborted the process before (a stack overflow), refused the same way.
+        assert_eq!(refused(&brackets(16_000)), format!("1:69: {refusal}"));
+        let signs = format!("G1 X{}[1]", "-".repeat(32_000));
+        assert_eq!(refused(&signs), format!("1:69: {refusal}"));
+        let indirect = format!("#1 = {}1", "#".repeat(10_000));
+        assert_eq!(refused(&indirect), format!("1:70: {refusal}"));
+        let functions = format!("G1 X[{}0{}]", "abs[".repeat(5_000), "]".repeat(5_000));
+        assert!(refused(&functions).ends_with(&refusal), "{}", refused(&functions));
+        // In O-word values too.
+        let condition = format!("o1 if [{}1{}]", "[".repeat(200), "]".repeat(200));
+        assert!(refused(&condition).ends_with(&refusal));
     }
 
     proptest! {

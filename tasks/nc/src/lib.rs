@@ -24,6 +24,7 @@
 //! (seven digits: a 1 µm step is lost beyond 10 m, and 0.1 µm beyond 1 m), is built to skip what
 //! it cannot read and go on, and knows nothing of RS274NGC's parameters, expressions or O-words.
 
+pub mod budget;
 pub mod check;
 pub mod flow;
 pub mod interp;

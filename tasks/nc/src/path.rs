@@ -19,6 +19,9 @@ pub struct Segment {
     rotation_rates: Option<Box<([f64; 3], [f64; 3])>>,
 }
 
+/// The memory an arc's own part of a [`Segment`] takes (bytes).
+pub(crate) const ARC_BYTES: usize = size_of::<Arc>();
+
 /// A circular arc in x y z (a helix with `rise`): p(φ) = c + r·(cos φ·u + sin φ·v) + rise·φ/sweep·w
 /// for φ from 0 to `sweep`; u, v, w orthonormal.
 #[derive(Clone, Copy, Debug, PartialEq)]

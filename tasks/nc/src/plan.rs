@@ -19,6 +19,7 @@ use pkm_kinematics::frame::MachineFrame;
 
 use pkm_api::trajectory::{MAX_FEED_OVERRIDE, TrajectoryEvent, TrajectoryEventKind};
 
+use crate::budget::{Unwatched, Watch, Watched};
 use crate::interp::{AXES, Action, Blend, Path, Pose, Program, Spindle};
 use crate::path::Segment;
 
@@ -120,6 +121,9 @@ impl Limit {
         }
     }
 }
+
+/// The memory one point of a velocity profile takes (bytes).
+pub(crate) const POINT_BYTES: u64 = size_of::<Point>() as u64;
 
 #[derive(Clone, Copy, Debug)]
 struct Point {
@@ -345,7 +349,11 @@ fn elements_and_events(program: &Program) -> (Vec<Element>, f64, Vec<Pending>) {
     if let Some(e) = out.last_mut() {
         e.stop_after = true;
     }
-    (blend_corners(out), initial_dwell, events)
+    let mut blended = blend_corners(out);
+    // Sized for two elements a move; the memory past the blends' is given back (a large
+    // vector is remapped, not copied).
+    blended.shrink_to_fit();
+    (blended, initial_dwell, events)
 }
 
 /// Rounds the corners between consecutive lines within their tolerance; marks the others stops.
@@ -603,22 +611,51 @@ const WINDOW: usize = 5;
 
 /// Plans `program` on the machine `frame` within `limits`.
 pub fn plan(program: &Program, frame: &MachineFrame, limits: &PlanLimits) -> Result<Plan, PlanError> {
+    plan_watched(program, frame, limits, &Unwatched)
+}
+
+/// [`plan`], asking `watch` every [`crate::budget::WATCH_EVERY`] points whether to go on.
+pub fn plan_watched(
+    program: &Program,
+    frame: &MachineFrame,
+    limits: &PlanLimits,
+    watch: &dyn Watch,
+) -> Result<Plan, PlanError> {
+    let mut watched = Watched::new(watch);
     let (elements, initial_dwell, pending) = elements_and_events(program);
     let n = frame.dof();
-    // The points: each element split into at least two intervals.
-    let mut points: Vec<Point> = Vec::with_capacity(2 * elements.len() + 1);
-    let mut s = 0.0;
     let curved = |k: Option<usize>| k.and_then(|k| elements.get(k)).is_some_and(|e| e.segment.is_arc());
-    for (k, e) in elements.iter().enumerate() {
+    // Each element split into at least two intervals: arcs and blends at least every 22.5°, so
+    // that their curvature is seen; a move next to a curve gets a point JUNCTION from their
+    // junction, so that the bound there (the curve's) holds over that short piece, not over a
+    // whole interval of the move.
+    let split = |k: usize, e: &Element| {
         let len = e.segment.length();
-        // Arcs and blends at least every 22.5°, so that their curvature is seen.
         let turns = e.segment.sweep() * 8.0 / std::f64::consts::PI;
         let steps = ((len / GRID_SPACING).ceil().max(turns.ceil()) as usize).max(2);
-        // A move next to a curve gets a point JUNCTION from their junction: the bound there (the
-        // curve's) then holds over that short piece, not over a whole interval of the move.
         let long = len > 4.0 * JUNCTION;
-        let near_start = long && curved(k.checked_sub(1));
-        let near_end = long && curved(Some(k + 1));
+        (
+            len,
+            steps,
+            long && curved(k.checked_sub(1)),
+            long && curved(Some(k + 1)),
+        )
+    };
+    // The points, counted first: a program of a million moves has millions of them, and a
+    // vector grown by doubling would hold up to twice their memory.
+    let count: usize = elements
+        .iter()
+        .enumerate()
+        .map(|(k, e)| {
+            let (_, steps, near_start, near_end) = split(k, e);
+            steps + usize::from(near_start) + usize::from(near_end)
+        })
+        .sum::<usize>()
+        + 1;
+    let mut points: Vec<Point> = Vec::with_capacity(count);
+    let mut s = 0.0;
+    for (k, e) in elements.iter().enumerate() {
+        let (len, steps, near_start, near_end) = split(k, e);
         for i in 0..steps {
             let grid = i as f64 / steps as f64;
             let extra_start = (i == 0 && near_start).then_some(JUNCTION / len);
@@ -641,6 +678,10 @@ pub fn plan(program: &Program, frame: &MachineFrame, limits: &PlanLimits) -> Res
     let mut computed = 0;
     // Caps and acceleration bounds from the derivatives along the path.
     for i in 0..count {
+        watched.step().map_err(|why| PlanError {
+            line: elements[points[i].element as usize].line,
+            message: why,
+        })?;
         while computed < count && computed <= i + 2 {
             let p = &points[computed];
             let e = &elements[p.element as usize];
@@ -859,6 +900,7 @@ pub fn plan(program: &Program, frame: &MachineFrame, limits: &PlanLimits) -> Res
         .filter(|e| e.feed.is_finite())
         .map(|e| e.segment.length() / e.feed)
         .sum();
+    limited.shrink_to_fit();
     Ok(Plan {
         duration_s: t,
         length_mm: s,
@@ -905,6 +947,19 @@ fn profile(points: &mut [Point], limits: impl Fn(&Point) -> (f64, f64), speed: f
 /// The second derivative through three points at `sa < si < sb`.
 fn second(ya: f64, yi: f64, yb: f64, sa: f64, si: f64, sb: f64) -> f64 {
     2.0 * ((yb - yi) / (sb - si) - (yi - ya) / (si - sa)) / (sb - sa)
+}
+
+impl Plan {
+    /// The memory the plan holds (bytes): its elements, the points of its velocity profile,
+    /// its events and the list of limited feeds, as allocated.
+    pub fn heap_bytes(&self) -> u64 {
+        let arcs = self.elements.iter().filter(|e| e.segment.is_arc()).count();
+        (self.elements.capacity() * size_of::<Element>()
+            + arcs * crate::path::ARC_BYTES
+            + self.points.capacity() * size_of::<Point>()
+            + self.limited.capacity() * size_of::<Limited>()
+            + self.events.capacity() * size_of::<TrajectoryEvent>()) as u64
+    }
 }
 
 impl Plan {
@@ -1047,6 +1102,50 @@ mod tests {
         let mut cursor = 0;
         let steps = (p.duration_s / dt).ceil() as usize + 1;
         (0..=steps).map(|i| p.sample(i as f64 * dt, &mut cursor)).collect()
+    }
+
+    /// What the interpreter counts for a program bounds what the program and its plan hold:
+    /// short blended lines, arcs, long lines, exact stops, rotations.
+    #[test]
+    fn the_counted_cost_bounds_the_memory_of_the_program_and_its_plan() {
+        let spiral: String = (0..5000)
+            .map(|i| {
+                let (a, r) = (i as f64 * 0.02, 5.0 + i as f64 * 0.001);
+                format!("X{:.3} Y{:.3}\n", r * a.cos() - 5.0, r * a.sin())
+            })
+            .collect();
+        let arcs: String = (0..200).map(|_| "G2 X0 Y0 I2 J0 P3\nG3 X0 Y0 I-1 J0\n").collect();
+        let lines: String = (0..300).map(|i| format!("X{} Y{}\n", i % 2 * 30, i % 3 * 10)).collect();
+        let tilts: String = (0..300).map(|i| format!("X{} A{}\n", i % 2, i % 3)).collect();
+        for (model, text) in [
+            (pkm_kinematics::Machine::OxX, format!("G64 P0.01\nG1 F3000\n{spiral}")),
+            (pkm_kinematics::Machine::OxX, format!("G64 P0.05\nG1 F600\n{arcs}")),
+            (pkm_kinematics::Machine::OxX, format!("G61\nG1 F600\n{lines}")),
+            (pkm_kinematics::Machine::Hexapod, format!("G64\nG1 F300\n{tilts}")),
+        ] {
+            let f = frame(model);
+            let program = read(
+                &format!("{text}M2"),
+                &Machine {
+                    block_delete: false,
+                    axes: f.kinematics().pose_keys(),
+                    start: [0.0; 6],
+                    work_offsets: [[0.0; 6]; 6],
+                },
+            )
+            .unwrap_or_else(|e| panic!("{e}"));
+            let mut cost = crate::budget::Cost::default();
+            for b in &program.blocks {
+                cost.add(b);
+            }
+            let plan = plan(&program, &f, &limits(f.dof(), 50.0, 500.0)).unwrap_or_else(|e| panic!("{e}"));
+            let held = (program.blocks.capacity() * size_of::<crate::interp::Block>()) as u64 + plan.heap_bytes();
+            assert!(
+                held <= cost.bytes() && held * 2 > cost.bytes(),
+                "{model:?}: {held} bytes held, {} counted",
+                cost.bytes()
+            );
+        }
     }
 
     /// G64 Q (LinuxCNC's naive CAM detector): a CAM program's run of short lines that stray less
