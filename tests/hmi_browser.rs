@@ -50,39 +50,15 @@ impl Plc {
     }
 }
 
-/// The O-X glide's configuration for these tests, written to `dir`: they test the screen, not
-/// the scheduler's timing, so a late cycle on a busy machine is logged rather than an ERROR (as
-/// the other real-time end-to-end tests do; timing has its own benchmarks).
+/// The O-X glide's configuration for these tests, written to `dir` (see
+/// [`common::ox_config`]).
 fn test_config(dir: &std::path::Path) -> std::path::PathBuf {
-    write_config(dir, |_| {})
+    common::ox_config(dir, false, |_| {})
 }
 
-/// As [`test_config`], referencing at twice the search speed and four times the latch speed
-/// (READY after about 5 s instead of 11.65 s), for the tests that need READY, not referencing.
+/// As [`test_config`], READY after about 5 s instead of 11.65 s ([`common::ox_config`]).
 fn quick_config(dir: &std::path::Path) -> std::path::PathBuf {
-    write_config(dir, |program| {
-        if program["program"] == "ox-x.main" {
-            for joint in program["params"]["joints"].as_array_mut().expect("joints") {
-                joint["reference"]["search_speed_mm_s"] = 20.0.into();
-                joint["reference"]["latch_speed_mm_s"] = 2.0.into();
-            }
-        }
-    })
-}
-
-/// The O-X glide's configuration with cycle time violations logged and `edit` applied to each
-/// program, written to `dir`.
-fn write_config(dir: &std::path::Path, edit: impl Fn(&mut serde_json::Value)) -> std::path::PathBuf {
-    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
-    let mut config = common::read_json(&root.join("machines/ox-x.json"));
-    config["io_map"] = root.join("io-map/ox-x.json").to_str().expect("utf-8").into();
-    for class in config["task_classes"].as_array_mut().expect("classes") {
-        class["on_violation"] = "log".into();
-        for program in class["programs"].as_array_mut().expect("programs") {
-            edit(program);
-        }
-    }
-    common::write_config(dir, "ox-x.json", &config)
+    common::ox_config(dir, true, |_| {})
 }
 
 /// Starts `pkm-plc run` in real time on the configuration `config` with the screen on a free

@@ -79,8 +79,8 @@ impl JobDesk {
 
     /// Takes the newest frame: its main state, in READY where the tool stands, and the loaded
     /// program, by which the plans of replaced jobs are released (and freed on a thread of
-    /// their own once nothing holds them).
-    pub fn observe(&self, state: &str, image: &[Value]) {
+    /// their own once nothing holds them: that thread, if one was started).
+    pub fn observe(&self, state: &str, image: &[Value]) -> Option<std::thread::JoinHandle<()>> {
         let here = (state == "READY").then(|| self.standing.pose(image)).flatten();
         *self.here.lock().unwrap_or_else(|p| p.into_inner()) = here;
         {
@@ -94,7 +94,7 @@ impl JobDesk {
             Some(Value::Int(k)) => self.library.screen_slot(*k),
             _ => None,
         };
-        free_elsewhere(self.library.screen.release_replaced(loaded));
+        free_elsewhere(self.library.screen.release_replaced(loaded))
     }
 
     /// Whether a job is being planned now.
@@ -162,19 +162,22 @@ impl JobDesk {
 
 /// Drops `jobs` on a thread of its own and gives the memory back to the system: a plan may
 /// take a gigabyte, and freeing it on the thread that serves the screen and OPC UA would hold
-/// them up for milliseconds.
-fn free_elsewhere(jobs: Vec<Arc<NcJob>>) {
+/// them up for milliseconds. The thread, if one was started (none for no jobs; without one,
+/// the jobs are dropped here).
+fn free_elsewhere(jobs: Vec<Arc<NcJob>>) -> Option<std::thread::JoinHandle<()>> {
     if jobs.is_empty() {
-        return;
+        return None;
     }
     let free = move || {
         drop(jobs);
         give_back_memory();
     };
-    // Without a thread (the system refuses one), here.
-    let spawned = std::thread::Builder::new().name("pkm-free-job".into()).spawn(free);
-    if let Err(e) = spawned {
-        tracing::warn!("could not free a replaced job's plan on a thread of its own ({e})");
+    match std::thread::Builder::new().name("pkm-free-job".into()).spawn(free) {
+        Ok(thread) => Some(thread),
+        Err(e) => {
+            tracing::warn!("freed a replaced job's plan on the screen's thread: no thread of its own ({e})");
+            None
+        }
     }
 }
 

@@ -225,7 +225,8 @@ pub fn router(info: HmiInfo, mut frames: FrameFeed, sink: CommandSink, options: 
             if let Some(frame) = &newer {
                 pump.running.store(frame.status.state == "AUTO", Ordering::Relaxed);
                 if let Some(desk) = &pump.jobs {
-                    desk.observe(&frame.status.state, &frame.image);
+                    // A replaced job's plan is freed on a thread of its own, not waited for.
+                    drop(desk.observe(&frame.status.state, &frame.image));
                 }
                 if let Some(cut) = &pump.cut {
                     cut.lock().unwrap_or_else(|p| p.into_inner()).observe(&frame.image);

@@ -283,6 +283,9 @@ pub fn replay(trace: &Path, setup: &Setup, force: bool) -> Result<ReplayReport, 
                 .screen
                 .set(slot, pkm_api::trajectory::ScreenJob { spec, job: made })
                 .map_err(|e| refused(format!("line {}: {e}", r.line)))?;
+            // The job before it is replaced, as in the run: its plan is released (a replay of a
+            // run of a hundred large jobs holds one or two at a time, as the run did).
+            drop(library.screen.release_replaced(Some(slot)));
         }
         changed.clear();
         changed.extend(r.inputs.iter().filter_map(|&(k, v)| class.input_at[k].map(|i| (i, v))));

@@ -22,6 +22,7 @@ mod io_sim;
 mod joystick_fifo;
 mod modbus_faults;
 mod opcua;
+mod screen_jobs;
 mod station_safety;
 mod trace_cuts;
 
