@@ -6,6 +6,7 @@
 //! place that lists the machine crates this build links. [`compose`] turns a configuration into a
 //! built PLC.
 
+pub mod backoff;
 pub mod bench;
 pub mod bus;
 pub mod compose;
@@ -14,6 +15,7 @@ pub mod files;
 pub mod hmi;
 pub mod io;
 pub mod link_bench;
+pub mod log_limit;
 pub mod machines;
 pub mod nc_job;
 pub mod opcua;

@@ -11,6 +11,8 @@ use std::time::Duration;
 use clap::{Args, Parser, Subcommand};
 use tracing::{info, warn};
 use tracing_subscriber::EnvFilter;
+use tracing_subscriber::layer::SubscriberExt;
+use tracing_subscriber::util::SubscriberInitExt;
 
 use cli_enums::{Exchange, TimeSource};
 use pkm_plc::bench::{self, BenchOptions};
@@ -429,12 +431,19 @@ fn init_logging() {
     let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| {
         EnvFilter::new("info,opcua_server=warn,opcua_core=warn,opcua_crypto=warn,opcua_types=warn,opcua_nodes=warn")
     });
-    tracing_subscriber::fmt()
-        .with_env_filter(filter)
+    // Every line, the libraries' too, within the log's budget: a peer's flood cannot fill the
+    // disk (pkm_plc::log_limit).
+    let budget = pkm_plc::log_limit::LogBudget::new();
+    let format = tracing_subscriber::fmt::layer()
         .with_writer(status::LogWriter)
         .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
-        .with_target(false)
+        .with_target(false);
+    tracing_subscriber::registry()
+        .with(filter)
+        .with(pkm_plc::log_limit::BudgetLayer(Arc::clone(&budget)))
+        .with(format)
         .init();
+    budget.spawn_summaries();
 }
 
 /// Loads the configuration named on the command line, or the default one.

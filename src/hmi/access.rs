@@ -72,15 +72,26 @@ impl Access {
     /// Whether the request carries the token (query `query_token`, the bearer header, or the
     /// cookie); true when no token is set.
     pub fn may_command(&self, query_token: Option<&str>, headers: &HeaderMap) -> bool {
+        self.credentials(query_token, headers) == Credentials::Command
+    }
+
+    /// What the request's tokens (query `query_token`, the bearer header, the cookie) are
+    /// worth: commands with the right one (or when no token is set), watching without any, a
+    /// guess with only wrong ones.
+    pub fn credentials(&self, query_token: Option<&str>, headers: &HeaderMap) -> Credentials {
         let Some(token) = &self.token else {
-            return true;
+            return Credentials::Command;
         };
         let bearer = header_text(headers, AUTHORIZATION).and_then(|h| h.strip_prefix("Bearer "));
         let cookie = cookie(headers, TOKEN_COOKIE);
-        [query_token, bearer, cookie.as_deref()]
-            .into_iter()
-            .flatten()
-            .any(|candidate| same(candidate, token))
+        let given: Vec<&str> = [query_token, bearer, cookie.as_deref()].into_iter().flatten().collect();
+        if given.iter().any(|candidate| same(candidate, token)) {
+            Credentials::Command
+        } else if given.is_empty() {
+            Credentials::Watch
+        } else {
+            Credentials::Wrong
+        }
     }
 
     /// The `Set-Cookie` value that keeps the token for the page's WebSocket, if `query_token` is
@@ -90,6 +101,18 @@ impl Access {
         let given = query_token?;
         same(given, token).then(|| format!("{TOKEN_COOKIE}={token}; Path=/; HttpOnly; SameSite=Strict"))
     }
+}
+
+/// What a request's tokens are worth.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Credentials {
+    /// The right token, or none is needed: the client may command.
+    Command,
+    /// No token: the client watches.
+    Watch,
+    /// Only wrong tokens: the client watches, and the guess is answered after the source's
+    /// back-off.
+    Wrong,
 }
 
 /// The text of header `name`; `None` when it is absent or not visible ASCII.

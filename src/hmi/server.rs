@@ -11,7 +11,7 @@
 //! logged once per client, and counted. The jog is a dead-man: a release, a closed connection or
 //! a client that stops refreshing it for [`JOG_TIMEOUT`] sets it to 0.
 
-use std::net::SocketAddr;
+use std::net::{IpAddr, SocketAddr};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
 use std::time::{Duration, Instant};
@@ -30,13 +30,15 @@ use tracing::{info, warn};
 
 use pkm_api::hmi::JOG_AXIS_RANGE;
 
-use super::access::{Access, header_text};
+use super::access::{Access, Credentials, header_text};
 use super::commands::{CommandSink, FEED_OVERRIDE_RANGE, RAPID_OVERRIDE_RANGE, press};
 use super::cut::CutPath;
 use super::frame::{Frame, FrameFeed};
 use super::jobs::JobDesk;
 use super::listener::Peer;
+use crate::backoff::Backoff;
 use crate::image::Value;
+use crate::log_limit::Limited;
 
 /// A jog not refreshed for this long stops (the page refreshes it every 20 ms while held).
 pub const JOG_TIMEOUT: Duration = Duration::from_millis(60);
@@ -87,6 +89,13 @@ pub struct Shared {
     programs: Vec<Served>,
     /// Where jobs are made.
     jobs: Option<JobDesk>,
+    /// WebSocket clients that watch only (no token), of `clients`.
+    watchers: AtomicUsize,
+    /// Wrong tokens per source address: each answered later than the one before.
+    guesses: Backoff<IpAddr>,
+    /// One line per source and interval about wrong tokens, and about watchers coming and going.
+    guess_log: Limited,
+    watch_log: Limited,
     /// The backplot's cut path, if the run has programs.
     cut: Option<std::sync::Mutex<CutPath>>,
 }
@@ -204,6 +213,10 @@ pub fn router(info: HmiInfo, mut frames: FrameFeed, sink: CommandSink, options: 
         running: AtomicBool::new(false),
         programs,
         jobs: info.jobs,
+        watchers: AtomicUsize::new(0),
+        guesses: Backoff::default(),
+        guess_log: Limited::new("screen: wrong tokens"),
+        watch_log: Limited::new("screen: watchers connected or disconnected"),
         cut: CutPath::of(&info.variables).map(std::sync::Mutex::new),
     });
     let pump = Arc::clone(&shared);
@@ -290,7 +303,15 @@ async fn guard(State(shared): State<Arc<Shared>>, request: Request, next: Next) 
 
 /// The page; opened with the right `?token=`, it also sets the token's cookie, so that its
 /// WebSocket carries the token without it in the address.
-async fn index(Query(given): Query<TokenQuery>, State(shared): State<Arc<Shared>>) -> Response {
+async fn index(
+    Query(given): Query<TokenQuery>,
+    ConnectInfo(peer): ConnectInfo<Peer>,
+    State(shared): State<Arc<Shared>>,
+) -> Response {
+    // A wrong token in the page's address is a guess like a wrong token on the WebSocket.
+    if given.token.is_some() && shared.options.access.token_cookie(given.token.as_deref()).is_none() {
+        shared.guessed(peer.0).await;
+    }
     let mut response = Html(INDEX_HTML).into_response();
     if let Some(cookie) = shared.options.access.token_cookie(given.token.as_deref())
         && let Ok(value) = HeaderValue::from_str(&cookie)
@@ -358,22 +379,47 @@ async fn socket(
         );
         return (StatusCode::FORBIDDEN, "a page of another origin may not connect\n").into_response();
     }
-    // Counted here, released when the client's task ends.
-    if shared.clients.fetch_add(1, Ordering::AcqRel) >= shared.options.max_clients {
-        shared.clients.fetch_sub(1, Ordering::AcqRel);
-        warn!(
-            "screen {peer}: WebSocket refused: already {} clients (--hmi-max-clients)",
-            shared.options.max_clients
-        );
-        return (StatusCode::SERVICE_UNAVAILABLE, "too many clients\n").into_response();
+    let credentials = access.credentials(given.token.as_deref(), &headers);
+    match credentials {
+        Credentials::Wrong => shared.guessed(peer.0).await,
+        Credentials::Command => shared.guesses.accepted(&peer.0.ip()),
+        Credentials::Watch => {}
     }
-    let commands = access.may_command(given.token.as_deref(), &headers);
+    let commands = credentials == Credentials::Command;
+    // Counted here, released when the client's task ends. Watchers have fewer places than
+    // clients who may command: the operator with the token always finds one.
+    let Some(place) = shared.take_place(commands) else {
+        let (what, max) = if commands {
+            ("clients", shared.options.max_clients)
+        } else {
+            ("watching clients", shared.watch_max())
+        };
+        shared.watch_log.warn(peer.0.ip(), || {
+            format!("screen {peer}: WebSocket refused: already {max} {what} (--hmi-max-clients)")
+        });
+        return (StatusCode::SERVICE_UNAVAILABLE, "too many clients\n").into_response();
+    };
     ws.max_message_size(MAX_CLIENT_MESSAGE)
         .max_frame_size(MAX_CLIENT_MESSAGE)
         .on_upgrade(move |socket| async move {
             client(socket, peer.0, commands, &shared).await;
-            shared.clients.fetch_sub(1, Ordering::AcqRel);
+            drop(place);
         })
+}
+
+/// A WebSocket client's place among the clients (and the watchers), given back when dropped.
+struct Place {
+    shared: Arc<Shared>,
+    watcher: bool,
+}
+
+impl Drop for Place {
+    fn drop(&mut self) {
+        self.shared.clients.fetch_sub(1, Ordering::AcqRel);
+        if self.watcher {
+            self.shared.watchers.fetch_sub(1, Ordering::AcqRel);
+        }
+    }
 }
 
 /// A message from the page: a command, or a request for part of a program's text.
@@ -479,14 +525,13 @@ struct Refusals {
 async fn client(mut socket: WebSocket, peer: SocketAddr, commands: bool, shared: &Arc<Shared>) {
     let id = shared.next_client.fetch_add(1, Ordering::Relaxed);
     let mut frames = shared.frames.subscribe();
-    info!(
-        "screen {peer}: connected ({})",
-        if commands {
-            "may command"
-        } else {
-            "watching only: no token"
-        }
-    );
+    if commands {
+        info!("screen {peer}: connected (may command)");
+    } else {
+        shared.watch_log.info(peer.ip(), || {
+            format!("screen {peer}: connected (watching only: no token)")
+        });
+    }
     let mut hello = shared.hello.clone();
     hello["commands"] = json!(commands);
     if socket.send(Message::Text(hello.to_string().into())).await.is_err() {
@@ -597,12 +642,59 @@ async fn client(mut socket: WebSocket, peer: SocketAddr, commands: bool, shared:
         info!(
             "screen {peer}: disconnected; not carried out: {watching} commands without the token, {throttled} messages over the rate, {malformed} malformed, {refused} refused"
         );
-    } else {
+    } else if commands {
         info!("screen {peer}: disconnected");
+    } else {
+        shared
+            .watch_log
+            .info(peer.ip(), || format!("screen {peer}: disconnected (watching)"));
     }
 }
 
 impl Shared {
+    /// The most WebSocket clients that watch only: a quarter of the places (at least one) are
+    /// kept for clients who may command. Without a token every client may command.
+    fn watch_max(&self) -> usize {
+        let max = self.options.max_clients;
+        if self.options.access.token.is_none() {
+            return max;
+        }
+        max - (max / 4).max(1).min(max)
+    }
+
+    /// A place for a WebSocket client (`commands`: it may command), if there is one.
+    fn take_place(self: &Arc<Self>, commands: bool) -> Option<Place> {
+        if !commands && self.watchers.fetch_add(1, Ordering::AcqRel) >= self.watch_max() {
+            self.watchers.fetch_sub(1, Ordering::AcqRel);
+            return None;
+        }
+        if self.clients.fetch_add(1, Ordering::AcqRel) >= self.options.max_clients {
+            self.clients.fetch_sub(1, Ordering::AcqRel);
+            if !commands {
+                self.watchers.fetch_sub(1, Ordering::AcqRel);
+            }
+            return None;
+        }
+        Some(Place {
+            shared: Arc::clone(self),
+            watcher: !commands,
+        })
+    }
+
+    /// A wrong token from `peer`: logged once per source and interval, answered after the
+    /// source's back-off (the right token is answered at once).
+    async fn guessed(&self, peer: SocketAddr) {
+        let wait = self.guesses.refused(&peer.ip(), Instant::now());
+        self.guess_log.warn(peer.ip(), || {
+            format!(
+                "screen {peer}: a wrong token: watching only (wrong tokens from {} are answered ever later, up to {} s)",
+                peer.ip(),
+                crate::backoff::LONGEST.as_secs()
+            )
+        });
+        tokio::time::sleep(wait).await;
+    }
+
     /// Answers a read: a window of a program's text, or its path.
     fn read(&self, command: Command) -> Option<Json> {
         Some(match command {

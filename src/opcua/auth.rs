@@ -4,7 +4,7 @@
 //! and the method nodes show such a session `UserExecutable = false`.
 
 use std::sync::Arc;
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 use async_trait::async_trait;
 use opcua::crypto::{SecurityPolicy, Thumbprint};
@@ -13,33 +13,26 @@ use opcua::server::authenticator::{
     AuthManager, Password, UserToken, user_pass_security_policy_id, user_pass_security_policy_uri,
 };
 use opcua::types::{Error, NodeId, StatusCode, UAString, UserTokenPolicy, UserTokenType};
-use tracing::{info, warn};
+use tracing::info;
 
 use super::users::Users;
+use crate::backoff::Backoff;
+use crate::log_limit::Limited;
 
 /// The user token policy ids the server's session activation checks tokens against (they are
 /// the server crate's own, which it does not export).
 const POLICY_ID_ANONYMOUS: &str = "anonymous";
 const POLICY_ID_X509: &str = "x509";
 
-/// How long a refused login waits before it answers: guessing passwords one connection at a
-/// time stays slow.
-const REFUSAL_DELAY: Duration = Duration::from_millis(300);
-
-/// The most refused logins logged in a window; more are counted and summarised.
-const LOGGED_REFUSALS: u64 = 5;
-/// The window of [`LOGGED_REFUSALS`].
-const REFUSAL_WINDOW: Duration = Duration::from_secs(10);
-
 /// The server's authenticator.
 pub struct Auth {
     users: Option<Arc<Users>>,
-    refusals: std::sync::Mutex<RefusalLog>,
-}
-
-struct RefusalLog {
-    since: Instant,
-    count: u64,
+    /// Refused logins per user name, and of all names together (the server sees no client
+    /// address: every connection reaches it through the gate, from loopback).
+    per_user: Backoff<String>,
+    all: Backoff<()>,
+    /// One line per user name per interval.
+    refusals: Limited<String>,
 }
 
 impl Auth {
@@ -47,31 +40,25 @@ impl Auth {
     pub fn new(users: Option<Users>) -> Auth {
         Auth {
             users: users.map(Arc::new),
-            refusals: std::sync::Mutex::new(RefusalLog {
-                since: Instant::now(),
-                count: 0,
-            }),
+            per_user: Backoff::default(),
+            all: Backoff::default(),
+            refusals: Limited::new("OPC UA: logins refused"),
         }
     }
 
-    /// Logs a refused login — the first few of each window, then how many more there were.
-    fn refused(&self, what: &str) {
-        let mut log = self.refusals.lock().unwrap_or_else(|p| p.into_inner());
-        if log.since.elapsed() > REFUSAL_WINDOW {
-            if log.count > LOGGED_REFUSALS {
-                warn!(
-                    "OPC UA: {} more logins refused in the last {} s",
-                    log.count - LOGGED_REFUSALS,
-                    REFUSAL_WINDOW.as_secs()
-                );
-            }
-            log.since = Instant::now();
-            log.count = 0;
-        }
-        log.count += 1;
-        if log.count <= LOGGED_REFUSALS {
-            warn!("OPC UA: login refused: {what}");
-        }
+    /// A refused login of `name` (`what` says why): logged at most once per name and interval,
+    /// and answered after the back-off of that name or of all refusals, whichever is longer —
+    /// a guesser's answers slow down however many clients guess at once, and the right
+    /// credentials are answered at once whatever was guessed before.
+    async fn refused(&self, name: &str, what: String) {
+        self.refusals
+            .warn(name.to_string(), || format!("OPC UA: login refused: {what}"));
+        let now = Instant::now();
+        let wait = self
+            .per_user
+            .refused(&name.to_string(), now)
+            .max(self.all.refused(&(), now));
+        tokio::time::sleep(wait).await;
     }
 }
 
@@ -94,14 +81,13 @@ impl AuthManager for Auth {
         {
             Some(user) => {
                 info!("OPC UA: user \"{}\" logged in (password)", user.name);
+                self.per_user.accepted(&user.name);
                 Ok(UserToken(user.name.clone()))
             }
             None => {
-                self.refused(&format!(
-                    "user \"{}\": unknown user or wrong password",
-                    crate::config::shorten(username)
-                ));
-                tokio::time::sleep(REFUSAL_DELAY).await;
+                let name = crate::config::shorten(username);
+                self.refused(&name, format!("user \"{name}\": unknown user or wrong password"))
+                    .await;
                 Err(Error::new(
                     StatusCode::BadUserAccessDenied,
                     "unknown user or wrong password",
@@ -125,8 +111,8 @@ impl AuthManager for Auth {
                 Ok(UserToken(user.name.clone()))
             }
             None => {
-                self.refused("a certificate no user of the users file has");
-                tokio::time::sleep(REFUSAL_DELAY).await;
+                self.refused("(a certificate)", "a certificate no user of the users file has".into())
+                    .await;
                 Err(Error::new(
                     StatusCode::BadIdentityTokenRejected,
                     "the certificate is no user's",

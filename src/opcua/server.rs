@@ -164,7 +164,14 @@ pub fn start(
             warn!("OPC UA server: {e}");
         }
     });
-    super::gate::spawn(public, inner, options.max_sessions + SPARE_CONNECTIONS);
+    super::gate::spawn(
+        public,
+        inner,
+        super::gate::Bounds::new(
+            options.max_sessions + SPARE_CONNECTIONS,
+            Duration::from_secs(u64::from(HELLO_TIMEOUT_S)),
+        ),
+    );
     Ok(url)
 }
 

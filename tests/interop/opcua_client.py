@@ -13,6 +13,13 @@
         The server's endpoints: JSON list of [security policy, mode, [user token types]].
     opcua_client.py usercert DIR
         Makes a user certificate and key in DIR (cert.der, key.pem) for an X.509 identity token.
+    opcua_client.py abandon URL N
+        Opens N anonymous sessions, each on a connection of its own, and drops the connections
+        without closing the sessions (as a client that crashed, or an attacker, leaves them):
+        JSON with how many sessions were opened and the status of those refused.
+    opcua_client.py guess URL USER COUNT PARALLEL
+        Tries COUNT wrong passwords for USER, PARALLEL at a time, each on a connection of its
+        own: JSON with how many were refused and how long they took in all (s).
     opcua_client.py call URL MACHINE [options] METHOD [METHOD ...]
         Calls the methods in turn (Load takes `Load=N`); between calls waits for the state a
         call should bring (`wait=STATE`). Options: --user NAME --password PW, --user-cert DIR (log
@@ -219,6 +226,48 @@ async def endpoints(url):
     print(json.dumps(out))
 
 
+async def abandon(url, n):
+    opened, refused = 0, []
+    for _ in range(n):
+        client = Client(url, timeout=10)
+        try:
+            await client.connect_socket()
+            await client.send_hello()
+            await client.open_secure_channel()
+            await client.create_session()
+            await client.activate_session()
+            opened += 1
+        except ua.UaStatusCodeError as e:
+            refused.append(type(e).__name__)
+        finally:
+            # The connection goes; the session stays on the server until it times out.
+            client.disconnect_socket()
+    print(json.dumps({"opened": opened, "refused": refused}))
+
+
+async def guess(url, user, count, parallel):
+    refused = 0
+    lock = asyncio.Semaphore(parallel)
+
+    async def one(k):
+        nonlocal refused
+        async with lock:
+            client = Client(url, timeout=20)
+            client.set_user(user)
+            client.set_password(f"wrong-guess-{k}")
+            try:
+                await client.connect()
+                await client.disconnect()
+            except ua.uaerrors.BadUserAccessDenied:
+                refused += 1
+            finally:
+                client.disconnect_socket()
+
+    start = time.time()
+    await asyncio.gather(*(one(k) for k in range(count)))
+    print(json.dumps({"refused": refused, "seconds": time.time() - start}))
+
+
 async def usercert(directory):
     client = Client("opc.tcp://unused:4840")
     client.application_uri = "urn:pkm-plc-tests:cell-7"
@@ -233,6 +282,12 @@ def main():
         return
     if cmd == "usercert":
         asyncio.run(usercert(Path(rest[0])))
+        return
+    if cmd == "abandon":
+        asyncio.run(abandon(rest[0], int(rest[1])))
+        return
+    if cmd == "guess":
+        asyncio.run(guess(rest[0], rest[1], int(rest[2]), int(rest[3])))
         return
     url, machine, *rest = rest
     if cmd == "survey":

@@ -20,6 +20,7 @@ mod common;
 mod interop;
 mod io_sim;
 mod joystick_fifo;
+mod lockout;
 mod modbus_faults;
 mod opcua;
 mod screen_jobs;
