@@ -118,8 +118,12 @@ impl Setup {
         match self.machine {
             Some(m) => {
                 let mut problems = m.check(&self.sections());
-                // The NC section, against the machine's coordinates (when its own sections and
+                // What must hold between the sections and the programs' parameters, and the NC
+                // section against the machine's coordinates (when its own sections and
                 // parameters let it say what they are).
+                if problems.is_empty() {
+                    problems.extend(m.cross_check(&self.loaded.json));
+                }
                 if problems.is_empty()
                     && let Ok(motion) = m.motion(&self.loaded.json)
                 {

@@ -205,3 +205,47 @@ fn every_number_of_every_machine_has_a_range_and_an_extreme_value_is_refused_wit
         unnamed.join("\n")
     );
 }
+
+/// Values valid each on its own that do not hold together (issue 38) are refused with their
+/// path: world limits that leave out the reference pose, a main program's reference switch that
+/// is not the simulated machine's.
+#[test]
+fn values_that_do_not_hold_together_are_refused_with_their_paths() {
+    let root = crate::common::root();
+    let machine = |name: &str, edit: &dyn Fn(&mut serde_json::Value)| {
+        let mut json = crate::common::read_json(&root.join("machines").join(format!("{name}.json")));
+        let main = json["task_classes"]
+            .as_array_mut()
+            .expect("classes")
+            .iter_mut()
+            .flat_map(|c| c["programs"].as_array_mut().expect("programs").iter_mut())
+            .find(|p| p["program"] == format!("{name}.main"))
+            .expect("the main program");
+        edit(&mut main["params"]);
+        check(&json, &root.join("machines"))
+    };
+    assert_eq!(
+        machine("ox-x", &|p| p["world_limits"][0] = serde_json::json!([-150.0, -1.0])),
+        Err("cfg.json: at task_classes[1].programs[0].params.world_limits[0]: must hold the reference pose, x = 0 (the machine frame's origin, where referencing leaves the tool), got [-150, -1]".into())
+    );
+    assert_eq!(
+        machine("pn101", &|p| p["joints"][0]["reference"]["direction"] = (-1.0).into()),
+        Err("cfg.json: at task_classes[1].programs[0].params.joints[0].reference.direction: joint 1's reference switch is on beyond it in the + direction in the simulated machine (plant.joints[0].reference_direction), got -1: the search would go the other way".into())
+    );
+    for wrong in [0.0, -1.0] {
+        assert_eq!(
+            machine("pn101", &|p| p["joints"][1]["reference"]["switch_mm"] = wrong.into()),
+            Err(format!(
+                "cfg.json: at task_classes[1].programs[0].params.joints[1].reference.switch_mm: joint 2's reference switch is at 55 mm in the simulated machine (plant.joints[1].reference_switch_mm), got {wrong}: both describe the same switch"
+            ))
+        );
+    }
+    // The hexapod's home is a pose, its origin too: a world limit beside it is refused the same.
+    let refused = machine("hexapod", &|p| p["world_limits"][5] = serde_json::json!([1.0, 20.0]));
+    assert!(
+        refused
+            .as_ref()
+            .is_err_and(|e| e.contains("params.world_limits[5]: must hold the reference pose, c = 0")),
+        "{refused:?}"
+    );
+}

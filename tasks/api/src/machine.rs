@@ -56,6 +56,25 @@ pub trait Machine: Sync + fmt::Debug {
     /// Where the tool may go, as NC programs need it, from the whole (checked) configuration:
     /// the machine's main program's parameters and its kinematics.
     fn motion(&self, config: &serde_json::Value) -> Result<Motion, Vec<Problem>>;
+    /// What must hold between the machine's sections and its programs' parameters, each valid
+    /// on its own, in the whole (checked) configuration; problems carry their full JSON path.
+    /// None by default.
+    fn cross_check(&self, _config: &serde_json::Value) -> Vec<Problem> {
+        Vec::new()
+    }
+}
+
+/// The JSON path of program `name`'s parameters in `config`
+/// (`task_classes[1].programs[0].params`), if the configuration runs it.
+pub fn program_params_path(config: &serde_json::Value, name: &str) -> Option<String> {
+    let classes = config.get("task_classes")?.as_array()?;
+    classes.iter().enumerate().find_map(|(c, class)| {
+        let programs = class.get("programs")?.as_array()?;
+        let p = programs
+            .iter()
+            .position(|p| p.get("program").and_then(|n| n.as_str()) == Some(name))?;
+        Some(format!("task_classes[{c}].programs[{p}].params"))
+    })
 }
 
 /// Where a machine's tool may go: what NC programs are checked and planned against.

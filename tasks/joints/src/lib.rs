@@ -217,6 +217,49 @@ impl Machine for JointMachine {
         })
     }
 
+    /// The main program's reference switches are the simulated machine's: the same position and
+    /// direction per joint (the two sections describe one switch; a difference references the
+    /// simulated machine to another zero than the program believes, or searches the wrong way).
+    fn cross_check(&self, config: &serde_json::Value) -> Vec<Problem> {
+        let spec = self.0;
+        let main = spec.programs[1].name;
+        let (Ok(p), Ok(plant)) = (
+            params::over_defaults::<params::MainParams>(program_params(config, main), "params", spec.default_main()),
+            plant_section(spec, config.get("plant")),
+        ) else {
+            // Each is refused with its path by its own check.
+            return Vec::new();
+        };
+        let at = pkm_api::machine::program_params_path(config, main).unwrap_or_else(|| format!("params of {main}"));
+        let mut problems = Vec::new();
+        for (j, (joint, simulated)) in p.joints.iter().zip(&plant.joints).enumerate() {
+            let r = &joint.reference;
+            if (r.switch_mm - simulated.reference_switch_mm).abs() > 1e-9 {
+                problems.push(Problem::new(
+                    format!("{at}.joints[{j}].reference.switch_mm"),
+                    format!(
+                        "joint {}'s reference switch is at {} mm in the simulated machine (plant.joints[{j}].reference_switch_mm), got {}: both describe the same switch",
+                        j + 1,
+                        simulated.reference_switch_mm,
+                        r.switch_mm
+                    ),
+                ));
+            }
+            if r.direction != simulated.reference_direction {
+                problems.push(Problem::new(
+                    format!("{at}.joints[{j}].reference.direction"),
+                    format!(
+                        "joint {}'s reference switch is on beyond it in the {} direction in the simulated machine (plant.joints[{j}].reference_direction), got {}: the search would go the other way",
+                        j + 1,
+                        if simulated.reference_direction > 0.0 { "+" } else { "-" },
+                        r.direction
+                    ),
+                ));
+            }
+        }
+        problems
+    }
+
     fn plant(&self, s: &Sections<'_>) -> Result<PlantSetup, Vec<Problem>> {
         let spec = self.0;
         let (kinematics, config) = self.sections(s)?;

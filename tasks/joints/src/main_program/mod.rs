@@ -251,6 +251,14 @@ fn check(spec: &Spec, p: &MainParams, keys: &[&str], travel: &[[f64; 2]], decl: 
         let inside = decl.within(&format!("{at}[0]"), *lo, &range) & decl.within(&format!("{at}[1]"), *hi, &range);
         if inside && lo >= hi {
             decl.issue(&at, format!("must be [min, max] with min < max, got [{lo}, {hi}]"));
+        } else if inside && !(*lo..=*hi).contains(&0.0) {
+            // The machine frame's origin is the reference pose: where referencing leaves the tool.
+            decl.issue(
+                &at,
+                format!(
+                    "must hold the reference pose, {key} = 0 (the machine frame's origin, where referencing leaves the tool), got [{lo}, {hi}]"
+                ),
+            );
         }
     }
     decl.within(
