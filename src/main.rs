@@ -246,7 +246,8 @@ struct RunArgs {
     #[arg(long, value_name = "DIR|none")]
     programs: Option<PathBuf>,
     /// The operator's screen: `ADDR` (host:port) to serve it at, or `none`. Real time only;
-    /// default 127.0.0.1:8080 (another address than loopback needs --hmi-token).
+    /// default 127.0.0.1:8080, or the environment's PKM_PLC_HMI (another address than loopback
+    /// needs --hmi-token).
     #[arg(long, value_name = "ADDR|none", value_parser = parse_hmi)]
     hmi: Option<HmiAddr>,
     /// The screen's commands (STOP, jog, program) need this token; without it a page watches.
@@ -640,6 +641,9 @@ fn cmd_run(args: RunArgs) -> Result<(), Failure> {
 /// Runs in real time on a tokio runtime that watches for the terminating signals (Ctrl-C,
 /// SIGTERM, SIGHUP, …: [`pkm_plc::signals`]) and draws the status line, while the cyclic thread
 /// does the work.
+/// The environment variable whose address the screen is served at when `--hmi` is not given.
+const HMI_ENV: &str = "PKM_PLC_HMI";
+
 /// The operator's screen of a real-time run: where, what it shows at connection, where its
 /// commands go.
 struct Screen {
@@ -661,12 +665,20 @@ struct OpcUa {
 
 /// The screen `args` ask for: `None` in virtual time or with `--hmi none`.
 fn screen_options(args: &RunArgs) -> Result<Option<pkm_plc::hmi::HmiOptions>, Failure> {
-    let next_ports = if args.hmi.is_none() {
+    // The environment's address stands in for --hmi in real time (a virtual run serves none,
+    // whatever the environment says).
+    let hmi = match (args.hmi, std::env::var(HMI_ENV)) {
+        (None, Ok(text)) if !args.virtual_time => {
+            Some(parse_hmi(&text).map_err(|e| Failure::usage(format!("{HMI_ENV}={text}: {e}")))?)
+        }
+        (hmi, _) => hmi,
+    };
+    let next_ports = if hmi.is_none() {
         pkm_plc::hmi::DEFAULT_NEXT_PORTS
     } else {
         0
     };
-    let addr = match (args.hmi, args.virtual_time) {
+    let addr = match (hmi, args.virtual_time) {
         (Some(HmiAddr::Off), _) | (None, true) => return Ok(None),
         (Some(HmiAddr::At(_)), true) => {
             return Err(Failure::usage(

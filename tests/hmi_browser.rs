@@ -4,8 +4,8 @@
 //! presses STOP and sees ERROR with its reason, acknowledges and sees INIT. A second test drops a
 //! WebSocket mid-jog and sees the jog stop within a main cycle.
 //!
-//! Without a Chromium the browser test says so on stderr and is skipped (it passes): the machine
-//! it runs on cannot have one.
+//! Without a Chromium the browser tests are skipped, and say so past the test harness's capture
+//! (`common::skip`); under `.ci/run`, which installs one, they fail instead.
 
 #[path = "common/mod.rs"]
 mod common;
@@ -15,6 +15,9 @@ use std::time::{Duration, Instant};
 
 use common::cdp::{Browser, Page, chromium};
 use futures::StreamExt;
+
+/// Why a browser test cannot run here.
+const NO_CHROMIUM: &str = "no Chromium here (apt-get install chromium)";
 
 /// At most two tests at once, whatever libtest's thread count: each runs a PLC in real time and
 /// most a browser, which take little CPU (the eight tests: 12 CPU-seconds in 51 s one at a time)
@@ -167,9 +170,9 @@ async fn click(page: &Page, selector: &str) {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_page_shows_referencing_jogs_while_held_stops_and_acknowledges() {
     let Some(chromium) = chromium() else {
-        eprintln!(
-            "SKIPPED hmi_browser::the_page_shows_referencing_jogs_while_held_stops_and_acknowledges: \
-             no Chromium here (apt-get install chromium)"
+        common::skip(
+            "hmi_browser::the_page_shows_referencing_jogs_while_held_stops_and_acknowledges",
+            NO_CHROMIUM,
         );
         return;
     };
@@ -565,7 +568,10 @@ async fn until_state(
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_page_of_another_origin_or_a_rebound_name_reaches_nothing() {
     let Some(chromium) = chromium() else {
-        eprintln!("SKIPPED hmi_browser::a_page_of_another_origin_or_a_rebound_name_reaches_nothing: no Chromium here");
+        common::skip(
+            "hmi_browser::a_page_of_another_origin_or_a_rebound_name_reaches_nothing",
+            NO_CHROMIUM,
+        );
         return;
     };
     let _turn = take_turn().await;
@@ -654,8 +660,9 @@ async fn a_page_of_another_origin_or_a_rebound_name_reaches_nothing() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_watching_page_shows_its_controls_disabled_and_the_token_leaves_the_address() {
     let Some(chromium) = chromium() else {
-        eprintln!(
-            "SKIPPED hmi_browser::a_watching_page_shows_its_controls_disabled_and_the_token_leaves_the_address: no Chromium here"
+        common::skip(
+            "hmi_browser::a_watching_page_shows_its_controls_disabled_and_the_token_leaves_the_address",
+            NO_CHROMIUM,
         );
         return;
     };
@@ -860,8 +867,9 @@ async fn watched(page: &Page, name: &str) -> String {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_screen_sets_the_overrides_steps_a_program_line_by_line_runs_mdi_and_runs_from_a_line() {
     let Some(chromium) = chromium() else {
-        eprintln!(
-            "SKIPPED hmi_browser::the_screen_sets_the_overrides_steps_a_program_line_by_line_runs_mdi_and_runs_from_a_line: no Chromium here"
+        common::skip(
+            "hmi_browser::the_screen_sets_the_overrides_steps_a_program_line_by_line_runs_mdi_and_runs_from_a_line",
+            NO_CHROMIUM,
         );
         return;
     };

@@ -2,16 +2,17 @@
 //! simulator's station on the other, joined by an emulated RS-485 line at 115 200 baud (frames
 //! carried no faster than the baud rate, silent intervals kept), the TRIJOINT application running
 //! in real time — referencing (fast, with the real-time test configuration: about 17 s over this
-//! line) and a jog by direction button (pressed at 19 s, and again at 27 s for a busy machine,
-//! where referencing may end late); the run ends when the jog has moved the machine and it stands
-//! again (about 20 s), at the latest after `common::JOG_RUN_S` (32 s).
+//! line) and, once READY, a jog through the operator's screen's inputs; the run ends when the jog
+//! has moved the machine and it stands again (about 20 s on a quiet machine).
 //! The driver's default exchange on a serial line is the packed image, one transaction per
 //! exchange.
+//!
+//! `pkm-plc link-bench`, which measures both exchanges over such a line, is tested here too.
 //!
 //! A binary of its own, so that it runs alone: the station's plant runs on the wall clock and the
 //! line's timing is emulated by threads of this process, and beside the other real-time tests
 //! (tests/realtime/, eight at a time) the line's exchanges came too late for the drives' encoders
-//! and referencing.
+//! and referencing. Its two tests take turns ([`ALONE`]).
 
 #[path = "common/mod.rs"]
 mod common;
@@ -22,15 +23,21 @@ use pkm_plc::plc::Plc;
 use pkm_plc::run::{self, RealTimeOptions};
 use pkm_plc::sim::modbus::{Station, StationOnLine};
 
+/// The longest the application's run may take (s): referencing over the line and the jog take
+/// about 20 s on a quiet machine.
+const RUN_BOUND_S: u64 = 90;
+
+/// Held by each test for its whole run: the emulated lines' threads of one would slow the other's.
+static ALONE: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
 #[test]
 fn the_application_runs_over_modbus_rtu_on_a_pty_pair() {
+    let _alone = ALONE.lock().unwrap_or_else(|p| p.into_inner());
     // This tests the exchange, not the scheduler's timing: fast referencing, late cycles logged.
     let loaded = common::loaded(&common::realtime_config());
-    // The station's panel presses the direction button "right" after referencing.
     let dir = tempfile::tempdir().expect("tempdir");
-    let scenario = common::jog_right_at(dir.path(), &common::JOG_PRESSES_S);
     let setup = pkm_plc::compose::Setup::new(loaded.clone()).expect("known machine");
-    let station = Station::new(setup.sim_bus(Some(&scenario)).expect("sim"));
+    let station = Station::new(setup.sim_bus(None).expect("sim"));
     // This tests the exchange, not its timing: the station's watchdog waits longer than a busy
     // machine may stall the test's threads.
     let relaxed = pkm_plc::sim::server::ServerOptions {
@@ -49,7 +56,9 @@ fn the_application_runs_over_modbus_rtu_on_a_pty_pair() {
     };
     let bus = ModbusBus::new(map, Transport::Port(Some(plc_end)), link).expect("the image fits");
     assert_eq!(bus.exchange(), ExchangeMode::Image);
-    let mut plc = Plc::build(&loaded.config, &pkm_plc::machines::all_programs(), Box::new(bus)).expect("valid");
+    // The operator's screen's inputs over the link: the test jogs through them once READY.
+    let (bus, screen) = setup.with_screen(Box::new(bus));
+    let mut plc = Plc::build(&loaded.config, &pkm_plc::machines::all_programs(), bus).expect("valid");
     let trace = dir.path().join("trace.jsonl");
     let digest = setup.digest().expect("digest");
     plc.set_recorder(Box::new(
@@ -62,18 +71,24 @@ fn the_application_runs_over_modbus_rtu_on_a_pty_pair() {
         realtime_priority: 80,
         lock_memory: false,
         spin_ns: 0,
-        duration_ns: Some((common::JOG_RUN_S * 1e9) as u64),
+        duration_ns: Some(RUN_BOUND_S * 1_000_000_000),
     };
     let started = std::time::Instant::now();
     let run = run::start_realtime(plc, options).expect("real-time run");
-    // The run ends once the jog has moved the machine and it stands again (READY after MOTION):
-    // on a quiet machine after the first press, about 11 s before `JOG_RUN_S`, which still
-    // bounds it (the second press is for a busy machine, where referencing ends late). The
-    // snapshot is refreshed ten times a second; a jog's MOTION lasts over a second.
+    // Once READY (about 17 s over this line; later on a busy machine) the screen's jog pushes
+    // the stick right for a second; the run ends once the machine stands again (READY after
+    // MOTION). The snapshot is refreshed ten times a second; a jog's MOTION lasts over a second.
     let snapshot = run.snapshot();
-    let mut moved = false;
+    let (mut jogged, mut moved) = (None, false);
     while !run.is_finished() {
         let state = snapshot.lock().unwrap_or_else(|p| p.into_inner()).state.clone();
+        if state == "READY" && jogged.is_none() {
+            screen.update(|c| c.jog = [1.0, 0.0]);
+            jogged = Some(std::time::Instant::now());
+        }
+        if jogged.is_some_and(|at| at.elapsed() > std::time::Duration::from_secs(1)) {
+            screen.update(|c| c.jog = [0.0, 0.0]);
+        }
         moved |= state == "MOTION";
         if moved && state == "READY" {
             run.stop();
@@ -86,7 +101,8 @@ fn the_application_runs_over_modbus_rtu_on_a_pty_pair() {
         recorder.finish().expect("trace written");
     }
     let status = outcome.plc.app_status().expect("status");
-    // Referenced (about 17 s over this line: the approaches wait for inputs) and jogged by the direction button, without a bus fault or other error.
+    // Referenced (about 17 s over this line: the approaches wait for inputs) and jogged, without
+    // a bus fault or other error.
     assert_eq!((status.state, status.reason), ("READY", None));
     let trace = std::fs::read_to_string(&trace).expect("trace");
     assert!(trace.contains(r#""state":"MOTION""#), "no MOTION in the trace");
@@ -106,4 +122,32 @@ fn the_application_runs_over_modbus_rtu_on_a_pty_pair() {
     assert_eq!(stats.timeouts.load(std::sync::atomic::Ordering::Relaxed), 0);
     let mean_us = stats.exchange_ns_total.load(std::sync::atomic::Ordering::Relaxed) as f64 / exchanges as f64 / 1e3;
     eprintln!("RTU at 115 200 baud (emulated line): {exchanges} exchanges in {run_s:.1} s, mean {mean_us:.0} µs");
+}
+
+#[test]
+fn link_bench_measures_both_exchanges_over_an_emulated_line() {
+    let _alone = ALONE.lock().unwrap_or_else(|p| p.into_inner());
+    // One second per mode at 115 200 baud: the figures vary with the machine, the frame sizes do
+    // not. A busy machine may let an exchange time out now and then: most must not.
+    let o = common::pkm(&["link-bench", "--seconds", "1"]);
+    assert_eq!(o.status.code(), Some(0), "{}", common::stderr(&o));
+    let out = common::stdout(&o);
+    let rows: Vec<Vec<&str>> = out.lines().skip(1).map(|l| l.split_whitespace().collect()).collect();
+    assert_eq!(rows.len(), 2, "{out}");
+    // exchange, baud, transactions, bytes, computed ms, ..., timeouts.
+    assert_eq!(rows[0][..5], ["tables", "115200", "4", "76", "21.26"], "{out}");
+    assert_eq!(rows[1][..5], ["image", "115200", "1", "36", "6.94"], "{out}");
+    for row in &rows {
+        let exchanges = row[5].parse::<u64>().unwrap_or(0);
+        assert!(exchanges > 0, "no exchange: {out}");
+        let timeouts = row[10].parse::<u64>().unwrap_or(u64::MAX);
+        assert!(timeouts * 10 < exchanges, "timeouts: {out}");
+    }
+    let o = common::pkm(&["link-bench", "--exchange", "auto"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(
+        common::stderr(&o).contains("--exchange: name the modes to measure (tables, image)"),
+        "{}",
+        common::stderr(&o)
+    );
 }

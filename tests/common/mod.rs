@@ -175,14 +175,6 @@ pub fn transitions(plc: &mut Plc, until_ms: u64, mut each: impl FnMut(&Plc, u64)
 /// With [`realtime_config`], the machine is READY after this long (14.45 s of simulated time).
 pub const FAST_READY_S: f64 = 14.45;
 
-/// The jog tests over a link: READY, a press of the direction button 4.35 s later and again
-/// 8 s after that (on a busy machine referencing over the link may end late, and a press in INIT
-/// is lost), and 4.2 s more: how long they run (s).
-pub const JOG_RUN_S: f64 = FAST_READY_S + 17.55;
-
-/// When the jog tests press the direction button (s from the start; see [`JOG_RUN_S`]).
-pub const JOG_PRESSES_S: [f64; 2] = [FAST_READY_S + 4.35, FAST_READY_S + 12.35];
-
 /// The repository's configuration for real-time end-to-end tests, which test an exchange (Modbus,
 /// a joystick), not the scheduler's timing: referencing at up to 50 mm/s with short, quicker
 /// approaches (READY after [`FAST_READY_S`] instead of 40.2 s); cycle time violations logged
@@ -206,9 +198,11 @@ pub fn realtime_config() -> serde_json::Value {
 }
 
 /// The repository's configuration as a busy machine needs it for tests of something other than
-/// timing: referencing as shipped, but cycle time violations logged rather than an ERROR, and
-/// the encoder plausibility bound at 30 000 counts per cycle (see [`realtime_config`]); the I/O
-/// map's path absolute.
+/// timing: referencing as shipped, but cycle time violations logged rather than an ERROR, the
+/// encoder plausibility bound at 30 000 counts per cycle (see [`realtime_config`]), and the
+/// following-error bound at 20 mm instead of 5 (a busy machine delays a link's images by cycles,
+/// and the set-point runs ahead of positions that come late: at 50 mm/s, 5 mm is 100 ms); the
+/// I/O map's path absolute.
 pub fn busy_machine_config() -> serde_json::Value {
     let mut config = repo_config();
     config["io_map"] = root().join("io-map/trijoint.json").to_str().expect("utf-8").into();
@@ -217,6 +211,9 @@ pub fn busy_machine_config() -> serde_json::Value {
         for program in class["programs"].as_array_mut().expect("programs") {
             if program["program"] == "trijoint.encoders" {
                 program["params"] = serde_json::json!({ "max_counts_per_cycle": 30000 });
+            }
+            if program["program"] == "trijoint.control" {
+                program["params"] = serde_json::json!({ "max_following_error_mm": 20.0 });
             }
         }
     }
@@ -233,6 +230,30 @@ pub fn write_config(dir: &Path, name: &str, config: &serde_json::Value) -> PathB
     let path = dir.join(name);
     std::fs::write(&path, config.to_string()).expect("write the configuration");
     path
+}
+
+/// Holds a jog on the screen at `url` (`http://…/`) at `x`, `y` for `hold`, as the page does
+/// (a fresh command every 20 ms: the screen stops a jog that is not refreshed), then releases
+/// it. For real-time tests that jog once the machine is READY, whatever time that took.
+pub fn screen_jog(url: &str, x: f64, y: f64, hold: std::time::Duration) {
+    use futures::SinkExt;
+    use tokio_tungstenite::tungstenite::Message;
+    let runtime = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .expect("a runtime");
+    let ws = url.replacen("http://", "ws://", 1) + "ws";
+    runtime.block_on(async {
+        let (mut socket, _) = tokio_tungstenite::connect_async(ws.as_str()).await.expect("the screen");
+        let jog = |x: f64, y: f64| Message::Text(serde_json::json!({"cmd": "jog", "x": x, "y": y}).to_string().into());
+        let start = std::time::Instant::now();
+        while start.elapsed() < hold {
+            socket.send(jog(x, y)).await.expect("a jog");
+            tokio::time::sleep(std::time::Duration::from_millis(20)).await;
+        }
+        socket.send(jog(0.0, 0.0)).await.expect("the release");
+        let _ = socket.close(None).await;
+    });
 }
 
 /// The O-X glide's configuration for real-time tests of the screen and its jobs, with `edit`
@@ -285,25 +306,6 @@ pub fn write_realtime_config(dir: &Path) -> PathBuf {
     write_config(dir, "realtime-config.json", &realtime_config())
 }
 
-/// Writes a scenario to `dir` that presses the direction button "right" for a second from each
-/// of `at_s`; returns its path. Real-time tests press it more than once: on a busy machine the
-/// exchange may make referencing end later than in virtual time, and a press in INIT is lost.
-pub fn jog_right_at(dir: &Path, at_s: &[f64]) -> PathBuf {
-    let path = dir.join("jog-right.json");
-    let events: Vec<String> = at_s
-        .iter()
-        .flat_map(|t| {
-            let on = (t * 1000.0) as u64;
-            [
-                format!(r#"{{"at_ms": {on}, "input": "BUTTON_RIGHT", "value": true}}"#),
-                format!(r#"{{"at_ms": {}, "input": "BUTTON_RIGHT", "value": false}}"#, on + 1000),
-            ]
-        })
-        .collect();
-    std::fs::write(&path, format!(r#"{{"events": [{}]}}"#, events.join(", "))).expect("write the scenario");
-    path
-}
-
 /// Records `seconds` of virtual time of the repository's configuration with the scenario
 /// `events` (a JSON array) into `dir/name`; returns the trace's path.
 pub fn record_trace(dir: &Path, name: &str, seconds: u32, events: &str) -> PathBuf {
@@ -334,13 +336,15 @@ pub fn record_machine_trace(dir: &Path, name: &str, seconds: u32, events: &str, 
 
 /// The `pkm-plc` binary of this build as a command, run in the repository. A real-time run
 /// serves no OPC UA unless a test asks for it (`PKM_PLC_OPCUA=none`, which `--opcua` overrides),
-/// and any data it keeps (the OPC UA certificate store) goes under `target/`, never into the
-/// user's home.
+/// serves its screen on a free port of loopback, never the default 8080 … 8089 a PLC of the
+/// user's may hold (`PKM_PLC_HMI=127.0.0.1:0`, which `--hmi` overrides), and any data it keeps
+/// (the OPC UA certificate store) goes under `target/`, never into the user's home.
 pub fn pkm_command() -> std::process::Command {
     let mut command = std::process::Command::new(env!("CARGO_BIN_EXE_pkm-plc"));
     command
         .current_dir(env!("CARGO_MANIFEST_DIR"))
         .env("PKM_PLC_OPCUA", "none")
+        .env("PKM_PLC_HMI", "127.0.0.1:0")
         .env("XDG_DATA_HOME", Path::new(env!("CARGO_TARGET_TMPDIR")).join("xdg-data"));
     command
 }
@@ -353,6 +357,46 @@ pub fn pkm(args: &[&str]) -> std::process::Output {
         .output()
         .expect("the binary runs")
 }
+
+/// The environment variable that makes a missing prerequisite of an interoperability test (a
+/// Chromium, Python's venv, pymodbus or asyncua from PyPI, LinuxCNC's `rs274`) fail the test
+/// instead of skipping it. `.ci/run` sets it: CI installs them, and a test that did not run is
+/// not a test that passed.
+pub const REQUIRE_PREREQUISITES: &str = "PKM_REQUIRE_PREREQUISITES";
+
+/// Tests of this binary skipped for a missing prerequisite (said again when the binary ends).
+static SKIPPED: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+
+/// The test `name` cannot run here: `why` (what is missing and how to get it). Under
+/// [`REQUIRE_PREREQUISITES`] the test fails with it. Otherwise the skip is written to the
+/// terminal past libtest's capture — shown among the results whatever the test's outcome — and
+/// counted, and the count is said once more when the test binary ends, after its summary.
+pub fn skip(name: &str, why: &str) {
+    if std::env::var_os(REQUIRE_PREREQUISITES).is_some() {
+        panic!("{name}: {why}; this run requires it ({REQUIRE_PREREQUISITES} is set)");
+    }
+    SKIPPED.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    use std::io::Write;
+    let _ = writeln!(std::io::stderr(), "SKIPPED {name}: {why}");
+}
+
+/// At the test binary's end, after libtest's summary: how many of its tests were skipped.
+#[used]
+#[unsafe(link_section = ".fini_array")]
+static SAY_SKIPPED: extern "C" fn() = {
+    extern "C" fn say() {
+        let n = SKIPPED.load(std::sync::atomic::Ordering::Relaxed);
+        if n > 0 {
+            let text = format!(
+                "{n} test(s) of this binary SKIPPED for a missing prerequisite (see the SKIPPED lines above; {REQUIRE_PREREQUISITES}=1 makes them fail)\n"
+            );
+            // SAFETY: a write of a buffer this function owns to the process's stderr; at exit
+            // the Rust runtime's own stderr may already be gone, the descriptor is not.
+            unsafe { libc::write(2, text.as_ptr().cast(), text.len()) };
+        }
+    }
+    say
+};
 
 /// The Python packages the interoperability tests use: (pip requirement, module to import).
 pub const PYTHON_PACKAGES: [(&str, &str); 2] = [("pymodbus==3.8.6", "pymodbus"), ("asyncua==2.1.0", "asyncua")];
@@ -536,6 +580,37 @@ impl Logged {
             .recv_timeout(wait)
             .unwrap_or_else(|_| panic!("no log line with \"{marker}\": {}", run.log()));
         (run, found)
+    }
+
+    /// Waits up to `within` for a log line with `text` after the first `from` bytes of the log;
+    /// the log's length then (`None`: not within). The log is looked at every 20 ms: the wait
+    /// follows the run's own output, not a guess of how long the run takes.
+    pub fn wait_for(&self, from: usize, text: &str, within: std::time::Duration) -> Option<usize> {
+        let start = std::time::Instant::now();
+        while start.elapsed() < within {
+            let log = self.log();
+            if log.get(from..).is_some_and(|rest| rest.contains(text)) {
+                return Some(log.len());
+            }
+            std::thread::sleep(std::time::Duration::from_millis(20));
+        }
+        None
+    }
+
+    /// Waits up to `within` for the run's main state to become `state` (the line it logs then)
+    /// after the first `from` bytes of the log; the log's length then, to wait on from there.
+    /// Real-time tests act from there, not at times guessed from the start — on a busy machine
+    /// referencing ends later.
+    pub fn wait_for_state(&self, from: usize, state: &str, within: std::time::Duration) -> usize {
+        self.wait_for(from, &format!(" s: {state}"), within)
+            .unwrap_or_else(|| panic!("not {state} within {within:?}:\n{}", self.log()))
+    }
+
+    /// Asks the run to end (SIGTERM) and waits for it: outputs safe, summary and trace written.
+    pub fn terminate(&mut self) -> std::process::ExitStatus {
+        // SAFETY: kill sends a signal to the child this helper started; no memory is involved.
+        unsafe { libc::kill(self.child.id() as i32, libc::SIGTERM) };
+        self.wait()
     }
 
     /// The log so far.

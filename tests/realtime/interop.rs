@@ -10,12 +10,8 @@ use std::path::PathBuf;
 use std::process::{Command, Stdio};
 
 /// The virtual environment's Python (with pymodbus), made on first use; `Err`: why there is none.
-fn python() -> Result<PathBuf, &'static str> {
-    common::python_interop().map_err(|e| {
-        // Said once per test that needs it.
-        eprintln!("pymodbus unavailable: {e}");
-        "pymodbus unavailable"
-    })
+fn python() -> Result<PathBuf, String> {
+    common::python_interop().map_err(|e| format!("no pymodbus: {e}"))
 }
 
 fn script(name: &str) -> String {
@@ -24,9 +20,12 @@ fn script(name: &str) -> String {
 
 #[test]
 fn a_pymodbus_client_drives_io_sim() {
-    let Ok(python) = python() else {
-        eprintln!("SKIPPED interop::a_pymodbus_client_drives_io_sim: no pymodbus (see above)");
-        return;
+    let python = match python() {
+        Ok(p) => p,
+        Err(why) => {
+            common::skip("interop::a_pymodbus_client_drives_io_sim", &why);
+            return;
+        }
     };
     // The client pauses between writes longer than a controller would: no output watchdog.
     let (sim, address) = common::start_io_sim("127.0.0.1:0", &["--watchdog-ms", "0"]);
@@ -47,9 +46,12 @@ fn a_pymodbus_client_drives_io_sim() {
 
 #[test]
 fn the_soft_plc_runs_against_a_pymodbus_server() {
-    let Ok(python) = python() else {
-        eprintln!("SKIPPED interop::the_soft_plc_runs_against_a_pymodbus_server: no pymodbus (see above)");
-        return;
+    let python = match python() {
+        Ok(p) => p,
+        Err(why) => {
+            common::skip("interop::the_soft_plc_runs_against_a_pymodbus_server", &why);
+            return;
+        }
     };
     // A free port (a small window for another process to take it; the server would then fail
     // to bind and the test says so).

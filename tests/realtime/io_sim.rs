@@ -143,46 +143,42 @@ fn the_packed_process_image_exchanges_everything_in_one_transaction() {
     });
 }
 
-/// Starts `pkm-plc io-sim` with a scenario file.
-fn start_with(scenario: &std::path::Path) -> (IoSim, SocketAddr) {
-    common::start_io_sim("127.0.0.1:0", &["--scenario", scenario.to_str().expect("utf-8")])
-}
-
 /// Real time, with the fast-referencing test configuration: READY after about 15 s (and the
-/// link's latency), a jog by the station's direction button 4.35 s later and again 8 s after that
-/// (on a busy machine referencing over the link may end later, and a press in INIT is lost); the
-/// test takes `common::JOG_RUN_S` (32 s).
+/// link's latency, more on a busy machine), then a jog from the operator's screen once the
+/// machine is READY; the run ends when asked.
 #[test]
 fn the_soft_plc_references_and_jogs_over_modbus_tcp() {
     let dir = tempfile::tempdir().expect("tempdir");
     let config = common::write_realtime_config(dir.path());
-    let scenario = common::jog_right_at(dir.path(), &common::JOG_PRESSES_S);
-    let (_sim, address) = start_with(&scenario);
+    let (_sim, address) = start();
     let (s, t) = (dir.path().join("summary.json"), dir.path().join("trace.jsonl"));
-    let o = common::pkm_command()
+    let mut command = common::pkm_command();
+    command
         .args([
             "run",
             "--bus",
             &format!("tcp:{address}"),
-            "--duration",
-            &common::JOG_RUN_S.to_string(),
             "--summary",
             s.to_str().expect("utf-8"),
         ])
         .args(["--trace", t.to_str().expect("utf-8")])
         .args(["--config", config.to_str().expect("utf-8")])
+        .args(["--hmi", "127.0.0.1:0", "--joystick", "none"])
         // This tests the exchange, not its timing: a busy machine may delay an image, and slow
         // the station's answers beyond what the regulators are tuned for.
         .args(["--max-input-age-ms", "500", "--max-exchange-ms", "50"])
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .env("RUST_LOG", "warn")
-        .output()
-        .expect("run");
-    assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
+        .env("RUST_LOG", "info");
+    let (mut run, url) = common::Logged::start(command, "operator screen at ", std::time::Duration::from_secs(30));
+    let ready = run.wait_for_state(0, "READY", std::time::Duration::from_secs(90));
+    common::screen_jog(&url, 1.0, 0.0, std::time::Duration::from_millis(1500));
+    // The jog moved it, and it stands again once released.
+    let moved = run.wait_for_state(ready, "MOTION", std::time::Duration::from_secs(10));
+    run.wait_for_state(moved, "READY", std::time::Duration::from_secs(20));
+    assert!(run.terminate().success(), "{}", run.log());
     let s = common::read_json(&s);
     assert_eq!(s["bus"], format!("tcp:{address}"));
     assert_eq!(s["main"]["state"], "READY", "{s}");
-    // The direction button (on the station's digital inputs) moved the machine.
+    // The jog moved the machine over the link.
     let trace = std::fs::read_to_string(&t).expect("trace");
     assert!(trace.contains(r#""state":"MOTION""#), "no MOTION in the trace");
     assert!(!trace.contains(r#""state":"ERROR""#), "an ERROR in the trace");
@@ -241,8 +237,8 @@ fn the_soft_plc_exchanges_the_packed_image_over_tcp_too() {
 
 /// A joint-driven machine over Modbus TCP, in real time: the hexapod's configuration (its
 /// cycle time violations logged, not errors: this tests the exchange on a busy machine, not its
-/// timing) served by io-sim with its I/O map and plant. READY after about 8.4 s, a jog by the
-/// station's direction button at 10.5 s and again at 16.5 s; the test takes 20 s.
+/// timing) served by io-sim with its I/O map and plant. READY after about 8.4 s (later on a busy
+/// machine), then a jog along +x from the operator's screen; the run ends when asked.
 #[test]
 fn the_hexapod_references_and_jogs_over_modbus_tcp() {
     let dir = tempfile::tempdir().expect("tempdir");
@@ -256,32 +252,28 @@ fn the_hexapod_references_and_jogs_over_modbus_tcp() {
         class["on_violation"] = "log".into();
     }
     let config_path = common::write_config(dir.path(), "hexapod.json", &config);
-    let scenario = common::jog_right_at(dir.path(), &[10.5, 16.5]);
-    let (_sim, address) = common::start_io_sim(
-        "127.0.0.1:0",
-        &[
-            "--config",
-            config_path.to_str().expect("utf-8"),
-            "--scenario",
-            scenario.to_str().expect("utf-8"),
-        ],
-    );
+    let (_sim, address) = common::start_io_sim("127.0.0.1:0", &["--config", config_path.to_str().expect("utf-8")]);
     let (s, t) = (dir.path().join("summary.json"), dir.path().join("trace.jsonl"));
-    let o = common::pkm_command()
-        .args(["run", "--bus", &format!("tcp:{address}"), "--duration", "20"])
+    let mut command = common::pkm_command();
+    command
+        .args(["run", "--bus", &format!("tcp:{address}")])
         .args(["--summary", s.to_str().expect("utf-8")])
         .args(["--trace", t.to_str().expect("utf-8")])
         .args(["--config", config_path.to_str().expect("utf-8")])
+        .args(["--hmi", "127.0.0.1:0", "--joystick", "none"])
         .args(["--max-input-age-ms", "500", "--max-exchange-ms", "50"])
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .env("RUST_LOG", "warn")
-        .output()
-        .expect("run");
-    assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
+        .env("RUST_LOG", "info");
+    let (mut run, url) = common::Logged::start(command, "operator screen at ", std::time::Duration::from_secs(30));
+    let ready = run.wait_for_state(0, "READY", std::time::Duration::from_secs(90));
+    common::screen_jog(&url, 1.0, 0.0, std::time::Duration::from_millis(1500));
+    // The jog moved it, and it stands again once released.
+    let moved = run.wait_for_state(ready, "MOTION", std::time::Duration::from_secs(10));
+    run.wait_for_state(moved, "READY", std::time::Duration::from_secs(20));
+    assert!(run.terminate().success(), "{}", run.log());
     let s = common::read_json(&s);
     assert_eq!(s["main"]["program"], "hexapod.main");
     assert_eq!(s["main"]["state"], "READY", "{s}");
-    // The tool pose is in the summary: the button moved the tool along +x only.
+    // The tool pose is in the summary: the jog moved the tool along +x only.
     let x = s["main"]["values"]["x"].as_f64().expect("x in the summary");
     assert!(x > 1.0, "the tool moved {x} mm along x: {s}");
     for c in ["y", "z", "a", "b", "c"] {

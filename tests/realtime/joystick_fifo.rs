@@ -1,15 +1,16 @@
 //! End to end, in real time: `pkm-plc run --joystick FIFO` on the simulated machine, fed a
 //! fabricated raw event capture (the documented 24-byte `struct input_event` layout) through a
-//! FIFO. After referencing (about 15 s with the fast-referencing test configuration) the stick goes full right — M moves in +x — then the writer
+//! FIFO. Once READY (about 15 s with the fast-referencing test configuration; the script's
+//! times count from there) the stick goes full right — M moves in +x — then the writer
 //! closes the FIFO in the middle of the motion (an unplugged device): axes at zero, a warning,
 //! READY. The writer comes back and pulls the stick towards the operator — M moves down. The
-//! trace of the run replays identically. The run takes 29 s.
+//! trace of the run replays identically. The run takes about 29 s.
 
 use crate::common;
 
 use std::collections::HashMap;
 use std::io::Write;
-use std::process::{Command, Stdio};
+use std::process::Command;
 use std::time::{Duration, Instant};
 
 use pkm_plc::io::joystick::InputEvent;
@@ -79,45 +80,43 @@ fn a_capture_through_a_fifo_drives_m_and_an_unplug_stops_it() {
     assert!(made.success(), "mkfifo");
     let trace = dir.path().join("trace.jsonl");
     let config = common::write_realtime_config(dir.path());
-    // The script's times, from the start: READY at `FAST_READY_S` (and a busy machine's
-    // delay), then as in the comments below.
-    let at = |s: f64| common::FAST_READY_S + s;
-    let start = Instant::now();
-    let child = common::pkm_command()
-        .args(["run", "--config", config.to_str().expect("utf-8")])
-        .args(["--duration", &format!("{}", at(13.4)), "--joystick"])
+    let mut command = common::pkm_command();
+    command
+        .args(["run", "--config", config.to_str().expect("utf-8"), "--joystick"])
         .arg(&fifo)
         .arg("--trace")
         .arg(&trace)
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .env("RUST_LOG", "info")
-        .stderr(Stdio::piped())
-        .stdout(Stdio::null())
-        .spawn()
-        .expect("pkm-plc runs");
+        .env("RUST_LOG", "info");
+    let (mut run, _) = common::Logged::start(command, "running in real time", Duration::from_secs(30));
+    // The script's times, from READY (about `FAST_READY_S` after the start; later on a busy
+    // machine), as in the comments below.
+    run.wait_for_state(0, "READY", Duration::from_secs(90));
+    let ready = Instant::now();
 
     // Full right 2.4 s after READY.
-    sleep_until(start, at(2.4));
+    sleep_until(ready, 2.4);
     let mut writer = std::fs::OpenOptions::new()
         .write(true)
         .open(&fifo)
         .expect("open the FIFO");
     writer.write_all(&report(ABS_X, 32767)).expect("write");
     // Unplugged in the middle of the motion.
-    sleep_until(start, at(5.4));
+    sleep_until(ready, 5.4);
     drop(writer);
     // Back, and pulled towards the operator (raw y positive; inverted by default: M moves down).
-    sleep_until(start, at(6.9));
+    sleep_until(ready, 6.9);
     let mut writer = std::fs::OpenOptions::new()
         .write(true)
         .open(&fifo)
         .expect("reopen the FIFO");
     writer.write_all(&report(ABS_Y, 32767)).expect("write");
-    sleep_until(start, at(8.9));
+    sleep_until(ready, 8.9);
     writer.write_all(&report(ABS_Y, 0)).expect("write");
-    let out = child.wait_with_output().expect("the run ends");
-    let log = String::from_utf8_lossy(&out.stderr).into_owned();
-    assert!(out.status.success(), "{log}");
+    // The tool brakes and stands; the run ends 13.4 s after READY.
+    sleep_until(ready, 13.4);
+    let status = run.terminate();
+    let log = run.log();
+    assert!(status.success(), "{log}");
     assert!(log.contains("joystick: reading FIFO"), "{log}");
     assert!(
         log.contains("the writer closed it: disconnected, axes at zero"),

@@ -318,10 +318,10 @@ async fn floods_of_malformed_messages_leave_the_log_within_100_kb_a_minute() {
     assert!(written <= 33_000, "{written} bytes of log:\n{}", served.run.log());
 }
 
-/// The virtual environment's Python with asyncua; `None` (said) without one.
-fn python() -> Option<std::path::PathBuf> {
+/// The virtual environment's Python with asyncua; `None` without one, the test `name` skipped.
+fn python(name: &str) -> Option<std::path::PathBuf> {
     common::python_interop()
-        .map_err(|e| eprintln!("asyncua unavailable: {e}"))
+        .map_err(|e| common::skip(name, &format!("no asyncua: {e}")))
         .ok()
 }
 
@@ -357,8 +357,7 @@ fn users(dir: &std::path::Path) -> String {
 
 #[test]
 fn anonymous_sessions_give_way_to_a_user_who_commands() {
-    let Some(python) = python() else {
-        eprintln!("SKIPPED lockout::anonymous_sessions_give_way_to_a_user_who_commands: no asyncua (see above)");
+    let Some(python) = python("lockout::anonymous_sessions_give_way_to_a_user_who_commands") else {
         return;
     };
     let dir = tempfile::tempdir().expect("tempdir");
@@ -388,10 +387,7 @@ fn anonymous_sessions_give_way_to_a_user_who_commands() {
 
 #[test]
 fn wrong_passwords_are_answered_ever_later_and_the_right_one_at_once() {
-    let Some(python) = python() else {
-        eprintln!(
-            "SKIPPED lockout::wrong_passwords_are_answered_ever_later_and_the_right_one_at_once: no asyncua (see above)"
-        );
+    let Some(python) = python("lockout::wrong_passwords_are_answered_ever_later_and_the_right_one_at_once") else {
         return;
     };
     let dir = tempfile::tempdir().expect("tempdir");

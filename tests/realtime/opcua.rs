@@ -1,6 +1,6 @@
 //! The OPC UA server end to end, in real time, with a client nobody here wrote: Python's asyncua
 //! (from PyPI, in a virtual environment under `target/`; without python3-venv or PyPI the tests
-//! that need it say why on stderr and are skipped). It browses the address space and reads every
+//! that need it are skipped and say why, `common::skip`). It browses the address space and reads every
 //! variable's type, unit and value, subscribes and counts the updates over 10 s, is refused a
 //! method in an anonymous session, logs in over an encrypted channel (its certificate first
 //! rejected, then trusted as an administrator would) to stop the machine, acknowledge and load a
@@ -17,12 +17,8 @@ use std::time::{Duration, Instant};
 use serde_json::Value as Json;
 
 /// The virtual environment's Python (with asyncua), made on first use; `Err`: why there is none.
-fn python() -> Result<PathBuf, &'static str> {
-    common::python_interop().map_err(|e| {
-        // Said once per test that needs it.
-        eprintln!("asyncua unavailable: {e}");
-        "asyncua unavailable"
-    })
+fn python() -> Result<PathBuf, String> {
+    common::python_interop().map_err(|e| format!("no asyncua: {e}"))
 }
 
 /// A running `pkm-plc run` with its OPC UA server, killed when dropped.
@@ -99,9 +95,15 @@ fn client(python: &Path, args: &[&str]) -> Json {
 
 #[test]
 fn a_client_browses_every_variable_with_its_type_and_unit_and_subscribes_at_the_main_cycle_rate() {
-    let Ok(python) = python() else {
-        eprintln!("SKIPPED opcua::a_client_browses…: no asyncua (see above)");
-        return;
+    let python = match python() {
+        Ok(p) => p,
+        Err(why) => {
+            common::skip(
+                "opcua::a_client_browses_every_variable_with_its_type_and_unit_and_subscribes_at_the_main_cycle_rate",
+                &why,
+            );
+            return;
+        }
     };
     let plc = Plc::start(&["--duration", "60"]);
     // On loopback: the unsecured endpoint besides the secure ones; anonymous sessions only
@@ -196,9 +198,15 @@ fn a_client_browses_every_variable_with_its_type_and_unit_and_subscribes_at_the_
 
 #[test]
 fn users_on_encrypted_channels_stop_acknowledge_and_load_beyond_loopback_and_the_trace_replays() {
-    let Ok(python) = python() else {
-        eprintln!("SKIPPED opcua::users_on_encrypted_channels…: no asyncua (see above)");
-        return;
+    let python = match python() {
+        Ok(p) => p,
+        Err(why) => {
+            common::skip(
+                "opcua::users_on_encrypted_channels_stop_acknowledge_and_load_beyond_loopback_and_the_trace_replays",
+                &why,
+            );
+            return;
+        }
     };
     let dir = tempfile::tempdir().expect("tempdir");
     let path = |name: &str| dir.path().join(name).to_str().expect("utf-8").to_string();

@@ -59,16 +59,19 @@ fn round_trip(machine: Machine, u: [f64; 6]) -> Result<bool, TestCaseError> {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig { cases: 2000, ..ProptestConfig::default() })]
+    // 2000 samples that assemble each; a sample that does not is rejected and drawn again, and
+    // more than 4000 rejections fail the test (a mechanism that hardly ever assembles would
+    // otherwise pass without a single round trip).
+    #![proptest_config(ProptestConfig { cases: 2000, max_global_rejects: 4000, ..ProptestConfig::default() })]
 
     #[test]
-    fn trijoint_round_trip(u in unit6()) { round_trip(Machine::Trijoint, u)?; }
+    fn trijoint_round_trip(u in unit6()) { prop_assume!(round_trip(Machine::Trijoint, u)?); }
     #[test]
-    fn pn101_round_trip(u in unit6()) { round_trip(Machine::Pn101, u)?; }
+    fn pn101_round_trip(u in unit6()) { prop_assume!(round_trip(Machine::Pn101, u)?); }
     #[test]
-    fn ox_x_round_trip(u in unit6()) { round_trip(Machine::OxX, u)?; }
+    fn ox_x_round_trip(u in unit6()) { prop_assume!(round_trip(Machine::OxX, u)?); }
     #[test]
-    fn ox_o_round_trip(u in unit6()) { round_trip(Machine::OxO, u)?; }
+    fn ox_o_round_trip(u in unit6()) { prop_assume!(round_trip(Machine::OxO, u)?); }
 }
 
 proptest! {

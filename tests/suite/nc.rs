@@ -435,8 +435,9 @@ fn the_cam_dialect_gives_the_moves_linuxcnc_gives() {
         .map(std::path::Path::new)
         .find(|p| p.exists())
     else {
-        eprintln!(
-            "SKIPPED nc::the_cam_dialect_gives_the_moves_linuxcnc_gives: no rs274 here (apt-get install linuxcnc-uspace; .ci/run installs it)"
+        common::skip(
+            "nc::the_cam_dialect_gives_the_moves_linuxcnc_gives",
+            "no rs274 here (apt-get install linuxcnc-uspace; .ci/run installs it)",
         );
         return;
     };
@@ -491,8 +492,9 @@ fn linuxcncs_example_programs_give_its_moves() {
         std::path::Path::new("/usr/share/linuxcnc/ncfiles"),
     );
     if !rs274.exists() || !dir.is_dir() {
-        eprintln!(
-            "SKIPPED nc::linuxcncs_example_programs_give_its_moves: no LinuxCNC here (apt-get install linuxcnc-uspace)"
+        common::skip(
+            "nc::linuxcncs_example_programs_give_its_moves",
+            "no LinuxCNC here (apt-get install linuxcnc-uspace)",
         );
         return;
     }

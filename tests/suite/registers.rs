@@ -157,28 +157,3 @@ proptest! {
         }
     }
 }
-
-#[test]
-fn link_bench_measures_both_exchanges_over_an_emulated_line() {
-    // One second per mode at 115 200 baud: the figures vary with the machine, the frame sizes and
-    // a clean link do not.
-    let o = pkm(&["link-bench", "--seconds", "1"]);
-    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
-    let out = stdout(&o);
-    let rows: Vec<Vec<&str>> = out.lines().skip(1).map(|l| l.split_whitespace().collect()).collect();
-    assert_eq!(rows.len(), 2, "{out}");
-    // exchange, baud, transactions, bytes, computed ms, ..., timeouts.
-    assert_eq!(rows[0][..5], ["tables", "115200", "4", "76", "21.26"], "{out}");
-    assert_eq!(rows[1][..5], ["image", "115200", "1", "36", "6.94"], "{out}");
-    for row in &rows {
-        assert!(row[5].parse::<u64>().is_ok_and(|n| n > 0), "no exchange: {out}");
-        assert_eq!(row[10], "0", "timeouts: {out}");
-    }
-    let o = pkm(&["link-bench", "--exchange", "auto"]);
-    assert_eq!(o.status.code(), Some(2));
-    assert!(
-        stderr(&o).contains("--exchange: name the modes to measure (tables, image)"),
-        "{}",
-        stderr(&o)
-    );
-}

@@ -294,9 +294,32 @@ fn a_motor_bridge_error_is_an_error() {
 
 #[test]
 fn a_dead_drive_is_a_following_error() {
+    let died = READY_MS + 500;
     let mut plc = build(Some(&fault_scenario(r#""fault": "drive_dead", "drive": "left""#)));
-    run(&mut plc, READY_MS + 5000, |_, _| {});
+    let (mut error_at, mut speed) = (None, 0.0);
+    run(&mut plc, READY_MS + 5000, |plc, t| {
+        if t <= died {
+            speed = get(plc, vars::SETPOINT_MM_S[0]).abs();
+        }
+        if error_at.is_none() && state(plc) == "ERROR" {
+            error_at = Some(t);
+        }
+    });
     assert_eq!(plc.app_status().and_then(|s| s.reason), Some("following error left"));
+    // The set-point runs on at the jog's speed while the carriage stands: the error passes the
+    // bound (5 mm) after 5 mm / speed. It is an ERROR within the main cycles that follow (the
+    // carriage's coasting, the fast class's detection, the main cycle's look: 150 ms at most).
+    let after = error_at.expect("ERROR") - died;
+    let expected = 5.0 / speed * 1000.0;
+    eprintln!(
+        "dead drive: ERROR {after} ms after it died; the set-point at {speed:.2} mm/s passes 5 mm after {expected:.0} ms"
+    );
+    assert!(speed > 1.0, "the jog moves the left carriage: {speed} mm/s");
+    assert!(
+        (expected..=expected + 150.0).contains(&(after as f64)),
+        "ERROR {after} ms after the drive died; expected {expected:.0} … {:.0} ms",
+        expected + 150.0
+    );
 }
 
 /// Runs from power-on until ERROR (or `until_ms`); returns the reason.
@@ -311,14 +334,18 @@ fn error_reason(plc: &mut Plc, until_ms: u64) -> Option<String> {
 }
 
 #[test]
-fn init_reports_a_switch_that_is_never_reached() {
-    // The left upper switch is dead: the carriage runs into its hard stop instead.
+fn init_names_the_following_error_of_a_carriage_blocked_while_it_seeks_a_switch() {
+    // The left upper switch is dead: the carriage runs into its hard stop instead, and lags its
+    // set-point. The reason says so, and which switch it sought — not that the switch is at
+    // fault, which a drive or a link too slow would make as well.
     let scenario =
         r#"{"events": [{"at_ms": 0, "fault": "switch_stuck", "switch": "SWITCH_LEFT_UPPER", "value": false}]}"#;
     let mut plc = build(Some(scenario));
     assert_eq!(
         error_reason(&mut plc, 30_000).as_deref(),
-        Some("INIT timeout: SWITCH_LEFT_UPPER not reached")
+        Some(
+            "INIT: following error while seeking SWITCH_LEFT_UPPER: the carriage is blocked, or its drive or the link lags"
+        )
     );
     assert!(plant(&plc).position_mm(0) <= 253.0);
 }

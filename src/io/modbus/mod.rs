@@ -64,6 +64,10 @@ impl ExchangeMode {
     }
 }
 
+/// How many request timeouts the safe stop waits for an exchange that confirms the safe outputs
+/// (beyond a few exchange periods).
+const SAFE_WRITE_ATTEMPTS: u32 = 3;
+
 /// The longest the bus waits for the station's first input image before the first cycle.
 pub const STARTUP_WAIT: Duration = Duration::from_secs(5);
 
@@ -330,12 +334,46 @@ impl Bus for ModbusBus {
     }
 
     fn write_safe(&mut self, image: &[Value]) {
+        let shared = Arc::clone(&self.shared);
+        let exchanges = || shared.stats.exchanges.load(Ordering::Relaxed);
+        let before = exchanges();
         self.write_outputs(0, 0, image);
         let Some(thread) = self.thread.take() else { return };
-        // Give the loop a few exchanges to write the safe outputs, then stop it.
-        std::thread::sleep(self.options.period * 4 + self.options.timeout);
+        // The safe outputs are at the station once an exchange that began after they were handed
+        // to the loop has succeeded: the one under way may have taken the outputs before, the
+        // next cannot. Waited for up to a few failed exchanges' time, then the loop stops.
+        let bound = self.options.period * 4 + self.options.timeout * SAFE_WRITE_ATTEMPTS;
+        let start = std::time::Instant::now();
+        let confirmed = loop {
+            if exchanges() >= before + 2 {
+                break true;
+            }
+            if start.elapsed() >= bound {
+                break false;
+            }
+            std::thread::sleep(Duration::from_millis(1));
+        };
         self.shared.stop.store(true, Ordering::Relaxed);
         let _ = thread.join();
+        if confirmed {
+            tracing::info!(
+                "modbus {}: the safe outputs reached the station ({:.0} ms after they were set)",
+                self.name,
+                start.elapsed().as_secs_f64() * 1e3
+            );
+        } else {
+            let mut cause = String::new();
+            let cause = if self.write_fault_cause(&mut cause) {
+                format!(": {cause}")
+            } else {
+                String::new()
+            };
+            tracing::warn!(
+                "modbus {}: the safe outputs could not be confirmed at the station: no exchange succeeded within {} ms after they were set{cause}; the station's own watchdog or connection monitoring must set its outputs safe",
+                self.name,
+                bound.as_millis()
+            );
+        }
         tracing::info!(
             "modbus {}: {}",
             self.name,

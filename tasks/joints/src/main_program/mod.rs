@@ -518,10 +518,12 @@ impl MainProgram {
                     return Some(Reason::BridgeError(j));
                 }
                 if ctx.get(jv.following_error) {
-                    // Blocked while seeking its switch in INIT: the reference was not reached.
+                    // While seeking its switch in INIT a following error says the joint lags its
+                    // set-point: blocked (at its hard stop, by a switch that never came), or its
+                    // drive or the link too slow. Named as such, not as a switch not reached.
                     let seeking = state == MainState::Init && matches!(app.searches[j], Search::Seek { .. });
                     return Some(if seeking {
-                        Reason::InitTimeout(j)
+                        Reason::InitFollowingError(j)
                     } else {
                         Reason::FollowingError(j)
                     });

@@ -23,6 +23,10 @@ pub enum Reason {
     BusFault,
     /// A joint's reference switch not found, or its reference position not reached, in time.
     InitTimeout(usize),
+    /// A following error of a joint while it seeks its reference switch in INIT: the joint is
+    /// blocked (a switch that never comes lets it run to its hard stop), or its drive or the
+    /// link lags.
+    InitFollowingError(usize),
     /// A joint's reference input stays on while the joint backs off its switch (pn101: another
     /// joint sits on its own switch, and the shared input cannot say which).
     ReferenceStaysOn(usize),
@@ -52,6 +56,7 @@ impl Reason {
             Reason::ReferenceStaysOn(j) => at(70, j),
             Reason::ReferenceContradicts(j) => at(90, j),
             Reason::ReferenceNotFound(j) => at(130, j),
+            Reason::InitFollowingError(j) => at(140, j),
             Reason::Limit(k) => at(100, k),
             Reason::ProgramFault => 80,
         }
@@ -97,6 +102,13 @@ impl ReasonTexts {
                 Reason::InitTimeout(j),
                 format!(
                     "INIT timeout: joint {} did not reach its reference ({reference})",
+                    j + 1
+                ),
+            ));
+            texts.push((
+                Reason::InitFollowingError(j),
+                format!(
+                    "INIT: following error joint {} while seeking its reference ({reference}): the joint is blocked, or its drive or the link lags",
                     j + 1
                 ),
             ));

@@ -668,25 +668,45 @@ mod tests {
 
     #[test]
     fn every_switch_reads_as_its_definition_on_every_machine() {
+        let mut shared_wires = 0;
         for crate::JointMachine(spec) in &crate::MACHINES {
             let config = spec.default_plant();
             let signals = harness::signals(spec);
             let mut plant = Plant::new(&config, signals.into_iter().map(|(s, w, _)| (s, w)).collect(), None);
-            for j in 0..config.joints.len() {
+            let n = config.joints.len();
+            // The definition, from the configuration alone (not the plant's own `switch`): a
+            // limit switch is on at or beyond its point, a reference switch at or beyond its
+            // point in its direction, and a wire that joints share (pn101) when any is on.
+            let expected = |plant: &Plant, wire: Wire| {
+                let on = |j: usize| {
+                    let (q, c) = (plant.position_mm(j), &config.joints[j]);
+                    match wire {
+                        Wire::Limit(_, 0) => q <= c.limit_switches_mm[0],
+                        Wire::Limit(_, _) => q >= c.limit_switches_mm[1],
+                        _ => (q - c.reference_switch_mm) * c.reference_direction >= 0.0,
+                    }
+                };
+                match wire {
+                    Wire::Limit(Some(j), _) | Wire::Reference(Some(j)) => on(j),
+                    _ => (0..n).any(on),
+                }
+            };
+            for j in 0..n {
                 let [lo, hi] = plant.hard_stops_mm(j);
                 // Every switch point, a hair either side, and the travel between the stops.
                 let mut at: Vec<f64> = (0..=40).map(|k| lo + (hi - lo) * f64::from(k) / 40.0).collect();
-                let (reference, _) = plant.reference_switch(j);
-                for x in plant.limit_switches_mm(j).into_iter().chain([reference]) {
+                let c = &config.joints[j];
+                for x in c.limit_switches_mm.into_iter().chain([c.reference_switch_mm]) {
                     at.extend([x, x - 1e-9, x + 1e-9, x.next_up(), x.next_down()]);
                 }
                 for q in at {
                     plant.move_by_hand(j, q);
                     for (signal, wire) in plant.wires.clone().into_iter().enumerate() {
                         if matches!(wire, Wire::Limit(..) | Wire::Reference(_)) {
+                            shared_wires += usize::from(matches!(wire, Wire::Limit(None, _) | Wire::Reference(None)));
                             assert_eq!(
                                 plant.read(signal),
-                                Value::Bool(plant.switch(wire)),
+                                Value::Bool(expected(&plant, wire)),
                                 "{}: {wire:?} with joint {} at {q} mm",
                                 spec.name,
                                 j + 1
@@ -694,8 +714,11 @@ mod tests {
                         }
                     }
                 }
+                // Back where it started, for the next joint's sweep of a shared wire.
+                plant.move_by_hand(j, c.start_mm);
             }
         }
+        assert!(shared_wires > 0, "pn101's shared inputs are among those read");
     }
 
     /// The hexapod's plant with its kinematics as the mechanism (their joint limits, narrower

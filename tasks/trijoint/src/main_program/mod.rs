@@ -250,13 +250,14 @@ impl MainProgram {
                     return Some(Reason::BridgeError(d));
                 }
                 if ctx.get(v.following_errors[d]) {
-                    // Blocked while seeking a switch in INIT (a switch stuck off, say, leaves the
-                    // carriage at its hard stop): say which switch was not reached.
+                    // While seeking a switch in INIT a following error says the carriage lags its
+                    // set-point: blocked (a switch stuck off leaves it at its hard stop), or its
+                    // drive or the link too slow. Named as such, with the switch it sought.
                     let seeking = match search {
                         Search::Seek { end, .. } if state == MainState::Init => Some(end.switch(d)),
                         _ => None,
                     };
-                    return Some(seeking.map_or(Reason::FollowingError(d), Reason::InitTimeout));
+                    return Some(seeking.map_or(Reason::FollowingError(d), Reason::InitFollowingError));
                 }
             }
             if state != MainState::Init {

@@ -26,6 +26,10 @@ pub enum Reason {
     InitTimeout(usize),
     /// The wrong switch during INIT (switch index as for `LimitSwitch`).
     InitWrongSwitch(usize),
+    /// A following error while a carriage seeks a switch in INIT (switch index as for
+    /// `LimitSwitch`): the carriage is blocked (a switch that never comes lets it run to its hard
+    /// stop), or its drive or the link lags.
+    InitFollowingError(usize),
     /// The NC program's executor met a pose without joints.
     ProgramFault,
 }
@@ -60,6 +64,12 @@ impl Reason {
             "INIT timeout: SWITCH_RIGHT_UPPER not reached",
             "INIT timeout: SWITCH_RIGHT_DOWN not reached",
         ];
+        const SEEKING: [&str; 4] = [
+            "INIT: following error while seeking SWITCH_LEFT_UPPER: the carriage is blocked, or its drive or the link lags",
+            "INIT: following error while seeking SWITCH_LEFT_DOWN: the carriage is blocked, or its drive or the link lags",
+            "INIT: following error while seeking SWITCH_RIGHT_UPPER: the carriage is blocked, or its drive or the link lags",
+            "INIT: following error while seeking SWITCH_RIGHT_DOWN: the carriage is blocked, or its drive or the link lags",
+        ];
         const SIDE: [[&str; 2]; 3] = [
             ["encoder fault left", "encoder fault right"],
             ["motor bridge error left", "motor bridge error right"],
@@ -75,6 +85,7 @@ impl Reason {
             Reason::BusFault => pkm_api::bus::BUS_FAULT_REASON,
             Reason::InitTimeout(i) => NOT_REACHED[i.min(3)],
             Reason::InitWrongSwitch(i) => WRONG[i.min(3)],
+            Reason::InitFollowingError(i) => SEEKING[i.min(3)],
             Reason::ProgramFault => {
                 "the program's path has no joints here: the executor stands (its check should have refused the program)"
             }
@@ -93,6 +104,7 @@ impl Reason {
             Reason::BusFault => 55,
             Reason::InitTimeout(i) => 60 + i as i16,
             Reason::InitWrongSwitch(i) => 70 + i as i16,
+            Reason::InitFollowingError(i) => 90 + i as i16,
             Reason::ProgramFault => 80,
         }
     }
