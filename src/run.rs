@@ -39,11 +39,13 @@ impl Clock for VirtualClock {
     }
 }
 
-/// Logs the main program's state changes (with the error reason), at the time they happen. Only a
-/// change formats anything, so it costs nothing in steady operation.
+/// Logs the main program's state changes (with the error reason) and its notes to the operator
+/// (a refused program start, what INIT waits for), at the time they happen. Only a change
+/// formats anything, so it costs nothing in steady operation.
 #[derive(Debug, Default)]
 struct StateLog {
     last: String,
+    note: String,
 }
 
 impl StateLog {
@@ -56,6 +58,14 @@ impl StateLog {
             }
             self.last.clear();
             self.last.push_str(status.state);
+        }
+        let note = status.note.unwrap_or("");
+        if note != self.note {
+            if !note.is_empty() {
+                info!("t={:.3} s: note: {note}", t_ns as f64 * 1e-9);
+            }
+            self.note.clear();
+            self.note.push_str(note);
         }
     }
 }

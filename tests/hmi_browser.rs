@@ -220,10 +220,19 @@ async fn the_page_shows_referencing_jogs_while_held_stops_and_acknowledges() {
     // The +x button (the first pose coordinate).
     let button = centre(&page, r#".jog-btn[data-axis="1"][data-x="1"]"#).await;
     mouse(&page, button, true).await;
-    until(&page, Duration::from_secs(10), "the tool moves", async |p| {
-        x(p).await > before + 2.0
-    })
-    .await;
+    let start = Instant::now();
+    while x(&page).await <= before + 2.0 {
+        let log = plc.run.log();
+        let tail: Vec<&str> = log.lines().rev().take(30).collect();
+        assert!(
+            start.elapsed() < Duration::from_secs(10),
+            "the tool does not move (x {} from {before}, the page shows {:?}); the run's last lines:\n{}",
+            x(&page).await,
+            state(&page).await,
+            tail.into_iter().rev().collect::<Vec<_>>().join("\n")
+        );
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
     assert_eq!(state(&page).await, "MOTION");
     mouse(&page, button, false).await;
     // Released: it stops (READY, and x stays).

@@ -124,6 +124,157 @@ fn the_application_runs_over_modbus_rtu_on_a_pty_pair() {
     eprintln!("RTU at 115 200 baud (emulated line): {exchanges} exchanges in {run_s:.1} s, mean {mean_us:.0} µs");
 }
 
+/// One machine over its own emulated line (115 200 baud, the packed image): referenced, its
+/// shipped program (the first offered, loaded at start) started from the screen's inputs once
+/// READY and run to its end, then jogged along +x. Returns a line for the log.
+fn machine_over_rtu(machine: &str, dir: &std::path::Path) -> String {
+    use pkm_api::trajectory::vars::NC_COMPLETED;
+    use pkm_plc::hmi::commands::press;
+    let config = common::machine_test_config(dir, machine);
+    let loaded = pkm_plc::config::load(Some(&config)).unwrap_or_else(|e| panic!("{machine}: {e}"));
+    let setup = pkm_plc::compose::Setup::new(loaded).expect("known machine");
+    let station = Station::new(setup.sim_bus(None).expect("sim"));
+    // This tests the exchange, not its timing: the station's watchdog waits longer than a busy
+    // machine may stall the test's threads.
+    let relaxed = pkm_plc::sim::server::ServerOptions {
+        watchdog: Some(std::time::Duration::from_secs(1)),
+        ..Default::default()
+    };
+    let (_station, plc_end) =
+        StationOnLine::start(station, LineTiming::modbus_rtu(115_200), relaxed).expect("station on the line");
+    let map = setup.io_map().expect("valid map").expect("an io_map");
+    let link = pkm_plc::io::modbus::ModbusOptions {
+        max_input_age: std::time::Duration::from_millis(500),
+        max_exchange: std::time::Duration::from_millis(100),
+        ..Default::default()
+    };
+    let bus = ModbusBus::new(map, Transport::Port(Some(plc_end)), link).expect("the image fits");
+    let programs = pkm_plc::nc_job::programs(&setup, None, Some(&common::root().join("programs")), true)
+        .unwrap_or_else(|e| panic!("{machine}: {}", e.message));
+    let library = programs.library.expect("programs offered");
+    let (bus, screen) = setup.with_screen(Box::new(bus));
+    let mut plc = setup.plc_with(bus, Some(&library)).expect("valid");
+    // The trace keeps what the run's end resets (the executor's outputs go to their safe values).
+    let trace = dir.join("trace.jsonl");
+    let digest = setup.digest().expect("digest");
+    plc.set_recorder(Box::new(
+        pkm_plc::trace::record::Recorder::create(&trace, &plc, &digest).expect("trace"),
+    ));
+    let options = RealTimeOptions {
+        source: Default::default(),
+        realtime_priority: 80,
+        lock_memory: false,
+        spin_ns: 0,
+        duration_ns: Some(MACHINE_RUN_BOUND_S * 1_000_000_000),
+    };
+    let run = run::start_realtime(plc, options).expect("real-time run");
+    let snapshot = run.snapshot();
+    // What the run does, step by step: referencing until READY; the program started from the
+    // reference pose (where a program starts); AUTO, then READY at its end; a jog held for a
+    // second; its MOTION, then READY. The snapshot is refreshed ten times a second, and the
+    // program's AUTO and the jog's MOTION last longer.
+    #[derive(Debug)]
+    enum Step {
+        Referencing,
+        Running { moved: bool },
+        Jogging(std::time::Instant),
+        Jogged { moved: bool },
+    }
+    let mut step = Step::Referencing;
+    let mut seen: Vec<String> = Vec::new();
+    // The operator's notes (a refused start says why).
+    let mut notes: Vec<String> = Vec::new();
+    while !run.is_finished() {
+        let (state, note) = {
+            let s = snapshot.lock().unwrap_or_else(|p| p.into_inner());
+            (s.state.clone(), s.note.clone())
+        };
+        if seen.last() != Some(&state) {
+            seen.push(state.clone());
+        }
+        if !note.is_empty() && !notes.contains(&note) {
+            notes.push(note);
+        }
+        let ready = state == "READY";
+        step = match step {
+            Step::Referencing if ready => {
+                screen.update(|c| c.presses[press::NC[0]] += 1);
+                Step::Running { moved: false }
+            }
+            Step::Running { moved: true } if ready => {
+                screen.update(|c| c.jog = [1.0, 0.0]);
+                Step::Jogging(std::time::Instant::now())
+            }
+            Step::Running { moved } => Step::Running {
+                moved: moved || state == "AUTO",
+            },
+            Step::Jogging(at) if at.elapsed() > std::time::Duration::from_secs(1) => {
+                screen.update(|c| c.jog = [0.0, 0.0]);
+                Step::Jogged { moved: !ready }
+            }
+            Step::Jogged { moved: true } if ready => {
+                run.stop();
+                break;
+            }
+            Step::Jogged { moved } => Step::Jogged { moved: moved || !ready },
+            other => other,
+        };
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    let mut outcome = run.join().expect("real-time run");
+    if let Some(recorder) = outcome.plc.take_recorder() {
+        recorder.finish().expect("trace written");
+    }
+    let status = outcome.plc.app_status().expect("status");
+    assert_eq!((status.state, status.reason), ("READY", None), "{machine}: {seen:?}");
+    let trace = std::fs::read_to_string(&trace).expect("trace");
+    assert!(
+        trace.contains(&format!(r#""{}":true"#, NC_COMPLETED.name())),
+        "{machine}: the program did not end: {seen:?}, notes {notes:?}"
+    );
+    assert!(
+        !trace.contains(r#""state":"ERROR""#),
+        "{machine}: an ERROR in the trace"
+    );
+    let bus = outcome
+        .plc
+        .bus()
+        .as_any()
+        .downcast_ref::<ModbusBus>()
+        .expect("the Modbus bus");
+    let stats = bus.stats();
+    let exchanges = stats.exchanges.load(std::sync::atomic::Ordering::Relaxed);
+    format!("{machine} over RTU: {seen:?}; {exchanges} exchanges")
+}
+
+/// The longest one machine's run over the line may take (s): pn101's referencing (its joints one
+/// after another) and its program of 55 s take about 90 s on a quiet machine.
+const MACHINE_RUN_BOUND_S: u64 = 300;
+
+/// Every machine references, jogs and runs its shipped program over an emulated RTU line of its
+/// own, the five side by side.
+#[test]
+fn every_machine_references_jogs_and_runs_its_program_over_modbus_rtu() {
+    let _alone = ALONE.lock().unwrap_or_else(|p| p.into_inner());
+    let dir = tempfile::tempdir().expect("tempdir");
+    let reports: Vec<String> = std::thread::scope(|scope| {
+        let runs: Vec<_> = common::MACHINES
+            .iter()
+            .map(|machine| {
+                let dir = dir.path().join(machine);
+                std::fs::create_dir(&dir).expect("a directory");
+                scope.spawn(move || machine_over_rtu(machine, &dir))
+            })
+            .collect();
+        runs.into_iter()
+            .map(|r| r.join().unwrap_or_else(|e| std::panic::resume_unwind(e)))
+            .collect()
+    });
+    for report in reports {
+        eprintln!("{report}");
+    }
+}
+
 #[test]
 fn link_bench_measures_both_exchanges_over_an_emulated_line() {
     let _alone = ALONE.lock().unwrap_or_else(|p| p.into_inner());

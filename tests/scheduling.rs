@@ -15,14 +15,17 @@ use pkm_plc::summary::Summary;
 // ---------------------------------------------------------------- test programs
 
 /// Counts its cycles into `<name>`, counts init calls into `<name>_inits`, counts releases off the
-/// cycle-time grid into `<name>_offgrid`; if `read` is set, counts the cycles in which the reader
-/// did not yet see the current instant's value of that counter (written by a class of period
-/// `read_period_us`) into `<name>_stale`.
+/// cycle-time grid into `<name>_offgrid`, stamps the release it runs for into `<name>_at` (1 for
+/// the release at 0, 2 for the next, ...); if `read` is set, counts the cycles in which the reader
+/// did not yet see the current instant's stamp (written by a class of period `read_period_us`)
+/// into `<name>_stale`. A stamp rather than a count: a release the writer skipped (a missed
+/// cycle on a busy machine) makes one reader cycle stale, not every one after it.
 struct Stamp {
     count: Output<i32>,
     inits: Output<i32>,
     offgrid: Output<i32>,
     stale: Output<i32>,
+    at: Output<i32>,
     read: Option<(Input<i32>, u64)>,
 }
 
@@ -44,6 +47,7 @@ impl Stamp {
             inits: decl.output(&format!("{}_inits", p.name), 0),
             offgrid: decl.output(&format!("{}_offgrid", p.name), 0),
             stale: decl.output(&format!("{}_stale", p.name), 0),
+            at: decl.output(&format!("{}_at", p.name), 0),
             read: p.read.map(|r| (decl.input(&r), p.read_period_us * 1000)),
         })
     }
@@ -57,12 +61,13 @@ impl Program for Stamp {
     fn cycle(&mut self, ctx: &mut Cycle<'_>) {
         let n = ctx.output_value(self.count) + 1;
         ctx.set(self.count, n);
+        ctx.set(self.at, (ctx.time_ns() / ctx.period_ns() + 1) as i32);
         if ctx.time_ns() % ctx.period_ns() != 0 {
             let o = ctx.output_value(self.offgrid) + 1;
             ctx.set(self.offgrid, o);
         }
         if let Some((input, period)) = self.read {
-            // The writer has run at 0, p, 2p, ... up to and including now if it ran first.
+            // The writer's stamp of this instant if it ran first.
             let expected = (ctx.time_ns() / period + 1) as i32;
             if ctx.get(input) != expected {
                 let s = ctx.output_value(self.stale) + 1;
@@ -172,7 +177,7 @@ fn ordering_config(writer_priority: u8, reader_priority: u8, reader_cycle_us: u3
             {{"name": "w", "cycle_us": 10000, "tolerance_us": 10000, "priority": {writer_priority},
               "programs": [{{"program": "stamp.a", "params": {{"name": "w"}}}}]}},
             {{"name": "r", "cycle_us": {reader_cycle_us}, "tolerance_us": 10000, "priority": {reader_priority},
-              "programs": [{{"program": "stamp.b", "params": {{"name": "r", "read": "w", "read_period_us": 10000}}}}]}}
+              "programs": [{{"program": "stamp.b", "params": {{"name": "r", "read": "w_at", "read_period_us": 10000}}}}]}}
         ]}}"#
     )
 }
@@ -242,7 +247,16 @@ fn ordering_and_the_absolute_release_grid_hold_in_real_time() {
     assert_eq!(r.cycles + r.missed, 6);
     let image = last.lock().expect("lock").clone();
     let get = |name: &str| image[usize::from(outcome.plc.vars().index_of(name).expect("variable"))];
-    assert_eq!(get("r_stale"), Value::Dint(0));
+    // The writer ran first at every instant both were due; only a release the writer skipped
+    // (a missed cycle, on a busy machine) leaves the reader its previous stamp.
+    let Value::Dint(stale) = get("r_stale") else {
+        panic!("r_stale is a DINT")
+    };
+    assert!(
+        u64::try_from(stale).is_ok_and(|s| s <= w.missed),
+        "{stale} stale reads, {} releases of the writer skipped",
+        w.missed
+    );
     assert_eq!(get("w_offgrid"), Value::Dint(0));
     assert_eq!(get("r_offgrid"), Value::Dint(0));
     assert_eq!(get("w"), Value::Dint(w.cycles as i32));

@@ -256,6 +256,81 @@ pub fn screen_jog(url: &str, x: f64, y: f64, hold: std::time::Duration) {
     });
 }
 
+/// Sends one command (`{"cmd": …}`) to the screen at `url` (`http://…/`), as the page does.
+pub fn screen_command(url: &str, command: serde_json::Value) {
+    use futures::SinkExt;
+    use tokio_tungstenite::tungstenite::Message;
+    let runtime = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .expect("a runtime");
+    let ws = url.replacen("http://", "ws://", 1) + "ws";
+    runtime.block_on(async {
+        let (mut socket, _) = tokio_tungstenite::connect_async(ws.as_str()).await.expect("the screen");
+        socket
+            .send(Message::Text(command.to_string().into()))
+            .await
+            .expect("the command");
+        let _ = socket.close(None).await;
+    });
+}
+
+/// Every machine's name, as `--machine` takes it.
+pub const MACHINES: [&str; 5] = ["trijoint", "pn101", "ox-x", "ox-o", "hexapod"];
+
+/// `machine`'s configuration for real-time tests over a link, written to `dir/NAME.json`, its I/O
+/// map's path absolute: they test the link and the machine, not the scheduler's timing, so a late
+/// cycle on a busy machine is logged rather than an ERROR. Referencing is shortened where that
+/// changes nothing the tests look at: the TRIJOINT's as [`realtime_config`]; each joint of the
+/// joint machines searches its switch at twice its speed (within the joint's top speed), its
+/// slow approach four times as fast (pn101 references its joints one after another: 84 s as
+/// shipped). DC drives bound the counter's jump and the following error as
+/// [`busy_machine_config`] does.
+pub fn machine_test_config(dir: &Path, machine: &str) -> PathBuf {
+    if machine == "trijoint" {
+        return write_config(dir, "trijoint.json", &realtime_config());
+    }
+    let mut config = read_json(&root().join(format!("machines/{machine}.json")));
+    config["io_map"] = root()
+        .join(format!("io-map/{machine}.json"))
+        .to_str()
+        .expect("utf-8")
+        .into();
+    for class in config["task_classes"].as_array_mut().expect("classes") {
+        class["on_violation"] = "log".into();
+        for program in class["programs"].as_array_mut().expect("programs") {
+            // DC drives as in [`busy_machine_config`]: a late image is a jump of the counter.
+            if let Some(drives) = program
+                .get_mut("params")
+                .and_then(|p| p.get_mut("dc"))
+                .and_then(serde_json::Value::as_array_mut)
+            {
+                for drive in drives {
+                    drive["max_counts_per_cycle"] = 30000.into();
+                    drive["max_following_error_mm"] = 20.0.into();
+                }
+            }
+            // Looked up, not indexed: indexing would add `joints` to the other programs' params.
+            let Some(joints) = program
+                .get_mut("params")
+                .and_then(|p| p.get_mut("joints"))
+                .and_then(serde_json::Value::as_array_mut)
+            else {
+                continue;
+            };
+            for joint in joints {
+                let top = joint["max_speed_mm_s"].as_f64().expect("max_speed_mm_s");
+                let reference = &mut joint["reference"];
+                let search = reference["search_speed_mm_s"].as_f64().expect("search speed");
+                let latch = reference["latch_speed_mm_s"].as_f64().expect("latch speed");
+                reference["search_speed_mm_s"] = (2.0 * search).min(top).into();
+                reference["latch_speed_mm_s"] = (4.0 * latch).min(top).into();
+            }
+        }
+    }
+    write_config(dir, &format!("{machine}.json"), &config)
+}
+
 /// The O-X glide's configuration for real-time tests of the screen and its jobs, with `edit`
 /// applied to the whole, written to `dir/ox-x.json`: they test the screen, not the scheduler's
 /// timing, so a late cycle on a busy machine is logged rather than an ERROR (timing has its own

@@ -400,7 +400,6 @@ fn wrong_passwords_are_answered_ever_later_and_the_right_one_at_once() {
     eprintln!("lockout: ten wrong passwords, five at a time, took {seconds:.1} s");
     // Without the back-off they took 0.6 s (0.3 s each).
     assert!(seconds >= 10.0, "{guessed}");
-    let start = Instant::now();
     let out = opcua_client(
         &python,
         &[
@@ -415,7 +414,11 @@ fn wrong_passwords_are_answered_ever_later_and_the_right_one_at_once() {
         ],
     );
     assert_eq!(out["steps"][0]["status"], "Good", "{out}");
-    assert!(start.elapsed() < Duration::from_secs(8), "{:?}", start.elapsed());
+    // The login itself, measured by the client (its interpreter's start is not the server's
+    // doing): the back-off after ten refusals is 10 s.
+    let login = out["connect_seconds"].as_f64().unwrap_or(f64::INFINITY);
+    eprintln!("lockout: the right password after ten wrong ones logged in in {login:.2} s");
+    assert!(login < 5.0, "{out}");
     let log = served.run.log();
     let lines = log.matches("OPC UA: login refused").count();
     assert!((1..=3).contains(&lines), "{lines} lines:\n{log}");

@@ -5,6 +5,7 @@
 //! - [`interop`]: against an independent Modbus implementation (pymodbus).
 //! - [`io_sim`]: the I/O simulator as a Modbus TCP slave.
 //! - [`joystick_fifo`]: a joystick through a FIFO.
+//! - [`machines_over_modbus`]: every machine over Modbus TCP, both exchanges.
 //! - [`modbus_faults`]: link faults on Modbus TCP and RTU.
 //! - [`opcua`]: the OPC UA server with Python's asyncua.
 //! - [`station_safety`]: what the station and the soft-PLC do when things go wrong.
@@ -21,6 +22,7 @@ mod interop;
 mod io_sim;
 mod joystick_fifo;
 mod lockout;
+mod machines_over_modbus;
 mod modbus_faults;
 mod opcua;
 mod screen_jobs;

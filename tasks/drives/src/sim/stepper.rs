@@ -15,12 +15,14 @@ pub struct StepperParams {
     pub steps_per_mm: f64,
     /// Above this speed (mm/s) the motor falls out of step.
     pub pull_out_speed_mm_s: f64,
-    /// A change of the commanded speed faster than this (mm/s², between two set-points) makes
-    /// the motor fall out of step.
+    /// The fastest the rotor's speed can change (mm/s²): the rotor's speed follows the commanded
+    /// speed at most this fast, and a commanded speed that runs ahead of it by more than the
+    /// pull-in speed makes the motor fall out of step. A set-point raised in steps every cycle
+    /// is followed as long as its average ramp stays within this, however its writes are spaced.
     pub pull_out_accel_mm_s2: f64,
     /// The start-stop speed (mm/s): the motor follows any change of the commanded speed between
-    /// rates at most this fast, and a stalled motor runs again once the commanded speed is at
-    /// most this.
+    /// rates at most this fast, and any jump of at most this from the speed its rotor follows; a
+    /// stalled motor runs again once the commanded speed is at most this.
     pub pull_in_speed_mm_s: f64,
 }
 
@@ -31,8 +33,12 @@ pub struct Stepper {
     enabled: bool,
     /// Commanded step rate (steps/s) as last written.
     commanded: f64,
-    /// Time since the set-point was last written (s).
-    since_command_s: f64,
+    /// The rate the rotor follows (steps/s): it moves towards the commanded rate at most at the
+    /// pull-out acceleration. Judged by state, not by the time between writes: a station that
+    /// writes the same set-point twice in a millisecond (a Modbus exchange's coils, then its
+    /// registers) or a set-point's change a little early or late is the same step train to
+    /// the motor.
+    followed: f64,
     /// Steps emitted by the module since power-on, in steps·µs: the set-point is a whole number
     /// of steps/s and a time step a whole number of µs, so the count is exact (summing fractions
     /// of a step in floating point would put the counter one step short at whole counts). At
@@ -55,7 +61,7 @@ impl Stepper {
             p,
             enabled: false,
             commanded: 0.0,
-            since_command_s: 0.0,
+            followed: 0.0,
             emitted_step_us: 0,
             moved_step_us: 0,
             dt: (f64::NAN, 0),
@@ -65,40 +71,37 @@ impl Stepper {
         }
     }
 
-    /// The module's outputs as the cycle wrote them: the channel's enable and its speed set-point
-    /// (steps/s). Called at every write, so the time between calls is the set-point's period.
+    /// The module's outputs as the station wrote them: the channel's enable and its speed
+    /// set-point (steps/s). Writing the same outputs again changes nothing.
     pub fn command(&mut self, enable: bool, rate_steps_s: i16) {
         let rate = if enable { f64::from(rate_steps_s) } else { 0.0 };
-        let change = (rate - self.rate()).abs();
         // Within the start-stop range (both rates at most the pull-in rate) a motor follows any
-        // change at once; beyond it, only changes within the pull-out acceleration.
+        // change at once; beyond it, a rate at most the pull-in rate from what the rotor follows.
         let pull_in = self.p.pull_in_speed_mm_s * self.p.steps_per_mm;
-        let start_stop = rate.abs() <= pull_in && self.rate().abs() <= pull_in;
-        if change > 0.0 && !start_stop {
-            let accel_steps_s2 = if self.since_command_s > 0.0 {
-                change / self.since_command_s
-            } else {
-                f64::INFINITY
-            };
-            if accel_steps_s2 > self.p.pull_out_accel_mm_s2 * self.p.steps_per_mm {
-                self.stall();
-            }
+        let start_stop = rate.abs() <= pull_in && self.followed.abs() <= pull_in;
+        if !start_stop && (rate - self.followed).abs() > pull_in {
+            self.stall();
+        }
+        if start_stop && !self.stalled {
+            self.followed = rate;
         }
         self.enabled = enable;
         self.commanded = f64::from(rate_steps_s);
-        self.since_command_s = 0.0;
     }
 
     /// Advances `dt` seconds. `travel` is the carriage's hard stops `[min, max]` (mm); `jammed`
     /// says the mechanism blocks this joint's motion in the commanded direction.
     pub fn step(&mut self, dt: f64, travel: [f64; 2], jammed: bool) {
-        self.since_command_s += dt;
         let rate = self.rate();
         if rate.abs() > self.p.pull_out_speed_mm_s * self.p.steps_per_mm {
             self.stall();
         } else if self.stalled && rate.abs() <= self.p.pull_in_speed_mm_s * self.p.steps_per_mm {
+            // The rotor catches the step train at a rate it can start at.
             self.stalled = false;
+            self.followed = rate;
         }
+        let reach = self.p.pull_out_accel_mm_s2 * self.p.steps_per_mm * dt;
+        self.followed += (rate - self.followed).clamp(-reach, reach);
         if rate == 0.0 {
             return;
         }
@@ -221,6 +224,43 @@ mod tests {
         assert!((moved_mm - s.emitted() / 400.0).abs() < 1e-9);
         // Ramp up 336 steps, 1 s at 3200 steps/s, ramp down 304 steps: 3840 steps, 9.6 mm.
         assert!((moved_mm - 9.6).abs() < 1e-9, "{moved_mm}");
+    }
+
+    #[test]
+    fn how_a_station_spaces_its_writes_does_not_matter() {
+        // The ramp of `within_its_limits…`, as a Modbus station delivers it: each set-point
+        // written twice in the same millisecond (coils, then registers), arriving 5 or 15 ms
+        // after the one before (an exchange loop every 5 ms beside a 10 ms cycle).
+        let mut s = Stepper::new(PN101, 100.0);
+        let mut rate = 0;
+        let mut k = 0;
+        while rate < 3200 {
+            rate += 160;
+            s.command(true, rate);
+            s.command(true, rate);
+            let ms = if k % 2 == 0 { 5 } else { 15 };
+            for _ in 0..ms {
+                s.step(0.001, TRAVEL, false);
+            }
+            k += 1;
+        }
+        assert_eq!(s.stalls(), 0);
+        assert_eq!(s.lost_steps(), 0.0);
+    }
+
+    #[test]
+    fn a_ramp_steeper_than_the_pull_out_acceleration_loses_steps() {
+        let mut s = Stepper::new(PN101, 100.0);
+        // 150 mm/s² (600 steps/s every 10 ms) against a pull-out of 80 mm/s²: beyond the
+        // start-stop range the rotor falls behind by 0.7 mm/s every set-point, out of step once
+        // more than 2 mm/s behind: at 4.5 mm/s.
+        let mut rate = 0;
+        while rate < 3200 && !s.stalled() {
+            rate += 600;
+            cycle(&mut s, rate);
+        }
+        assert!(s.stalled(), "followed up to {rate} steps/s");
+        assert_eq!(rate, 1800);
     }
 
     #[test]
