@@ -275,6 +275,45 @@ pub fn screen_command(url: &str, command: serde_json::Value) {
     });
 }
 
+/// Places shared by tests that load the machine (PLC-and-station sessions, say): at most `most`
+/// taken at once; [`Places::take`] waits for one.
+pub struct Places {
+    taken: std::sync::Mutex<usize>,
+    freed: std::sync::Condvar,
+    most: usize,
+}
+
+/// A place taken, given back when dropped.
+pub struct Place(&'static Places);
+
+impl Places {
+    /// At most `most` places taken at once.
+    pub const fn new(most: usize) -> Places {
+        Places {
+            taken: std::sync::Mutex::new(0),
+            freed: std::sync::Condvar::new(),
+            most,
+        }
+    }
+
+    /// Waits for a free place and takes it.
+    pub fn take(&'static self) -> Place {
+        let mut n = self.taken.lock().unwrap_or_else(|p| p.into_inner());
+        while *n >= self.most {
+            n = self.freed.wait(n).unwrap_or_else(|p| p.into_inner());
+        }
+        *n += 1;
+        Place(self)
+    }
+}
+
+impl Drop for Place {
+    fn drop(&mut self) {
+        *self.0.taken.lock().unwrap_or_else(|p| p.into_inner()) -= 1;
+        self.0.freed.notify_one();
+    }
+}
+
 /// Every machine's name, as `--machine` takes it.
 pub const MACHINES: [&str; 5] = ["trijoint", "pn101", "ox-x", "ox-o", "hexapod"];
 
@@ -285,7 +324,7 @@ pub const MACHINES: [&str; 5] = ["trijoint", "pn101", "ox-x", "ox-o", "hexapod"]
 /// joint machines searches its switch at twice its speed (within the joint's top speed), its
 /// slow approach four times as fast (pn101 references its joints one after another: 84 s as
 /// shipped). DC drives bound the counter's jump and the following error as
-/// [`busy_machine_config`] does.
+/// [`busy_machine_config`] does; steppers' following error is bounded at 10 mm.
 pub fn machine_test_config(dir: &Path, machine: &str) -> PathBuf {
     if machine == "trijoint" {
         return write_config(dir, "trijoint.json", &realtime_config());
@@ -299,7 +338,9 @@ pub fn machine_test_config(dir: &Path, machine: &str) -> PathBuf {
     for class in config["task_classes"].as_array_mut().expect("classes") {
         class["on_violation"] = "log".into();
         for program in class["programs"].as_array_mut().expect("programs") {
-            // DC drives as in [`busy_machine_config`]: a late image is a jump of the counter.
+            // DC drives as in [`busy_machine_config`]: a late image is a jump of the counter,
+            // and the set-point runs ahead of positions that come late; a stepper's emitted
+            // steps come late alike.
             if let Some(drives) = program
                 .get_mut("params")
                 .and_then(|p| p.get_mut("dc"))
@@ -308,6 +349,15 @@ pub fn machine_test_config(dir: &Path, machine: &str) -> PathBuf {
                 for drive in drives {
                     drive["max_counts_per_cycle"] = 30000.into();
                     drive["max_following_error_mm"] = 20.0.into();
+                }
+            }
+            if let Some(drives) = program
+                .get_mut("params")
+                .and_then(|p| p.get_mut("steppers"))
+                .and_then(serde_json::Value::as_array_mut)
+            {
+                for drive in drives {
+                    drive["max_following_error_mm"] = 10.0.into();
                 }
             }
             // Looked up, not indexed: indexing would add `joints` to the other programs' params.

@@ -24,36 +24,13 @@ const PROGRAM_WITHIN: Duration = Duration::from_secs(150);
 /// milliseconds and the screen's presses with them.
 const SESSIONS_AT_ONCE: usize = 4;
 
-/// Sessions running now (at most [`SESSIONS_AT_ONCE`]), and the condition to wait on for a place.
-static SESSIONS: (std::sync::Mutex<usize>, std::sync::Condvar) = (std::sync::Mutex::new(0), std::sync::Condvar::new());
-
-/// A place among the sessions, given back when dropped.
-struct Place;
-
-impl Place {
-    fn take() -> Place {
-        let (count, freed) = &SESSIONS;
-        let mut n = count.lock().unwrap_or_else(|p| p.into_inner());
-        while *n >= SESSIONS_AT_ONCE {
-            n = freed.wait(n).unwrap_or_else(|p| p.into_inner());
-        }
-        *n += 1;
-        Place
-    }
-}
-
-impl Drop for Place {
-    fn drop(&mut self) {
-        let (count, freed) = &SESSIONS;
-        *count.lock().unwrap_or_else(|p| p.into_inner()) -= 1;
-        freed.notify_one();
-    }
-}
+/// The sessions' places.
+static SESSIONS: common::Places = common::Places::new(SESSIONS_AT_ONCE);
 
 /// One session: `machine` with `exchange` against a station of its own: READY, the shipped
 /// program to its end, a jog along +x; the summary and the trace say how it went.
 fn session(machine: &str, exchange: &str, dir: &Path) {
-    let _place = Place::take();
+    let _place = SESSIONS.take();
     let config = common::machine_test_config(dir, machine);
     let config = config.to_str().expect("utf-8");
     // The station's watchdog waits longer than a busy machine may delay the link.

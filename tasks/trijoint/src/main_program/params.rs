@@ -25,7 +25,8 @@ pub struct MainParams {
     pub creep_distance_mm: f64,
     /// A switch not found within this time is an INIT timeout (s).
     pub search_timeout_s: f64,
-    /// Carriage positions after INIT, from the lower switches (mm); default: the middle.
+    /// Carriage positions after INIT, from the lower switches (mm); default: the middle of the
+    /// configured travel (the kinematics' `h1_travel`, `h2_travel`), where programs start.
     pub start_position_mm: Option<[f64; 2]>,
     /// Software limits lie this far inside the switches (mm).
     pub soft_limit_margin_mm: f64,
