@@ -88,7 +88,10 @@ impl PacedLine {
             let state = Arc::clone(&state);
             let thread = std::thread::Builder::new()
                 .name(format!("line-{sender}"))
-                .spawn(move || carry(sender, from, to, timing, &state, &stop))?;
+                .spawn(move || {
+                    hardware_priority();
+                    carry(sender, from, to, timing, &state, &stop)
+                })?;
             threads.push(thread);
         }
         Ok(PacedLine { stop, threads })
@@ -143,6 +146,18 @@ fn carry(
             return;
         }
     }
+}
+
+/// SCHED_FIFO priority of the threads that emulate hardware (a line's carriers, a station on
+/// a line): below the cyclic thread's 80, above everything else. A UART or a station's own
+/// processor is never starved by a busy PC; threads at normal priority were, by seconds, beside
+/// CPU-bound processes, and the line then looked broken.
+pub const HARDWARE_PRIORITY: u8 = 70;
+
+/// Puts the calling thread at [`HARDWARE_PRIORITY`] where the process may (root,
+/// CAP_SYS_NICE); elsewhere it stays at normal priority, which serves on a quiet machine.
+pub fn hardware_priority() {
+    let _ = crate::timing::set_realtime_priority(HARDWARE_PRIORITY);
 }
 
 #[cfg(test)]

@@ -354,6 +354,7 @@ impl StationOnLine {
         let thread = std::thread::Builder::new()
             .name("station-on-line".into())
             .spawn(move || {
+                crate::io::line::hardware_priority();
                 runtime.block_on(async move {
                     // Registered with the reactor here, in the station's runtime.
                     let Ok(stream) = tokio_serial::SerialStream::try_from(station_end) else {
