@@ -100,7 +100,8 @@ fn a_client_browses_every_variable_with_its_type_and_unit_and_subscribes_at_the_
             return;
         }
     };
-    let plc = Plc::start(&["--duration", "60"]);
+    // Ended by SIGTERM once the clients are done (each takes seconds on a busy machine).
+    let mut plc = Plc::start(&["--duration", "300"]);
     // On loopback: the unsecured endpoint besides the secure ones; anonymous sessions only
     // (no users file).
     let endpoints = client(&python, &["endpoints", &plc.url]);
@@ -201,6 +202,7 @@ fn a_client_browses_every_variable_with_its_type_and_unit_and_subscribes_at_the_
     let refused = client(&python, &["call", &plc.url, "trijoint", "Stop"]);
     assert_eq!(refused["steps"][0]["status"], "BadUserAccessDenied", "{refused}");
     assert!(!plc.log().contains("ERROR (STOP)"), "{}", plc.log());
+    assert!(plc.run.terminate().success(), "{}", plc.log());
 }
 
 #[test]

@@ -101,7 +101,7 @@ async fn jobs_that_nest_or_plan_for_long_never_take_the_plc_down_or_hold_it_up()
         job_refused(&mut ws).await,
         "MDI:1:69: the value nests deeper than 64 levels (brackets, signs, parameters of parameters and functions, counted together): write it in steps with parameters"
     );
-    until_state(&mut ws, "READY", Duration::from_secs(5)).await;
+    until_state(&mut ws, "READY", Duration::from_secs(30)).await;
 
     // Cancelled while it is planned.
     mdi(&mut ws, LONG).await;
@@ -122,7 +122,7 @@ async fn jobs_that_nest_or_plan_for_long_never_take_the_plc_down_or_hold_it_up()
         why.ends_with(": abandoned while it was being planned: STOP pressed"),
         "{why}"
     );
-    until_state(&mut ws, "ERROR", Duration::from_secs(5)).await;
+    until_state(&mut ws, "ERROR", Duration::from_secs(30)).await;
     // The acknowledgement: STOP again once the lockout after the first has passed.
     let start = Instant::now();
     loop {
