@@ -387,13 +387,13 @@ fn make_bus(setup: &Setup, options: &Options) -> Result<(Box<dyn Bus>, Option<Io
     let map = setup.io_map()?;
     let bus: Box<dyn Bus> = match (&options.bus, &map) {
         (BusChoice::Tcp(_) | BusChoice::Serial(..), None) => unreachable!("refused above: no io_map"),
-        (BusChoice::Tcp(address), Some(map)) => modbus_bus(map, Transport::Tcp(*address), options)?,
+        (BusChoice::Tcp(address), Some(map)) => modbus_bus(setup, map, Transport::Tcp(*address), options)?,
         (BusChoice::Serial(path, baud), Some(map)) => {
             let transport = Transport::Serial {
                 path: path.clone(),
                 baud: *baud,
             };
-            modbus_bus(map, transport, options)?
+            modbus_bus(setup, map, transport, options)?
         }
         (BusChoice::None, Some(map)) => {
             let bus = crate::io::dry::DryBus::new(map.clone());
@@ -416,8 +416,11 @@ fn make_bus(setup: &Setup, options: &Options) -> Result<(Box<dyn Bus>, Option<Io
 
 /// A Modbus bus over `map` reached by `transport`; a map too large for the chosen exchange is a
 /// usage error (`--exchange`).
-fn modbus_bus(map: &IoMap, transport: Transport, options: &Options) -> Result<Box<dyn Bus>, BusFailure> {
-    let bus = ModbusBus::new(map.clone(), transport, options.link).map_err(|e| usage(format!("--bus: {e}")))?;
+fn modbus_bus(setup: &Setup, map: &IoMap, transport: Transport, options: &Options) -> Result<Box<dyn Bus>, BusFailure> {
+    let mut link = options.link;
+    // The exchange thread one below the cyclic thread (when that asks for real-time priority).
+    link.priority = setup.loaded.config.timing.realtime_priority.saturating_sub(1);
+    let bus = ModbusBus::new(map.clone(), transport, link).map_err(|e| usage(format!("--bus: {e}")))?;
     Ok(Box::new(bus))
 }
 

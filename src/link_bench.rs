@@ -106,6 +106,9 @@ fn measure(
     let (station, plc_end) = StationOnLine::start(station, timing, Default::default()).map_err(|e| setup(&e))?;
     let bus_options = ModbusOptions {
         exchange: mode,
+        // As a run's exchange thread (one below the cyclic thread's default 80) where the
+        // process may: the measurement is the line's, not the scheduler's.
+        priority: 79,
         ..Default::default()
     };
     let mut bus = ModbusBus::new(map, Transport::Port(Some(plc_end)), bus_options).map_err(|e| setup(&e))?;

@@ -150,6 +150,8 @@ fn machine_over_rtu(machine: &str, dir: &std::path::Path) -> String {
         max_failures: 10,
         max_input_age: std::time::Duration::from_secs(2),
         max_exchange: std::time::Duration::from_millis(200),
+        // As `run` sets it: one below the cyclic thread's 80.
+        priority: 79,
         ..Default::default()
     };
     let bus = ModbusBus::new(map, Transport::Port(Some(plc_end)), link).expect("the image fits");

@@ -47,10 +47,21 @@ async fn reply(ws: &mut Ws, within: Duration) -> serde_json::Value {
 /// Waits for a frame in `state`.
 async fn until_state(ws: &mut Ws, state: &str, within: Duration) {
     let start = Instant::now();
+    let mut last = serde_json::Value::Null;
     loop {
-        let m = next(ws, within.saturating_sub(start.elapsed())).await;
-        if m["type"] == "frame" && m["state"] == state {
-            return;
+        let left = within.saturating_sub(start.elapsed());
+        assert!(
+            !left.is_zero(),
+            "not {state} within {within:?}; the last frame's state {}, note {}",
+            last["state"],
+            last["note"]
+        );
+        let m = next(ws, left).await;
+        if m["type"] == "frame" {
+            if m["state"] == state {
+                return;
+            }
+            last = m;
         }
     }
 }

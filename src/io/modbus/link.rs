@@ -134,6 +134,8 @@ pub(super) struct Link {
     pub max_failures: u32,
     /// The median time of the last [`SLOW_WINDOW`] exchanges above this is a bus fault.
     pub max_exchange: Duration,
+    /// SCHED_FIFO priority of the exchange thread (0: normal scheduling).
+    pub priority: u8,
     pub shared: Arc<Shared>,
 }
 
@@ -162,6 +164,14 @@ impl Link {
     }
 
     fn run(mut self, mut inputs: MailboxWriter, mut outputs: MailboxReader) {
+        // The exchange carries the cycle's outputs to the station: starved by other processes,
+        // it delivers set-points late and in bursts (a stepper loses steps on such a jump).
+        // Refused where the process may not (the cyclic thread's own warning says so).
+        if self.priority > 0
+            && let Err(e) = crate::timing::set_realtime_priority(self.priority)
+        {
+            tracing::debug!("modbus: the exchange thread runs at normal priority: {e}");
+        }
         let runtime = match tokio::runtime::Builder::new_current_thread().enable_all().build() {
             Ok(r) => r,
             Err(e) => {

@@ -99,6 +99,10 @@ pub struct ModbusOptions {
     /// tuned for inputs this fresh, and a slower link makes them oscillate long before the
     /// inputs are stale.
     pub max_exchange: Duration,
+    /// SCHED_FIFO priority of the exchange thread, 0 for normal scheduling: the run gives it one
+    /// below the cyclic thread's, so that it carries the cycle's outputs on time beside other
+    /// processes.
+    pub priority: u8,
 }
 
 impl Default for ModbusOptions {
@@ -110,6 +114,7 @@ impl Default for ModbusOptions {
             max_failures: 3,
             max_input_age: DEFAULT_MAX_INPUT_AGE,
             max_exchange: DEFAULT_MAX_EXCHANGE,
+            priority: 0,
         }
     }
 }
@@ -303,6 +308,7 @@ impl Bus for ModbusBus {
             period: self.options.period,
             max_failures: self.options.max_failures,
             max_exchange: self.options.max_exchange,
+            priority: self.options.priority,
             shared: Arc::clone(&self.shared),
         };
         self.pending = Some((link, in_writer, out_reader));
