@@ -30,6 +30,25 @@ const RUN_BOUND_S: u64 = 90;
 /// Held by each test for its whole run: the emulated lines' threads of one would slow the other's.
 static ALONE: std::sync::Mutex<()> = std::sync::Mutex::new(());
 
+/// `setup`'s simulated machine served as a station at the far end of an emulated 115 200 baud
+/// line, and the Modbus bus (with `link`) at the near end. The station's watchdog waits a second:
+/// these tests are not about timing, and a busy machine may stall their threads that long.
+fn over_a_line(
+    setup: &pkm_plc::compose::Setup,
+    link: pkm_plc::io::modbus::ModbusOptions,
+) -> (StationOnLine, ModbusBus) {
+    let station = Station::new(setup.sim_bus(None).expect("sim"));
+    let relaxed = pkm_plc::sim::server::ServerOptions {
+        watchdog: Some(std::time::Duration::from_secs(1)),
+        ..Default::default()
+    };
+    let (station, plc_end) =
+        StationOnLine::start(station, LineTiming::modbus_rtu(115_200), relaxed).expect("station on the line");
+    let map = setup.io_map().expect("valid map").expect("an io_map");
+    let bus = ModbusBus::new(map, Transport::Port(Some(plc_end)), link).expect("the image fits");
+    (station, bus)
+}
+
 #[test]
 fn the_application_runs_over_modbus_rtu_on_a_pty_pair() {
     let _alone = ALONE.lock().unwrap_or_else(|p| p.into_inner());
@@ -37,16 +56,6 @@ fn the_application_runs_over_modbus_rtu_on_a_pty_pair() {
     let loaded = common::loaded(&common::realtime_config());
     let dir = tempfile::tempdir().expect("tempdir");
     let setup = pkm_plc::compose::Setup::new(loaded.clone()).expect("known machine");
-    let station = Station::new(setup.sim_bus(None).expect("sim"));
-    // This tests the exchange, not its timing: the station's watchdog waits longer than a busy
-    // machine may stall the test's threads.
-    let relaxed = pkm_plc::sim::server::ServerOptions {
-        watchdog: Some(std::time::Duration::from_secs(1)),
-        ..Default::default()
-    };
-    let (_station, plc_end) =
-        StationOnLine::start(station, LineTiming::modbus_rtu(115_200), relaxed).expect("station on the line");
-    let map = setup.io_map().expect("valid map").expect("an io_map");
     // This tests the exchange, not its timing: a busy machine may delay an image, and slow the
     // emulated line's exchanges beyond what the regulators are tuned for.
     let link = pkm_plc::io::modbus::ModbusOptions {
@@ -54,7 +63,7 @@ fn the_application_runs_over_modbus_rtu_on_a_pty_pair() {
         max_exchange: std::time::Duration::from_millis(100),
         ..Default::default()
     };
-    let bus = ModbusBus::new(map, Transport::Port(Some(plc_end)), link).expect("the image fits");
+    let (_station, bus) = over_a_line(&setup, link);
     assert_eq!(bus.exchange(), ExchangeMode::Image);
     // The operator's screen's inputs over the link: the test jogs through them once READY.
     let (bus, screen) = setup.with_screen(Box::new(bus));
@@ -133,16 +142,6 @@ fn machine_over_rtu(machine: &str, dir: &std::path::Path) -> String {
     let config = common::machine_test_config(dir, machine);
     let loaded = pkm_plc::config::load(Some(&config)).unwrap_or_else(|e| panic!("{machine}: {e}"));
     let setup = pkm_plc::compose::Setup::new(loaded).expect("known machine");
-    let station = Station::new(setup.sim_bus(None).expect("sim"));
-    // This tests the exchange, not its timing: the station's watchdog waits longer than a busy
-    // machine may stall the test's threads.
-    let relaxed = pkm_plc::sim::server::ServerOptions {
-        watchdog: Some(std::time::Duration::from_secs(1)),
-        ..Default::default()
-    };
-    let (_station, plc_end) =
-        StationOnLine::start(station, LineTiming::modbus_rtu(115_200), relaxed).expect("station on the line");
-    let map = setup.io_map().expect("valid map").expect("an io_map");
     // This tests that each machine works over the line, not the line's timing (the other test
     // measures that): a busy machine may stall the line's threads for long.
     let link = pkm_plc::io::modbus::ModbusOptions {
@@ -154,7 +153,7 @@ fn machine_over_rtu(machine: &str, dir: &std::path::Path) -> String {
         priority: 79,
         ..Default::default()
     };
-    let bus = ModbusBus::new(map, Transport::Port(Some(plc_end)), link).expect("the image fits");
+    let (_station, bus) = over_a_line(&setup, link);
     let programs = pkm_plc::nc_job::programs(&setup, None, Some(&common::root().join("programs")), true)
         .unwrap_or_else(|e| panic!("{machine}: {}", e.message));
     let library = programs.library.expect("programs offered");

@@ -232,12 +232,12 @@ pub fn write_config(dir: &Path, name: &str, config: &serde_json::Value) -> PathB
     path
 }
 
-/// Holds a jog on the screen at `url` (`http://…/`) at `x`, `y` for `hold`, as the page does
-/// (a fresh command every 20 ms: the screen stops a jog that is not refreshed), then releases
-/// it. For real-time tests that jog once the machine is READY, whatever time that took.
-pub fn screen_jog(url: &str, x: f64, y: f64, hold: std::time::Duration) {
-    use futures::SinkExt;
-    use tokio_tungstenite::tungstenite::Message;
+/// The WebSocket of the screen at `url` (`http://…/`), as a page opens it.
+type ScreenSocket = tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>;
+
+/// Connects to the screen at `url` (`http://…/`) as a page does, runs `body` with the socket on
+/// a runtime of its own, and closes the socket.
+fn on_screen(url: &str, body: impl AsyncFnOnce(&mut ScreenSocket)) {
     let runtime = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()
@@ -245,14 +245,25 @@ pub fn screen_jog(url: &str, x: f64, y: f64, hold: std::time::Duration) {
     let ws = url.replacen("http://", "ws://", 1) + "ws";
     runtime.block_on(async {
         let (mut socket, _) = tokio_tungstenite::connect_async(ws.as_str()).await.expect("the screen");
-        let jog = |x: f64, y: f64| Message::Text(serde_json::json!({"cmd": "jog", "x": x, "y": y}).to_string().into());
+        body(&mut socket).await;
+        let _ = socket.close(None).await;
+    });
+}
+
+/// Holds a jog on the screen at `url` (`http://…/`) at `x`, `y` for `hold`, as the page does
+/// (a fresh command every 20 ms: the screen stops a jog that is not refreshed), then releases
+/// it. For real-time tests that jog once the machine is READY, whatever time that took.
+pub fn screen_jog(url: &str, x: f64, y: f64, hold: std::time::Duration) {
+    use futures::SinkExt;
+    use tokio_tungstenite::tungstenite::Message;
+    let jog = |x: f64, y: f64| Message::Text(serde_json::json!({"cmd": "jog", "x": x, "y": y}).to_string().into());
+    on_screen(url, async |socket| {
         let start = std::time::Instant::now();
         while start.elapsed() < hold {
             socket.send(jog(x, y)).await.expect("a jog");
             tokio::time::sleep(std::time::Duration::from_millis(20)).await;
         }
         socket.send(jog(0.0, 0.0)).await.expect("the release");
-        let _ = socket.close(None).await;
     });
 }
 
@@ -260,18 +271,11 @@ pub fn screen_jog(url: &str, x: f64, y: f64, hold: std::time::Duration) {
 pub fn screen_command(url: &str, command: serde_json::Value) {
     use futures::SinkExt;
     use tokio_tungstenite::tungstenite::Message;
-    let runtime = tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()
-        .expect("a runtime");
-    let ws = url.replacen("http://", "ws://", 1) + "ws";
-    runtime.block_on(async {
-        let (mut socket, _) = tokio_tungstenite::connect_async(ws.as_str()).await.expect("the screen");
+    on_screen(url, async |socket| {
         socket
             .send(Message::Text(command.to_string().into()))
             .await
             .expect("the command");
-        let _ = socket.close(None).await;
     });
 }
 
@@ -341,34 +345,14 @@ pub fn machine_test_config(dir: &Path, machine: &str) -> PathBuf {
             // DC drives as in [`busy_machine_config`]: a late image is a jump of the counter,
             // and the set-point runs ahead of positions that come late; a stepper's emitted
             // steps come late alike.
-            if let Some(drives) = program
-                .get_mut("params")
-                .and_then(|p| p.get_mut("dc"))
-                .and_then(serde_json::Value::as_array_mut)
-            {
-                for drive in drives {
-                    drive["max_counts_per_cycle"] = 30000.into();
-                    drive["max_following_error_mm"] = 20.0.into();
-                }
+            for drive in params_list(program, "dc") {
+                drive["max_counts_per_cycle"] = 30000.into();
+                drive["max_following_error_mm"] = 20.0.into();
             }
-            if let Some(drives) = program
-                .get_mut("params")
-                .and_then(|p| p.get_mut("steppers"))
-                .and_then(serde_json::Value::as_array_mut)
-            {
-                for drive in drives {
-                    drive["max_following_error_mm"] = 10.0.into();
-                }
+            for drive in params_list(program, "steppers") {
+                drive["max_following_error_mm"] = 10.0.into();
             }
-            // Looked up, not indexed: indexing would add `joints` to the other programs' params.
-            let Some(joints) = program
-                .get_mut("params")
-                .and_then(|p| p.get_mut("joints"))
-                .and_then(serde_json::Value::as_array_mut)
-            else {
-                continue;
-            };
-            for joint in joints {
+            for joint in params_list(program, "joints") {
                 let top = joint["max_speed_mm_s"].as_f64().expect("max_speed_mm_s");
                 let reference = &mut joint["reference"];
                 let search = reference["search_speed_mm_s"].as_f64().expect("search speed");
@@ -379,6 +363,17 @@ pub fn machine_test_config(dir: &Path, machine: &str) -> PathBuf {
         }
     }
     write_config(dir, &format!("{machine}.json"), &config)
+}
+
+/// The entries of the list `key` in `program`'s params, none where it has no such list: looked
+/// up, not indexed (indexing would add `key` to every other program's params).
+fn params_list<'a>(program: &'a mut serde_json::Value, key: &str) -> impl Iterator<Item = &'a mut serde_json::Value> {
+    program
+        .get_mut("params")
+        .and_then(|p| p.get_mut(key))
+        .and_then(serde_json::Value::as_array_mut)
+        .into_iter()
+        .flatten()
 }
 
 /// The O-X glide's configuration for real-time tests of the screen and its jobs, with `edit`

@@ -112,11 +112,7 @@ impl Machine for Trijoint {
             model: "trijoint",
             axes: &["x", "y"],
             // M's frame is the mechanism's; referencing ends at the start position.
-            home: Home::Joints(
-                p.start_position_mm
-                    .unwrap_or([travel[0] / 2.0, travel[1] / 2.0])
-                    .to_vec(),
-            ),
+            home: Home::Joints(p.start_position(t).to_vec()),
             soft_limits: travel.iter().map(|t| [m, t - m]).collect(),
             world_limits: vec![[-pkm_kinematics::MAX_LENGTH_MM, pkm_kinematics::MAX_LENGTH_MM]; 2],
             singularity_threshold: p.singularity_threshold,

@@ -68,6 +68,20 @@ impl Default for MainParams {
     }
 }
 
+impl MainParams {
+    /// Where the carriages stand after INIT (mm from each lower switch), and where programs are
+    /// planned to start: `start_position_mm`, else the middle of the configured travel of
+    /// `geometry`. One answer for both, whatever travel a referencing measures: a program
+    /// starts only where it was planned from.
+    pub fn start_position(&self, geometry: &TrijointParams) -> [f64; 2] {
+        let travel = [
+            geometry.h1_travel[1] - geometry.h1_travel[0],
+            geometry.h2_travel[1] - geometry.h2_travel[0],
+        ];
+        self.start_position_mm.unwrap_or([travel[0] / 2.0, travel[1] / 2.0])
+    }
+}
+
 /// The longest cycle the main program may run in (µs).
 pub(super) const MAX_MAIN_CYCLE_US: u32 = 100_000;
 

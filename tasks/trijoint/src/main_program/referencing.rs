@@ -164,13 +164,10 @@ impl Main {
             h2_travel: [m, travel[1] - m],
             ..self.geometry.clone()
         });
-        // The start position the programs were planned from: the configured one, else the middle
-        // of the configured travel. Not the middle of the travel just measured: the edges a link
-        // captures differ from run to run by micrometres, and a program starts only where it
-        // was planned from (a start 2 µm away was refused).
-        let g = &self.geometry;
-        let nominal = [g.h1_travel[1] - g.h1_travel[0], g.h2_travel[1] - g.h2_travel[0]];
-        let start = self.p.start_position_mm.unwrap_or([nominal[0] / 2.0, nominal[1] / 2.0]);
+        // Where the programs were planned from, not the middle of the travel just measured: the
+        // edges a link captures differ from run to run by micrometres, and a program starts
+        // only where it was planned from (a start 1.4 µm away was refused).
+        let start = self.p.start_position(&self.geometry);
         let mut pose = [0.0; 2];
         if limits.forward(&start, None, &mut pose).is_ok() {
             self.m_setpoint = pose;
