@@ -25,6 +25,7 @@ pub mod screen_job;
 pub mod selftest;
 pub mod signals;
 pub mod sim;
+pub mod station_cmd;
 pub mod stats;
 pub mod status;
 pub mod summary;

@@ -83,7 +83,8 @@ pub fn run(
         .io_map()?
         .ok_or_else(|| LinkBenchError::NoIoMap(setup.origin().to_string()))?;
     let timing = LineTiming::modbus_rtu(options.baud);
-    let sizes = RegisterMap::of(&map).sizes();
+    // A serial line's station is a generic one, whatever the map names.
+    let sizes = RegisterMap::laid_out(&map, crate::io::map::StationKind::Generic).sizes();
     let mut rows = Vec::new();
     for &mode in &options.modes {
         progress(&format!("{} at {} baud", mode.name(), options.baud));
@@ -114,7 +115,7 @@ fn measure(
     let mut bus = ModbusBus::new(map, Transport::Port(Some(plc_end)), bus_options).map_err(|e| setup(&e))?;
     let mut table = VarTable::new();
     crate::bus::Bus::declare(&mut bus, &mut table);
-    crate::bus::Bus::start(&mut bus);
+    crate::bus::Bus::start(&mut bus).map_err(|e| setup(&e))?;
     std::thread::sleep(Duration::from_secs_f64(options.seconds));
     crate::bus::Bus::write_safe(&mut bus, &table.initial_image());
     drop(station);

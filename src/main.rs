@@ -63,6 +63,31 @@ enum Command {
     /// Measure the Modbus RTU exchange at a baud rate over an emulated RS-485 line (driver and
     /// io-sim in this process, joined by pseudo-terminals paced at the baud rate).
     LinkBench(LinkBenchArgs),
+    /// The real station: `station scan tcp:HOST[:PORT]` lists an X20BC0087's identity,
+    /// network settings, modules, watchdog and error bits (read-only).
+    Station(StationArgs),
+}
+
+#[derive(Args, Debug)]
+struct StationArgs {
+    #[command(subcommand)]
+    op: StationOp,
+}
+
+#[derive(Subcommand, Debug)]
+enum StationOp {
+    /// Read an X20BC0087's identity, network settings, module table, watchdog and error bits;
+    /// it writes nothing to the station.
+    Scan {
+        /// The bus controller: `tcp:HOST[:PORT]` (port 502 when not given).
+        address: String,
+        /// Also write an I/O map skeleton for the modules found to FILE (which must not exist).
+        #[arg(long, value_name = "FILE")]
+        write_map: Option<PathBuf>,
+        /// How long each request may take (ms).
+        #[arg(long, value_name = "MS", default_value_t = 1000, value_parser = clap::value_parser!(u64).range(1..=60_000))]
+        timeout_ms: u64,
+    },
 }
 
 #[derive(Args, Debug)]
@@ -103,8 +128,12 @@ struct IoSimArgs {
     scenario: Option<PathBuf>,
     /// Output watchdog: every output goes to its safe value (zero) when no write request arrives
     /// for this long, as a real bus coupler's outputs do when the controller dies; 0 turns it off.
+    /// An X20BC0087 station (over TCP) starts with it as its stored setting, which clients change.
     #[arg(long, value_name = "MS", default_value_t = 100)]
     watchdog_ms: u64,
+    /// An X20BC0087 station's node number (its rotary switches), which it reports.
+    #[arg(long, value_name = "N", default_value_t = 1, value_parser = clap::value_parser!(u16).range(1..=255))]
+    node: u16,
     /// Modbus TCP clients served at once; more are closed as they connect.
     #[arg(long, value_name = "N", default_value_t = 8, value_parser = clap::value_parser!(u16).range(1..))]
     max_connections: u16,
@@ -407,6 +436,7 @@ fn main() -> ExitCode {
         Command::Registers(args) => cmd_registers(args),
         Command::IoSim(args) => cmd_io_sim(args),
         Command::LinkBench(args) => cmd_link_bench(args),
+        Command::Station(args) => cmd_station(args),
         Command::Kin(args) => kin_cmd::run(args, load_config).map_err(|e| Failure {
             code: e.code,
             message: e.message,
@@ -910,7 +940,11 @@ fn run_realtime(
     // the plan ended, and the summary and the exit with it.
     drop(_inside);
     runtime.shutdown_background();
-    outcome.map_err(|e| Failure::run(e.to_string()))
+    outcome.map_err(|e| match e {
+        // The station is not the I/O map's: a problem of the setup, as a bad configuration is.
+        run::RunError::StationRefused(why) => Failure::usage(why),
+        other => Failure::run(other.to_string()),
+    })
 }
 
 /// Serves the operator's screen on `listener` (inside the tokio runtime).
@@ -1085,22 +1119,29 @@ fn cmd_registers(args: ConfigArg) -> Result<(), Failure> {
             setup.origin()
         )));
     };
-    let registers = pkm_plc::io::registers::RegisterMap::of(&map);
-    print!("{}", registers.describe(&map));
-    let [coils, discrete, input, holding] = registers.sizes();
-    println!(
-        "{}: {coils} coils, {discrete} discrete inputs, {input} input registers, {holding} holding registers",
-        map.origin
-    );
-    let image = pkm_plc::io::registers::ImageLayout::of(registers.sizes());
-    println!(
-        "packed process image (holding registers): inputs at {} ({} packed discrete inputs + {input}), \
-         outputs at {} ({} packed coils + {holding})",
-        pkm_plc::io::registers::INPUT_IMAGE,
-        image.input_bits,
-        pkm_plc::io::registers::OUTPUT_IMAGE,
-        image.output_bits,
-    );
+    print!("{}", pkm_plc::io::registers::RegisterMap::of(&map).report(&map));
+    Ok(())
+}
+
+fn cmd_station(args: StationArgs) -> Result<(), Failure> {
+    use pkm_plc::station_cmd;
+    let StationOp::Scan {
+        address,
+        write_map,
+        timeout_ms,
+    } = args.op;
+    let address = station_cmd::parse_address(&address).map_err(|e| Failure::usage(e.to_string()))?;
+    let scan =
+        station_cmd::scan(address, Duration::from_millis(timeout_ms)).map_err(|e| Failure::run(e.to_string()))?;
+    print!("{}", scan.report());
+    if let Some(path) = write_map {
+        station_cmd::write_map(&path, &scan.map_skeleton()).map_err(Failure::run)?;
+        println!(
+            "I/O map skeleton for {} modules written to {}: add the bindings, name any module of an unknown ID",
+            scan.modules.len(),
+            path.display()
+        );
+    }
     Ok(())
 }
 
@@ -1108,8 +1149,21 @@ fn cmd_io_sim(args: IoSimArgs) -> Result<(), Failure> {
     use std::io::Write;
     let setup = load_setup(&args.config)?;
     let bus = setup.sim_bus(args.scenario.as_deref())?;
-    let station = pkm_plc::sim::modbus::Station::new(bus);
+    // A serial line's station is the generic one; over TCP, the one the I/O map names.
+    let mut station = match args.serial {
+        Some(_) => pkm_plc::sim::modbus::Station::new(bus),
+        None => pkm_plc::sim::modbus::Station::of_map(bus, args.node),
+    };
     let [coils, discrete, input, holding] = station.registers().sizes();
+    let kind = if station.is_bus_controller() {
+        format!(
+            "an X20BC0087 (node {}) with {} modules",
+            args.node,
+            station.registers().modules.len()
+        )
+    } else {
+        "a generic station".to_string()
+    };
     let options = pkm_plc::sim::server::ServerOptions {
         watchdog: (args.watchdog_ms > 0).then(|| Duration::from_millis(args.watchdog_ms)),
         max_connections: usize::from(args.max_connections),
@@ -1144,6 +1198,7 @@ fn cmd_io_sim(args: IoSimArgs) -> Result<(), Failure> {
             .await
             .map_err(|e| Failure::run(format!("io-sim: cannot listen on {tcp}: {e}")))?;
         let address = listener.local_addr().map_err(|e| Failure::run(e.to_string()))?;
+        station.set_address(address);
         println!("{address}");
         let _ = std::io::stdout().flush();
         if !address.ip().is_loopback() {
@@ -1154,8 +1209,8 @@ fn cmd_io_sim(args: IoSimArgs) -> Result<(), Failure> {
             );
         }
         info!(
-            "io-sim: {} on {address} as Modbus TCP: {coils} coils, {discrete} discrete inputs, {input} input registers, \
-             {holding} holding registers; {watchdog}, at most {} clients; Ctrl-C stops",
+            "io-sim: {} on {address} as Modbus TCP, {kind}: {coils} coils, {discrete} discrete inputs, {input} input \
+             registers, {holding} holding registers; {watchdog}, at most {} clients; Ctrl-C stops",
             setup.origin(), options.max_connections
         );
         tokio::select! {

@@ -350,18 +350,25 @@ impl Plc {
 
     /// Opens the bus's link ([`Bus::start`]): a real bus connects and waits, bounded, for its
     /// first input image. A real-time driver calls this before it fixes its schedule's epoch, so
-    /// the wait does not make the first cycles late; [`Plc::init`] calls it if nobody did.
-    pub fn start_bus(&mut self) {
-        if !self.bus_started {
-            self.bus_started = true;
-            self.bus.start();
+    /// the wait does not make the first cycles late; [`Plc::init`] calls it if nobody did. An
+    /// error is the bus's refusal of its station (nothing was written to it); a second call does
+    /// nothing.
+    pub fn start_bus(&mut self) -> Result<(), String> {
+        if self.bus_started {
+            return Ok(());
         }
+        self.bus_started = true;
+        self.bus.start()
     }
 
     /// Starts the bus if that has not been done ([`Plc::start_bus`]), runs every program's init
     /// part (classes in priority order) and sets the first release of every class to `start_ns`.
     pub fn init(&mut self, start_ns: u64, clock: &mut dyn Clock) {
-        self.start_bus();
+        // A driver that can refuse a station starts the bus itself first (the real-time run
+        // does); here a refusal leaves the bus faulted, which the programs see.
+        if let Err(why) = self.start_bus() {
+            tracing::error!("bus {}: {why}", self.bus.name());
+        }
         for ci in self.order.clone() {
             let class = &mut self.classes[ci];
             self.bus.read_inputs(ci, start_ns, &mut self.global);

@@ -223,6 +223,9 @@ pub enum RunError {
     /// The cyclic thread panicked (a bug).
     #[error("the cyclic thread panicked: {0}")]
     Panicked(String),
+    /// The bus refused its station before any output was written (modules not the I/O map's).
+    #[error("{0}")]
+    StationRefused(String),
 }
 
 /// The result of a real-time run.
@@ -305,7 +308,7 @@ pub fn start_realtime_with(
                 waiter = Box::new(timing::SpinningWaiter::new(waiter, options.spin_ns));
             }
             // The link opens first: its wait for the first input image must not eat into the schedule.
-            plc.start_bus();
+            plc.start_bus().map_err(RunError::StationRefused)?;
             // The schedule starts 2 ms from now, so the init parts finish before the first release.
             let mut clock = MonotonicClock::with_epoch(timing::monotonic_ns() + 2_000_000);
             plc.init(0, &mut clock);

@@ -27,6 +27,10 @@ pub struct ModuleType {
     pub channels: &'static [Channel],
     /// Whether it sits on the field bus (and so in the Modbus register map); the joystick does not.
     pub field_bus: bool,
+    /// The module's hardware ID (the data sheet's "B&R ID code"), which an X20 bus controller
+    /// reports in its module table; `None` where no public source this project could read gives
+    /// it (the I/O map then says it: `"id"`, as `station scan` reads it from the station).
+    pub hardware_id: Option<u16>,
 }
 
 impl ModuleType {
@@ -118,18 +122,21 @@ pub const CATALOGUE: &[ModuleType] = &[
         description: "12 digital inputs, 24 V",
         channels: DI9371,
         field_bus: true,
+        hardware_id: Some(0x1B95),
     },
     ModuleType {
         name: "X20DO9322",
         description: "12 digital outputs, 24 V / 0.5 A",
         channels: DO9322,
         field_bus: true,
+        hardware_id: Some(0x1B9A),
     },
     ModuleType {
         name: "X20DC1196",
         description: "1 ABR incremental counter, 16-bit signed, wraps; counter reset",
         channels: DC1196,
         field_bus: true,
+        hardware_id: None,
     },
     ModuleType {
         name: "X20MM2436",
@@ -137,6 +144,7 @@ pub const CATALOGUE: &[ModuleType] = &[
                       dither disable), 4 digital inputs, per-bridge error (overcurrent, overtemperature)",
         channels: MM2436,
         field_bus: true,
+        hardware_id: None,
     },
     ModuleType {
         name: "X20SM2436",
@@ -144,16 +152,23 @@ pub const CATALOGUE: &[ModuleType] = &[
                       a speed set-point (INT, steps/s) and a 16-bit wrapping counter of the steps emitted",
         channels: SM2436,
         field_bus: true,
+        hardware_id: None,
     },
     ModuleType {
         name: "Joystick",
         description: "the operator's joystick: axes −1..1, its STOP button, buttons, connected (HID on the real machine)",
         channels: JOYSTICK,
         field_bus: false,
+        hardware_id: None,
     },
 ];
 
 /// Looks a module type up by name.
 pub fn module_type(name: &str) -> Option<&'static ModuleType> {
     CATALOGUE.iter().find(|m| m.name == name)
+}
+
+/// Looks a field-bus module type up by its hardware ID (what a bus controller reports).
+pub fn by_hardware_id(id: u16) -> Option<&'static ModuleType> {
+    CATALOGUE.iter().find(|m| m.hardware_id == Some(id))
 }

@@ -15,6 +15,13 @@ use crate::image::{Problem, Reader, Value, VarIndex, VarTable, VarType, Writer};
 #[derive(Clone, Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct IoMapFile {
+    /// The station the modules sit in; the generic one when absent.
+    #[serde(default)]
+    pub station: StationKind,
+    /// An X20BC0087's watchdog threshold (ms), which the soft-PLC sets at every connection:
+    /// without a write for this long the bus controller sets every output to zero.
+    #[serde(default)]
+    pub watchdog_ms: Option<u16>,
     /// The modules of the station.
     pub modules: Vec<ModuleEntry>,
     /// The channel bindings.
@@ -32,6 +39,68 @@ pub struct ModuleEntry {
     pub module_type: String,
     /// Its slot in the station (unique).
     pub slot: u16,
+    /// Its hardware ID (the data sheet's "B&R ID code"), a number or a text such as `"0x1B95"`;
+    /// needed on an X20BC0087 station where the catalogue does not know it.
+    #[serde(default)]
+    pub id: Option<IdText>,
+}
+
+/// A hardware ID as written: a number, or a text in decimal or `0x` hexadecimal.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(untagged)]
+pub enum IdText {
+    /// A JSON number.
+    Number(u16),
+    /// A JSON string.
+    Text(String),
+}
+
+impl IdText {
+    /// The ID, or why the text is none.
+    fn value(&self) -> Result<u16, String> {
+        match self {
+            IdText::Number(n) => Ok(*n),
+            IdText::Text(t) => {
+                let t = t.trim();
+                let parsed = match t.strip_prefix("0x").or_else(|| t.strip_prefix("0X")) {
+                    Some(hex) => u16::from_str_radix(hex, 16),
+                    None => t.parse(),
+                };
+                parsed.map_err(|_| {
+                    format!("\"{t}\" is not a hardware ID: a number 0–65535, or hexadecimal as \"0x1B95\"")
+                })
+            }
+        }
+    }
+}
+
+/// An X20BC0087's watchdog threshold when the map gives none (ms): ten 10 ms cycles.
+pub const DEFAULT_WATCHDOG_MS: u16 = 100;
+/// The thresholds accepted (ms).
+pub const WATCHDOG_MS: std::ops::RangeInclusive<u16> = 20..=5000;
+
+/// The station behind the field bus: how its modules' data is laid out in Modbus registers.
+#[derive(Clone, Copy, Debug, Default, Deserialize, PartialEq, Eq)]
+pub enum StationKind {
+    /// The project's own layout: every channel in slot order, each kind of data in its own table
+    /// from address 0, plus the packed process image (io-sim serves it; see `registers`).
+    #[default]
+    #[serde(rename = "generic")]
+    Generic,
+    /// B&R's X20BC0087 Modbus TCP bus controller: process data by byte index as it assigns it
+    /// (function model 254), its module table, watchdog and error registers.
+    #[serde(rename = "X20BC0087")]
+    X20bc0087,
+}
+
+impl StationKind {
+    /// The name as the I/O map writes it.
+    pub fn name(self) -> &'static str {
+        match self {
+            StationKind::Generic => "generic",
+            StationKind::X20bc0087 => "X20BC0087",
+        }
+    }
 }
 
 /// One binding.
@@ -57,6 +126,8 @@ pub struct Module {
     pub ty: &'static ModuleType,
     /// Its slot.
     pub slot: u16,
+    /// Its hardware ID: the map's, else the catalogue's; `None` when neither gives one.
+    pub id: Option<u16>,
 }
 
 /// A validated binding.
@@ -112,6 +183,10 @@ impl Binding {
 pub struct IoMap {
     /// The file it came from.
     pub origin: String,
+    /// The station the modules sit in.
+    pub station: StationKind,
+    /// An X20BC0087's watchdog threshold (ms).
+    pub watchdog_ms: u16,
     /// The modules.
     pub modules: Vec<Module>,
     /// The bindings.
@@ -150,12 +225,34 @@ impl IoMap {
             } else {
                 slots.insert(m.slot, i);
             }
+            let given = match m.id.as_ref().map(IdText::value) {
+                Some(Ok(id)) => Some(id),
+                Some(Err(message)) => {
+                    push(format!("{at}.id"), message);
+                    None
+                }
+                None => None,
+            };
             match catalogue::module_type(&m.module_type) {
-                Some(ty) => modules.push(Module {
-                    name: m.name.clone(),
-                    ty,
-                    slot: m.slot,
-                }),
+                Some(ty) => {
+                    if let (Some(given), Some(known)) = (given, ty.hardware_id)
+                        && given != known
+                    {
+                        push(
+                            format!("{at}.id"),
+                            format!(
+                                "the {}'s hardware ID is {known:#06X} (its data sheet's B&R ID code), not {given:#06X}",
+                                ty.name
+                            ),
+                        );
+                    }
+                    modules.push(Module {
+                        name: m.name.clone(),
+                        ty,
+                        slot: m.slot,
+                        id: given.or(ty.hardware_id),
+                    });
+                }
                 None => {
                     let known: Vec<&str> = catalogue::CATALOGUE.iter().map(|t| t.name).collect();
                     push(
@@ -273,9 +370,33 @@ impl IoMap {
                 ),
             );
         }
+        match (file.station, file.watchdog_ms) {
+            (StationKind::X20bc0087, watchdog) => {
+                check_bus_controller(&file, &modules, &mut push);
+                if let Some(ms) = watchdog.filter(|ms| !WATCHDOG_MS.contains(ms)) {
+                    push(
+                        "watchdog_ms".into(),
+                        format!(
+                            "{ms} ms is outside {}–{} ms: shorter trips on an ordinary late exchange, longer leaves \
+                             the drives running that long after the soft-PLC stopped",
+                            WATCHDOG_MS.start(),
+                            WATCHDOG_MS.end()
+                        ),
+                    );
+                }
+            }
+            (StationKind::Generic, Some(_)) => push(
+                "watchdog_ms".into(),
+                "the generic station has no watchdog to set (io-sim's is --watchdog-ms); watchdog_ms is an X20BC0087's"
+                    .into(),
+            ),
+            (StationKind::Generic, None) => {}
+        }
         if problems.is_empty() {
             Ok(IoMap {
                 origin: origin.to_string(),
+                station: file.station,
+                watchdog_ms: file.watchdog_ms.unwrap_or(DEFAULT_WATCHDOG_MS),
                 modules,
                 bindings,
             })
@@ -320,6 +441,35 @@ impl IoMap {
             )));
         }
         Ok((mi, ci))
+    }
+}
+
+/// What an X20BC0087 station asks of its map: the field-bus modules in slots 1, 2, … without a
+/// gap (the bus controller numbers them by their place on the backplane). `modules` are the
+/// valid ones of `file`, in file order (a module of unknown type was reported already).
+fn check_bus_controller(file: &IoMapFile, modules: &[Module], push: &mut impl FnMut(String, String)) {
+    let field: Vec<(usize, &Module)> = file
+        .modules
+        .iter()
+        .enumerate()
+        .filter_map(|(i, entry)| {
+            let m = modules.iter().find(|m| m.name == entry.name)?;
+            m.ty.field_bus.then_some((i, m))
+        })
+        .collect();
+    let mut slots: Vec<(u16, usize)> = field.iter().map(|(i, m)| (m.slot, *i)).collect();
+    slots.sort_unstable();
+    for (expected, (slot, i)) in (1u16..).zip(&slots) {
+        if *slot != expected {
+            push(
+                format!("modules[{i}].slot"),
+                format!(
+                    "slot {slot} on an X20BC0087 station, where slot {expected} is next: the bus controller numbers \
+                     its modules by their place on the backplane, 1, 2, 3 … without a gap"
+                ),
+            );
+            break;
+        }
     }
 }
 

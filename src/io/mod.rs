@@ -9,3 +9,4 @@ pub mod map;
 pub mod modbus;
 pub mod registers;
 pub mod rx_counter;
+pub mod x20bc0087;

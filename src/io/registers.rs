@@ -3,6 +3,14 @@
 //! each kind of data in its own Modbus table. The map depends only on the modules present, not on
 //! the bindings, so rebinding a variable never moves a register.
 //!
+//! Two layouts ([`StationKind`]):
+//! - **generic** (the project's own station): each table from address 0, channel after channel;
+//! - **X20BC0087** (B&R's Modbus TCP bus controller, function model 254): the bus controller
+//!   gives each module a *byte index* into each of its four images, in slot order, each module's
+//!   bits starting on a byte: digital inputs are discrete input `index·8 + bit`, digital outputs
+//!   coil `index·8 + bit`, 16-bit inputs input register `index/2 + word`, 16-bit outputs holding
+//!   register `0x0800 + index/2 + word` ([`ModuleData`]).
+//!
 //! Encodings: BOOL inputs are discrete inputs, BOOL outputs coils; INT and UINT take one register
 //! (INT as two's complement); DINT two registers, high word first; REAL two registers holding an
 //! IEEE-754 single (f32), high word first. Inputs are input registers, outputs holding registers.
@@ -13,7 +21,7 @@
 use std::fmt;
 
 use super::catalogue::Direction;
-use super::map::IoMap;
+use super::map::{IoMap, StationKind};
 use crate::image::{Value, VarType};
 
 /// The Modbus tables.
@@ -49,7 +57,8 @@ pub struct Entry {
     pub channel: usize,
     /// The table.
     pub table: Table,
-    /// The first address (0-based, as on the wire).
+    /// The first address (0-based, as on the wire; a holding register's from
+    /// [`RegisterMap::holding_base`]).
     pub address: u16,
     /// Bits or registers it takes.
     pub count: u16,
@@ -60,8 +69,45 @@ pub struct Entry {
 /// The register map of a station.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct RegisterMap {
+    /// The layout.
+    pub station: StationKind,
     /// Every channel, in slot order.
     pub entries: Vec<Entry>,
+    /// The wire address of holding register 0 of [`Entry::address`]: 0 on the generic station,
+    /// [`BC_HOLDING_BASE`] on an X20BC0087.
+    pub holding_base: u16,
+    /// On an X20BC0087, each field-bus module's data as the bus controller assigns it, in slot
+    /// order; empty on the generic station.
+    pub modules: Vec<ModuleData>,
+}
+
+/// The first holding register of the numeric outputs on an X20BC0087.
+pub const BC_HOLDING_BASE: u16 = 0x0800;
+
+/// A module's data on an X20BC0087: a byte index into each image (`None`: no data of that kind,
+/// `0xFFFF` in the bus controller's module table) and the bytes it takes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ModuleData {
+    /// Index into the I/O map's modules.
+    pub module: usize,
+    /// Analog (16-bit word) inputs: byte index, bytes.
+    pub analog_in: Option<(u16, u16)>,
+    /// Analog (16-bit word) outputs: byte index, bytes.
+    pub analog_out: Option<(u16, u16)>,
+    /// Digital inputs: byte index, bytes.
+    pub digital_in: Option<(u16, u16)>,
+    /// Digital outputs: byte index, bytes.
+    pub digital_out: Option<(u16, u16)>,
+}
+
+/// The table a channel of `ty` and `direction` lives in.
+fn table_of(ty: VarType, direction: Direction) -> Table {
+    match (ty, direction) {
+        (VarType::Bool, Direction::Input) => Table::DiscreteInput,
+        (VarType::Bool, Direction::Output) => Table::Coil,
+        (_, Direction::Input) => Table::InputRegister,
+        (_, Direction::Output) => Table::HoldingRegister,
+    }
 }
 
 /// How many registers (or bits) a value of `ty` takes.
@@ -73,22 +119,104 @@ pub fn width(ty: VarType) -> u16 {
 }
 
 impl RegisterMap {
-    /// Derives the map from the modules of an I/O map.
+    /// Derives the map from the modules of an I/O map, in the layout of the map's station.
     pub fn of(map: &IoMap) -> RegisterMap {
+        RegisterMap::laid_out(map, map.station)
+    }
+
+    /// Derives the map from the modules of an I/O map in the layout of `station`.
+    pub fn laid_out(map: &IoMap, station: StationKind) -> RegisterMap {
+        match station {
+            StationKind::Generic => RegisterMap::generic(map),
+            StationKind::X20bc0087 => RegisterMap::bus_controller(map),
+        }
+    }
+
+    /// The field-bus modules in slot order (indexes into the map's modules).
+    fn slot_order(map: &IoMap) -> Vec<usize> {
         let mut order: Vec<usize> = (0..map.modules.len())
             .filter(|&m| map.modules[m].ty.field_bus)
             .collect();
         order.sort_by_key(|&m| map.modules[m].slot);
+        order
+    }
+
+    /// The X20BC0087's layout: byte indexes per module and image, in slot order.
+    fn bus_controller(map: &IoMap) -> RegisterMap {
+        // Bytes used so far in each image, by table.
+        let mut used = [0u16; 4];
+        let mut entries = Vec::new();
+        let mut modules = Vec::new();
+        for m in RegisterMap::slot_order(map) {
+            let channels = map.modules[m].ty.channels;
+            let mut data = ModuleData {
+                module: m,
+                analog_in: None,
+                analog_out: None,
+                digital_in: None,
+                digital_out: None,
+            };
+            for table in [
+                Table::DiscreteInput,
+                Table::Coil,
+                Table::InputRegister,
+                Table::HoldingRegister,
+            ] {
+                let start = used[table as usize];
+                // Within the module: bits or words taken so far in this table.
+                let mut taken = 0u16;
+                for (c, ch) in channels.iter().enumerate() {
+                    if table_of(ch.ty, ch.direction) != table {
+                        continue;
+                    }
+                    let count = width(ch.ty);
+                    let address = match table {
+                        Table::DiscreteInput | Table::Coil => start * 8 + taken,
+                        Table::InputRegister | Table::HoldingRegister => start / 2 + taken,
+                    };
+                    entries.push(Entry {
+                        module: m,
+                        channel: c,
+                        table,
+                        address,
+                        count,
+                        ty: ch.ty,
+                    });
+                    taken += count;
+                }
+                if taken == 0 {
+                    continue;
+                }
+                let bytes = match table {
+                    Table::DiscreteInput | Table::Coil => taken.div_ceil(8),
+                    Table::InputRegister | Table::HoldingRegister => taken * 2,
+                };
+                used[table as usize] += bytes;
+                let slot = match table {
+                    Table::DiscreteInput => &mut data.digital_in,
+                    Table::Coil => &mut data.digital_out,
+                    Table::InputRegister => &mut data.analog_in,
+                    Table::HoldingRegister => &mut data.analog_out,
+                };
+                *slot = Some((start, bytes));
+            }
+            modules.push(data);
+        }
+        RegisterMap {
+            station: StationKind::X20bc0087,
+            entries,
+            holding_base: BC_HOLDING_BASE,
+            modules,
+        }
+    }
+
+    /// The generic layout: each table from address 0, channel after channel.
+    fn generic(map: &IoMap) -> RegisterMap {
         let mut next = [0u16; 4];
         let mut entries = Vec::new();
-        for m in order {
+        for m in RegisterMap::slot_order(map) {
             for (c, ch) in map.modules[m].ty.channels.iter().enumerate() {
-                let table = match (ch.ty, ch.direction) {
-                    (VarType::Bool, Direction::Input) => Table::DiscreteInput,
-                    (VarType::Bool, Direction::Output) => Table::Coil,
-                    (_, Direction::Input) => Table::InputRegister,
-                    (_, Direction::Output) => Table::HoldingRegister,
-                };
+                let table = table_of(ch.ty, ch.direction);
                 let count = width(ch.ty);
                 let slot = &mut next[table as usize];
                 entries.push(Entry {
@@ -102,11 +230,24 @@ impl RegisterMap {
                 *slot += count;
             }
         }
-        RegisterMap { entries }
+        RegisterMap {
+            station: StationKind::Generic,
+            entries,
+            holding_base: 0,
+            modules: Vec::new(),
+        }
+    }
+
+    /// The wire address of entry `e`'s first register or bit.
+    pub fn wire_address(&self, e: &Entry) -> u16 {
+        match e.table {
+            Table::HoldingRegister => self.holding_base + e.address,
+            _ => e.address,
+        }
     }
 
     /// The number of bits or registers used in each table (coils, discrete inputs, input
-    /// registers, holding registers).
+    /// registers, holding registers; the holding registers counted from `holding_base`).
     pub fn sizes(&self) -> [u16; 4] {
         let mut sizes = [0u16; 4];
         for e in &self.entries {
@@ -114,6 +255,64 @@ impl RegisterMap {
             *s = (*s).max(e.address + e.count);
         }
         sizes
+    }
+
+    /// What the `registers` command prints: for an X20BC0087 the modules' data indexes, then
+    /// every channel's place ([`RegisterMap::describe`]), the tables' sizes, and the packed
+    /// image of a generic station.
+    pub fn report(&self, map: &IoMap) -> String {
+        let mut out = String::new();
+        if self.station == StationKind::X20bc0087 {
+            out.push_str(
+                "X20BC0087 station: each module's data by byte index (function model 254), as its module table at \
+                 0xA000 must say
+",
+            );
+            out.push_str(&format!(
+                "{:>4}  {:<10} {:<10} {:<7} {:>10} {:>11} {:>11} {:>12}\n",
+                "slot", "module", "type", "ID", "analog in", "analog out", "digital in", "digital out"
+            ));
+            let show =
+                |d: Option<(u16, u16)>| d.map_or("-".to_string(), |(index, bytes)| format!("{index} ({bytes} B)"));
+            for d in &self.modules {
+                let m = &map.modules[d.module];
+                let id = m.id.map_or("?".to_string(), |id| format!("{id:#06X}"));
+                out.push_str(&format!(
+                    "{:>4}  {:<10} {:<10} {:<7} {:>10} {:>11} {:>11} {:>12}\n",
+                    m.slot,
+                    m.name,
+                    m.ty.name,
+                    id,
+                    show(d.analog_in),
+                    show(d.analog_out),
+                    show(d.digital_in),
+                    show(d.digital_out)
+                ));
+            }
+            out.push('\n');
+        }
+        out.push_str(&self.describe(map));
+        let [coils, discrete, input, holding] = self.sizes();
+        out.push_str(&format!(
+            "{}: {coils} coils, {discrete} discrete inputs, {input} input registers, {holding} holding registers",
+            map.origin
+        ));
+        match self.station {
+            StationKind::X20bc0087 => out.push_str(&format!(
+                " (from {:#06X})\nno packed process image on an X20BC0087: --exchange tables; on a serial line the \
+                 generic layout applies\n",
+                self.holding_base
+            )),
+            StationKind::Generic => {
+                let image = ImageLayout::of(self.sizes());
+                out.push_str(&format!(
+                    "\npacked process image (holding registers): inputs at {INPUT_IMAGE} ({} packed discrete inputs + \
+                     {input}), outputs at {OUTPUT_IMAGE} ({} packed coils + {holding})\n",
+                    image.input_bits, image.output_bits,
+                ));
+            }
+        }
+        out
     }
 
     /// The map as a table for people: module, slot, channel, type, table, address.
@@ -124,10 +323,11 @@ impl RegisterMap {
         );
         for e in &self.entries {
             let m = &map.modules[e.module];
+            let first = self.wire_address(e);
             let address = if e.count == 1 {
-                e.address.to_string()
+                first.to_string()
             } else {
-                format!("{}–{}", e.address, e.address + e.count - 1)
+                format!("{}–{}", first, first + e.count - 1)
             };
             out.push_str(&format!(
                 "{:<10} {:>4}  {:<24} {:<5} {:<17} {:>7}\n",

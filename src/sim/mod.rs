@@ -5,6 +5,7 @@
 //! the machine's [`Plant`](pkm_api::machine::Plant).
 
 pub mod bus;
+pub mod bus_controller;
 pub mod modbus;
 pub mod pdu;
 pub mod scenario;

@@ -2,18 +2,25 @@
 //! through the register map, backed by the same plant as the simulated bus. The plant runs in
 //! real time: every request first advances it to the time since the server started.
 //!
-//! Besides the four standard tables the station serves the packed process image
-//! ([`ImageLayout`]): the input image from holding register [`INPUT_IMAGE`] (read-only), the
-//! output image from [`OUTPUT_IMAGE`], and read/write-multiple-registers (function code 23) to
-//! exchange both in one transaction.
+//! A generic station (the project's own layout) serves, besides the four standard tables, the
+//! packed process image ([`ImageLayout`]): the input image from holding register
+//! [`INPUT_IMAGE`] (read-only), the output image from [`OUTPUT_IMAGE`], and
+//! read/write-multiple-registers (function code 23) to exchange both in one transaction.
+//!
+//! An X20BC0087 station ([`Station::bus_controller`]) lays the data out as that bus controller
+//! does and answers its registers around it ([`BusControllerSim`]): module table, watchdog,
+//! error bits. Within a process image a bit or word no module uses reads as 0, as the bus
+//! controller's does; beyond the image is an illegal address.
 
 use std::time::{Duration, Instant};
 
 use tokio_modbus::{ExceptionCode, Request, Response};
 
 use super::bus::SimBus;
+use super::bus_controller::BusControllerSim;
 use super::server::{ServerOptions, serve_rtu};
 use crate::image::Value;
+use crate::io::map::StationKind;
 use crate::io::registers::{
     Entry, INPUT_IMAGE, ImageLayout, OUTPUT_IMAGE, RegisterMap, Table, decode, encode, pack_bits, packed_bit,
 };
@@ -39,6 +46,11 @@ pub struct Station {
     /// The client that owns the outputs: the one whose write took them last. Only its writes
     /// are carried out and feed the watchdog.
     owner: Option<ClientId>,
+    /// An X20BC0087's own registers and watchdog (`None`: a generic station).
+    bc: Option<BusControllerSim>,
+    /// Per table, the size of the process image (bits or registers): on an X20BC0087 an
+    /// address below it that no module uses reads as 0.
+    image_size: [u16; 4],
 }
 
 /// A client of the station: a TCP connection's number, or [`SERIAL_LINE`].
@@ -48,9 +60,26 @@ pub type ClientId = u64;
 pub const SERIAL_LINE: ClientId = 0;
 
 impl Station {
-    /// A station serving `bus`'s I/O map.
+    /// A generic station serving `bus`'s I/O map (whatever station the map names: this is the
+    /// one a serial line has).
     pub fn new(bus: SimBus) -> Station {
-        let registers = RegisterMap::of(bus.io_map());
+        Station::laid_out(bus, StationKind::Generic, 0)
+    }
+
+    /// The station the map names, as served over TCP: an X20BC0087 at node `node`, or a
+    /// generic one.
+    pub fn of_map(bus: SimBus, node: u16) -> Station {
+        let station = bus.io_map().station;
+        Station::laid_out(bus, station, node)
+    }
+
+    /// An X20BC0087 station serving `bus`'s I/O map, at node `node`.
+    pub fn bus_controller(bus: SimBus, node: u16) -> Station {
+        Station::laid_out(bus, StationKind::X20bc0087, node)
+    }
+
+    fn laid_out(bus: SimBus, station: StationKind, node: u16) -> Station {
+        let registers = RegisterMap::laid_out(bus.io_map(), station);
         let mut lookup: [Vec<(usize, u16)>; 4] = Default::default();
         for (i, e) in registers.entries.iter().enumerate() {
             let table = &mut lookup[e.table as usize];
@@ -64,6 +93,18 @@ impl Station {
         }
         let holding = vec![0; lookup[Table::HoldingRegister as usize].len()];
         let layout = ImageLayout::of(registers.sizes());
+        let bc = (station == StationKind::X20bc0087).then(|| {
+            let expected = crate::io::x20bc0087::expected_modules(bus.io_map(), &registers);
+            BusControllerSim::new(&expected, node)
+        });
+        let image_size = match &bc {
+            // Coils, discrete inputs, input registers, holding registers.
+            Some(bc) => {
+                let [analog_in, analog_out, digital_in, digital_out] = bc.image_bytes();
+                [digital_out * 8, digital_in * 8, analog_in / 2, analog_out / 2]
+            }
+            None => registers.sizes(),
+        };
         Station {
             bus,
             registers,
@@ -75,12 +116,37 @@ impl Station {
             last_write: None,
             tripped: false,
             owner: None,
+            bc,
+            image_size,
         }
     }
 
-    /// Turns the output watchdog on (`Some`) or off: see [`Station::watch`].
+    /// Whether this is an X20BC0087 station.
+    pub fn is_bus_controller(&self) -> bool {
+        self.bc.is_some()
+    }
+
+    /// The address the station is served on (an X20BC0087 reports it in its network registers).
+    pub fn set_address(&mut self, address: std::net::SocketAddr) {
+        if let Some(bc) = &mut self.bc {
+            bc.set_address(address);
+        }
+    }
+
+    /// Turns the output watchdog on (`Some`) or off: see [`Station::watch`]. On an X20BC0087
+    /// this is its stored setting (mode 0xC1, any telegram resets it), which clients change.
     pub fn set_watchdog(&mut self, watchdog: Option<Duration>) {
         self.watchdog = watchdog;
+        if let Some(bc) = &mut self.bc {
+            bc.store_watchdog(watchdog);
+        }
+    }
+
+    /// A client connected.
+    pub fn connected(&mut self, _client: ClientId) {
+        if let Some(bc) = &mut self.bc {
+            bc.client(true);
+        }
     }
 
     /// The output watchdog of a real bus coupler: when the client that owns the outputs has sent
@@ -88,6 +154,18 @@ impl Station {
     /// (coils off, registers zero: PWM 0, bridges and steppers off) and the outputs are free.
     /// Called periodically. The next write request takes them over again.
     pub fn watch(&mut self) {
+        if let Some(bc) = &mut self.bc {
+            if bc.watch() {
+                self.bus.refresh(self.started.elapsed().as_nanos() as u64);
+                self.safe_outputs();
+                self.owner = None;
+                tracing::warn!(
+                    "io-sim: X20BC0087 watchdog expired: outputs set to zero and held until a client resets the watchdog \
+                     (register 0x1044 = 0xC1)"
+                );
+            }
+            return;
+        }
         let (Some(limit), Some(last)) = (self.watchdog, self.last_write) else {
             return;
         };
@@ -125,6 +203,7 @@ impl Station {
                 if self.tripped {
                     tracing::info!("io-sim: outputs written again after the watchdog acted");
                 }
+                tracing::info!("io-sim: client {client} writes: it owns the outputs");
                 self.owner = Some(client);
             }
         }
@@ -137,6 +216,9 @@ impl Station {
     /// their safe values at once and are free — a real coupler's connection monitoring. No
     /// client that connects later inherits what a departed controller left on the drives.
     pub fn disconnected(&mut self, client: ClientId) {
+        if let Some(bc) = &mut self.bc {
+            bc.client(false);
+        }
         if self.owner != Some(client) {
             return;
         }
@@ -157,9 +239,12 @@ impl Station {
         &self.registers
     }
 
-    fn entry(&self, table: Table, address: u16) -> Result<(&Entry, u16), ExceptionCode> {
+    /// The channel at `address` of `table` and the word of it there; `None` for an address
+    /// within an X20BC0087's process image that no module uses (it reads as 0).
+    fn entry(&self, table: Table, address: u16) -> Result<Option<(&Entry, u16)>, ExceptionCode> {
         match self.lookup[table as usize].get(usize::from(address)) {
-            Some(&(i, w)) if i != usize::MAX => Ok((&self.registers.entries[i], w)),
+            Some(&(i, w)) if i != usize::MAX => Ok(Some((&self.registers.entries[i], w))),
+            _ if self.bc.is_some() && address < self.image_size[table as usize] => Ok(None),
             _ => Err(ExceptionCode::IllegalDataAddress),
         }
     }
@@ -167,7 +252,9 @@ impl Station {
     fn words(&self, table: Table, address: u16, count: u16) -> Result<Vec<u16>, ExceptionCode> {
         (address..address.saturating_add(count))
             .map(|a| {
-                let (e, w) = self.entry(table, a)?;
+                let Some((e, w)) = self.entry(table, a)? else {
+                    return Ok(0);
+                };
                 let mut words = [0u16; 2];
                 encode(self.bus.channel(e.module, e.channel), &mut words);
                 Ok(words[usize::from(w)])
@@ -178,15 +265,32 @@ impl Station {
     fn bits(&self, table: Table, address: u16, count: u16) -> Result<Vec<bool>, ExceptionCode> {
         (address..address.saturating_add(count))
             .map(|a| {
-                let (e, _) = self.entry(table, a)?;
+                let Some((e, _)) = self.entry(table, a)? else {
+                    return Ok(false);
+                };
                 Ok(self.bus.channel(e.module, e.channel) == Value::Bool(true))
             })
             .collect()
     }
 
+    /// Whether process-data writes are ignored now: an X20BC0087 whose watchdog expired holds
+    /// its outputs at zero until a client resets it.
+    fn outputs_held(&self) -> bool {
+        self.bc.as_ref().is_some_and(BusControllerSim::expired)
+    }
+
     fn write_coils(&mut self, address: u16, values: &[bool]) -> Result<(), ExceptionCode> {
+        // Every address is checked before anything is written.
+        for a in address..address.saturating_add(values.len() as u16) {
+            self.entry(Table::Coil, a)?;
+        }
+        if self.outputs_held() {
+            return Ok(());
+        }
         for (a, v) in (address..).zip(values) {
-            let (e, _) = self.entry(Table::Coil, a)?;
+            let Some((e, _)) = self.entry(Table::Coil, a)? else {
+                continue;
+            };
             let (m, c) = (e.module, e.channel);
             self.bus.set_output(m, c, Value::Bool(*v));
         }
@@ -194,9 +298,17 @@ impl Station {
     }
 
     fn write_registers(&mut self, address: u16, values: &[u16]) -> Result<(), ExceptionCode> {
+        for a in address..address.saturating_add(values.len() as u16) {
+            self.entry(Table::HoldingRegister, a)?;
+        }
+        if self.outputs_held() {
+            return Ok(());
+        }
         let mut touched = Vec::new();
         for (a, v) in (address..).zip(values) {
-            let (e, _) = self.entry(Table::HoldingRegister, a)?;
+            let Some((e, _)) = self.entry(Table::HoldingRegister, a)? else {
+                continue;
+            };
             let key = (e.module, e.channel);
             self.holding[usize::from(a)] = *v;
             if !touched.contains(&key) {
@@ -232,8 +344,17 @@ impl Station {
         Ok(image)
     }
 
-    /// Reads holding registers: the holding register table, or a part of either image block.
+    /// Reads holding registers: the holding register table, or a part of either image block;
+    /// on an X20BC0087 its own registers, or the outputs from 0x0800.
     fn read_holding(&self, address: u16, count: u16) -> Result<Vec<u16>, ExceptionCode> {
+        if let Some(bc) = &self.bc {
+            if let Some(read) = bc.read(address, count) {
+                return read;
+            }
+            let base = self.registers.holding_base;
+            let relative = address.checked_sub(base).ok_or(ExceptionCode::IllegalDataAddress)?;
+            return self.words(Table::HoldingRegister, relative, count);
+        }
         let part = |base: u16, image: fn(&Self) -> Result<Vec<u16>, ExceptionCode>| {
             let start = usize::from(address - base);
             let image = image(self)?;
@@ -249,8 +370,17 @@ impl Station {
         }
     }
 
-    /// Writes holding registers: the holding register table, or a part of the output image.
+    /// Writes holding registers: the holding register table, or a part of the output image; on
+    /// an X20BC0087 its own registers, or the outputs from 0x0800.
     fn write_holding(&mut self, address: u16, values: &[u16]) -> Result<(), ExceptionCode> {
+        if let Some(bc) = &mut self.bc {
+            if let Some(written) = bc.write(address, values) {
+                return written;
+            }
+            let base = self.registers.holding_base;
+            let relative = address.checked_sub(base).ok_or(ExceptionCode::IllegalDataAddress)?;
+            return self.write_registers(relative, values);
+        }
         if address < INPUT_IMAGE {
             return self.write_registers(address, values);
         }
@@ -285,15 +415,22 @@ impl Station {
     /// station at a time.
     pub fn handle(&mut self, request: Request<'_>, client: ClientId) -> Result<Response, ExceptionCode> {
         self.bus.refresh(self.started.elapsed().as_nanos() as u64);
-        if matches!(
+        let write = matches!(
             request,
             Request::WriteSingleCoil(..)
                 | Request::WriteMultipleCoils(..)
                 | Request::WriteSingleRegister(..)
                 | Request::WriteMultipleRegisters(..)
                 | Request::ReadWriteMultipleRegisters(..)
-        ) && !self.written(client)
-        {
+        );
+        if let Some(bc) = &mut self.bc {
+            // The X20BC0087 has no packed image to exchange in one transaction.
+            if matches!(request, Request::ReadWriteMultipleRegisters(..)) {
+                return Err(ExceptionCode::IllegalFunction);
+            }
+            bc.telegram(write);
+        }
+        if write && !self.written(client) {
             return Err(ExceptionCode::ServerDeviceBusy);
         }
         Ok(match request {

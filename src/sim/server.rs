@@ -171,10 +171,13 @@ impl Shared {
 
 fn shared(mut station: Station, options: &ServerOptions) -> (Arc<Shared>, Duration) {
     station.set_watchdog(options.watchdog);
-    // The watchdog acts within a quarter of its time (at least every 5 ms, at most every 50).
-    let period = options.watchdog.map_or(Duration::from_millis(50), |w| {
-        (w / 4).clamp(Duration::from_millis(5), Duration::from_millis(50))
-    });
+    // The watchdog acts within a quarter of its time (at least every 5 ms, at most every 50); a
+    // bus controller's threshold is its clients' to set, so it is checked every 5 ms.
+    let period = match (station.is_bus_controller(), options.watchdog) {
+        (true, _) => Duration::from_millis(5),
+        (false, None) => Duration::from_millis(50),
+        (false, Some(w)) => (w / 4).clamp(Duration::from_millis(5), Duration::from_millis(50)),
+    };
     let shared = Arc::new(Shared {
         station: Mutex::new(station),
         digest: Mutex::new(Digest::default()),
@@ -209,6 +212,7 @@ pub async fn serve_tcp(listener: TcpListener, station: Station, options: ServerO
             active.fetch_add(1, Ordering::Relaxed);
             next_client += 1;
             let client = next_client;
+            lock(&shared.station).connected(client);
             let (shared, active) = (shared.clone(), active.clone());
             tokio::spawn(async move {
                 if let Err((kind, detail)) = serve_connection(stream, client, &shared, &options).await {

@@ -232,6 +232,32 @@ pub fn write_config(dir: &Path, name: &str, config: &serde_json::Value) -> PathB
     path
 }
 
+/// The configuration at `config` with its I/O map changed by `edit`: the map is copied beside
+/// the configuration (as `io-map.json`), edited there, and the configuration rewritten to name
+/// the copy.
+pub fn edit_io_map(config: &Path, edit: impl FnOnce(&mut serde_json::Value)) {
+    let mut c = read_json(config);
+    let dir = config.parent().expect("a configuration in a directory");
+    let named = PathBuf::from(c["io_map"].as_str().expect("the configuration names an I/O map"));
+    let mut map = read_json(&dir.join(named));
+    edit(&mut map);
+    let copy = dir.join("io-map.json");
+    std::fs::write(&copy, map.to_string()).expect("write the I/O map");
+    c["io_map"] = copy.to_str().expect("utf-8").into();
+    std::fs::write(config, c.to_string()).expect("write the configuration");
+}
+
+/// The configuration at `config` with its I/O map's station the generic one (what `--exchange
+/// image` needs), whatever the map names.
+pub fn on_generic_station(config: &Path) {
+    edit_io_map(config, |map| {
+        map["station"] = "generic".into();
+        if let Some(m) = map.as_object_mut() {
+            m.remove("watchdog_ms");
+        }
+    });
+}
+
 /// The WebSocket of the screen at `url` (`http://…/`), as a page opens it.
 type ScreenSocket = tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>;
 
@@ -424,6 +450,31 @@ pub fn start_with_link_up(command: std::process::Command) -> Logged {
 /// Writes [`realtime_config`] to `dir`; returns its path.
 pub fn write_realtime_config(dir: &Path) -> PathBuf {
     write_config(dir, "realtime-config.json", &realtime_config())
+}
+
+/// The repository's configuration (as [`busy_machine_config`]) with the TRIJOINT's modules on a
+/// generic station, written once per test binary: for the tests of io-sim's and the driver's
+/// generic behaviours (its watchdog, its owner, faults of the standard exchange).
+pub fn generic_busy_config() -> &'static str {
+    static CONFIG: std::sync::OnceLock<(tempfile::TempDir, String)> = std::sync::OnceLock::new();
+    &CONFIG
+        .get_or_init(|| {
+            let dir = tempfile::tempdir().expect("tempdir");
+            let config = write_busy_machine_config(dir.path());
+            on_generic_station(&config);
+            let config = config.to_str().expect("utf-8").to_string();
+            (dir, config)
+        })
+        .1
+}
+
+/// [`write_realtime_config`] with the TRIJOINT's modules on a generic station (the project's own
+/// register layout from address 0, and the packed image) instead of the lab's X20BC0087: for
+/// the tests of io-sim as a generic Modbus slave and of `--exchange image`.
+pub fn write_generic_station_config(dir: &Path) -> PathBuf {
+    let config = write_realtime_config(dir);
+    on_generic_station(&config);
+    config
 }
 
 /// Records `seconds` of virtual time of the repository's configuration with the scenario

@@ -27,8 +27,12 @@ fn a_pymodbus_client_drives_io_sim() {
             return;
         }
     };
-    // The client pauses between writes longer than a controller would: no output watchdog.
-    let (sim, address) = common::start_io_sim("127.0.0.1:0", &["--watchdog-ms", "0"]);
+    // The client pauses between writes longer than a controller would: no output watchdog. It
+    // addresses the generic station's layout.
+    let dir = tempfile::tempdir().expect("tempdir");
+    let config = common::write_generic_station_config(dir.path());
+    let config = config.to_str().expect("utf-8");
+    let (sim, address) = common::start_io_sim("127.0.0.1:0", &["--watchdog-ms", "0", "--config", config]);
     let o = Command::new(&python)
         .arg(script("client.py"))
         .arg(address.to_string())
@@ -69,8 +73,13 @@ fn the_soft_plc_runs_against_a_pymodbus_server() {
     let mut lines = BufReader::new(server.stdout.take().expect("stdout")).lines();
     assert_eq!(lines.next().and_then(Result::ok).as_deref(), Some("ready"));
     std::thread::sleep(std::time::Duration::from_millis(500));
+    // The server serves the generic station's layout.
+    let dir = tempfile::tempdir().expect("tempdir");
+    let config = common::write_config(dir.path(), "trijoint.json", &common::busy_machine_config());
+    common::on_generic_station(&config);
     let run = common::pkm_command()
         .args(["run", "--bus", &format!("tcp:127.0.0.1:{port}"), "--duration", "2"])
+        .args(["--config", config.to_str().expect("utf-8")])
         .env("RUST_LOG", "warn")
         .output()
         .expect("run");

@@ -10,10 +10,14 @@ use common::IoSim;
 
 use tokio_modbus::prelude::*;
 
-/// Starts `pkm-plc io-sim` on a free loopback port, its output watchdog off: these clients pause
-/// between writes for longer than a controller would (the watchdog has tests of its own).
+/// Starts `pkm-plc io-sim` on a free loopback port as a generic station of the TRIJOINT's
+/// modules, its output watchdog off: these clients pause between writes for longer than a
+/// controller would (the watchdog has tests of its own).
 fn start() -> (IoSim, SocketAddr) {
-    common::start_io_sim("127.0.0.1:0", &["--watchdog-ms", "0"])
+    common::start_io_sim(
+        "127.0.0.1:0",
+        &["--watchdog-ms", "0", "--config", common::generic_busy_config()],
+    )
 }
 
 /// Starts io-sim and runs `body` with a Modbus TCP client connected to it.
@@ -149,7 +153,7 @@ fn the_packed_process_image_exchanges_everything_in_one_transaction() {
 #[test]
 fn the_soft_plc_references_and_jogs_over_modbus_tcp() {
     let dir = tempfile::tempdir().expect("tempdir");
-    let config = common::write_realtime_config(dir.path());
+    let config = common::write_generic_station_config(dir.path());
     let (_sim, address) = start();
     let (s, t) = (dir.path().join("summary.json"), dir.path().join("trace.jsonl"));
     let mut command = common::pkm_command();
@@ -189,6 +193,7 @@ fn a_lost_link_is_a_bus_fault_without_hang() {
     let (sim, address) = start();
     let dir = tempfile::tempdir().expect("tempdir");
     let (command, s) = common::bus_fault_run(&address.to_string(), "3", dir.path());
+    common::on_generic_station(&dir.path().join("busy-machine-config.json"));
     let mut run = common::start_with_link_up(command);
     drop(sim); // the station disappears
     assert!(run.wait().success(), "the run ends by itself: {}", run.log());
@@ -209,7 +214,7 @@ fn the_soft_plc_exchanges_the_packed_image_over_tcp_too() {
     let (_sim, address) = start();
     // This tests the exchange, not the scheduler's timing: late cycles are logged, not an ERROR.
     let dir = tempfile::tempdir().expect("tempdir");
-    let config = common::write_realtime_config(dir.path());
+    let config = common::write_generic_station_config(dir.path());
     let o = common::pkm_command()
         .args(["run", "--bus", &format!("tcp:{address}"), "--exchange", "image"])
         .args(["--duration", "1", "--joystick", "none"])

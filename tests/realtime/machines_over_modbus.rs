@@ -1,7 +1,9 @@
 //! Every machine over Modbus TCP, with both exchanges: io-sim serves the machine's I/O map and
 //! plant, the soft-PLC references it, runs its shipped program to the end from the operator's
 //! screen once READY, then jogs it. Each machine's two exchanges (`tables`, `image`) run side by side,
-//! each against a station of its own. Over the emulated RTU line: `tests/modbus_rtu.rs`.
+//! each against a station of its own. The TRIJOINT's `tables` run talks to the station its map
+//! names, the lab's X20BC0087; its `image` run to a generic station with the same modules (an
+//! X20BC0087 has no packed image). Over the emulated RTU line: `tests/modbus_rtu.rs`.
 //!
 //! The steppers of pn101 and the O-X glide once lost every step over Modbus: their model judged a
 //! set-point's change by the time since the station's last write, and a station writes the same
@@ -32,8 +34,15 @@ static SESSIONS: common::Places = common::Places::new(SESSIONS_AT_ONCE);
 fn session(machine: &str, exchange: &str, dir: &Path) {
     let _place = SESSIONS.take();
     let config = common::machine_test_config(dir, machine);
+    // The station's watchdog waits longer than a busy machine may delay the link: io-sim's own,
+    // and an X20BC0087's, which the soft-PLC sets from the map. The packed image needs the
+    // generic station (the TRIJOINT's is the lab's X20BC0087).
+    if exchange == "image" {
+        common::on_generic_station(&config);
+    } else if machine == "trijoint" {
+        common::edit_io_map(&config, |map| map["watchdog_ms"] = 1000.into());
+    }
     let config = config.to_str().expect("utf-8");
-    // The station's watchdog waits longer than a busy machine may delay the link.
     let (_sim, address) = common::start_io_sim("127.0.0.1:0", &["--config", config, "--watchdog-ms", "1000"]);
     let (s, t) = (dir.join("summary.json"), dir.join("trace.jsonl"));
     let mut command = common::pkm_command();

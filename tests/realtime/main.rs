@@ -2,6 +2,7 @@
 //! that they run side by side: each spends most of its time waiting on real time (a machine
 //! referencing, a station's watchdog, a client's subscription), not on the CPU.
 //!
+//! - [`bus_controller`]: the lab's X20BC0087 as io-sim serves it.
 //! - [`interop`]: against an independent Modbus implementation (pymodbus).
 //! - [`io_sim`]: the I/O simulator as a Modbus TCP slave.
 //! - [`joystick_fifo`]: a joystick through a FIFO.
@@ -18,6 +19,7 @@
 #[path = "../common/mod.rs"]
 mod common;
 
+mod bus_controller;
 mod interop;
 mod io_sim;
 mod joystick_fifo;

@@ -92,6 +92,8 @@ fn serve_badly(mut s: TcpStream, how: Misbehaviour) {
 fn run_against(port: u16, seconds: &str) -> (serde_json::Value, String, Option<i32>) {
     let dir = tempfile::tempdir().expect("tempdir");
     let (mut command, summary) = common::bus_fault_run(&format!("127.0.0.1:{port}"), seconds, dir.path());
+    // The bad stations imitate a generic one: the standard exchange's requests from address 0.
+    common::on_generic_station(&dir.path().join("busy-machine-config.json"));
     let o = command.output().expect("run");
     let s = common::read_json(&summary);
     (s, stderr(&o), o.status.code())
@@ -233,7 +235,8 @@ fn delaying_proxy(upstream: std::net::SocketAddr, delay: Duration) -> u16 {
 /// bus fault within a few exchanges, and the reason says so.
 #[test]
 fn a_link_slower_than_the_regulators_were_tuned_for_is_a_bus_fault_that_says_so() {
-    let (_sim, address) = common::start_io_sim("127.0.0.1:0", &[]);
+    // A generic station, as `run_against` runs the PLC on.
+    let (_sim, address) = common::start_io_sim("127.0.0.1:0", &["--config", common::generic_busy_config()]);
     let port = delaying_proxy(address, Duration::from_millis(8));
     let (s, log, code) = run_against(port, "3");
     assert_eq!(code, Some(0), "exchanges succeeded, slowly: {log}");
@@ -290,8 +293,9 @@ fn driver_against(port: serialport::TTYPort) -> pkm_plc::io::modbus::ModbusBus {
         .expect("the image fits");
     let mut table = pkm_plc::image::VarTable::new();
     bus.declare(&mut table);
-    // Returns once the first image arrived or the link failed.
-    bus.start();
+    // Returns once the first image arrived or the link failed (a failing link is a bus fault,
+    // not a refusal of the station).
+    bus.start().expect("a generic station is not refused");
     bus
 }
 
@@ -366,8 +370,9 @@ fn declaring_the_variables_opens_nothing_starting_the_bus_opens_the_link() {
     );
     assert!(!bus.fault(), "a bus fault before the link was opened");
     // The station accepts (the kernel completes the handshake) but never answers: start returns
-    // with a bus fault once the failures pass the bound, within the startup wait.
-    bus.start();
+    // with a bus fault once the failures pass the bound, within the startup wait (its module
+    // table unread: a station that never answers is a fault, not a refused station).
+    bus.start().expect("not refused");
     assert!(listener.accept().is_ok(), "start did not connect");
     assert!(bus.fault(), "no bus fault from a station that never answers");
     bus.write_safe(&table.initial_image());

@@ -12,11 +12,13 @@ use std::time::{Duration, Instant};
 
 use common::IoSim;
 
-/// Starts io-sim on a free loopback port with `args`; its log goes to `log`.
+/// Starts io-sim on a free loopback port with `args`, as a generic station of the TRIJOINT's
+/// modules (these tests address its layout and its own watchdog); its log goes to `log`.
 fn io_sim(args: &[&str], log: &std::path::Path) -> (IoSim, SocketAddr) {
+    let args = [args, &["--config", common::generic_busy_config()]].concat();
     common::start_io_sim_logging(
         "127.0.0.1:0",
-        args,
+        &args,
         std::fs::File::create(log).expect("log file"),
         "info",
     )
@@ -195,11 +197,18 @@ fn plc_against(address: SocketAddr, log: &std::path::Path) -> Child {
     )
 }
 
-/// Starts `pkm-plc run` with `args`, its log (at info) going to `log`.
+/// Starts `pkm-plc run` with `args` on the generic station's configuration (unless `args` give
+/// one), its log (at info) going to `log`.
 fn run_logging(args: &[&str], log: &std::path::Path) -> Child {
+    let config: &[&str] = if args.contains(&"--config") {
+        &[]
+    } else {
+        &["--config", common::generic_busy_config()]
+    };
     common::pkm_command()
         .arg("run")
         .args(args)
+        .args(config)
         .current_dir(env!("CARGO_MANIFEST_DIR"))
         .env("RUST_LOG", "info")
         .stdout(Stdio::null())

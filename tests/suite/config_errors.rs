@@ -608,3 +608,45 @@ fn a_joint_machine_configuration_is_checked_as_a_whole_with_paths() {
         common::stderr(&o)
     );
 }
+
+/// The station an I/O map names: its kind, the hardware IDs of its modules and an X20BC0087's
+/// slots and watchdog are checked when the map is read, each problem at its key.
+#[test]
+fn an_io_maps_station_is_checked_where_it_is_written() {
+    let cases: Vec<(String, &str)> = vec![
+        (
+            problems_of(no_change, |m| m["station"] = "X20BC0088".into()),
+            "map.json: at station: unknown variant `X20BC0088`, expected `generic` or `X20BC0087`",
+        ),
+        (
+            problems_of(no_change, |m| m["modules"][0]["id"] = "0xBEEF".into()),
+            "at modules[0].id: the X20DI9371's hardware ID is 0x1B95 (its data sheet's B&R ID code), not 0xBEEF",
+        ),
+        (
+            problems_of(no_change, |m| m["modules"][2]["id"] = "16#1B".into()),
+            "at modules[2].id: \"16#1B\" is not a hardware ID: a number 0–65535, or hexadecimal as \"0x1B95\"",
+        ),
+        (
+            problems_of(no_change, |m| m["modules"][4]["slot"] = 7.into()),
+            "at modules[4].slot: slot 7 on an X20BC0087 station, where slot 5 is next: the bus controller numbers its modules by their place on the backplane, 1, 2, 3 … without a gap",
+        ),
+        (
+            problems_of(no_change, |m| m["watchdog_ms"] = 10.into()),
+            "at watchdog_ms: 10 ms is outside 20–5000 ms: shorter trips on an ordinary late exchange, longer leaves the drives running that long after the soft-PLC stopped",
+        ),
+        (
+            problems_of(no_change, |m| {
+                m["station"] = "generic".into();
+                m["watchdog_ms"] = 200.into();
+            }),
+            "at watchdog_ms: the generic station has no watchdog to set (io-sim's is --watchdog-ms); watchdog_ms is an X20BC0087's",
+        ),
+    ];
+    for (problems, expected) in cases {
+        assert!(problems.contains(expected), "expected «{expected}» in:\n{problems}");
+    }
+    // A pinned ID that agrees, in either spelling, and the generic station: accepted.
+    assert_eq!(problems_of(no_change, |m| m["modules"][2]["id"] = 0x2345.into()), "");
+    assert_eq!(problems_of(no_change, |m| m["modules"][0]["id"] = "0x1b95".into()), "");
+    assert_eq!(problems_of(no_change, |m| m["station"] = "generic".into()), "");
+}

@@ -4,7 +4,7 @@ use crate::common;
 
 use common::{pkm, stderr, stdout};
 use pkm_plc::image::{Value, VarType};
-use pkm_plc::io::map::IoMap;
+use pkm_plc::io::map::{IoMap, StationKind};
 use pkm_plc::io::registers::{RegisterMap, Table, decode, encode};
 use proptest::prelude::*;
 
@@ -45,9 +45,10 @@ fn a_stepper_module_has_its_enables_as_coils_its_set_points_as_holding_and_its_c
 }
 
 #[test]
-fn the_trijoint_station_map() {
+fn the_trijoint_modules_on_a_generic_station() {
     let m = default_map();
-    let r = RegisterMap::of(&m);
+    // What a serial line's station serves, and io-sim with "station": "generic".
+    let r = RegisterMap::laid_out(&m, StationKind::Generic);
     assert_eq!(
         find(&m, &r, "DI", "DigitalInput01"),
         (Table::DiscreteInput, 0, 1),
@@ -79,6 +80,48 @@ fn the_trijoint_station_map() {
     assert!(
         !r.entries.iter().any(|e| m.modules[e.module].name == "JOY"),
         "the HID joystick is not on the field bus"
+    );
+}
+
+#[test]
+fn the_lab_station_behind_its_x20bc0087() {
+    let m = default_map();
+    assert_eq!(m.station, StationKind::X20bc0087);
+    let r = RegisterMap::of(&m);
+    assert_eq!(
+        find(&m, &r, "DI", "DigitalInput06"),
+        (Table::DiscreteInput, 5, 1),
+        "SWITCH_LEFT_UPPER"
+    );
+    // The MM's digital inputs start on byte 2 of the digital input image: bit 16.
+    assert_eq!(
+        find(&m, &r, "MM", "Error02"),
+        (Table::DiscreteInput, 21, 1),
+        "bridge_error_left"
+    );
+    assert_eq!(find(&m, &r, "DC_LEFT", "Counter01"), (Table::InputRegister, 0, 1));
+    assert_eq!(find(&m, &r, "DC_RIGHT", "Counter01"), (Table::InputRegister, 1, 1));
+    // Digital outputs: the DO's 12 bits in bytes 0–1, each counter's reset in a byte of its own.
+    assert_eq!(find(&m, &r, "DC_LEFT", "CounterReset01"), (Table::Coil, 16, 1));
+    assert_eq!(find(&m, &r, "DC_RIGHT", "CounterReset01"), (Table::Coil, 24, 1));
+    assert_eq!(
+        find(&m, &r, "MM", "ClearError02"),
+        (Table::Coil, 33, 1),
+        "clear_error_left"
+    );
+    let pwm = r
+        .entries
+        .iter()
+        .find(|e| {
+            m.modules[e.module].name == "MM"
+                && m.modules[e.module].ty.channels[e.channel].name == "PulseWidthCurrentPWM02"
+        })
+        .expect("velocity_left_set");
+    assert_eq!(r.wire_address(pwm), 0x0802, "holding registers from 0x0800");
+    assert_eq!(
+        r.sizes(),
+        [36, 22, 2, 3],
+        "coils, discrete inputs, input registers, holding registers"
     );
 }
 
@@ -133,16 +176,28 @@ fn the_registers_command_prints_the_map() {
     assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
     let out = stdout(&o);
     assert!(
-        out.contains("MM            5  PulseWidthCurrentPWM02   INT   holding register        2\n"),
+        out.contains("   5  MM         X20MM2436  ?                -     0 (6 B)     2 (1 B)      4 (1 B)\n"),
+        "{out}"
+    );
+    assert!(
+        out.contains("MM            5  PulseWidthCurrentPWM02   INT   holding register     2050\n"),
         "{out}"
     );
     assert!(
         out.ends_with(
-            "io-map/trijoint.json: 18 coils, 18 discrete inputs, 2 input registers, 3 holding registers\n\
-             packed process image (holding registers): inputs at 4096 (2 packed discrete inputs + 2), \
-             outputs at 8192 (2 packed coils + 3)\n"
+            "io-map/trijoint.json: 36 coils, 22 discrete inputs, 2 input registers, 3 holding registers (from 0x0800)\n\
+             no packed process image on an X20BC0087: --exchange tables; on a serial line the generic layout applies\n"
         ),
         "{out}"
+    );
+    let o = pkm(&["registers", "--machine", "ox-x"]);
+    assert!(
+        stdout(&o).ends_with(
+            "packed process image (holding registers): inputs at 4096 (2 packed discrete inputs + 4), outputs at 8192 \
+             (1 packed coils + 4)\n"
+        ),
+        "{}",
+        stdout(&o)
     );
 }
 

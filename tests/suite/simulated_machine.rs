@@ -65,7 +65,7 @@ fn module_errors() {
     );
     assert_eq!(
         map_error(r#"{"modules": [{"name": "A", "kind": "X20DI9371", "slot": 1}], "bindings": []}"#),
-        "map.json: at modules[0].kind: unknown field `kind`, expected one of `name`, `type`, `slot`"
+        "map.json: at modules[0].kind: unknown field `kind`, expected one of `name`, `type`, `slot`, `id`"
     );
 }
 

@@ -146,8 +146,8 @@ impl Bus for JoystickBus {
         }
     }
 
-    fn start(&mut self) {
-        self.inner.start();
+    fn start(&mut self) -> Result<(), String> {
+        self.inner.start()
     }
 
     fn read_inputs(&mut self, class: usize, t_ns: u64, image: &mut [Value]) {

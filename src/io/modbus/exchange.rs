@@ -10,11 +10,16 @@ use tokio_modbus::{Request, Response};
 
 use super::ExchangeMode;
 use crate::image::{Value, VarIndex, VarType};
-use crate::io::registers::{INPUT_IMAGE, ImageLayout, OUTPUT_IMAGE, Table, decode, encode, pack_bits, packed_bit};
+use crate::io::registers::{
+    INPUT_IMAGE, ImageLayout, OUTPUT_IMAGE, RegisterMap, Table, decode, encode, pack_bits, packed_bit,
+};
+use crate::io::x20bc0087::ExpectedModule;
 
 /// A binding as the driver sees it: where its channel lives and which variable it is.
 #[derive(Clone, Copy, Debug)]
 pub(super) struct Slot {
+    /// Index into the register map's entries (to follow an X20BC0087's own data indexes).
+    pub entry: usize,
     pub table: Table,
     pub address: u16,
     pub count: u16,
@@ -73,23 +78,49 @@ pub(super) struct Exchange {
     pub outputs: Vec<Slot>,
     /// `[coils, discrete inputs, input registers, holding registers]`.
     pub sizes: [u16; 4],
+    /// The wire address of holding register 0 of the slots (0x0800 on an X20BC0087).
+    pub holding_base: u16,
+    /// On an X20BC0087: what its module table must hold and how its watchdog is set.
+    pub bus_controller: Option<BusController>,
+}
+
+/// An X20BC0087 station as the I/O map describes it.
+pub(super) struct BusController {
+    /// The map's layout, before the station's own data indexes are known.
+    pub registers: RegisterMap,
+    /// What each slot must hold.
+    pub expected: Vec<ExpectedModule>,
+    /// The watchdog threshold set at every connection (ms).
+    pub watchdog_ms: u16,
 }
 
 impl Exchange {
     /// One exchange: every input read into `in_values` (one per input slot), every output of
-    /// `out_values` (one per output slot) written. `received` counts the bytes received on the
-    /// link.
+    /// `out_values` (one per output slot) written — unless `write` is false (the cycle has
+    /// stopped publishing outputs): then the inputs are only read, and the station's watchdog
+    /// is left to act. `received` counts the bytes received on the link.
     pub async fn run(
         &self,
         ctx: &mut client::Context,
         received: &AtomicU64,
         in_values: &mut [Value],
-        out_values: &[Value],
+        out_values: Option<&[Value]>,
     ) -> Result<(), Failed> {
         match self.mode {
             ExchangeMode::Image => self.image(ctx, received, in_values, out_values).await,
             ExchangeMode::Tables | ExchangeMode::Auto => self.tables(ctx, received, in_values, out_values).await,
         }
+    }
+
+    /// Moves every slot to where `registers` (the map's layout with a station's own data
+    /// indexes) puts its channel, and the table sizes with them.
+    pub fn rebase(&mut self, registers: &RegisterMap) {
+        for slot in self.inputs.iter_mut().chain(self.outputs.iter_mut()) {
+            if let Some(e) = registers.entries.get(slot.entry) {
+                slot.address = e.address;
+            }
+        }
+        self.sizes = registers.sizes();
     }
 
     /// The packed process image in one read/write-multiple-registers transaction.
@@ -98,19 +129,31 @@ impl Exchange {
         ctx: &mut client::Context,
         received: &AtomicU64,
         in_values: &mut [Value],
-        out_values: &[Value],
+        out_values: Option<&[Value]>,
     ) -> Result<(), Failed> {
         let layout = ImageLayout::of(self.sizes);
-        let (coil_bits, mut holding) = self.output_tables(out_values);
-        let mut out_image = vec![0u16; usize::from(layout.output_bits)];
-        pack_bits(&coil_bits, &mut out_image);
-        out_image.append(&mut holding);
-        let request =
-            Request::ReadWriteMultipleRegisters(INPUT_IMAGE, layout.input_len, OUTPUT_IMAGE, out_image.into());
-        let what = format!(
-            "read/write registers (the packed image: {} words read at {INPUT_IMAGE}, written at {OUTPUT_IMAGE})",
-            layout.input_len
-        );
+        let (request, what) = match out_values {
+            Some(out_values) => {
+                let (coil_bits, mut holding) = self.output_tables(out_values);
+                let mut out_image = vec![0u16; usize::from(layout.output_bits)];
+                pack_bits(&coil_bits, &mut out_image);
+                out_image.append(&mut holding);
+                (
+                    Request::ReadWriteMultipleRegisters(INPUT_IMAGE, layout.input_len, OUTPUT_IMAGE, out_image.into()),
+                    format!(
+                        "read/write registers (the packed image: {} words read at {INPUT_IMAGE}, written at {OUTPUT_IMAGE})",
+                        layout.input_len
+                    ),
+                )
+            }
+            None => (
+                Request::ReadHoldingRegisters(INPUT_IMAGE, layout.input_len),
+                format!(
+                    "read holding registers (the packed input image: {} words at {INPUT_IMAGE})",
+                    layout.input_len
+                ),
+            ),
+        };
         let image = read_exactly(self.timeout, received, ctx, request, layout.input_len, &what)
             .await?
             .words()?;
@@ -124,7 +167,7 @@ impl Exchange {
         ctx: &mut client::Context,
         received: &AtomicU64,
         in_values: &mut [Value],
-        out_values: &[Value],
+        out_values: Option<&[Value]>,
     ) -> Result<(), Failed> {
         let t = self.timeout;
         let [coils, discrete, input_regs, holding] = self.sizes;
@@ -155,14 +198,16 @@ impl Exchange {
             .words()?,
         };
         self.decode_inputs(in_values, |a| bits[a], &regs)?;
+        let Some(out_values) = out_values else { return Ok(()) };
         let (coil_bits, words) = self.output_tables(out_values);
         if coils > 0 {
             let what = span("write coils", coils);
             within(t, received, &what, ctx.write_multiple_coils(0, &coil_bits)).await?;
         }
         if holding > 0 {
-            let what = span("write holding registers", holding);
-            within(t, received, &what, ctx.write_multiple_registers(0, &words)).await?;
+            let base = self.holding_base;
+            let what = format!("write holding registers {base} … {}", base + holding - 1);
+            within(t, received, &what, ctx.write_multiple_registers(base, &words)).await?;
         }
         Ok(())
     }

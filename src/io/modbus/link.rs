@@ -17,6 +17,8 @@ use super::stats::LinkStats;
 use crate::bus::{MailboxReader, MailboxWriter};
 use crate::image::Value;
 use crate::io::rx_counter::RxCounter;
+use crate::io::x20bc0087::client::{Registers, RequestError, RequestFailure};
+use crate::io::x20bc0087::{ErrorBits, compare, rebase};
 
 /// The first pause before connecting again after a lost link.
 pub const RECONNECT_FIRST: Duration = Duration::from_millis(50);
@@ -91,6 +93,10 @@ pub(super) struct Shared {
     /// Why the last bus fault was declared (empty before the first): set where it is declared,
     /// read by the runtime to complete the application's "bus fault" reason.
     pub cause: Mutex<String>,
+    /// Why the station was refused at the first connection (the loop then ended without writing).
+    pub refused: Mutex<Option<String>>,
+    /// When the cycle last handed outputs over, in ns since `epoch`; [`NO_IMAGE`] before.
+    pub outputs_at_ns: AtomicU64,
 }
 
 /// `image_at_ns` before the first complete input image.
@@ -105,6 +111,8 @@ impl Shared {
             epoch: Instant::now(),
             stats: Arc::new(LinkStats::default()),
             cause: Mutex::new(String::new()),
+            refused: Mutex::new(None),
+            outputs_at_ns: AtomicU64::new(NO_IMAGE),
         }
     }
 
@@ -136,7 +144,42 @@ pub(super) struct Link {
     pub max_exchange: Duration,
     /// SCHED_FIFO priority of the exchange thread (0: normal scheduling).
     pub priority: u8,
+    /// Outputs the cycle handed over longer ago than this are not written: a hung cycle stops
+    /// feeding the station's watchdog, which then sets the outputs safe.
+    pub max_output_age: Duration,
     pub shared: Arc<Shared>,
+}
+
+/// How often an X20BC0087's error bits are read: every tenth exchange (50 ms at the 5 ms period),
+/// so that a cycle's exchange stays at the four requests of the process data.
+pub const STATUS_EVERY: u64 = 10;
+
+/// How long an X20BC0087's expired watchdog stands as a bus fault before the link resets it: the
+/// application answers a bus fault with ERROR (drives off) in its next main cycle, and the
+/// station takes outputs again only after that, and only while the cycle runs.
+pub const WATCHDOG_RESET_HOLD: Duration = Duration::from_millis(250);
+
+/// Why an X20BC0087 could not be made ready on a connection.
+enum NotReady {
+    /// A request failed: counted as a failed exchange, the link reconnects.
+    Failed(Failed),
+    /// The station is not the I/O map's, or did not take the watchdog setting.
+    Refused(String),
+}
+
+impl From<RequestError> for Failed {
+    fn from(e: RequestError) -> Failed {
+        let kind = match e.kind {
+            RequestFailure::Timeout => Failure::Timeout,
+            RequestFailure::Exception => Failure::Exception,
+            RequestFailure::Corrupt => Failure::Corrupt,
+            RequestFailure::Disconnected => Failure::Disconnected,
+        };
+        Failed {
+            kind,
+            cause: e.to_string(),
+        }
+    }
 }
 
 /// How many of the latest exchanges the slow-link supervision takes the median of: one or two
@@ -198,6 +241,15 @@ impl Link {
         let mut slow = false;
         let mut out_values: Vec<Value> = self.exchange.outputs.iter().map(|s| Value::zero(s.ty)).collect();
         let mut in_values: Vec<Value> = self.exchange.inputs.iter().map(|s| Value::zero(s.ty)).collect();
+        // An X20BC0087's state: whether it was made ready on a connection before (a refusal
+        // after that is a bus fault, not the end of the run), whether it reports a fault, and
+        // since when its watchdog is expired.
+        let mut ready_once = false;
+        let mut station_fault = false;
+        let mut expired_since: Option<Instant> = None;
+        let mut exchanges = 0u64;
+        // Whether the outputs are written (false while the cycle publishes none).
+        let mut writing = true;
         while !shared.stop.load(Ordering::Relaxed) {
             let connected = tokio::time::timeout(self.exchange.timeout, self.transport.connect(&received)).await;
             let mut ctx = match connected {
@@ -218,15 +270,68 @@ impl Link {
                     continue;
                 }
             };
+            match self.make_ready(&mut ctx, !ready_once).await {
+                Ok(None) => ready_once = true,
+                Ok(Some(faults)) => {
+                    ready_once = true;
+                    // Found on reconnecting: the station zeroed the outputs while the link was
+                    // away. A bus fault, which the status reads keep and end as usual.
+                    shared.declare_fault(
+                        &self.name,
+                        format!("the X20BC0087 reports {}", faults.names().join(", ")),
+                    );
+                    station_fault = true;
+                    if faults.has(ErrorBits::WATCHDOG_EXPIRED) {
+                        expired_since.get_or_insert_with(Instant::now);
+                    }
+                }
+                Err(NotReady::Failed(f)) => {
+                    shared.stats.failed(f.kind);
+                    self.failed(&mut failures, &f);
+                    tokio::time::sleep(backoff).await;
+                    backoff = (backoff * 2).min(RECONNECT_MAX);
+                    continue;
+                }
+                Err(NotReady::Refused(why)) if !ready_once => {
+                    // Said once, by the run that ends on it; nothing was written to the station.
+                    *shared.cause.lock().unwrap_or_else(|p| p.into_inner()) = why.clone();
+                    *shared.refused.lock().unwrap_or_else(|p| p.into_inner()) = Some(why);
+                    shared.fault.store(true, Ordering::Relaxed);
+                    return;
+                }
+                Err(NotReady::Refused(why)) => {
+                    shared.declare_fault(&self.name, why);
+                    tokio::time::sleep(backoff).await;
+                    backoff = (backoff * 2).min(RECONNECT_MAX);
+                    continue;
+                }
+            }
             let mut tick = tokio::time::interval(self.period);
             tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
             while !shared.stop.load(Ordering::Relaxed) {
                 tick.tick().await;
                 outputs.take_latest(&mut out_values);
+                let fresh = self.outputs_fresh();
+                if fresh != writing {
+                    writing = fresh;
+                    if fresh {
+                        tracing::info!(
+                            "modbus {}: the cycle publishes outputs again: they are written",
+                            self.name
+                        );
+                    } else {
+                        tracing::warn!(
+                            "modbus {}: the cycle has handed over no outputs for {} ms: they are no longer written, so the \
+                             station's watchdog sets them safe",
+                            self.name,
+                            self.max_output_age.as_millis()
+                        );
+                    }
+                }
                 let started = Instant::now();
                 match self
                     .exchange
-                    .run(&mut ctx, &received, &mut in_values, &out_values)
+                    .run(&mut ctx, &received, &mut in_values, writing.then_some(&out_values[..]))
                     .await
                 {
                     Ok(()) => {
@@ -257,6 +362,25 @@ impl Link {
                             continue;
                         }
                         slow = false;
+                        exchanges += 1;
+                        if self.exchange.bus_controller.is_some() && exchanges.is_multiple_of(STATUS_EVERY) {
+                            match self.station_status(&mut ctx, &mut expired_since, writing).await {
+                                Ok(fault) => station_fault = fault,
+                                Err(f) => {
+                                    shared.stats.failed(f.kind);
+                                    self.failed(&mut failures, &f);
+                                    if self.reconnects_after(f.kind) {
+                                        tokio::time::sleep(backoff).await;
+                                        backoff = (backoff * 2).min(RECONNECT_MAX);
+                                        break;
+                                    }
+                                    continue;
+                                }
+                            }
+                        }
+                        if station_fault {
+                            continue;
+                        }
                         if shared.fault.swap(false, Ordering::Relaxed) {
                             tracing::info!(
                                 "modbus {}: the link works again (the machine stays in ERROR until acknowledged)",
@@ -276,6 +400,104 @@ impl Link {
                 }
             }
         }
+    }
+
+    /// Whether the outputs the cycle handed over last are recent enough to be written (before the
+    /// first, the zero outputs are: they are safe, and they keep the station's watchdog fed
+    /// while the run waits for its first cycle).
+    fn outputs_fresh(&self) -> bool {
+        let at = self.shared.outputs_at_ns.load(Ordering::Acquire);
+        at == NO_IMAGE || Duration::from_nanos(self.shared.now_ns().saturating_sub(at)) <= self.max_output_age
+    }
+
+    /// On an X20BC0087, on every connection: checks the module table against the I/O map,
+    /// takes the station's own data indexes, and sets the watchdog (never trusting a stored
+    /// setting). Nothing else has been sent on the connection yet. `first`: the run's first
+    /// connection (notes about IDs the map does not pin are logged then). On the first
+    /// connection the watchdog is reset (an expiry then is a former controller's, and this run's
+    /// outputs start safe); on a later one, a station that reports faults — its watchdog expired
+    /// while the link was away — keeps them, returned (`Some`) for the link to raise.
+    async fn make_ready(&mut self, ctx: &mut client::Context, first: bool) -> Result<Option<ErrorBits>, NotReady> {
+        let Some(bc) = &self.exchange.bus_controller else {
+            return Ok(None);
+        };
+        let mut registers = Registers::new(ctx, self.exchange.timeout);
+        let table = registers.module_table().await.map_err(|e| NotReady::Failed(e.into()))?;
+        let notes = compare(&bc.expected, &table).map_err(|m| {
+            NotReady::Refused(format!(
+                "the X20BC0087 at {} holds other modules than the I/O map says, so nothing is written to it: {m}",
+                self.name
+            ))
+        })?;
+        if first {
+            for note in notes {
+                tracing::warn!("modbus {}: {note}", self.name);
+            }
+        }
+        if let Err(why) = registers
+            .configure_watchdog(bc.watchdog_ms)
+            .await
+            .map_err(|e| NotReady::Failed(e.into()))?
+        {
+            return Err(NotReady::Refused(format!("the X20BC0087 at {}: {why}", self.name)));
+        }
+        let (_, bits) = registers.errors().await.map_err(|e| NotReady::Failed(e.into()))?;
+        let faults = ErrorBits(bits.0 & ErrorBits::FAULTS);
+        let kept = (!first && faults.0 != 0).then_some(faults);
+        if kept.is_none() {
+            registers
+                .reset_watchdog()
+                .await
+                .map_err(|e| NotReady::Failed(e.into()))?;
+        }
+        let rebased = rebase(&bc.registers, &table);
+        let watchdog_ms = bc.watchdog_ms;
+        self.exchange.rebase(&rebased);
+        if first {
+            tracing::info!(
+                "modbus {}: X20BC0087 with the I/O map's {} modules; its watchdog set to {watchdog_ms} ms, reset by \
+                 writes only",
+                self.name,
+                table.len(),
+            );
+        }
+        Ok(kept)
+    }
+
+    /// Reads an X20BC0087's error bits: "module mismatch", "module runtime error" and "watchdog
+    /// expired" are a bus fault while they last (`Ok(true)`). An expired watchdog is reset
+    /// once it has stood [`WATCHDOG_RESET_HOLD`] and only while the cycle's outputs are
+    /// written (`writing`).
+    async fn station_status(
+        &self,
+        ctx: &mut client::Context,
+        expired_since: &mut Option<Instant>,
+        writing: bool,
+    ) -> Result<bool, Failed> {
+        let mut registers = Registers::new(ctx, self.exchange.timeout);
+        let (_, bits) = registers.errors().await?;
+        let faults = ErrorBits(bits.0 & ErrorBits::FAULTS);
+        if faults.0 == 0 {
+            *expired_since = None;
+            return Ok(false);
+        }
+        self.shared.declare_fault(
+            &self.name,
+            format!("the X20BC0087 reports {}", faults.names().join(", ")),
+        );
+        if faults.has(ErrorBits::WATCHDOG_EXPIRED) {
+            let since = *expired_since.get_or_insert_with(Instant::now);
+            if writing && since.elapsed() >= WATCHDOG_RESET_HOLD {
+                registers.reset_watchdog().await?;
+                *expired_since = None;
+                tracing::info!(
+                    "modbus {}: the X20BC0087's watchdog reset: the station takes the outputs again (the machine stays \
+                     in ERROR until acknowledged)",
+                    self.name
+                );
+            }
+        }
+        Ok(true)
     }
 
     /// Whether the link is opened again after failure `f`. A lost link is. Over TCP a timeout or

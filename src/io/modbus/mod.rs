@@ -30,11 +30,11 @@ pub use link::Transport;
 pub use stats::LinkStats;
 
 use super::catalogue::Direction;
-use super::map::IoMap;
+use super::map::{IoMap, StationKind};
 use super::registers::{ImageLayout, MAX_IMAGE_READ, MAX_IMAGE_WRITE, RegisterMap};
 use crate::bus::{Bus, MailboxReader, MailboxWriter, image_mailbox};
 use crate::image::{Value, VarIndex, VarTable};
-use exchange::{Exchange, Slot};
+use exchange::{BusController, Exchange, Slot};
 use link::{Link, NO_IMAGE, Shared};
 
 /// How one exchange talks to the station.
@@ -137,12 +137,21 @@ pub enum ModbusSetupError {
         /// The request's write limit.
         max_write: u16,
     },
+    /// The X20BC0087 has no packed image.
+    #[error(
+        "the X20BC0087 exchanges its process data on the standard Modbus tables only: --exchange image needs a \
+         generic station (io-sim's, with \"station\": \"generic\" in the I/O map); use --exchange tables"
+    )]
+    NoImageOnBusController,
 }
 
 /// The Modbus bus.
 pub struct ModbusBus {
     name: String,
     map: IoMap,
+    /// The layout spoken: the map's station over TCP; the generic one on a serial line (an
+    /// X20BC0087 has no serial interface).
+    station: StationKind,
     options: ModbusOptions,
     /// The exchange loop, laid out by `declare`, until `start` spawns it.
     pending: Option<(Link, MailboxWriter, MailboxReader)>,
@@ -163,13 +172,33 @@ impl ModbusBus {
     /// `ExchangeMode::Auto` in `options` is resolved here: the packed image on a serial line, the
     /// standard tables over TCP.
     pub fn new(map: IoMap, transport: Transport, mut options: ModbusOptions) -> Result<Self, ModbusSetupError> {
+        let station = match transport {
+            Transport::Tcp(_) => map.station,
+            Transport::Serial { .. } | Transport::Port(_) => {
+                if map.station == StationKind::X20bc0087 {
+                    tracing::info!(
+                        "modbus: {}'s station is an X20BC0087, a Modbus TCP bus controller; on a serial line the \
+                         station is the generic one with the same modules (as io-sim serves it there)",
+                        map.origin
+                    );
+                }
+                StationKind::Generic
+            }
+        };
+        if station == StationKind::X20bc0087 {
+            match options.exchange {
+                ExchangeMode::Image => return Err(ModbusSetupError::NoImageOnBusController),
+                ExchangeMode::Auto => options.exchange = ExchangeMode::Tables,
+                ExchangeMode::Tables => {}
+            }
+        }
         if options.exchange == ExchangeMode::Auto {
             options.exchange = match transport {
                 Transport::Tcp(_) => ExchangeMode::Tables,
                 Transport::Serial { .. } | Transport::Port(_) => ExchangeMode::Image,
             };
         }
-        let layout = ImageLayout::of(RegisterMap::of(&map).sizes());
+        let layout = ImageLayout::of(RegisterMap::laid_out(&map, station).sizes());
         if options.exchange == ExchangeMode::Image && !layout.fits_one_transaction() {
             return Err(ModbusSetupError::ImageTooLarge {
                 input: layout.input_len,
@@ -181,6 +210,7 @@ impl ModbusBus {
         Ok(ModbusBus {
             name: transport.describe(),
             map,
+            station,
             options,
             pending: None,
             transport: Some(transport),
@@ -258,19 +288,21 @@ impl Bus for ModbusBus {
 
     /// Lays out the slots and mailboxes; opens nothing (that is [`Bus::start`]).
     fn declare(&mut self, table: &mut VarTable) {
-        let registers = RegisterMap::of(&self.map);
+        let registers = RegisterMap::laid_out(&self.map, self.station);
         let mut inputs = Vec::new();
         let mut outputs = Vec::new();
         for b in &self.map.bindings {
             let entry = registers
                 .entries
                 .iter()
-                .find(|e| e.module == b.module && e.channel == b.channel);
+                .position(|e| e.module == b.module && e.channel == b.channel);
             let var = b.declare(table);
             // A channel off the field bus (the HID joystick) is declared but stays at its zero
             // value here: "not connected" until the joystick driver provides it.
-            let Some(e) = entry else { continue };
+            let Some(entry) = entry else { continue };
+            let e = &registers.entries[entry];
             let slot = Slot {
+                entry,
                 table: e.table,
                 address: e.address,
                 count: e.count,
@@ -304,7 +336,14 @@ impl Bus for ModbusBus {
                 inputs,
                 outputs,
                 sizes: registers.sizes(),
+                holding_base: registers.holding_base,
+                bus_controller: (self.station == StationKind::X20bc0087).then(|| BusController {
+                    expected: crate::io::x20bc0087::expected_modules(&self.map, &registers),
+                    watchdog_ms: self.map.watchdog_ms,
+                    registers: registers.clone(),
+                }),
             },
+            max_output_age: self.options.max_input_age * 2,
             period: self.options.period,
             max_failures: self.options.max_failures,
             max_exchange: self.options.max_exchange,
@@ -315,13 +354,26 @@ impl Bus for ModbusBus {
     }
 
     /// Opens the link: spawns the exchange loop and waits for the first input image (at most
-    /// [`STARTUP_WAIT`]; a bus fault after that). Called once; a second call does nothing.
-    fn start(&mut self) {
+    /// [`STARTUP_WAIT`]; a bus fault after that). An X20BC0087 whose modules are not the I/O
+    /// map's, or that does not take the watchdog setting, is refused here: nothing was written
+    /// to its outputs. Called once; a second call does nothing.
+    fn start(&mut self) -> Result<(), String> {
         let Some((link, in_writer, out_reader)) = self.pending.take() else {
-            return;
+            return Ok(());
         };
         self.thread = link.spawn(in_writer, out_reader);
         self.await_first_image();
+        let refused = self.shared.refused.lock().unwrap_or_else(|p| p.into_inner()).take();
+        match refused {
+            Some(why) => {
+                if let Some(thread) = self.thread.take() {
+                    // The loop ended when it refused.
+                    let _ = thread.join();
+                }
+                Err(why)
+            }
+            None => Ok(()),
+        }
     }
 
     fn read_inputs(&mut self, _class: usize, _t_ns: u64, image: &mut [Value]) {
@@ -337,6 +389,9 @@ impl Bus for ModbusBus {
         if let Some(outputs) = &mut self.outputs {
             outputs.publish(&self.output_values);
         }
+        // When the cycle published last: the loop writes outputs only while they are fresh, so
+        // that a hung cycle stops feeding the station's watchdog.
+        self.shared.outputs_at_ns.store(self.shared.now_ns(), Ordering::Release);
     }
 
     fn write_safe(&mut self, image: &[Value]) {

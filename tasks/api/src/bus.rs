@@ -17,8 +17,11 @@ pub trait Bus: Send {
     /// Opens the link, once, after the configuration is accepted and the programs are built and
     /// before the first cycle (the runtime calls it; declaring variables never opens anything).
     /// A real bus connects here and may wait, bounded, for its first input image; a simulated
-    /// bus has nothing to do.
-    fn start(&mut self) {}
+    /// bus has nothing to do. An error refuses the run before any output was written (a station
+    /// whose modules are not the I/O map's): it says why.
+    fn start(&mut self) -> Result<(), String> {
+        Ok(())
+    }
     /// Called at the start of a cycle of task class `class` (nominal time `t_ns`), before its
     /// inputs are latched: updates the global image with the bus inputs that class latches.
     fn read_inputs(&mut self, class: usize, t_ns: u64, image: &mut [Value]);

@@ -1,0 +1,351 @@
+//! The lab's station, an X20BC0087 bus controller, as io-sim serves it for the TRIJOINT's I/O
+//! map: driven by a pymodbus client written from the public register description; refused by
+//! `run` when its modules are not the map's; listed by `station scan`; and its watchdog, which
+//! the soft-PLC sets and feeds only while its cycle runs.
+
+use crate::common;
+
+use std::path::Path;
+use std::process::Stdio;
+use std::time::{Duration, Instant};
+
+/// io-sim serving `config`'s map (the TRIJOINT's X20BC0087 when `None`), its log at info in `log`.
+fn io_sim(config: Option<&Path>, args: &[&str], log: &Path) -> (common::IoSim, std::net::SocketAddr) {
+    let mut all: Vec<&str> = args.to_vec();
+    if let Some(config) = config {
+        all.extend(["--config", config.to_str().expect("utf-8")]);
+    }
+    common::start_io_sim_logging(
+        "127.0.0.1:0",
+        &all,
+        std::fs::File::create(log).expect("log file"),
+        "info",
+    )
+}
+
+#[test]
+fn a_client_written_from_the_register_description_drives_io_sims_x20bc0087() {
+    let python = match common::python_interop() {
+        Ok(p) => p,
+        Err(why) => {
+            common::skip(
+                "bus_controller::a_client_written_from_the_register_description_drives_io_sims_x20bc0087",
+                &format!("no pymodbus: {why}"),
+            );
+            return;
+        }
+    };
+    let dir = tempfile::tempdir().expect("tempdir");
+    let log = dir.path().join("sim.log");
+    // Its stored watchdog off: the client sets its own.
+    let (sim, address) = io_sim(None, &["--node", "5", "--watchdog-ms", "0"], &log);
+    let o = std::process::Command::new(&python)
+        .arg(format!("{}/tests/interop/bc_client.py", env!("CARGO_MANIFEST_DIR")))
+        .args([address.to_string(), "5".to_string()])
+        .output()
+        .expect("bc_client.py");
+    drop(sim);
+    let sim_log = std::fs::read_to_string(&log).unwrap_or_default();
+    assert!(
+        o.status.success(),
+        "{}{}\nio-sim: {sim_log}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert_eq!(String::from_utf8_lossy(&o.stdout), "ok\n");
+    assert!(sim_log.contains("X20BC0087 watchdog expired"), "{sim_log}");
+}
+
+#[test]
+fn run_refuses_a_station_whose_di_and_do_swapped_slots_before_writing_anything() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    // The station: the lab's modules with DI and DO swapped on the backplane.
+    let station = dir.path().join("station");
+    std::fs::create_dir(&station).expect("dir");
+    let station_config = common::write_realtime_config(&station);
+    common::edit_io_map(&station_config, |map| {
+        map["modules"][0]["slot"] = 2.into();
+        map["modules"][1]["slot"] = 1.into();
+    });
+    let log = dir.path().join("sim.log");
+    let (sim, address) = io_sim(Some(&station_config), &[], &log);
+    let config = common::write_realtime_config(dir.path());
+    let started = Instant::now();
+    let o = common::pkm_command()
+        .args([
+            "run",
+            "--bus",
+            &format!("tcp:{address}"),
+            "--duration",
+            "5",
+            "--joystick",
+            "none",
+        ])
+        .args(["--config", config.to_str().expect("utf-8")])
+        .env("RUST_LOG", "info")
+        .stdout(Stdio::null())
+        .output()
+        .expect("run");
+    let took = started.elapsed();
+    drop(sim);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    let expected = format!(
+        "error: the X20BC0087 at tcp:{address} holds other modules than the I/O map says, so nothing is written to \
+         it: slot 1: the I/O map expects X20DI9371 (ID 0x1B95, module \"DI\"), the station reports X20DO9322 (ID \
+         0x1B9A); slot 2: the I/O map expects X20DO9322 (ID 0x1B9A, module \"DO\"), the station reports X20DI9371 \
+         (ID 0x1B95)\n"
+    );
+    assert!(err.ends_with(&expected), "{err}");
+    assert!(!err.contains("t=0.000 s: REBOOT"), "no cycle ran: {err}");
+    assert!(
+        took < Duration::from_secs(5),
+        "refused at once, not at the end of the run: {took:?}"
+    );
+    // Nothing was written to the station: no client took its outputs.
+    let sim_log = std::fs::read_to_string(&log).unwrap_or_default();
+    assert!(sim_log.contains("an X20BC0087 (node 1) with 5 modules"), "{sim_log}");
+    assert!(
+        !sim_log.contains("owns the outputs"),
+        "the refused PLC wrote to the station: {sim_log}"
+    );
+}
+
+#[test]
+fn station_scan_lists_io_sims_x20bc0087_and_writes_a_map_skeleton() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (sim, address) = io_sim(None, &["--node", "12"], &dir.path().join("sim.log"));
+    let map = dir.path().join("scanned.json");
+    let o = common::pkm(&[
+        "station",
+        "scan",
+        &format!("tcp:{address}"),
+        "--write-map",
+        map.to_str().expect("utf-8"),
+    ]);
+    let out = common::stdout(&o);
+    assert_eq!(o.status.code(), Some(0), "{}", common::stderr(&o));
+    assert!(out.starts_with(&format!("X20BC0087 at {address} (node 12)\n")), "{out}");
+    assert!(
+        out.contains(&format!(
+            "  network: MAC 00:60:65:00:00:0c, IP 127.0.0.1 (in flash 127.0.0.1), subnet 255.0.0.0, gateway 0.0.0.0, \
+             Modbus port {}\n",
+            address.port()
+        )),
+        "{out}"
+    );
+    // io-sim's stored setting: its --watchdog-ms (100), any telegram feeds it.
+    assert!(
+        out.contains("  watchdog: 100 ms, reset by any telegram, running"),
+        "{out}"
+    );
+    assert!(out.contains("  status 0x0000, errors: none\n"), "{out}");
+    assert!(
+        out.contains(
+            "  process data: 5 modules; analog in 2 modules 4 B, analog out 1 modules 6 B, digital in 2 modules 3 B, \
+             digital out 4 modules 5 B\n"
+        ),
+        "{out}"
+    );
+    for row in [
+        "   1  0x1B95  X20DI9371                       1  0x1B95      254       none       none          0        none\n",
+        "   2  0x1B9A  X20DO9322                       2  0x1B9A      254       none       none       none           0\n",
+        "   5  0x0000  unknown ID 0x0000               5  -           254       none          0          2           4\n",
+    ] {
+        assert!(out.contains(row), "{row:?} in {out}");
+    }
+    // The skeleton: the station, its modules with their IDs pinned; a module the catalogue does
+    // not know has a type to be written by hand, and the map is refused until it is.
+    let skeleton = common::read_json(&map);
+    assert_eq!(skeleton["station"], "X20BC0087");
+    assert_eq!(
+        skeleton["modules"][0],
+        serde_json::json!({"name": "DI9371_1", "type": "X20DI9371", "slot": 1, "id": "0x1B95"})
+    );
+    assert_eq!(skeleton["modules"][4]["id"], "0x0000");
+    let classes = ["fast".to_string(), "main".to_string()];
+    let text = std::fs::read_to_string(&map).expect("map");
+    let refused = pkm_plc::io::map::IoMap::parse(&text, "scanned.json", &classes).expect_err("types to write");
+    assert!(
+        refused
+            .to_string()
+            .contains("at modules[2].type: unknown module type \"unknown ID 0x0000: write its type"),
+        "{refused}"
+    );
+    // Written by hand, it loads, and lays the data out where the station has it.
+    let mut named = skeleton.clone();
+    for (i, ty) in [(2, "X20DC1196"), (3, "X20DC1196"), (4, "X20MM2436")] {
+        named["modules"][i]["type"] = ty.into();
+    }
+    let loaded = pkm_plc::io::map::IoMap::parse(&named.to_string(), "scanned.json", &classes).expect("valid");
+    let registers = pkm_plc::io::registers::RegisterMap::of(&loaded);
+    let shipped = common::io_map(&common::loaded(&common::repo_config()));
+    assert_eq!(
+        registers.sizes(),
+        pkm_plc::io::registers::RegisterMap::of(&shipped).sizes()
+    );
+    // A scan writes nothing and overwrites no map.
+    let again = common::pkm(&[
+        "station",
+        "scan",
+        &format!("tcp:{address}"),
+        "--write-map",
+        map.to_str().expect("utf-8"),
+    ]);
+    assert_eq!(again.status.code(), Some(1));
+    assert!(
+        common::stderr(&again).contains("exists already; the scan does not overwrite a map"),
+        "{}",
+        common::stderr(&again)
+    );
+    drop(sim);
+    let refused = common::pkm(&["station", "scan", &format!("tcp:{address}"), "--timeout-ms", "500"]);
+    assert_eq!(refused.status.code(), Some(1));
+    assert!(
+        common::stderr(&refused).starts_with(&format!("error: cannot connect to {address}: ")),
+        "{}",
+        common::stderr(&refused)
+    );
+}
+
+/// A PLC stopped mid-run (SIGSTOP: its cycle and its link frozen, as a hung process is) no longer
+/// writes; the station's watchdog, which the PLC set to 100 ms, zeroes the outputs. When the PLC
+/// goes on, it sees the station's "watchdog expired", goes to ERROR saying so, and resets the
+/// watchdog only after that: the machine stays in ERROR until acknowledged.
+#[test]
+fn a_frozen_plc_lets_the_station_watchdog_stop_the_drives_and_says_so_when_it_wakes() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let sim_log = dir.path().join("sim.log");
+    let (_sim, address) = io_sim(None, &[], &sim_log);
+    let config = common::write_realtime_config(dir.path());
+    let summary = dir.path().join("summary.json");
+    let mut command = common::pkm_command();
+    command
+        .args([
+            "run",
+            "--bus",
+            &format!("tcp:{address}"),
+            "--joystick",
+            "none",
+            "--hmi",
+            "none",
+        ])
+        .args(["--config", config.to_str().expect("utf-8")])
+        .args(["--summary", summary.to_str().expect("utf-8")])
+        // Inputs frozen for the stop are not what this is about: the station's watchdog is.
+        .args(["--max-input-age-ms", "5000", "--max-exchange-ms", "1000"])
+        .env("RUST_LOG", "info");
+    let mut run = common::start_with_link_up(command);
+    let pid = run.child.id().to_string();
+    let signal = |name: &str| {
+        let status = std::process::Command::new("kill")
+            .args([name, &pid])
+            .status()
+            .expect("kill");
+        assert!(status.success(), "kill {name}");
+    };
+    signal("-STOP");
+    // The station's watchdog acts within its 100 ms; waited for in its log.
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while !std::fs::read_to_string(&sim_log)
+        .unwrap_or_default()
+        .contains("X20BC0087 watchdog expired")
+    {
+        assert!(Instant::now() < deadline, "the station's watchdog never expired");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    signal("-CONT");
+    run.wait_for(0, "the X20BC0087's watchdog reset", Duration::from_secs(30))
+        .unwrap_or_else(|| panic!("the PLC never reset the station's watchdog:\n{}", run.log()));
+    assert!(run.terminate().success(), "{}", run.log());
+    let s = common::read_json(&summary);
+    assert_eq!(s["main"]["state"], "ERROR", "{s}");
+    let log = run.log();
+    assert!(
+        log.contains(&format!(
+            "modbus tcp:{address}: bus fault: the X20BC0087 reports watchdog expired"
+        )),
+        "{log}"
+    );
+    assert!(log.contains("ERROR (bus fault: "), "{log}");
+    assert!(
+        std::fs::read_to_string(&sim_log)
+            .unwrap_or_default()
+            .contains("X20BC0087 watchdog reset by a client"),
+        "the PLC reset the station's watchdog"
+    );
+}
+
+/// The link writes only what the cycle hands over: when the cycle stops handing outputs over (a
+/// hung cycle) while the link thread goes on, the link only reads, and the station's watchdog —
+/// fed by writes only, as the soft-PLC sets it — zeroes the outputs.
+#[test]
+fn a_cycle_that_stops_handing_outputs_over_stops_feeding_the_station_watchdog() {
+    use pkm_plc::bus::Bus as _;
+    let dir = tempfile::tempdir().expect("tempdir");
+    // A watchdog of 1 s and outputs written while under 1 s old: a busy machine delays neither
+    // that long.
+    let config = common::write_realtime_config(dir.path());
+    common::edit_io_map(&config, |map| map["watchdog_ms"] = 1000.into());
+    let sim_log = dir.path().join("sim.log");
+    let (_sim, address) = io_sim(Some(&config), &[], &sim_log);
+    let loaded = pkm_plc::config::load(Some(&config)).expect("the configuration");
+    let map = common::io_map(&loaded);
+    let options = pkm_plc::io::modbus::ModbusOptions {
+        max_input_age: Duration::from_millis(500),
+        timeout: Duration::from_secs(1),
+        ..Default::default()
+    };
+    let mut bus = pkm_plc::io::modbus::ModbusBus::new(map, pkm_plc::io::modbus::Transport::Tcp(address), options)
+        .expect("tables");
+    let mut table = pkm_plc::image::VarTable::new();
+    bus.declare(&mut table);
+    bus.start().expect("the station is the map's");
+    let image = table.initial_image();
+    // The cycle runs for a second: the watchdog is fed.
+    let fed = Instant::now();
+    while fed.elapsed() < Duration::from_secs(1) {
+        bus.write_outputs(0, 0, &image);
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let read = |path: &Path| std::fs::read_to_string(path).unwrap_or_default();
+    assert!(
+        !read(&sim_log).contains("watchdog expired"),
+        "fed, yet expired: {}",
+        read(&sim_log)
+    );
+    let exchanges =
+        |bus: &pkm_plc::io::modbus::ModbusBus| bus.stats().exchanges.load(std::sync::atomic::Ordering::Relaxed);
+    let before = exchanges(&bus);
+    // The cycle hangs: no more outputs. The station's watchdog acts after the outputs' 1 s of
+    // age and its own 1 s.
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while !read(&sim_log).contains("X20BC0087 watchdog expired") {
+        assert!(
+            Instant::now() < deadline,
+            "the station's watchdog never expired: {}",
+            read(&sim_log)
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    assert!(exchanges(&bus) > before, "the link went on reading the inputs");
+    // The link reads the station's error bits: a bus fault that names the watchdog, and it stays
+    // (the link does not reset the station's watchdog while no outputs come).
+    let deadline = Instant::now() + Duration::from_secs(10);
+    let cause = || {
+        let mut cause = String::new();
+        bus.write_fault_cause(&mut cause);
+        cause
+    };
+    while !(bus.fault() && cause().contains("the X20BC0087 reports watchdog expired")) {
+        assert!(
+            Instant::now() < deadline,
+            "no bus fault from the expired watchdog: {}",
+            cause()
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    std::thread::sleep(Duration::from_millis(500));
+    assert!(bus.fault(), "the fault stands while the cycle hands no outputs over");
+    bus.write_safe(&image);
+}
