@@ -23,6 +23,7 @@ pub mod plc;
 pub mod run;
 pub mod screen_job;
 pub mod selftest;
+pub mod service;
 pub mod signals;
 pub mod sim;
 pub mod station_cmd;

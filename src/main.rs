@@ -465,13 +465,23 @@ fn init_logging() {
     // Every line, the libraries' too, within the log's budget: a peer's flood cannot fill the
     // disk (pkm_plc::log_limit).
     let budget = pkm_plc::log_limit::LogBudget::new();
-    let format = tracing_subscriber::fmt::layer()
-        .with_writer(status::LogWriter)
-        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
-        .with_target(false);
+    // Under systemd the journal keeps the time and reads each line's level from its prefix.
+    let journal = pkm_plc::service::logging_to_journal().then(|| {
+        tracing_subscriber::fmt::layer()
+            .with_writer(status::LogWriter)
+            .with_ansi(false)
+            .event_format(pkm_plc::service::JournalFormat)
+    });
+    let format = (!pkm_plc::service::logging_to_journal()).then(|| {
+        tracing_subscriber::fmt::layer()
+            .with_writer(status::LogWriter)
+            .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
+            .with_target(false)
+    });
     tracing_subscriber::registry()
         .with(filter)
         .with(pkm_plc::log_limit::BudgetLayer(Arc::clone(&budget)))
+        .with(journal)
         .with(format)
         .init();
     budget.spawn_summaries();
@@ -902,6 +912,9 @@ fn run_realtime(
     let run = run::start_realtime_with(plc, options, publisher).map_err(|e| Failure::run(e.to_string()))?;
     let stop = run.stop_flag();
     let snapshot = run.snapshot();
+    let heartbeat = run.heartbeat();
+    // A service manager's notifications (systemd, Type=notify), when it asked for them.
+    let mut notifier = pkm_plc::service::Notifier::from_env();
     let outcome = runtime.block_on(async move {
         let status_task = status::wanted().then(|| status::spawn(Arc::clone(&snapshot), Duration::from_millis(250)));
         // Said once every class has run a cycle: scripts and tests wait for this line.
@@ -912,15 +925,33 @@ fn run_realtime(
                 name = signals.recv() => {
                     info!("{name}: stopping after the current cycle, outputs to safe values");
                     stop.store(true, std::sync::atomic::Ordering::Relaxed);
+                    if let Some(n) = &mut notifier {
+                        n.stopping();
+                    }
                     break;
                 }
                 _ = poll.tick() => {
                     if run.is_finished() {
                         break;
                     }
-                    if !ready && snapshot.lock().is_ok_and(|s| s.classes.iter().all(|c| c.cycles > 0)) {
+                    let (cycled, running, state) = match snapshot.lock() {
+                        Ok(s) => {
+                            let cycled = s.classes.iter().all(|c| c.cycles > 0);
+                            let state = if s.reason.is_empty() {
+                                s.state.clone()
+                            } else {
+                                format!("{}: {}", s.state, s.reason)
+                            };
+                            (cycled, cycled && !s.bus_fault, state)
+                        }
+                        Err(_) => (false, false, String::new()),
+                    };
+                    if !ready && cycled {
                         ready = true;
                         info!("running in real time; Ctrl-C, SIGTERM or SIGHUP stops it safely");
+                    }
+                    if let Some(n) = &mut notifier {
+                        n.tick(running, heartbeat.load(std::sync::atomic::Ordering::Relaxed), &state);
                     }
                 }
             }

@@ -339,6 +339,11 @@ impl Plc {
             .map(|&c| self.classes[c].period_ns)
     }
 
+    /// Whether the bus reported a fault at the latest cycle (the `bus_fault` input it published).
+    pub fn bus_faulted(&self) -> bool {
+        self.global[usize::from(self.bus_fault)] == Value::Bool(true)
+    }
+
     /// The name of the program whose status [`Plc::app_status`] reports.
     pub fn app_program(&self) -> Option<&str> {
         self.order

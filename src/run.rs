@@ -2,7 +2,7 @@
 //! and real (a dedicated cyclic thread waiting on absolute deadlines).
 
 use std::io;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
@@ -132,6 +132,8 @@ pub struct Snapshot {
     pub note: String,
     /// The values the main program shows with its state.
     pub values: Vec<(&'static str, f64)>,
+    /// Whether the bus reported a fault at the latest cycle.
+    pub bus_fault: bool,
 }
 
 /// One task class in a [`Snapshot`].
@@ -171,6 +173,7 @@ impl Snapshot {
             reason: String::with_capacity(256),
             note: String::with_capacity(256),
             values: Vec::with_capacity(MAX_STATUS_VALUES),
+            bus_fault: false,
         };
         s.update(plc, 0);
         s
@@ -180,6 +183,7 @@ impl Snapshot {
     /// anything seen before.
     pub fn update(&mut self, plc: &Plc, t_ns: u64) {
         self.t_ns = t_ns;
+        self.bus_fault = plc.bus_faulted();
         for (snap, class) in self.classes.iter_mut().zip(plc.classes()) {
             snap.cycles = class.stats.cycles;
             snap.overruns = class.stats.overruns;
@@ -246,6 +250,9 @@ pub struct RealTimeOutcome {
 pub struct RealTimeRun {
     stop: Arc<AtomicBool>,
     snapshot: Arc<Mutex<Snapshot>>,
+    /// The release time (ns) of the cyclic thread's latest pass: it advances while the cycles
+    /// run (a service manager's watchdog is fed from it).
+    heartbeat: Arc<AtomicU64>,
     thread: JoinHandle<Result<RealTimeOutcome, RunError>>,
 }
 
@@ -272,7 +279,8 @@ pub fn start_realtime_with(
     }
     let stop = Arc::new(AtomicBool::new(false));
     let snapshot = Arc::new(Mutex::new(Snapshot::for_plc(&plc)));
-    let (stop_t, snap_t) = (Arc::clone(&stop), Arc::clone(&snapshot));
+    let heartbeat = Arc::new(AtomicU64::new(0));
+    let (stop_t, snap_t, beat_t) = (Arc::clone(&stop), Arc::clone(&snapshot), Arc::clone(&heartbeat));
     let source = options.source.resolve();
     let thread = std::thread::Builder::new()
         .name("plc-cyclic".into())
@@ -327,6 +335,7 @@ pub fn start_realtime_with(
                         error,
                     })?;
                 plc.run_due(&mut clock, end_ns);
+                beat_t.store(t, Ordering::Relaxed);
                 log.observe(&plc, t);
                 if let Some(screen) = &mut screen {
                     screen.after_pass(&plc, t);
@@ -353,7 +362,12 @@ pub fn start_realtime_with(
             })
         })
         .map_err(RunError::Thread)?;
-    Ok(RealTimeRun { stop, snapshot, thread })
+    Ok(RealTimeRun {
+        stop,
+        snapshot,
+        heartbeat,
+        thread,
+    })
 }
 
 impl RealTimeRun {
@@ -370,6 +384,11 @@ impl RealTimeRun {
     /// The shared snapshot, refreshed about ten times a second.
     pub fn snapshot(&self) -> Arc<Mutex<Snapshot>> {
         Arc::clone(&self.snapshot)
+    }
+
+    /// The cyclic thread's heartbeat: the release time (ns) of its latest pass.
+    pub fn heartbeat(&self) -> Arc<AtomicU64> {
+        Arc::clone(&self.heartbeat)
     }
 
     /// Whether the cyclic thread has ended.

@@ -9,6 +9,7 @@
 //! - [`machines_over_modbus`]: every machine over Modbus TCP, both exchanges.
 //! - [`modbus_faults`]: link faults on Modbus TCP and RTU.
 //! - [`opcua`]: the OPC UA server with Python's asyncua.
+//! - [`service`]: the notifications a service manager (systemd) waits for.
 //! - [`station_safety`]: what the station and the soft-PLC do when things go wrong.
 //! - [`trace_cuts`]: traces that a crash cut short.
 //!
@@ -28,6 +29,7 @@ mod machines_over_modbus;
 mod modbus_faults;
 mod opcua;
 mod screen_jobs;
+mod service;
 mod station_safety;
 mod trace_cuts;
 
