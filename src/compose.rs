@@ -420,6 +420,10 @@ fn modbus_bus(setup: &Setup, map: &IoMap, transport: Transport, options: &Option
     let mut link = options.link;
     // The exchange thread one below the cyclic thread (when that asks for real-time priority).
     link.priority = setup.loaded.config.timing.realtime_priority.saturating_sub(1);
+    // Every class's cycle hands the outputs over: the fastest says how fresh they are.
+    if let Some(fastest) = setup.loaded.config.task_classes.iter().map(|c| c.cycle_us).min() {
+        link.fastest_cycle = std::time::Duration::from_micros(u64::from(fastest));
+    }
     let bus = ModbusBus::new(map.clone(), transport, link).map_err(|e| usage(format!("--bus: {e}")))?;
     Ok(Box::new(bus))
 }

@@ -103,6 +103,18 @@ pub struct ModbusOptions {
     /// below the cyclic thread's, so that it carries the cycle's outputs on time beside other
     /// processes.
     pub priority: u8,
+    /// The shortest task class period: every class's cycle hands the outputs over, so the
+    /// newest are at most this old while the cycles run. Outputs older than three of these (and
+    /// than twice `max_input_age`) are not written: a hung cycle stops feeding the station's
+    /// watchdog.
+    pub fastest_cycle: Duration,
+}
+
+impl ModbusOptions {
+    /// Outputs older than this are not written ([`ModbusOptions::fastest_cycle`]).
+    pub fn max_output_age(&self) -> Duration {
+        (self.max_input_age * 2).max(self.fastest_cycle * 3)
+    }
 }
 
 impl Default for ModbusOptions {
@@ -115,6 +127,7 @@ impl Default for ModbusOptions {
             max_input_age: DEFAULT_MAX_INPUT_AGE,
             max_exchange: DEFAULT_MAX_EXCHANGE,
             priority: 0,
+            fastest_cycle: Duration::from_millis(10),
         }
     }
 }
@@ -343,7 +356,7 @@ impl Bus for ModbusBus {
                     registers: registers.clone(),
                 }),
             },
-            max_output_age: self.options.max_input_age * 2,
+            max_output_age: self.options.max_output_age(),
             period: self.options.period,
             max_failures: self.options.max_failures,
             max_exchange: self.options.max_exchange,
@@ -462,5 +475,20 @@ impl Bus for ModbusBus {
             }
             _ => false,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn outputs_are_written_while_a_few_of_the_fastest_cycles_old() {
+        assert_eq!(ModbusOptions::default().max_output_age(), Duration::from_millis(100));
+        let slow = ModbusOptions {
+            fastest_cycle: Duration::from_millis(200),
+            ..Default::default()
+        };
+        assert_eq!(slow.max_output_age(), Duration::from_millis(600), "a 200 ms class alone");
     }
 }
