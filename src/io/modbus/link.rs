@@ -450,7 +450,12 @@ impl Link {
                 .await
                 .map_err(|e| NotReady::Failed(e.into()))?;
         }
-        let rebased = rebase(&bc.registers, &table);
+        let rebased = rebase(&bc.registers, &table).map_err(|m| {
+            NotReady::Refused(format!(
+                "the X20BC0087 at {} assigns data the soft-PLC cannot address, so nothing is written to it: {m}",
+                self.name
+            ))
+        })?;
         let watchdog_ms = bc.watchdog_ms;
         self.exchange.rebase(&rebased);
         if first {

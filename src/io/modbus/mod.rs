@@ -489,6 +489,10 @@ mod tests {
             fastest_cycle: Duration::from_millis(200),
             ..Default::default()
         };
-        assert_eq!(slow.max_output_age(), Duration::from_millis(600), "a 200 ms class alone");
+        assert_eq!(
+            slow.max_output_age(),
+            Duration::from_millis(600),
+            "a 200 ms class alone"
+        );
     }
 }

@@ -398,9 +398,11 @@ pub fn compare(expected: &[ExpectedModule], reported: &[ModuleRecord]) -> Result
 /// The map's layout with each module's data where the station assigns it: every channel keeps
 /// its place within its module's data, the module's data starts at the index the station's
 /// table gives (a module with more data than the catalogue models moves the ones after it).
-/// `reported` must have passed [`compare`] with `registers`' modules.
-pub fn rebase(registers: &RegisterMap, reported: &[ModuleRecord]) -> RegisterMap {
+/// `reported` must have passed [`compare`] with `registers`' modules; an index that puts a
+/// channel beyond the 16-bit address space is refused, naming the slot.
+pub fn rebase(registers: &RegisterMap, reported: &[ModuleRecord]) -> Result<RegisterMap, Mismatch> {
     let mut rebased = registers.clone();
+    let mut slots = Vec::new();
     for e in &mut rebased.entries {
         let Some((p, data)) = registers.modules.iter().enumerate().find(|(_, d)| d.module == e.module) else {
             continue;
@@ -415,10 +417,45 @@ pub fn rebase(registers: &RegisterMap, reported: &[ModuleRecord]) -> RegisterMap
         let (Some((ours, _)), false) = (ours, theirs == NO_DATA) else {
             continue;
         };
-        e.address = match e.table {
-            Table::DiscreteInput | Table::Coil => e.address - ours * 8 + theirs * 8,
-            Table::InputRegister | Table::HoldingRegister => e.address - ours / 2 + theirs / 2,
+        // The channel's place within its module's data, then where the station puts that data.
+        let moved = match e.table {
+            Table::DiscreteInput | Table::Coil => (u32::from(e.address) - u32::from(ours) * 8) + u32::from(theirs) * 8,
+            Table::InputRegister | Table::HoldingRegister => {
+                (u32::from(e.address) - u32::from(ours) / 2) + u32::from(theirs) / 2
+            }
         };
+        let limit = match e.table {
+            Table::HoldingRegister => u32::from(u16::MAX - registers.holding_base),
+            _ => u32::from(u16::MAX),
+        };
+        match u16::try_from(moved) {
+            Ok(address) if moved + u32::from(e.count) <= limit => e.address = address,
+            _ => slots.push(format!(
+                "slot {}: the station puts the module's data at byte index {theirs}, beyond what Modbus can address",
+                p + 1
+            )),
+        }
+    }
+    if !slots.is_empty() {
+        slots.dedup();
+        return Err(Mismatch { slots });
+    }
+    // One request per table reads or writes it from address 0: within Modbus's quantities.
+    let [coils, discrete, input, holding] = rebased.sizes();
+    for (what, n, max) in [
+        ("coils", coils, 1968),
+        ("discrete inputs", discrete, 2000),
+        ("input registers", input, 125),
+        ("holding registers", holding, 123),
+    ] {
+        if n > max {
+            slots.push(format!(
+                "the station's data indexes spread the map's channels over {n} {what}, more than one request carries ({max})"
+            ));
+        }
+    }
+    if !slots.is_empty() {
+        return Err(Mismatch { slots });
     }
     for (p, data) in rebased.modules.iter_mut().enumerate() {
         if let Some(got) = reported.get(p) {
@@ -429,7 +466,7 @@ pub fn rebase(registers: &RegisterMap, reported: &[ModuleRecord]) -> RegisterMap
             data.digital_out = moved(data.digital_out, got.digital_out);
         }
     }
-    rebased
+    Ok(rebased)
 }
 
 /// A data index for people: its number, or "none".
@@ -579,7 +616,7 @@ mod tests {
         // The left counter's module has a second word (a status word, say): the right one's
         // counter moves one word on.
         reported[3].analog_in = 4;
-        let rebased = rebase(&registers, &reported);
+        let rebased = rebase(&registers, &reported).expect("addressable");
         let counter = |r: &RegisterMap, name: &str| {
             r.entries
                 .iter()
@@ -590,6 +627,22 @@ mod tests {
         assert_eq!(counter(&rebased, "DC_RIGHT"), Some(2));
         assert_eq!(counter(&rebased, "DC_LEFT"), Some(0));
         assert_eq!(rebased.sizes()[2], 3, "input registers read up to the moved counter");
+        // A station that puts data beyond the address space (a broken or hostile one) is refused,
+        // not added past u16.
+        reported[4].digital_in = 0xFFF0;
+        let m = rebase(&registers, &reported).expect_err("beyond the addresses");
+        assert_eq!(
+            m.slots,
+            ["slot 5: the station puts the module's data at byte index 65520, beyond what Modbus can address"]
+        );
+        reported[4].digital_in = 300;
+        let m = rebase(&registers, &reported).expect_err("beyond one request");
+        assert_eq!(
+            m.slots,
+            [
+                "the station's data indexes spread the map's channels over 2406 discrete inputs, more than one request carries (2000)"
+            ]
+        );
     }
 
     #[test]
