@@ -754,14 +754,18 @@ impl Logged {
     }
 
     /// Waits up to `within` for a log line with `text` after the first `from` bytes of the log;
-    /// the log's length then (`None`: not within). The log is looked at every 20 ms: the wait
-    /// follows the run's own output, not a guess of how long the run takes.
+    /// the position just after that line (`None`: not within), to wait on from there: a later
+    /// wait sees every line after the one found, however late this wait looked (on a busy
+    /// machine the next lines may be in the log already). The log is looked at every 20 ms: the
+    /// wait follows the run's own output, not a guess of how long the run takes.
     pub fn wait_for(&self, from: usize, text: &str, within: std::time::Duration) -> Option<usize> {
         let start = std::time::Instant::now();
         while start.elapsed() < within {
             let log = self.log();
-            if log.get(from..).is_some_and(|rest| rest.contains(text)) {
-                return Some(log.len());
+            if let Some(at) = log.get(from..).and_then(|rest| rest.find(text)) {
+                let found = from + at;
+                let end = log[found..].find('\n').map_or(log.len(), |n| found + n + 1);
+                return Some(end);
             }
             std::thread::sleep(std::time::Duration::from_millis(20));
         }

@@ -75,7 +75,8 @@ async fn send(ws: &mut Ws, command: serde_json::Value) {
 /// Sends MDI `text`; the screen says it plans it.
 async fn mdi(ws: &mut Ws, text: &str) {
     send(ws, serde_json::json!({"cmd": "mdi", "text": text})).await;
-    let m = reply(ws, Duration::from_secs(10)).await;
+    // A busy machine may take seconds to start the job's planning.
+    let m = reply(ws, Duration::from_secs(30)).await;
     assert_eq!(m["type"], "planning", "{m}");
 }
 
