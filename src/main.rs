@@ -1204,14 +1204,8 @@ fn cmd_io_sim(args: IoSimArgs) -> Result<(), Failure> {
         Some(w) => format!("output watchdog {} ms", w.as_millis()),
         None => "output watchdog OFF".to_string(),
     };
-    // io-sim stands for the station's hardware, which a busy PC does not starve: its threads run
-    // at SCHED_FIFO 70 where the process may (below a PLC's cyclic thread and link). Starved at
-    // normal priority beside CPU-bound processes, it applied a burst of queued set-points at once,
-    // and a simulated stepper lost steps on the jump.
-    pkm_plc::io::line::hardware_priority();
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
-        .on_thread_start(pkm_plc::io::line::hardware_priority)
         .enable_all()
         .build()
         .map_err(|e| Failure::run(format!("cannot start the tokio runtime: {e}")))?;
