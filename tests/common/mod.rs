@@ -365,6 +365,17 @@ pub fn machine_test_config(dir: &Path, machine: &str) -> PathBuf {
         .to_str()
         .expect("utf-8")
         .into();
+    // The simulated steppers take a set-point that jumps by up to 6 mm/s (2 as shipped): a link
+    // starved by a busy machine (the kernel's pseudo-terminal work is not real-time) delivers
+    // set-points tens of milliseconds late, and at the joints' 80 mm/s² a 25 ms delay is the
+    // shipped 2 mm/s. These tests are about each machine over the link, not the link's timing.
+    if let Some(joints) = config["plant"]["joints"].as_array_mut() {
+        for joint in joints {
+            if let Some(stepper) = joint["motor"].get_mut("stepper") {
+                stepper["pull_in_speed_mm_s"] = 6.0.into();
+            }
+        }
+    }
     for class in config["task_classes"].as_array_mut().expect("classes") {
         class["on_violation"] = "log".into();
         for program in class["programs"].as_array_mut().expect("programs") {

@@ -20,7 +20,14 @@ const LONG: &str = "#1=0\no1 while [#1 LT 100000000]\n#1=[#1+1]\no1 endwhile";
 
 /// The screen's next message as JSON; panics after `within`.
 async fn next(ws: &mut Ws, within: Duration) -> serde_json::Value {
-    let message = tokio::time::timeout(within, async {
+    next_within(ws, within)
+        .await
+        .unwrap_or_else(|| panic!("no message from the screen within {within:?}"))
+}
+
+/// The screen's next message as JSON, `None` when none comes within `within`.
+async fn next_within(ws: &mut Ws, within: Duration) -> Option<serde_json::Value> {
+    tokio::time::timeout(within, async {
         loop {
             match ws.next().await {
                 Some(Ok(Message::Text(t))) => return serde_json::from_str(&t).expect("JSON"),
@@ -29,8 +36,8 @@ async fn next(ws: &mut Ws, within: Duration) -> serde_json::Value {
             }
         }
     })
-    .await;
-    message.unwrap_or_else(|_| panic!("no message from the screen within {within:?}"))
+    .await
+    .ok()
 }
 
 /// The next message that is not a frame: a reply to a command.
@@ -50,13 +57,12 @@ async fn until_state(ws: &mut Ws, state: &str, within: Duration) {
     let mut last = serde_json::Value::Null;
     loop {
         let left = within.saturating_sub(start.elapsed());
-        assert!(
-            !left.is_zero(),
-            "not {state} within {within:?}; the last frame's state {}, note {}",
-            last["state"],
-            last["note"]
-        );
-        let m = next(ws, left).await;
+        let m = next_within(ws, left).await.unwrap_or_else(|| {
+            panic!(
+                "not {state} within {within:?}; the last frame's state {}, reason {}, note {}",
+                last["state"], last["reason"], last["note"]
+            )
+        });
         if m["type"] == "frame" {
             if m["state"] == state {
                 return;
