@@ -664,6 +664,32 @@ pub fn stdout(o: &std::process::Output) -> String {
 /// A running `pkm-plc io-sim`, killed when dropped.
 pub struct IoSim(pub std::process::Child);
 
+/// A child process killed (and reaped) when dropped: a test that fails midway leaves no PLC
+/// running (four such PLCs once ran on, at real-time priority, through the next hour's tests).
+pub struct KillOnDrop(pub std::process::Child);
+
+impl std::ops::Deref for KillOnDrop {
+    type Target = std::process::Child;
+    fn deref(&self) -> &std::process::Child {
+        &self.0
+    }
+}
+
+impl std::ops::DerefMut for KillOnDrop {
+    fn deref_mut(&mut self) -> &mut std::process::Child {
+        &mut self.0
+    }
+}
+
+impl Drop for KillOnDrop {
+    fn drop(&mut self) {
+        if matches!(self.0.try_wait(), Ok(None)) {
+            let _ = self.0.kill();
+            let _ = self.0.wait();
+        }
+    }
+}
+
 impl Drop for IoSim {
     fn drop(&mut self) {
         let _ = self.0.kill();

@@ -7,7 +7,7 @@ use crate::common;
 
 use std::io::{Read, Write};
 use std::net::{SocketAddr, TcpStream};
-use std::process::{Child, Stdio};
+use std::process::Stdio;
 use std::time::{Duration, Instant};
 
 use common::IoSim;
@@ -183,7 +183,7 @@ fn the_output_watchdog_zeroes_the_outputs_when_writes_stop() {
 /// tests are about stopping, not about the link's timing: the bounds on the exchange time and
 /// the inputs' age are loose enough for a busy machine (at their defaults a slow exchange is a
 /// bus fault, and a PLC in ERROR never drives the motors these tests wait for).
-fn plc_against(address: SocketAddr, log: &std::path::Path) -> Child {
+fn plc_against(address: SocketAddr, log: &std::path::Path) -> common::KillOnDrop {
     run_logging(
         &[
             "--bus",
@@ -199,22 +199,24 @@ fn plc_against(address: SocketAddr, log: &std::path::Path) -> Child {
 
 /// Starts `pkm-plc run` with `args` on the generic station's configuration (unless `args` give
 /// one), its log (at info) going to `log`.
-fn run_logging(args: &[&str], log: &std::path::Path) -> Child {
+fn run_logging(args: &[&str], log: &std::path::Path) -> common::KillOnDrop {
     let config: &[&str] = if args.contains(&"--config") {
         &[]
     } else {
         &["--config", common::generic_busy_config()]
     };
-    common::pkm_command()
-        .arg("run")
-        .args(args)
-        .args(config)
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .env("RUST_LOG", "info")
-        .stdout(Stdio::null())
-        .stderr(std::fs::File::create(log).expect("log file"))
-        .spawn()
-        .expect("run starts")
+    common::KillOnDrop(
+        common::pkm_command()
+            .arg("run")
+            .args(args)
+            .args(config)
+            .current_dir(env!("CARGO_MANIFEST_DIR"))
+            .env("RUST_LOG", "info")
+            .stdout(Stdio::null())
+            .stderr(std::fs::File::create(log).expect("log file"))
+            .spawn()
+            .expect("run starts"),
+    )
 }
 
 /// Waits until the PLC drives a motor at the station (INIT's switch search starts at once); its
@@ -415,7 +417,7 @@ fn every_terminating_signal_ends_the_plc_through_the_safe_stop() {
     let signals = pkm_plc::signals::handled();
     // A few at a time: each is a real-time PLC (without field I/O or screen).
     for (batch, chunk) in signals.chunks(8).enumerate() {
-        let started: Vec<(Child, std::path::PathBuf, &(String, i32))> = chunk
+        let started: Vec<(common::KillOnDrop, std::path::PathBuf, &(String, i32))> = chunk
             .iter()
             .enumerate()
             .map(|(k, signal)| {
