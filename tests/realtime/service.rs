@@ -49,7 +49,7 @@ fn run_notifying(dir: &Path, config: &Path, more: &[&str]) -> (UnixDatagram, com
         .env("NOTIFY_SOCKET", &path)
         .env("WATCHDOG_USEC", "400000")
         .env("RUST_LOG", "info");
-    let (run, _) = common::Logged::start(command, "cyclic thread runs", Duration::from_secs(60));
+    let (run, _) = common::Logged::start(command, "real time, time source", Duration::from_secs(60));
     (socket, run)
 }
 
@@ -88,14 +88,15 @@ fn the_service_manager_hears_ready_then_watchdog_then_stopping() {
 
 /// One cycle of 3 s (a selftest program burning the CPU at cycle 100, 1 s in): while it hangs, no
 /// WATCHDOG=1 reaches the manager (it would kill the process after its WatchdogSec); once the
-/// cycles go on, the messages do too.
+/// cycles go on, the messages do too. Its cyclic thread runs at normal priority: burning 3 s at
+/// SCHED_FIFO would take a core from the real-time tests running beside it.
 #[test]
 fn a_stalled_cycle_stops_the_watchdog_messages() {
     let dir = tempfile::tempdir().expect("tempdir");
     let config = common::write_config(
         dir.path(),
         "stall.json",
-        &serde_json::json!({"task_classes": [{
+        &serde_json::json!({"timing": {"realtime_priority": 0, "lock_memory": false}, "task_classes": [{
             "name": "fast", "cycle_us": 10000, "tolerance_us": 10000, "priority": 1, "on_violation": "log",
             "programs": [{"program": "selftest.idle",
                           "params": {"burn_us": 3_000_000, "burn_from_cycle": 100, "burn_until_cycle": 101}}]}]}),
