@@ -263,10 +263,7 @@ impl Link {
                         kind: Failure::Disconnected,
                         cause,
                     };
-                    shared.stats.failed(failed.kind);
-                    self.failed(&mut failures, &failed);
-                    tokio::time::sleep(backoff).await;
-                    backoff = (backoff * 2).min(RECONNECT_MAX);
+                    self.after_failure(&mut failures, &mut backoff, &failed, true).await;
                     continue;
                 }
             };
@@ -286,10 +283,7 @@ impl Link {
                     }
                 }
                 Err(NotReady::Failed(f)) => {
-                    shared.stats.failed(f.kind);
-                    self.failed(&mut failures, &f);
-                    tokio::time::sleep(backoff).await;
-                    backoff = (backoff * 2).min(RECONNECT_MAX);
+                    self.after_failure(&mut failures, &mut backoff, &f, true).await;
                     continue;
                 }
                 Err(NotReady::Refused(why)) if !ready_once => {
@@ -367,11 +361,7 @@ impl Link {
                             match self.station_status(&mut ctx, &mut expired_since, writing).await {
                                 Ok(fault) => station_fault = fault,
                                 Err(f) => {
-                                    shared.stats.failed(f.kind);
-                                    self.failed(&mut failures, &f);
-                                    if self.reconnects_after(f.kind) {
-                                        tokio::time::sleep(backoff).await;
-                                        backoff = (backoff * 2).min(RECONNECT_MAX);
+                                    if self.after_failure(&mut failures, &mut backoff, &f, false).await {
                                         break;
                                     }
                                     continue;
@@ -389,17 +379,26 @@ impl Link {
                         }
                     }
                     Err(f) => {
-                        shared.stats.failed(f.kind);
-                        self.failed(&mut failures, &f);
-                        if self.reconnects_after(f.kind) {
-                            tokio::time::sleep(backoff).await;
-                            backoff = (backoff * 2).min(RECONNECT_MAX);
+                        if self.after_failure(&mut failures, &mut backoff, &f, false).await {
                             break;
                         }
                     }
                 }
             }
         }
+    }
+
+    /// Counts the failed exchange `f`; when the link is to be opened again after it (`reconnect`,
+    /// or a failure that calls for it), waits the back-off and doubles it, and says so (true).
+    async fn after_failure(&self, failures: &mut u32, backoff: &mut Duration, f: &Failed, reconnect: bool) -> bool {
+        self.shared.stats.failed(f.kind);
+        self.failed(failures, f);
+        if !(reconnect || self.reconnects_after(f.kind)) {
+            return false;
+        }
+        tokio::time::sleep(*backoff).await;
+        *backoff = (*backoff * 2).min(RECONNECT_MAX);
+        true
     }
 
     /// Whether the outputs the cycle handed over last are recent enough to be written (before the
