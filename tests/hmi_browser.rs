@@ -281,7 +281,7 @@ async fn the_page_shows_referencing_jogs_while_held_stops_and_acknowledges() {
             j + 1
         );
     }
-    // STOP: ERROR with its reason; acknowledge after the lockout: INIT.
+    // STOP: ERROR with its reason; Acknowledge clicked at once takes effect after the lockout: INIT.
     click(&page, "#stop").await;
     until(&page, Duration::from_secs(5), "ERROR shown", async |p| {
         state(p).await == "ERROR"
@@ -291,7 +291,6 @@ async fn the_page_shows_referencing_jogs_while_held_stops_and_acknowledges() {
         text(&page, "document.getElementById('reason').textContent").await,
         "STOP"
     );
-    tokio::time::sleep(Duration::from_millis(1200)).await;
     click(&page, "#ack").await;
     until(
         &page,

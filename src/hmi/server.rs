@@ -85,6 +85,8 @@ pub struct Shared {
     jog_owner: std::sync::Mutex<Option<(u64, Instant)>>,
     /// A program runs (the last frame's state is AUTO): no other is loaded.
     running: AtomicBool,
+    /// The machine is in ERROR (the last frame's state): there is an error to acknowledge.
+    in_error: AtomicBool,
     /// The run's programs: text and path, served on request.
     programs: Vec<Served>,
     /// Where jobs are made.
@@ -211,6 +213,7 @@ pub fn router(info: HmiInfo, mut frames: FrameFeed, sink: CommandSink, options: 
         clients: AtomicUsize::new(0),
         jog_owner: std::sync::Mutex::new(None),
         running: AtomicBool::new(false),
+        in_error: AtomicBool::new(false),
         programs,
         jobs: info.jobs,
         watchers: AtomicUsize::new(0),
@@ -237,6 +240,7 @@ pub fn router(info: HmiInfo, mut frames: FrameFeed, sink: CommandSink, options: 
             // out only for listeners.
             if let Some(frame) = &newer {
                 pump.running.store(frame.status.state == "AUTO", Ordering::Relaxed);
+                pump.in_error.store(frame.status.state == "ERROR", Ordering::Relaxed);
                 if let Some(desk) = &pump.jobs {
                     // A replaced job's plan is freed on a thread of its own, not waited for.
                     drop(desk.observe(&frame.status.state, &frame.image));
@@ -426,8 +430,12 @@ impl Drop for Place {
 #[derive(Deserialize)]
 #[serde(tag = "cmd", rename_all = "snake_case", deny_unknown_fields)]
 enum Command {
-    /// STOP (and, in ERROR, its acknowledgement).
+    /// STOP (and, in ERROR, its acknowledgement, as on the panel).
     Stop {},
+    /// The acknowledgement of an error: a STOP press once STOP has been released for the
+    /// programs' lockout, so one sent right after the STOP is not lost; refused outside ERROR
+    /// (where a STOP press would stop the machine).
+    Acknowledge {},
     /// The axis button.
     Axes {},
     /// The jog's deflection (0, 0: released), on the stick's pair of axes (`axis` 0 or left out),
@@ -874,6 +882,13 @@ impl Shared {
             Command::SingleBlock { on } => {
                 info!("screen {peer}: single block {}", if on { "on" } else { "off" });
                 self.sink.update(|c| c.single_block = on);
+            }
+            Command::Acknowledge {} => {
+                if !self.in_error.load(Ordering::Relaxed) {
+                    return Err("there is no error to acknowledge: the machine is not in ERROR".into());
+                }
+                info!("screen {peer}: acknowledge");
+                self.sink.update(|c| c.acknowledgements += 1);
             }
             Command::Stop {} => {
                 info!("screen {peer}: STOP");

@@ -395,7 +395,7 @@ document.addEventListener("visibilitychange", () => { if (document.hidden) stopJ
 window.addEventListener("blur", stopJog);
 
 $("stop").addEventListener("click", () => send({ cmd: "stop" }));
-$("ack").addEventListener("click", () => send({ cmd: "stop" }));
+$("ack").addEventListener("click", () => send({ cmd: "acknowledge" }));
 $("axes").addEventListener("click", () => send({ cmd: "axes" }));
 $("nc-load").addEventListener("click", () => { $("access").textContent = ""; send({ cmd: "load", program: Number($("program-choice").value) }); });
 $("nc-start").addEventListener("click", () => send({ cmd: "program", what: "start" }));
