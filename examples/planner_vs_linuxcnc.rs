@@ -12,7 +12,8 @@
 mod spiral;
 
 use pkm_plc::compose::Setup;
-use pkm_plc::{config, machines, nc_job};
+use pkm_plc::compose::{machines, nc_job};
+use pkm_plc::runtime::config;
 
 /// A 40 mm square at F1200 in the blending mode `mode`.
 fn square(mode: &str) -> String {

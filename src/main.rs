@@ -14,22 +14,18 @@ use tracing_subscriber::EnvFilter;
 use tracing_subscriber::layer::SubscriberExt;
 use tracing_subscriber::util::SubscriberInitExt;
 
-use cli_enums::{Exchange, TimeSource};
-use pkm_plc::bench::{self, BenchOptions};
+use cli::bench::{self, BenchOptions};
+use cli::enums::{Exchange, TimeSource};
 use pkm_plc::compose::{self, Built, BusChoice, JoystickChoice, Options, Setup};
-use pkm_plc::config::{self, ConfigError, LoadedConfig, TimeSourceKind};
-use pkm_plc::io::hid::JoystickSpec;
-use pkm_plc::io::modbus::ExchangeMode;
-use pkm_plc::plc::Plc;
-use pkm_plc::run::{self, RealTimeOptions};
-use pkm_plc::status;
-use pkm_plc::summary::Summary;
+use pkm_plc::runtime::config::{self, ConfigError, LoadedConfig, TimeSourceKind};
+use pkm_plc::runtime::plc::Plc;
+use pkm_plc::runtime::run::{self, RealTimeOptions};
+use pkm_plc::runtime::status;
+use pkm_plc::runtime::summary::Summary;
+use pkm_plc::services::io::hid::JoystickSpec;
+use pkm_plc::services::io::modbus::ExchangeMode;
 
-mod cli_enums;
-mod kin_cmd;
-mod kin_svg;
-mod nc_cmd;
-mod opcua_cmd;
+mod cli;
 
 /// A soft-PLC for parallel-kinematic machine models.
 #[derive(Parser, Debug)]
@@ -48,9 +44,9 @@ enum Command {
     /// Measure the time sources side by side (cycle start lateness of a 10 ms class).
     Bench(BenchArgs),
     /// Kinematics of a machine model: fk, ik, workspace, bench, convergence.
-    Kin(kin_cmd::KinArgs),
+    Kin(cli::kin::KinArgs),
     /// NC programs: check one against the configured machine.
-    Nc(nc_cmd::NcArgs),
+    Nc(cli::nc::NcArgs),
     /// Replay a trace: feed its inputs to the programs, compare every output and state.
     Replay(ReplayArgs),
     /// Look into a trace: VCD for GTKWave, SVG time plots, the tool path of a run with a program,
@@ -218,7 +214,7 @@ pub(crate) struct ConfigArg {
     /// A machine's own configuration: short for `--config machines/NAME.json` (the TRIJOINT's is
     /// config.json); the built-in copy when the file is not there.
     #[arg(long, value_name = "NAME", conflicts_with = "config",
-          value_parser = clap::builder::PossibleValuesParser::new(pkm_plc::machines::BUILTIN.iter().map(|m| m.name())))]
+          value_parser = clap::builder::PossibleValuesParser::new(pkm_plc::compose::machines::BUILTIN.iter().map(|m| m.name())))]
     pub(crate) machine: Option<String>,
 }
 
@@ -291,7 +287,7 @@ struct RunArgs {
     #[arg(long, value_name = "ORIGIN")]
     hmi_allow_origin: Vec<String>,
     /// The most clients the screen serves at once.
-    #[arg(long, value_name = "N", default_value_t = pkm_plc::hmi::DEFAULT_MAX_CLIENTS)]
+    #[arg(long, value_name = "N", default_value_t = pkm_plc::services::hmi::DEFAULT_MAX_CLIENTS)]
     hmi_max_clients: usize,
     /// The OPC UA server: `opc.tcp://HOST:PORT` to serve it at, or `none`. Real time only;
     /// default opc.tcp://127.0.0.1:4840 (another address than loopback needs --opcua-users).
@@ -307,7 +303,7 @@ struct RunArgs {
     #[arg(long, value_name = "DIR")]
     opcua_pki: Option<PathBuf>,
     /// The most OPC UA sessions at once.
-    #[arg(long, value_name = "N", default_value_t = pkm_plc::opcua::DEFAULT_MAX_SESSIONS)]
+    #[arg(long, value_name = "N", default_value_t = pkm_plc::services::opcua::DEFAULT_MAX_SESSIONS)]
     opcua_max_sessions: usize,
     /// Override the configured time source (real time only).
     #[arg(long, value_enum, value_name = "SOURCE", conflicts_with = "virtual_time")]
@@ -437,11 +433,11 @@ fn main() -> ExitCode {
         Command::IoSim(args) => cmd_io_sim(args),
         Command::LinkBench(args) => cmd_link_bench(args),
         Command::Station(args) => cmd_station(args),
-        Command::Kin(args) => kin_cmd::run(args, load_config).map_err(|e| Failure {
+        Command::Kin(args) => cli::kin::run(args, load_config).map_err(|e| Failure {
             code: e.code,
             message: e.message,
         }),
-        Command::Nc(args) => nc_cmd::run(args, load_config).map_err(|e| Failure {
+        Command::Nc(args) => cli::nc::run(args, load_config).map_err(|e| Failure {
             code: e.code,
             message: e.message,
         }),
@@ -463,16 +459,16 @@ fn init_logging() {
         EnvFilter::new("info,opcua_server=warn,opcua_core=warn,opcua_crypto=warn,opcua_types=warn,opcua_nodes=warn")
     });
     // Every line, the libraries' too, within the log's budget: a peer's flood cannot fill the
-    // disk (pkm_plc::log_limit).
-    let budget = pkm_plc::log_limit::LogBudget::new();
+    // disk (pkm_plc::runtime::log_limit).
+    let budget = pkm_plc::runtime::log_limit::LogBudget::new();
     // Under systemd the journal keeps the time and reads each line's level from its prefix.
-    let journal = pkm_plc::service::logging_to_journal().then(|| {
+    let journal = pkm_plc::runtime::service::logging_to_journal().then(|| {
         tracing_subscriber::fmt::layer()
             .with_writer(status::LogWriter)
             .with_ansi(false)
-            .event_format(pkm_plc::service::JournalFormat)
+            .event_format(pkm_plc::runtime::service::JournalFormat)
     });
-    let format = (!pkm_plc::service::logging_to_journal()).then(|| {
+    let format = (!pkm_plc::runtime::service::logging_to_journal()).then(|| {
         tracing_subscriber::fmt::layer()
             .with_writer(status::LogWriter)
             .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
@@ -480,7 +476,7 @@ fn init_logging() {
     });
     tracing_subscriber::registry()
         .with(filter)
-        .with(pkm_plc::log_limit::BudgetLayer(Arc::clone(&budget)))
+        .with(pkm_plc::runtime::log_limit::BudgetLayer(Arc::clone(&budget)))
         .with(journal)
         .with(format)
         .init();
@@ -489,7 +485,11 @@ fn init_logging() {
 
 /// Loads the configuration named on the command line, or the default one.
 fn load_config(arg: &ConfigArg) -> Result<LoadedConfig, ConfigError> {
-    if let Some(loaded) = arg.machine.as_deref().and_then(pkm_plc::machines::configuration) {
+    if let Some(loaded) = arg
+        .machine
+        .as_deref()
+        .and_then(pkm_plc::compose::machines::configuration)
+    {
         return loaded;
     }
     let path = arg.config.clone().or_else(config::default_path);
@@ -527,7 +527,7 @@ fn cmd_check(args: ConfigArg) -> Result<(), Failure> {
 
 fn cmd_run(args: RunArgs) -> Result<(), Failure> {
     let screen = screen_options(&args)?;
-    let opcua = opcua_cmd::options(
+    let opcua = cli::opcua::options(
         args.opcua.as_deref(),
         args.opcua_users.as_ref(),
         args.opcua_pki.as_ref(),
@@ -547,7 +547,7 @@ fn cmd_run(args: RunArgs) -> Result<(), Failure> {
     let programs = program_library(&args, served)?;
     let options = Options {
         bus: args.bus,
-        link: pkm_plc::io::modbus::ModbusOptions {
+        link: pkm_plc::services::io::modbus::ModbusOptions {
             exchange: args.exchange.into(),
             max_input_age: Duration::from_millis(args.max_input_age_ms),
             max_exchange: Duration::from_millis(args.max_exchange_ms),
@@ -575,7 +575,7 @@ fn cmd_run(args: RunArgs) -> Result<(), Failure> {
     let summary_file = args.summary.as_deref().map(OutputFile::create).transpose()?;
     if let Some(path) = &args.trace {
         let digest = setup.digest()?;
-        let recorder = pkm_plc::trace::record::Recorder::create_with(path, &plc, &digest, library.as_ref())
+        let recorder = pkm_plc::services::trace::record::Recorder::create_with(path, &plc, &digest, library.as_ref())
             .map_err(|e| Failure::run(format!("{}: cannot create the trace: {e}", path.display())))?;
         plc.set_recorder(Box::new(recorder));
     }
@@ -620,7 +620,7 @@ fn cmd_run(args: RunArgs) -> Result<(), Failure> {
                     probe,
                     stop,
                 } = j;
-                pkm_plc::io::hid::spawn_reader(spec, loaded.config.joystick.clone(), feed, Arc::clone(&stop))
+                pkm_plc::services::io::hid::spawn_reader(spec, loaded.config.joystick.clone(), feed, Arc::clone(&stop))
                     .map_err(|e| Failure::run(format!("cannot start the joystick reader: {e}")))?;
                 Some((probe, stop))
             }
@@ -634,7 +634,7 @@ fn cmd_run(args: RunArgs) -> Result<(), Failure> {
             .collect();
         let opcua = match (opcua, &hmi) {
             (Some((options, next_ports)), Some(sink)) => Some(OpcUa {
-                info: opcua_cmd::space_info(&plc, &setup, program_files),
+                info: cli::opcua::space_info(&plc, &setup, program_files),
                 options,
                 explicit: args.opcua.is_some(),
                 next_ports,
@@ -679,7 +679,7 @@ fn cmd_run(args: RunArgs) -> Result<(), Failure> {
 }
 
 /// Runs in real time on a tokio runtime that watches for the terminating signals (Ctrl-C,
-/// SIGTERM, SIGHUP, …: [`pkm_plc::signals`]) and draws the status line, while the cyclic thread
+/// SIGTERM, SIGHUP, …: [`pkm_plc::runtime::signals`]) and draws the status line, while the cyclic thread
 /// does the work.
 /// The environment variable whose address the screen is served at when `--hmi` is not given.
 const HMI_ENV: &str = "PKM_PLC_HMI";
@@ -687,24 +687,24 @@ const HMI_ENV: &str = "PKM_PLC_HMI";
 /// The operator's screen of a real-time run: where, what it shows at connection, where its
 /// commands go.
 struct Screen {
-    options: pkm_plc::hmi::HmiOptions,
-    info: pkm_plc::hmi::server::HmiInfo,
-    sink: pkm_plc::hmi::commands::CommandSink,
+    options: pkm_plc::services::hmi::HmiOptions,
+    info: pkm_plc::services::hmi::server::HmiInfo,
+    sink: pkm_plc::services::hmi::commands::CommandSink,
 }
 
 /// The OPC UA server of a real-time run: where, what it shows, where its commands go.
 struct OpcUa {
-    options: pkm_plc::opcua::OpcUaOptions,
+    options: pkm_plc::services::opcua::OpcUaOptions,
     /// The next ports tried when the address's is taken (the default address only).
     next_ports: u16,
     /// Asked for with --opcua (a server that cannot start ends the run), not the default.
     explicit: bool,
-    info: pkm_plc::opcua::space::SpaceInfo,
-    sink: pkm_plc::hmi::commands::CommandSink,
+    info: pkm_plc::services::opcua::space::SpaceInfo,
+    sink: pkm_plc::services::hmi::commands::CommandSink,
 }
 
 /// The screen `args` ask for: `None` in virtual time or with `--hmi none`.
-fn screen_options(args: &RunArgs) -> Result<Option<pkm_plc::hmi::HmiOptions>, Failure> {
+fn screen_options(args: &RunArgs) -> Result<Option<pkm_plc::services::hmi::HmiOptions>, Failure> {
     // The environment's address stands in for --hmi in real time (a virtual run serves none,
     // whatever the environment says).
     let hmi = match (args.hmi, std::env::var(HMI_ENV)) {
@@ -714,7 +714,7 @@ fn screen_options(args: &RunArgs) -> Result<Option<pkm_plc::hmi::HmiOptions>, Fa
         (hmi, _) => hmi,
     };
     let next_ports = if hmi.is_none() {
-        pkm_plc::hmi::DEFAULT_NEXT_PORTS
+        pkm_plc::services::hmi::DEFAULT_NEXT_PORTS
     } else {
         0
     };
@@ -726,20 +726,20 @@ fn screen_options(args: &RunArgs) -> Result<Option<pkm_plc::hmi::HmiOptions>, Fa
             ));
         }
         (Some(HmiAddr::At(a)), false) => a,
-        (None, false) => pkm_plc::hmi::DEFAULT_ADDR
+        (None, false) => pkm_plc::services::hmi::DEFAULT_ADDR
             .parse()
-            .map_err(|e| Failure::usage(format!("{}: {e}", pkm_plc::hmi::DEFAULT_ADDR)))?,
+            .map_err(|e| Failure::usage(format!("{}: {e}", pkm_plc::services::hmi::DEFAULT_ADDR)))?,
     };
     let token = match (&args.hmi_token, &args.hmi_token_file) {
         (Some(t), _) => Some(t.clone()),
         (None, Some(path)) => {
-            let text = pkm_plc::files::read_text(path, 4096)
+            let text = pkm_plc::runtime::files::read_text(path, 4096)
                 .map_err(|e| Failure::usage(format!("--hmi-token-file {}: {e}", path.display())))?;
             Some(text.lines().next().unwrap_or("").trim().to_string())
         }
         (None, None) => None,
     };
-    let options = pkm_plc::hmi::HmiOptions {
+    let options = pkm_plc::services::hmi::HmiOptions {
         addr,
         token,
         allowed_origins: args
@@ -774,9 +774,9 @@ fn screen_info(
     setup: &Setup,
     library: Option<&pkm_api::trajectory::NcLibrary>,
     refused: Vec<(String, String)>,
-) -> pkm_plc::hmi::server::HmiInfo {
+) -> pkm_plc::services::hmi::server::HmiInfo {
     let motion = setup.machine.and_then(|m| m.motion(&setup.loaded.json).ok());
-    pkm_plc::hmi::server::HmiInfo {
+    pkm_plc::services::hmi::server::HmiInfo {
         machine: setup.machine.map_or("runtime".to_string(), |m| m.name().to_string()),
         config: setup.origin().to_string(),
         variables: plc
@@ -788,14 +788,14 @@ fn screen_info(
         programs: library
             .map_or(&[][..], |l| &l.jobs)
             .iter()
-            .map(|j| pkm_plc::hmi::server::ScreenProgram {
+            .map(|j| pkm_plc::services::hmi::server::ScreenProgram {
                 file: j.file.clone(),
                 text: j.text.clone(),
-                path: pkm_plc::hmi::server::preview(j.trajectory.as_ref()),
+                path: pkm_plc::services::hmi::server::preview(j.trajectory.as_ref()),
             })
             .collect(),
         refused,
-        mechanism: pkm_plc::hmi::mechanism::Mechanism::of(setup, plc),
+        mechanism: pkm_plc::services::hmi::mechanism::Mechanism::of(setup, plc),
         axes: motion
             .as_ref()
             .map(|m| m.axes.iter().map(|a| a.to_string()).collect())
@@ -804,13 +804,13 @@ fn screen_info(
             .map(|m| m.joint_vars.iter().map(|v| v.to_string()).collect())
             .unwrap_or_default(),
         jobs: library
-            .zip(pkm_plc::screen_job::StandingPose::of(setup, plc))
+            .zip(pkm_plc::compose::screen_job::StandingPose::of(setup, plc))
             .map(|(l, standing)| {
                 let loaded = plc
                     .vars()
                     .index_of(pkm_api::trajectory::vars::NC_PROGRAM.name())
                     .map(usize::from);
-                pkm_plc::hmi::jobs::JobDesk::new(setup.clone(), l.clone(), standing, loaded)
+                pkm_plc::services::hmi::jobs::JobDesk::new(setup.clone(), l.clone(), standing, loaded)
             }),
     }
 }
@@ -867,7 +867,7 @@ fn run_realtime(
     // The handlers before the first cycle: a signal from then on stops the run safely.
     let mut signals = {
         let _inside = runtime.enter();
-        pkm_plc::signals::Terminating::register()
+        pkm_plc::runtime::signals::Terminating::register()
     };
     let _inside = runtime.enter();
     // The listeners first: an address that cannot be had ends the run before anything moves —
@@ -893,8 +893,8 @@ fn run_realtime(
         .transpose()?;
     // Both are fed from one publication per main cycle.
     let (publisher, feed) = if screen.is_some() || opcua.is_some() {
-        let (publisher, reader) = pkm_plc::hmi::frame::frames(&plc);
-        (Some(publisher), Some(pkm_plc::hmi::frame::FrameFeed::spawn(reader)))
+        let (publisher, reader) = pkm_plc::runtime::frame::frames(&plc);
+        (Some(publisher), Some(pkm_plc::runtime::frame::FrameFeed::spawn(reader)))
     } else {
         (None, None)
     };
@@ -914,7 +914,7 @@ fn run_realtime(
     let snapshot = run.snapshot();
     let heartbeat = run.heartbeat();
     // A service manager's notifications (systemd, Type=notify), when it asked for them.
-    let mut notifier = pkm_plc::service::Notifier::from_env();
+    let mut notifier = pkm_plc::runtime::service::Notifier::from_env();
     let outcome = runtime.block_on(async move {
         let status_task = status::wanted().then(|| status::spawn(Arc::clone(&snapshot), Duration::from_millis(250)));
         // Said once every class has run a cycle: scripts and tests wait for this line.
@@ -979,16 +979,16 @@ fn run_realtime(
 }
 
 /// Serves the operator's screen on `listener` (inside the tokio runtime).
-fn serve_screen(screen: Screen, listener: tokio::net::TcpListener, feed: pkm_plc::hmi::frame::FrameFeed) {
+fn serve_screen(screen: Screen, listener: tokio::net::TcpListener, feed: pkm_plc::runtime::frame::FrameFeed) {
     let Screen { options, info, sink } = screen;
-    let server_options = pkm_plc::hmi::server::ServerOptions {
-        access: pkm_plc::hmi::access::Access {
+    let server_options = pkm_plc::services::hmi::server::ServerOptions {
+        access: pkm_plc::services::hmi::access::Access {
             token: options.token.clone(),
             allowed_origins: options.allowed_origins.clone(),
         },
         max_clients: options.max_clients,
     };
-    let router = pkm_plc::hmi::server::router(info, feed, sink, server_options);
+    let router = pkm_plc::services::hmi::server::router(info, feed, sink, server_options);
     let at = listener.local_addr().map_or(options.addr, |a| a);
     info!(
         "operator screen at http://{at}/{}",
@@ -999,9 +999,9 @@ fn serve_screen(screen: Screen, listener: tokio::net::TcpListener, feed: pkm_plc
         }
     );
     // Connections: the clients', and room for pages and assets loading.
-    let listener = pkm_plc::hmi::listener::Bounded::new(listener, options.max_clients + 8);
+    let listener = pkm_plc::services::hmi::listener::Bounded::new(listener, options.max_clients + 8);
     tokio::spawn(async move {
-        let service = router.into_make_service_with_connect_info::<pkm_plc::hmi::listener::Peer>();
+        let service = router.into_make_service_with_connect_info::<pkm_plc::services::hmi::listener::Peer>();
         if let Err(e) = axum::serve(listener, service).await {
             warn!("operator screen: {e}");
         }
@@ -1013,7 +1013,7 @@ fn serve_screen(screen: Screen, listener: tokio::net::TcpListener, feed: pkm_plc
 fn serve_opcua(
     server: OpcUa,
     listener: tokio::net::TcpListener,
-    feed: pkm_plc::hmi::frame::FrameFeed,
+    feed: pkm_plc::runtime::frame::FrameFeed,
     main_period_ns: u64,
 ) -> Result<(), Failure> {
     let OpcUa {
@@ -1023,7 +1023,7 @@ fn serve_opcua(
         explicit,
         ..
     } = server;
-    match pkm_plc::opcua::server::start(&options, listener, info, feed, sink, main_period_ns) {
+    match pkm_plc::services::opcua::server::start(&options, listener, info, feed, sink, main_period_ns) {
         Ok(url) => info!(
             "OPC UA server at {url} ({})",
             match &options.users {
@@ -1047,7 +1047,11 @@ fn serve_opcua(
 /// A run over a Modbus link that never made one exchange failed (exit 1), with why: the machine
 /// was never under control.
 fn bus_came_up(plc: &Plc) -> Result<(), Failure> {
-    let Some(link) = plc.bus().as_any().downcast_ref::<pkm_plc::io::modbus::ModbusBus>() else {
+    let Some(link) = plc
+        .bus()
+        .as_any()
+        .downcast_ref::<pkm_plc::services::io::modbus::ModbusBus>()
+    else {
         return Ok(());
     };
     if link.stats().exchanges.load(std::sync::atomic::Ordering::Relaxed) > 0 {
@@ -1077,7 +1081,7 @@ fn finish_trace(plc: &mut Plc) -> Result<(), Failure> {
 }
 
 fn cmd_replay(args: ReplayArgs) -> Result<(), Failure> {
-    use pkm_plc::trace::replay::{ReplayError, replay};
+    use pkm_plc::compose::replay::{ReplayError, replay};
     let setup = if args.config.config.is_none() && args.config.machine.is_none() {
         // The trace says which machine it was recorded on.
         let machine = recorded_machine(&args.trace);
@@ -1113,14 +1117,14 @@ fn cmd_replay(args: ReplayArgs) -> Result<(), Failure> {
 /// The machine whose own configuration a trace was recorded with (its header's digest is that
 /// configuration's), if one's is.
 fn recorded_machine(trace: &std::path::Path) -> Option<&'static str> {
-    let reader = pkm_plc::trace::read::TraceReader::open(trace).ok()?;
-    pkm_plc::machines::with_digest(&reader.header().config_digest)
+    let reader = pkm_plc::services::trace::read::TraceReader::open(trace).ok()?;
+    pkm_plc::compose::machines::with_digest(&reader.header().config_digest)
 }
 
 fn cmd_trace(args: TraceArgs) -> Result<(), Failure> {
-    use pkm_plc::trace::export::{ExportError, to_svg, to_vcd};
+    use pkm_plc::services::trace::export::{ExportError, to_svg, to_vcd};
     if let TraceOp::Summary { trace, every } = &args.op {
-        let text = pkm_plc::trace::expected::summary(trace, (every * 1e6) as u64)
+        let text = pkm_plc::services::trace::expected::summary(trace, (every * 1e6) as u64)
             .map_err(|e| Failure::usage(e.to_string()))?;
         print!("{text}");
         return Ok(());
@@ -1128,7 +1132,7 @@ fn cmd_trace(args: TraceArgs) -> Result<(), Failure> {
     let (result, out) = match &args.op {
         TraceOp::Vcd { trace, out } => (to_vcd(trace, out), out),
         TraceOp::Plot { trace, out, vars } => (to_svg(trace, out, vars), out),
-        TraceOp::Path { trace, out, magnify } => (pkm_plc::trace::path::to_svg(trace, out, *magnify), out),
+        TraceOp::Path { trace, out, magnify } => (pkm_plc::services::trace::path::to_svg(trace, out, *magnify), out),
         TraceOp::Summary { .. } => unreachable!("handled above"),
     };
     match result {
@@ -1150,23 +1154,25 @@ fn cmd_registers(args: ConfigArg) -> Result<(), Failure> {
             setup.origin()
         )));
     };
-    print!("{}", pkm_plc::io::registers::RegisterMap::of(&map).report(&map));
+    print!(
+        "{}",
+        pkm_plc::services::io::registers::RegisterMap::of(&map).report(&map)
+    );
     Ok(())
 }
 
 fn cmd_station(args: StationArgs) -> Result<(), Failure> {
-    use pkm_plc::station_cmd;
+    use cli::station;
     let StationOp::Scan {
         address,
         write_map,
         timeout_ms,
     } = args.op;
-    let address = station_cmd::parse_address(&address).map_err(|e| Failure::usage(e.to_string()))?;
-    let scan =
-        station_cmd::scan(address, Duration::from_millis(timeout_ms)).map_err(|e| Failure::run(e.to_string()))?;
+    let address = station::parse_address(&address).map_err(|e| Failure::usage(e.to_string()))?;
+    let scan = station::scan(address, Duration::from_millis(timeout_ms)).map_err(|e| Failure::run(e.to_string()))?;
     print!("{}", scan.report());
     if let Some(path) = write_map {
-        station_cmd::write_map(&path, &scan.map_skeleton()).map_err(Failure::run)?;
+        station::write_map(&path, &scan.map_skeleton()).map_err(Failure::run)?;
         println!(
             "I/O map skeleton for {} modules written to {}: add the bindings, name any module of an unknown ID",
             scan.modules.len(),
@@ -1182,8 +1188,8 @@ fn cmd_io_sim(args: IoSimArgs) -> Result<(), Failure> {
     let bus = setup.sim_bus(args.scenario.as_deref())?;
     // A serial line's station is the generic one; over TCP, the one the I/O map names.
     let mut station = match args.serial {
-        Some(_) => pkm_plc::sim::modbus::Station::new(bus),
-        None => pkm_plc::sim::modbus::Station::of_map(bus, args.node),
+        Some(_) => pkm_plc::services::sim::modbus::Station::new(bus),
+        None => pkm_plc::services::sim::modbus::Station::of_map(bus, args.node),
     };
     let [coils, discrete, input, holding] = station.registers().sizes();
     let kind = if station.is_bus_controller() {
@@ -1195,7 +1201,7 @@ fn cmd_io_sim(args: IoSimArgs) -> Result<(), Failure> {
     } else {
         "a generic station".to_string()
     };
-    let options = pkm_plc::sim::server::ServerOptions {
+    let options = pkm_plc::services::sim::server::ServerOptions {
         watchdog: (args.watchdog_ms > 0).then(|| Duration::from_millis(args.watchdog_ms)),
         max_connections: usize::from(args.max_connections),
         idle_timeout: Duration::from_secs(args.idle_timeout_s),
@@ -1210,7 +1216,7 @@ fn cmd_io_sim(args: IoSimArgs) -> Result<(), Failure> {
         .build()
         .map_err(|e| Failure::run(format!("cannot start the tokio runtime: {e}")))?;
     runtime.block_on(async move {
-        let mut signals = pkm_plc::signals::Terminating::register();
+        let mut signals = pkm_plc::runtime::signals::Terminating::register();
         let stopped = |name: &str| {
             info!("io-sim: {name}: stopping");
             Ok(())
@@ -1220,7 +1226,7 @@ fn cmd_io_sim(args: IoSimArgs) -> Result<(), Failure> {
                 .map_err(|e| Failure::run(format!("io-sim: cannot open {path}: {e}")))?;
             info!("io-sim: {} on {path} at {baud} baud as Modbus RTU, {watchdog}; Ctrl-C stops", setup.origin());
             return tokio::select! {
-                served = pkm_plc::sim::server::serve_rtu(stream, station, options) => served.map_err(|e| Failure::run(format!("io-sim: {e}"))),
+                served = pkm_plc::services::sim::server::serve_rtu(stream, station, options) => served.map_err(|e| Failure::run(format!("io-sim: {e}"))),
                 name = signals.recv() => stopped(&name),
             };
         }
@@ -1245,7 +1251,7 @@ fn cmd_io_sim(args: IoSimArgs) -> Result<(), Failure> {
             setup.origin(), options.max_connections
         );
         tokio::select! {
-            served = pkm_plc::sim::server::serve_tcp(listener, station, options) => {
+            served = pkm_plc::services::sim::server::serve_tcp(listener, station, options) => {
                 served.map_err(|e| Failure::run(format!("io-sim: {e}")))
             }
             name = signals.recv() => stopped(&name),
@@ -1287,17 +1293,17 @@ fn cmd_link_bench(args: LinkBenchArgs) -> Result<(), Failure> {
         return Err(Failure::usage("--exchange: name the modes to measure (tables, image)"));
     }
     let setup = load_setup(&args.config)?;
-    let options = pkm_plc::link_bench::LinkBenchOptions {
+    let options = cli::link_bench::LinkBenchOptions {
         baud: args.baud,
         seconds: args.seconds,
         modes: args.exchange.into_iter().map(ExchangeMode::from).collect(),
     };
     let json_file = args.json.as_deref().map(OutputFile::create).transpose()?;
-    let rows = pkm_plc::link_bench::run(&setup, &options, |row| info!("measuring {row}")).map_err(|e| match e {
-        pkm_plc::link_bench::LinkBenchError::Setup(_) => Failure::run(e.to_string()),
+    let rows = cli::link_bench::run(&setup, &options, |row| info!("measuring {row}")).map_err(|e| match e {
+        cli::link_bench::LinkBenchError::Setup(_) => Failure::run(e.to_string()),
         _ => Failure::usage(e.to_string()),
     })?;
-    print!("{}", pkm_plc::link_bench::table(&rows));
+    print!("{}", cli::link_bench::table(&rows));
     if let Some(file) = json_file {
         let json = serde_json::to_string_pretty(&rows).map_err(|e| Failure::run(e.to_string()))?;
         file.write(&json)?;

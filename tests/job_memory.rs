@@ -13,12 +13,12 @@
 mod common;
 
 use pkm_api::trajectory::ScreenJobKind;
+use pkm_plc::compose::screen_job::StandingPose;
 use pkm_plc::compose::{self, Built, Options, Setup};
-use pkm_plc::hmi::commands::{CommandSink, press};
-use pkm_plc::hmi::jobs::JobDesk;
-use pkm_plc::plc::Plc;
-use pkm_plc::run::VirtualClock;
-use pkm_plc::screen_job::StandingPose;
+use pkm_plc::runtime::plc::Plc;
+use pkm_plc::runtime::run::VirtualClock;
+use pkm_plc::services::hmi::commands::{CommandSink, press};
+use pkm_plc::services::hmi::jobs::JobDesk;
 
 /// Jobs made (`PKM_JOB_MEMORY_JOBS` makes more: the hundred, in a release build).
 const JOBS: usize = 30;

@@ -17,11 +17,11 @@
 #[path = "common/mod.rs"]
 mod common;
 
-use pkm_plc::io::line::LineTiming;
-use pkm_plc::io::modbus::{ExchangeMode, ModbusBus, Transport};
-use pkm_plc::plc::Plc;
-use pkm_plc::run::{self, RealTimeOptions};
-use pkm_plc::sim::modbus::{Station, StationOnLine};
+use pkm_plc::runtime::plc::Plc;
+use pkm_plc::runtime::run::{self, RealTimeOptions};
+use pkm_plc::services::io::line::LineTiming;
+use pkm_plc::services::io::modbus::{ExchangeMode, ModbusBus, Transport};
+use pkm_plc::services::sim::modbus::{Station, StationOnLine};
 
 /// The longest the application's run may take (s): referencing over the line and the jog take
 /// about 20 s on a quiet machine.
@@ -35,10 +35,10 @@ static ALONE: std::sync::Mutex<()> = std::sync::Mutex::new(());
 /// these tests are not about timing, and a busy machine may stall their threads that long.
 fn over_a_line(
     setup: &pkm_plc::compose::Setup,
-    link: pkm_plc::io::modbus::ModbusOptions,
+    link: pkm_plc::services::io::modbus::ModbusOptions,
 ) -> (StationOnLine, ModbusBus) {
     let station = Station::new(setup.sim_bus(None).expect("sim"));
-    let relaxed = pkm_plc::sim::server::ServerOptions {
+    let relaxed = pkm_plc::services::sim::server::ServerOptions {
         watchdog: Some(std::time::Duration::from_secs(1)),
         ..Default::default()
     };
@@ -58,7 +58,7 @@ fn the_application_runs_over_modbus_rtu_on_a_pty_pair() {
     let setup = pkm_plc::compose::Setup::new(loaded.clone()).expect("known machine");
     // This tests the exchange, not its timing: a busy machine may delay an image, and slow the
     // emulated line's exchanges beyond what the regulators are tuned for.
-    let link = pkm_plc::io::modbus::ModbusOptions {
+    let link = pkm_plc::services::io::modbus::ModbusOptions {
         max_input_age: std::time::Duration::from_millis(500),
         max_exchange: std::time::Duration::from_millis(100),
         ..Default::default()
@@ -67,11 +67,11 @@ fn the_application_runs_over_modbus_rtu_on_a_pty_pair() {
     assert_eq!(bus.exchange(), ExchangeMode::Image);
     // The operator's screen's inputs over the link: the test jogs through them once READY.
     let (bus, screen) = setup.with_screen(Box::new(bus));
-    let mut plc = Plc::build(&loaded.config, &pkm_plc::machines::all_programs(), bus).expect("valid");
+    let mut plc = Plc::build(&loaded.config, &pkm_plc::compose::machines::all_programs(), bus).expect("valid");
     let trace = dir.path().join("trace.jsonl");
     let digest = setup.digest().expect("digest");
     plc.set_recorder(Box::new(
-        pkm_plc::trace::record::Recorder::create(&trace, &plc, &digest).expect("trace"),
+        pkm_plc::services::trace::record::Recorder::create(&trace, &plc, &digest).expect("trace"),
     ));
     let options = RealTimeOptions {
         source: Default::default(),
@@ -138,13 +138,13 @@ fn the_application_runs_over_modbus_rtu_on_a_pty_pair() {
 /// READY and run to its end, then jogged along +x. Returns a line for the log.
 fn machine_over_rtu(machine: &str, dir: &std::path::Path) -> String {
     use pkm_api::trajectory::vars::NC_COMPLETED;
-    use pkm_plc::hmi::commands::press;
+    use pkm_plc::services::hmi::commands::press;
     let config = common::machine_test_config(dir, machine);
-    let loaded = pkm_plc::config::load(Some(&config)).unwrap_or_else(|e| panic!("{machine}: {e}"));
+    let loaded = pkm_plc::runtime::config::load(Some(&config)).unwrap_or_else(|e| panic!("{machine}: {e}"));
     let setup = pkm_plc::compose::Setup::new(loaded).expect("known machine");
     // This tests that each machine works over the line, not the line's timing (the other test
     // measures that): a busy machine may stall the line's threads for long.
-    let link = pkm_plc::io::modbus::ModbusOptions {
+    let link = pkm_plc::services::io::modbus::ModbusOptions {
         timeout: std::time::Duration::from_millis(500),
         max_failures: 10,
         max_input_age: std::time::Duration::from_secs(2),
@@ -154,7 +154,7 @@ fn machine_over_rtu(machine: &str, dir: &std::path::Path) -> String {
         ..Default::default()
     };
     let (_station, bus) = over_a_line(&setup, link);
-    let programs = pkm_plc::nc_job::programs(&setup, None, Some(&common::root().join("programs")), true)
+    let programs = pkm_plc::compose::nc_job::programs(&setup, None, Some(&common::root().join("programs")), true)
         .unwrap_or_else(|e| panic!("{machine}: {}", e.message));
     let library = programs.library.expect("programs offered");
     let (bus, screen) = setup.with_screen(Box::new(bus));
@@ -163,7 +163,7 @@ fn machine_over_rtu(machine: &str, dir: &std::path::Path) -> String {
     let trace = dir.join("trace.jsonl");
     let digest = setup.digest().expect("digest");
     plc.set_recorder(Box::new(
-        pkm_plc::trace::record::Recorder::create(&trace, &plc, &digest).expect("trace"),
+        pkm_plc::services::trace::record::Recorder::create(&trace, &plc, &digest).expect("trace"),
     ));
     let options = RealTimeOptions {
         source: Default::default(),

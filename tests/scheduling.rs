@@ -4,13 +4,13 @@
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 
-use pkm_plc::bus::{Bus, MailboxReader, NoBus, image_mailbox};
-use pkm_plc::config::{self, Config, TimeSourceKind};
 use pkm_plc::image::{Declare, Input, Output, Reader, Value, VarTable, VarType, Writer};
-use pkm_plc::plc::Plc;
 use pkm_plc::program::{Clock, Cycle, Program, ProgramArgs, ProgramInfo, Registry};
-use pkm_plc::run::{self, RealTimeOptions, VirtualClock};
-use pkm_plc::summary::Summary;
+use pkm_plc::runtime::bus::{Bus, MailboxReader, NoBus, image_mailbox};
+use pkm_plc::runtime::config::{self, Config, TimeSourceKind};
+use pkm_plc::runtime::plc::Plc;
+use pkm_plc::runtime::run::{self, RealTimeOptions, VirtualClock};
+use pkm_plc::runtime::summary::Summary;
 
 // ---------------------------------------------------------------- test programs
 
@@ -102,7 +102,7 @@ impl Program for CheckSet {
 }
 
 fn registry() -> Registry {
-    let mut r = pkm_plc::machines::all_programs();
+    let mut r = pkm_plc::compose::machines::all_programs();
     for name in ["stamp.a", "stamp.b", "stamp.c"] {
         r.register(ProgramInfo {
             name,
@@ -154,7 +154,7 @@ fn dint(plc: &Plc, name: &str) -> i32 {
     }
 }
 
-fn class_stats(plc: &Plc, name: &str) -> pkm_plc::stats::ClassStats {
+fn class_stats(plc: &Plc, name: &str) -> pkm_plc::runtime::stats::ClassStats {
     plc.classes()
         .find(|c| c.name == name)
         .map(|c| c.stats.clone())

@@ -8,12 +8,12 @@ pub mod soak;
 use std::path::{Path, PathBuf};
 
 use pkm_plc::compose::Setup;
-use pkm_plc::config::{self, ConfigError, LoadedConfig};
 use pkm_plc::image::Value;
-use pkm_plc::plc::Plc;
 use pkm_plc::program::Registry;
-use pkm_plc::run::VirtualClock;
-use pkm_plc::sim::bus::SimBus;
+use pkm_plc::runtime::config::{self, ConfigError, LoadedConfig};
+use pkm_plc::runtime::plc::Plc;
+use pkm_plc::runtime::run::VirtualClock;
+use pkm_plc::services::sim::bus::SimBus;
 use pkm_trijoint::plant::Plant;
 
 /// The repository's directory.
@@ -55,7 +55,7 @@ pub fn sim_plc(loaded: &LoadedConfig, registry: &Registry, scenario: Option<&str
 }
 
 /// The configuration's I/O map (it must name a valid one).
-pub fn io_map(loaded: &LoadedConfig) -> pkm_plc::io::map::IoMap {
+pub fn io_map(loaded: &LoadedConfig) -> pkm_plc::services::io::map::IoMap {
     Setup::new(loaded.clone())
         .expect("known machine")
         .io_map()
@@ -735,7 +735,7 @@ pub fn start_io_sim_logging(
 pub fn rtu_frame(pdu: &[u8]) -> Vec<u8> {
     let mut frame = vec![1];
     frame.extend_from_slice(pdu);
-    let crc = pkm_plc::sim::pdu::crc16(&frame);
+    let crc = pkm_plc::services::sim::pdu::crc16(&frame);
     frame.extend_from_slice(&crc.to_le_bytes());
     frame
 }

@@ -165,7 +165,8 @@ fn station_scan_lists_io_sims_x20bc0087_and_writes_a_map_skeleton() {
     assert_eq!(skeleton["modules"][4]["id"], "0x0000");
     let classes = ["fast".to_string(), "main".to_string()];
     let text = std::fs::read_to_string(&map).expect("map");
-    let refused = pkm_plc::io::map::IoMap::parse(&text, "scanned.json", &classes).expect_err("types to write");
+    let refused =
+        pkm_plc::services::io::map::IoMap::parse(&text, "scanned.json", &classes).expect_err("types to write");
     assert!(
         refused
             .to_string()
@@ -177,12 +178,12 @@ fn station_scan_lists_io_sims_x20bc0087_and_writes_a_map_skeleton() {
     for (i, ty) in [(2, "X20DC1196"), (3, "X20DC1196"), (4, "X20MM2436")] {
         named["modules"][i]["type"] = ty.into();
     }
-    let loaded = pkm_plc::io::map::IoMap::parse(&named.to_string(), "scanned.json", &classes).expect("valid");
-    let registers = pkm_plc::io::registers::RegisterMap::of(&loaded);
+    let loaded = pkm_plc::services::io::map::IoMap::parse(&named.to_string(), "scanned.json", &classes).expect("valid");
+    let registers = pkm_plc::services::io::registers::RegisterMap::of(&loaded);
     let shipped = common::io_map(&common::loaded(&common::repo_config()));
     assert_eq!(
         registers.sizes(),
-        pkm_plc::io::registers::RegisterMap::of(&shipped).sizes()
+        pkm_plc::services::io::registers::RegisterMap::of(&shipped).sizes()
     );
     // A scan writes nothing and overwrites no map.
     let again = common::pkm(&[
@@ -291,7 +292,7 @@ fn a_frozen_plc_lets_the_station_watchdog_stop_the_drives_and_says_so_when_it_wa
 /// fed by writes only, as the soft-PLC sets it — zeroes the outputs.
 #[test]
 fn a_cycle_that_stops_handing_outputs_over_stops_feeding_the_station_watchdog() {
-    use pkm_plc::bus::Bus as _;
+    use pkm_plc::runtime::bus::Bus as _;
     let dir = tempfile::tempdir().expect("tempdir");
     // A watchdog of 1 s and outputs written while under 1 s old: a busy machine delays neither
     // that long.
@@ -299,15 +300,19 @@ fn a_cycle_that_stops_handing_outputs_over_stops_feeding_the_station_watchdog() 
     common::edit_io_map(&config, |map| map["watchdog_ms"] = 1000.into());
     let sim_log = dir.path().join("sim.log");
     let (_sim, address) = io_sim(Some(&config), &[], &sim_log);
-    let loaded = pkm_plc::config::load(Some(&config)).expect("the configuration");
+    let loaded = pkm_plc::runtime::config::load(Some(&config)).expect("the configuration");
     let map = common::io_map(&loaded);
-    let options = pkm_plc::io::modbus::ModbusOptions {
+    let options = pkm_plc::services::io::modbus::ModbusOptions {
         max_input_age: Duration::from_millis(500),
         timeout: Duration::from_secs(1),
         ..Default::default()
     };
-    let mut bus = pkm_plc::io::modbus::ModbusBus::new(map, pkm_plc::io::modbus::Transport::Tcp(address), options)
-        .expect("tables");
+    let mut bus = pkm_plc::services::io::modbus::ModbusBus::new(
+        map,
+        pkm_plc::services::io::modbus::Transport::Tcp(address),
+        options,
+    )
+    .expect("tables");
     let mut table = pkm_plc::image::VarTable::new();
     bus.declare(&mut table);
     bus.start().expect("the station is the map's");
@@ -324,8 +329,9 @@ fn a_cycle_that_stops_handing_outputs_over_stops_feeding_the_station_watchdog() 
         "fed, yet expired: {}",
         read(&sim_log)
     );
-    let exchanges =
-        |bus: &pkm_plc::io::modbus::ModbusBus| bus.stats().exchanges.load(std::sync::atomic::Ordering::Relaxed);
+    let exchanges = |bus: &pkm_plc::services::io::modbus::ModbusBus| {
+        bus.stats().exchanges.load(std::sync::atomic::Ordering::Relaxed)
+    };
     let before = exchanges(&bus);
     // The cycle hangs: no more outputs. The station's watchdog acts after the outputs' 1 s of
     // age and its own 1 s.

@@ -13,8 +13,8 @@ use std::io::Write;
 use std::process::Command;
 use std::time::{Duration, Instant};
 
-use pkm_plc::io::joystick::InputEvent;
-use pkm_plc::io::joystick::codes::*;
+use pkm_plc::services::io::joystick::InputEvent;
+use pkm_plc::services::io::joystick::codes::*;
 
 fn report(axis: u16, value: i32) -> Vec<u8> {
     [

@@ -262,7 +262,7 @@ fn a_link_slower_than_the_regulators_were_tuned_for_is_a_bus_fault_that_says_so(
 /// `answers` requests, then closes its end (the port vanishes).
 fn rtu_station(answers: usize, reply: fn(&[u8]) -> Vec<u8>) -> serialport::TTYPort {
     use serialport::SerialPort as _;
-    let (mut station, plc_end) = pkm_plc::io::line::pty_pair().expect("a pseudo-terminal pair");
+    let (mut station, plc_end) = pkm_plc::services::io::line::pty_pair().expect("a pseudo-terminal pair");
     station.set_timeout(Duration::from_secs(5)).expect("timeout");
     std::thread::spawn(move || {
         let mut buf = [0u8; 256];
@@ -282,15 +282,19 @@ fn rtu_station(answers: usize, reply: fn(&[u8]) -> Vec<u8>) -> serialport::TTYPo
 /// Its requests wait a second for their answer (100 ms by default): the station's thread answers
 /// at once, but on a busy machine it may be scheduled late, and these tests count what the
 /// answers are, not how fast they come.
-fn driver_against(port: serialport::TTYPort) -> pkm_plc::io::modbus::ModbusBus {
-    use pkm_plc::bus::Bus as _;
+fn driver_against(port: serialport::TTYPort) -> pkm_plc::services::io::modbus::ModbusBus {
+    use pkm_plc::runtime::bus::Bus as _;
     let map = common::io_map(&common::loaded(&common::repo_config()));
-    let options = pkm_plc::io::modbus::ModbusOptions {
+    let options = pkm_plc::services::io::modbus::ModbusOptions {
         timeout: Duration::from_secs(1),
         ..Default::default()
     };
-    let mut bus = pkm_plc::io::modbus::ModbusBus::new(map, pkm_plc::io::modbus::Transport::Port(Some(port)), options)
-        .expect("the image fits");
+    let mut bus = pkm_plc::services::io::modbus::ModbusBus::new(
+        map,
+        pkm_plc::services::io::modbus::Transport::Port(Some(port)),
+        options,
+    )
+    .expect("the image fits");
     let mut table = pkm_plc::image::VarTable::new();
     bus.declare(&mut table);
     // Returns once the first image arrived or the link failed (a failing link is a bus fault,
@@ -301,7 +305,7 @@ fn driver_against(port: serialport::TTYPort) -> pkm_plc::io::modbus::ModbusBus {
 
 #[test]
 fn rtu_corrupt_frames_and_a_vanished_port_are_counted_bus_faults() {
-    use pkm_plc::bus::Bus as _;
+    use pkm_plc::runtime::bus::Bus as _;
     use std::sync::atomic::Ordering::Relaxed;
     // A well-formed response to the packed-image request (23) whose CRC is wrong.
     let bad_crc = |_: &[u8]| {
@@ -312,7 +316,7 @@ fn rtu_corrupt_frames_and_a_vanished_port_are_counted_bus_faults() {
     };
     // The failures that make the fault are corrupt frames (a request's answer may still come too
     // late now and then on a very busy machine: a timeout).
-    let corrupt_fault = |bus: &pkm_plc::io::modbus::ModbusBus, what: &str| {
+    let corrupt_fault = |bus: &pkm_plc::services::io::modbus::ModbusBus, what: &str| {
         let stats = bus.stats();
         let (corrupt, timeouts) = (stats.corrupt.load(Relaxed), stats.timeouts.load(Relaxed));
         assert!(bus.fault(), "{what}: a bus fault");
@@ -352,14 +356,17 @@ fn rtu_corrupt_frames_and_a_vanished_port_are_counted_bus_faults() {
 
 #[test]
 fn declaring_the_variables_opens_nothing_starting_the_bus_opens_the_link() {
-    use pkm_plc::bus::Bus as _;
+    use pkm_plc::runtime::bus::Bus as _;
     let listener = TcpListener::bind("127.0.0.1:0").expect("bind");
     listener.set_nonblocking(true).expect("nonblocking");
     let address = listener.local_addr().expect("address");
     let map = common::io_map(&common::loaded(&common::repo_config()));
-    let mut bus =
-        pkm_plc::io::modbus::ModbusBus::new(map, pkm_plc::io::modbus::Transport::Tcp(address), Default::default())
-            .expect("tables fit");
+    let mut bus = pkm_plc::services::io::modbus::ModbusBus::new(
+        map,
+        pkm_plc::services::io::modbus::Transport::Tcp(address),
+        Default::default(),
+    )
+    .expect("tables fit");
     let mut table = pkm_plc::image::VarTable::new();
     bus.declare(&mut table);
     // The configuration can still be refused at this point: nothing may have connected.

@@ -113,7 +113,7 @@ fn malformed_requests_are_answered_with_exceptions_and_io_sim_keeps_serving() {
 #[test]
 fn a_malformed_rtu_frame_is_answered_and_io_sim_serial_keeps_serving() {
     use serialport::SerialPort as _;
-    let (mut master, slave) = pkm_plc::io::line::pty_pair().expect("a pseudo-terminal pair");
+    let (mut master, slave) = pkm_plc::services::io::line::pty_pair().expect("a pseudo-terminal pair");
     let path = slave.name().expect("the pty's path");
     master.set_timeout(Duration::from_secs(10)).expect("timeout");
     let mut sim = IoSim(
@@ -414,7 +414,7 @@ fn until_logged(log: &std::path::Path, text: &str, limit: Duration) -> bool {
 #[test]
 fn every_terminating_signal_ends_the_plc_through_the_safe_stop() {
     let dir = tempfile::tempdir().expect("tempdir");
-    let signals = pkm_plc::signals::handled();
+    let signals = pkm_plc::runtime::signals::handled();
     // A few at a time: each is a real-time PLC (without field I/O or screen).
     for (batch, chunk) in signals.chunks(8).enumerate() {
         let started: Vec<(common::KillOnDrop, std::path::PathBuf, &(String, i32))> = chunk

@@ -10,7 +10,7 @@ use std::process::{Command, Stdio};
 use std::time::Instant;
 
 use common::{pkm, stderr, stdout, write_realtime_config};
-use pkm_plc::trace::read::TraceReader;
+use pkm_plc::services::trace::read::TraceReader;
 
 /// Records one second of virtual time into `dir/name`; returns its path and its lines.
 fn recorded(dir: &Path, name: &str) -> (PathBuf, Vec<String>) {

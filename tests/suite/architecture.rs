@@ -164,13 +164,13 @@ fn the_runtime_names_a_machine_in_the_list_of_machines_only() {
         "src",
         &["pkm_trijoint", "pkm_joints", "pkm_kinematics"],
         &[
-            "src/machines.rs",
-            "src/kin_cmd.rs",
-            "src/kin_svg.rs",
-            "src/nc_cmd.rs",
-            "src/nc_job.rs",
-            "src/screen_job.rs",
-            "src/hmi/mechanism.rs",
+            "src/compose/machines.rs",
+            "src/cli/kin.rs",
+            "src/cli/kin_svg.rs",
+            "src/cli/nc.rs",
+            "src/compose/nc_job.rs",
+            "src/compose/screen_job.rs",
+            "src/services/hmi/mechanism.rs",
         ],
     );
     assert!(
@@ -178,7 +178,7 @@ fn the_runtime_names_a_machine_in_the_list_of_machines_only() {
         "the runtime must not name a machine:\n{}",
         offences.join("\n")
     );
-    let machine_types = uses("src", &["Trijoint", "TRIJOINT_"], &["src/machines.rs"]);
+    let machine_types = uses("src", &["Trijoint", "TRIJOINT_"], &["src/compose/machines.rs"]);
     assert!(
         machine_types.is_empty(),
         "machine types in the runtime:\n{}",

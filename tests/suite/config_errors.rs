@@ -1,10 +1,10 @@
 //! Every configuration error path, with the exact message a user sees.
 
-use pkm_plc::bus::NoBus;
-use pkm_plc::config::{self, ConfigError};
 use pkm_plc::image::{Declare, Reader, VarTable, VarType};
-use pkm_plc::plc::Plc;
 use pkm_plc::program::{Cycle, Program, ProgramArgs, ProgramInfo, Registry};
+use pkm_plc::runtime::bus::NoBus;
+use pkm_plc::runtime::config::{self, ConfigError};
+use pkm_plc::runtime::plc::Plc;
 
 /// Parses and builds `json` (named `cfg.json`) with `registry`; returns the error as displayed.
 fn error_with(json: &str, registry: &Registry) -> String {
@@ -23,7 +23,7 @@ fn error_with(json: &str, registry: &Registry) -> String {
 }
 
 fn error(json: &str) -> String {
-    error_with(json, &pkm_plc::machines::all_programs())
+    error_with(json, &pkm_plc::compose::machines::all_programs())
 }
 
 /// One task class with the given fields replacing the defaults.
@@ -434,7 +434,7 @@ fn problems_of(change: impl Fn(&mut serde_json::Value), change_map: impl Fn(&mut
         }
         .to_string();
     }
-    match common::sim_plc(&loaded, &pkm_plc::machines::all_programs(), None) {
+    match common::sim_plc(&loaded, &pkm_plc::compose::machines::all_programs(), None) {
         Ok(_) => String::new(),
         Err(e) => e.to_string(),
     }

@@ -3,7 +3,7 @@
 //! program parameter spelt out) is tried with extreme values at every numeric key.
 
 use pkm_plc::compose::{Options, Setup};
-use pkm_plc::config;
+use pkm_plc::runtime::config;
 
 /// The TRIJOINT's configuration with every parameter of its programs spelt out at its default,
 /// so that each is tried.

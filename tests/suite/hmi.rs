@@ -28,7 +28,7 @@ fn the_screens_jog_of_one_axis_moves_that_axis_alone_and_its_stop_is_the_panels(
             11_000 => sink.update(|c| c.jog = [0.0; 2]),
             13_000 => {
                 after_jog = Some(tool);
-                sink.update(|c| c.presses[pkm_plc::hmi::commands::press::STOP] += 1);
+                sink.update(|c| c.presses[pkm_plc::services::hmi::commands::press::STOP] += 1);
             }
             _ => {}
         }
@@ -53,9 +53,12 @@ fn the_screens_jog_of_one_axis_moves_that_axis_alone_and_its_stop_is_the_panels(
 
 /// A PLC of the configuration `loaded` on its simulated machine, with the screen's commands.
 fn with_screen(
-    loaded: pkm_plc::config::LoadedConfig,
+    loaded: pkm_plc::runtime::config::LoadedConfig,
     scenario: Option<&std::path::Path>,
-) -> (pkm_plc::plc::Plc, pkm_plc::hmi::commands::CommandSink) {
+) -> (
+    pkm_plc::runtime::plc::Plc,
+    pkm_plc::services::hmi::commands::CommandSink,
+) {
     let setup = Setup::new(loaded).expect("a machine");
     let built = compose::build(
         setup,
@@ -72,7 +75,8 @@ fn with_screen(
 #[test]
 fn the_screens_jog_of_one_joint_moves_that_joint_alone_and_stops_on_the_border() {
     let (mut plc, sink) = with_screen(machine_config("hexapod", |_| {}), None);
-    let joints = |plc: &pkm_plc::plc::Plc| -> [f64; 6] { std::array::from_fn(|j| get(plc, vars::JOINT_POSITION[j])) };
+    let joints =
+        |plc: &pkm_plc::runtime::plc::Plc| -> [f64; 6] { std::array::from_fn(|j| get(plc, vars::JOINT_POSITION[j])) };
     let (mut at_ready, mut after_jog, mut on_border) = (None, None, None);
     let mut fastest: f64 = 0.0;
     let seen = transitions(&mut plc, 120_000, |plc, t| {
@@ -174,8 +178,8 @@ fn the_screen_never_jogs_a_joint_before_referencing_even_with_the_panels_overrid
 fn the_screens_jog_of_one_trijoint_carriage_moves_it_alone_within_its_software_limit() {
     use pkm_trijoint::vars as t;
     let (mut plc, sink) = with_screen(common::loaded(&common::repo_config()), None);
-    let carriages = |plc: &pkm_plc::plc::Plc| t::POSITION_MM.map(|v| get(plc, v));
-    let m = |plc: &pkm_plc::plc::Plc| t::M.map(|v| get(plc, v));
+    let carriages = |plc: &pkm_plc::runtime::plc::Plc| t::POSITION_MM.map(|v| get(plc, v));
+    let m = |plc: &pkm_plc::runtime::plc::Plc| t::M.map(|v| get(plc, v));
     let (mut at_ready, mut after_jog, mut held) = (None, None, None);
     let seen = transitions(&mut plc, 90_000, |plc, t| match t {
         // READY at 40.2 s: the left carriage down, at half of M's jog speed (20 mm/s).
@@ -222,8 +226,8 @@ fn the_screens_jog_of_one_trijoint_carriage_moves_it_alone_within_its_software_l
 
 #[test]
 fn the_screen_draws_the_mechanisms_at_the_measured_joints() {
-    use pkm_plc::hmi::mechanism::Mechanism;
     use pkm_plc::image::Value;
+    use pkm_plc::services::hmi::mechanism::Mechanism;
     let setup = Setup::new(common::loaded(&common::repo_config())).expect("the TRIJOINT");
     let plc = setup.plc(setup.declaring_bus().expect("a bus")).expect("a PLC");
     let mut mechanism = Mechanism::of(&setup, &plc).expect("the TRIJOINT's kinematics draws");
@@ -286,8 +290,8 @@ fn the_screen_loads_another_program_outside_auto_and_the_run_replays_with_it() {
     let (mut plc, sink) = (built.plc, built.hmi.expect("the screen's commands"));
     let trace = dir.path().join("load.jsonl");
     let digest = built.setup.digest().expect("a digest");
-    let recorder =
-        pkm_plc::trace::record::Recorder::create_with(&trace, &plc, &digest, Some(&library_of)).expect("the trace");
+    let recorder = pkm_plc::services::trace::record::Recorder::create_with(&trace, &plc, &digest, Some(&library_of))
+        .expect("the trace");
     plc.set_recorder(Box::new(recorder));
     let mut loaded = Vec::new();
     let mut text_completed = false;
@@ -301,7 +305,7 @@ fn the_screen_loads_another_program_outside_auto_and_the_run_replays_with_it() {
         match t {
             // READY at 11.65 s, nothing started: load the text, start it.
             13_000 => sink.update(|c| c.program = 2),
-            14_000 => press(pkm_plc::hmi::commands::press::NC[0]),
+            14_000 => press(pkm_plc::services::hmi::commands::press::NC[0]),
             // While it runs, the target is chosen: taken once the text has ended.
             20_000 => sink.update(|c| c.program = 1),
             _ => {}
@@ -332,6 +336,6 @@ fn the_screen_loads_another_program_outside_auto_and_the_run_replays_with_it() {
     }
     // Replayed with the programs the trace carries.
     let setup = Setup::new(machine_config("ox-x", |_| {})).expect("the O-X glide");
-    let report = pkm_plc::trace::replay::replay(&trace, &setup, false).unwrap_or_else(|e| panic!("{e}"));
+    let report = pkm_plc::compose::replay::replay(&trace, &setup, false).unwrap_or_else(|e| panic!("{e}"));
     assert!(report.records > 1000, "{}", report.records);
 }

@@ -8,7 +8,7 @@ use crate::common;
 use common::{get, joint_plant, machine_config, run, state, transitions};
 use pkm_joints::vars;
 use pkm_kinematics::frame::MachineFrame;
-use pkm_plc::plc::Plc;
+use pkm_plc::runtime::plc::Plc;
 
 const MACHINES: [&str; 4] = ["pn101", "ox-x", "ox-o", "hexapod"];
 
@@ -16,7 +16,7 @@ const MACHINES: [&str; 4] = ["pn101", "ox-x", "ox-o", "hexapod"];
 fn build(name: &str, scenario: Option<&str>, edit: impl FnOnce(&mut serde_json::Value)) -> Plc {
     common::sim_plc(
         &machine_config(name, edit),
-        &pkm_plc::machines::all_programs(),
+        &pkm_plc::compose::machines::all_programs(),
         scenario,
     )
     .unwrap_or_else(|e| panic!("{e}"))

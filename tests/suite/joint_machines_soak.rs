@@ -17,8 +17,8 @@ use std::time::Instant;
 
 use common::{get, joint_plant, joint_plant_mut, machine_config};
 use pkm_joints::vars;
-use pkm_plc::plc::Plc;
-use pkm_plc::run::VirtualClock;
+use pkm_plc::runtime::plc::Plc;
+use pkm_plc::runtime::run::VirtualClock;
 
 /// Picks one of `items` with `rng`.
 fn pick<'a>(rng: &mut Rng, items: &[&'a str]) -> &'a str {
@@ -142,8 +142,8 @@ fn soak(name: &str, seed: u64) {
     let hours = soak::hours();
     let (scenario, windows) = random_scenario(seed, n, dc, shared, stop_gap, hours);
     let loaded = machine_config(name, |_| {});
-    let mut plc =
-        common::sim_plc(&loaded, &pkm_plc::machines::all_programs(), Some(&scenario)).unwrap_or_else(|e| panic!("{e}"));
+    let mut plc = common::sim_plc(&loaded, &pkm_plc::compose::machines::all_programs(), Some(&scenario))
+        .unwrap_or_else(|e| panic!("{e}"));
     let started = Instant::now();
     let driving = |s: &str| matches!(s, "INIT" | "READY" | "MOTION");
     // The software limits: the kinematics' travel less the configured 2 mm margin.

@@ -1,7 +1,7 @@
 //! Joystick event decoding on fabricated captures (the byte layout of `cat /dev/input/eventN`).
 
-use pkm_plc::io::joystick::codes::*;
-use pkm_plc::io::joystick::{Command, Decoder, EVENT_SIZE, InputEvent, JoystickMapping, parse_events};
+use pkm_plc::services::io::joystick::codes::*;
+use pkm_plc::services::io::joystick::{Command, Decoder, EVENT_SIZE, InputEvent, JoystickMapping, parse_events};
 use proptest::prelude::*;
 
 fn ev(t_ms: i64, kind: u16, code: u16, value: i32) -> InputEvent {

@@ -12,13 +12,13 @@ use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
 
 use common::{get, state, var};
-use pkm_plc::bus::NoBus;
 use pkm_plc::image::{Value, VarTable};
-use pkm_plc::io::hid::{End, JoystickBus, JoystickFeed, JoystickState, read_records};
-use pkm_plc::io::joystick::codes::*;
-use pkm_plc::io::joystick::{InputEvent, JoystickMapping};
-use pkm_plc::plc::Plc;
-use pkm_plc::run::VirtualClock;
+use pkm_plc::runtime::bus::NoBus;
+use pkm_plc::runtime::plc::Plc;
+use pkm_plc::runtime::run::VirtualClock;
+use pkm_plc::services::io::hid::{End, JoystickBus, JoystickFeed, JoystickState, read_records};
+use pkm_plc::services::io::joystick::codes::*;
+use pkm_plc::services::io::joystick::{InputEvent, JoystickMapping};
 
 /// Power-on to READY takes 42.6 s of simulated time.
 const READY_MS: u64 = 44_000;
@@ -31,7 +31,12 @@ fn build() -> (Plc, JoystickFeed) {
     let map = setup.io_map().expect("valid map").expect("an io_map");
     let (bus, feed, _probe) = JoystickBus::new(Box::new(sim), &map);
     assert!(bus.binds_anything());
-    let plc = Plc::build(&loaded.config, &pkm_plc::machines::all_programs(), Box::new(bus)).expect("valid");
+    let plc = Plc::build(
+        &loaded.config,
+        &pkm_plc::compose::machines::all_programs(),
+        Box::new(bus),
+    )
+    .expect("valid");
     (plc, feed)
 }
 
@@ -199,14 +204,14 @@ fn joystick_alone() -> (JoystickBus, JoystickFeed) {
 fn image_after(bytes: Vec<u8>, paced: bool) -> (End, [Value; 4]) {
     let (mut bus, mut feed) = joystick_alone();
     let mut table = VarTable::new();
-    pkm_plc::bus::Bus::declare(&mut bus, &mut table);
+    pkm_plc::runtime::bus::Bus::declare(&mut bus, &mut table);
     let mut image = table.initial_image();
     let mapping = JoystickMapping {
         stop_button: Some(BTN_TRIGGER),
         ..JoystickMapping::default()
     };
     let end = read_records(Cursor::new(bytes), &mapping, paced, &mut feed, &AtomicBool::new(false));
-    pkm_plc::bus::Bus::read_inputs(&mut bus, 1, 0, &mut image);
+    pkm_plc::runtime::bus::Bus::read_inputs(&mut bus, 1, 0, &mut image);
     let get = |n: &str| image[usize::from(table.index_of(n).expect("variable"))];
     (
         end,
@@ -272,7 +277,7 @@ fn a_fifo_whose_writer_closes_and_a_failing_device_are_lost_links() {
 
 /// The value of `var` in the last record of `trace` at or before `t_s`.
 fn traced(trace: &std::path::Path, var: &str, t_s: f64) -> f64 {
-    let mut reader = pkm_plc::trace::read::TraceReader::open(trace).expect("trace");
+    let mut reader = pkm_plc::services::trace::read::TraceReader::open(trace).expect("trace");
     let index = reader
         .variables()
         .iter()

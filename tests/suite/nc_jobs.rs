@@ -8,11 +8,11 @@ use crate::common;
 use common::{get, machine_config};
 use pkm_api::trajectory::{ScreenJob, ScreenJobKind, ScreenJobSpec, vars};
 use pkm_joints::vars::TOOL;
+use pkm_plc::compose::screen_job::{self, StandingPose};
 use pkm_plc::compose::{self, Built, Options, Setup};
-use pkm_plc::hmi::commands::press;
-use pkm_plc::plc::Plc;
-use pkm_plc::run::VirtualClock;
-use pkm_plc::screen_job::{self, StandingPose};
+use pkm_plc::runtime::plc::Plc;
+use pkm_plc::runtime::run::VirtualClock;
+use pkm_plc::services::hmi::commands::press;
 
 /// A run in virtual time that goes on where it stood (the screen's commands come between).
 struct Virtual {
@@ -70,8 +70,8 @@ fn mdi_lines_and_a_run_from_a_line_start_where_the_tool_stands_and_replay_identi
     let (library, sink) = (library.expect("a library"), hmi.expect("the screen's inputs"));
     let trace = dir.path().join("jobs.jsonl");
     let digest = setup.digest().expect("a digest");
-    let recorder =
-        pkm_plc::trace::record::Recorder::create_with(&trace, &plc, &digest, Some(&library)).expect("the trace");
+    let recorder = pkm_plc::services::trace::record::Recorder::create_with(&trace, &plc, &digest, Some(&library))
+        .expect("the trace");
     let mut plc = plc;
     plc.set_recorder(Box::new(recorder));
     let mut run = Virtual::new(plc);
@@ -138,14 +138,14 @@ fn mdi_lines_and_a_run_from_a_line_start_where_the_tool_stands_and_replay_identi
         text.contains(r#""from_line":{"program":1,"line":3}"#),
         "the run from a line is in it"
     );
-    let report = pkm_plc::trace::replay::replay(&trace, &setup, false).unwrap_or_else(|e| panic!("{e}"));
+    let report = pkm_plc::compose::replay::replay(&trace, &setup, false).unwrap_or_else(|e| panic!("{e}"));
     assert!(report.records > 1000, "{} records", report.records);
 }
 
 #[test]
 fn a_job_that_cannot_run_is_refused_with_its_line_and_nothing_is_stored() {
     let setup = Setup::new(machine_config("ox-x", |_| {})).expect("ox-x");
-    let library = pkm_plc::nc_job::library(None, Vec::new(), true).expect("a screen's library");
+    let library = pkm_plc::compose::nc_job::library(None, Vec::new(), true).expect("a screen's library");
     let spec = |text: &str| ScreenJobSpec {
         kind: ScreenJobKind::Mdi { text: text.into() },
         start: [0.0; 6],
@@ -179,7 +179,7 @@ fn a_job_that_cannot_run_is_refused_with_its_line_and_nothing_is_stored() {
 
 #[test]
 fn the_screen_makes_a_job_from_ready_only_numbered_after_the_programs() {
-    use pkm_plc::hmi::jobs::JobDesk;
+    use pkm_plc::services::hmi::jobs::JobDesk;
     let setup = Setup::new(machine_config("ox-x", |_| {})).expect("ox-x");
     let options = Options {
         hmi: true,

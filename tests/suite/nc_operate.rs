@@ -8,7 +8,8 @@ use std::sync::Arc;
 use pkm_api::trajectory::{MAX_AXES, Trajectory};
 use pkm_drives::nc::{Command, Executor, Operator, RunState};
 use pkm_plc::compose::Setup;
-use pkm_plc::{config, machines, nc_job};
+use pkm_plc::compose::{machines, nc_job};
+use pkm_plc::runtime::config;
 
 /// The fast class's cycle (s).
 const DT: f64 = 0.01;

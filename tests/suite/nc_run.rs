@@ -9,7 +9,7 @@ use crate::common;
 use common::{get, machine_config, pkm, stderr, transitions};
 use pkm_api::trajectory::vars;
 use pkm_plc::compose::{self, Options, Setup};
-use pkm_plc::plc::Plc;
+use pkm_plc::runtime::plc::Plc;
 
 /// The repository's path of a file, as text.
 fn repo(path: &str) -> String {

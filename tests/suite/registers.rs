@@ -4,8 +4,8 @@ use crate::common;
 
 use common::{pkm, stderr, stdout};
 use pkm_plc::image::{Value, VarType};
-use pkm_plc::io::map::{IoMap, StationKind};
-use pkm_plc::io::registers::{RegisterMap, Table, decode, encode};
+use pkm_plc::services::io::map::{IoMap, StationKind};
+use pkm_plc::services::io::registers::{RegisterMap, Table, decode, encode};
 use proptest::prelude::*;
 
 fn map(text: &str) -> IoMap {
@@ -206,9 +206,9 @@ proptest! {
     #[test]
     fn packed_bits_round_trip(bits in proptest::collection::vec(any::<bool>(), 0..300)) {
         let mut words = vec![0u16; bits.len().div_ceil(16)];
-        pkm_plc::io::registers::pack_bits(&bits, &mut words);
+        pkm_plc::services::io::registers::pack_bits(&bits, &mut words);
         for (i, b) in bits.iter().enumerate() {
-            prop_assert_eq!(pkm_plc::io::registers::packed_bit(&words, i), *b);
+            prop_assert_eq!(pkm_plc::services::io::registers::packed_bit(&words, i), *b);
         }
     }
 }

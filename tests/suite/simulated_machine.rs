@@ -7,11 +7,11 @@ use std::path::Path;
 
 use common::{plant, run, var};
 use pkm_kinematics::trijoint::TrijointParams;
-use pkm_plc::config::{ConfigError, LoadedConfig};
 use pkm_plc::image::{Declare, Input, Output, Value};
-use pkm_plc::io::map::IoMap;
-use pkm_plc::plc::Plc;
 use pkm_plc::program::{Cycle, Program, ProgramArgs, ProgramInfo, Registry};
+use pkm_plc::runtime::config::{ConfigError, LoadedConfig};
+use pkm_plc::runtime::plc::Plc;
+use pkm_plc::services::io::map::IoMap;
 use pkm_trijoint::vars;
 
 const CLASSES: [&str; 3] = ["fast", "main", "spare"];
@@ -175,7 +175,7 @@ impl Program for Drive {
 }
 
 fn registry() -> Registry {
-    let mut r = pkm_plc::machines::all_programs();
+    let mut r = pkm_plc::compose::machines::all_programs();
     r.register(ProgramInfo {
         name: "test.drive",
         summary: "test",
@@ -510,7 +510,7 @@ fn the_shipped_scenarios_are_valid() {
         {
             Some(machine) => common::sim_plc(
                 &common::machine_config(machine, |_| {}),
-                &pkm_plc::machines::all_programs(),
+                &pkm_plc::compose::machines::all_programs(),
                 Some(&text),
             )
             .map(|_| ()),

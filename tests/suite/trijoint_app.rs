@@ -7,7 +7,7 @@ use common::{get, plant, run, state, var};
 use pkm_kinematics::Kinematics;
 use pkm_kinematics::trijoint::{Trijoint, TrijointParams};
 use pkm_plc::image::Value;
-use pkm_plc::plc::Plc;
+use pkm_plc::runtime::plc::Plc;
 use pkm_trijoint::vars;
 
 const COUNT_MM: f64 = 1.0 / 7000.0;
@@ -16,7 +16,7 @@ const COUNT_MM: f64 = 1.0 / 7000.0;
 fn build(scenario: Option<&str>) -> Plc {
     common::sim_plc(
         &common::loaded(&common::repo_config()),
-        &pkm_plc::machines::all_programs(),
+        &pkm_plc::compose::machines::all_programs(),
         scenario,
     )
     .unwrap_or_else(|e| panic!("{e}"))
@@ -370,7 +370,8 @@ fn a_cycle_time_violation_sends_the_application_to_error() {
     c["task_classes"][2]["on_violation"] = serde_json::json!("error");
     c["task_classes"][2]["programs"] = serde_json::json!([{"program": "selftest.idle",
         "params": {"burn_us": 250000, "burn_from_cycle": 450, "burn_until_cycle": 451}}]);
-    let mut plc = common::sim_plc(&common::loaded(&c), &pkm_plc::machines::all_programs(), None).expect("valid");
+    let mut plc =
+        common::sim_plc(&common::loaded(&c), &pkm_plc::compose::machines::all_programs(), None).expect("valid");
     assert_eq!(error_reason(&mut plc, 50_000).as_deref(), Some("cycle time violation"));
 }
 
@@ -413,7 +414,7 @@ fn jogging_into_every_border_stops_inside_the_soft_limits() {
         let config = with_main_params(serde_json::json!({ "max_speed_mm_s": max_speed }));
         let mut plc = common::sim_plc(
             &common::loaded(&config),
-            &pkm_plc::machines::all_programs(),
+            &pkm_plc::compose::machines::all_programs(),
             Some(&scenario),
         )
         .unwrap_or_else(|e| panic!("{e}"));

@@ -6,8 +6,8 @@ use crate::common;
 
 use common::{get, plant, run, var};
 use pkm_plc::image::{Declare, Input, Output, Value};
-use pkm_plc::plc::Plc;
 use pkm_plc::program::{Cycle, Program, ProgramArgs, ProgramInfo, Registry};
+use pkm_plc::runtime::plc::Plc;
 use pkm_trijoint::encoders::unwrap;
 use pkm_trijoint::state::MainState;
 use pkm_trijoint::vars;
@@ -86,7 +86,7 @@ impl Program for MainStandIn {
 }
 
 fn registry() -> Registry {
-    let mut r = pkm_plc::machines::all_programs();
+    let mut r = pkm_plc::compose::machines::all_programs();
     r.register(ProgramInfo {
         name: "test.main",
         summary: "test",

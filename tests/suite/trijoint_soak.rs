@@ -10,8 +10,8 @@ use common::soak::{self, Fault, HOUR_MS};
 use std::time::Instant;
 
 use pkm_plc::image::Value;
-use pkm_plc::plc::Plc;
-use pkm_plc::run::VirtualClock;
+use pkm_plc::runtime::plc::Plc;
+use pkm_plc::runtime::run::VirtualClock;
 
 /// Joystick changes every 2–8 s, STOP presses every 20–90 s, a fault every 2–5 min. Returns the
 /// scenario, the number of STOP presses, and the windows (ms) in which a fault that can keep
@@ -58,7 +58,7 @@ fn random_scenario(seed: u64, hours: u64) -> (String, usize, Vec<(u64, u64)>) {
 fn build(scenario: &str) -> Plc {
     common::sim_plc(
         &common::loaded(&common::repo_config()),
-        &pkm_plc::machines::all_programs(),
+        &pkm_plc::compose::machines::all_programs(),
         Some(scenario),
     )
     .unwrap_or_else(|e| panic!("{e}"))

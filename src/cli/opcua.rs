@@ -1,0 +1,112 @@
+//! `run`'s OPC UA options: from the command line to [`OpcUaOptions`], and what the address space
+//! is built from.
+
+use std::path::PathBuf;
+
+use pkm_plc::compose::Setup;
+use pkm_plc::image::Writer;
+use pkm_plc::runtime::plc::Plc;
+use pkm_plc::services::opcua::space::{SpaceInfo, VarNode};
+use pkm_plc::services::opcua::{self, OpcUaOptions};
+
+/// The OPC UA server a run asks for: `None` in virtual time or with `--opcua none`; the next
+/// ports tried when the default one is taken.
+pub fn options(
+    url: Option<&str>,
+    users: Option<&PathBuf>,
+    pki: Option<&PathBuf>,
+    max_sessions: usize,
+    virtual_time: bool,
+) -> Result<Option<(OpcUaOptions, u16)>, String> {
+    let (url, next_ports) = match (url, virtual_time) {
+        (Some("none"), _) | (None, true) => {
+            return match (users, pki) {
+                (Some(_), _) | (_, Some(_)) => Err(format!(
+                    "--opcua-users and --opcua-pki configure the OPC UA server, which {}",
+                    if virtual_time {
+                        "a --virtual run does not serve"
+                    } else {
+                        "is off (--opcua none, or PKM_PLC_OPCUA=none in the environment)"
+                    }
+                )),
+                (None, None) => Ok(None),
+            };
+        }
+        (Some(_), true) => return Err("--opcua serves OPC UA in real time only; a --virtual run has none".into()),
+        (Some(url), false) => (url, 0),
+        (None, false) => (opcua::DEFAULT_URL, DEFAULT_NEXT_PORTS),
+    };
+    let (addr, mut host) = opcua::parse_url(url)?;
+    // Listening on every address: the endpoints announce this computer's name, which clients
+    // elsewhere can reach, rather than 0.0.0.0.
+    if addr.ip().is_unspecified() {
+        host = opcua::server::host_name();
+    }
+    let users = users
+        .map(|path| opcua::users::Users::load(path).map_err(|e| format!("--opcua-users {e}")))
+        .transpose()?;
+    let options = OpcUaOptions {
+        addr,
+        host,
+        users,
+        pki_dir: pki.cloned().unwrap_or_else(default_pki),
+        max_sessions,
+    };
+    options.check()?;
+    Ok(Some((options, next_ports)))
+}
+
+/// The next ports tried for the default endpoint when its port is taken (a second PLC on this
+/// computer): 4841 … 4849, then any free one.
+const DEFAULT_NEXT_PORTS: u16 = 9;
+
+/// The default certificate store: `$XDG_DATA_HOME/pkm-plc/opcua-pki`, else
+/// `~/.local/share/pkm-plc/opcua-pki`, else `opcua-pki` here.
+fn default_pki() -> PathBuf {
+    let data = std::env::var_os("XDG_DATA_HOME")
+        .filter(|d| !d.is_empty())
+        .map(PathBuf::from)
+        .or_else(|| std::env::var_os("HOME").map(|h| PathBuf::from(h).join(".local/share")));
+    match data {
+        Some(d) => d.join("pkm-plc/opcua-pki"),
+        None => PathBuf::from("opcua-pki"),
+    }
+}
+
+/// What the address space shows of `plc` built from `setup`.
+pub fn space_info(plc: &Plc, setup: &Setup, programs: Vec<String>) -> SpaceInfo {
+    let classes: Vec<(String, u64)> = plc.classes().map(|c| (c.name.to_string(), c.period_ns)).collect();
+    let names: Vec<&str> = classes.iter().map(|(n, _)| n.as_str()).collect();
+    let variables = plc
+        .vars()
+        .vars()
+        .iter()
+        .map(|v| {
+            let class = match &v.writer {
+                Some(Writer::Program { class, .. } | Writer::Bus { class, .. }) => *class,
+                None => v.readers.first().map_or(0, |r| r.class),
+            };
+            let writer = match &v.writer {
+                Some(Writer::Program { program, .. }) => format!("program {program}"),
+                Some(Writer::Bus { class, .. }) => format!(
+                    "the bus (latched by class {})",
+                    names.get(*class).copied().unwrap_or("?")
+                ),
+                None => "nobody (it keeps its default)".to_string(),
+            };
+            VarNode {
+                name: v.name.clone(),
+                ty: v.ty,
+                class,
+                writer,
+            }
+        })
+        .collect();
+    SpaceInfo {
+        machine: setup.machine.map_or("runtime".to_string(), |m| m.name().to_string()),
+        config: setup.origin().to_string(),
+        classes,
+        variables,
+        programs,
+    }
+}

@@ -1,0 +1,566 @@
+//! The composition root: resolved options → a built PLC with its handles.
+//!
+//! One place knows how to assemble a soft-PLC from a configuration: which machine it runs (and
+//! so which programs, configuration checks, I/O map and plant), which bus, which joystick. The
+//! command line (`run`, `check`, `replay`, `io-sim`, `link-bench`) and the tests all come here,
+//! so they cannot drift apart. Every problem of the configuration and its I/O map is reported
+//! at once, as one list per file.
+
+pub mod machines;
+pub mod nc_job;
+pub mod replay;
+pub mod screen_job;
+pub mod selftest;
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::AtomicBool;
+
+use pkm_api::machine::{EmbeddedFile, Machine, Sections};
+use pkm_api::trajectory::NcLibrary;
+use tracing::{info, warn};
+
+use crate::image::Problem;
+use crate::program::Registry;
+use crate::runtime::bus::{Bus, NoBus, UnknownBus};
+use crate::runtime::config::{self, ConfigError, LoadedConfig};
+use crate::runtime::plc::Plc;
+use crate::services::io::hid::{JoystickBus, JoystickFeed, JoystickSpec, LatencyProbe};
+use crate::services::io::map::IoMap;
+use crate::services::io::modbus::{ModbusBus, ModbusOptions, Transport};
+use crate::services::sim::bus::SimBus;
+
+/// A loaded configuration with the machine it names resolved.
+#[derive(Clone, Debug)]
+pub struct Setup {
+    /// The configuration.
+    pub loaded: LoadedConfig,
+    /// The machine it runs (`None`: the runtime's self-test programs only).
+    pub machine: Option<&'static dyn Machine>,
+}
+
+impl Setup {
+    /// Resolves the machine that `loaded` names among the machines of this build.
+    pub fn new(loaded: LoadedConfig) -> Result<Setup, ConfigError> {
+        let machine = match &loaded.config.machine {
+            None => None,
+            Some(name) => Some(
+                crate::compose::machines::find(name).ok_or_else(|| ConfigError::Invalid {
+                    file: loaded.origin.clone(),
+                    problems: vec![Problem::new(
+                        "machine",
+                        format!(
+                            "unknown machine \"{}\"; this build has: {}",
+                            config::shorten(name),
+                            crate::compose::machines::names()
+                        ),
+                    )],
+                })?,
+            ),
+        };
+        Ok(Setup { loaded, machine })
+    }
+
+    /// Loads `path` (or the built-in configuration) and resolves its machine.
+    pub fn load(path: Option<&Path>) -> Result<Setup, ConfigError> {
+        Setup::new(config::load(path)?)
+    }
+
+    /// The configuration's file name, for messages.
+    pub fn origin(&self) -> &str {
+        &self.loaded.origin
+    }
+
+    /// The machine's sections of the configuration.
+    pub fn sections(&self) -> Sections<'_> {
+        Sections {
+            kinematics: self.loaded.config.kinematics.as_ref(),
+            plant: self.loaded.config.plant.as_ref(),
+        }
+    }
+
+    /// The program types this configuration can name: the runtime's self-test programs and the
+    /// machine's.
+    pub fn registry(&self) -> Registry {
+        let mut registry = Registry::new();
+        crate::compose::selftest::register(&mut registry);
+        for info in self.machine.map(|m| m.programs()).unwrap_or_default() {
+            registry.register(*info);
+        }
+        registry
+    }
+
+    /// Adds to each "unknown program" problem the machine that brings that program, where another
+    /// machine of this build does: the usual cause is a configuration copied from another machine,
+    /// or a missing or different `"machine"`.
+    fn hint_other_machines(&self, problems: &mut [Problem]) {
+        for (ci, tc) in self.loaded.config.task_classes.iter().enumerate() {
+            for (pi, entry) in tc.programs.iter().enumerate() {
+                let at = format!("task_classes[{ci}].programs[{pi}].program");
+                let Some(owner) = machines::owner_of(&entry.program) else {
+                    continue;
+                };
+                if self.machine.is_some_and(|m| m.name() == owner.name()) {
+                    continue;
+                }
+                let runs = match self.machine {
+                    Some(m) => format!("this configuration runs machine \"{}\"", m.name()),
+                    None => "this configuration names no machine".to_string(),
+                };
+                for problem in problems.iter_mut().filter(|p| p.at == at) {
+                    problem.message.push_str(&format!(
+                        " (\"{}\" is a program of machine \"{}\"; {runs}: set \"machine\": \"{}\")",
+                        entry.program,
+                        owner.name(),
+                        owner.name()
+                    ));
+                }
+            }
+        }
+    }
+
+    /// The problems of the machine's sections (`kinematics`, `plant`); without a machine, those
+    /// sections have nobody to check them and are refused.
+    pub fn section_problems(&self) -> Vec<Problem> {
+        match self.machine {
+            Some(m) => {
+                let mut problems = m.check(&self.sections());
+                // What must hold between the sections and the programs' parameters, and the NC
+                // section against the machine's coordinates (when its own sections and
+                // parameters let it say what they are).
+                if problems.is_empty() {
+                    problems.extend(m.cross_check(&self.loaded.json));
+                }
+                if problems.is_empty()
+                    && let Ok(motion) = m.motion(&self.loaded.json)
+                {
+                    problems.extend(self.loaded.config.nc.check(motion.axes));
+                }
+                problems
+            }
+            None => {
+                let sections = self.sections();
+                [("kinematics", sections.kinematics), ("plant", sections.plant)]
+                    .into_iter()
+                    .filter(|(_, s)| s.is_some())
+                    .map(|(at, _)| {
+                        Problem::new(
+                            at,
+                            format!(
+                                "the {at} section belongs to a machine, and the configuration names none: \
+                                 add \"machine\" ({})",
+                                crate::compose::machines::names()
+                            ),
+                        )
+                    })
+                    .collect()
+            }
+        }
+    }
+
+    /// The machine's built-in I/O map, which the built-in configuration names.
+    pub fn embedded_io_map(&self) -> Option<EmbeddedFile> {
+        self.machine.map(|m| m.default_io_map())
+    }
+
+    /// Loads and validates the I/O map; `None` when the configuration names none.
+    pub fn io_map(&self) -> Result<Option<IoMap>, ConfigError> {
+        IoMap::load(&self.loaded, self.embedded_io_map())
+    }
+
+    /// The digest of the configuration with its I/O map (traces carry it).
+    pub fn digest(&self) -> Result<String, ConfigError> {
+        crate::services::trace::config_digest(&self.loaded, self.embedded_io_map())
+    }
+
+    /// The simulated machine behind the I/O map, with `scenario` if given.
+    pub fn sim_bus(&self, scenario: Option<&Path>) -> Result<SimBus, ConfigError> {
+        Ok(self.sim_bus_over(self.io_map()?, scenario)?)
+    }
+
+    /// The simulated machine behind `map`, the configuration's I/O map as loaded.
+    fn sim_bus_over(
+        &self,
+        map: Option<IoMap>,
+        scenario: Option<&Path>,
+    ) -> Result<SimBus, crate::services::sim::BuildError> {
+        let invalid = |at: &str, message: &str| {
+            crate::services::sim::BuildError::Other(ConfigError::Invalid {
+                file: self.loaded.origin.clone(),
+                problems: vec![Problem::new(at, message)],
+            })
+        };
+        let Some(map) = map else {
+            return Err(invalid("io_map", "the simulated bus needs an I/O map"));
+        };
+        let Some(machine) = self.machine else {
+            return Err(invalid(
+                "machine",
+                "the simulated bus needs a machine to simulate: name one with \"machine\"",
+            ));
+        };
+        crate::services::sim::build(&self.loaded, machine, map, scenario)
+    }
+
+    /// Lays the operator screen's variables (`HMI_*`) over `bus`, latched by the fastest class:
+    /// the screen's STOP reaches the fast interlock as the panel's does.
+    pub fn with_screen(&self, bus: Box<dyn Bus>) -> (Box<dyn Bus>, crate::services::hmi::commands::CommandSink) {
+        let classes = &self.loaded.config.task_classes;
+        let fastest = (0..classes.len()).min_by_key(|&c| classes[c].cycle_us).unwrap_or(0);
+        let (bus, sink) = crate::services::hmi::commands::HmiBus::new(bus, fastest, self.stop_lockout_ns());
+        (Box::new(bus), sink)
+    }
+
+    /// The longest STOP lockout of the configuration's programs (`params.stop_lockout_ms`, the
+    /// main programs' parameter; 500 ms where none sets it): after a STOP press is taken, the
+    /// button is ignored this long, so an acknowledgement must come later.
+    fn stop_lockout_ns(&self) -> u64 {
+        const DEFAULT_MS: u64 = 500;
+        let programs = self.loaded.json["task_classes"]
+            .as_array()
+            .into_iter()
+            .flatten()
+            .filter_map(|c| c["programs"].as_array())
+            .flatten();
+        let ms = programs
+            .filter_map(|p| p["params"]["stop_lockout_ms"].as_f64())
+            .fold(DEFAULT_MS as f64, f64::max);
+        (ms * 1e6) as u64
+    }
+
+    /// A bus that only declares the I/O map's variables (inputs written by the bus, outputs read
+    /// by it) and exchanges nothing: replay feeds the recorded inputs itself.
+    pub fn declaring_bus(&self) -> Result<Box<dyn Bus>, ConfigError> {
+        Ok(match self.io_map()? {
+            Some(map) => Box::new(crate::services::io::dry::DryBus::new(map)),
+            None => Box::new(NoBus),
+        })
+    }
+
+    /// Builds the PLC on `bus`: declares every program's variables and checks the configuration
+    /// as a whole, the machine's sections included.
+    pub fn plc(&self, bus: Box<dyn Bus>) -> Result<Plc, ConfigError> {
+        self.plc_with(bus, None)
+    }
+
+    /// [`Setup::plc`] with NC programs for the machine's programs to run.
+    pub fn plc_with(&self, bus: Box<dyn Bus>, library: Option<&NcLibrary>) -> Result<Plc, ConfigError> {
+        let plc = Plc::build_with(&self.loaded.config, &self.registry(), bus, library);
+        let mut problems = self.section_problems();
+        match plc {
+            Ok(plc) if problems.is_empty() => Ok(plc),
+            plc => {
+                let mut build_problems = plc.err().unwrap_or_default();
+                self.hint_other_machines(&mut build_problems);
+                problems.splice(0..0, build_problems);
+                Err(ConfigError::Invalid {
+                    file: self.loaded.origin.clone(),
+                    problems,
+                })
+            }
+        }
+    }
+}
+
+/// The buses a PLC can run on.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum BusChoice {
+    /// The simulated machine.
+    Sim,
+    /// No field I/O (with an I/O map: a dry run, inputs held at zero).
+    None,
+    /// A Modbus TCP station.
+    Tcp(std::net::SocketAddr),
+    /// A Modbus RTU station on a serial line (path, baud).
+    Serial(String, u32),
+}
+
+/// Where the operator's joystick comes from.
+#[derive(Clone, Debug)]
+pub enum JoystickChoice {
+    /// A live source read by a thread (real time), or none.
+    Live(JoystickSpec),
+    /// A capture file played on the simulated clock (virtual time).
+    Capture(PathBuf),
+}
+
+/// The resolved options of a PLC to build.
+#[derive(Clone, Debug)]
+pub struct Options {
+    /// The bus.
+    pub bus: BusChoice,
+    /// How a Modbus bus exchanges.
+    pub link: ModbusOptions,
+    /// A scenario for the simulated machine.
+    pub scenario: Option<PathBuf>,
+    /// The joystick.
+    pub joystick: JoystickChoice,
+    /// An NC program to run (checked and planned before the PLC is built).
+    pub program: Option<PathBuf>,
+    /// A directory whose programs (`*.ngc`) the operator may load from the screen instead
+    /// (each checked and planned before the PLC is built; those that cannot run are listed).
+    pub programs: Option<PathBuf>,
+    /// Lay the operator screen's variables over the bus (`HMI_*`, see `hmi`).
+    pub hmi: bool,
+}
+
+impl Default for Options {
+    /// The simulated machine, no scenario, no joystick reader, no program.
+    fn default() -> Self {
+        Options {
+            bus: BusChoice::Sim,
+            link: ModbusOptions::default(),
+            scenario: None,
+            joystick: JoystickChoice::Live(JoystickSpec::None),
+            program: None,
+            programs: None,
+            hmi: false,
+        }
+    }
+}
+
+/// The HID joystick of a built PLC: its reader is started once the PLC runs.
+pub struct Joystick {
+    /// The source.
+    pub spec: JoystickSpec,
+    /// Where the reader hands its reports over.
+    pub feed: JoystickFeed,
+    /// How late reports reach the process image.
+    pub probe: LatencyProbe,
+    /// Stops the reader.
+    pub stop: Arc<AtomicBool>,
+}
+
+/// A built PLC with its handles.
+pub struct Built {
+    /// The configuration it was built from.
+    pub setup: Setup,
+    /// The PLC.
+    pub plc: Plc,
+    /// The joystick reader to start, if a live joystick is wanted.
+    pub joystick: Option<Joystick>,
+    /// The NC programs of the run, if any was given.
+    pub library: Option<NcLibrary>,
+    /// The programs of `Options::programs` that cannot run on the machine: file and why.
+    pub refused: Vec<(String, String)>,
+    /// Where the operator screen's commands go, if the screen's variables were laid over the
+    /// bus.
+    pub hmi: Option<crate::services::hmi::commands::CommandSink>,
+}
+
+/// Why a PLC could not be built: every problem of the files, or a usage error. The message is
+/// ready to show; the command line exits with code 2.
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct BuildError(pub String);
+
+impl From<ConfigError> for BuildError {
+    fn from(e: ConfigError) -> Self {
+        BuildError(e.to_string())
+    }
+}
+
+/// Why the bus could not be made.
+enum BusFailure {
+    /// A problem of the configuration or its I/O map: reported with the rest of the checks.
+    Config(ConfigError),
+    /// The machine could not build its plant from its own sections (`plant`, `kinematics`): the
+    /// configuration's check of those sections reports the same problems, once.
+    Sections,
+    /// Anything else (a usage error): reported alone.
+    Other(BuildError),
+}
+
+impl From<ConfigError> for BusFailure {
+    fn from(e: ConfigError) -> Self {
+        BusFailure::Config(e)
+    }
+}
+
+fn usage(message: impl Into<String>) -> BusFailure {
+    BusFailure::Other(BuildError(message.into()))
+}
+
+/// The bus `options` ask for, and the I/O map it was made over (loaded once, here).
+fn make_bus(setup: &Setup, options: &Options) -> Result<(Box<dyn Bus>, Option<IoMap>), BusFailure> {
+    let needs_sim = |what: &str| usage(format!("--scenario needs the simulated bus ({what})"));
+    // The usage problems first: they need no file read.
+    let scenario = options.scenario.as_deref();
+    let modbus = matches!(options.bus, BusChoice::Tcp(_) | BusChoice::Serial(..));
+    match (modbus, setup.loaded.config.io_map.is_some(), scenario.is_some()) {
+        (true, false, _) => return Err(usage("a Modbus bus needs an io_map in the configuration")),
+        (true, true, true) => return Err(needs_sim("give it to io-sim instead")),
+        (false, has_map, true) if options.bus == BusChoice::None || !has_map => {
+            return Err(needs_sim("--bus sim and an io_map in the configuration"));
+        }
+        _ => {}
+    }
+    let map = setup.io_map()?;
+    let bus: Box<dyn Bus> = match (&options.bus, &map) {
+        (BusChoice::Tcp(_) | BusChoice::Serial(..), None) => unreachable!("refused above: no io_map"),
+        (BusChoice::Tcp(address), Some(map)) => modbus_bus(setup, map, Transport::Tcp(*address), options)?,
+        (BusChoice::Serial(path, baud), Some(map)) => {
+            let transport = Transport::Serial {
+                path: path.clone(),
+                baud: *baud,
+            };
+            modbus_bus(setup, map, transport, options)?
+        }
+        (BusChoice::None, Some(map)) => {
+            let bus = crate::services::io::dry::DryBus::new(map.clone());
+            warn!(
+                "--bus none: a dry run of the programs without field I/O: the inputs of the I/O map ({}) hold zero / \
+                 false, the outputs go nowhere",
+                bus.held_inputs().join(", ")
+            );
+            Box::new(bus)
+        }
+        (BusChoice::Sim, Some(_)) => match setup.sim_bus_over(map.clone(), scenario) {
+            Ok(bus) => Box::new(bus),
+            Err(crate::services::sim::BuildError::Plant(_)) => return Err(BusFailure::Sections),
+            Err(crate::services::sim::BuildError::Other(e)) => return Err(BusFailure::Config(e)),
+        },
+        (BusChoice::None | BusChoice::Sim, None) => Box::new(NoBus),
+    };
+    Ok((bus, map))
+}
+
+/// A Modbus bus over `map` reached by `transport`; a map too large for the chosen exchange is a
+/// usage error (`--exchange`).
+fn modbus_bus(setup: &Setup, map: &IoMap, transport: Transport, options: &Options) -> Result<Box<dyn Bus>, BusFailure> {
+    let mut link = options.link;
+    // The exchange thread one below the cyclic thread (when that asks for real-time priority).
+    link.priority = setup.loaded.config.timing.realtime_priority.saturating_sub(1);
+    // Every class's cycle hands the outputs over: the fastest says how fresh they are.
+    if let Some(fastest) = setup.loaded.config.task_classes.iter().map(|c| c.cycle_us).min() {
+        link.fastest_cycle = std::time::Duration::from_micros(u64::from(fastest));
+    }
+    let bus = ModbusBus::new(map.clone(), transport, link).map_err(|e| usage(format!("--bus: {e}")))?;
+    Ok(Box::new(bus))
+}
+
+/// Builds a PLC: every problem of the configuration and its I/O map is reported at once.
+pub fn build(setup: Setup, options: Options) -> Result<Built, BuildError> {
+    // A program that cannot run is refused before anything is built.
+    let programs = crate::compose::nc_job::programs(
+        &setup,
+        options.program.as_deref(),
+        options.programs.as_deref(),
+        options.hmi,
+    )
+    .map_err(|e| BuildError(e.message))?;
+    // A bus that cannot be made for a problem of the files (the I/O map, the plant section) does
+    // not hide the configuration's other problems: they are checked on a stand-in bus.
+    let (bus, joystick, bus_problem) = match make_bus(&setup, &options) {
+        Ok((bus, map)) => {
+            let (bus, joystick) = with_joystick(&setup, bus, map.as_ref(), options.joystick)?;
+            (bus, joystick, None)
+        }
+        Err(BusFailure::Config(e)) => (Box::new(UnknownBus) as Box<dyn Bus>, None, Some(e)),
+        Err(BusFailure::Sections) => (Box::new(UnknownBus) as Box<dyn Bus>, None, None),
+        Err(BusFailure::Other(f)) => return Err(f),
+    };
+    let (bus, hmi) = if options.hmi {
+        let (bus, sink) = setup.with_screen(bus);
+        (bus, Some(sink))
+    } else {
+        (bus, None)
+    };
+    match (setup.plc_with(bus, programs.library.as_ref()), bus_problem) {
+        (Ok(plc), None) => Ok(Built {
+            setup,
+            plc,
+            joystick,
+            library: programs.library,
+            refused: programs.refused,
+            hmi,
+        }),
+        (plc, bus_problem) => {
+            let mut problems = match plc {
+                Err(ConfigError::Invalid { problems, .. }) => problems,
+                Err(other) => return Err(other.into()),
+                Ok(_) => Vec::new(),
+            };
+            let mut reports: Vec<String> = Vec::new();
+            // The simulated bus's problems in the configuration's own file (its plant's wiring)
+            // join the configuration's list.
+            match bus_problem {
+                Some(ConfigError::Invalid { file, problems: more }) if file == setup.loaded.origin => {
+                    problems.extend(more);
+                }
+                Some(other) => reports.push(other.to_string()),
+                None => {}
+            }
+            if !problems.is_empty() {
+                let own = ConfigError::Invalid {
+                    file: setup.loaded.origin.clone(),
+                    problems,
+                };
+                reports.insert(0, own.to_string());
+            }
+            Err(BuildError(reports.join("\n")))
+        }
+    }
+}
+
+/// Lays the HID joystick over `bus`'s joystick channels, unless the choice is `none` or the I/O
+/// map (`map`, as the bus was made over it) binds none.
+fn with_joystick(
+    setup: &Setup,
+    bus: Box<dyn Bus>,
+    map: Option<&IoMap>,
+    choice: JoystickChoice,
+) -> Result<(Box<dyn Bus>, Option<Joystick>), BuildError> {
+    let loaded = &setup.loaded;
+    let spec = match choice {
+        JoystickChoice::Live(JoystickSpec::None) => return Ok((bus, None)),
+        JoystickChoice::Live(spec) => spec,
+        JoystickChoice::Capture(path) => {
+            let states = crate::services::io::hid::load_capture(&path, &loaded.config.joystick)
+                .map_err(|e| BuildError(format!("--joystick {e}")))?;
+            let Some(map) = map else {
+                return Err(BuildError(format!(
+                    "--joystick {}: the configuration has no I/O map to bind it to",
+                    path.display()
+                )));
+            };
+            let bus = JoystickBus::with_capture(bus, map, states);
+            if !bus.binds_anything() {
+                return Err(BuildError(format!(
+                    "--joystick {}: {} binds no channel of a Joystick module",
+                    path.display(),
+                    map.origin
+                )));
+            }
+            info!("joystick: playing capture {} on the simulated clock", path.display());
+            return Ok((Box::new(bus), None));
+        }
+    };
+    let Some(map) = map else {
+        if let JoystickSpec::Path(p) = &spec {
+            warn!(
+                "--joystick {}: the configuration has no I/O map to bind it to; ignored",
+                p.display()
+            );
+        }
+        return Ok((bus, None));
+    };
+    let (joystick_bus, feed, probe) = JoystickBus::new(bus, map);
+    if !joystick_bus.binds_anything() {
+        if let JoystickSpec::Path(p) = &spec {
+            warn!(
+                "--joystick {}: {} binds no channel of a Joystick module; ignored",
+                p.display(),
+                map.origin
+            );
+        }
+        return Ok((Box::new(joystick_bus), None));
+    }
+    let joystick = Joystick {
+        spec,
+        feed,
+        probe,
+        stop: Arc::new(AtomicBool::new(false)),
+    };
+    Ok((Box::new(joystick_bus), Some(joystick)))
+}

@@ -1,0 +1,23 @@
+//! The runtime core: what runs the cycles, whatever the machine and whatever the wire. The PLC
+//! ([`plc`]) executes task classes over the process image and a [`bus::Bus`]; [`run`] drives it
+//! in real time on its own thread or in virtual time, keeping time by a source of [`timing`];
+//! [`signals`] turns the process's terminating signals into a safe stop; [`stats`], [`status`]
+//! and [`summary`] measure and report the cycles; [`frame`] hands each main cycle's state to
+//! whoever watches (the screen, OPC UA) without the cyclic thread waiting; [`config`] is the
+//! configuration file's schema, reading and checks. Nothing here imports the services or the
+//! composition above it.
+
+pub mod backoff;
+pub mod bus;
+pub mod config;
+pub mod files;
+pub mod frame;
+pub mod log_limit;
+pub mod plc;
+pub mod run;
+pub mod service;
+pub mod signals;
+pub mod stats;
+pub mod status;
+pub mod summary;
+pub mod timing;

@@ -1,0 +1,289 @@
+//! The screen's commands on their way into the process image: the web server writes the latest
+//! [`Commands`] (under a lock, off the cyclic thread), the [`HmiBus`] laid over the field bus
+//! takes them wait-free before each cycle and writes the `HMI_*` variables — so a command from
+//! the page is an input like the panel's, traced and replayed.
+
+use std::sync::{Arc, Mutex};
+
+use pkm_api::hmi::{HMI_AXES, HMI_JOG, HMI_JOG_AXIS, HMI_NC, HMI_NC_PROGRAM, HMI_STOP, JOG_AXIS_RANGE};
+use pkm_api::trajectory::{OVERRIDE_DEFAULT, vars};
+
+use crate::image::{Value, VarIndex, VarTable, VarType, Writer};
+use crate::runtime::bus::Bus;
+
+/// How long a press from the screen holds its variable on (ns): two main cycles of 50 ms, so
+/// that the main program sees it whatever its phase.
+pub const PRESS_NS: u64 = 100_000_000;
+
+/// What the screen commands now: a count of presses per button (a new count is a new press),
+/// the jog's deflection, the program's overrides and single block.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Commands {
+    /// Presses of STOP, the axis button, and the program's start, hold and resume. A press
+    /// while the previous one of its button is still held merges with it (a double click is one
+    /// press).
+    pub presses: [u64; 5],
+    /// Acknowledgements of an error: each is a STOP press that starts only once STOP has been
+    /// released for the programs' STOP lockout — so an acknowledgement sent right after STOP is
+    /// a press of its own, neither merged with the STOP nor ignored by the lockout (OPC UA's
+    /// Acknowledge).
+    pub acknowledgements: u64,
+    /// The jog (x, y in −1 … 1); 0 when nothing is held.
+    pub jog: [f64; 2],
+    /// Which axis the jog moves (0: the stick's pair; k ≥ 1: the k-th pose coordinate alone;
+    /// −k: the k-th joint alone).
+    pub jog_axis: i16,
+    /// The program to load (its number from 1; 0: no choice made).
+    pub program: i16,
+    /// The feed override (percent, 0 … 150).
+    pub feed_override: i16,
+    /// The rapid override (percent, 0 … 100).
+    pub rapid_override: i16,
+    /// Single block.
+    pub single_block: bool,
+}
+
+impl Default for Commands {
+    /// No press, no jog, no program chosen, 100 % overrides, single block off.
+    fn default() -> Self {
+        Commands {
+            presses: [0; 5],
+            acknowledgements: 0,
+            jog: [0.0; 2],
+            jog_axis: 0,
+            program: 0,
+            feed_override: OVERRIDE_DEFAULT,
+            rapid_override: OVERRIDE_DEFAULT,
+            single_block: false,
+        }
+    }
+}
+
+/// The feed override's range on the screen (percent).
+pub const FEED_OVERRIDE_RANGE: std::ops::RangeInclusive<i16> = 0..=150;
+/// The rapid override's range on the screen (percent).
+pub const RAPID_OVERRIDE_RANGE: std::ops::RangeInclusive<i16> = 0..=100;
+
+/// Which of [`Commands::presses`] is which.
+pub mod press {
+    /// STOP (and the acknowledgement in ERROR).
+    pub const STOP: usize = 0;
+    /// The axis button.
+    pub const AXES: usize = 1;
+    /// Program start, hold, resume.
+    pub const NC: [usize; 3] = [2, 3, 4];
+}
+
+/// The server's end: any connection may command (they share it, and the commands as last
+/// published, under a lock).
+#[derive(Clone)]
+pub struct CommandSink(Arc<Mutex<(triple_buffer::Input<Commands>, Commands)>>);
+
+impl CommandSink {
+    /// Changes the commands by `edit` and publishes them.
+    pub fn update(&self, edit: impl FnOnce(&mut Commands)) {
+        let mut guard = self.0.lock().unwrap_or_else(|p| p.into_inner());
+        let (input, current) = &mut *guard;
+        edit(current);
+        input.write(*current);
+    }
+
+    /// The commands as last published.
+    pub fn current(&self) -> Commands {
+        self.0.lock().unwrap_or_else(|p| p.into_inner()).1
+    }
+}
+
+/// The field bus with the screen's variables laid over it.
+pub struct HmiBus {
+    inner: Box<dyn Bus>,
+    /// The class that latches the screen's variables (the fastest: STOP reaches the interlock).
+    class: usize,
+    output: triple_buffer::Output<Commands>,
+    /// The variables: the five presses' (in [`press`] order), the jog's x and y, its axis, the
+    /// program to load, the feed and rapid overrides, single block.
+    vars: [VarIndex; 12],
+    seen: [u64; 5],
+    /// Until when each press holds its variable on (ns of the schedule).
+    until: [u64; 5],
+    /// Acknowledgements seen, and whether one waits for STOP's release.
+    acknowledged: u64,
+    acknowledgement_waits: bool,
+    /// How long STOP must have been released before an acknowledgement presses it (ns).
+    acknowledgement_gap_ns: u64,
+}
+
+impl HmiBus {
+    /// Wraps `inner`; the screen's variables are latched by the task class `class`; the programs
+    /// ignore STOP for `stop_lockout_ns` after a press is taken.
+    pub fn new(inner: Box<dyn Bus>, class: usize, stop_lockout_ns: u64) -> (HmiBus, CommandSink) {
+        let (input, output) = triple_buffer::triple_buffer(&Commands::default());
+        let bus = HmiBus {
+            inner,
+            class,
+            output,
+            vars: [0; 12],
+            seen: [0; 5],
+            until: [0; 5],
+            acknowledged: 0,
+            acknowledgement_waits: false,
+            acknowledgement_gap_ns: stop_lockout_ns.max(PRESS_NS),
+        };
+        (bus, CommandSink(Arc::new(Mutex::new((input, Commands::default())))))
+    }
+}
+
+impl Bus for HmiBus {
+    fn name(&self) -> &str {
+        self.inner.name()
+    }
+
+    fn declare(&mut self, table: &mut VarTable) {
+        self.inner.declare(table);
+        let at = "the operator screen (--hmi)";
+        let writer = || Writer::Bus {
+            class: self.class,
+            at: at.to_string(),
+        };
+        let mut declare = |name: &str, ty: VarType, safe: Value| table.declare_writer(name, ty, writer(), safe);
+        self.vars = [
+            declare(HMI_STOP.name(), VarType::Bool, Value::Bool(false)),
+            declare(HMI_AXES.name(), VarType::Bool, Value::Bool(false)),
+            declare(HMI_NC[0].name(), VarType::Bool, Value::Bool(false)),
+            declare(HMI_NC[1].name(), VarType::Bool, Value::Bool(false)),
+            declare(HMI_NC[2].name(), VarType::Bool, Value::Bool(false)),
+            declare(HMI_JOG[0].name(), VarType::Real, Value::Real(0.0)),
+            declare(HMI_JOG[1].name(), VarType::Real, Value::Real(0.0)),
+            declare(HMI_JOG_AXIS.name(), VarType::Int, Value::Int(0)),
+            declare(HMI_NC_PROGRAM.name(), VarType::Int, Value::Int(0)),
+            declare(
+                vars::NC_FEED_OVERRIDE.name(),
+                VarType::Int,
+                Value::Int(OVERRIDE_DEFAULT),
+            ),
+            declare(
+                vars::NC_RAPID_OVERRIDE.name(),
+                VarType::Int,
+                Value::Int(OVERRIDE_DEFAULT),
+            ),
+            declare(vars::NC_SINGLE_BLOCK.name(), VarType::Bool, Value::Bool(false)),
+        ];
+    }
+
+    fn start(&mut self) -> Result<(), String> {
+        self.inner.start()
+    }
+
+    fn read_inputs(&mut self, class: usize, t_ns: u64, image: &mut [Value]) {
+        self.inner.read_inputs(class, t_ns, image);
+        if class != self.class {
+            return;
+        }
+        let c = *self.output.read();
+        if c.acknowledgements != self.acknowledged {
+            self.acknowledged = c.acknowledgements;
+            self.acknowledgement_waits = true;
+        }
+        let stop = press::STOP;
+        if self.acknowledgement_waits && t_ns >= self.until[stop].saturating_add(self.acknowledgement_gap_ns) {
+            self.acknowledgement_waits = false;
+            self.until[stop] = t_ns + PRESS_NS;
+        }
+        for k in 0..5 {
+            if c.presses[k] != self.seen[k] {
+                self.seen[k] = c.presses[k];
+                self.until[k] = t_ns + PRESS_NS;
+            }
+            image[usize::from(self.vars[k])] = Value::Bool(t_ns < self.until[k]);
+        }
+        for (i, v) in c.jog.iter().enumerate() {
+            image[usize::from(self.vars[5 + i])] = Value::Real(v.clamp(-1.0, 1.0));
+        }
+        image[usize::from(self.vars[7])] = Value::Int(c.jog_axis.clamp(*JOG_AXIS_RANGE.start(), *JOG_AXIS_RANGE.end()));
+        image[usize::from(self.vars[8])] = Value::Int(c.program.max(0));
+        let clamp = |v: i16, r: &std::ops::RangeInclusive<i16>| v.clamp(*r.start(), *r.end());
+        image[usize::from(self.vars[9])] = Value::Int(clamp(c.feed_override, &FEED_OVERRIDE_RANGE));
+        image[usize::from(self.vars[10])] = Value::Int(clamp(c.rapid_override, &RAPID_OVERRIDE_RANGE));
+        image[usize::from(self.vars[11])] = Value::Bool(c.single_block);
+    }
+
+    fn write_outputs(&mut self, class: usize, t_ns: u64, image: &[Value]) {
+        self.inner.write_outputs(class, t_ns, image);
+    }
+
+    fn write_safe(&mut self, image: &[Value]) {
+        self.inner.write_safe(image);
+    }
+
+    /// The wrapped bus (the wrapper is transparent to callers that look for the bus's type).
+    fn as_any(&self) -> &dyn std::any::Any {
+        self.inner.as_any()
+    }
+
+    fn as_any_mut(&mut self) -> &mut dyn std::any::Any {
+        self.inner.as_any_mut()
+    }
+
+    fn write_fault_cause(&self, out: &mut String) -> bool {
+        self.inner.write_fault_cause(out)
+    }
+
+    fn fault(&self) -> bool {
+        self.inner.fault()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::runtime::bus::NoBus;
+
+    /// An edit of the commands at a time (ms).
+    type Edit = (u64, fn(&mut Commands));
+
+    /// HMI_STOP as the bus writes it at each of `times_ms`, with `edits` applied to the
+    /// commands just before the time they are paired with.
+    fn stop_at(edits: &[Edit], times_ms: &[u64]) -> Vec<bool> {
+        let (mut bus, sink) = HmiBus::new(Box::new(NoBus), 0, 500_000_000);
+        let mut table = VarTable::new();
+        bus.declare(&mut table);
+        let stop = usize::from(table.index_of(HMI_STOP.name()).expect("declared"));
+        let mut image: Vec<Value> = table.vars().iter().map(|v| v.safe).collect();
+        times_ms
+            .iter()
+            .map(|&t| {
+                for (at, edit) in edits {
+                    if *at == t {
+                        sink.update(edit);
+                    }
+                }
+                bus.read_inputs(0, t * 1_000_000, &mut image);
+                image[stop] == Value::Bool(true)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_second_stop_while_the_first_is_held_is_the_same_press() {
+        let press: fn(&mut Commands) = |c| c.presses[press::STOP] += 1;
+        assert_eq!(
+            stop_at(&[(1000, press), (1050, press)], &[1000, 1050, 1090, 1100, 1150, 1200]),
+            [true, true, true, true, false, false],
+            "a double click is one press, held 100 ms from the second click: no release between"
+        );
+    }
+
+    #[test]
+    fn an_acknowledgement_presses_stop_once_the_lockout_after_its_release_has_passed() {
+        let press: fn(&mut Commands) = |c| c.presses[press::STOP] += 1;
+        let acknowledge: fn(&mut Commands) = |c| c.acknowledgements += 1;
+        assert_eq!(
+            stop_at(
+                &[(1000, press), (1010, acknowledge)],
+                &[1000, 1010, 1090, 1100, 1590, 1600, 1690, 1700, 2500]
+            ),
+            [true, true, true, false, false, true, true, false, false],
+            "STOP 1000 … 1100 ms, released for the 500 ms lockout, then the acknowledgement's press"
+        );
+    }
+}

@@ -1,0 +1,194 @@
+//! The screen's jobs (issue 27): MDI lines and a program run from a chosen line, made on the
+//! operator's command in READY — planned on a thread of tokio's blocking pool (never on the
+//! cyclic thread, never on the thread that serves the pages), one at a time, from where the tool
+//! stands in the newest frame; stored in the run's library
+//! ([`ScreenJobs`](pkm_api::trajectory::ScreenJobs)), then loaded and started as a press of the
+//! screen's buttons, so that the PLC takes them as inputs (traced, replayed).
+//!
+//! A job's planning is bounded in what it may cost (`nc.max_moves`, `nc.max_plan_mib`) and how
+//! long it may take (`nc.max_planning_s`), and is abandoned when the operator cancels it or the
+//! machine leaves READY (a STOP). A job's plan is released once another job or program
+//! replaces it, and freed on a thread of its own (freeing a gigabyte takes milliseconds).
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+
+use pkm_api::trajectory::{NcJob, NcLibrary, ScreenJob, ScreenJobKind, ScreenJobSpec};
+
+use crate::compose::Setup;
+use crate::compose::nc_job::Deadline;
+use crate::compose::screen_job::{self, StandingPose};
+use crate::image::Value;
+
+/// What the screen needs to make jobs: the machine, the run's library, where the tool stands.
+pub struct JobDesk {
+    setup: Setup,
+    library: NcLibrary,
+    standing: StandingPose,
+    /// The image index of `NC_PROGRAM`, the loaded program (its job's plan is kept).
+    program_var: Option<usize>,
+    /// Where the tool stands commanded while the PLC is READY (from the newest frame).
+    here: Mutex<Option<[f64; 6]>>,
+    /// The newest frame's main state (shared with the watch of a job being planned).
+    state: Arc<Mutex<String>>,
+    /// A job is being planned.
+    planning: AtomicBool,
+    /// Why the job being planned is abandoned: the operator's Cancel, a STOP.
+    cancel: Arc<Mutex<Option<&'static str>>>,
+}
+
+/// A job made: its number, its file name and its text (as the screen shows it).
+pub struct Made {
+    /// Its number, as `NC_PROGRAM` holds it.
+    pub number: i16,
+    /// The job.
+    pub job: NcJob,
+}
+
+/// Why the job being planned is abandoned, if it is: the operator's cancel or STOP, or the
+/// machine left READY.
+fn abandoned(cancel: &Mutex<Option<&'static str>>, state: &Mutex<String>) -> Option<String> {
+    if let Some(why) = *cancel.lock().unwrap_or_else(|p| p.into_inner()) {
+        return Some(format!("abandoned while it was being planned: {why}"));
+    }
+    let state = state.lock().unwrap_or_else(|p| p.into_inner());
+    (*state != "READY").then(|| format!("abandoned while it was being planned: the machine left READY ({state})"))
+}
+
+impl JobDesk {
+    /// The desk of `setup`'s machine and the run's `library`, reading the tool's pose from
+    /// frames through `standing` and the loaded program from the image index `program_var`
+    /// (`NC_PROGRAM`).
+    pub fn new(setup: Setup, library: NcLibrary, standing: StandingPose, program_var: Option<usize>) -> JobDesk {
+        JobDesk {
+            setup,
+            library,
+            standing,
+            program_var,
+            here: Mutex::new(None),
+            state: Arc::new(Mutex::new(String::new())),
+            planning: AtomicBool::new(false),
+            cancel: Arc::new(Mutex::new(None)),
+        }
+    }
+
+    /// The run's library.
+    pub fn library(&self) -> &NcLibrary {
+        &self.library
+    }
+
+    /// Takes the newest frame: its main state, in READY where the tool stands, and the loaded
+    /// program, by which the plans of replaced jobs are released (and freed on a thread of
+    /// their own once nothing holds them: that thread, if one was started).
+    pub fn observe(&self, state: &str, image: &[Value]) -> Option<std::thread::JoinHandle<()>> {
+        let here = (state == "READY").then(|| self.standing.pose(image)).flatten();
+        *self.here.lock().unwrap_or_else(|p| p.into_inner()) = here;
+        {
+            let mut s = self.state.lock().unwrap_or_else(|p| p.into_inner());
+            if *s != state {
+                s.clear();
+                s.push_str(state);
+            }
+        }
+        let loaded = match self.program_var.and_then(|i| image.get(i)) {
+            Some(Value::Int(k)) => self.library.screen_slot(*k),
+            _ => None,
+        };
+        free_elsewhere(self.library.screen.release_replaced(loaded))
+    }
+
+    /// Whether a job is being planned now.
+    pub fn is_planning(&self) -> bool {
+        self.planning.load(Ordering::Acquire)
+    }
+
+    /// Abandons the job being planned, if any, for `why` (the operator's Cancel, a STOP): its
+    /// planning stops within milliseconds and the job is refused with why. True if one was.
+    pub fn cancel(&self, why: &'static str) -> bool {
+        let planning = self.is_planning();
+        if planning {
+            *self.cancel.lock().unwrap_or_else(|p| p.into_inner()) = Some(why);
+        }
+        planning
+    }
+
+    /// Makes the job `kind` from where the tool stands: checked and planned off the server's
+    /// thread, stored in the library. Refused (with why) outside READY, while another job is
+    /// being planned, when the job cannot run, passes its bounds, is cancelled or abandoned,
+    /// and when the run has made all its jobs.
+    pub async fn make(&self, kind: ScreenJobKind) -> Result<Made, String> {
+        let Some(start) = *self.here.lock().unwrap_or_else(|p| p.into_inner()) else {
+            let state = self.state.lock().unwrap_or_else(|p| p.into_inner()).clone();
+            return Err(if state.is_empty() {
+                "a job runs from READY: the PLC has not published its state yet".to_string()
+            } else {
+                format!("a job runs from READY: the machine is {state}")
+            });
+        };
+        if self.planning.swap(true, Ordering::AcqRel) {
+            return Err("another job is being planned (Cancel abandons it)".into());
+        }
+        *self.cancel.lock().unwrap_or_else(|p| p.into_inner()) = None;
+        let mut at = [0.0; pkm_api::trajectory::MAX_AXES];
+        at[..6].copy_from_slice(&start);
+        let spec = ScreenJobSpec { kind, start: at };
+        let (setup, library, asked) = (self.setup.clone(), self.library.clone(), spec.clone());
+        let (cancel, state) = (Arc::clone(&self.cancel), Arc::clone(&self.state));
+        let planned = tokio::task::spawn_blocking(move || {
+            let abandon = move || abandoned(&cancel, &state);
+            let watch = Deadline::of(&setup).or_abandoned(&abandon);
+            screen_job::plan_watched(&setup, &library, &asked, &watch)
+        })
+        .await;
+        self.planning.store(false, Ordering::Release);
+        let job = match planned {
+            Ok(Ok(job)) => job,
+            Ok(Err(e)) => return Err(e.message),
+            // A panic of the planner is a bug; the PLC goes on and the job is refused.
+            Err(e) => return Err(format!("the planner failed: {e}")),
+        };
+        let slot = self
+            .library
+            .screen
+            .push(ScreenJob { spec, job: job.clone() })
+            .map_err(|e| e.to_string())?;
+        let number = self
+            .library
+            .screen_number(slot)
+            .ok_or_else(|| "no number left for another job".to_string())?;
+        Ok(Made { number, job })
+    }
+}
+
+/// Drops `jobs` on a thread of its own and gives the memory back to the system: a plan may
+/// take a gigabyte, and freeing it on the thread that serves the screen and OPC UA would hold
+/// them up for milliseconds. The thread, if one was started (none for no jobs; without one,
+/// the jobs are dropped here).
+fn free_elsewhere(jobs: Vec<Arc<NcJob>>) -> Option<std::thread::JoinHandle<()>> {
+    if jobs.is_empty() {
+        return None;
+    }
+    let free = move || {
+        drop(jobs);
+        give_back_memory();
+    };
+    match std::thread::Builder::new().name("pkm-free-job".into()).spawn(free) {
+        Ok(thread) => Some(thread),
+        Err(e) => {
+            tracing::warn!("freed a replaced job's plan on the screen's thread: no thread of its own ({e})");
+            None
+        }
+    }
+}
+
+/// Returns the allocator's free memory to the system. glibc keeps freed blocks below its
+/// mapping threshold (which grows to 32 MiB after a large block is freed) in its arenas, so a
+/// plan's memory would otherwise stay in the process after it is freed.
+fn give_back_memory() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    // SAFETY: malloc_trim only releases free memory of the allocator's own arenas; it takes no
+    // pointer and is safe to call from any thread at any time.
+    unsafe {
+        libc::malloc_trim(0);
+    }
+}

@@ -1,0 +1,527 @@
+//! The link to the station: how it is reached ([`Transport`]), and the exchange loop on its own
+//! thread that connects, exchanges every period, counts failures, declares a bus fault beyond
+//! the bound and reconnects with backoff.
+
+use std::net::SocketAddr;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use tokio_modbus::Slave;
+use tokio_modbus::client::{self, rtu, tcp};
+use tokio_serial::SerialStream;
+
+use super::exchange::{Exchange, Failed, Failure};
+use super::stats::LinkStats;
+use crate::image::Value;
+use crate::runtime::bus::{MailboxReader, MailboxWriter};
+use crate::services::io::rx_counter::RxCounter;
+use crate::services::io::x20bc0087::client::{Registers, RequestError, RequestFailure};
+use crate::services::io::x20bc0087::{ErrorBits, compare, rebase};
+
+/// The first pause before connecting again after a lost link.
+pub const RECONNECT_FIRST: Duration = Duration::from_millis(50);
+/// The longest pause between connection attempts.
+pub const RECONNECT_MAX: Duration = Duration::from_secs(2);
+
+/// How the driver reaches the station.
+pub enum Transport {
+    /// Modbus TCP.
+    Tcp(SocketAddr),
+    /// Modbus RTU on a serial device at a baud rate (unit 1).
+    Serial {
+        /// The device (`/dev/ttyUSB0`, a pty, ...).
+        path: String,
+        /// Baud rate.
+        baud: u32,
+    },
+    /// Modbus RTU on a serial port that is already open (one end of a pty pair, say); it cannot
+    /// be reopened after the link is lost.
+    Port(Option<serialport::TTYPort>),
+}
+
+impl Transport {
+    /// The bus's name in logs and summaries: `tcp:ADDR`, `serial:PATH@BAUD`, `serial:port`.
+    pub(super) fn describe(&self) -> String {
+        match self {
+            Transport::Tcp(a) => format!("tcp:{a}"),
+            Transport::Serial { path, baud } => format!("serial:{path}@{baud}"),
+            Transport::Port(_) => "serial:port".into(),
+        }
+    }
+
+    /// Connects; every byte received on the link is added to `received`.
+    async fn connect(&mut self, received: &Arc<AtomicU64>) -> std::io::Result<client::Context> {
+        let serial = match self {
+            Transport::Tcp(a) => {
+                let stream = tokio::net::TcpStream::connect(*a).await?;
+                // Requests are small and each waits for its response: send at once.
+                stream.set_nodelay(true)?;
+                return Ok(tcp::attach(RxCounter::new(stream, Arc::clone(received))));
+            }
+            Transport::Serial { path, baud } => SerialStream::open(&tokio_serial::new(path.as_str(), *baud))?,
+            Transport::Port(p) => {
+                let port = p
+                    .take()
+                    .ok_or_else(|| std::io::Error::other("the serial port was lost and cannot be reopened"))?;
+                // Registered with the reactor here, in the exchange loop's runtime.
+                SerialStream::try_from(port).map_err(std::io::Error::other)?
+            }
+        };
+        Ok(rtu::attach_slave(
+            RxCounter::new(serial, Arc::clone(received)),
+            Slave(1),
+        ))
+    }
+}
+
+/// What the exchange loop and the bus on the cyclic side share.
+#[derive(Debug)]
+pub(super) struct Shared {
+    /// The bus fault: set beyond the failure bound, cleared when exchanges succeed again.
+    pub fault: AtomicBool,
+    /// Asks the loop to end.
+    pub stop: AtomicBool,
+    /// When the newest complete input image was published, in ns since `epoch`; [`NO_IMAGE`]
+    /// before the first.
+    pub image_at_ns: AtomicU64,
+    /// The origin of `image_at_ns`.
+    pub epoch: Instant,
+    /// The counters.
+    pub stats: Arc<LinkStats>,
+    /// Why the last bus fault was declared (empty before the first): set where it is declared,
+    /// read by the runtime to complete the application's "bus fault" reason.
+    pub cause: Mutex<String>,
+    /// Why the station was refused at the first connection (the loop then ended without writing).
+    pub refused: Mutex<Option<String>>,
+    /// When the cycle last handed outputs over, in ns since `epoch`; [`NO_IMAGE`] before.
+    pub outputs_at_ns: AtomicU64,
+}
+
+/// `image_at_ns` before the first complete input image.
+pub(super) const NO_IMAGE: u64 = u64::MAX;
+
+impl Shared {
+    pub(super) fn new() -> Shared {
+        Shared {
+            fault: AtomicBool::new(false),
+            stop: AtomicBool::new(false),
+            image_at_ns: AtomicU64::new(NO_IMAGE),
+            epoch: Instant::now(),
+            stats: Arc::new(LinkStats::default()),
+            cause: Mutex::new(String::new()),
+            refused: Mutex::new(None),
+            outputs_at_ns: AtomicU64::new(NO_IMAGE),
+        }
+    }
+
+    /// Declares a bus fault because of `cause` (logged as a warning with the link's `name` once
+    /// per episode: when the fault was not set already).
+    pub(super) fn declare_fault(&self, name: &str, cause: String) {
+        if !self.fault.swap(true, Ordering::Relaxed) {
+            tracing::warn!("modbus {name}: bus fault: {cause}");
+        }
+        *self.cause.lock().unwrap_or_else(|p| p.into_inner()) = cause;
+    }
+
+    /// Nanoseconds since `epoch`.
+    pub(super) fn now_ns(&self) -> u64 {
+        self.epoch.elapsed().as_nanos() as u64
+    }
+}
+
+/// The exchange loop, ready to start.
+pub(super) struct Link {
+    pub name: String,
+    pub transport: Transport,
+    pub exchange: Exchange,
+    /// Time between exchanges.
+    pub period: Duration,
+    /// More consecutive failed exchanges than this is a bus fault.
+    pub max_failures: u32,
+    /// The median time of the last [`SLOW_WINDOW`] exchanges above this is a bus fault.
+    pub max_exchange: Duration,
+    /// SCHED_FIFO priority of the exchange thread (0: normal scheduling).
+    pub priority: u8,
+    /// Outputs the cycle handed over longer ago than this are not written: a hung cycle stops
+    /// feeding the station's watchdog, which then sets the outputs safe.
+    pub max_output_age: Duration,
+    pub shared: Arc<Shared>,
+}
+
+/// How often an X20BC0087's error bits are read: every tenth exchange (50 ms at the 5 ms period),
+/// so that a cycle's exchange stays at the four requests of the process data.
+pub const STATUS_EVERY: u64 = 10;
+
+/// How long an X20BC0087's expired watchdog stands as a bus fault before the link resets it: the
+/// application answers a bus fault with ERROR (drives off) in its next main cycle, and the
+/// station takes outputs again only after that, and only while the cycle runs.
+pub const WATCHDOG_RESET_HOLD: Duration = Duration::from_millis(250);
+
+/// Why an X20BC0087 could not be made ready on a connection.
+enum NotReady {
+    /// A request failed: counted as a failed exchange, the link reconnects.
+    Failed(Failed),
+    /// The station is not the I/O map's, or did not take the watchdog setting.
+    Refused(String),
+}
+
+impl From<RequestError> for Failed {
+    fn from(e: RequestError) -> Failed {
+        let kind = match e.kind {
+            RequestFailure::Timeout => Failure::Timeout,
+            RequestFailure::Exception => Failure::Exception,
+            RequestFailure::Corrupt => Failure::Corrupt,
+            RequestFailure::Disconnected => Failure::Disconnected,
+        };
+        Failed {
+            kind,
+            cause: e.to_string(),
+        }
+    }
+}
+
+/// How many of the latest exchanges the slow-link supervision takes the median of: one or two
+/// slow exchanges (a scheduler's stall on a busy machine) do not fault, a link that is slow on
+/// every exchange faults within three of them — 100 ms when each takes 33 ms, before the
+/// regulators it delays start to oscillate.
+pub const SLOW_WINDOW: usize = 5;
+
+impl Link {
+    /// Starts the loop on a thread named `modbus`: complete input images go to `inputs`, the
+    /// newest outputs come from `outputs`. `None` (and a bus fault) if no thread could be made.
+    pub fn spawn(self, inputs: MailboxWriter, outputs: MailboxReader) -> Option<JoinHandle<()>> {
+        let shared = Arc::clone(&self.shared);
+        match std::thread::Builder::new()
+            .name("modbus".into())
+            .spawn(move || self.run(inputs, outputs))
+        {
+            Ok(handle) => Some(handle),
+            Err(e) => {
+                tracing::error!("modbus: cannot start the exchange thread: {e}");
+                shared.fault.store(true, Ordering::Relaxed);
+                None
+            }
+        }
+    }
+
+    fn run(mut self, mut inputs: MailboxWriter, mut outputs: MailboxReader) {
+        // The exchange carries the cycle's outputs to the station: starved by other processes,
+        // it delivers set-points late and in bursts (a stepper loses steps on such a jump).
+        // Refused where the process may not (the cyclic thread's own warning says so).
+        if self.priority > 0
+            && let Err(e) = crate::runtime::timing::set_realtime_priority(self.priority)
+        {
+            tracing::debug!("modbus: the exchange thread runs at normal priority: {e}");
+        }
+        let runtime = match tokio::runtime::Builder::new_current_thread().enable_all().build() {
+            Ok(r) => r,
+            Err(e) => {
+                tracing::error!("modbus: cannot start the exchange loop: {e}");
+                self.shared.fault.store(true, Ordering::Relaxed);
+                return;
+            }
+        };
+        runtime.block_on(self.exchange_loop(&mut inputs, &mut outputs));
+    }
+
+    async fn exchange_loop(&mut self, inputs: &mut MailboxWriter, outputs: &mut MailboxReader) {
+        let shared = Arc::clone(&self.shared);
+        let received = Arc::new(AtomicU64::new(0));
+        let mut failures = 0u32;
+        // The pause before the next connection attempt: doubled after every attempt that gave no
+        // successful exchange (a refused connection, or a station that accepts and closes at
+        // once — which without it made 4774 attempts in 5 s), back to the first after one that
+        // did.
+        let mut backoff = RECONNECT_FIRST;
+        // The latest exchanges' durations (ns), for the slow-link supervision.
+        let mut recent = [0u64; SLOW_WINDOW];
+        let mut taken = 0usize;
+        let mut slow = false;
+        let mut out_values: Vec<Value> = self.exchange.outputs.iter().map(|s| Value::zero(s.ty)).collect();
+        let mut in_values: Vec<Value> = self.exchange.inputs.iter().map(|s| Value::zero(s.ty)).collect();
+        // An X20BC0087's state: whether it was made ready on a connection before (a refusal
+        // after that is a bus fault, not the end of the run), whether it reports a fault, and
+        // since when its watchdog is expired.
+        let mut ready_once = false;
+        let mut station_fault = false;
+        let mut expired_since: Option<Instant> = None;
+        let mut exchanges = 0u64;
+        // Whether the outputs are written (false while the cycle publishes none).
+        let mut writing = true;
+        while !shared.stop.load(Ordering::Relaxed) {
+            let connected = tokio::time::timeout(self.exchange.timeout, self.transport.connect(&received)).await;
+            let mut ctx = match connected {
+                Ok(Ok(ctx)) => ctx,
+                other => {
+                    let cause = match other {
+                        Ok(Err(e)) => format!("cannot connect: {e}"),
+                        _ => format!("no connection within {} ms", self.exchange.timeout.as_millis()),
+                    };
+                    let failed = Failed {
+                        kind: Failure::Disconnected,
+                        cause,
+                    };
+                    self.after_failure(&mut failures, &mut backoff, &failed, true).await;
+                    continue;
+                }
+            };
+            match self.make_ready(&mut ctx, !ready_once).await {
+                Ok(None) => ready_once = true,
+                Ok(Some(faults)) => {
+                    ready_once = true;
+                    // Found on reconnecting: the station zeroed the outputs while the link was
+                    // away. A bus fault, which the status reads keep and end as usual.
+                    shared.declare_fault(
+                        &self.name,
+                        format!("the X20BC0087 reports {}", faults.names().join(", ")),
+                    );
+                    station_fault = true;
+                    if faults.has(ErrorBits::WATCHDOG_EXPIRED) {
+                        expired_since.get_or_insert_with(Instant::now);
+                    }
+                }
+                Err(NotReady::Failed(f)) => {
+                    self.after_failure(&mut failures, &mut backoff, &f, true).await;
+                    continue;
+                }
+                Err(NotReady::Refused(why)) if !ready_once => {
+                    // Said once, by the run that ends on it; nothing was written to the station.
+                    *shared.cause.lock().unwrap_or_else(|p| p.into_inner()) = why.clone();
+                    *shared.refused.lock().unwrap_or_else(|p| p.into_inner()) = Some(why);
+                    shared.fault.store(true, Ordering::Relaxed);
+                    return;
+                }
+                Err(NotReady::Refused(why)) => {
+                    shared.declare_fault(&self.name, why);
+                    tokio::time::sleep(backoff).await;
+                    backoff = (backoff * 2).min(RECONNECT_MAX);
+                    continue;
+                }
+            }
+            let mut tick = tokio::time::interval(self.period);
+            tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+            while !shared.stop.load(Ordering::Relaxed) {
+                tick.tick().await;
+                outputs.take_latest(&mut out_values);
+                let fresh = self.outputs_fresh();
+                if fresh != writing {
+                    writing = fresh;
+                    if fresh {
+                        tracing::info!(
+                            "modbus {}: the cycle publishes outputs again: they are written",
+                            self.name
+                        );
+                    } else {
+                        tracing::warn!(
+                            "modbus {}: the cycle has handed over no outputs for {} ms: they are no longer written, so the \
+                             station's watchdog sets them safe",
+                            self.name,
+                            self.max_output_age.as_millis()
+                        );
+                    }
+                }
+                let started = Instant::now();
+                match self
+                    .exchange
+                    .run(&mut ctx, &received, &mut in_values, writing.then_some(&out_values[..]))
+                    .await
+                {
+                    Ok(()) => {
+                        backoff = RECONNECT_FIRST;
+                        inputs.publish(&in_values);
+                        shared.image_at_ns.store(shared.now_ns(), Ordering::Release);
+                        let took = started.elapsed().as_nanos() as u64;
+                        shared.stats.succeeded(took);
+                        failures = 0;
+                        recent[taken % SLOW_WINDOW] = took;
+                        taken += 1;
+                        let mut sorted = recent;
+                        sorted.sort_unstable();
+                        let median = sorted[SLOW_WINDOW / 2];
+                        if taken >= SLOW_WINDOW && Duration::from_nanos(median) > self.max_exchange {
+                            if !slow {
+                                slow = true;
+                                shared.stats.slow.fetch_add(1, Ordering::Relaxed);
+                            }
+                            shared.declare_fault(
+                                &self.name,
+                                format!(
+                                    "the link is too slow: its exchanges take {:.1} ms (the median of the last {SLOW_WINDOW}), over the {} ms the drive regulators are tuned for (--max-exchange-ms)",
+                                    median as f64 / 1e6,
+                                    self.max_exchange.as_millis()
+                                ),
+                            );
+                            continue;
+                        }
+                        slow = false;
+                        exchanges += 1;
+                        if self.exchange.bus_controller.is_some() && exchanges.is_multiple_of(STATUS_EVERY) {
+                            match self.station_status(&mut ctx, &mut expired_since, writing).await {
+                                Ok(fault) => station_fault = fault,
+                                Err(f) => {
+                                    if self.after_failure(&mut failures, &mut backoff, &f, false).await {
+                                        break;
+                                    }
+                                    continue;
+                                }
+                            }
+                        }
+                        if station_fault {
+                            continue;
+                        }
+                        if shared.fault.swap(false, Ordering::Relaxed) {
+                            tracing::info!(
+                                "modbus {}: the link works again (the machine stays in ERROR until acknowledged)",
+                                self.name
+                            );
+                        }
+                    }
+                    Err(f) => {
+                        if self.after_failure(&mut failures, &mut backoff, &f, false).await {
+                            break;
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    /// Counts the failed exchange `f`; when the link is to be opened again after it (`reconnect`,
+    /// or a failure that calls for it), waits the back-off and doubles it, and says so (true).
+    async fn after_failure(&self, failures: &mut u32, backoff: &mut Duration, f: &Failed, reconnect: bool) -> bool {
+        self.shared.stats.failed(f.kind);
+        self.failed(failures, f);
+        if !(reconnect || self.reconnects_after(f.kind)) {
+            return false;
+        }
+        tokio::time::sleep(*backoff).await;
+        *backoff = (*backoff * 2).min(RECONNECT_MAX);
+        true
+    }
+
+    /// Whether the outputs the cycle handed over last are recent enough to be written (before the
+    /// first, the zero outputs are: they are safe, and they keep the station's watchdog fed
+    /// while the run waits for its first cycle).
+    fn outputs_fresh(&self) -> bool {
+        let at = self.shared.outputs_at_ns.load(Ordering::Acquire);
+        at == NO_IMAGE || Duration::from_nanos(self.shared.now_ns().saturating_sub(at)) <= self.max_output_age
+    }
+
+    /// On an X20BC0087, on every connection: checks the module table against the I/O map,
+    /// takes the station's own data indexes, and sets the watchdog (never trusting a stored
+    /// setting). Nothing else has been sent on the connection yet. `first`: the run's first
+    /// connection (notes about IDs the map does not pin are logged then). On the first
+    /// connection the watchdog is reset (an expiry then is a former controller's, and this run's
+    /// outputs start safe); on a later one, a station that reports faults — its watchdog expired
+    /// while the link was away — keeps them, returned (`Some`) for the link to raise.
+    async fn make_ready(&mut self, ctx: &mut client::Context, first: bool) -> Result<Option<ErrorBits>, NotReady> {
+        let Some(bc) = &self.exchange.bus_controller else {
+            return Ok(None);
+        };
+        let mut registers = Registers::new(ctx, self.exchange.timeout);
+        let table = registers.module_table().await.map_err(|e| NotReady::Failed(e.into()))?;
+        let notes = compare(&bc.expected, &table).map_err(|m| {
+            NotReady::Refused(format!(
+                "the X20BC0087 at {} holds other modules than the I/O map says, so nothing is written to it: {m}",
+                self.name
+            ))
+        })?;
+        if first {
+            for note in notes {
+                tracing::warn!("modbus {}: {note}", self.name);
+            }
+        }
+        if let Err(why) = registers
+            .configure_watchdog(bc.watchdog_ms)
+            .await
+            .map_err(|e| NotReady::Failed(e.into()))?
+        {
+            return Err(NotReady::Refused(format!("the X20BC0087 at {}: {why}", self.name)));
+        }
+        let (_, bits) = registers.errors().await.map_err(|e| NotReady::Failed(e.into()))?;
+        let faults = ErrorBits(bits.0 & ErrorBits::FAULTS);
+        let kept = (!first && faults.0 != 0).then_some(faults);
+        if kept.is_none() {
+            registers
+                .reset_watchdog()
+                .await
+                .map_err(|e| NotReady::Failed(e.into()))?;
+        }
+        let rebased = rebase(&bc.registers, &table).map_err(|m| {
+            NotReady::Refused(format!(
+                "the X20BC0087 at {} assigns data the soft-PLC cannot address, so nothing is written to it: {m}",
+                self.name
+            ))
+        })?;
+        let watchdog_ms = bc.watchdog_ms;
+        self.exchange.rebase(&rebased);
+        if first {
+            tracing::info!(
+                "modbus {}: X20BC0087 with the I/O map's {} modules; its watchdog set to {watchdog_ms} ms, reset by \
+                 writes only",
+                self.name,
+                table.len(),
+            );
+        }
+        Ok(kept)
+    }
+
+    /// Reads an X20BC0087's error bits: "module mismatch", "module runtime error" and "watchdog
+    /// expired" are a bus fault while they last (`Ok(true)`). An expired watchdog is reset
+    /// once it has stood [`WATCHDOG_RESET_HOLD`] and only while the cycle's outputs are
+    /// written (`writing`).
+    async fn station_status(
+        &self,
+        ctx: &mut client::Context,
+        expired_since: &mut Option<Instant>,
+        writing: bool,
+    ) -> Result<bool, Failed> {
+        let mut registers = Registers::new(ctx, self.exchange.timeout);
+        let (_, bits) = registers.errors().await?;
+        let faults = ErrorBits(bits.0 & ErrorBits::FAULTS);
+        if faults.0 == 0 {
+            *expired_since = None;
+            return Ok(false);
+        }
+        self.shared.declare_fault(
+            &self.name,
+            format!("the X20BC0087 reports {}", faults.names().join(", ")),
+        );
+        if faults.has(ErrorBits::WATCHDOG_EXPIRED) {
+            let since = *expired_since.get_or_insert_with(Instant::now);
+            if writing && since.elapsed() >= WATCHDOG_RESET_HOLD {
+                registers.reset_watchdog().await?;
+                *expired_since = None;
+                tracing::info!(
+                    "modbus {}: the X20BC0087's watchdog reset: the station takes the outputs again (the machine stays \
+                     in ERROR until acknowledged)",
+                    self.name
+                );
+            }
+        }
+        Ok(true)
+    }
+
+    /// Whether the link is opened again after failure `f`. A lost link is. Over TCP a timeout or
+    /// a damaged response leaves the stream out of step, so it is too; an RTU decoder finds the
+    /// next frame by itself, and a serial port handed over open could not be reopened.
+    fn reconnects_after(&self, f: Failure) -> bool {
+        match f {
+            Failure::Disconnected => true,
+            Failure::Timeout | Failure::Corrupt => matches!(self.transport, Transport::Tcp(_)),
+            Failure::Exception => false,
+        }
+    }
+
+    fn failed(&self, failures: &mut u32, last: &Failed) {
+        *failures += 1;
+        if *failures > self.max_failures {
+            self.shared.declare_fault(
+                &self.name,
+                format!("{failures} failed exchanges in a row, the last: {}", last.cause),
+            );
+        }
+    }
+}

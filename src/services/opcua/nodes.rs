@@ -1,0 +1,134 @@
+//! The server's node manager for the run's namespace: its nodes live in memory (each frame's
+//! changes are written into them, reads and subscriptions read them there), and its methods are
+//! called with the session's user — so the log names who commanded the machine.
+
+use std::collections::HashMap;
+use std::sync::{Mutex, OnceLock};
+use std::time::Instant;
+
+use async_trait::async_trait;
+use opcua::server::address_space::AddressSpace;
+use opcua::server::diagnostics::NamespaceMetadata;
+use opcua::server::node_manager::memory::{InMemoryNodeManager, InMemoryNodeManagerBuilder, InMemoryNodeManagerImpl};
+use opcua::server::node_manager::{MethodCall, NodeManagerBuilder, RequestContext, ServerContext};
+use opcua::sync::RwLock;
+use opcua::types::{NodeId, StatusCode, Variant};
+use tracing::info;
+
+use super::server::{CallRate, command};
+use super::space::{Method, NAMESPACE};
+use crate::runtime::frame::FrameFeed;
+use crate::services::hmi::commands::CommandSink;
+
+/// The node manager of the run's namespace.
+pub type PlcNodeManager = InMemoryNodeManager<PlcNodes>;
+
+/// The run's nodes: the namespace, and where its methods' commands go (set once the address
+/// space is built).
+pub struct PlcNodes {
+    namespaces: Vec<NamespaceMetadata>,
+    commander: OnceLock<Commander>,
+}
+
+/// What the methods need: which node is which method, the newest frame's state, where commands
+/// go, the run's programs, the bound on calls.
+pub struct Commander {
+    /// The methods' nodes.
+    pub methods: HashMap<NodeId, Method>,
+    /// The frames (the state the methods check).
+    pub feed: FrameFeed,
+    /// Where commands go.
+    pub sink: CommandSink,
+    /// The run's programs, numbered from 1 for `Load`.
+    pub programs: Vec<String>,
+    /// The bound on calls, all sessions together.
+    pub rate: Mutex<CallRate>,
+}
+
+/// The builder the server is given: registers [`NAMESPACE`].
+pub fn builder() -> impl NodeManagerBuilder {
+    InMemoryNodeManagerBuilder::new(|context: ServerContext, space: &mut AddressSpace| {
+        let index = context.type_tree.write().namespaces_mut().add_namespace(NAMESPACE);
+        space.add_namespace(NAMESPACE, index);
+        PlcNodes {
+            namespaces: vec![NamespaceMetadata {
+                namespace_uri: NAMESPACE.to_owned(),
+                namespace_index: index,
+                ..Default::default()
+            }],
+            commander: OnceLock::new(),
+        }
+    })
+}
+
+impl PlcNodes {
+    /// Gives the methods their commander; `false` if they had one already (it is given once).
+    pub fn set_commander(&self, commander: Commander) -> bool {
+        self.commander.set(commander).is_ok()
+    }
+}
+
+impl Commander {
+    /// Carries out `method` for `user`: logged with the user's name and the outcome.
+    fn call(&self, method: Method, args: &[Variant], user: &str) -> Result<Vec<Variant>, StatusCode> {
+        if !self
+            .rate
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .allow(Instant::now())
+        {
+            return Err(StatusCode::BadTooManyOperations);
+        }
+        let state = self.feed.latest().status.state.clone();
+        match command(method, args, &state, &self.programs, &self.sink) {
+            Ok(done) => {
+                info!("OPC UA: user \"{user}\": {}: {done}", method.name());
+                Ok(vec![Variant::from(done)])
+            }
+            Err((code, why)) => {
+                info!("OPC UA: user \"{user}\": {} refused ({code}): {why}", method.name());
+                Err(code)
+            }
+        }
+    }
+}
+
+#[async_trait]
+impl InMemoryNodeManagerImpl for PlcNodes {
+    async fn init(&self, _address_space: &mut AddressSpace, _context: ServerContext) {}
+
+    fn name(&self) -> &str {
+        "pkm-plc"
+    }
+
+    fn namespaces(&self) -> Vec<NamespaceMetadata> {
+        self.namespaces.clone()
+    }
+
+    /// The server has checked that the method exists on its object, that the arguments fit its
+    /// declaration and that the session's user may execute it (anonymous sessions may not).
+    async fn call(
+        &self,
+        context: &RequestContext,
+        _address_space: &RwLock<AddressSpace>,
+        methods_to_call: &mut [&mut &mut MethodCall],
+    ) -> Result<(), StatusCode> {
+        let Some(commander) = self.commander.get() else {
+            return Err(StatusCode::BadServiceUnsupported);
+        };
+        let user = &context.user_token().0;
+        for call in methods_to_call {
+            match commander.methods.get(call.method_id()) {
+                Some(&method) => match commander.call(method, call.arguments(), user) {
+                    Ok(outputs) => {
+                        call.set_outputs(outputs);
+                        call.set_status(StatusCode::Good);
+                    }
+                    Err(code) => call.set_status(code),
+                },
+                None => call.set_status(StatusCode::BadMethodInvalid),
+            }
+        }
+        Ok(())
+    }
+}

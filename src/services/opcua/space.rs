@@ -1,0 +1,471 @@
+//! The OPC UA address space of a run, in the namespace [`NAMESPACE`]:
+//!
+//! ```text
+//! Objects
+//! └─ PkmPlc
+//!    └─ MACHINE                        the running machine (hexapod, trijoint, …)
+//!       ├─ State, Reason, Note         the main state, its error reason, the note to the operator
+//!       ├─ BusFault, Configuration
+//!       ├─ Status/                      the values the main program shows (x, y, q1, …: Double)
+//!       ├─ Program/                     the NC program's variables (NC_LINE, NC_STATE, NC_RUN_S, …)
+//!       ├─ TaskClasses/
+//!       │  └─ CLASS/                    per task class: Cycles, Overruns, Violations, CycleTimeMs,
+//!       │     │                         LatenessMeanUs/MaxUs, ExecMeanUs/MaxUs
+//!       │     └─ Variables/             every process-image variable the class writes or latches
+//!       └─ Stop() Acknowledge() Start() Hold() Resume() Load(Program)
+//! ```
+//!
+//! A process-image variable's node id is `ns=…;s=MACHINE.NAME`, its browse name its name, its
+//! data type the OPC UA type of its IEC type (BOOL → Boolean, INT → Int16, UINT → UInt16, DINT →
+//! Int32, REAL → Double), with the IEC type itself as the property `IecType` and, where the name
+//! tells it, the unit as the property `EngineeringUnits`. Every variable is read-only.
+
+use std::collections::HashMap;
+
+use opcua::server::address_space::{AccessLevel, AddressSpace, MethodBuilder, ObjectBuilder, VariableBuilder};
+use opcua::types::{
+    DataTypeId, DataValue, DateTime, EUInformation, ExtensionObject, LocalizedText, NodeId, ObjectId, QualifiedName,
+    ReferenceTypeId, UAString, VariableTypeId, Variant,
+};
+
+use crate::image::{Value, VarType};
+use crate::runtime::frame::Frame;
+
+/// The namespace of the run's nodes.
+pub const NAMESPACE: &str = "urn:pkm-plc";
+
+/// What the address space is built from.
+#[derive(Clone, Debug)]
+pub struct SpaceInfo {
+    /// The machine's name (`runtime` without one).
+    pub machine: String,
+    /// The configuration's file.
+    pub config: String,
+    /// The task classes: name and cycle time (ns), in configuration order.
+    pub classes: Vec<(String, u64)>,
+    /// Every process-image variable, in the image's order.
+    pub variables: Vec<VarNode>,
+    /// The run's NC programs (files), numbered from 1 for `Load`.
+    pub programs: Vec<String>,
+}
+
+/// A process-image variable as the address space shows it.
+#[derive(Clone, Debug)]
+pub struct VarNode {
+    /// Its name.
+    pub name: String,
+    /// Its IEC type.
+    pub ty: VarType,
+    /// The task class it belongs to: the one whose program writes it or whose cycle latches it.
+    pub class: usize,
+    /// Who writes it, for its description.
+    pub writer: String,
+}
+
+/// The commands, as methods of the machine's object.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Method {
+    /// STOP (outside ERROR).
+    Stop,
+    /// Acknowledge the error (in ERROR).
+    Acknowledge,
+    /// Program start.
+    Start,
+    /// Program hold.
+    Hold,
+    /// Program resume.
+    Resume,
+    /// Load a program of the run by its number.
+    Load,
+}
+
+impl Method {
+    /// All of them.
+    pub const ALL: [Method; 6] = [
+        Method::Stop,
+        Method::Acknowledge,
+        Method::Start,
+        Method::Hold,
+        Method::Resume,
+        Method::Load,
+    ];
+
+    /// Its browse name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::Stop => "Stop",
+            Method::Acknowledge => "Acknowledge",
+            Method::Start => "Start",
+            Method::Hold => "Hold",
+            Method::Resume => "Resume",
+            Method::Load => "Load",
+        }
+    }
+
+    fn description(self) -> &'static str {
+        match self {
+            Method::Stop => {
+                "STOP, as the panel's button: the machine stops and goes to ERROR (refused in ERROR: Acknowledge acknowledges)"
+            }
+            Method::Acknowledge => "Acknowledges the error: from ERROR to INIT (refused outside ERROR)",
+            Method::Start => "Starts the loaded NC program (from READY)",
+            Method::Hold => "Holds the running NC program (a controlled stop on the path)",
+            Method::Resume => "Resumes the held NC program",
+            Method::Load => {
+                "Loads the run's NC program of this number (from 1) in place of the loaded one (refused while one runs)"
+            }
+        }
+    }
+}
+
+/// The node ids of a built address space and the values last written to them.
+pub struct Space {
+    ns: u16,
+    machine: String,
+    vars: Vec<NodeId>,
+    last: Vec<Option<Value>>,
+    state: [NodeId; 4],
+    last_state: Option<(String, String, String, bool)>,
+    classes: Vec<[NodeId; 7]>,
+    status_folder: NodeId,
+    status: HashMap<&'static str, NodeId>,
+    /// The machine object's node (the methods' object).
+    pub object: NodeId,
+    /// The methods' nodes.
+    pub methods: Vec<(Method, NodeId)>,
+}
+
+/// The OPC UA data type of an IEC type.
+pub fn data_type(ty: VarType) -> DataTypeId {
+    match ty {
+        VarType::Bool => DataTypeId::Boolean,
+        VarType::Int => DataTypeId::Int16,
+        VarType::Uint => DataTypeId::UInt16,
+        VarType::Dint => DataTypeId::Int32,
+        VarType::Real => DataTypeId::Double,
+    }
+}
+
+/// A process-image value as a variant of its OPC UA type.
+pub fn variant(v: Value) -> Variant {
+    match v {
+        Value::Bool(b) => Variant::Boolean(b),
+        Value::Int(i) => Variant::Int16(i),
+        Value::Uint(u) => Variant::UInt16(u),
+        Value::Dint(d) => Variant::Int32(d),
+        Value::Real(r) => Variant::Double(r),
+    }
+}
+
+/// OPC UA's DateTime (100 ns ticks since 1601-01-01) of a wall-clock time in µs since the Unix
+/// epoch.
+pub fn date_time(unix_us: u64) -> DateTime {
+    const UNIX_EPOCH_TICKS: i64 = 11_644_473_600 * 10_000_000;
+    DateTime::from(UNIX_EPOCH_TICKS.saturating_add((unix_us as i64).saturating_mul(10)))
+}
+
+/// The figures of a task class, in the order of [`Space`]'s class nodes.
+const CLASS_FIGURES: [(&str, DataTypeId, &str); 7] = [
+    ("Cycles", DataTypeId::UInt64, "cycles run"),
+    ("Overruns", DataTypeId::UInt64, "cycles that overran their cycle time"),
+    (
+        "Violations",
+        DataTypeId::UInt64,
+        "cycles that started later than the tolerance",
+    ),
+    ("LatenessMeanUs", DataTypeId::Double, "mean start lateness (µs)"),
+    ("LatenessMaxUs", DataTypeId::Double, "largest start lateness (µs)"),
+    ("ExecMeanUs", DataTypeId::Double, "mean execution time (µs)"),
+    ("ExecMaxUs", DataTypeId::Double, "largest execution time (µs)"),
+];
+
+impl Space {
+    /// Builds the nodes of `info` into `space` (namespace index `ns`), with the values of
+    /// `first`.
+    pub fn build(space: &mut AddressSpace, ns: u16, info: &SpaceInfo, first: &Frame) -> Space {
+        let id = |path: &str| NodeId::new(ns, format!("{}.{path}", info.machine));
+        let root = NodeId::new(ns, "PkmPlc");
+        ObjectBuilder::new(&root, QualifiedName::new(ns, "PkmPlc"), "PkmPlc")
+            .description("pkm-plc, a soft-PLC for parallel-kinematic machine models")
+            .organized_by(ObjectId::ObjectsFolder)
+            .insert(space);
+        let object = NodeId::new(ns, info.machine.clone());
+        ObjectBuilder::new(
+            &object,
+            QualifiedName::new(ns, info.machine.as_str()),
+            info.machine.as_str(),
+        )
+        .description(format!("The {} machine of this run", info.machine))
+        .organized_by(root.clone())
+        .insert(space);
+        let text_var =
+            |space: &mut AddressSpace, node: &NodeId, name: &str, value: Variant, ty: DataTypeId, about: &str| {
+                VariableBuilder::new(node, QualifiedName::new(ns, name), name)
+                    .description(about)
+                    .data_type(ty)
+                    .value(value)
+                    .access_level(AccessLevel::CURRENT_READ)
+                    .user_access_level(AccessLevel::CURRENT_READ)
+                    .has_type_definition(VariableTypeId::BaseDataVariableType)
+                    .component_of(object.clone())
+                    .insert(space);
+            };
+        let state = [id("State"), id("Reason"), id("Note"), id("BusFault")];
+        text_var(
+            space,
+            &state[0],
+            "State",
+            Variant::from(""),
+            DataTypeId::String,
+            "the main state (REBOOT, INIT, READY, MOTION, AUTO, ERROR)",
+        );
+        text_var(
+            space,
+            &state[1],
+            "Reason",
+            Variant::from(""),
+            DataTypeId::String,
+            "the error reason in ERROR, else empty",
+        );
+        text_var(
+            space,
+            &state[2],
+            "Note",
+            Variant::from(""),
+            DataTypeId::String,
+            "the main program's note to the operator",
+        );
+        text_var(
+            space,
+            &state[3],
+            "BusFault",
+            Variant::Boolean(false),
+            DataTypeId::Boolean,
+            "the field bus reports a fault",
+        );
+        text_var(
+            space,
+            &id("Configuration"),
+            "Configuration",
+            Variant::from(info.config.as_str()),
+            DataTypeId::String,
+            "the configuration this run was built from",
+        );
+
+        let folder = |space: &mut AddressSpace, node: &NodeId, name: &str, parent: &NodeId| {
+            ObjectBuilder::new(node, QualifiedName::new(ns, name), name)
+                .is_folder()
+                .organized_by(parent.clone())
+                .insert(space);
+        };
+        let status_folder = id("Status");
+        folder(space, &status_folder, "Status", &object);
+        let program = id("Program");
+        folder(space, &program, "Program", &object);
+        let classes_folder = id("TaskClasses");
+        folder(space, &classes_folder, "TaskClasses", &object);
+
+        let mut classes = Vec::with_capacity(info.classes.len());
+        let mut class_vars = Vec::with_capacity(info.classes.len());
+        for (name, period_ns) in &info.classes {
+            let class = id(&format!("TaskClasses.{name}"));
+            folder(space, &class, name, &classes_folder);
+            let figure = |what: &str| id(&format!("TaskClasses.{name}.{what}"));
+            VariableBuilder::new(
+                &figure("CycleTimeMs"),
+                QualifiedName::new(ns, "CycleTimeMs"),
+                "CycleTimeMs",
+            )
+            .description("the class's cycle time (ms)")
+            .data_type(DataTypeId::Double)
+            .value(*period_ns as f64 / 1e6)
+            .organized_by(class.clone())
+            .insert(space);
+            let nodes = CLASS_FIGURES.map(|(what, ty, about)| {
+                let node = figure(what);
+                let zero = if ty == DataTypeId::UInt64 {
+                    Variant::UInt64(0)
+                } else {
+                    Variant::Double(0.0)
+                };
+                VariableBuilder::new(&node, QualifiedName::new(ns, what), what)
+                    .description(about)
+                    .data_type(ty)
+                    .value(zero)
+                    .organized_by(class.clone())
+                    .insert(space);
+                node
+            });
+            classes.push(nodes);
+            let vars = figure("Variables");
+            folder(space, &vars, "Variables", &class);
+            class_vars.push(vars);
+        }
+
+        let mut vars = Vec::with_capacity(info.variables.len());
+        for (k, v) in info.variables.iter().enumerate() {
+            let node = id(&v.name);
+            let parent = class_vars.get(v.class).unwrap_or(&classes_folder).clone();
+            let unit = super::units::of(&v.name);
+            let about = match unit {
+                Some(u) => format!("{} ({}), written by {}", v.ty, u.symbol, v.writer),
+                None => format!("{}, written by {}", v.ty, v.writer),
+            };
+            let value = first.image.get(k).copied().unwrap_or(Value::zero(v.ty));
+            VariableBuilder::new(&node, QualifiedName::new(ns, v.name.as_str()), v.name.as_str())
+                .description(about)
+                .data_type(data_type(v.ty))
+                .value(variant(value))
+                .access_level(AccessLevel::CURRENT_READ)
+                .user_access_level(AccessLevel::CURRENT_READ)
+                .minimum_sampling_interval(0.0)
+                .has_type_definition(if unit.is_some() {
+                    VariableTypeId::AnalogItemType
+                } else {
+                    VariableTypeId::BaseDataVariableType
+                })
+                .organized_by(parent)
+                .insert(space);
+            // IecType is this namespace's; EngineeringUnits the standard property (namespace 0).
+            let property = |space: &mut AddressSpace, name: QualifiedName, ty: DataTypeId, value: Variant| {
+                let p = id(&format!("{}.{}", v.name, name.name));
+                let display = name.name.to_string();
+                VariableBuilder::new(&p, name, display)
+                    .data_type(ty)
+                    .value(value)
+                    .has_type_definition(VariableTypeId::PropertyType)
+                    .property_of(node.clone())
+                    .insert(space);
+            };
+            property(
+                space,
+                QualifiedName::new(ns, "IecType"),
+                DataTypeId::String,
+                Variant::from(v.ty.to_string()),
+            );
+            if let Some(u) = unit {
+                let eu = EUInformation {
+                    namespace_uri: UAString::from(super::units::UNECE_NAMESPACE),
+                    unit_id: u.unit_id(),
+                    display_name: LocalizedText::new("", u.symbol),
+                    description: LocalizedText::new("", u.name),
+                };
+                property(
+                    space,
+                    QualifiedName::new(0, "EngineeringUnits"),
+                    DataTypeId::EUInformation,
+                    Variant::from(ExtensionObject::from_message(eu)),
+                );
+            }
+            if v.name.starts_with("NC_") || v.name.starts_with("SPINDLE_") {
+                space.insert_reference(&program, &node, ReferenceTypeId::Organizes);
+            }
+            vars.push(node);
+        }
+
+        let mut methods = Vec::with_capacity(Method::ALL.len());
+        for m in Method::ALL {
+            let node = id(m.name());
+            let mut builder = MethodBuilder::new(&node, QualifiedName::new(ns, m.name()), m.name())
+                .description(m.description())
+                .executable(true)
+                .user_executable(true)
+                .component_of(object.clone());
+            if m == Method::Load {
+                builder = builder.input_args(
+                    space,
+                    &id("Load.InputArguments"),
+                    &[("Program", DataTypeId::Int16).into()],
+                );
+            }
+            builder = builder.output_args(
+                space,
+                &id(&format!("{}.OutputArguments", m.name())),
+                &[("Result", DataTypeId::String).into()],
+            );
+            builder.insert(space);
+            methods.push((m, node));
+        }
+
+        Space {
+            ns,
+            machine: info.machine.clone(),
+            last: vec![None; vars.len()],
+            vars,
+            state,
+            last_state: None,
+            classes,
+            status_folder,
+            status: HashMap::new(),
+            object,
+            methods,
+        }
+    }
+
+    /// The changes `frame` brings: every variable whose value changed, the state's texts when
+    /// they changed, the classes' figures. Status values seen for the first time get their node
+    /// (in `space`).
+    pub fn changes(&mut self, space: &mut AddressSpace, frame: &Frame) -> Vec<(NodeId, DataValue)> {
+        let at = date_time(frame.published_unix_us);
+        let value = |v: Variant| DataValue {
+            value: Some(v),
+            status: None,
+            source_timestamp: Some(at),
+            source_picoseconds: None,
+            server_timestamp: Some(at),
+            server_picoseconds: None,
+        };
+        let mut out = Vec::new();
+        for (k, v) in frame.image.iter().enumerate() {
+            if let Some(node) = self.vars.get(k)
+                && self.last[k] != Some(*v)
+            {
+                self.last[k] = Some(*v);
+                out.push((node.clone(), value(variant(*v))));
+            }
+        }
+        let s = &frame.status;
+        let state = (s.state.clone(), s.reason.clone(), s.note.clone(), frame.bus_fault);
+        if self.last_state.as_ref() != Some(&state) {
+            out.push((self.state[0].clone(), value(Variant::from(state.0.as_str()))));
+            out.push((self.state[1].clone(), value(Variant::from(state.1.as_str()))));
+            out.push((self.state[2].clone(), value(Variant::from(state.2.as_str()))));
+            out.push((self.state[3].clone(), value(Variant::Boolean(state.3))));
+            self.last_state = Some(state);
+        }
+        for (c, nodes) in s.classes.iter().zip(&self.classes) {
+            let figures = [
+                Variant::UInt64(c.cycles),
+                Variant::UInt64(c.overruns),
+                Variant::UInt64(c.violations),
+                Variant::Double(c.lateness_mean_ns / 1e3),
+                Variant::Double(c.lateness_max_ns as f64 / 1e3),
+                Variant::Double(c.exec_mean_ns / 1e3),
+                Variant::Double(c.exec_max_ns as f64 / 1e3),
+            ];
+            for (node, v) in nodes.iter().zip(figures) {
+                out.push((node.clone(), value(v)));
+            }
+        }
+        for (name, v) in &s.values {
+            let node = match self.status.get(name) {
+                Some(node) => node.clone(),
+                None => {
+                    let node = NodeId::new(self.ns, format!("{}.Status.{name}", self.machine));
+                    VariableBuilder::new(&node, QualifiedName::new(self.ns, *name), *name)
+                        .description("a value the main program shows with its state")
+                        .data_type(DataTypeId::Double)
+                        .value(*v)
+                        .access_level(AccessLevel::CURRENT_READ)
+                        .user_access_level(AccessLevel::CURRENT_READ)
+                        .organized_by(self.status_folder.clone())
+                        .insert(space);
+                    self.status.insert(name, node.clone());
+                    node
+                }
+            };
+            out.push((node, value(Variant::Double(*v))));
+        }
+        out
+    }
+}
