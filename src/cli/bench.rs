@@ -6,13 +6,17 @@
 
 use serde::Serialize;
 
+use super::args::BenchArgs;
+use super::{Failure, OutputFile};
 use pkm_plc::compose::selftest;
 use pkm_plc::program::Registry;
 use pkm_plc::runtime::bus::NoBus;
+use pkm_plc::runtime::config;
 use pkm_plc::runtime::config::{Config, ProgramEntry, Reaction, TaskClassConfig, TimeSourceKind, TimingConfig};
 use pkm_plc::runtime::plc::Plc;
 use pkm_plc::runtime::run::{RealTimeOptions, RunError, start_realtime};
 use pkm_plc::runtime::stats::StatSummary;
+use tracing::info;
 
 /// What to measure.
 #[derive(Clone, Debug)]
@@ -158,4 +162,34 @@ pub fn table(rows: &[BenchRow]) -> String {
         out.push_str("* SCHED_FIFO was refused: that row ran with normal scheduling\n");
     }
     out
+}
+
+/// The `bench` subcommand: runs it as `args` ask and prints its report.
+pub fn command(args: BenchArgs) -> Result<(), Failure> {
+    let options = BenchOptions {
+        seconds: args.seconds,
+        cycle_us: args.cycle_us,
+        sources: args
+            .sources
+            .iter()
+            .map(|s| TimeSourceKind::from(*s).resolve())
+            .collect(),
+        realtime_priority: args.realtime_priority,
+        spin_us: args.spin_us,
+    };
+    if !(config::MIN_CYCLE_US..=config::MAX_CYCLE_US).contains(&options.cycle_us) {
+        return Err(Failure::usage(format!(
+            "--cycle-us must be between {} and {}",
+            config::MIN_CYCLE_US,
+            config::MAX_CYCLE_US
+        )));
+    }
+    let json_file = args.json.as_deref().map(OutputFile::create).transpose()?;
+    let rows = run(&options, |row| info!("measuring {row}")).map_err(|e| Failure::run(e.to_string()))?;
+    print!("{}", table(&rows));
+    if let Some(file) = json_file {
+        let json = serde_json::to_string_pretty(&rows).map_err(|e| Failure::run(e.to_string()))?;
+        file.write(&json)?;
+    }
+    Ok(())
 }

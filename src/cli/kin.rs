@@ -101,9 +101,9 @@ fn fail(code: u8, message: impl Into<String>) -> KinFailure {
 /// Runs `pkm-plc kin`.
 pub fn run(
     args: KinArgs,
-    load: impl Fn(&crate::ConfigArg) -> Result<LoadedConfig, ConfigError>,
+    load: impl Fn(&super::args::ConfigArg) -> Result<LoadedConfig, ConfigError>,
 ) -> Result<(), KinFailure> {
-    let loaded = load(&crate::ConfigArg {
+    let loaded = load(&super::args::ConfigArg {
         config: args.config.clone(),
         machine: None,
     })

@@ -8,6 +8,9 @@ use std::time::Duration;
 
 use serde::Serialize;
 
+use super::args::LinkBenchArgs;
+use super::enums::Exchange;
+use super::{Failure, OutputFile, load_setup};
 use pkm_plc::compose::Setup;
 use pkm_plc::image::VarTable;
 use pkm_plc::runtime::config::ConfigError;
@@ -16,6 +19,7 @@ use pkm_plc::services::io::map::IoMap;
 use pkm_plc::services::io::modbus::{ExchangeMode, ModbusBus, ModbusOptions, Transport, WireLoad};
 use pkm_plc::services::io::registers::RegisterMap;
 use pkm_plc::services::sim::modbus::{Station, StationOnLine};
+use tracing::info;
 
 /// What to measure.
 #[derive(Clone, Debug)]
@@ -178,4 +182,28 @@ pub fn table(rows: &[LinkBenchRow]) -> String {
         ));
     }
     out
+}
+
+/// The `link-bench` subcommand: runs it as `args` ask and prints its report.
+pub fn command(args: LinkBenchArgs) -> Result<(), Failure> {
+    if args.exchange.contains(&Exchange::Auto) {
+        return Err(Failure::usage("--exchange: name the modes to measure (tables, image)"));
+    }
+    let setup = load_setup(&args.config)?;
+    let options = LinkBenchOptions {
+        baud: args.baud,
+        seconds: args.seconds,
+        modes: args.exchange.into_iter().map(ExchangeMode::from).collect(),
+    };
+    let json_file = args.json.as_deref().map(OutputFile::create).transpose()?;
+    let rows = run(&setup, &options, |row| info!("measuring {row}")).map_err(|e| match e {
+        LinkBenchError::Setup(_) => Failure::run(e.to_string()),
+        _ => Failure::usage(e.to_string()),
+    })?;
+    print!("{}", table(&rows));
+    if let Some(file) = json_file {
+        let json = serde_json::to_string_pretty(&rows).map_err(|e| Failure::run(e.to_string()))?;
+        file.write(&json)?;
+    }
+    Ok(())
 }

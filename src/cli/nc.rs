@@ -14,7 +14,7 @@ use pkm_plc::compose::Setup;
 use pkm_plc::compose::nc_job::{Prepared, prepare};
 use pkm_plc::runtime::config::{ConfigError, LoadedConfig};
 
-use crate::ConfigArg;
+use super::args::ConfigArg;
 
 /// Arguments of `pkm-plc nc`.
 #[derive(Args, Debug)]

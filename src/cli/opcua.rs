@@ -1,12 +1,7 @@
-//! `run`'s OPC UA options: from the command line to [`OpcUaOptions`], and what the address space
-//! is built from.
+//! `run`'s OPC UA options: from the command line to [`OpcUaOptions`].
 
 use std::path::PathBuf;
 
-use pkm_plc::compose::Setup;
-use pkm_plc::image::Writer;
-use pkm_plc::runtime::plc::Plc;
-use pkm_plc::services::opcua::space::{SpaceInfo, VarNode};
 use pkm_plc::services::opcua::{self, OpcUaOptions};
 
 /// The OPC UA server a run asks for: `None` in virtual time or with `--opcua none`; the next
@@ -70,43 +65,5 @@ fn default_pki() -> PathBuf {
     match data {
         Some(d) => d.join("pkm-plc/opcua-pki"),
         None => PathBuf::from("opcua-pki"),
-    }
-}
-
-/// What the address space shows of `plc` built from `setup`.
-pub fn space_info(plc: &Plc, setup: &Setup, programs: Vec<String>) -> SpaceInfo {
-    let classes: Vec<(String, u64)> = plc.classes().map(|c| (c.name.to_string(), c.period_ns)).collect();
-    let names: Vec<&str> = classes.iter().map(|(n, _)| n.as_str()).collect();
-    let variables = plc
-        .vars()
-        .vars()
-        .iter()
-        .map(|v| {
-            let class = match &v.writer {
-                Some(Writer::Program { class, .. } | Writer::Bus { class, .. }) => *class,
-                None => v.readers.first().map_or(0, |r| r.class),
-            };
-            let writer = match &v.writer {
-                Some(Writer::Program { program, .. }) => format!("program {program}"),
-                Some(Writer::Bus { class, .. }) => format!(
-                    "the bus (latched by class {})",
-                    names.get(*class).copied().unwrap_or("?")
-                ),
-                None => "nobody (it keeps its default)".to_string(),
-            };
-            VarNode {
-                name: v.name.clone(),
-                ty: v.ty,
-                class,
-                writer,
-            }
-        })
-        .collect();
-    SpaceInfo {
-        machine: setup.machine.map_or("runtime".to_string(), |m| m.name().to_string()),
-        config: setup.origin().to_string(),
-        classes,
-        variables,
-        programs,
     }
 }

@@ -7,6 +7,8 @@ use std::net::{SocketAddr, ToSocketAddrs};
 use std::path::Path;
 use std::time::Duration;
 
+use super::Failure;
+use super::args::{StationArgs, StationOp};
 use pkm_plc::services::io::catalogue;
 use pkm_plc::services::io::map::DEFAULT_WATCHDOG_MS;
 use pkm_plc::services::io::x20bc0087::client::{Identity, Registers};
@@ -242,6 +244,27 @@ pub fn write_map(path: &Path, map: &serde_json::Value) -> Result<(), String> {
             _ => format!("{}: {e}", path.display()),
         })?;
     std::io::Write::write_all(&mut file, text.as_bytes()).map_err(|e| format!("{}: {e}", path.display()))
+}
+
+/// The `station` subcommand: runs it as `args` ask and prints its report.
+pub fn command(args: StationArgs) -> Result<(), Failure> {
+    let StationOp::Scan {
+        address,
+        write_map,
+        timeout_ms,
+    } = args.op;
+    let address = parse_address(&address).map_err(|e| Failure::usage(e.to_string()))?;
+    let scan = scan(address, Duration::from_millis(timeout_ms)).map_err(|e| Failure::run(e.to_string()))?;
+    print!("{}", scan.report());
+    if let Some(path) = write_map {
+        self::write_map(&path, &scan.map_skeleton()).map_err(Failure::run)?;
+        println!(
+            "I/O map skeleton for {} modules written to {}: add the bindings, name any module of an unknown ID",
+            scan.modules.len(),
+            path.display()
+        );
+    }
+    Ok(())
 }
 
 #[cfg(test)]

@@ -11,6 +11,7 @@ pub mod nc_job;
 pub mod replay;
 pub mod screen_job;
 pub mod selftest;
+pub mod serve;
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -563,4 +564,36 @@ fn with_joystick(
         stop: Arc::new(AtomicBool::new(false)),
     };
     Ok((Box::new(joystick_bus), Some(joystick)))
+}
+
+/// A failure with the exit code it means.
+#[derive(Debug)]
+pub struct Failure {
+    /// The exit code: 1 the run failed, 2 a usage or configuration error.
+    pub code: u8,
+    /// What to tell the user.
+    pub message: String,
+}
+
+impl Failure {
+    /// A usage or configuration error (exit 2): nothing was started.
+    pub fn usage(message: impl Into<String>) -> Self {
+        Failure {
+            code: 2,
+            message: message.into(),
+        }
+    }
+    /// The run failed (exit 1).
+    pub fn run(message: impl Into<String>) -> Self {
+        Failure {
+            code: 1,
+            message: message.into(),
+        }
+    }
+}
+
+impl From<ConfigError> for Failure {
+    fn from(e: ConfigError) -> Self {
+        Failure::usage(e.to_string())
+    }
 }
