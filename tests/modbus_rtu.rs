@@ -21,7 +21,8 @@ use pkm_plc::runtime::plc::Plc;
 use pkm_plc::runtime::run::{self, RealTimeOptions};
 use pkm_plc::services::io::line::LineTiming;
 use pkm_plc::services::io::modbus::{ExchangeMode, ModbusBus, Transport};
-use pkm_plc::services::sim::modbus::{Station, StationOnLine};
+use pkm_plc::services::sim::modbus::Station;
+use pkm_plc::services::sim::on_line::StationOnLine;
 
 /// The longest the application's run may take (s): referencing over the line and the jog take
 /// about 20 s on a quiet machine.

@@ -6,6 +6,7 @@ use std::path::PathBuf;
 use clap::{Args, Parser, Subcommand};
 
 use super::enums::{Exchange, TimeSource};
+use pkm_kinematics::Machine;
 use pkm_plc::compose::BusChoice;
 use pkm_plc::services::io::hid::JoystickSpec;
 
@@ -26,9 +27,9 @@ pub enum Command {
     /// Measure the time sources side by side (cycle start lateness of a 10 ms class).
     Bench(BenchArgs),
     /// Kinematics of a machine model: fk, ik, workspace, bench, convergence.
-    Kin(super::kin::KinArgs),
+    Kin(KinArgs),
     /// NC programs: check one against the configured machine.
-    Nc(super::nc::NcArgs),
+    Nc(NcArgs),
     /// Replay a trace: feed its inputs to the programs, compare every output and state.
     Replay(ReplayArgs),
     /// Look into a trace: VCD for GTKWave, SVG time plots, the tool path of a run with a program,
@@ -373,6 +374,110 @@ pub fn parse_seconds(s: &str) -> Result<f64, String> {
     } else {
         Err(format!("must be more than 0 and at most 10000000 seconds, got {s}"))
     }
+}
+
+/// Arguments of `pkm-plc kin`.
+#[derive(Args, Debug)]
+pub struct KinArgs {
+    /// The machine model: trijoint, pn101, ox-x, ox-o or hexapod.
+    #[arg(value_parser = parse_model)]
+    pub machine: Machine,
+    #[command(subcommand)]
+    pub op: KinOp,
+    /// Configuration file for the kinematic parameters [default: ./config.json if present,
+    /// else the built-in one].
+    #[arg(long, value_name = "FILE", global = true)]
+    pub config: Option<PathBuf>,
+}
+
+/// What `kin` computes.
+#[derive(Subcommand, Debug)]
+pub enum KinOp {
+    /// Joints (mm) → pose: prints {"machine", "joints", "pose"}.
+    Fk {
+        /// One value per joint, in mm.
+        #[arg(allow_negative_numbers = true, required = true)]
+        joints: Vec<f64>,
+    },
+    /// Pose (mm, degrees) → joints: prints {"machine", "joints", "pose"}.
+    Ik {
+        /// One value per pose coordinate (trijoint x y; pn101 and O-X x y z; hexapod x y z a b c).
+        #[arg(allow_negative_numbers = true, required = true)]
+        pose: Vec<f64>,
+    },
+    /// Sample the workspace; draw it as SVG and print a summary.
+    Workspace {
+        /// The SVG picture to write.
+        #[arg(long, value_name = "FILE")]
+        svg: PathBuf,
+        /// Also write every reachable sample as JSON.
+        #[arg(long, value_name = "FILE")]
+        json: Option<PathBuf>,
+        /// Samples along each sampled axis.
+        #[arg(long, default_value_t = 60)]
+        samples: usize,
+        /// Smallest singularity measure kept.
+        #[arg(long, default_value_t = 0.05)]
+        threshold: f64,
+    },
+    /// Measure IK and FK calls per second over reachable poses.
+    Bench {
+        /// Seconds per measurement.
+        #[arg(long, default_value_t = 1.0)]
+        seconds: f64,
+    },
+    /// Hexapod only: Newton iterations of FK from the home pose for random poses.
+    Convergence {
+        /// Random poses to try.
+        #[arg(long, default_value_t = 10_000)]
+        samples: usize,
+        /// Translation range around home (± mm).
+        #[arg(long, default_value_t = 50.0)]
+        translation: f64,
+        /// Rotation range (± degrees).
+        #[arg(long, default_value_t = 10.0)]
+        rotation: f64,
+        /// Seed of the pseudo-random poses.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+    },
+}
+
+/// A kinematic model by its name on the command line.
+pub fn parse_model(s: &str) -> Result<Machine, String> {
+    Machine::from_name(s).ok_or_else(|| {
+        let names: Vec<&str> = Machine::ALL.iter().map(|m| m.name()).collect();
+        format!("\"{s}\" is not a machine model: use {}", names.join(", "))
+    })
+}
+
+/// Arguments of `pkm-plc nc`.
+#[derive(Args, Debug)]
+pub struct NcArgs {
+    #[command(subcommand)]
+    pub op: NcOp,
+}
+
+/// What `nc` does.
+#[derive(Subcommand, Debug)]
+pub enum NcOp {
+    /// Read and check a program: refusals with FILE:LINE:COLUMN (exit 2), unreachable points
+    /// with their line (exit 1); else the path's length and bounding box (exit 0).
+    Check {
+        /// The program (G-code).
+        file: PathBuf,
+        #[command(flatten)]
+        config: ConfigArg,
+        /// Also write the report as JSON to FILE.
+        #[arg(long, value_name = "FILE")]
+        json: Option<PathBuf>,
+        /// Also draw the tool path inside the machine's workspace as SVG to FILE.
+        #[arg(long, value_name = "FILE")]
+        svg: Option<PathBuf>,
+        /// List every block whose feed the machine lowers, not one line per cause.
+        #[arg(long)]
+        verbose: bool,
+    },
 }
 
 #[cfg(test)]

@@ -1,89 +1,15 @@
 //! `pkm-plc kin MACHINE ...`: forward and inverse kinematics, workspace, benchmark and the
 //! hexapod's Newton convergence, from the command line.
 
-use std::path::PathBuf;
 use std::time::Instant;
 
-use clap::{Args, Subcommand};
 use serde_json::{Map, Value, json};
 
 use pkm_kinematics::hexapod::Hexapod;
 use pkm_kinematics::{Kinematics, KinematicsConfig, Machine, workspace};
 use pkm_plc::runtime::config::{ConfigError, LoadedConfig};
 
-/// Arguments of `pkm-plc kin`.
-#[derive(Args, Debug)]
-pub struct KinArgs {
-    /// The machine model: trijoint, pn101, ox-x, ox-o or hexapod.
-    #[arg(value_parser = parse_model)]
-    machine: Machine,
-    #[command(subcommand)]
-    op: KinOp,
-    /// Configuration file for the kinematic parameters [default: ./config.json if present,
-    /// else the built-in one].
-    #[arg(long, value_name = "FILE", global = true)]
-    config: Option<PathBuf>,
-}
-
-#[derive(Subcommand, Debug)]
-enum KinOp {
-    /// Joints (mm) → pose: prints {"machine", "joints", "pose"}.
-    Fk {
-        /// One value per joint, in mm.
-        #[arg(allow_negative_numbers = true, required = true)]
-        joints: Vec<f64>,
-    },
-    /// Pose (mm, degrees) → joints: prints {"machine", "joints", "pose"}.
-    Ik {
-        /// One value per pose coordinate (trijoint x y; pn101 and O-X x y z; hexapod x y z a b c).
-        #[arg(allow_negative_numbers = true, required = true)]
-        pose: Vec<f64>,
-    },
-    /// Sample the workspace; draw it as SVG and print a summary.
-    Workspace {
-        /// The SVG picture to write.
-        #[arg(long, value_name = "FILE")]
-        svg: PathBuf,
-        /// Also write every reachable sample as JSON.
-        #[arg(long, value_name = "FILE")]
-        json: Option<PathBuf>,
-        /// Samples along each sampled axis.
-        #[arg(long, default_value_t = 60)]
-        samples: usize,
-        /// Smallest singularity measure kept.
-        #[arg(long, default_value_t = 0.05)]
-        threshold: f64,
-    },
-    /// Measure IK and FK calls per second over reachable poses.
-    Bench {
-        /// Seconds per measurement.
-        #[arg(long, default_value_t = 1.0)]
-        seconds: f64,
-    },
-    /// Hexapod only: Newton iterations of FK from the home pose for random poses.
-    Convergence {
-        /// Random poses to try.
-        #[arg(long, default_value_t = 10_000)]
-        samples: usize,
-        /// Translation range around home (± mm).
-        #[arg(long, default_value_t = 50.0)]
-        translation: f64,
-        /// Rotation range (± degrees).
-        #[arg(long, default_value_t = 10.0)]
-        rotation: f64,
-        /// Seed of the pseudo-random poses.
-        #[arg(long, default_value_t = 1)]
-        seed: u64,
-    },
-}
-
-/// A kinematic model by its name on the command line.
-fn parse_model(s: &str) -> Result<Machine, String> {
-    Machine::from_name(s).ok_or_else(|| {
-        let names: Vec<&str> = Machine::ALL.iter().map(|m| m.name()).collect();
-        format!("\"{s}\" is not a machine model: use {}", names.join(", "))
-    })
-}
+use super::args::{KinArgs, KinOp};
 
 /// A failure with its exit code.
 pub struct KinFailure {

@@ -18,7 +18,8 @@ use pkm_plc::services::io::line::LineTiming;
 use pkm_plc::services::io::map::IoMap;
 use pkm_plc::services::io::modbus::{ExchangeMode, ModbusBus, ModbusOptions, Transport, WireLoad};
 use pkm_plc::services::io::registers::RegisterMap;
-use pkm_plc::services::sim::modbus::{Station, StationOnLine};
+use pkm_plc::services::sim::modbus::Station;
+use pkm_plc::services::sim::on_line::StationOnLine;
 use tracing::info;
 
 /// What to measure.

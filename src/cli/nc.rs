@@ -2,9 +2,6 @@
 //! configured machine — every point of its path reachable (motion.md) — with its path length and
 //! bounding box. No PLC runs, nothing moves.
 
-use std::path::PathBuf;
-
-use clap::{Args, Subcommand};
 use serde_json::{Map, Value, json};
 
 use pkm_kinematics::frame::MachineFrame;
@@ -14,35 +11,7 @@ use pkm_plc::compose::Setup;
 use pkm_plc::compose::nc_job::{Prepared, prepare};
 use pkm_plc::runtime::config::{ConfigError, LoadedConfig};
 
-use super::args::ConfigArg;
-
-/// Arguments of `pkm-plc nc`.
-#[derive(Args, Debug)]
-pub struct NcArgs {
-    #[command(subcommand)]
-    op: NcOp,
-}
-
-#[derive(Subcommand, Debug)]
-enum NcOp {
-    /// Read and check a program: refusals with FILE:LINE:COLUMN (exit 2), unreachable points
-    /// with their line (exit 1); else the path's length and bounding box (exit 0).
-    Check {
-        /// The program (G-code).
-        file: PathBuf,
-        #[command(flatten)]
-        config: ConfigArg,
-        /// Also write the report as JSON to FILE.
-        #[arg(long, value_name = "FILE")]
-        json: Option<PathBuf>,
-        /// Also draw the tool path inside the machine's workspace as SVG to FILE.
-        #[arg(long, value_name = "FILE")]
-        svg: Option<PathBuf>,
-        /// List every block whose feed the machine lowers, not one line per cause.
-        #[arg(long)]
-        verbose: bool,
-    },
-}
+use super::args::{ConfigArg, NcArgs, NcOp};
 
 pub use pkm_plc::compose::nc_job::NcFailure;
 

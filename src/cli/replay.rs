@@ -42,5 +42,5 @@ pub fn run(args: ReplayArgs) -> Result<(), Failure> {
 /// configuration's), if one's is.
 fn recorded_machine(trace: &std::path::Path) -> Option<&'static str> {
     let reader = pkm_plc::services::trace::read::TraceReader::open(trace).ok()?;
-    pkm_plc::compose::machines::with_digest(&reader.header().config_digest)
+    pkm_plc::compose::setup::with_digest(&reader.header().config_digest)
 }

@@ -18,7 +18,7 @@ use pkm_nc::interp::{self, Program};
 use pkm_nc::job::PlannedProgram;
 use pkm_nc::plan::{Plan, PlanLimits, plan_watched};
 
-use crate::compose::Setup;
+use crate::compose::setup::Setup;
 use crate::runtime::config::ConfigError;
 
 /// Why a program cannot run: the exit code and the message.
@@ -369,7 +369,7 @@ fn with_hint(setup: &Setup, file: &Path, mut e: NcFailure, watch: &Deadline<'_>)
         .map(|m| m.name())
         .filter(|name| Some(*name) != current)
         .filter(|name| {
-            crate::compose::machines::setup(name).is_some_and(|other| {
+            crate::compose::setup::of_machine(name).is_some_and(|other| {
                 !watch.expired()
                     && prepare_watched(&other, file.display().to_string(), text.clone(), watch)
                         .and_then(Prepared::into_job)

@@ -4,7 +4,7 @@
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-use crate::compose::Setup;
+use crate::compose::setup::Setup;
 use crate::image::{Value, VarIndex, VarType};
 use crate::runtime::config::ConfigError;
 use crate::runtime::run::VirtualClock;
@@ -135,7 +135,7 @@ pub fn replay(trace: &Path, setup: &Setup, force: bool) -> Result<ReplayReport, 
     if header.config_digest != digest && !force {
         // Which configuration it was: a machine's own, or a file made for one.
         let hint = match (
-            crate::compose::machines::with_digest(&header.config_digest),
+            crate::compose::setup::with_digest(&header.config_digest),
             &header.machine,
         ) {
             (Some(name), _) => {

@@ -9,10 +9,11 @@ use pkm_kinematics::MAX_DOF;
 use pkm_kinematics::frame::MachineFrame;
 use pkm_nc::interp::{Action, Blend, Block, Path, Program, Spindle};
 
-use crate::compose::Setup;
 use crate::compose::nc_job::{Deadline, NcFailure, Prepared, fail, machine_of, prepare_from};
+use crate::compose::setup::Setup;
 use crate::image::Value;
 use crate::runtime::plc::Plc;
+use crate::services::hmi::jobs::{JobPlanner, Standing};
 
 /// The most bytes of MDI text a job takes (the screen's messages are smaller still).
 pub const MAX_MDI_BYTES: usize = 2048;
@@ -87,9 +88,26 @@ pub fn plan_watched(
     }
 }
 
-/// The program MDI lines run as: the lines, then an end (M2).
-pub fn mdi_program(lines: &str) -> String {
-    format!("{}\nM2\n", lines.trim_end())
+pub use crate::services::hmi::jobs::mdi_program;
+
+/// The configured machine plans the screen's jobs: within the configuration's planning time,
+/// abandoned when the screen says so.
+impl JobPlanner for Setup {
+    fn plan(
+        &self,
+        library: &NcLibrary,
+        spec: &ScreenJobSpec,
+        abandoned: &(dyn Fn() -> Option<String> + Sync),
+    ) -> Result<NcJob, String> {
+        let watch = Deadline::of(self).or_abandoned(abandoned);
+        plan_watched(self, library, spec, &watch).map_err(|e| e.message)
+    }
+}
+
+impl Standing for StandingPose {
+    fn pose(&self, image: &[Value]) -> Option<[f64; 6]> {
+        StandingPose::pose(self, image)
+    }
 }
 
 /// The blocks of `program` from the first one, in the order they run, of line `line` or a

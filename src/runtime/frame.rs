@@ -9,7 +9,7 @@ use std::time::Duration;
 
 use crate::image::Value;
 use crate::runtime::plc::Plc;
-use crate::runtime::run::Snapshot;
+use crate::runtime::snapshot::Snapshot;
 
 /// One published frame.
 #[derive(Clone, Debug)]

@@ -17,6 +17,7 @@ pub mod plc;
 pub mod run;
 pub mod service;
 pub mod signals;
+pub mod snapshot;
 pub mod stats;
 pub mod status;
 pub mod summary;

@@ -105,6 +105,8 @@ pub struct Plc {
     bus_fault: VarIndex,
     /// Whether [`Plc::start_bus`] has run.
     bus_started: bool,
+    /// The machine the configuration names (`"machine"`), if it names one.
+    machine: Option<String>,
 }
 
 /// A read-only view of one task class, for summaries and status lines.
@@ -240,7 +242,13 @@ impl Plc {
             sink: None,
             bus_fault,
             bus_started: false,
+            machine: config.machine.clone(),
         })
+    }
+
+    /// The machine the configuration names (`"machine"`): a trace's header records it.
+    pub fn machine(&self) -> Option<&str> {
+        self.machine.as_deref()
     }
 
     /// The variable table.

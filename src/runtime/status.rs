@@ -5,7 +5,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use crate::runtime::run::Snapshot;
+use crate::runtime::snapshot::Snapshot;
 
 /// Whether a status line is on screen (logs then clear it before they print).
 static ACTIVE: AtomicBool = AtomicBool::new(false);

@@ -5,6 +5,8 @@
 //! - Their sources use no clock, file, thread, network or process of std either (the compiler
 //!   cannot see that one: std is always there).
 //! - The runtime (`src/`) names a machine crate in one place only, the list of machines.
+//! - `src/` is in layers (core, services, composition, command line) whose imports run one way,
+//!   and no two of its modules import each other.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -156,7 +158,8 @@ fn the_application_uses_no_clock_file_thread_or_process_of_std() {
 
 #[test]
 fn the_runtime_names_a_machine_in_the_list_of_machines_only() {
-    // The kinematics command of the command line computes any model's kinematics: it may use
+    // The kinematics command of the command line (its arguments name a model) computes any
+    // model's kinematics: it may use
     // the kinematics crate, and draws its workspaces; the NC check builds the configured
     // machine's kinematics from the model the machine names (for `nc check` and `run --program`),
     // and so do the screen's jobs (where the tool stands: the kinematics of its set-points).
@@ -165,6 +168,8 @@ fn the_runtime_names_a_machine_in_the_list_of_machines_only() {
         &["pkm_trijoint", "pkm_joints", "pkm_kinematics"],
         &[
             "src/compose/machines.rs",
+            "src/compose/setup.rs",
+            "src/cli/args.rs",
             "src/cli/kin.rs",
             "src/cli/kin_svg.rs",
             "src/cli/nc.rs",
@@ -184,4 +189,162 @@ fn the_runtime_names_a_machine_in_the_list_of_machines_only() {
         "machine types in the runtime:\n{}",
         machine_types.join("\n")
     );
+}
+
+/// The runtime's layers, lowest first: a module may import from its own layer and those below.
+/// The command line (`src/cli/`, `src/main.rs`) is the binary's, above them all.
+const LAYERS: &[&str] = &["runtime", "services", "compose", "cli"];
+
+/// A module of `src/` by its path (`["services", "hmi", "server"]`), with its file.
+struct Module {
+    path: Vec<String>,
+    file: PathBuf,
+}
+
+/// Every module of `src/` but the crate roots.
+fn modules() -> Vec<Module> {
+    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
+    let mut files = Vec::new();
+    rust_files(&src, &mut files);
+    files
+        .into_iter()
+        .filter_map(|file| {
+            let rel = file.strip_prefix(&src).ok()?.with_extension("");
+            let mut path: Vec<String> = rel.iter().map(|p| p.to_string_lossy().into_owned()).collect();
+            if path.last().is_some_and(|l| l == "mod") {
+                path.pop();
+            }
+            (!path.is_empty() && path != ["lib"] && path != ["main"]).then_some(Module { path, file })
+        })
+        .collect()
+}
+
+/// The module paths that `text` (the code of module `at`, before its tests) names through
+/// `crate::` and `super::`, each as written (it may go on into an item).
+fn named_paths(text: &str, at: &[String]) -> Vec<Vec<String>> {
+    let code: String = text
+        .split("#[cfg(test)]")
+        .next()
+        .unwrap_or("")
+        .lines()
+        .map(|l| l.split("//").next().unwrap_or(""))
+        .collect::<Vec<_>>()
+        .join("\n");
+    let ident = |s: &str| s.chars().all(|c| c.is_alphanumeric() || c == '_') && !s.is_empty();
+    let mut out = Vec::new();
+    for (i, _) in code.match_indices("::") {
+        let head_start = code[..i]
+            .rfind(|c: char| !(c.is_alphanumeric() || c == '_'))
+            .map_or(0, |k| k + 1);
+        let head = &code[head_start..i];
+        let preceded = code[..head_start].ends_with("::");
+        if preceded || !(head == "crate" || head == "super") {
+            continue;
+        }
+        let mut base: Vec<String> = if head == "crate" {
+            Vec::new()
+        } else {
+            at[..at.len().saturating_sub(1)].to_vec()
+        };
+        let rest = &code[i + 2..];
+        let end = rest
+            .find(|c: char| !(c.is_alphanumeric() || c == '_' || c == ':'))
+            .unwrap_or(rest.len());
+        for part in rest[..end].split("::").filter(|p| !p.is_empty()) {
+            if part == "super" {
+                base.pop();
+            } else if ident(part) {
+                base.push(part.to_string());
+            }
+        }
+        // `crate::a::{b, c::d}`: each member of the group.
+        if rest[end..].starts_with('{') {
+            let group = &rest[end + 1..rest[end..].find('}').map_or(end + 1, |k| end + k)];
+            for member in group.split(',') {
+                let member = member.split(" as ").next().unwrap_or("").trim();
+                if member.is_empty() || member == "self" {
+                    continue;
+                }
+                let mut path = base.clone();
+                path.extend(member.split("::").filter(|p| ident(p)).map(str::to_string));
+                out.push(path);
+            }
+        }
+        out.push(base);
+    }
+    out
+}
+
+/// The module `path` names: its longest prefix that is a module.
+fn resolve<'a>(path: &[String], modules: &'a [Module]) -> Option<&'a Module> {
+    (1..=path.len())
+        .rev()
+        .find_map(|k| modules.iter().find(|m| m.path == path[..k]))
+}
+
+/// Each module with the modules it imports (not itself, not its tests).
+fn imports() -> Vec<(String, Vec<String>)> {
+    let modules = modules();
+    modules
+        .iter()
+        .map(|m| {
+            let text = std::fs::read_to_string(&m.file).expect("readable source");
+            let mut to: Vec<String> = named_paths(&text, &m.path)
+                .iter()
+                .filter_map(|p| resolve(p, &modules))
+                .filter(|t| t.path != m.path)
+                .map(|t| t.path.join("/"))
+                .collect();
+            to.sort();
+            to.dedup();
+            (m.path.join("/"), to)
+        })
+        .collect()
+}
+
+fn layer(module: &str) -> Option<usize> {
+    LAYERS.iter().position(|l| module.split('/').next() == Some(*l))
+}
+
+#[test]
+fn src_is_in_layers_and_imports_run_downwards() {
+    let imports = imports();
+    assert!(
+        imports.len() > 50 && imports.iter().all(|(m, _)| layer(m).is_some()),
+        "every module of src/ is in a layer ({LAYERS:?}): {:?}",
+        imports
+            .iter()
+            .filter(|(m, _)| layer(m).is_none())
+            .map(|(m, _)| m)
+            .collect::<Vec<_>>()
+    );
+    let upward: Vec<String> = imports
+        .iter()
+        .flat_map(|(m, to)| {
+            to.iter()
+                .filter(|t| layer(t) > layer(m))
+                .map(move |t| format!("{m} → {t}"))
+        })
+        .collect();
+    assert!(upward.is_empty(), "imports against the layers:\n{}", upward.join("\n"));
+    // The check sees imports: the composition builds on the services and the core.
+    let compose = imports.iter().find(|(m, _)| m == "compose").expect("compose");
+    assert!(
+        compose.1.iter().any(|t| t.starts_with("services/")) && compose.1.iter().any(|t| t.starts_with("runtime/")),
+        "{compose:?}"
+    );
+}
+
+#[test]
+fn no_two_modules_of_src_import_each_other() {
+    let imports = imports();
+    let mut circles = Vec::new();
+    for (a, to) in &imports {
+        for b in to.iter().filter(|b| a < *b) {
+            if imports.iter().any(|(m, back)| m == b && back.contains(a)) {
+                circles.push(format!("{a} ⇄ {b}"));
+            }
+        }
+    }
+    assert!(circles.is_empty(), "two-module circles:\n{}", circles.join("\n"));
 }

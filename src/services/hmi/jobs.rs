@@ -15,16 +15,39 @@ use std::sync::{Arc, Mutex};
 
 use pkm_api::trajectory::{NcJob, NcLibrary, ScreenJob, ScreenJobKind, ScreenJobSpec};
 
-use crate::compose::Setup;
-use crate::compose::nc_job::Deadline;
-use crate::compose::screen_job::{self, StandingPose};
 use crate::image::Value;
 
-/// What the screen needs to make jobs: the machine, the run's library, where the tool stands.
+/// What plans the screen's jobs for the machine: the composition gives the configured machine's
+/// planner; the desk only schedules, bounds and stores what it plans.
+pub trait JobPlanner: Send + Sync + 'static {
+    /// Plans `spec` into a job of `library`, within the configuration's bounds, asking
+    /// `abandoned` now and then whether to give up (its answer says why); refused with why.
+    fn plan(
+        &self,
+        library: &NcLibrary,
+        spec: &ScreenJobSpec,
+        abandoned: &(dyn Fn() -> Option<String> + Sync),
+    ) -> Result<NcJob, String>;
+}
+
+/// Where the tool stands in a frame: the machine's pose at the image's set-points.
+pub trait Standing: Send + Sync + 'static {
+    /// The pose (machine frame; unused coordinates 0) at the set-points of `image`, if they have
+    /// one.
+    fn pose(&self, image: &[Value]) -> Option<[f64; 6]>;
+}
+
+/// The program MDI lines run as: the lines, then an end (M2).
+pub fn mdi_program(lines: &str) -> String {
+    format!("{}\nM2\n", lines.trim_end())
+}
+
+/// What the screen needs to make jobs: the machine's planner, the run's library, where the tool
+/// stands.
 pub struct JobDesk {
-    setup: Setup,
+    planner: Arc<dyn JobPlanner>,
     library: NcLibrary,
-    standing: StandingPose,
+    standing: Box<dyn Standing>,
     /// The image index of `NC_PROGRAM`, the loaded program (its job's plan is kept).
     program_var: Option<usize>,
     /// Where the tool stands commanded while the PLC is READY (from the newest frame).
@@ -56,14 +79,19 @@ fn abandoned(cancel: &Mutex<Option<&'static str>>, state: &Mutex<String>) -> Opt
 }
 
 impl JobDesk {
-    /// The desk of `setup`'s machine and the run's `library`, reading the tool's pose from
+    /// The desk of a machine's `planner` and the run's `library`, reading the tool's pose from
     /// frames through `standing` and the loaded program from the image index `program_var`
     /// (`NC_PROGRAM`).
-    pub fn new(setup: Setup, library: NcLibrary, standing: StandingPose, program_var: Option<usize>) -> JobDesk {
+    pub fn new(
+        planner: impl JobPlanner,
+        library: NcLibrary,
+        standing: impl Standing,
+        program_var: Option<usize>,
+    ) -> JobDesk {
         JobDesk {
-            setup,
+            planner: Arc::new(planner),
             library,
-            standing,
+            standing: Box::new(standing),
             program_var,
             here: Mutex::new(None),
             state: Arc::new(Mutex::new(String::new())),
@@ -132,18 +160,17 @@ impl JobDesk {
         let mut at = [0.0; pkm_api::trajectory::MAX_AXES];
         at[..6].copy_from_slice(&start);
         let spec = ScreenJobSpec { kind, start: at };
-        let (setup, library, asked) = (self.setup.clone(), self.library.clone(), spec.clone());
+        let (planner, library, asked) = (Arc::clone(&self.planner), self.library.clone(), spec.clone());
         let (cancel, state) = (Arc::clone(&self.cancel), Arc::clone(&self.state));
         let planned = tokio::task::spawn_blocking(move || {
             let abandon = move || abandoned(&cancel, &state);
-            let watch = Deadline::of(&setup).or_abandoned(&abandon);
-            screen_job::plan_watched(&setup, &library, &asked, &watch)
+            planner.plan(&library, &asked, &abandon)
         })
         .await;
         self.planning.store(false, Ordering::Release);
         let job = match planned {
             Ok(Ok(job)) => job,
-            Ok(Err(e)) => return Err(e.message),
+            Ok(Err(why)) => return Err(why),
             // A panic of the planner is a bug; the PLC goes on and the job is refused.
             Err(e) => return Err(format!("the planner failed: {e}")),
         };

@@ -1,11 +1,17 @@
 //! The mechanism in its pose for the operator's screen: the machine's kinematics draws its
 //! links at the measured joints of each frame (off the cyclic path, in the server's task).
 
-use pkm_kinematics::{Kinematics, KinematicsConfig, Machine as Model};
+use pkm_kinematics::Kinematics;
 
-use crate::compose::Setup;
 use crate::image::Value;
 use crate::runtime::plc::Plc;
+
+/// A machine the screen can draw: the composition gives the configured machine's.
+pub trait Drawable {
+    /// The machine's kinematics, with the names of the variables that hold its measured joint
+    /// positions; `None` where it has none.
+    fn drawing(&self) -> Option<(Box<dyn Kinematics>, Vec<&'static str>)>;
+}
 
 /// The drawing of one machine.
 pub struct Mechanism {
@@ -16,15 +22,10 @@ pub struct Mechanism {
 }
 
 impl Mechanism {
-    /// The drawing of `setup`'s machine as `plc` declares its variables, if its kinematics
-    /// draws one.
-    pub fn of(setup: &Setup, plc: &Plc) -> Option<Mechanism> {
-        let machine = setup.machine?;
-        let motion = machine.motion(&setup.loaded.json).ok()?;
-        let config = KinematicsConfig::from_section(setup.loaded.config.kinematics.as_ref()).ok()?;
-        let kinematics = config.build(Model::from_name(motion.model)?);
-        let joints = motion
-            .joint_vars
+    /// The drawing of `machine` as `plc` declares its variables, if its kinematics draws one.
+    pub fn of(machine: &impl Drawable, plc: &Plc) -> Option<Mechanism> {
+        let (kinematics, joint_vars) = machine.drawing()?;
+        let joints = joint_vars
             .iter()
             .map(|name| plc.vars().index_of(name).map(usize::from))
             .collect::<Option<Vec<usize>>>()?;

@@ -773,7 +773,7 @@ impl Shared {
             pkm_api::trajectory::ScreenJobKind::Mdi { text } => {
                 Some(std::borrow::Cow::Owned(Served::new(ScreenProgram {
                     file: self.file(k),
-                    text: crate::compose::screen_job::mdi_program(text),
+                    text: super::jobs::mdi_program(text),
                     path: Vec::new(),
                 })))
             }

@@ -20,6 +20,7 @@
 
 pub mod auth;
 pub mod gate;
+pub mod methods;
 pub mod nodes;
 pub mod server;
 pub mod space;

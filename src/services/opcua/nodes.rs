@@ -15,7 +15,7 @@ use opcua::sync::RwLock;
 use opcua::types::{NodeId, StatusCode, Variant};
 use tracing::info;
 
-use super::server::{CallRate, command};
+use super::methods::{CallRate, command};
 use super::space::{Method, NAMESPACE};
 use crate::runtime::frame::FrameFeed;
 use crate::services::hmi::commands::CommandSink;

@@ -7,6 +7,7 @@
 pub mod bus;
 pub mod bus_controller;
 pub mod modbus;
+pub mod on_line;
 pub mod pdu;
 pub mod scenario;
 pub mod server;
@@ -85,12 +86,14 @@ impl From<ConfigError> for BuildError {
 
 /// Builds the simulated machine of `machine` for a loaded configuration over its I/O map `map`:
 /// the machine builds its plant from its sections, the runtime wires it to the map's channels and
-/// loads the scenario file if one is given.
+/// loads the scenario file if one is given. A scenario's input that this machine has not is
+/// refused with `input_hint(name)` added: the other machines that have it.
 pub fn build(
     loaded: &LoadedConfig,
     machine: &dyn Machine,
     map: IoMap,
     scenario: Option<&std::path::Path>,
+    input_hint: &dyn Fn(&str) -> String,
 ) -> Result<bus::SimBus, BuildError> {
     let config = &loaded.config;
     let invalid = |problems: Vec<Problem>| ConfigError::Invalid {
@@ -114,7 +117,7 @@ pub fn build(
                         source,
                     }
                 })?;
-            scenario::Scenario::parse(&text, &origin, &map, &wiring, setup.plant.as_ref())?
+            scenario::Scenario::parse(&text, &origin, &map, &wiring, setup.plant.as_ref(), input_hint)?
         }
     };
     Ok(bus::SimBus::new(map, setup.plant, wiring, scenario, setup.step_ns))

@@ -136,13 +136,16 @@ fn signal_of(name: &str, map: &IoMap, wiring: &ResolvedWiring) -> Option<usize> 
 }
 
 impl Scenario {
-    /// Parses and checks a scenario against the I/O map and the wiring.
+    /// Parses and checks a scenario against the I/O map and the wiring; `hint` says which other
+    /// machines have an input variable of that name, for an event that names one this machine
+    /// has not (empty: none).
     pub fn parse(
         text: &str,
         origin: &str,
         map: &IoMap,
         wiring: &ResolvedWiring,
         plant: &dyn Plant,
+        hint: &dyn Fn(&str) -> String,
     ) -> Result<Scenario, ConfigError> {
         let file: ScenarioFile = config::parse_strict(text, origin)?;
         let mut problems = Vec::new();
@@ -197,7 +200,7 @@ impl Scenario {
                 }
                 continue;
             }
-            match event_action(e, map, wiring, plant) {
+            match event_action(e, map, wiring, plant, hint) {
                 Ok(action) => events.push((t_ns, action)),
                 Err((field, message)) => problems.push(Problem {
                     at: if field.is_empty() { at } else { format!("{at}.{field}") },
@@ -288,6 +291,7 @@ fn event_action(
     map: &IoMap,
     wiring: &ResolvedWiring,
     plant: &dyn Plant,
+    hint: &dyn Fn(&str) -> String,
 ) -> Result<Action, (&'static str, String)> {
     let need_value = || {
         e.value
@@ -329,7 +333,7 @@ fn event_action(
                 format!(
                     "no input variable \"{name}\" in {} wired to the machine{}",
                     map.origin,
-                    crate::compose::machines::hint(&crate::compose::machines::with_input(name))
+                    hint(name)
                 ),
             )),
         };

@@ -146,10 +146,7 @@ impl Recorder {
             format: FORMAT.into(),
             version: VERSION,
             config_digest: config_digest.into(),
-            machine: plc
-                .app_program()
-                .and_then(crate::compose::machines::owner_of)
-                .map(|m| m.name().to_string()),
+            machine: plc.machine().map(str::to_string),
             bus: plc.bus_name().into(),
             task_classes: plc
                 .classes()

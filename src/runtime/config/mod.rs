@@ -4,6 +4,8 @@
 //! first malformed element (serde cannot go on), but semantic checks run over the whole
 //! configuration and report every problem at once.
 
+pub mod joystick;
+
 use std::fmt;
 use std::path::{Path, PathBuf};
 
@@ -13,7 +15,7 @@ use serde::Deserialize;
 use crate::image::Problem;
 
 /// The configuration built into the binary: the repository's top-level config.json.
-pub const BUILTIN_CONFIG: &str = include_str!("../../config.json");
+pub const BUILTIN_CONFIG: &str = include_str!("../../../config.json");
 
 /// Shortest cycle time accepted (µs).
 pub const MIN_CYCLE_US: u32 = 200;
@@ -49,7 +51,7 @@ pub struct Config {
     pub kinematics: Option<serde_json::Value>,
     /// How the HID joystick's events map to the operator's commands (`--joystick`).
     #[serde(default)]
-    pub joystick: crate::services::io::joystick::JoystickMapping,
+    pub joystick: joystick::JoystickMapping,
     /// NC programs: work offsets and the world axes' limits.
     #[serde(default)]
     pub nc: NcConfig,
