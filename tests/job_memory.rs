@@ -12,7 +12,7 @@
 #[path = "common/mod.rs"]
 mod common;
 
-use pkm_api::trajectory::ScreenJobKind;
+use pkm_api::screen_jobs::ScreenJobKind;
 use pkm_plc::compose::screen_job::StandingPose;
 use pkm_plc::compose::{self, Built, Options, Setup};
 use pkm_plc::runtime::plc::Plc;

@@ -18,7 +18,7 @@ use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 
-use pkm_api::trajectory::NcLibrary;
+use pkm_api::library::NcLibrary;
 use tracing::{info, warn};
 
 use crate::runtime::bus::{Bus, NoBus, UnknownBus};

@@ -8,8 +8,9 @@ use std::path::Path;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
+use pkm_api::library::NcLibrary;
 use pkm_api::machine::{Home, Machine, Motion};
-use pkm_api::trajectory::{NcJob, NcLibrary};
+use pkm_api::trajectory::NcJob;
 use pkm_kinematics::frame::{Home as FrameHome, MachineFrame};
 use pkm_kinematics::{KinematicsConfig, Machine as Model};
 use pkm_nc::budget::Watch;

@@ -284,7 +284,7 @@ pub fn replay(trace: &Path, setup: &Setup, force: bool) -> Result<ReplayReport, 
             })?;
             library
                 .screen
-                .set(slot, pkm_api::trajectory::ScreenJob { spec, job: made })
+                .set(slot, pkm_api::screen_jobs::ScreenJob { spec, job: made })
                 .map_err(|e| refused(format!("line {}: {e}", r.line)))?;
             // The job before it is replaced, as in the run: its plan is released (a replay of a
             // run of a hundred large jobs holds one or two at a time, as the run did).

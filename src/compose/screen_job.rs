@@ -4,7 +4,9 @@
 //! kinematics of the joints' set-points, which is exactly where the main program says the tool
 //! is, so the job's start is the tool's pose and the start check passes.
 
-use pkm_api::trajectory::{NcJob, NcLibrary, ScreenJobKind, ScreenJobSpec};
+use pkm_api::library::NcLibrary;
+use pkm_api::screen_jobs::{ScreenJobKind, ScreenJobSpec};
+use pkm_api::trajectory::NcJob;
 use pkm_kinematics::MAX_DOF;
 use pkm_kinematics::frame::MachineFrame;
 use pkm_nc::interp::{Action, Blend, Block, Path, Program, Spindle};

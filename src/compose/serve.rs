@@ -181,7 +181,7 @@ struct OpcUa {
 fn screen_info(
     plc: &Plc,
     setup: &Setup,
-    library: Option<&pkm_api::trajectory::NcLibrary>,
+    library: Option<&pkm_api::library::NcLibrary>,
     refused: Vec<(String, String)>,
 ) -> crate::services::hmi::server::HmiInfo {
     let motion = setup.machine.and_then(|m| m.motion(&setup.loaded.json).ok());

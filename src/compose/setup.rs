@@ -5,8 +5,8 @@
 
 use std::path::Path;
 
+use pkm_api::library::NcLibrary;
 use pkm_api::machine::{EmbeddedFile, Machine, Sections};
-use pkm_api::trajectory::NcLibrary;
 
 use super::machines;
 use crate::image::Problem;

@@ -138,7 +138,7 @@ impl Plc {
         config: &Config,
         registry: &Registry,
         mut bus: Box<dyn Bus>,
-        nc: Option<&pkm_api::trajectory::NcLibrary>,
+        nc: Option<&pkm_api::library::NcLibrary>,
     ) -> Result<Plc, Vec<Problem>> {
         let mut issues = config::check(config);
         let mut table = VarTable::new();

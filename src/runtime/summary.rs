@@ -2,7 +2,7 @@
 
 use serde::Serialize;
 
-use pkm_api::trajectory::NcLibrary;
+use pkm_api::library::NcLibrary;
 
 use crate::image::Value;
 use crate::runtime::plc::Plc;

@@ -6,7 +6,8 @@
 use crate::common;
 
 use common::{get, machine_config};
-use pkm_api::trajectory::{ScreenJob, ScreenJobKind, ScreenJobSpec, vars};
+use pkm_api::screen_jobs::{ScreenJob, ScreenJobKind, ScreenJobSpec};
+use pkm_api::trajectory::vars;
 use pkm_joints::vars::TOOL;
 use pkm_plc::compose::screen_job::{self, StandingPose};
 use pkm_plc::compose::{self, Built, Options, Setup};

@@ -2,7 +2,7 @@
 //! operator's command in READY — planned on a thread of tokio's blocking pool (never on the
 //! cyclic thread, never on the thread that serves the pages), one at a time, from where the tool
 //! stands in the newest frame; stored in the run's library
-//! ([`ScreenJobs`](pkm_api::trajectory::ScreenJobs)), then loaded and started as a press of the
+//! ([`ScreenJobs`](pkm_api::screen_jobs::ScreenJobs)), then loaded and started as a press of the
 //! screen's buttons, so that the PLC takes them as inputs (traced, replayed).
 //!
 //! A job's planning is bounded in what it may cost (`nc.max_moves`, `nc.max_plan_mib`) and how
@@ -13,7 +13,9 @@
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 
-use pkm_api::trajectory::{NcJob, NcLibrary, ScreenJob, ScreenJobKind, ScreenJobSpec};
+use pkm_api::library::NcLibrary;
+use pkm_api::screen_jobs::{ScreenJob, ScreenJobKind, ScreenJobSpec};
+use pkm_api::trajectory::NcJob;
 
 use crate::image::Value;
 

@@ -738,7 +738,7 @@ impl Shared {
     }
 
     /// What screen job `k` was made of, if it was made.
-    fn spec(&self, k: usize) -> Option<&pkm_api::trajectory::ScreenJobSpec> {
+    fn spec(&self, k: usize) -> Option<&pkm_api::screen_jobs::ScreenJobSpec> {
         self.jobs.as_ref()?.library().screen_spec(i16::try_from(k).ok()?)
     }
 
@@ -765,12 +765,12 @@ impl Shared {
             return Some(std::borrow::Cow::Borrowed(p));
         }
         match &self.spec(k)?.kind {
-            pkm_api::trajectory::ScreenJobKind::FromLine { program, .. } => usize::try_from(*program)
+            pkm_api::screen_jobs::ScreenJobKind::FromLine { program, .. } => usize::try_from(*program)
                 .ok()
                 .and_then(|p| p.checked_sub(1))
                 .and_then(|i| self.programs.get(i))
                 .map(std::borrow::Cow::Borrowed),
-            pkm_api::trajectory::ScreenJobKind::Mdi { text } => {
+            pkm_api::screen_jobs::ScreenJobKind::Mdi { text } => {
                 Some(std::borrow::Cow::Owned(Served::new(ScreenProgram {
                     file: self.file(k),
                     text: super::jobs::mdi_program(text),
@@ -792,11 +792,11 @@ impl Shared {
                     "screen {peer}: MDI {}",
                     crate::runtime::config::shorten(&text.replace('\n', " / "))
                 );
-                pkm_api::trajectory::ScreenJobKind::Mdi { text }
+                pkm_api::screen_jobs::ScreenJobKind::Mdi { text }
             }
             Command::RunFrom { program, line } => {
                 info!("screen {peer}: run program {program} from line {line}");
-                pkm_api::trajectory::ScreenJobKind::FromLine { program, line }
+                pkm_api::screen_jobs::ScreenJobKind::FromLine { program, line }
             }
             _ => return json!({"type": "refused", "why": "not a job"}),
         };

@@ -58,7 +58,7 @@ pub struct Header {
 
 impl Header {
     /// The header's `program` and `library` of a run with `library`.
-    pub fn programs(library: Option<&pkm_api::trajectory::NcLibrary>) -> (Option<TraceProgram>, Vec<TraceProgram>) {
+    pub fn programs(library: Option<&pkm_api::library::NcLibrary>) -> (Option<TraceProgram>, Vec<TraceProgram>) {
         let Some(l) = library else {
             return (None, Vec::new());
         };
@@ -101,8 +101,8 @@ pub struct TraceFromLine {
 
 impl TraceJob {
     /// The job of number `number` made of `spec`.
-    pub fn of(number: i16, spec: &pkm_api::trajectory::ScreenJobSpec) -> TraceJob {
-        use pkm_api::trajectory::ScreenJobKind;
+    pub fn of(number: i16, spec: &pkm_api::screen_jobs::ScreenJobSpec) -> TraceJob {
+        use pkm_api::screen_jobs::ScreenJobKind;
         let mut start = [0.0; 6];
         start.copy_from_slice(&spec.start[..6]);
         let (mdi, from_line) = match &spec.kind {
@@ -124,8 +124,8 @@ impl TraceJob {
     }
 
     /// What the job was made of, or why the record does not say (neither or both kinds).
-    pub fn spec(&self) -> Result<pkm_api::trajectory::ScreenJobSpec, String> {
-        use pkm_api::trajectory::{ScreenJobKind, ScreenJobSpec};
+    pub fn spec(&self) -> Result<pkm_api::screen_jobs::ScreenJobSpec, String> {
+        use pkm_api::screen_jobs::{ScreenJobKind, ScreenJobSpec};
         let kind = match (&self.mdi, &self.from_line) {
             (Some(text), None) => ScreenJobKind::Mdi { text: text.clone() },
             (None, Some(f)) => ScreenJobKind::FromLine {

@@ -135,7 +135,7 @@ impl Recorder {
         path: &Path,
         plc: &Plc,
         config_digest: &str,
-        library: Option<&pkm_api::trajectory::NcLibrary>,
+        library: Option<&pkm_api::library::NcLibrary>,
     ) -> io::Result<Recorder> {
         let nc = library;
         let (program, library) = Header::programs(library);
@@ -168,7 +168,7 @@ impl Recorder {
             .map(|(l, var)| JobWatch {
                 library: l.clone(),
                 var,
-                written: vec![false; pkm_api::trajectory::MAX_SCREEN_JOBS],
+                written: vec![false; pkm_api::screen_jobs::MAX_SCREEN_JOBS],
             });
         let class_names: Vec<String> = plc.classes().map(|c| c.name.to_string()).collect();
         let (tx, rx) = sync_channel::<Msg>(CHANNEL);
@@ -315,7 +315,7 @@ fn on_disk(path: &Path) -> String {
 
 /// What the writer needs to put the screen's jobs into the trace.
 struct JobWatch {
-    library: pkm_api::trajectory::NcLibrary,
+    library: pkm_api::library::NcLibrary,
     /// `HMI_NC_PROGRAM`.
     var: VarIndex,
     /// Per slot: its job is in the trace.

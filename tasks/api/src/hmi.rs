@@ -32,6 +32,6 @@ pub const HMI_NC: [Var<bool>; 3] = [
     Var::new("HMI_NC_RESUME"),
 ];
 /// The program the screen asks to load: its (1-based) number in the run's
-/// [`NcLibrary`](crate::trajectory::NcLibrary); 0 asks for nothing. Taken by the main program
+/// [`NcLibrary`](crate::library::NcLibrary); 0 asks for nothing. Taken by the main program
 /// outside AUTO (a level: the last choice stands).
 pub const HMI_NC_PROGRAM: Var<i16> = Var::new("HMI_NC_PROGRAM");

@@ -11,6 +11,7 @@
 pub mod bus;
 pub mod hmi;
 pub mod image;
+pub mod library;
 pub mod machine;
 pub mod problem;
 pub mod program;

@@ -161,7 +161,7 @@ pub struct ProgramArgs<'a> {
     pub fastest_class: bool,
     /// The NC programs of the run (`run --program`, `--programs`), checked and planned; the
     /// main program runs the loaded one in AUTO and the drive program samples it.
-    pub nc: Option<&'a crate::trajectory::NcLibrary>,
+    pub nc: Option<&'a crate::library::NcLibrary>,
 }
 
 impl ProgramArgs<'_> {

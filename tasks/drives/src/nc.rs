@@ -13,9 +13,10 @@
 use std::sync::Arc;
 
 use pkm_api::image::{Declare, Input, Output};
+use pkm_api::library::NcLibrary;
 use pkm_api::program::Cycle;
 use pkm_api::trajectory::{
-    MAX_AXES, MAX_FEED_OVERRIDE, NcLibrary, OVERRIDE_DEFAULT, Trajectory, TrajectoryEventKind, TrajectorySample,
+    MAX_AXES, MAX_FEED_OVERRIDE, OVERRIDE_DEFAULT, Trajectory, TrajectoryEventKind, TrajectorySample,
 };
 
 use crate::automaton::MainState;

@@ -8,7 +8,6 @@ use pkm_api::program::ProgramInfo;
 use pkm_kinematics::Machine as Model;
 
 use crate::params::{DcDrive, DrivesParams, JogParams, JointParams, MainParams, Referencing, StepperDrive};
-use crate::plant::config::{DcMotor, JointPlant, Motor, PlantConfig, StepperMotor};
 
 /// How the joints are driven.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -123,7 +122,7 @@ impl Spec {
     }
 
     /// Maximal joint speed (mm/s) and acceleration (mm/s²), machines.md.
-    fn joint_limits(&self) -> (f64, f64) {
+    pub(crate) fn joint_limits(&self) -> (f64, f64) {
         match self.model {
             Model::Pn101 => (8.0, 40.0),
             Model::Hexapod => (25.0, 200.0),
@@ -211,65 +210,6 @@ impl Spec {
                     dead_zone: 0.05,
                 },
             },
-        }
-    }
-
-    /// The simulated plant's defaults.
-    pub fn default_plant(&self) -> PlantConfig {
-        let stepper = |speed: f64, accel: f64| Motor {
-            stepper: Some(StepperMotor {
-                steps_per_mm: 400.0,
-                pull_out_speed_mm_s: 1.25 * speed,
-                pull_out_accel_mm_s2: 2.0 * accel,
-                pull_in_speed_mm_s: 0.25 * speed,
-            }),
-            dc: None,
-        };
-        let joint = |start_mm: f64, travel: [f64; 2], reference: f64, motor: Motor| JointPlant {
-            start_mm,
-            hard_stops_mm: [travel[0] - 3.0, travel[1] + 3.0],
-            limit_switches_mm: travel,
-            reference_switch_mm: reference,
-            reference_direction: 1.0,
-            motor,
-        };
-        let (speed, accel) = self.joint_limits();
-        let joints = match self.model {
-            Model::Pn101 => vec![
-                joint(-10.0, [-60.0, 60.0], 55.0, stepper(speed, accel)),
-                joint(5.0, [-60.0, 60.0], 55.0, stepper(speed, accel)),
-                JointPlant {
-                    reference_direction: -1.0,
-                    ..joint(12.0, [-60.0, 60.0], -55.0, stepper(speed, accel))
-                },
-            ],
-            Model::Hexapod => vec![
-                joint(
-                    745.0,
-                    [400.0, 1000.0],
-                    765.0,
-                    Motor {
-                        stepper: None,
-                        dc: Some(DcMotor {
-                            v_max_mm_s: 40.0,
-                            tau_s: 0.05,
-                            counts_per_mm: 1000.0,
-                        }),
-                    }
-                );
-                6
-            ],
-            _ => vec![
-                joint(-10.0, [-150.0, 150.0], 0.0, stepper(speed, accel)),
-                joint(-8.0, [-150.0, 150.0], 0.0, stepper(speed, accel)),
-                joint(-5.0, [-100.0, 100.0], 0.0, stepper(speed, accel)),
-            ],
-        };
-        PlantConfig {
-            step_us: 1000,
-            mechanism: true,
-            joints,
-            wiring: crate::plant::harness::default_wiring(self),
         }
     }
 }

@@ -2,12 +2,12 @@
 //! integration step, and which module channel each signal of the machine is wired to) and the
 //! table of the plant's signals in the order of [`SIGNALS`].
 
-use pkm_api::image::{Direction, VarType};
-use pkm_api::machine::{Role, Signal};
+use pkm_api::image::{Direction, Value, VarType};
+use pkm_api::machine::{Action, Role, Signal};
 use pkm_api::problem::Problem;
 use serde::Deserialize;
 
-use crate::plant::{Button, DriveId, DriveParams, SwitchEnd};
+use crate::plant::{Button, DriveId, DriveParams, Plant, SwitchEnd};
 
 /// The `plant` section of config.json.
 #[derive(Clone, Debug, Deserialize)]
@@ -278,5 +278,77 @@ impl Wiring {
             &self.joystick_y,
             &self.joystick_connected,
         ]
+    }
+}
+
+/// The plant as the runtime sees it: its signals in the order of [`SIGNALS`], each read from or
+/// written to the part of the model its wire leads to.
+/// The drives' names in scenario files, by [`DriveId`].
+const DRIVES: [&str; 2] = ["left", "right"];
+
+impl pkm_api::machine::Plant for Plant {
+    fn signals(&self) -> &[Signal] {
+        &SIGNALS
+    }
+
+    fn drives(&self) -> &[&'static str] {
+        &DRIVES
+    }
+
+    fn step(&mut self, dt_s: f64) {
+        Plant::step(self, dt_s);
+    }
+
+    fn read(&self, signal: usize) -> Value {
+        match WIRES[signal] {
+            Wire::Button(b) => Value::Bool(self.button(b)),
+            Wire::Switch(d, end) => Value::Bool(self.switch(d, end)),
+            Wire::Encoder(d) => Value::Int(self.counter(d)),
+            Wire::BridgeError(d) => Value::Bool(self.bridge_error(d)),
+            Wire::JoystickAxis(a) => Value::Real(self.joystick()[a]),
+            Wire::JoystickConnected => Value::Bool(self.joystick_connected()),
+            // Outputs read back as the bus's zero: the runtime reads input signals only.
+            Wire::CounterReset(_) | Wire::ClearError(_) => Value::Bool(false),
+            Wire::Pwm(_) => Value::Int(0),
+            Wire::PwmPeriod => Value::Uint(0),
+        }
+    }
+
+    fn write(&mut self, signal: usize, value: Value) {
+        match (WIRES[signal], value) {
+            (Wire::Pwm(d), Value::Int(v)) => self.set_pwm(d, v),
+            (Wire::PwmPeriod, Value::Uint(v)) => self.set_period(v),
+            (Wire::ClearError(d), Value::Bool(v)) => self.set_clear_error(d, v),
+            (Wire::CounterReset(d), Value::Bool(v)) => self.set_counter_reset(d, v),
+            _ => {}
+        }
+    }
+
+    fn apply(&mut self, action: Action) {
+        match action {
+            Action::Press { signal, pressed } => {
+                if let Wire::Button(b) = WIRES[signal] {
+                    self.set_button(b, pressed);
+                }
+            }
+            Action::Joystick(x, y) => self.set_joystick(x, y),
+            Action::StickSwitch { signal, stuck } => {
+                if let Wire::Switch(d, end) = WIRES[signal] {
+                    self.stick_switch(d, end, stuck);
+                }
+            }
+            Action::EncoderGlitch { drive, counts } => self.encoder_glitch(drive, counts),
+            Action::BridgeError { drive } => self.bridge_fault(drive),
+            Action::DriveDead { drive, dead } => self.set_dead(drive, dead),
+            Action::JoystickConnected(c) => self.set_joystick_connected(c),
+        }
+    }
+
+    fn as_any(&self) -> &dyn std::any::Any {
+        self
+    }
+
+    fn as_any_mut(&mut self) -> &mut dyn std::any::Any {
+        self
     }
 }

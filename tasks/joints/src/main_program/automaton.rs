@@ -11,7 +11,6 @@ use pkm_kinematics::MAX_DOF;
 use pkm_kinematics::frame::MachineFrame;
 
 use super::reason::Reason;
-use super::referencing::Search;
 use crate::params::MainParams;
 
 /// The events the automaton handles: the shared automaton's, with these machines' reasons.
@@ -89,6 +88,30 @@ pub(super) fn profile(at: f64, v: f64, target: f64, speed: f64, accel: f64, dt: 
     let braking = accel * ((dt * dt + 2.0 * gap.abs() / accel).sqrt() - dt);
     let wanted = gap.signum() * speed.min(braking).min(gap.abs() / dt);
     wanted.clamp(v - accel * dt, v + accel * dt)
+}
+
+/// One joint's progress through referencing.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Search {
+    /// Started on the switch: moving against the search direction from `from` until the input
+    /// is off.
+    Leave { since_s: f64, from: f64 },
+    /// A leave that did not clear the input: back to where it started (`to`), then ERROR.
+    Undo { to: f64, since_s: f64 },
+    /// Moving towards the switch from `from` until its capture count moves past `seen`; stage 0
+    /// searches, stage 1 approaches slowly and takes the reference.
+    Seek {
+        stage: u8,
+        seen: i32,
+        since_s: f64,
+        from: f64,
+    },
+    /// Backing off the switch (its edge at `edge`) to `target` before the slow approach.
+    Retreat { target: f64, since_s: f64, edge: f64 },
+    /// Referenced; moving to the reference (home) position.
+    ToHome { since_s: f64 },
+    /// At the reference position.
+    Done,
 }
 
 /// Where INIT stands.

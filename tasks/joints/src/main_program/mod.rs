@@ -15,8 +15,8 @@ mod referencing;
 pub use automaton::{Automaton, Event, Io, Main, Phase};
 pub use reason::Reason;
 
+use automaton::Search;
 use reason::ReasonTexts;
-use referencing::Search;
 
 use pkm_api::hmi;
 use pkm_api::image::{Declare, Input, Output};

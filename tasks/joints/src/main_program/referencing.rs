@@ -13,37 +13,13 @@
 
 use pkm_kinematics::MAX_DOF;
 
-use super::automaton::{Io, Main, Phase};
+use super::automaton::{Io, Main, Phase, Search};
 use super::reason::Reason;
 
 /// How far (mm) a joint may stand from its reference switch's edge, in the frame of the last
 /// referencing, while its reference input says the other side (the switch's repeatability, a
 /// cycle's travel between the input's and the position's sampling, a stepper's rounding).
 pub const SWITCH_AGREEMENT_MM: f64 = 1.0;
-
-/// One joint's progress through referencing.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub enum Search {
-    /// Started on the switch: moving against the search direction from `from` until the input
-    /// is off.
-    Leave { since_s: f64, from: f64 },
-    /// A leave that did not clear the input: back to where it started (`to`), then ERROR.
-    Undo { to: f64, since_s: f64 },
-    /// Moving towards the switch from `from` until its capture count moves past `seen`; stage 0
-    /// searches, stage 1 approaches slowly and takes the reference.
-    Seek {
-        stage: u8,
-        seen: i32,
-        since_s: f64,
-        from: f64,
-    },
-    /// Backing off the switch (its edge at `edge`) to `target` before the slow approach.
-    Retreat { target: f64, since_s: f64, edge: f64 },
-    /// Referenced; moving to the reference (home) position.
-    ToHome { since_s: f64 },
-    /// At the reference position.
-    Done,
-}
 
 impl Main {
     /// Joint mode (INIT, before referencing): while a limit input is active or the override is

@@ -214,3 +214,66 @@ impl JointPlant {
         }
     }
 }
+
+/// The simulated plant a machine of the family starts from, before its configuration's `plant`
+/// section.
+impl crate::spec::Spec {
+    /// The simulated plant's defaults.
+    pub fn default_plant(&self) -> PlantConfig {
+        let stepper = |speed: f64, accel: f64| Motor {
+            stepper: Some(StepperMotor {
+                steps_per_mm: 400.0,
+                pull_out_speed_mm_s: 1.25 * speed,
+                pull_out_accel_mm_s2: 2.0 * accel,
+                pull_in_speed_mm_s: 0.25 * speed,
+            }),
+            dc: None,
+        };
+        let joint = |start_mm: f64, travel: [f64; 2], reference: f64, motor: Motor| JointPlant {
+            start_mm,
+            hard_stops_mm: [travel[0] - 3.0, travel[1] + 3.0],
+            limit_switches_mm: travel,
+            reference_switch_mm: reference,
+            reference_direction: 1.0,
+            motor,
+        };
+        let (speed, accel) = self.joint_limits();
+        let joints = match self.model {
+            pkm_kinematics::Machine::Pn101 => vec![
+                joint(-10.0, [-60.0, 60.0], 55.0, stepper(speed, accel)),
+                joint(5.0, [-60.0, 60.0], 55.0, stepper(speed, accel)),
+                JointPlant {
+                    reference_direction: -1.0,
+                    ..joint(12.0, [-60.0, 60.0], -55.0, stepper(speed, accel))
+                },
+            ],
+            pkm_kinematics::Machine::Hexapod => vec![
+                joint(
+                    745.0,
+                    [400.0, 1000.0],
+                    765.0,
+                    Motor {
+                        stepper: None,
+                        dc: Some(DcMotor {
+                            v_max_mm_s: 40.0,
+                            tau_s: 0.05,
+                            counts_per_mm: 1000.0,
+                        }),
+                    }
+                );
+                6
+            ],
+            _ => vec![
+                joint(-10.0, [-150.0, 150.0], 0.0, stepper(speed, accel)),
+                joint(-8.0, [-150.0, 150.0], 0.0, stepper(speed, accel)),
+                joint(-5.0, [-100.0, 100.0], 0.0, stepper(speed, accel)),
+            ],
+        };
+        PlantConfig {
+            step_us: 1000,
+            mechanism: true,
+            joints,
+            wiring: super::harness::default_wiring(self),
+        }
+    }
+}
