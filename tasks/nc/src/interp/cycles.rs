@@ -1,0 +1,211 @@
+//! The canned cycles G81, G82 and G83 as LinuxCNC makes them: the values that carry from block to
+//! block of a series, and each cycle's moves.
+
+use crate::NcError;
+use crate::lexer::Word;
+
+use super::block::{AXES, Action, Blend, Block, MAX_DWELL_S, Path};
+use super::modes::stops;
+use super::state::State;
+use super::words::{count, format_code};
+
+/// A canned cycle's values as its last block gave them (program units, as written: in G91, R
+/// from the initial level and Z from R).
+#[derive(Clone, Copy, Debug, Default)]
+pub(super) struct Cycle {
+    r: f64,
+    bottom: f64,
+    dwell: f64,
+    peck: f64,
+}
+
+/// How far above the bottom of the last peck a G83 rapid returns (mm): LinuxCNC 2.9's
+/// `G83_RAPID_DELTA`, 0.010 inch.
+const PECK_CLEARANCE_MM: f64 = 0.254;
+
+impl State<'_> {
+    /// A canned cycle (G81, G82, G83: `code`) at the block's position, as LinuxCNC's
+    /// `convert_cycle_xy` (and its other planes) makes it: up to the R plane if below it, over
+    /// the hole, down to R, the cycle, back to the clearance level (R in G99, the series'
+    /// starting height in G98); L times. Every move stops exactly at its end.
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn cycle<'w>(
+        &mut self,
+        line: usize,
+        code: u16,
+        previous: Option<u16>,
+        first: &Word,
+        get: &dyn Fn(char) -> Option<&'w Word>,
+        axis_words: &[(usize, &Word)],
+        m: &[(u16, &Word)],
+        out: &mut Vec<Block>,
+    ) -> Result<(), NcError> {
+        let at = |w: &Word, message: String| NcError::new(line, w.column, message);
+        let name = format_code('G', code);
+        let [a0, a1, n] = self.plane.axes();
+        if let Some((_, w)) = axis_words.iter().find(|(c, _)| *c >= 3) {
+            return Err(at(
+                w,
+                format!("{name} moves X Y Z only: {} cannot move in a canned cycle", w.letter),
+            ));
+        }
+        let Some(feed) = self.feed_mm_min else {
+            return Err(at(first, format!("no feed rate: an F word is needed before {name}")));
+        };
+        // The values that carry from the cycle's last block when it continues.
+        let same = previous == Some(code);
+        let normal = AXES[n];
+        let carried = |letter: char, last: f64, what: &str| match get(letter) {
+            Some(w) => Ok(w.value),
+            None if same => Ok(last),
+            None => Err(at(first, format!("{name} needs {letter}, {what}"))),
+        };
+        let r_given = carried('R', self.cycle.r, "the retract plane")?;
+        let bottom_given = carried(normal, self.cycle.bottom, "the bottom of the hole")?;
+        let dwell = if code == 820 {
+            let p = carried('P', self.cycle.dwell, "the dwell at the bottom in seconds")?;
+            if !(0.0..=MAX_DWELL_S).contains(&p) {
+                return Err(at(
+                    get('P').unwrap_or(first),
+                    format!("the dwell P must be between 0 and {MAX_DWELL_S} s, got {p}"),
+                ));
+            }
+            p
+        } else {
+            self.cycle.dwell
+        };
+        let peck = if code == 830 {
+            let q = carried('Q', self.cycle.peck, "the depth of each peck")?;
+            if q <= 0.0 {
+                return Err(at(
+                    get('Q').unwrap_or(first),
+                    format!("the peck depth Q must be positive, got {q}"),
+                ));
+            }
+            q
+        } else {
+            self.cycle.peck
+        };
+        let repeats = count(get('L'), 10_000).map_err(|l| {
+            at(
+                l,
+                format!(
+                    "L, the number of repeats, is a whole number from 1 to 10000, got {}",
+                    l.value
+                ),
+            )
+        })?;
+        // In program coordinates: a0, a1 the plane's axes, n its normal (Z in G17).
+        let mut p = self.program_position();
+        let initial = *self.cycle_initial.get_or_insert(p[n]);
+        let given = |c: usize| axis_words.iter().find(|(k, _)| *k == c).map(|(_, w)| w.value);
+        let (mut aa, mut bb, step, r, bottom);
+        if self.incremental {
+            step = [given(a0).unwrap_or(0.0), given(a1).unwrap_or(0.0)];
+            r = r_given + initial;
+            bottom = r + bottom_given;
+            (aa, bb) = (p[a0], p[a1]);
+        } else {
+            step = [0.0, 0.0];
+            (r, bottom) = (r_given, bottom_given);
+            (aa, bb) = (given(a0).unwrap_or(p[a0]), given(a1).unwrap_or(p[a1]));
+        }
+        if r < bottom {
+            return Err(at(
+                get('R').unwrap_or(first),
+                format!("{name}: the retract plane R ({r}) is below the bottom {normal} ({bottom})"),
+            ));
+        }
+        let mut old = initial;
+        let mut current = p[n];
+        let here = [p[a0], p[a1]];
+        let feed = Some(feed);
+        let mut go = |this: &mut Self, out: &mut Vec<Block>, point: [f64; 3], feed: Option<f64>| {
+            (p[a0], p[a1], p[n]) = (point[0], point[1], point[2]);
+            let to = this.machine_position(&p);
+            // LinuxCNC writes moves that go nowhere (over the hole when the tool is there
+            // already); they change nothing.
+            if to != this.position {
+                out.push(Block {
+                    line,
+                    action: Action::Move {
+                        from: this.position,
+                        to,
+                        path: Path::Line,
+                        feed_mm_min: feed,
+                        blend: Blend::ExactStop,
+                    },
+                });
+                this.position = to;
+            }
+        };
+        // Below the R plane: straight up to it first.
+        if old < r {
+            go(self, out, [here[0], here[1], r], None);
+            old = r;
+            current = r;
+        }
+        let clear = if self.retract_to_r { r } else { old };
+        let unit = self.unit();
+        // A cycle's repeats and pecks make moves before the program's cost is counted: bounded
+        // here, so that a tiny Q or a large L cannot fill the memory within one block.
+        let (room, max_moves) = (
+            self.bounds.max_moves.saturating_sub(self.cost.moves),
+            self.bounds.max_moves,
+        );
+        let full = |out: &Vec<Block>| {
+            (out.len() > room).then(|| {
+                at(
+                    first,
+                    format!(
+                        "{name}: the cycle makes more than the {max_moves} moves the program may make (the bound: nc.max_moves): fewer repeats L, or a deeper peck Q"
+                    ),
+                )
+            })
+        };
+        for turn in 0..repeats {
+            if let Some(e) = full(out) {
+                return Err(e);
+            }
+            aa += step[0];
+            bb += step[1];
+            if turn == 0 && current > r {
+                go(self, out, [aa, bb, current], None);
+                go(self, out, [aa, bb, r], None);
+            } else {
+                go(self, out, [aa, bb, clear], None);
+                if clear > r {
+                    go(self, out, [aa, bb, r], None);
+                }
+            }
+            if code == 830 {
+                let mut depth = r - peck;
+                while depth > bottom {
+                    if let Some(e) = full(out) {
+                        return Err(e);
+                    }
+                    go(self, out, [aa, bb, depth], feed);
+                    go(self, out, [aa, bb, r], None);
+                    go(self, out, [aa, bb, depth + PECK_CLEARANCE_MM / unit], None);
+                    depth -= peck;
+                }
+            }
+            go(self, out, [aa, bb, bottom], feed);
+            if code == 820 {
+                out.push(Block {
+                    line,
+                    action: Action::Dwell(dwell),
+                });
+            }
+            go(self, out, [aa, bb, clear], None);
+        }
+        self.cycle = Cycle {
+            r: r_given,
+            bottom: bottom_given,
+            dwell,
+            peck,
+        };
+        stops(line, m, out);
+        Ok(())
+    }
+}

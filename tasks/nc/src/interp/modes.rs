@@ -1,0 +1,185 @@
+//! The modal settings a block changes, each group as LinuxCNC converts it: feed and spindle speed
+//! (F, S), the spindle (M3 M4 M5), the dwell (G4), the plane (G17 G18 G19), the units (G20 G21),
+//! the work coordinate system (G54 … G59), path control (G61 G64), the distance modes (G90 G91,
+//! G90.1 G91.1), the canned cycles' retract (G98 G99), and the program stops (M0 M1 M2 M30).
+
+use crate::NcError;
+use crate::lexer::Word;
+
+use super::block::{Action, Blend, Block, MAX_DWELL_S, MAX_SPINDLE_RPM, MIN_FEED, Plane, Spindle};
+use super::state::State;
+use super::words::{Words, g_refusal};
+
+impl State<'_> {
+    /// Checks the feed (F, set with the units below) and sets the spindle speed (S).
+    pub(super) fn feed_and_speed(&mut self, words: &Words<'_>) -> Result<(), NcError> {
+        let line = words.line;
+        let at = |w: &Word, message: String| NcError::new(line, w.column, message);
+        if let Some(w) = words.get('F')
+            && !(w.value.is_finite() && w.value > 0.0)
+        {
+            return Err(at(w, format!("the feed F must be positive, got {}", w.value)));
+        }
+        if let Some(w) = words.get('F')
+            && w.value < MIN_FEED
+        {
+            return Err(at(
+                w,
+                format!(
+                    "the feed F must be at least {MIN_FEED} units/min (slower, a millimetre takes hours), got {}",
+                    w.value
+                ),
+            ));
+        }
+        if let Some(w) = words.get('S') {
+            if !(w.value.is_finite() && w.value >= 0.0) {
+                return Err(at(
+                    w,
+                    format!("the spindle speed S must be zero or positive, got {}", w.value),
+                ));
+            }
+            if w.value > MAX_SPINDLE_RPM {
+                return Err(at(
+                    w,
+                    format!(
+                        "the spindle speed S must be at most {MAX_SPINDLE_RPM} rpm, got {}",
+                        w.value
+                    ),
+                ));
+            }
+            self.speed_rpm = w.value;
+        }
+        Ok(())
+    }
+
+    /// Switches the spindle (M3, M4, M5) at the speed in force.
+    pub(super) fn spindle(&self, words: &Words<'_>, out: &mut Vec<Block>) {
+        let line = words.line;
+        for (code, _) in &words.m {
+            let direction = match code {
+                30 => Spindle::Clockwise,
+                40 => Spindle::CounterClockwise,
+                50 => Spindle::Off,
+                _ => continue,
+            };
+            out.push(Block {
+                line,
+                action: Action::Spindle {
+                    direction,
+                    speed_rpm: self.speed_rpm,
+                },
+            });
+        }
+    }
+
+    /// Dwells (G4 P seconds).
+    pub(super) fn dwell(&self, words: &Words<'_>, out: &mut Vec<Block>) -> Result<(), NcError> {
+        let line = words.line;
+        let at = |w: &Word, message: String| NcError::new(line, w.column, message);
+        if let Some(w) = words.g_word(40) {
+            let p = words
+                .get('P')
+                .ok_or_else(|| at(w, "G4 needs P, the dwell in seconds".into()))?;
+            if !(p.value.is_finite() && p.value >= 0.0) {
+                return Err(at(
+                    p,
+                    format!("the dwell P must be zero or positive seconds, got {}", p.value),
+                ));
+            }
+            if p.value > MAX_DWELL_S {
+                return Err(at(
+                    p,
+                    format!("the dwell P must be at most {MAX_DWELL_S} s (a day), got {}", p.value),
+                ));
+            }
+            out.push(Block {
+                line,
+                action: Action::Dwell(p.value),
+            });
+        }
+        Ok(())
+    }
+
+    /// Sets the plane, the units, the work coordinate system, the feed (in the units now in
+    /// force), path control, the distance modes and the canned cycles' retract.
+    pub(super) fn modes(&mut self, words: &Words<'_>) -> Result<(), NcError> {
+        let line = words.line;
+        let at = |w: &Word, message: String| NcError::new(line, w.column, message);
+        for (code, _) in &words.g {
+            match code {
+                170 => self.plane = Plane::Xy,
+                180 => self.plane = Plane::Zx,
+                190 => self.plane = Plane::Yz,
+                200 => self.inches = true,
+                210 => self.inches = false,
+                540..=590 if code.is_multiple_of(10) => self.system = usize::from(code / 10 - 54),
+                _ => {}
+            }
+        }
+        if let Some((code, w)) = words
+            .g
+            .iter()
+            .find(|(c, _)| (540..=590).contains(c) && !c.is_multiple_of(10))
+        {
+            return Err(at(w, g_refusal(*code)));
+        }
+        if let Some(w) = words.get('F') {
+            self.feed_mm_min = Some(w.value * self.unit());
+        }
+        // G61 and G61.1 (exact path: the same here, as every move follows its programmed path).
+        if words.has_g(610) || words.has_g(611) {
+            self.blend = Blend::ExactStop;
+        }
+        if words.has_g(640) {
+            // P0, and a negative P (LinuxCNC reads P-1 so), is G64 without P: no tolerance.
+            let tolerance = words.get('P').map(|p| p.value * self.unit()).filter(|p| *p > 0.0);
+            let merge = match words.get('Q') {
+                Some(q) if q.value < 0.0 => {
+                    return Err(at(
+                        q,
+                        format!("the merging tolerance Q must be zero or positive, got {}", q.value),
+                    ));
+                }
+                Some(q) => Some(q.value * self.unit()).filter(|q| *q > 0.0),
+                None => None,
+            };
+            self.blend = Blend::Within { tolerance, merge };
+        }
+        if words.has_g(901) {
+            self.arc_absolute = true;
+        }
+        if words.has_g(911) {
+            self.arc_absolute = false;
+        }
+        if words.has_g(900) {
+            self.incremental = false;
+        }
+        if words.has_g(910) {
+            self.incremental = true;
+        }
+        if words.has_g(980) {
+            self.retract_to_r = false;
+        }
+        if words.has_g(990) {
+            self.retract_to_r = true;
+        }
+        Ok(())
+    }
+}
+
+/// The program stops of a block (M0, M1, M2, M30), after its motion.
+pub(super) fn stops(line: usize, m: &[(u16, &Word)], out: &mut Vec<Block>) {
+    for (code, _) in m {
+        match code {
+            0 | 10 => out.push(Block {
+                line,
+                action: Action::Pause { optional: *code == 10 },
+            }),
+            20 | 300 => out.push(Block {
+                line,
+                action: Action::End,
+            }),
+            _ => {}
+        }
+    }
+}

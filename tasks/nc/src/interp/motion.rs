@@ -1,0 +1,257 @@
+//! Motion: the motion mode (G0 G1 G2 G3, the canned cycles G81 G82 G83, G80's cancel), machine
+//! coordinates for one block (G53), and each move — a straight line, or an arc by its centre or
+//! radius, helical where the block moves the axis normal to its plane.
+
+use crate::NcError;
+use crate::lexer::Word;
+
+use super::block::{Action, Block, Path, Plane, Pose};
+use super::modes::stops;
+use super::state::State;
+use super::words::{Words, count};
+
+/// Tolerance of an arc's end point off its circle (mm): LinuxCNC's default for mm programs.
+const ARC_TOLERANCE_MM: f64 = 0.002;
+/// … or this fraction of the radius, whichever is larger.
+const ARC_TOLERANCE_RELATIVE: f64 = 0.001;
+
+impl State<'_> {
+    /// The motion the block makes, if any: its motion code, or with axis words alone the mode
+    /// in force (G80 in the block makes none).
+    pub(super) fn motion_now(&self, words: &Words<'_>) -> Option<u16> {
+        let has_axis_word = super::block::AXES.iter().any(|a| words.get(*a).is_some());
+        match words.motion_word() {
+            Some((c, _)) => Some(c),
+            None if has_axis_word && !words.has_g(800) => self.motion,
+            None => None,
+        }
+    }
+
+    /// The block's motion: G80, the motion mode, a canned cycle, or a move (G53 with it), then
+    /// its program stops.
+    pub(super) fn motion(&mut self, words: &Words<'_>, out: &mut Vec<Block>) -> Result<(), NcError> {
+        let line = words.line;
+        let at = |w: &Word, message: String| NcError::new(line, w.column, message);
+        let get = |letter: char| words.get(letter);
+        let motion_word = words.motion_word();
+        let cycle_now = matches!(self.motion_now(words), Some(810 | 820 | 830));
+        let axis_words = words.axis_words();
+        // A length in machine units: mm for X Y Z, degrees for A B C.
+        let unit = self.unit();
+        let scale = |c: usize| if c < 3 { unit } else { 1.0 };
+        let machine_coords = words.has_g(530);
+        if words.has_g(800) {
+            // G80 (canned cycle cancel) sets no motion mode; CAM programs write it in their
+            // preamble.
+            if let Some((_, a)) = axis_words.first() {
+                return Err(at(
+                    a,
+                    "axis words cannot go with G80 (it cancels the motion mode; G80 does not)".into(),
+                ));
+            }
+            self.motion = None;
+            self.cycle_initial = None;
+        }
+        let previous_motion = self.motion;
+        if let Some((code, _)) = motion_word {
+            self.motion = Some(code);
+        }
+        if cycle_now {
+            if let Some(w) = words.g_word(530) {
+                return Err(at(w, "G53 goes with a G0 or G1 move in this block".into()));
+            }
+            let first = axis_words.first().map_or(words.first, |(_, w)| *w);
+            let code = self.motion.unwrap_or_default();
+            return self.cycle(line, code, previous_motion, first, &get, &axis_words, &words.m, out);
+        }
+        // An arc without axis words but with its centre is a full circle where the tool stands.
+        let full_circle = matches!(motion_word, Some((20 | 30, _))) && axis_words.is_empty() && {
+            let [o0, o1] = self.plane.offsets();
+            get(o0).is_some() || get(o1).is_some()
+        };
+        let moves = !words.has_g(920) && (!axis_words.is_empty() || full_circle);
+        if let Some(w) = words.g_word(530) {
+            if !matches!(self.motion, Some(0 | 10)) || !moves {
+                return Err(at(w, "G53 goes with a G0 or G1 move in this block".into()));
+            }
+            if self.incremental {
+                return Err(at(w, "G53 needs absolute distances (G90)".into()));
+            }
+        }
+        // G0 or G1 alone sets the motion mode for the lines that follow (LinuxCNC's meaning);
+        // an arc alone needs its centre.
+        if let Some((20 | 30, w)) = motion_word
+            && !moves
+            && !words.has_g(920)
+        {
+            let [o0, o1] = self.plane.offsets();
+            return Err(at(
+                w,
+                format!("an arc needs its centre ({o0} {o1}) or its end and radius (R)"),
+            ));
+        }
+        if moves {
+            self.cycle_initial = None;
+            let Some(mode) = self.motion else {
+                return Err(at(
+                    axis_words[0].1,
+                    "an axis word needs a motion mode: G0, G1, G2 or G3 first".into(),
+                ));
+            };
+            let offset = self.offset();
+            let mut to = self.position;
+            for (c, w) in &axis_words {
+                let v = w.value * scale(*c);
+                to[*c] = if machine_coords {
+                    v
+                } else if self.incremental {
+                    self.position[*c] + v
+                } else {
+                    v + offset[*c]
+                };
+            }
+            let first = axis_words
+                .first()
+                .map_or_else(|| motion_word.map(|(_, w)| w).unwrap_or(words.first), |(_, w)| *w);
+            let feed = match mode {
+                0 => None,
+                _ => Some(self.feed_mm_min.ok_or_else(|| {
+                    at(
+                        first,
+                        "no feed rate: an F word is needed before the first G1, G2 or G3".into(),
+                    )
+                })?),
+            };
+            let path = match mode {
+                0 | 10 => Path::Line,
+                _ => self.arc(line, first, mode == 20, &to, &get)?,
+            };
+            out.push(Block {
+                line,
+                action: Action::Move {
+                    from: self.position,
+                    to,
+                    path,
+                    feed_mm_min: feed,
+                    blend: self.blend,
+                },
+            });
+            self.position = to;
+        }
+        stops(line, &words.m, out);
+        Ok(())
+    }
+
+    /// The arc from the current position to `to`, by its centre (I J K) or radius (R).
+    pub(super) fn arc<'w>(
+        &self,
+        line: usize,
+        first: &Word,
+        clockwise: bool,
+        to: &Pose,
+        get: &dyn Fn(char) -> Option<&'w Word>,
+    ) -> Result<Path, NcError> {
+        let at = |w: &Word, message: String| NcError::new(line, w.column, message);
+        let [a0, a1, _] = self.plane.axes();
+        let (s, e) = ([self.position[a0], self.position[a1]], [to[a0], to[a1]]);
+        let turns = count(get('P'), 1000).map_err(|p| {
+            at(
+                p,
+                format!(
+                    "an arc's P is its number of turns, a whole number from 1, got {}",
+                    p.value
+                ),
+            )
+        })?;
+        let [o0, o1] = self.plane.offsets();
+        let plane_name = match self.plane {
+            Plane::Xy => "G17 (X–Y)",
+            Plane::Zx => "G18 (Z–X)",
+            Plane::Yz => "G19 (Y–Z)",
+        };
+        for letter in ['I', 'J', 'K'] {
+            if letter != o0
+                && letter != o1
+                && let Some(w) = get(letter)
+            {
+                return Err(at(
+                    w,
+                    format!("{letter} is not an offset of an arc in {plane_name}: use {o0} and {o1}"),
+                ));
+            }
+        }
+        let center = match (get('R'), get(o0), get(o1)) {
+            (Some(r), None, None) => {
+                let radius = r.value * self.unit();
+                let chord = [e[0] - s[0], e[1] - s[1]];
+                let d = chord[0].hypot(chord[1]);
+                if d < 1e-9 {
+                    return Err(at(r, "a full circle is given by its centre (I J K), not by R".into()));
+                }
+                if radius.abs() < d / 2.0 - ARC_TOLERANCE_MM {
+                    return Err(at(
+                        r,
+                        format!(
+                            "the radius {} mm is shorter than half the chord ({:.4} mm)",
+                            radius.abs(),
+                            d / 2.0
+                        ),
+                    ));
+                }
+                let h = (radius * radius - d * d / 4.0).max(0.0).sqrt();
+                // The centre lies to the left of the chord for a short counter-clockwise arc;
+                // a negative R asks for the long arc (more than half a turn).
+                let left = !clockwise ^ (radius < 0.0);
+                let sign = if left { 1.0 } else { -1.0 };
+                let mid = [(s[0] + e[0]) / 2.0, (s[1] + e[1]) / 2.0];
+                [mid[0] - sign * h * chord[1] / d, mid[1] + sign * h * chord[0] / d]
+            }
+            (Some(r), _, _) => return Err(at(r, "an arc has a radius (R) or a centre (I J K), not both".into())),
+            (None, None, None) => {
+                return Err(at(
+                    first,
+                    format!("an arc needs its centre ({o0} {o1}) or its radius (R)"),
+                ));
+            }
+            (None, i, j) => {
+                let c = if self.arc_absolute {
+                    // G90.1: the centre in program coordinates, both of its words given.
+                    let (Some(i), Some(j)) = (i, j) else {
+                        return Err(at(
+                            first,
+                            format!("in G90.1 (absolute arc centres) an arc needs both {o0} and {o1}"),
+                        ));
+                    };
+                    let offset = self.offset();
+                    [i.value * self.unit() + offset[a0], j.value * self.unit() + offset[a1]]
+                } else {
+                    [
+                        s[0] + i.map_or(0.0, |w| w.value) * self.unit(),
+                        s[1] + j.map_or(0.0, |w| w.value) * self.unit(),
+                    ]
+                };
+                let r_start = (s[0] - c[0]).hypot(s[1] - c[1]);
+                let r_end = (e[0] - c[0]).hypot(e[1] - c[1]);
+                if r_start < 1e-9 {
+                    return Err(at(first, "the arc's centre is its start point".into()));
+                }
+                let tolerance = ARC_TOLERANCE_MM.max(ARC_TOLERANCE_RELATIVE * r_start);
+                if (r_start - r_end).abs() > tolerance {
+                    return Err(at(
+                        first,
+                        format!(
+                            "the arc's end is not on its circle: radius {r_start:.4} mm at the start, {r_end:.4} mm at the end"
+                        ),
+                    ));
+                }
+                c
+            }
+        };
+        Ok(Path::Arc {
+            plane: self.plane,
+            center,
+            clockwise,
+            extra_turns: turns - 1,
+        })
+    }
+}

@@ -1,0 +1,145 @@
+//! The interpreter's modal state: where the tool is, the modes in force, what the program has
+//! cost so far; the system parameters that give it to a program; and the conversion of one block,
+//! group by group.
+
+use crate::NcError;
+use crate::budget::{Bounds, Cost};
+use crate::flow;
+use crate::lexer;
+
+use super::block::{AXES, Blend, Block, Machine, Plane, Pose};
+use super::cycles::Cycle;
+use super::words::Words;
+
+/// The modal state.
+pub(super) struct State<'a> {
+    pub(super) machine: &'a Machine<'a>,
+    /// What the program may cost, and what its blocks so far cost.
+    pub(super) bounds: Bounds,
+    pub(super) cost: Cost,
+    /// The tool's position (machine world coordinates).
+    pub(super) position: Pose,
+    /// The motion mode (G code in tenths: 0, 10, 20, 30, 810, 820, 830).
+    pub(super) motion: Option<u16>,
+    pub(super) plane: Plane,
+    pub(super) inches: bool,
+    pub(super) incremental: bool,
+    /// The work coordinate system in force (0 = G54).
+    pub(super) system: usize,
+    /// G92's offset.
+    pub(super) g92: Pose,
+    pub(super) feed_mm_min: Option<f64>,
+    pub(super) speed_rpm: f64,
+    pub(super) blend: Blend,
+    /// G90.1: an arc's I J K are absolute program coordinates (G91.1, the default: offsets from
+    /// its start).
+    pub(super) arc_absolute: bool,
+    /// G99 (the default, as LinuxCNC's): a canned cycle retracts to its R plane; G98: to where
+    /// the first cycle of a series started, if that is higher.
+    pub(super) retract_to_r: bool,
+    /// The canned cycle's values that carry to the next block of the same cycle.
+    pub(super) cycle: Cycle,
+    /// The height (normal coordinate, program units) where the present series of canned
+    /// cycles started; `None` after any other motion.
+    pub(super) cycle_initial: Option<f64>,
+}
+
+/// The state as LinuxCNC's system parameters give it, in program units.
+impl flow::System for State<'_> {
+    fn numbered(&self, index: usize) -> Option<f64> {
+        let position = self.program_position();
+        match index {
+            // G92's offsets.
+            5211..=5216 => Some(self.g92[index - 5211] / self.scale(index - 5211)),
+            // The coordinate system in force, 1 for G54.
+            5220 => Some((self.system + 1) as f64),
+            // G54 … G59's origins, 20 parameters per system (X Y Z A B C first).
+            5221..=5326 if (index - 5221) % 20 < 6 => {
+                let (system, c) = ((index - 5221) / 20, (index - 5221) % 20);
+                Some(self.machine.work_offsets[system][c] / self.scale(c))
+            }
+            // The tool's position in the coordinate system in force.
+            5420..=5425 => Some(position[index - 5420]),
+            _ => None,
+        }
+    }
+
+    fn named(&self, name: &str) -> Option<f64> {
+        let truth = |b: bool| if b { 1.0 } else { 0.0 };
+        let position = self.program_position();
+        Some(match name {
+            "_x" | "_y" | "_z" | "_a" | "_b" | "_c" => {
+                let c = AXES
+                    .iter()
+                    .position(|a| name[1..].eq_ignore_ascii_case(&a.to_string()))?;
+                position[c]
+            }
+            "_feed" => self.feed_mm_min.map_or(0.0, |f| f / self.unit()),
+            "_rpm" => self.speed_rpm,
+            "_metric" => truth(!self.inches),
+            "_imperial" => truth(self.inches),
+            "_absolute" => truth(!self.incremental),
+            "_incremental" => truth(self.incremental),
+            "_coord_system" => 540.0 + 10.0 * self.system as f64,
+            "_motion_mode" => f64::from(self.motion.unwrap_or(800)),
+            "_plane" => match self.plane {
+                Plane::Xy => 170.0,
+                Plane::Zx => 180.0,
+                Plane::Yz => 190.0,
+            },
+            _ => return None,
+        })
+    }
+}
+
+impl<'a> State<'a> {
+    pub(super) fn new(machine: &'a Machine<'a>) -> State<'a> {
+        State {
+            machine,
+            bounds: Bounds::default(),
+            cost: Cost::default(),
+            position: machine.start,
+            motion: None,
+            plane: Plane::Xy,
+            inches: false,
+            incremental: false,
+            system: 0,
+            g92: [0.0; 6],
+            feed_mm_min: None,
+            speed_rpm: 0.0,
+            arc_absolute: false,
+            retract_to_r: true,
+            cycle: Cycle::default(),
+            cycle_initial: None,
+            blend: Blend::Within {
+                tolerance: None,
+                merge: None,
+            },
+        }
+    }
+
+    /// mm per program length unit.
+    pub(super) fn unit(&self) -> f64 {
+        if self.inches { 25.4 } else { 1.0 }
+    }
+
+    /// Machine units (mm, degrees) per program unit of coordinate `c`.
+    pub(super) fn scale(&self, c: usize) -> f64 {
+        if c < 3 { self.unit() } else { 1.0 }
+    }
+
+    /// Converts one block, in LinuxCNC's order of execution: feed, speed, spindle, dwell, plane,
+    /// units, work offsets, path control, distance mode, G92, motion, stop. Each group's
+    /// conversion is in the file that names it.
+    pub(super) fn block(&mut self, block: &lexer::Block, out: &mut Vec<Block>) -> Result<(), NcError> {
+        let words = Words::sort(block)?;
+        words.check_axes(self.machine)?;
+        self.feed_and_speed(&words)?;
+        self.spindle(&words, out);
+        words.check_owners(self.motion_now(&words))?;
+        self.dwell(&words, out)?;
+        self.modes(&words)?;
+        self.set_origin(&words)?;
+        self.motion(&words, out)
+    }
+}

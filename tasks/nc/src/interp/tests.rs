@@ -1,0 +1,524 @@
+//! The interpreter against what LinuxCNC reads: moves, modes, offsets, arcs, cycles, refusals.
+
+use super::*;
+
+const XYZ: [&str; 3] = ["x", "y", "z"];
+const XYZABC: [&str; 6] = ["x", "y", "z", "a", "b", "c"];
+
+fn machine(axes: &'static [&'static str]) -> Machine<'static> {
+    let mut work_offsets = [[0.0; 6]; 6];
+    work_offsets[1] = [100.0, 0.0, 0.0, 0.0, 0.0, 0.0];
+    Machine {
+        axes,
+        start: [0.0; 6],
+        work_offsets,
+        block_delete: false,
+    }
+}
+
+/// `text` with an end: a program must end (M2), and what follows an end is never read.
+fn ended(text: &str) -> String {
+    format!("{text}\nM2")
+}
+
+fn run(text: &str) -> Vec<Block> {
+    read(&ended(text), &machine(&XYZ))
+        .unwrap_or_else(|e| panic!("{e}"))
+        .blocks
+}
+
+fn refused(text: &str) -> String {
+    read(&ended(text), &machine(&XYZ)).expect_err("refused").to_string()
+}
+
+fn moves(blocks: &[Block]) -> Vec<(Pose, Path, Option<f64>)> {
+    blocks
+        .iter()
+        .filter_map(|b| match b.action {
+            Action::Move {
+                to, path, feed_mm_min, ..
+            } => Some((to, path, feed_mm_min)),
+            _ => None,
+        })
+        .collect()
+}
+
+#[test]
+fn rapid_and_feed_moves_absolute_incremental_inch_and_modal() {
+    let b = run("G0 X10 Y5\nG1 Z-1 F600\nX20\nG91 X1 Y1\nG20 G90 X1 F10\nG21 G0 X0 Y0 Z0\n");
+    let m = moves(&b);
+    assert_eq!(m[0], ([10.0, 5.0, 0.0, 0.0, 0.0, 0.0], Path::Line, None));
+    assert_eq!(m[1], ([10.0, 5.0, -1.0, 0.0, 0.0, 0.0], Path::Line, Some(600.0)));
+    assert_eq!(m[2].0, [20.0, 5.0, -1.0, 0.0, 0.0, 0.0], "G1 is modal");
+    assert_eq!(m[3].0, [21.0, 6.0, -1.0, 0.0, 0.0, 0.0], "G91 adds");
+    assert_eq!(
+        m[4],
+        ([25.4, 6.0, -1.0, 0.0, 0.0, 0.0], Path::Line, Some(254.0)),
+        "G20: inches"
+    );
+    assert_eq!(m[5], ([0.0; 6], Path::Line, None));
+    assert!(
+        b.iter()
+            .filter(|b| matches!(b.action, Action::Move { .. }))
+            .all(|b| b.line >= 1 && b.line <= 6)
+    );
+    assert_eq!(b[1].line, 2);
+}
+
+#[test]
+fn work_offsets_g92_and_g53() {
+    // G55 has its origin at machine x = 100.
+    let b = run("G55 G0 X1\nG92 X0\nG0 X5\nG53 G0 X2\nG54 G0 X3\n");
+    let m = moves(&b);
+    assert_eq!(m[0].0[0], 101.0);
+    assert_eq!(m[1].0[0], 106.0, "G92 X0 made machine x 101 read 0");
+    assert_eq!(m[2].0[0], 2.0, "G53: machine coordinates");
+    assert_eq!(m[3].0[0], 4.0, "G54 (origin 0) with G92's offset of 1 still in force");
+}
+
+#[test]
+fn arcs_by_centre_and_radius_helical_turns_and_planes() {
+    let b = run(
+        "G0 X10 Y0\nG3 X0 Y10 I-10 J0 F100\nG2 X10 Y0 R10\nG3 X10 Y0 Z5 I-10 P2\nG18 G2 X0 Z-5 K0 I-10\nG19 G3 Y10 Z5 J5 K5\n",
+    );
+    let m = moves(&b);
+    assert_eq!(
+        m[1].1,
+        Path::Arc {
+            plane: Plane::Xy,
+            center: [0.0, 0.0],
+            clockwise: false,
+            extra_turns: 0
+        }
+    );
+    match m[2].1 {
+        Path::Arc {
+            center,
+            clockwise: true,
+            ..
+        } => {
+            assert!(
+                center[0].abs() < 1e-9 && center[1].abs() < 1e-9,
+                "R10 from (0,10) to (10,0) cw: {center:?}"
+            )
+        }
+        other => panic!("{other:?}"),
+    }
+    assert_eq!(m[3].0[2], 5.0, "helix: Z rises along the arc");
+    assert!(matches!(m[3].1, Path::Arc { extra_turns: 1, .. }), "P2: one extra turn");
+    assert!(matches!(m[4].1, Path::Arc { plane: Plane::Zx, center, .. } if center == [5.0, 0.0]));
+    assert!(matches!(m[5].1, Path::Arc { plane: Plane::Yz, .. }));
+    // The long arc: a negative R.
+    let b = run("G0 X10 Y0\nG3 X0 Y10 R-10 F100\n");
+    match moves(&b)[1].1 {
+        Path::Arc { center, .. } => assert!(
+            (center[0] - 10.0).abs() < 1e-9 && (center[1] - 10.0).abs() < 1e-9,
+            "{center:?}"
+        ),
+        other => panic!("{other:?}"),
+    }
+}
+
+#[test]
+fn dwell_pauses_spindle_blending_and_end() {
+    let b = run("G64 P0.05\nS1200 M3\nG4 P1.5\nG1 X1 F100\nM1\nG61 X2\nM5\nM0\nM2\n");
+    let actions: Vec<Action> = b.iter().map(|b| b.action).collect();
+    assert!(matches!(actions[0], Action::Spindle { direction: Spindle::Clockwise, speed_rpm } if speed_rpm == 1200.0));
+    assert_eq!(actions[1], Action::Dwell(1.5));
+    assert!(matches!(actions[2], Action::Move { blend: Blend::Within { tolerance: Some(t), .. }, .. } if t == 0.05));
+    assert_eq!(actions[3], Action::Pause { optional: true });
+    assert!(matches!(
+        actions[4],
+        Action::Move {
+            blend: Blend::ExactStop,
+            ..
+        }
+    ));
+    assert!(matches!(
+        actions[5],
+        Action::Spindle {
+            direction: Spindle::Off,
+            ..
+        }
+    ));
+    assert_eq!(actions[6], Action::Pause { optional: false });
+    assert_eq!(actions[7], Action::End);
+    assert_eq!(b[7].line, 9);
+    let b = run("M4\nM30\n");
+    assert!(matches!(
+        b[0].action,
+        Action::Spindle {
+            direction: Spindle::CounterClockwise,
+            ..
+        }
+    ));
+    assert_eq!(b[1].action, Action::End);
+}
+
+#[test]
+fn rotations_on_the_hexapod_only() {
+    let b = read(&ended("G1 X1 A2 B-3 C4 F100"), &machine(&XYZABC)).expect("hexapod");
+    assert_eq!(moves(&b.blocks)[0].0, [1.0, 0.0, 0.0, 2.0, -3.0, 4.0]);
+    // G20 scales lengths, not angles.
+    let b = read(&ended("G20 G1 X1 A2 F1"), &machine(&XYZABC)).expect("hexapod");
+    assert_eq!(moves(&b.blocks)[0].0, [25.4, 0.0, 0.0, 2.0, 0.0, 0.0]);
+    assert_eq!(refused("G1 X1 A2 F100"), "1:7: A: this machine's axes are X Y Z");
+    let planar = read(&ended("G1 X1 Z2 F100"), &machine(&["x", "y"])).expect_err("refused");
+    assert_eq!(planar.to_string(), "1:7: Z: this machine's axes are X Y");
+}
+
+#[test]
+fn what_the_subset_lacks_is_refused_with_line_column_and_reason() {
+    for (text, message) in [
+        ("G41 X1", "1:1: G41 is not supported (cutter compensation)"),
+        (
+            "G1 X1 F10\nG84 X1 Z-1 R1",
+            "2:1: G84 is not supported (canned cycles other than G81, G82, G83)",
+        ),
+        ("G43 H1", "1:1: G43 is not supported (tool length compensation)"),
+        (
+            "G28",
+            "1:1: G28 is not supported (going home through an intermediate point)",
+        ),
+        (
+            "G93",
+            "1:1: G93 is not supported (feed modes other than units per minute)",
+        ),
+        ("G54.1", "1:1: G54.1 is not supported"),
+        ("G1.5", "1:1: G1.5 is not supported"),
+        ("T1 M6", "1:1: tool selection (T) is not supported"),
+        ("M6", "1:1: M6 is not supported (tool changes)"),
+        ("M8", "1:1: M8 is not supported (coolant)"),
+        ("M98 P10", "1:1: M98 is not supported (subprograms, user codes)"),
+        ("M100", "1:1: M100 is not supported (user-defined M codes)"),
+        ("G1 U1", "1:4: U: axes U V W are not supported"),
+        (
+            "G10 L2 P1 X0",
+            "1:1: G10 is not supported (G10/G11 (tables, retraction))",
+        ),
+        (
+            "G0 G1 X1",
+            "1:4: G0 and G1 are in one modal group: a block holds one of them",
+        ),
+        (
+            "G90 G91",
+            "1:5: G90 and G91 are in one modal group: a block holds one of them",
+        ),
+        (
+            "M3 M5",
+            "1:4: M3 and M5 are in one modal group: a block holds one of them",
+        ),
+        ("G1 X1 X2 F1", "1:7: X twice in one block"),
+        (
+            "G1 X1",
+            "1:4: no feed rate: an F word is needed before the first G1, G2 or G3",
+        ),
+        ("X1", "1:1: an axis word needs a motion mode: G0, G1, G2 or G3 first"),
+        (
+            "G2 F100",
+            "1:1: an arc needs its centre (I J) or its end and radius (R)",
+        ),
+        (
+            "G80 X1",
+            "1:5: axis words cannot go with G80 (it cancels the motion mode; G80 does not)",
+        ),
+        (
+            "G1 X1 F100\nG80\nX2",
+            "3:1: an axis word needs a motion mode: G0, G1, G2 or G3 first",
+        ),
+        (
+            "G1 X1 Q0.1 F100",
+            "1:7: Q belongs to G64 (merging lines within it) or G83 (the peck depth)",
+        ),
+        (
+            "G64 P0.1 Q-1",
+            "1:10: the merging tolerance Q must be zero or positive, got -1",
+        ),
+        (
+            "G90.1 G2 X10 I5 F100",
+            "1:10: in G90.1 (absolute arc centres) an arc needs both I and J",
+        ),
+        (
+            "G1 X1 F100\n%",
+            "2:1: '%' opens a program only on its first line (and then closes it)",
+        ),
+        ("G1 X1 F0", "1:7: the feed F must be positive, got 0"),
+        ("G4", "1:1: G4 needs P, the dwell in seconds"),
+        ("G4 P-1", "1:4: the dwell P must be zero or positive seconds, got -1"),
+        (
+            "G1 X1 P2 F1",
+            "1:7: P belongs to G4 (dwell), G64 (tolerance), an arc (turns) or G82 (dwell)",
+        ),
+        ("G1 X1 I2 F1", "1:7: I belongs to an arc (G2, G3)"),
+        ("G2 X1 F1", "1:4: an arc needs its centre (I J) or its radius (R)"),
+        (
+            "G2 X1 Y1 I1 R1 F1",
+            "1:13: an arc has a radius (R) or a centre (I J K), not both",
+        ),
+        (
+            "G2 X1 K1 F1",
+            "1:7: K is not an offset of an arc in G17 (X–Y): use I and J",
+        ),
+        (
+            "G2 X10 I1 F1",
+            "1:4: the arc's end is not on its circle: radius 1.0000 mm at the start, 9.0000 mm at the end",
+        ),
+        ("G2 X0 I0 J0 F1", "1:4: the arc's centre is its start point"),
+        (
+            "G2 X10 R2 F1",
+            "1:8: the radius 2 mm is shorter than half the chord (5.0000 mm)",
+        ),
+        (
+            "G2 X0 Y0 R2 F1",
+            "1:10: a full circle is given by its centre (I J K), not by R",
+        ),
+        (
+            "G2 X0 I1 P1.5 F1",
+            "1:10: an arc's P is its number of turns, a whole number from 1, got 1.5",
+        ),
+        ("G53 X1", "1:1: G53 goes with a G0 or G1 move in this block"),
+        ("G91 G53 G0 X1", "1:5: G53 needs absolute distances (G90)"),
+        (
+            "G92",
+            "1:1: G92 needs at least one axis word: the program coordinates the tool is at",
+        ),
+        ("G0 X1 N5", "1:7: a line number (N) comes first in its block"),
+        ("G0 X1 E2", "1:7: E (extruders) is not supported"),
+        ("S-5", "1:1: the spindle speed S must be zero or positive, got -5"),
+        ("G1.25 X1", "1:1: G1.25 is not a code"),
+        // Issue 26: absurd values, refused where they are written.
+        (
+            "G1 X1 F0.01",
+            "1:7: the feed F must be at least 0.1 units/min (slower, a millimetre takes hours), got 0.01",
+        ),
+        (
+            "G4 P86401",
+            "1:4: the dwell P must be at most 86400 s (a day), got 86401",
+        ),
+        (
+            "S100001 M3",
+            "1:1: the spindle speed S must be at most 100000 rpm, got 100001",
+        ),
+    ] {
+        assert_eq!(refused(text), message, "{text:?}");
+    }
+    let huge = format!("G1 X1{} F100", "9".repeat(400));
+    assert_eq!(
+        refused(&huge),
+        "1:4: X: the number is out of range (at most 1e9 in magnitude)"
+    );
+    assert_eq!(
+        refused("G0 X1\nG1 Y 1000000000.5 F1"),
+        "2:4: Y: the number is out of range (at most 1e9 in magnitude)"
+    );
+}
+
+/// Issue 27: the dialect CAM programs use, with the moves LinuxCNC 2.9's `rs274` prints for
+/// the same text (checked by hand against it; `tests/suite/nc.rs` compares where it is
+/// installed).
+#[test]
+fn the_cam_dialect_means_what_linuxcnc_reads() {
+    // A motion mode set alone carries to lines with only axis words.
+    let m = moves(&run("G1 F600\nX10\nY5\nG0 X0 Y0"));
+    assert_eq!(m.len(), 3);
+    assert_eq!(m[0], ([10.0, 0.0, 0.0, 0.0, 0.0, 0.0], Path::Line, Some(600.0)));
+    assert_eq!(m[1].0, [10.0, 5.0, 0.0, 0.0, 0.0, 0.0]);
+    assert_eq!(m[2], ([0.0; 6], Path::Line, None));
+    // The usual preamble sets states; G80 leaves no motion mode.
+    let m = moves(&run("G40 G49 G80 G94 G17 G21 G90\nG1 X1 F100"));
+    assert_eq!(m[0].0, [1.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+    // An arc with its centre and no axis word: a full circle where the tool stands.
+    let m = moves(&run("G2 I5 F100"));
+    assert_eq!(m[0].0, [0.0; 6]);
+    assert!(matches!(m[0].1, Path::Arc { center, clockwise: true, .. } if center == [5.0, 0.0]));
+    // Absolute arc centres (G90.1), and back (G91.1).
+    let m = moves(&run("G0 X2\nG90.1 G2 X10 Y0 I6 J0 F100\nG91.1 G2 X2 Y0 I-4 J0"));
+    assert!(matches!(m[1].1, Path::Arc { center, .. } if center == [6.0, 0.0]));
+    assert!(matches!(m[2].1, Path::Arc { center, .. } if center == [6.0, 0.0]));
+    // G61.1 stops exactly; G64 P0 and P-1 are G64 without a tolerance; Q merges.
+    let b = run("G61.1\nG1 X1 F100\nG64 P0\nG1 X2\nG64 P0.01 Q0.02\nX3\nG64 P-1\nX4");
+    let blends: Vec<Blend> = b
+        .iter()
+        .filter_map(|b| match b.action {
+            Action::Move { blend, .. } => Some(blend),
+            _ => None,
+        })
+        .collect();
+    let within = |tolerance, merge| Blend::Within { tolerance, merge };
+    assert_eq!(
+        blends,
+        [
+            Blend::ExactStop,
+            within(None, None),
+            within(Some(0.01), Some(0.02)),
+            within(None, None)
+        ]
+    );
+    // What follows the end is never read (LinuxCNC ignores it), even what is not G-code.
+    let p = read("G1 X1 F100\nM2\nG1 X5\nnot a program", &machine(&XYZ)).expect("read to M2");
+    assert_eq!(moves(&p.blocks).len(), 1);
+    let p = read("%\nG1 X1 F100\n%\nG1 X5\n", &machine(&XYZ)).expect("read to the closing %");
+    assert_eq!(moves(&p.blocks).len(), 1);
+    // Block delete: off (the default) the line runs; on it is skipped.
+    let text = "G1 X1 F100\n/G1 X5\nM2";
+    assert_eq!(moves(&read(text, &machine(&XYZ)).expect("read").blocks).len(), 2);
+    let on = Machine {
+        block_delete: true,
+        ..machine(&XYZ)
+    };
+    assert_eq!(moves(&read(text, &on).expect("read").blocks).len(), 1);
+    // A program must end, as LinuxCNC says.
+    assert_eq!(
+        read("G1 X1 F100\nG1 X2", &machine(&XYZ))
+            .expect_err("no end")
+            .to_string(),
+        "2:1: the file ended with no program end (M2, M30) and no '%' delimiters: is the program complete?"
+    );
+    assert_eq!(
+        read("%\nG1 X1 F100\n", &machine(&XYZ))
+            .expect_err("no closing %")
+            .to_string(),
+        "2:1: the file ended without the closing '%' (or M2, M30): is the program complete?"
+    );
+}
+
+/// The moves LinuxCNC 2.9's `rs274` prints for the same program (also compared with it in
+/// `tests/suite/nc.rs` where it is installed): G83 from above R, G98, G91 with L3.
+#[test]
+fn canned_cycles_make_linuxcncs_moves() {
+    let b = run("G0 Z10\nG83 X1 Y1 Z-5 R2 Q2 F100\nG98 G81 X5 Z-1 R1\nG91 G81 X2 Y0 R-3 Z-1 L3\nG90 G0 X0");
+    let r = |x: f64, y: f64, z: f64| ([x, y, z, 0.0, 0.0, 0.0], Path::Line, None);
+    let f = |x: f64, y: f64, z: f64| ([x, y, z, 0.0, 0.0, 0.0], Path::Line, Some(100.0));
+    let expected = [
+        r(0.0, 0.0, 10.0),
+        // G83: over the hole, down to R, pecks of 2 with a rapid back to R and to 0.254 mm
+        // above the last peck, the bottom, back to R (G99).
+        r(1.0, 1.0, 10.0),
+        r(1.0, 1.0, 2.0),
+        f(1.0, 1.0, 0.0),
+        r(1.0, 1.0, 2.0),
+        r(1.0, 1.0, 0.254),
+        f(1.0, 1.0, -2.0),
+        r(1.0, 1.0, 2.0),
+        r(1.0, 1.0, -1.746),
+        f(1.0, 1.0, -4.0),
+        r(1.0, 1.0, 2.0),
+        r(1.0, 1.0, -3.746),
+        f(1.0, 1.0, -5.0),
+        r(1.0, 1.0, 2.0),
+        // G98: back to where the series started (Z10).
+        r(5.0, 1.0, 2.0),
+        r(5.0, 1.0, 1.0),
+        f(5.0, 1.0, -1.0),
+        r(5.0, 1.0, 10.0),
+        // G91 L3: X2 each time, R 3 below the start (7), the bottom 1 below R.
+        r(7.0, 1.0, 10.0),
+        r(7.0, 1.0, 7.0),
+        f(7.0, 1.0, 6.0),
+        r(7.0, 1.0, 10.0),
+        r(9.0, 1.0, 10.0),
+        r(9.0, 1.0, 7.0),
+        f(9.0, 1.0, 6.0),
+        r(9.0, 1.0, 10.0),
+        r(11.0, 1.0, 10.0),
+        r(11.0, 1.0, 7.0),
+        f(11.0, 1.0, 6.0),
+        r(11.0, 1.0, 10.0),
+        r(0.0, 1.0, 10.0),
+    ];
+    let got = moves(&b);
+    assert_eq!(got.len(), expected.len(), "{got:?}");
+    for (g, e) in got.iter().zip(&expected) {
+        assert!(
+            g.0.iter().zip(&e.0).all(|(a, b)| (a - b).abs() < 1e-9) && g.1 == e.1 && g.2 == e.2,
+            "{g:?} vs {e:?}"
+        );
+    }
+    // Every move of a cycle stops exactly; G82 dwells at the bottom; a block with only X
+    // and Y repeats the cycle with its values.
+    let b = run("G64 G0 Z5\nG82 X1 Z-1 R1 P0.5 F60\nX2\nG80");
+    assert!(b.iter().skip(1).filter(|b| b.action != Action::End).all(|b| matches!(
+        b.action,
+        Action::Move {
+            blend: Blend::ExactStop,
+            ..
+        } | Action::Dwell(_)
+    )));
+    let dwells: Vec<Action> = b
+        .iter()
+        .map(|b| b.action)
+        .filter(|a| matches!(a, Action::Dwell(_)))
+        .collect();
+    assert_eq!(dwells, [Action::Dwell(0.5), Action::Dwell(0.5)]);
+    let last_move = b.iter().rev().find(|b| matches!(b.action, Action::Move { .. }));
+    assert_eq!(last_move.map(|b| b.line), Some(3), "X2 drilled again");
+    for (text, message) in [
+        ("G81 X1 Z-1 F10", "1:5: G81 needs R, the retract plane"),
+        ("G81 X1 R1 F10", "1:5: G81 needs Z, the bottom of the hole"),
+        ("G83 X1 Z-1 R1 F10", "1:5: G83 needs Q, the depth of each peck"),
+        ("G83 X1 Z-1 R1 Q0 F10", "1:15: the peck depth Q must be positive, got 0"),
+        (
+            "G82 X1 Z-1 R1 F10",
+            "1:5: G82 needs P, the dwell at the bottom in seconds",
+        ),
+        (
+            "G81 X1 Z1 R-1 F10",
+            "1:11: G81: the retract plane R (-1) is below the bottom Z (1)",
+        ),
+        (
+            "G81 X1 Z-1 R1 L0 F10",
+            "1:15: L, the number of repeats, is a whole number from 1 to 10000, got 0",
+        ),
+        ("G81 X1 Z-1 R1", "1:5: no feed rate: an F word is needed before G81"),
+        (
+            "G1 X1 L2 F10",
+            "1:7: L belongs to a canned cycle (its repeats); G10 tables are not supported",
+        ),
+        (
+            "G1 X1 R2 F10",
+            "1:7: R belongs to an arc (G2, G3) or a canned cycle (G81 … G83)",
+        ),
+    ] {
+        assert_eq!(refused(text), message, "{text}");
+    }
+    let hexapod = read(&ended("G81 X1 A1 Z-1 R1 F10"), &machine(&XYZABC)).expect_err("refused");
+    assert_eq!(
+        hexapod.to_string(),
+        "1:8: G81 moves X Y Z only: A cannot move in a canned cycle"
+    );
+}
+
+/// The interpreter's state as LinuxCNC's system parameters, in program units.
+#[test]
+fn system_parameters_give_the_state() {
+    // G55's origin is at machine x 100.
+    let m = moves(&run(
+        "G55 G0 X5\nG1 X#5420 Y#5220 Z#5241 F#<_coord_system>\nG20\nG0 X[#<_x>] Y#<_metric> Z#<_motion_mode>\nG21 G92 X0\nG0 Y#5211",
+    ));
+    assert_eq!(m[0].0[0], 105.0);
+    assert_eq!(
+        m[1].0[..3],
+        [105.0, 2.0, 100.0],
+        "position 5, system 2 (G55), G55's x origin 100"
+    );
+    assert_eq!(m[1].2, Some(550.0));
+    let inch = 25.4;
+    // A line's values are read before its own codes act: G20 on a line of its own.
+    assert!((m[2].0[0] - 105.0).abs() < 1e-9, "#<_x> in inches, moved to in inches");
+    assert_eq!(m[2].0[1], 0.0, "G20: not metric");
+    assert!(
+        (m[2].0[2] - 10.0 * inch).abs() < 1e-9,
+        "G1 before the line: motion mode 10"
+    );
+    assert_eq!(m[3].0[1], 5.0, "G92 X0 at 5: its offset #5211 reads 5");
+}
+
+#[test]
+fn a_byte_order_mark_is_not_part_of_the_program() {
+    let m = machine(&XYZ);
+    let with = read("\u{feff}G0 X1\nM2", &m).expect("a BOM then a program");
+    let without = read("G0 X1\nM2", &m).expect("the program");
+    assert_eq!(format!("{:?}", with.blocks), format!("{:?}", without.blocks));
+    // Columns count from the first character after the mark.
+    assert_eq!(refused("\u{feff}G1 X1 F0"), refused("G1 X1 F0"));
+}

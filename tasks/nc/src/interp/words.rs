@@ -1,0 +1,281 @@
+//! Reading a block's words: the G and M codes by their modal groups (one per group, each at most
+//! once), the value letters (each at most once), and everything the subset lacks refused with
+//! its column — then whether each value belongs to what the block does.
+
+use crate::NcError;
+use crate::lexer::{self, Word};
+
+use super::block::{AXES, Machine};
+
+/// A block's words, sorted: its G codes and M codes (in tenths: G64.1 is 641) with their words,
+/// and the word of each value letter.
+pub(super) struct Words<'b> {
+    /// The block's line.
+    pub line: usize,
+    /// The G codes, in the block's order.
+    pub g: Vec<(u16, &'b Word)>,
+    /// The M codes, in the block's order.
+    pub m: Vec<(u16, &'b Word)>,
+    /// The word of each letter A … Z that carries a value.
+    values: [Option<&'b Word>; 26],
+    /// The block's first word (where an error about the whole block points).
+    pub first: &'b Word,
+}
+
+impl<'b> Words<'b> {
+    /// Sorts the words of `block`, refusing what the subset lacks and what a block may not hold
+    /// twice.
+    pub fn sort(block: &'b lexer::Block) -> Result<Words<'b>, NcError> {
+        let line = block.line;
+        let at = |w: &Word, message: String| NcError::new(line, w.column, message);
+        let mut g: Vec<(u16, &Word)> = Vec::new();
+        let mut m: Vec<(u16, &Word)> = Vec::new();
+        let mut values: [Option<&Word>; 26] = [None; 26];
+        for (i, w) in block.words.iter().enumerate() {
+            match w.letter {
+                'G' | 'M' => {
+                    let tenths = w.value * 10.0;
+                    if !(0.0..=9999.0).contains(&tenths) || (tenths - tenths.round()).abs() > 1e-6 {
+                        return Err(at(w, format!("{}{} is not a code", w.letter, w.value)));
+                    }
+                    let code = tenths.round() as u16;
+                    if w.letter == 'G' {
+                        let group = g_group(code).ok_or_else(|| at(w, g_refusal(code)))?;
+                        if let Some((other, _)) = g.iter().find(|(c, _)| g_group(*c) == Some(group) && group != 0) {
+                            return Err(at(
+                                w,
+                                format!(
+                                    "{} and {} are in one modal group: a block holds one of them",
+                                    format_code('G', *other),
+                                    format_code('G', code)
+                                ),
+                            ));
+                        }
+                        if g.iter().any(|(c, _)| *c == code) {
+                            return Err(at(w, format!("{} twice in one block", format_code('G', code))));
+                        }
+                        g.push((code, w));
+                    } else {
+                        let group = match code {
+                            0 | 10 | 20 | 300 => 4,
+                            30 | 40 | 50 => 7,
+                            _ => {
+                                let why = match code {
+                                    60 => " (tool changes)",
+                                    70..=90 => " (coolant)",
+                                    480..=530 => " (overrides)",
+                                    600..=990 => " (subprograms, user codes)",
+                                    1000..=1999 => " (user-defined M codes)",
+                                    _ => "",
+                                };
+                                return Err(at(w, format!("{} is not supported{why}", format_code('M', code))));
+                            }
+                        };
+                        if let Some((other, _)) = m.iter().find(|(c, _)| {
+                            let og = if matches!(c, 0 | 10 | 20 | 300) { 4 } else { 7 };
+                            og == group
+                        }) {
+                            return Err(at(
+                                w,
+                                format!(
+                                    "{} and {} are in one modal group: a block holds one of them",
+                                    format_code('M', *other),
+                                    format_code('M', code)
+                                ),
+                            ));
+                        }
+                        m.push((code, w));
+                    }
+                }
+                'N' => {
+                    if i != 0 {
+                        return Err(at(w, "a line number (N) comes first in its block".into()));
+                    }
+                }
+                'X' | 'Y' | 'Z' | 'A' | 'B' | 'C' | 'I' | 'J' | 'K' | 'R' | 'F' | 'S' | 'P' | 'Q' | 'L' => {
+                    let slot = &mut values[(w.letter as u8 - b'A') as usize];
+                    if slot.is_some() {
+                        return Err(at(w, format!("{} twice in one block", w.letter)));
+                    }
+                    *slot = Some(w);
+                }
+                'T' => return Err(at(w, "tool selection (T) is not supported".into())),
+                'D' | 'H' => return Err(at(w, format!("{} (tool compensation) is not supported", w.letter))),
+                'E' => return Err(at(w, "E (extruders) is not supported".into())),
+                'U' | 'V' | 'W' => {
+                    return Err(at(w, format!("{}: axes U V W are not supported", w.letter)));
+                }
+                other => return Err(at(w, format!("{other} is not a word of RS274NGC"))),
+            }
+        }
+        Ok(Words {
+            line,
+            g,
+            m,
+            values,
+            first: &block.words[0],
+        })
+    }
+
+    /// The word of value letter `letter`, if the block has it.
+    pub fn get(&self, letter: char) -> Option<&'b Word> {
+        self.values[(letter as u8 - b'A') as usize]
+    }
+
+    /// Whether the block holds G code `code` (tenths).
+    pub fn has_g(&self, code: u16) -> bool {
+        self.g.iter().any(|(c, _)| *c == code)
+    }
+
+    /// The word of G code `code` (tenths), if the block holds it.
+    pub fn g_word(&self, code: u16) -> Option<&'b Word> {
+        self.g.iter().find(|(c, _)| *c == code).map(|(_, w)| *w)
+    }
+
+    /// The block's motion code (G0 G1 G2 G3 G81 G82 G83) with its word, if it has one.
+    pub fn motion_word(&self) -> Option<(u16, &'b Word)> {
+        self.g
+            .iter()
+            .find(|(c, _)| matches!(c, 0 | 10 | 20 | 30 | 810 | 820 | 830))
+            .map(|(c, w)| (*c, *w))
+    }
+
+    /// The axis words (X Y Z A B C) with their coordinate's index, in pose order.
+    pub fn axis_words(&self) -> Vec<(usize, &'b Word)> {
+        AXES.iter()
+            .enumerate()
+            .filter_map(|(c, l)| self.get(*l).map(|w| (c, w)))
+            .collect()
+    }
+
+    /// Refuses an axis word of a coordinate `machine` does not have.
+    pub fn check_axes(&self, machine: &Machine<'_>) -> Result<(), NcError> {
+        let line = self.line;
+        let at = |w: &Word, message: String| NcError::new(line, w.column, message);
+        for (c, letter) in AXES.iter().enumerate() {
+            if let Some(w) = self.get(*letter)
+                && !machine
+                    .axes
+                    .get(c)
+                    .is_some_and(|k| k.eq_ignore_ascii_case(&letter.to_string()))
+            {
+                let axes: Vec<String> = machine.axes.iter().map(|a| a.to_uppercase()).collect();
+                return Err(at(w, format!("{letter}: this machine's axes are {}", axes.join(" "))));
+            }
+        }
+        Ok(())
+    }
+
+    /// Refuses a value that does not belong to what the block does: P to G4, G64, an arc or G82;
+    /// Q to G64 or G83; I, J, K to an arc; R to an arc or a canned cycle, L to a canned cycle.
+    /// `motion` is the motion the block makes, if any.
+    pub fn check_owners(&self, motion: Option<u16>) -> Result<(), NcError> {
+        let line = self.line;
+        let at = |w: &Word, message: String| NcError::new(line, w.column, message);
+        let arc_now = matches!(motion, Some(20 | 30));
+        let cycle_now = matches!(motion, Some(810 | 820 | 830));
+        if let Some(w) = self.get('P')
+            && !(self.has_g(40) || self.has_g(640) || arc_now || motion == Some(820))
+        {
+            return Err(at(
+                w,
+                "P belongs to G4 (dwell), G64 (tolerance), an arc (turns) or G82 (dwell)".into(),
+            ));
+        }
+        if let Some(w) = self.get('Q')
+            && !(self.has_g(640) || motion == Some(830))
+        {
+            return Err(at(
+                w,
+                "Q belongs to G64 (merging lines within it) or G83 (the peck depth)".into(),
+            ));
+        }
+        for letter in ['I', 'J', 'K'] {
+            if let Some(w) = self.get(letter)
+                && !arc_now
+            {
+                return Err(at(w, format!("{letter} belongs to an arc (G2, G3)")));
+            }
+        }
+        if let Some(w) = self.get('R')
+            && !(arc_now || cycle_now)
+        {
+            return Err(at(
+                w,
+                "R belongs to an arc (G2, G3) or a canned cycle (G81 … G83)".into(),
+            ));
+        }
+        if let Some(w) = self.get('L')
+            && !cycle_now
+        {
+            return Err(at(
+                w,
+                "L belongs to a canned cycle (its repeats); G10 tables are not supported".into(),
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// The modal groups of the supported G codes (RS274NGC's numbering), for the one-per-group rule.
+pub(super) fn g_group(code: u16) -> Option<u8> {
+    match code {
+        0 | 10 | 20 | 30 | 800 | 810 | 820 | 830 => Some(1),
+        40 => Some(0),
+        170 | 180 | 190 => Some(2),
+        200 | 210 => Some(6),
+        530 | 920 => Some(0),
+        540..=590 => Some(12),
+        610 | 611 | 640 => Some(13),
+        900 | 910 => Some(3),
+        901 | 911 => Some(4),
+        940 => Some(5),
+        400 => Some(7),
+        490 => Some(8),
+        980 | 990 => Some(10),
+        _ => None,
+    }
+}
+
+/// Why a G code is not in the subset.
+pub(super) fn g_refusal(code: u16) -> String {
+    let name = format_code('G', code);
+    let why = match code {
+        50..=52 | 70 | 80 => "lathe and spline modes",
+        100 | 110 => "G10/G11 (tables, retraction)",
+        280..=309 => "going home through an intermediate point",
+        330 | 331 | 760 => "threading",
+        382..=385 => "probing",
+        400..=429 => "cutter compensation",
+        430..=499 => "tool length compensation",
+        730..=899 => "canned cycles other than G81, G82, G83",
+        921..=923 => "G92 variants",
+        930 | 950 => "feed modes other than units per minute",
+        960 | 970 => "spindle speed modes",
+        _ => "",
+    };
+    if why.is_empty() {
+        format!("{name} is not supported")
+    } else {
+        format!("{name} is not supported ({why})")
+    }
+}
+
+/// A word that counts (an arc's turns, a cycle's repeats): a whole number from 1 to `max`, 1
+/// where the block has none; the word when it is not such a number.
+pub(super) fn count(word: Option<&Word>, max: u32) -> Result<u32, &Word> {
+    match word {
+        None => Ok(1),
+        Some(w) if w.value >= 1.0 && w.value.fract() == 0.0 && w.value <= f64::from(max) => Ok(w.value as u32),
+        Some(w) => Err(w),
+    }
+}
+
+/// `G1`, `G64`, `G92.1` from a code in tenths.
+pub(super) fn format_code(letter: char, code: u16) -> String {
+    if code.is_multiple_of(10) {
+        format!("{letter}{}", code / 10)
+    } else {
+        format!("{letter}{}.{}", code / 10, code % 10)
+    }
+}
