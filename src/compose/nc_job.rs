@@ -13,11 +13,11 @@ use pkm_api::machine::{Home, Machine, Motion};
 use pkm_api::trajectory::NcJob;
 use pkm_kinematics::frame::{Home as FrameHome, MachineFrame};
 use pkm_kinematics::{KinematicsConfig, Machine as Model};
-use pkm_nc::budget::Watch;
 use pkm_nc::check::{Limits, Report, check_watched, format_pose};
 use pkm_nc::interp::{self, Program};
 use pkm_nc::job::PlannedProgram;
 use pkm_nc::plan::{Plan, PlanLimits, plan_watched};
+use pkm_nc::watch::Watch;
 
 use crate::compose::setup::Setup;
 use crate::runtime::config::ConfigError;

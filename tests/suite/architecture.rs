@@ -6,7 +6,7 @@
 //!   cannot see that one: std is always there).
 //! - The runtime (`src/`) names a machine crate in one place only, the list of machines.
 //! - `src/` is in layers (core, services, composition, command line) whose imports run one way,
-//!   and no two of its modules import each other.
+//!   and no two modules of a crate import each other.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -201,9 +201,9 @@ struct Module {
     file: PathBuf,
 }
 
-/// Every module of `src/` but the crate roots.
-fn modules() -> Vec<Module> {
-    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
+/// Every module of the crate whose sources are in `dir` (`src`, `tasks/nc/src`) but its roots.
+fn modules(dir: &str) -> Vec<Module> {
+    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join(dir);
     let mut files = Vec::new();
     rust_files(&src, &mut files);
     files
@@ -282,9 +282,9 @@ fn resolve<'a>(path: &[String], modules: &'a [Module]) -> Option<&'a Module> {
         .find_map(|k| modules.iter().find(|m| m.path == path[..k]))
 }
 
-/// Each module with the modules it imports (not itself, not its tests).
-fn imports() -> Vec<(String, Vec<String>)> {
-    let modules = modules();
+/// Each module of the crate in `dir` with the modules it imports (not itself, not its tests).
+fn imports(dir: &str) -> Vec<(String, Vec<String>)> {
+    let modules = modules(dir);
     modules
         .iter()
         .map(|m| {
@@ -308,7 +308,7 @@ fn layer(module: &str) -> Option<usize> {
 
 #[test]
 fn src_is_in_layers_and_imports_run_downwards() {
-    let imports = imports();
+    let imports = imports("src");
     assert!(
         imports.len() > 50 && imports.iter().all(|(m, _)| layer(m).is_some()),
         "every module of src/ is in a layer ({LAYERS:?}): {:?}",
@@ -336,13 +336,28 @@ fn src_is_in_layers_and_imports_run_downwards() {
 }
 
 #[test]
-fn no_two_modules_of_src_import_each_other() {
-    let imports = imports();
+fn no_two_modules_of_a_crate_import_each_other() {
+    let crates = [
+        "src",
+        "tasks/api/src",
+        "tasks/drives/src",
+        "tasks/joints/src",
+        "tasks/kinematics/src",
+        "tasks/nc/src",
+        "tasks/trijoint/src",
+    ];
     let mut circles = Vec::new();
-    for (a, to) in &imports {
-        for b in to.iter().filter(|b| a < *b) {
-            if imports.iter().any(|(m, back)| m == b && back.contains(a)) {
-                circles.push(format!("{a} ⇄ {b}"));
+    for dir in crates {
+        let imports = imports(dir);
+        assert!(
+            imports.iter().any(|(_, to)| !to.is_empty()),
+            "{dir}: the check sees imports"
+        );
+        for (a, to) in &imports {
+            for b in to.iter().filter(|b| a < *b) {
+                if imports.iter().any(|(m, back)| m == b && back.contains(a)) {
+                    circles.push(format!("{dir}: {a} ⇄ {b}"));
+                }
             }
         }
     }

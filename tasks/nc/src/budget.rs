@@ -1,4 +1,4 @@
-//! What a program may cost, and the watch over the time its preparation takes.
+//! What a program may cost.
 //!
 //! A short text can make millions of moves (`o1 repeat [999999]` around two lines) or a move
 //! thousands of metres long (an arc of `P1000` turns), and checking and planning cost in
@@ -9,12 +9,10 @@
 //! will take, and it refuses the program at the line where the moves or the memory pass their
 //! [`Bounds`], before anything is checked or planned.
 //!
-//! The time is the runtime's to bound (this crate reads no clock): reading, checking and
-//! planning ask a [`Watch`] now and then whether to go on — the runtime's answers are a
-//! deadline and the operator's cancel — and stop with its reason when it says no.
+//! The time it may take is the runtime's to bound, through a [`crate::watch::Watch`].
 
 use crate::check::SAMPLE_SPACING;
-use crate::interp::{Action, Block};
+use crate::interp::block::{Action, Block};
 use crate::path::Segment;
 use crate::plan::GRID_SPACING;
 
@@ -107,58 +105,6 @@ impl Cost {
                 self.points
             )
         })
-    }
-}
-
-/// Asked now and then by long work (reading, checking, planning a program): whether to go on.
-/// The runtime answers with its deadline and the operator's cancel.
-pub trait Watch {
-    /// `Err(why)` stops the work, which then fails with `why`.
-    fn go_on(&self) -> Result<(), String>;
-}
-
-/// Work stopped by its [`Watch`]: where it was, and the watch's reason.
-#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
-#[error("line {line}: {why}")]
-pub struct Stopped {
-    /// The program line of the move at hand.
-    pub line: usize,
-    /// The watch's reason.
-    pub why: String,
-}
-
-/// No watch: the work goes on to its end.
-pub struct Unwatched;
-
-impl Watch for Unwatched {
-    fn go_on(&self) -> Result<(), String> {
-        Ok(())
-    }
-}
-
-/// How many steps of work pass between two questions to the [`Watch`]: a few milliseconds of
-/// the slowest (the hexapod's kinematics), a negligible share of its cost.
-pub const WATCH_EVERY: u64 = 1024;
-
-/// Work that asks its watch every [`WATCH_EVERY`] steps.
-pub(crate) struct Watched<'a> {
-    watch: &'a dyn Watch,
-    steps: u64,
-}
-
-impl<'a> Watched<'a> {
-    pub(crate) fn new(watch: &'a dyn Watch) -> Watched<'a> {
-        Watched { watch, steps: 0 }
-    }
-
-    /// One step done: the watch's answer every [`WATCH_EVERY`] steps.
-    pub(crate) fn step(&mut self) -> Result<(), String> {
-        self.steps += 1;
-        if self.steps.is_multiple_of(WATCH_EVERY) {
-            self.watch.go_on()
-        } else {
-            Ok(())
-        }
     }
 }
 

@@ -8,9 +8,9 @@
 use pkm_kinematics::frame::MachineFrame;
 use pkm_kinematics::{LIMIT_TOLERANCE_MM, MAX_DOF};
 
-use crate::budget::{Stopped, Unwatched, Watch, Watched};
-use crate::interp::{AXES, Action, Pose, Program};
+use crate::interp::block::{AXES, Action, Pose, Program};
 use crate::path::Segment;
+use crate::watch::{Stopped, Unwatched, Watch, Watched};
 
 /// Samples of a path lie at most this far apart (mm, and degrees for rotations).
 pub const SAMPLE_SPACING: f64 = 0.1;
@@ -98,7 +98,7 @@ pub fn check(program: &Program, limits: &Limits<'_>) -> Report {
     }
 }
 
-/// [`check`], asking `watch` every [`crate::budget::WATCH_EVERY`] samples whether to go on.
+/// [`check`], asking `watch` every [`crate::watch::WATCH_EVERY`] samples whether to go on.
 pub fn check_watched(program: &Program, limits: &Limits<'_>, watch: &dyn Watch) -> Result<Report, Stopped> {
     let mut watched = Watched::new(watch);
     let n = limits.frame.dof();

@@ -16,8 +16,8 @@
 use std::collections::HashMap;
 
 use crate::NcError;
-use crate::budget::{Unwatched, Watch, Watched};
 use crate::lexer::{self, Assignment, Control, Keyword, Line, MAX_ARGUMENTS, Parameters, Target};
+use crate::watch::{Unwatched, Watch, Watched};
 
 /// The interpreter's state as parameters (`#5220`, `#5420`, `#<_x>`, …).
 pub trait System {
@@ -73,7 +73,7 @@ pub struct Flow<'t> {
     read: u64,
     /// The most lines it may read ([`MAX_LINES_READ`]).
     limit: u64,
-    /// Asked every [`crate::budget::WATCH_EVERY`] lines whether to go on.
+    /// Asked every [`crate::watch::WATCH_EVERY`] lines whether to go on.
     watch: Watched<'t>,
 }
 

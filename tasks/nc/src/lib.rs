@@ -32,6 +32,7 @@ pub mod job;
 pub mod lexer;
 pub mod path;
 pub mod plan;
+pub mod watch;
 
 /// A problem in a program, where it is (1-based line and column, in characters).
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]

@@ -4,7 +4,7 @@
 
 use std::f64::consts::TAU;
 
-use crate::interp::{Path, Pose};
+use crate::interp::block::{Path, Pose};
 
 /// A move's geometry, ready to be sampled. What only arcs and blends need is boxed: most moves
 /// of a CAM program are lines, and a program of a million of them is planned in a third of the

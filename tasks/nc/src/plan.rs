@@ -19,9 +19,9 @@ use pkm_kinematics::frame::MachineFrame;
 
 use pkm_api::trajectory::{MAX_FEED_OVERRIDE, TrajectoryEvent, TrajectoryEventKind};
 
-use crate::budget::{Unwatched, Watch, Watched};
-use crate::interp::{AXES, Action, Blend, Path, Pose, Program, Spindle};
+use crate::interp::block::{AXES, Action, Blend, Path, Pose, Program, Spindle};
 use crate::path::Segment;
+use crate::watch::{Unwatched, Watch, Watched};
 
 /// The largest distance between two points of the velocity profile (mm, or degrees where only
 /// rotations move).
@@ -454,7 +454,7 @@ fn blend_corners(elements: Vec<Element>) -> Vec<Element> {
         let u_raw: [f64; 3] = std::array::from_fn(|c| a_end[c] - center[c]);
         let un = dot3(u_raw, u_raw).sqrt();
         let u = u_raw.map(|x| x / un);
-        current.segment = Segment::new(a_from, a_end, crate::interp::Path::Line);
+        current.segment = Segment::new(a_from, a_end, crate::interp::block::Path::Line);
         let rates = (current.segment.rotation_rates().1, next.segment.rotation_rates().0);
         let blend = Element {
             segment: Segment::blend(a_end, b_start, center, u, d1, radius, theta, rates),
@@ -466,7 +466,7 @@ fn blend_corners(elements: Vec<Element>) -> Vec<Element> {
         };
         out.push(current);
         out.push(blend);
-        next.segment = Segment::new(b_start, *next.segment.to(), crate::interp::Path::Line);
+        next.segment = Segment::new(b_start, *next.segment.to(), crate::interp::block::Path::Line);
         trimmed_start = cut;
         current = next;
     }
@@ -588,7 +588,7 @@ fn arc_from(from: Pose, t0: [f64; 3], to: Pose) -> Option<(Segment, [f64; 3])> {
         return None;
     }
     if pn < 1e-9 * cn {
-        return (along > 0.0).then(|| (Segment::new(from, to, crate::interp::Path::Line), t0));
+        return (along > 0.0).then(|| (Segment::new(from, to, crate::interp::block::Path::Line), t0));
     }
     let normal = perp.map(|x| x / pn);
     let radius = cn * cn / (2.0 * pn);
@@ -614,7 +614,7 @@ pub fn plan(program: &Program, frame: &MachineFrame, limits: &PlanLimits) -> Res
     plan_watched(program, frame, limits, &Unwatched)
 }
 
-/// [`plan`], asking `watch` every [`crate::budget::WATCH_EVERY`] points whether to go on.
+/// [`plan`], asking `watch` every [`crate::watch::WATCH_EVERY`] points whether to go on.
 pub fn plan_watched(
     program: &Program,
     frame: &MachineFrame,

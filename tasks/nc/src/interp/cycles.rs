@@ -6,18 +6,8 @@ use crate::lexer::Word;
 
 use super::block::{AXES, Action, Blend, Block, MAX_DWELL_S, Path};
 use super::modes::stops;
-use super::state::State;
+use super::state::{Cycle, State};
 use super::words::{count, format_code};
-
-/// A canned cycle's values as its last block gave them (program units, as written: in G91, R
-/// from the initial level and Z from R).
-#[derive(Clone, Copy, Debug, Default)]
-pub(super) struct Cycle {
-    r: f64,
-    bottom: f64,
-    dwell: f64,
-    peck: f64,
-}
 
 /// How far above the bottom of the last peck a G83 rapid returns (mm): LinuxCNC 2.9's
 /// `G83_RAPID_DELTA`, 0.010 inch.

@@ -15,7 +15,7 @@
 //! state and runs a block through them; the O-word control flow and expressions are
 //! [`crate::flow`]'s.
 
-mod block;
+pub mod block;
 mod cycles;
 mod modes;
 mod motion;
@@ -28,8 +28,9 @@ pub use block::{
 };
 
 use crate::NcError;
-use crate::budget::{Bounds, Unwatched, Watch};
+use crate::budget::Bounds;
 use crate::flow::{Event, Flow};
+use crate::watch::{Unwatched, Watch};
 use state::State;
 
 /// Reads `text` for `machine` within the default [`Bounds`]; the first problem is returned with

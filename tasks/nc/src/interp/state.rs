@@ -8,7 +8,6 @@ use crate::flow;
 use crate::lexer;
 
 use super::block::{AXES, Blend, Block, Machine, Plane, Pose};
-use super::cycles::Cycle;
 use super::words::Words;
 
 /// The modal state.
@@ -42,6 +41,16 @@ pub(super) struct State<'a> {
     /// The height (normal coordinate, program units) where the present series of canned
     /// cycles started; `None` after any other motion.
     pub(super) cycle_initial: Option<f64>,
+}
+
+/// A canned cycle's values as its last block gave them (program units, as written: in G91, R
+/// from the initial level and Z from R).
+#[derive(Clone, Copy, Debug, Default)]
+pub(super) struct Cycle {
+    pub(super) r: f64,
+    pub(super) bottom: f64,
+    pub(super) dwell: f64,
+    pub(super) peck: f64,
 }
 
 /// The state as LinuxCNC's system parameters give it, in program units.
