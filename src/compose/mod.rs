@@ -113,6 +113,17 @@ pub struct Built {
     /// Where the operator screen's commands go, if the screen's variables were laid over the
     /// bus.
     pub hmi: Option<crate::services::hmi::commands::CommandSink>,
+    /// The scenario the simulated machine plays, if one was given.
+    pub scenario: Option<ScenarioTimes>,
+}
+
+/// A scenario's times: how long it says a run of it lasts, and when its last event comes.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ScenarioTimes {
+    /// Its `duration_s`, if it has one.
+    pub duration_s: Option<f64>,
+    /// When its last event comes (s).
+    pub last_event_s: f64,
 }
 
 /// Why a PLC could not be built: every problem of the files, or a usage error. The message is
@@ -148,8 +159,12 @@ fn usage(message: impl Into<String>) -> BusFailure {
     BusFailure::Other(BuildError(message.into()))
 }
 
-/// The bus `options` ask for, and the I/O map it was made over (loaded once, here).
-fn make_bus(setup: &Setup, options: &Options) -> Result<(Box<dyn Bus>, Option<IoMap>), BusFailure> {
+/// The bus `options` ask for, the I/O map it was made over (loaded once, here) and the times of
+/// the scenario it plays.
+type MadeBus = (Box<dyn Bus>, Option<IoMap>, Option<ScenarioTimes>);
+
+/// The bus `options` ask for (see [`MadeBus`]).
+fn make_bus(setup: &Setup, options: &Options) -> Result<MadeBus, BusFailure> {
     let needs_sim = |what: &str| usage(format!("--scenario needs the simulated bus ({what})"));
     // The usage problems first: they need no file read.
     let scenario = options.scenario.as_deref();
@@ -163,6 +178,7 @@ fn make_bus(setup: &Setup, options: &Options) -> Result<(Box<dyn Bus>, Option<Io
         _ => {}
     }
     let map = setup.io_map()?;
+    let mut times = None;
     let bus: Box<dyn Bus> = match (&options.bus, &map) {
         (BusChoice::Tcp(_) | BusChoice::Serial(..), None) => unreachable!("refused above: no io_map"),
         (BusChoice::Tcp(address), Some(map)) => modbus_bus(setup, map, Transport::Tcp(*address), options)?,
@@ -183,13 +199,19 @@ fn make_bus(setup: &Setup, options: &Options) -> Result<(Box<dyn Bus>, Option<Io
             Box::new(bus)
         }
         (BusChoice::Sim, Some(_)) => match setup.sim_bus_over(map.clone(), scenario) {
-            Ok(bus) => Box::new(bus),
+            Ok(bus) => {
+                times = scenario.map(|_| ScenarioTimes {
+                    duration_s: bus.scenario().duration_s,
+                    last_event_s: bus.scenario().last_event_s(),
+                });
+                Box::new(bus)
+            }
             Err(crate::services::sim::BuildError::Plant(_)) => return Err(BusFailure::Sections),
             Err(crate::services::sim::BuildError::Other(e)) => return Err(BusFailure::Config(e)),
         },
         (BusChoice::None | BusChoice::Sim, None) => Box::new(NoBus),
     };
-    Ok((bus, map))
+    Ok((bus, map, times))
 }
 
 /// A Modbus bus over `map` reached by `transport`; a map too large for the chosen exchange is a
@@ -218,13 +240,13 @@ pub fn build(setup: Setup, options: Options) -> Result<Built, BuildError> {
     .map_err(|e| BuildError(e.message))?;
     // A bus that cannot be made for a problem of the files (the I/O map, the plant section) does
     // not hide the configuration's other problems: they are checked on a stand-in bus.
-    let (bus, joystick, bus_problem) = match make_bus(&setup, &options) {
-        Ok((bus, map)) => {
+    let (bus, joystick, scenario, bus_problem) = match make_bus(&setup, &options) {
+        Ok((bus, map, scenario)) => {
             let (bus, joystick) = with_joystick(&setup, bus, map.as_ref(), options.joystick)?;
-            (bus, joystick, None)
+            (bus, joystick, scenario, None)
         }
-        Err(BusFailure::Config(e)) => (Box::new(UnknownBus) as Box<dyn Bus>, None, Some(e)),
-        Err(BusFailure::Sections) => (Box::new(UnknownBus) as Box<dyn Bus>, None, None),
+        Err(BusFailure::Config(e)) => (Box::new(UnknownBus) as Box<dyn Bus>, None, None, Some(e)),
+        Err(BusFailure::Sections) => (Box::new(UnknownBus) as Box<dyn Bus>, None, None, None),
         Err(BusFailure::Other(f)) => return Err(f),
     };
     let (bus, hmi) = if options.hmi {
@@ -241,6 +263,7 @@ pub fn build(setup: Setup, options: Options) -> Result<Built, BuildError> {
             library: programs.library,
             refused: programs.refused,
             hmi,
+            scenario,
         }),
         (plc, bus_problem) => {
             let mut problems = match plc {

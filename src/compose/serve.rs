@@ -10,7 +10,7 @@ use std::time::Duration;
 
 use tracing::{info, warn};
 
-use super::{Built, Failure, Setup};
+use super::{Built, Failure, ScenarioTimes, Setup};
 use crate::runtime::config::TimeSourceKind;
 use crate::runtime::plc::Plc;
 use crate::runtime::run::{self, RealTimeOptions};
@@ -64,6 +64,7 @@ pub fn run(built: Built, request: RunRequest) -> Result<Ran, Failure> {
         library,
         refused,
         hmi,
+        scenario,
     } = built;
     let loaded = &setup.loaded;
     // Each reason starts with the file's name.
@@ -80,10 +81,29 @@ pub fn run(built: Built, request: RunRequest) -> Result<Ran, Failure> {
     if plc.app_program().is_some_and(|p| p.starts_with("selftest.")) {
         warn!("running the runtime's built-in self-test programs, not a machine's application");
     }
+    // A run without --duration lasts as long as its scenario says, if it says.
+    let duration_s = match (request.duration_s, scenario) {
+        (Some(d), _) => Some(d),
+        (
+            None,
+            Some(ScenarioTimes {
+                duration_s: Some(d), ..
+            }),
+        ) => {
+            info!("the scenario lasts {d} s: the run ends then (--duration overrides)");
+            Some(d)
+        }
+        (None, Some(times)) => {
+            info!(
+                "the scenario's last event is at {} s; the run goes on after it until stopped (--duration S, or \"duration_s\" in the scenario, ends it)",
+                times.last_event_s
+            );
+            None
+        }
+        (None, None) => None,
+    };
     if request.virtual_time {
-        let duration = request
-            .duration_s
-            .ok_or_else(|| Failure::usage("--virtual needs --duration"))?;
+        let duration = duration_s.ok_or_else(|| Failure::usage("--virtual needs --duration"))?;
         let report = run::run_virtual(&mut plc, (duration * 1e9) as u64);
         info!(
             "virtual time: {:.3} s simulated in {:.3} s wall-clock ({:.0}x)",
@@ -102,7 +122,7 @@ pub fn run(built: Built, request: RunRequest) -> Result<Ran, Failure> {
         realtime_priority: timing.realtime_priority,
         lock_memory: timing.lock_memory,
         spin_ns: u64::from(timing.spin_us) * 1000,
-        duration_ns: request.duration_s.map(|d| (d * 1e9) as u64),
+        duration_ns: duration_s.map(|d| (d * 1e9) as u64),
     };
     info!(
         "real time, time source {}; Ctrl-C stops",

@@ -409,6 +409,60 @@ fn a_time_source_with_virtual_time_is_a_usage_error() {
 }
 
 #[test]
+fn a_scenario_says_how_long_its_run_lasts() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("s.json");
+    std::fs::write(
+        &path,
+        r#"{"duration_s": 0.5, "events": [{"at_ms": 200, "input": "BUTTON_STOP", "value": true}]}"#,
+    )
+    .expect("write");
+    let summary = dir.path().join("summary.json");
+    // No --duration: the scenario's ends the run (real time; nothing served).
+    let o = common::pkm_command()
+        .args(["run", "--scenario", path.to_str().expect("utf-8")])
+        .args(["--hmi", "none", "--opcua", "none", "--joystick", "none"])
+        .args(["--summary", summary.to_str().expect("utf-8")])
+        .env("RUST_LOG", "info")
+        .output()
+        .expect("the binary runs");
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("the scenario lasts 0.5 s: the run ends then (--duration overrides)"),
+        "{}",
+        stderr(&o)
+    );
+    let written: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&summary).expect("summary")).expect("JSON");
+    assert_eq!(written["main"]["state"], "ERROR", "STOP at 0.2 s: {written}");
+    // Ended by the scenario (a busy machine may end it a little late; it does not run on).
+    let ran = written["duration_s"].as_f64().expect("duration_s");
+    assert!((0.4..10.0).contains(&ran), "{written}");
+    // One that would end before its last event is refused.
+    std::fs::write(
+        &path,
+        r#"{"duration_s": 0.1, "events": [{"at_ms": 200, "input": "BUTTON_STOP", "value": true}]}"#,
+    )
+    .expect("write");
+    let o = pkm(&[
+        "run",
+        "--virtual",
+        "--duration",
+        "1",
+        "--scenario",
+        path.to_str().expect("utf-8"),
+    ]);
+    assert_eq!(o.status.code(), Some(2));
+    assert_eq!(
+        stderr(&o),
+        format!(
+            "error: {}: at duration_s: 0.1 s ends the run before the last event, at 0.2 s\n",
+            path.display()
+        )
+    );
+}
+
+#[test]
 fn run_takes_a_scenario_and_refuses_a_bad_one() {
     let o = pkm(&[
         "run",
@@ -718,4 +772,29 @@ fn a_program_or_a_scenario_of_another_machine_names_the_machine_it_is_for() {
         "{}",
         stderr(&o)
     );
+}
+
+#[test]
+fn the_examples_of_the_cli_reference_print_what_it_shows() {
+    let doc = std::fs::read_to_string(std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/cli.md"))
+        .expect("docs/cli.md");
+    let lines: Vec<&str> = doc.lines().collect();
+    let mut checked = 0;
+    for (i, line) in lines.iter().enumerate() {
+        let Some(command) = line.strip_prefix("$ pkm-plc ") else {
+            continue;
+        };
+        let args: Vec<&str> = command.split_whitespace().collect();
+        let shown = lines.get(i + 1).copied().unwrap_or_default();
+        let o = pkm(&args);
+        let printed = if o.status.success() { stdout(&o) } else { stderr(&o) };
+        assert_eq!(
+            printed.trim_end(),
+            shown,
+            "docs/cli.md line {}: pkm-plc {command}",
+            i + 1
+        );
+        checked += 1;
+    }
+    assert!(checked >= 3, "the examples are found: {checked}");
 }

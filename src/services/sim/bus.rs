@@ -106,6 +106,11 @@ impl SimBus {
         self.plant.as_mut()
     }
 
+    /// The scenario it plays.
+    pub fn scenario(&self) -> &Scenario {
+        &self.scenario
+    }
+
     /// The simulated time the plant has reached (ns).
     pub fn time_ns(&self) -> u64 {
         self.time_ns

@@ -31,7 +31,13 @@ use crate::services::io::map::IoMap;
 #[serde(deny_unknown_fields)]
 struct ScenarioFile {
     events: Vec<EventEntry>,
+    /// How long a run of the scenario lasts when `--duration` does not say (s).
+    #[serde(default)]
+    duration_s: Option<f64>,
 }
+
+/// The longest a scenario may say its run lasts (s): 10 000 000 s, as `--duration`.
+pub const MAX_DURATION_S: f64 = 1e7;
 
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -124,6 +130,15 @@ impl FaultKind {
 pub struct Scenario {
     /// (time in ns, action), sorted by time; events at the same time keep their file order.
     pub events: Vec<(u64, Action)>,
+    /// How long a run of it lasts when the command line does not say (s): its `duration_s`.
+    pub duration_s: Option<f64>,
+}
+
+impl Scenario {
+    /// When its last event comes (s; 0 without events).
+    pub fn last_event_s(&self) -> f64 {
+        self.events.last().map_or(0.0, |(t, _)| *t as f64 / 1e9)
+    }
 }
 
 /// The plant signal that the variable `name` is bound to through the I/O map and the wiring.
@@ -215,7 +230,25 @@ impl Scenario {
             });
         }
         events.sort_by_key(|(t, _)| *t);
-        Ok(Scenario { events })
+        let scenario = Scenario {
+            events,
+            duration_s: file.duration_s,
+        };
+        if let Some(d) = file.duration_s {
+            let last = scenario.last_event_s();
+            let message = if !(d.is_finite() && d > 0.0 && d <= MAX_DURATION_S) {
+                format!("must be more than 0 and at most {MAX_DURATION_S} seconds, got {d}")
+            } else if d < last {
+                format!("{d} s ends the run before the last event, at {last} s")
+            } else {
+                return Ok(scenario);
+            };
+            return Err(ConfigError::Invalid {
+                file: origin.to_string(),
+                problems: vec![Problem::new("duration_s", message)],
+            });
+        }
+        Ok(scenario)
     }
 }
 

@@ -56,13 +56,20 @@ pub fn summary(path: &Path, every_us: u64) -> Result<String, TraceError> {
         };
         let now = (s.to_string(), r.reason.as_deref().map(str::to_string));
         let t = r.t_us as f64 * 1e-6;
-        if state.as_ref() != Some(&now) {
+        let changed = state.as_ref() != Some(&now);
+        if changed {
             let reason = now.1.as_deref().map(|r| format!(" ({r})")).unwrap_or_default();
             lines.push(format!("t={t:.3} s: state {}{reason}", now.0));
             state = Some(now);
         }
         if r.t_us >= next_sample {
-            lines.push(format!("t={t:.3} s: {s}"));
+            // A sample at a transition belongs to the line above; else it says its time and
+            // the state it was taken in.
+            lines.push(if changed {
+                "  outputs:".to_string()
+            } else {
+                format!("t={t:.3} s: outputs in {s}")
+            });
             for name in &header.task_classes[r.class].outputs {
                 if let Some(k) = names.iter().position(|n| n == name)
                     && let Some(v) = values[k]
