@@ -1,4 +1,4 @@
-//! The planner's times against LinuxCNC 2.9's on the same programs (issue 27): each program is
+//! The planner's times against LinuxCNC 2.9's on the same programs: each program is
 //! read, checked and planned on the O-X glide (X configuration, its own limits) as `nc check`
 //! plans it, and its planned time, whole and of the feed moves, printed beside the time
 //! LinuxCNC's motion planner took for it in simulation with the same axis limits.

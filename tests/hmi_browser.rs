@@ -581,7 +581,7 @@ async fn until_state(
     }
 }
 
-/// Issue 26: any web page the operator has open could open the screen's WebSocket (loopback,
+/// Any web page the operator has open could open the screen's WebSocket (loopback,
 /// no token) and stop, jog or start programs. A page of another origin is refused before the
 /// upgrade, and so is a page that reached the port under its own name (DNS rebinding, here
 /// through Chromium's host resolver rules): nothing it sends reaches the process image.

@@ -1,5 +1,5 @@
 //! `pkm-plc nc check FILE`: an NC program read, interpreted and checked offline against the
-//! configured machine — every point of its path reachable (motion.md) — with its path length and
+//! configured machine — every point of its path reachable (docs/nc.md) — with its path length and
 //! bounding box. No PLC runs, nothing moves.
 
 use serde_json::{Map, Value, json};

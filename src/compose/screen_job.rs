@@ -1,4 +1,4 @@
-//! The jobs the operator makes on the screen while the PLC runs (issue 27): MDI lines, and a
+//! The jobs the operator makes on the screen while the PLC runs: MDI lines, and a
 //! program of the library run from a chosen line. Each is read, checked and planned like a
 //! program ([`crate::compose::nc_job`]), off the cyclic path, from where the tool stands — the forward
 //! kinematics of the joints' set-points, which is exactly where the main program says the tool

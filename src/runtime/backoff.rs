@@ -1,4 +1,4 @@
-//! Back-off for refused credentials (issue 38): each refusal of a key (a source address, a user
+//! Back-off for refused credentials: each refusal of a key (a source address, a user
 //! name, everything) makes the next refusals of that key wait longer before they answer, so that
 //! guessing a password or a token gets slow however many clients guess at once. Only refusals
 //! wait: the right credentials are answered at once, so no guesser can lock the operator out.

@@ -1,4 +1,4 @@
-//! Bounds on the log a peer can cause (issue 38): a client flooding the screen or the OPC UA
+//! Bounds on the log a peer can cause: a client flooding the screen or the OPC UA
 //! server with malformed messages, wrong passwords or connections must not fill the disk, nor
 //! bury the lines that matter.
 //!

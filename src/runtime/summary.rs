@@ -34,7 +34,7 @@ pub struct Summary {
     pub program: Option<ProgramSummary>,
 }
 
-/// The NC program's last run (motion.md, Execution), from the executor's process-image
+/// The NC program's last run (docs/nc.md, Running), from the executor's process-image
 /// variables: what a trace replays, the summary of its replay shows too.
 #[derive(Clone, Debug, Serialize)]
 pub struct ProgramSummary {

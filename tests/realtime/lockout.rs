@@ -1,4 +1,4 @@
-//! Nothing a network peer sends locks the operator out or floods the log (issue 38), tried as an
+//! Nothing a network peer sends locks the operator out or floods the log, tried as an
 //! attacker would, from loopback addresses of its own (127.0.0.2, 127.0.0.3) while the operator
 //! connects from 127.0.0.1:
 //!

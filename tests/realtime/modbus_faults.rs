@@ -105,9 +105,9 @@ fn garbage_slow_and_exceptional_stations_are_bus_faults() {
         (Misbehaviour::Garbage, "garbage"),
         (Misbehaviour::Slow, "slow"),
         (Misbehaviour::Exception, "exception"),
-        // Regression (issue 12): a short response was read as "the rest are false".
+        // Regression: a short response was read as "the rest are false".
         (Misbehaviour::Short, "short"),
-        // Regression (issue 12): late answers never made a bus fault.
+        // Regression: late answers never made a bus fault.
         (Misbehaviour::Late, "late"),
     ] {
         let port = bad_station(how);
@@ -229,7 +229,7 @@ fn delaying_proxy(upstream: std::net::SocketAddr, delay: Duration) -> u16 {
     port
 }
 
-/// Regression (issue 26): with 8 ms added to every response (33 ms exchanges, inputs never
+/// Regression: with 8 ms added to every response (33 ms exchanges, inputs never
 /// older than the 50 ms bound) the regulators oscillated (PWM 83 %, 60 mm/s where 15 were
 /// commanded) until an encoder fault stopped them with a misleading reason. The slow link is a
 /// bus fault within a few exchanges, and the reason says so.
@@ -385,7 +385,7 @@ fn declaring_the_variables_opens_nothing_starting_the_bus_opens_the_link() {
     bus.write_safe(&table.initial_image());
 }
 
-/// Issue 28: a wrong port and a missing serial device say why, and a run whose bus never came up
+/// A wrong port and a missing serial device say why, and a run whose bus never came up
 /// fails.
 #[test]
 fn a_link_that_never_comes_up_names_its_cause_and_fails_the_run() {

@@ -1,4 +1,4 @@
-//! The screen's jobs against a running PLC (issue 38): a job whose text nests without end is
+//! The screen's jobs against a running PLC: a job whose text nests without end is
 //! refused with its line and column while the PLC runs on (such a job aborted the process
 //! before); a job being planned is abandoned by the operator's Cancel and by STOP; and SIGTERM
 //! ends the run at once, summary written, while a job is still being planned (the run waited

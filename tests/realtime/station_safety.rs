@@ -1,4 +1,4 @@
-//! What the station (io-sim) and the soft-PLC do when things go wrong (issue 12): malformed
+//! What the station (io-sim) and the soft-PLC do when things go wrong: malformed
 //! frames are answered, never fatal; the output watchdog stops the drives when the controller
 //! dies without a safe stop; terminating signals other than SIGINT/SIGTERM stop the PLC safely;
 //! io-sim bounds its clients and summarises repeated errors.

@@ -258,7 +258,7 @@ fn oversized_lines_fifos_and_devices_are_refused() {
 
 #[test]
 fn a_plot_of_values_near_the_limits_of_f64_ends() {
-    // Regression (issue 13): a value of ±1e308 made the axis span infinite and the plot spin.
+    // Regression: a value of ±1e308 made the axis span infinite and the plot spin.
     let dir = tempfile::tempdir().expect("tempdir");
     let (_, lines) = recorded(dir.path(), "t.jsonl");
     let mut out = vec![lines[0].clone()];

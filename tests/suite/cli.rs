@@ -659,7 +659,7 @@ fn programs_to_load_need_the_screen_and_a_directory_that_can_be_listed() {
     );
 }
 
-/// Issue 26: `--programs DIR` offers the directory's own programs only — a symbolic link out of
+/// `--programs DIR` offers the directory's own programs only — a symbolic link out of
 /// it is skipped and logged, as are a directory, a FIFO (which would block the start) and other
 /// names; a link to a program inside it is offered.
 #[test]

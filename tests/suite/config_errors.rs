@@ -125,7 +125,7 @@ fn wrong_types_and_missing_fields() {
         error(r#"{"task_classes": [], "timing": {"source": "hpet"}}"#),
         "cfg.json: at timing.source: unknown variant `hpet`, expected one of `auto`, `tokio`, `timerfd`, `nanosleep`"
     );
-    // Regression (issue 13): these were JSON syntax errors without a path.
+    // Regression: these were JSON syntax errors without a path.
     assert_eq!(
         error(&format!(
             r#"{{"task_classes": [{}]}}"#,
@@ -446,7 +446,7 @@ fn main_params(v: serde_json::Value) -> impl Fn(&mut serde_json::Value) {
 
 fn no_change(_: &mut serde_json::Value) {}
 
-/// Regression (issue 12): each of these was accepted by `check`.
+/// Regression: each of these was accepted by `check`.
 #[test]
 fn safety_relevant_settings_are_refused_naming_the_key() {
     let cases: Vec<(String, &str)> = vec![

@@ -1,4 +1,4 @@
-//! Issue 26: every number a machine's configuration gives has a range, and a value outside it is
+//! Every number a machine's configuration gives has a range, and a value outside it is
 //! refused by `check` with its path. Each machine's configuration (the TRIJOINT's with every
 //! program parameter spelt out) is tried with extreme values at every numeric key.
 
@@ -206,7 +206,7 @@ fn every_number_of_every_machine_has_a_range_and_an_extreme_value_is_refused_wit
     );
 }
 
-/// Values valid each on its own that do not hold together (issue 38) are refused with their
+/// Values valid each on its own that do not hold together are refused with their
 /// path: world limits that leave out the reference pose, a main program's reference switch that
 /// is not the simulated machine's.
 #[test]

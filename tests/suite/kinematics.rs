@@ -1,5 +1,5 @@
 //! Kinematics of the four machines: round trips, Jacobians, errors instead of NaN, hexapod
-//! convergence, and the TRIJOINT conditioning claim of the spec.
+//! convergence, and the TRIJOINT's conditioning (docs/kinematics.md).
 
 use pkm_kinematics::hexapod::Hexapod;
 use pkm_kinematics::{KinError, Kinematics, KinematicsConfig, MAX_DOF, Machine};
@@ -267,7 +267,7 @@ fn specific_errors_say_what_failed() {
 
 #[test]
 fn trijoint_is_well_conditioned_over_the_whole_travel_box() {
-    // kinematics.md §1: the singular-value ratio stays above 0.5 over the travel box.
+    // docs/kinematics.md (TRIJOINT): the singular-value ratio stays above 0.5 over the travel box.
     let k = kin(Machine::Trijoint);
     let mut worst = f64::INFINITY;
     for i in 0..=50 {
@@ -314,7 +314,7 @@ fn hexapod_fk_converges_from_home_in_few_iterations() {
     );
 }
 
-/// The machine frames of machines.md: pn101 and the O-X glide at home with every joint at its
+/// The machine frames of docs/machines.md: pn101 and the O-X glide at home with every joint at its
 /// reference (FK(0, …)), the hexapod at its home pose.
 fn frame(machine: Machine) -> pkm_kinematics::frame::MachineFrame {
     use pkm_kinematics::frame::{Home, MachineFrame};

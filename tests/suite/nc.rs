@@ -71,7 +71,7 @@ fn a_feed_the_joints_cannot_give_is_reported_with_the_reachable_feed_and_why() {
     );
 }
 
-/// Issue 27: a program with many blocks the machine slows gets one line per cause, not a line
+/// A program with many blocks the machine slows gets one line per cause, not a line
 /// per block (a CAM program's 19 321 lines); `--verbose` lists every block.
 #[test]
 fn lowered_feeds_are_summed_up_per_cause_and_listed_with_verbose() {
@@ -424,7 +424,7 @@ const LOOPS: &str = "#1 = 0\no1 while [#1 LT 4]\n#1 = [#1 + 1]\no2 if [#1 EQ 2]\
 const CANNED_CYCLES: &str =
     "G0 Z10\nG83 X1 Y1 Z-5 R2 Q2 F100\nG98 G81 X5 Z-1 R1\nG91 G81 X2 Y0 R-3 Z-1 L3\nG90 G0 X0\nM2\n";
 
-/// Issue 27: the dialect CAM programs use, read by our interpreter and by LinuxCNC 2.9's
+/// The dialect CAM programs use, read by our interpreter and by LinuxCNC 2.9's
 /// `rs274` (Debian's `linuxcnc-uspace`), give the same moves. Without `rs274` here the test says
 /// so and passes; the interpreter's own tests check the same programs against the moves written
 /// in them.
@@ -480,7 +480,7 @@ fn agree(ours: &[Canonical], theirs: &[Canonical]) -> bool {
         })
 }
 
-/// Issue 27: LinuxCNC's own example programs (Debian's `linuxcnc-uspace` installs them in
+/// LinuxCNC's own example programs (Debian's `linuxcnc-uspace` installs them in
 /// /usr/share/linuxcnc/ncfiles): every one we read gives the moves LinuxCNC's `rs274` gives, and
 /// these, which use subroutines, return values, loops, expressions, arcs by radius in inches and
 /// all three planes, are read. The others need what we refuse (tool changes, cutter

@@ -1,4 +1,4 @@
-//! What a program's text may cost (issue 38): values nested without end, programs that make
+//! What a program's text may cost: values nested without end, programs that make
 //! millions of moves or metres of path from a few bytes, canned cycles of countless pecks, and
 //! reading that never ends are refused — with their line and column and the bound they pass —
 //! instead of aborting the process, filling the memory or planning for minutes.

@@ -1,4 +1,4 @@
-//! The screen's jobs (issue 27), in virtual time: MDI lines and a program run from a chosen
+//! The screen's jobs, in virtual time: MDI lines and a program run from a chosen
 //! line are planned from where the tool stands, loaded and started through the screen's
 //! inputs, run to their end on the simulated O-X glide, and go into the trace — whose replay
 //! plans them again and agrees on every cycle.

@@ -1,4 +1,4 @@
-//! Operating a program (issue 27): the feed override 0 … 150 % and the rapid override walk the
+//! Operating a program: the feed override 0 … 150 % and the rapid override walk the
 //! planned path faster or slower within the joints' limits; single block stands at the end of
 //! every line. The executor of the machines' drive programs, on plans of the O-X glide made as
 //! `run` makes them, in 10 ms cycles of simulated time.

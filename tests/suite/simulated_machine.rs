@@ -314,7 +314,7 @@ fn scenario_errors_name_the_event() {
         e.contains("at events[0]: an event has exactly one of \"input\", \"joystick\", \"fault\" or \"program\""),
         "{e}"
     );
-    // Issue 26: a field the event's kind does not take is a mistake, not ignored.
+    // A field the event's kind does not take is a mistake, not ignored.
     let e = bad(r#"{"at_ms": 5, "joystick": [0.5, 0.5], "value": true}"#);
     assert!(
         e.ends_with("scenario.json: at events[0].value: a joystick event takes nothing besides at_ms; \"value\" does not belong to it"),
@@ -328,7 +328,7 @@ fn scenario_errors_name_the_event() {
         ),
         "{e}"
     );
-    // Regression (issue 13): this wrapped to t ≈ 0 and fired at once.
+    // Regression: this wrapped to t ≈ 0 and fired at once.
     let e = bad(r#"{"at_ms": 18446744073710, "input": "BUTTON_STOP", "value": true}"#);
     assert!(
         e.ends_with(

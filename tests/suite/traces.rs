@@ -373,7 +373,7 @@ fn a_trace_write_error_is_reported_with_exit_code_1_after_the_summary() {
     assert_eq!(s["task_classes"][0]["cycles"], 200, "{s}");
 }
 
-/// Issue 26: a trace whose file stops growing mid-run (here a file size limit, as a full disk
+/// A trace whose file stops growing mid-run (here a file size limit, as a full disk
 /// would) reports the records actually in the file — read back as `replay` reads them, not
 /// guessed from the last flush — and `replay` finds that many, identical.
 #[test]

@@ -191,7 +191,7 @@ fn stop_during_motion_lockout_and_acknowledgement() {
     assert_eq!(after[2].0, t0 + 1000);
 }
 
-/// Regression (issue 12): when one drive found its switches first, INIT used to hold *both*
+/// Regression: when one drive found its switches first, INIT used to hold *both*
 /// drives every cycle, so re-referencing from an asymmetric pose ended in "INIT timeout".
 #[test]
 fn acknowledgement_from_an_asymmetric_pose_references_again() {
@@ -388,7 +388,7 @@ fn with_main_params(params: serde_json::Value) -> serde_json::Value {
     config
 }
 
-/// Regression (issue 12): the jog stopped the set-point dead at the software limit, so the
+/// Regression: the jog stopped the set-point dead at the software limit, so the
 /// carriages overshot it (249.94 mm of a 248 mm limit in a 24 h soak) and 25 mm/s tripped a
 /// switch. Jog into every border and corner at full deflection, at the default speed and faster:
 /// each carriage stays within its software limit but for the braking tolerance, no switch.

@@ -117,7 +117,7 @@ fn one_simulated_hour_of_random_operation_keeps_every_invariant() {
         }
         // Every acknowledgement references again: READY, or ERROR for a reason — and a failed
         // referencing ("INIT …") only while a fault that blocks it was active within the search
-        // time (issue 12: an asymmetric pose made re-referencing time out).
+        // time (an asymmetric pose once made re-referencing time out).
         if previous == "REBOOT" && state != "REBOOT" {
             acknowledged += 1;
         }

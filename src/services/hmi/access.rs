@@ -1,4 +1,4 @@
-//! Who may reach the screen and who may command it: the checks of every request (issue 26).
+//! Who may reach the screen and who may command it: the checks of every request.
 //!
 //! - **Host** (every request): an IP literal, `localhost`, or the host of an origin allowed with
 //!   `--hmi-allow-origin`. A DNS-rebinding page reaches the port under its own domain name and

@@ -1,4 +1,4 @@
-//! The cut path of the screen's backplot, kept by the server (issue 27): the measured tool point
+//! The cut path of the screen's backplot, kept by the server: the measured tool point
 //! of every frame while a program runs, so that a page opened (or reloaded) in the middle of a
 //! run, or after it, draws what was cut — not only what it saw itself. Bounded: past
 //! [`MAX_POINTS`] points every other one is dropped, which keeps the whole path at half the

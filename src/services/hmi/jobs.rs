@@ -1,4 +1,4 @@
-//! The screen's jobs (issue 27): MDI lines and a program run from a chosen line, made on the
+//! The screen's jobs: MDI lines and a program run from a chosen line, made on the
 //! operator's command in READY — planned on a thread of tokio's blocking pool (never on the
 //! cyclic thread, never on the thread that serves the pages), one at a time, from where the tool
 //! stands in the newest frame; stored in the run's library

@@ -1,4 +1,4 @@
-//! The screen's listening socket with bounds on the connections it holds (issues 26, 38):
+//! The screen's listening socket with bounds on the connections it holds:
 //!
 //! - at most a set number at once, and one source address at most half of them: a connection
 //!   beyond either is closed as it is accepted (counted, and logged at most once per source and

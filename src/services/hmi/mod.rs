@@ -1,4 +1,4 @@
-//! The operator's screen (issue 17): a web page served by the soft-PLC, off the cyclic path.
+//! The operator's screen: a web page served by the soft-PLC, off the cyclic path.
 //!
 //! - [`frame`]: what the cycle publishes for the screen, wait-free.
 //! - [`commands`]: the screen's commands, taken wait-free before each cycle into the `HMI_*`

@@ -3,7 +3,7 @@
 //! pushes every published frame (at the main cycle's rate) and takes the client's commands.
 //!
 //! Who is served and who commands is [`super::access`]'s: the Host of every request, the Origin
-//! of every WebSocket, the token. Bounded (issue 26): connections ([`super::listener`]),
+//! of every WebSocket, the token. Bounded: connections ([`super::listener`]),
 //! WebSocket clients ([`ServerOptions::max_clients`]), messages from a client (4 KiB) and
 //! commands per second per client ([`COMMANDS_PER_S`]); what is sent at connection (the hello)
 //! does not grow with the programs' length — their text is fetched a window at a time

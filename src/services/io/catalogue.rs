@@ -1,6 +1,6 @@
 //! The module catalogue: X20-like I/O modules and their channels, as in the original I/O mapping
 //! table, an X20-like stepper module for the stepper-driven machines (pn101, O-X glide), plus the
-//! operator's joystick (an HID device on the real machine, issue 8).
+//! operator's joystick (an HID device on the real machine).
 
 pub use crate::image::Direction;
 use crate::image::VarType;

@@ -1,4 +1,4 @@
-//! The OPC UA server (issue 29): how a lab's SCADA, a teaching dashboard or an MES reads the
+//! The OPC UA server: how a lab's SCADA, a teaching dashboard or an MES reads the
 //! machine and, with credentials, commands it — as a B&R Automation Runtime controller serves
 //! its variables.
 //!

@@ -1,4 +1,4 @@
-//! The operator screen's inputs (issue 17): what the web page commands enters the process image
+//! The operator screen's inputs: what the web page commands enters the process image
 //! as these variables, written by the runtime's HMI bus before each cycle, so that it is traced
 //! and replayed like the panel. Programs read them as optional inputs: without a screen they read
 //! zero and nothing changes.

@@ -1,5 +1,5 @@
 //! The ranges of the numbers a configuration gives, written once and applied to every machine
-//! (issue 26): a value outside its range is refused by `check` with its path, its range and
+//!: a value outside its range is refused by `check` with its path, its range and
 //! why the range is what it is. A range is generous enough for any lab model these programs
 //! drive and tight enough that no value in it defeats a safety function (a following-error bound
 //! of 1e308 leaves a dead drive unnoticed; a STOP lockout of 0 lets a bouncing contact

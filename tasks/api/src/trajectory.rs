@@ -1,5 +1,5 @@
 //! A planned motion handed to the cyclic programs: an NC program checked and planned off the
-//! cyclic path before the PLC starts (motion.md), which the fast class samples once per cycle
+//! cyclic path before the PLC starts (docs/nc.md), which the fast class samples once per cycle
 //! without allocating. The runtime builds it (the `pkm-nc` crate plans it); the machines' drive
 //! programs execute it (`pkm_drives::nc`); this module is the interface between them.
 

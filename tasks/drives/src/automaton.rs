@@ -1,16 +1,16 @@
-//! The main automaton every machine shares (application.md), written once: the states as the
+//! The main automaton every machine shares (docs/trijoint.md), written once: the states as the
 //! process image carries them, the STOP button's press-and-lockout rule, which event a cycle
 //! dispatches, and the REBOOT → INIT → READY ⇄ MOTION / ERROR state machine (statig) with its
 //! rules — REBOOT lasts one cycle; in INIT, READY and MOTION a STOP press or a supervision fault is
 //! ERROR with its reason; ERROR is left only by an accepted STOP press, to REBOOT. What a machine
 //! does in each state (its referencing, its jog) is its [`Application`]. READY ⇄ AUTO runs an NC
-//! program (motion.md), for the machines that start one.
+//! program (docs/nc.md), for the machines that start one.
 
 use pkm_api::image::{Declare, Input, Var};
 use pkm_api::program::Cycle;
 use statig::prelude::*;
 
-/// The states of the main automaton (application.md).
+/// The states of the main automaton (docs/trijoint.md).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum MainState {
     /// (Re)initialising after power-on or an acknowledged error.

@@ -1,4 +1,4 @@
-//! Executing an NC program in the fast class (motion.md, Execution): the [`Executor`] walks the
+//! Executing an NC program in the fast class (docs/nc.md, Running): the [`Executor`] walks the
 //! planned trajectory once per cycle — feed hold and resume, the feed and rapid overrides as the
 //! rate at which it walks (above 100 % up to the profile planned for the highest override), single
 //! block as a stand at the end of each line, M0 as a pause at its block, M3/M4/M5 as the
@@ -913,7 +913,7 @@ impl ProgramControl {
     }
 }
 
-/// An error reason with the program line that was executing (motion.md: STOP and faults in
+/// An error reason with the program line that was executing (docs/nc.md: STOP and faults in
 /// AUTO name the line), written into capacity reserved at creation: entering ERROR allocates
 /// nothing.
 #[derive(Clone, Debug)]

@@ -1,5 +1,5 @@
 //! The machine-agnostic application for joint-driven machines — pn101, the O-X glide in its X
-//! and O configurations, the hexapod (machines.md) — on the runtime's program interface: a drive
+//! and O configurations, the hexapod (docs/machines.md) — on the runtime's program interface: a drive
 //! program per machine (fast class: counters, regulation, the fast interlock) and a main program
 //! (the REBOOT/INIT/READY/MOTION/ERROR automaton, referencing, joint and world jog through the
 //! kinematics), the checks of their configuration sections, their I/O maps, configurations and

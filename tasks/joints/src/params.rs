@@ -1,6 +1,6 @@
 //! The programs' parameters (`params` of their entries in the configuration): the drive
 //! program's per-joint drive parameters and the main program's limits, referencing and jog
-//! settings. Each machine has its own defaults (machines.md); a configuration's `params` are laid
+//! settings. Each machine has its own defaults (docs/machines.md); a configuration's `params` are laid
 //! over them key by key and parsed strictly, so that a file may give only what it changes and a
 //! misspelt key is still refused with its path.
 

@@ -1,7 +1,7 @@
 //! What the application needs to know of each machine that is not configuration: its kinematic
 //! model, its kind of drive, how its switches reach the controller, its built-in files and its
-//! defaults (machines.md; numbers marked *ours* there are our choice and live in the
-//! configuration).
+//! defaults (docs/machines.md; the numbers the papers do not give are our choice, and a
+//! configuration replaces them).
 
 use pkm_api::machine::EmbeddedFile;
 use pkm_api::program::ProgramInfo;
@@ -121,7 +121,7 @@ impl Spec {
         }
     }
 
-    /// Maximal joint speed (mm/s) and acceleration (mm/s²), machines.md.
+    /// Maximal joint speed (mm/s) and acceleration (mm/s²), docs/machines.md.
     pub(crate) fn joint_limits(&self) -> (f64, f64) {
         match self.model {
             Model::Pn101 => (8.0, 40.0),

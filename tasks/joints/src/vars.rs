@@ -1,6 +1,6 @@
 //! The process-image variables of the joint-driven machines, one typed constant (or a table of
 //! six, indexed by joint from 0) each: the names of the I/O maps' bindings, the names the
-//! programs exchange, and the observable names of issue 15 (`JOINTn_POSITION`, `TOOL_X` …).
+//! programs exchange, and the observable names (`JOINTn_POSITION`, `TOOL_X` …).
 
 use pkm_api::image::Var;
 

@@ -1,4 +1,4 @@
-//! The machine frame of kinematics.md: the mechanism frame shifted so that the tool's home
+//! The machine frame of docs/kinematics.md: the mechanism frame shifted so that the tool's home
 //! position is the origin. Operators, jogs and NC programs work in it; the formulas stay in the
 //! mechanism frame. Only the translational coordinates are shifted (x, y, z); angles (a, b, c)
 //! are the mechanism's.
@@ -52,7 +52,7 @@ impl MachineFrame {
         })
     }
 
-    /// The frame of `model` with the spec's default parameters and its default home: pn101
+    /// The frame of `model` with the default parameters of docs/kinematics.md and its default home: pn101
     /// and the O-X glide at their joints' zeros (the original controllers' home point), the
     /// hexapod at its home pose, the TRIJOINT at the middle of its carriages' travel.
     pub fn default_for(model: crate::Machine) -> Result<MachineFrame, KinError> {

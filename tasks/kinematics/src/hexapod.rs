@@ -1,6 +1,6 @@
 //! Stewart–Gough hexapod: six struts between base joints b_i and platform joints a_i.
 //! Joints: strut lengths L_i (mm). Pose (x, y, z, a, b, c): platform origin (mm) and rotations
-//! about x, y, z (degrees) with R = Rz(c)·Ry(b)·Rx(a). kinematics.md §4.
+//! about x, y, z (degrees) with R = Rz(c)·Ry(b)·Rx(a). docs/kinematics.md (hexapod).
 
 use serde::Deserialize;
 
@@ -20,7 +20,7 @@ pub struct HexapodParams {
     pub platform: [[f64; 3]; 6],
     /// Home pose (x, y, z mm; a, b, c degrees): FK starts here without a hint.
     pub home: [f64; 6],
-    /// Travel of every strut (mm). Our default; the spec gives none.
+    /// Travel of every strut (mm). Our default (docs/kinematics.md).
     pub strut_travel: [f64; 2],
     /// Newton: give up after this many iterations.
     pub max_iterations: usize,

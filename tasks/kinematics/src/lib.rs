@@ -1,7 +1,7 @@
-//! Kinematics of the four machine models of ../shared/spec/kinematics.md behind one trait.
+//! Kinematics of the four machine models of docs/kinematics.md behind one trait.
 //!
 //! Units at every interface: millimetres and degrees; radians only inside. Poses and joints are
-//! slices of length [`Kinematics::dof`] in the mechanism frame of the spec. Nothing here allocates
+//! slices of length [`Kinematics::dof`] in the mechanism frame (docs/kinematics.md). Nothing here allocates
 //! per call, and every failure is an error value that says which condition failed — never NaN,
 //! never a panic.
 
@@ -82,7 +82,7 @@ pub enum KinError {
         /// Upper end of the travel.
         max: f64,
     },
-    /// The joints cannot be assembled (in the assembly mode of the spec).
+    /// The joints cannot be assembled (in the assembly mode docs/kinematics.md names).
     #[error("no assembly: {0}")]
     NoAssembly(&'static str),
     /// The configuration is singular.
@@ -194,7 +194,7 @@ pub(crate) fn check_limits(limits: &[[f64; 2]], joints: &[f64]) -> Result<(), Ki
     Ok(())
 }
 
-/// Parameters of all machines; every section is optional and defaults to the spec's values.
+/// Parameters of all machines; every section is optional and defaults to the values of docs/kinematics.md.
 #[derive(Clone, Debug, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct KinematicsConfig {
@@ -211,7 +211,7 @@ pub struct KinematicsConfig {
 }
 
 impl Default for KinematicsConfig {
-    /// The spec's defaults (the O configuration gets its own slider references, see [`ox`]).
+    /// The defaults of docs/kinematics.md (the O configuration gets its own slider references, see [`ox`]).
     fn default() -> Self {
         KinematicsConfig {
             trijoint: Default::default(),
@@ -224,7 +224,7 @@ impl Default for KinematicsConfig {
 }
 
 impl KinematicsConfig {
-    /// Parses and checks the `kinematics` section of a configuration (`None`: the spec's
+    /// Parses and checks the `kinematics` section of a configuration (`None`: the
     /// defaults); problems carry their full JSON path (`kinematics.trijoint.d`).
     pub fn from_section(section: Option<&serde_json::Value>) -> Result<KinematicsConfig, Vec<Problem>> {
         let config: KinematicsConfig = match section {

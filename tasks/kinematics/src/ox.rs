@@ -1,7 +1,7 @@
 //! O-X glide: two sliders on horizontal guides at z = ±d carry the tool point P through rods of
 //! lengths l1, l2; a serial axis moves y. Joints (s1, s2, s3) in mm; pose (x, y, z) with y the
 //! serial axis. The crossed X and the extended O configuration differ only in the sign in front of
-//! the square roots. kinematics.md §3.
+//! the square roots. docs/kinematics.md (O-X glide).
 
 use serde::Deserialize;
 
@@ -28,7 +28,7 @@ impl Configuration {
     }
 }
 
-/// Geometry of the O-X glide (defaults: the first prototype, kinematics.md §3).
+/// Geometry of the O-X glide (defaults: the first prototype, docs/kinematics.md (O-X glide)).
 #[derive(Clone, Debug, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct OxParams {
@@ -46,7 +46,7 @@ pub struct OxParams {
     pub xr1: f64,
     /// Reference position of slider 2 (mm).
     pub xr2: f64,
-    /// Travel of s1, s2, s3 (mm). Our defaults; the spec gives none.
+    /// Travel of s1, s2, s3 (mm). Our defaults (docs/kinematics.md).
     pub travel: [[f64; 2]; 3],
     /// Smallest angle between a rod and its guide that the workspace analysis keeps (degrees).
     pub min_rod_angle_deg: f64,
@@ -71,7 +71,7 @@ impl Default for OxParams {
 impl OxParams {
     /// Defaults for the O configuration: the same rods, with slider references chosen so that
     /// FK(0, 0) is an extended (O) pose — slider 1 to the right of the tool point, slider 2 to
-    /// its left. The spec gives only the X prototype's references.
+    /// its left. The first prototype's references are the X configuration's.
     pub fn default_o() -> Self {
         OxParams {
             xr1: 470.0,

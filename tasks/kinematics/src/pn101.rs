@@ -1,6 +1,6 @@
 //! pn101: three sliders on parallel guides along x carry a platform through two strut pairs and a
 //! translational-rotational link. Joints q1..q3: slider displacements from their reference
-//! positions (mm). Pose (x, y, z): the platform reference point P2 (mm). kinematics.md §2.
+//! positions (mm). Pose (x, y, z): the platform reference point P2 (mm). docs/kinematics.md (pn101).
 
 use serde::Deserialize;
 
@@ -8,7 +8,7 @@ use pkm_api::problem::Problem;
 
 use super::{KinError, Kinematics, Machine, Mat, check_finite, check_limits, linalg::MAX, positive, travel};
 
-/// Geometry of pn101 (defaults: the 1:5 physical model's controller, kinematics.md §2).
+/// Geometry of pn101 (defaults: the 1:5 physical model's controller, docs/kinematics.md (pn101)).
 #[derive(Clone, Debug, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct Pn101Params {
@@ -34,7 +34,7 @@ pub struct Pn101Params {
     pub zz3: f64,
     /// Reference positions of the sliders (mm): p_i = xr_i + q_i.
     pub xr: [f64; 3],
-    /// Travel of q1, q2, q3 (mm). Our default; the spec gives none.
+    /// Travel of q1, q2, q3 (mm). Our default (docs/kinematics.md).
     pub travel: [[f64; 2]; 3],
 }
 

@@ -1,7 +1,7 @@
 //! The TRIJOINT 900H lab model: planar, two carriages on inclined guides, an arm and a rod.
 //!
 //! Joints (h1, h2): the left and right carriages along their guides (mm). Pose (x, y): the
-//! spindle point M in the mechanism frame (mm). Formulas and assembly modes: kinematics.md §1.
+//! spindle point M in the mechanism frame (mm). Formulas and assembly modes: docs/kinematics.md (TRIJOINT).
 
 use serde::Deserialize;
 
@@ -9,7 +9,7 @@ use pkm_api::problem::Problem;
 
 use super::{KinError, Kinematics, Machine, Mat, check_finite, check_limits, linalg::MAX, positive, travel};
 
-/// Geometry of the TRIJOINT lab model (defaults: kinematics.md §1).
+/// Geometry of the TRIJOINT lab model (defaults: docs/kinematics.md (TRIJOINT)).
 #[derive(Clone, Debug, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct TrijointParams {
@@ -212,7 +212,7 @@ impl Kinematics for Trijoint {
         }
         let along = (self.l2 * self.l2 - self.l3 * self.l3 + dist * dist) / (2.0 * dist);
         let h = (self.l2 * self.l2 - along * along).max(0.0).sqrt();
-        // The assembly mode of the spec: B to the right of the directed line A → C,
+        // The assembly mode of docs/kinematics.md: B to the right of the directed line A → C,
         // cross(C − A, B − A) < 0, i.e. the minus side of perp(C − A).
         let n = perp(v);
         let b = [

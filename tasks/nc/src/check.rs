@@ -1,4 +1,4 @@
-//! The check of a program before it moves (motion.md): every point of its path, sampled at most
+//! The check of a program before it moves (docs/nc.md): every point of its path, sampled at most
 //! 0.1 mm and 0.1° apart, must lie inside the world limits, be reachable by the inverse
 //! kinematics with every joint inside its software limits, and keep the singularity measure at
 //! or above the threshold. A failure names the program line, the point and the condition. The

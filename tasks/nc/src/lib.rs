@@ -1,4 +1,4 @@
-//! NC programs (motion.md): the documented subset of RS274NGC, LinuxCNC's dialect, read into
+//! NC programs (docs/nc.md): the documented subset of RS274NGC, LinuxCNC's dialect, read into
 //! moves in the machine's world coordinates.
 //!
 //! - [`lexer`]: a program's line as words (`G1`, `X-2.5`, `X[#1 * 2]`) with their values, line

@@ -1,4 +1,4 @@
-//! The planner (motion.md): the program's moves as one path in world coordinates — corners of
+//! The planner (docs/nc.md): the program's moves as one path in world coordinates — corners of
 //! consecutive lines rounded by arcs within the G64 P tolerance, exact stops at G61 and wherever
 //! the path cannot be blended —, and a velocity profile along it that keeps every world axis and
 //! every joint within its speed and acceleration limits: joint rates through the kinematics
@@ -1292,7 +1292,7 @@ mod tests {
         }
     }
 
-    /// Issue 27: a line into an arc at an angle (90° here) is blended within G64 P by two arcs
+    /// A line into an arc at an angle (90° here) is blended within G64 P by two arcs
     /// instead of stopping: the tool keeps moving through the corner, passes it within P, and
     /// the part takes less time than with G61.
     #[test]

@@ -1,4 +1,4 @@
-//! The TRIJOINT 900H lab model as a pkm-plc machine (application.md): its programs on the
+//! The TRIJOINT 900H lab model as a pkm-plc machine (docs/trijoint.md): its programs on the
 //! runtime's program interface — the encoder program and the drive controller with the fast
 //! interlock (10 ms class), and the main automaton with referencing and jogging (50 ms class) —,
 //! the check of its configuration sections, its I/O map and its simulated plant.

@@ -3,7 +3,7 @@
 //! Per drive: a DC motor with gearbox (PWM duty → carriage speed with a first-order lag; no
 //! motion without an enabled bridge), a lead screw, a carriage between hard stops, limit switches
 //! just inside the hard stops, and a 16-bit wrapping encoder counter. The two carriages are linked
-//! by the mechanism of kinematics.md: a pair of positions the linkage cannot assemble is never
+//! by the mechanism of docs/kinematics.md: a pair of positions the linkage cannot assemble is never
 //! entered — the plant stops there, as a jammed machine would. Time advances in fixed steps, so a
 //! run depends only on its inputs.
 

@@ -177,7 +177,7 @@ impl Stepper {
 mod tests {
     use super::*;
 
-    /// pn101's defaults (machines.md): 400 steps/mm, 8 mm/s, 40 mm/s²; pull-out at 1.25× the
+    /// pn101's defaults (docs/machines.md): 400 steps/mm, 8 mm/s, 40 mm/s²; pull-out at 1.25× the
     /// speed and 2× the acceleration.
     const PN101: StepperParams = StepperParams {
         steps_per_mm: 400.0,

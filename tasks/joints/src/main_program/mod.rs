@@ -1,5 +1,5 @@
 //! The main program (50 ms class) of a joint-driven machine: the REBOOT/INIT/READY/MOTION/ERROR
-//! automaton with the STOP press-and-lockout rule and the limit-input rules of application.md,
+//! automaton with the STOP press-and-lockout rule and the limit-input rules of docs/trijoint.md,
 //! referencing, joint jog before it and world jog after it, and the tool pose (forward
 //! kinematics of the joint positions, machine frame) for traces and the status line.
 //!
@@ -430,7 +430,7 @@ impl MainProgram {
     }
 }
 
-/// The machine frame of `spec` with the spec's default kinematics, whose home is a pose by
+/// The machine frame of `spec` with the default kinematics, whose home is a pose by
 /// construction (the kinematics tests check it).
 fn default_frame(spec: &Spec) -> MachineFrame {
     MachineFrame::default_for(spec.model).unwrap_or_else(|e| {

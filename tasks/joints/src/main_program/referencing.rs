@@ -1,10 +1,10 @@
-//! INIT: joint mode while a limit input is active, then referencing (machines.md) group by group
+//! INIT: joint mode while a limit input is active, then referencing (docs/machines.md) group by group
 //! of the configured order — joints sharing a reference input one at a time, the others
 //! together. Each joint finds its reference switch twice (a search, then a slow approach whose
 //! captured edge is the reference) and goes to its reference position; the next group starts
 //! when the whole group is there.
 //!
-//! No search runs without its switch ahead (issue 26): no search, leave or back-off travels
+//! No search runs without its switch ahead: no search, leave or back-off travels
 //! farther than the switch can be from where it began (the travel on that side of the switch);
 //! a leave that does not clear the input within it (a shared input another joint holds, a
 //! switch stuck on) takes the joint back to where it started before the error, so that repeated

@@ -1,7 +1,7 @@
 //! The interpreter: RS274NGC's modal state applied block by block, in LinuxCNC's order of
 //! execution, each block becoming at most a few [`Block`]s in the machine's world coordinates.
 //!
-//! Supported (motion.md): G0 G1 G2 G3 (centre by I J K, incremental as in LinuxCNC, or by R;
+//! Supported (docs/nc.md): G0 G1 G2 G3 (centre by I J K, incremental as in LinuxCNC, or by R;
 //! helical with the axis normal to the plane; P full turns), G4 P (dwell, s), G17 G18 G19,
 //! G20 G21, G53 (machine coordinates, this block), G54–G59 (work offsets), G61, G64 \[P\], G90 G91,
 //! G92, the canned cycles G81 G82 G83 with G98 G99 and G80, F (per minute), S, M0 M1 M2 M30 M3

@@ -286,7 +286,7 @@ fn what_the_subset_lacks_is_refused_with_line_column_and_reason() {
         ("G0 X1 E2", "1:7: E (extruders) is not supported"),
         ("S-5", "1:1: the spindle speed S must be zero or positive, got -5"),
         ("G1.25 X1", "1:1: G1.25 is not a code"),
-        // Issue 26: absurd values, refused where they are written.
+        // Absurd values, refused where they are written.
         (
             "G1 X1 F0.01",
             "1:7: the feed F must be at least 0.1 units/min (slower, a millimetre takes hours), got 0.01",
@@ -313,7 +313,7 @@ fn what_the_subset_lacks_is_refused_with_line_column_and_reason() {
     );
 }
 
-/// Issue 27: the dialect CAM programs use, with the moves LinuxCNC 2.9's `rs274` prints for
+/// The dialect CAM programs use, with the moves LinuxCNC 2.9's `rs274` prints for
 /// the same text (checked by hand against it; `tests/suite/nc.rs` compares where it is
 /// installed).
 #[test]

@@ -1,5 +1,5 @@
 //! The main program (50 ms class, HW_obsluha of the original): the REBOOT → INIT → READY ⇄ MOTION
-//! and ERROR automaton of application.md — the shared statig state machine of pkm-drives with the
+//! and ERROR automaton of docs/trijoint.md — the shared statig state machine of pkm-drives with the
 //! TRIJOINT's referencing and jog.
 //!
 //! Every cycle dispatches one event: an accepted STOP press, else a supervision fault, else a tick.
