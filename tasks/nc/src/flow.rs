@@ -288,185 +288,235 @@ impl<'t> Flow<'t> {
         Ok(())
     }
 
-    /// An O-word statement at line `index`.
+    /// An O-word statement at line `index`, by its keyword.
     fn control(&mut self, c: Control, index: usize, system: &dyn System) -> Result<(), NcError> {
-        let at = |message: String| NcError::new(c.line, c.column, message);
         let value = c.values.first().copied().unwrap_or(0.0);
         match c.keyword {
-            Keyword::Sub => {
-                if let Some(first) = self.subs.get(&c.label)
-                    && *first != index
-                {
-                    return Err(at(format!(
-                        "o{} is defined twice (first at line {})",
-                        c.label,
-                        first + 1
-                    )));
-                }
-                self.subs.insert(c.label.clone(), index);
-                // Its body runs when it is called.
-                let (end, _) = self.skip(index + 1, &c, |k| k == Keyword::EndSub)?;
-                self.next = end + 1;
+            Keyword::Sub => self.define(&c, index),
+            Keyword::EndSub | Keyword::Return => self.return_from_call(&c, value),
+            Keyword::Call => self.call(&c),
+            Keyword::Do => self.begin_do(&c, index),
+            Keyword::While => self.test_while(&c, index, value),
+            Keyword::EndWhile => self.end_while(&c),
+            Keyword::Repeat => self.repeat(&c, index, value),
+            Keyword::EndRepeat => self.end_repeat(&c),
+            Keyword::If => self.test_if(&c, index, value, system),
+            Keyword::ElseIf | Keyword::Else => self.leave_branch(&c, index),
+            Keyword::EndIf => self.end_if(&c),
+            Keyword::Break | Keyword::Continue => self.break_or_continue(&c, index),
+        }
+    }
+
+    /// A subroutine's definition: noted, its body skipped (it runs when called).
+    fn define(&mut self, c: &Control, index: usize) -> Result<(), NcError> {
+        let at = |message: String| NcError::new(c.line, c.column, message);
+        if let Some(first) = self.subs.get(&c.label)
+            && *first != index
+        {
+            return Err(at(format!(
+                "o{} is defined twice (first at line {})",
+                c.label,
+                first + 1
+            )));
+        }
+        self.subs.insert(c.label.clone(), index);
+        // Its body runs when it is called.
+        let (end, _) = self.skip(index + 1, c, |k| k == Keyword::EndSub)?;
+        self.next = end + 1;
+        Ok(())
+    }
+
+    /// The end of the call in progress (`endsub`, `return`): the caller's arguments back, the value returned.
+    fn return_from_call(&mut self, c: &Control, value: f64) -> Result<(), NcError> {
+        let at = |message: String| NcError::new(c.line, c.column, message);
+        // Any endsub or return ends the call in progress, whatever its label, as in
+        // LinuxCNC (its own examples return from o1000 with `o1010 return`).
+        if self.frame().call.is_none() {
+            return Err(at(format!("{} outside a call of o{}", c.name(), c.label)));
+        }
+        let frame = self.frames.pop().expect("a call's frame");
+        let call = frame.call.expect("a call's frame has its call");
+        self.numbered[1..=MAX_ARGUMENTS].copy_from_slice(&call.saved);
+        self.globals.insert("_value".into(), value);
+        self.globals
+            .insert("_value_returned".into(), if c.values.is_empty() { 0.0 } else { 1.0 });
+        self.next = call.return_to;
+        Ok(())
+    }
+
+    /// A call: the arguments in #1 … #30 (the caller's kept), a frame of its own.
+    fn call(&mut self, c: &Control) -> Result<(), NcError> {
+        let at = |message: String| NcError::new(c.line, c.column, message);
+        if self.frames.len() > MAX_CALL_DEPTH {
+            return Err(at(format!(
+                "calls nest deeper than {MAX_CALL_DEPTH} levels (LinuxCNC's limit): does a subroutine call itself without end?"
+            )));
+        }
+        let sub = match self.subs.get(&c.label) {
+            Some(s) => *s,
+            None => {
+                let s = self.find_sub(c)?;
+                self.subs.insert(c.label.clone(), s);
+                s
             }
-            Keyword::EndSub | Keyword::Return => {
-                // Any endsub or return ends the call in progress, whatever its label, as in
-                // LinuxCNC (its own examples return from o1000 with `o1010 return`).
-                if self.frame().call.is_none() {
-                    return Err(at(format!("{} outside a call of o{}", c.name(), c.label)));
-                }
-                let frame = self.frames.pop().expect("a call's frame");
-                let call = frame.call.expect("a call's frame has its call");
-                self.numbered[1..=MAX_ARGUMENTS].copy_from_slice(&call.saved);
-                self.globals.insert("_value".into(), value);
-                self.globals
-                    .insert("_value_returned".into(), if c.values.is_empty() { 0.0 } else { 1.0 });
-                self.next = call.return_to;
+        };
+        let mut saved = [0.0; MAX_ARGUMENTS];
+        saved.copy_from_slice(&self.numbered[1..=MAX_ARGUMENTS]);
+        for (i, slot) in self.numbered[1..=MAX_ARGUMENTS].iter_mut().enumerate() {
+            *slot = c.values.get(i).copied().unwrap_or(0.0);
+        }
+        self.frames.push(Frame {
+            call: Some(Call {
+                label: c.label.clone(),
+                return_to: self.next,
+                saved,
+            }),
+            named: HashMap::new(),
+            open: Vec::new(),
+        });
+        self.next = sub + 1;
+        Ok(())
+    }
+
+    /// The start of a `do` loop.
+    fn begin_do(&mut self, c: &Control, index: usize) -> Result<(), NcError> {
+        let again = self
+            .frame()
+            .open
+            .last()
+            .is_some_and(|o| o.kind == Opened::Do && o.index == index);
+        if !again {
+            self.open(c, Opened::Do, index)?;
+        }
+        Ok(())
+    }
+
+    /// A `while`: the end of a `do` loop, or the test of a `while` loop.
+    fn test_while(&mut self, c: &Control, index: usize, value: f64) -> Result<(), NcError> {
+        let top = self.frame().open.last();
+        if let Some(o) = top.filter(|o| o.kind == Opened::Do && o.label == c.label) {
+            // The end of a do loop.
+            let start = o.index;
+            if value != 0.0 {
+                self.next = start + 1;
+            } else {
+                self.frame_mut().open.pop();
             }
-            Keyword::Call => {
-                if self.frames.len() > MAX_CALL_DEPTH {
-                    return Err(at(format!(
-                        "calls nest deeper than {MAX_CALL_DEPTH} levels (LinuxCNC's limit): does a subroutine call itself without end?"
-                    )));
-                }
-                let sub = match self.subs.get(&c.label) {
-                    Some(s) => *s,
-                    None => {
-                        let s = self.find_sub(&c)?;
-                        self.subs.insert(c.label.clone(), s);
-                        s
-                    }
-                };
-                let mut saved = [0.0; MAX_ARGUMENTS];
-                saved.copy_from_slice(&self.numbered[1..=MAX_ARGUMENTS]);
-                for (i, slot) in self.numbered[1..=MAX_ARGUMENTS].iter_mut().enumerate() {
-                    *slot = c.values.get(i).copied().unwrap_or(0.0);
-                }
-                self.frames.push(Frame {
-                    call: Some(Call {
-                        label: c.label.clone(),
-                        return_to: self.next,
-                        saved,
-                    }),
-                    named: HashMap::new(),
-                    open: Vec::new(),
-                });
-                self.next = sub + 1;
+            return Ok(());
+        }
+        let again = top.is_some_and(|o| o.kind == Opened::While && o.index == index);
+        if value != 0.0 {
+            if !again {
+                self.open(c, Opened::While, index)?;
             }
-            Keyword::Do => {
-                let again = self
-                    .frame()
-                    .open
-                    .last()
-                    .is_some_and(|o| o.kind == Opened::Do && o.index == index);
-                if !again {
-                    self.open(&c, Opened::Do, index)?;
+        } else {
+            if again {
+                self.frame_mut().open.pop();
+            }
+            let (end, _) = self.skip(index + 1, c, |k| k == Keyword::EndWhile)?;
+            self.next = end + 1;
+        }
+        Ok(())
+    }
+
+    /// The end of a `while` loop's body: back to its test.
+    fn end_while(&mut self, c: &Control) -> Result<(), NcError> {
+        let start = self.close(c, |k| k == Opened::While, "while")?.index;
+        // Back to the test, which opens it again while it holds.
+        self.frame_mut().open.push(Open {
+            label: c.label.clone(),
+            kind: Opened::While,
+            index: start,
+        });
+        self.next = start;
+        Ok(())
+    }
+
+    /// A `repeat`: its count, rounded as LinuxCNC rounds it.
+    fn repeat(&mut self, c: &Control, index: usize, value: f64) -> Result<(), NcError> {
+        let count = value.round();
+        if count >= 1.0 {
+            self.open(c, Opened::Repeat(count as u64), index)?;
+        } else {
+            let (end, _) = self.skip(index + 1, c, |k| k == Keyword::EndRepeat)?;
+            self.next = end + 1;
+        }
+        Ok(())
+    }
+
+    /// The end of a `repeat` body: another turn while any is left.
+    fn end_repeat(&mut self, c: &Control) -> Result<(), NcError> {
+        let open = self.close(c, |k| matches!(k, Opened::Repeat(_)), "repeat")?;
+        if let Opened::Repeat(left) = open.kind
+            && left > 1
+        {
+            self.next = open.index + 1;
+            self.frame_mut().open.push(Open {
+                kind: Opened::Repeat(left - 1),
+                ..open
+            });
+        }
+        Ok(())
+    }
+
+    /// An `if`: its branch, or the next one that holds.
+    fn test_if(&mut self, c: &Control, index: usize, value: f64, system: &dyn System) -> Result<(), NcError> {
+        if value != 0.0 {
+            self.open(c, Opened::If, index)?;
+        } else {
+            self.branch(index + 1, c, system)?;
+        }
+        Ok(())
+    }
+
+    /// An `elseif` or `else` reached by the branch that ran: on past the `endif`.
+    fn leave_branch(&mut self, c: &Control, index: usize) -> Result<(), NcError> {
+        // The branch that ran ends here.
+        self.close(c, |k| k == Opened::If, "if")?;
+        let (end, _) = self.skip(index + 1, c, |k| k == Keyword::EndIf)?;
+        self.next = end + 1;
+        Ok(())
+    }
+
+    /// An `endif`.
+    fn end_if(&mut self, c: &Control) -> Result<(), NcError> {
+        self.close(c, |k| k == Opened::If, "if")?;
+        Ok(())
+    }
+
+    /// A `break` or `continue` of the innermost loop with its label.
+    fn break_or_continue(&mut self, c: &Control, index: usize) -> Result<(), NcError> {
+        let at = |message: String| NcError::new(c.line, c.column, message);
+        let frame = self.frame();
+        let Some(position) = frame.open.iter().rposition(|o| o.label == c.label && o.kind.is_loop()) else {
+            return Err(at(format!("{} outside a loop o{}", c.name(), c.label)));
+        };
+        let (kind, start) = (frame.open[position].kind, frame.open[position].index);
+        let end = |k: Keyword| match kind {
+            Opened::While => k == Keyword::EndWhile,
+            Opened::Repeat(_) => k == Keyword::EndRepeat,
+            Opened::Do => k == Keyword::While,
+            Opened::If => false,
+        };
+        let opening = Control {
+            line: start + 1,
+            column: 1,
+            ..c.clone()
+        };
+        if c.keyword == Keyword::Break {
+            self.frame_mut().open.truncate(position);
+            let (stop, _) = self.skip(index + 1, &opening, end)?;
+            self.next = stop + 1;
+        } else {
+            self.frame_mut().open.truncate(position + 1);
+            match kind {
+                Opened::While => {
+                    self.frame_mut().open.pop();
+                    self.next = start;
                 }
-            }
-            Keyword::While => {
-                let top = self.frame().open.last();
-                if let Some(o) = top.filter(|o| o.kind == Opened::Do && o.label == c.label) {
-                    // The end of a do loop.
-                    let start = o.index;
-                    if value != 0.0 {
-                        self.next = start + 1;
-                    } else {
-                        self.frame_mut().open.pop();
-                    }
-                    return Ok(());
-                }
-                let again = top.is_some_and(|o| o.kind == Opened::While && o.index == index);
-                if value != 0.0 {
-                    if !again {
-                        self.open(&c, Opened::While, index)?;
-                    }
-                } else {
-                    if again {
-                        self.frame_mut().open.pop();
-                    }
-                    let (end, _) = self.skip(index + 1, &c, |k| k == Keyword::EndWhile)?;
-                    self.next = end + 1;
-                }
-            }
-            Keyword::EndWhile => {
-                let start = self.close(&c, |k| k == Opened::While, "while")?.index;
-                // Back to the test, which opens it again while it holds.
-                self.frame_mut().open.push(Open {
-                    label: c.label.clone(),
-                    kind: Opened::While,
-                    index: start,
-                });
-                self.next = start;
-            }
-            Keyword::Repeat => {
-                let count = value.round();
-                if count >= 1.0 {
-                    self.open(&c, Opened::Repeat(count as u64), index)?;
-                } else {
-                    let (end, _) = self.skip(index + 1, &c, |k| k == Keyword::EndRepeat)?;
-                    self.next = end + 1;
-                }
-            }
-            Keyword::EndRepeat => {
-                let open = self.close(&c, |k| matches!(k, Opened::Repeat(_)), "repeat")?;
-                if let Opened::Repeat(left) = open.kind
-                    && left > 1
-                {
-                    self.next = open.index + 1;
-                    self.frame_mut().open.push(Open {
-                        kind: Opened::Repeat(left - 1),
-                        ..open
-                    });
-                }
-            }
-            Keyword::If => {
-                if value != 0.0 {
-                    self.open(&c, Opened::If, index)?;
-                } else {
-                    self.branch(index + 1, &c, system)?;
-                }
-            }
-            Keyword::ElseIf | Keyword::Else => {
-                // The branch that ran ends here.
-                self.close(&c, |k| k == Opened::If, "if")?;
-                let (end, _) = self.skip(index + 1, &c, |k| k == Keyword::EndIf)?;
-                self.next = end + 1;
-            }
-            Keyword::EndIf => {
-                self.close(&c, |k| k == Opened::If, "if")?;
-            }
-            Keyword::Break | Keyword::Continue => {
-                let frame = self.frame();
-                let Some(position) = frame.open.iter().rposition(|o| o.label == c.label && o.kind.is_loop()) else {
-                    return Err(at(format!("{} outside a loop o{}", c.name(), c.label)));
-                };
-                let (kind, start) = (frame.open[position].kind, frame.open[position].index);
-                let end = |k: Keyword| match kind {
-                    Opened::While => k == Keyword::EndWhile,
-                    Opened::Repeat(_) => k == Keyword::EndRepeat,
-                    Opened::Do => k == Keyword::While,
-                    Opened::If => false,
-                };
-                let opening = Control {
-                    line: start + 1,
-                    column: 1,
-                    ..c.clone()
-                };
-                if c.keyword == Keyword::Break {
-                    self.frame_mut().open.truncate(position);
-                    let (stop, _) = self.skip(index + 1, &opening, end)?;
-                    self.next = stop + 1;
-                } else {
-                    self.frame_mut().open.truncate(position + 1);
-                    match kind {
-                        Opened::While => {
-                            self.frame_mut().open.pop();
-                            self.next = start;
-                        }
-                        Opened::Do => self.next = start + 1,
-                        // The endrepeat counts the turn.
-                        _ => self.next = self.skip(index + 1, &opening, end)?.0,
-                    }
-                }
+                Opened::Do => self.next = start + 1,
+                // The endrepeat counts the turn.
+                _ => self.next = self.skip(index + 1, &opening, end)?.0,
             }
         }
         Ok(())
