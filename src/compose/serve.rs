@@ -81,40 +81,10 @@ pub fn run(built: Built, request: RunRequest) -> Result<Ran, Failure> {
     if plc.app_program().is_some_and(|p| p.starts_with("selftest.")) {
         warn!("running the runtime's built-in self-test programs, not a machine's application");
     }
-    // A run without --duration lasts as long as its scenario says, if it says.
-    let duration_s = match (request.duration_s, scenario) {
-        (Some(d), _) => Some(d),
-        (
-            None,
-            Some(ScenarioTimes {
-                duration_s: Some(d), ..
-            }),
-        ) => {
-            info!("the scenario lasts {d} s: the run ends then (--duration overrides)");
-            Some(d)
-        }
-        (None, Some(times)) => {
-            info!(
-                "the scenario's last event is at {} s; the run goes on after it until stopped (--duration S, or \"duration_s\" in the scenario, ends it)",
-                times.last_event_s
-            );
-            None
-        }
-        (None, None) => None,
-    };
+    let duration_s = duration(request.duration_s, scenario);
     if request.virtual_time {
         let duration = duration_s.ok_or_else(|| Failure::usage("--virtual needs --duration"))?;
-        let report = run::run_virtual(&mut plc, (duration * 1e9) as u64);
-        info!(
-            "virtual time: {:.3} s simulated in {:.3} s wall-clock ({:.0}x)",
-            duration,
-            report.wall.as_secs_f64(),
-            duration / report.wall.as_secs_f64().max(1e-9)
-        );
-        let failure = finish_trace(&mut plc);
-        let summary =
-            Summary::collect(&plc, "virtual", &loaded.origin, report.simulated_ns).with_program(&plc, library.as_ref());
-        return Ok(Ran { summary, failure });
+        return Ok(run_virtual(plc, &loaded.origin, library.as_ref(), duration));
     }
     let timing = &loaded.config.timing;
     let options = RealTimeOptions {
@@ -180,6 +150,45 @@ pub fn run(built: Built, request: RunRequest) -> Result<Ran, Failure> {
     summary.time_source = Some(outcome.source.name());
     summary.realtime_priority = Some(outcome.realtime_priority);
     Ok(Ran { summary, failure })
+}
+
+/// How long the run lasts (s): `--duration`, else the scenario's `duration_s`, else until a
+/// signal (said at the start, with the scenario's last event).
+fn duration(asked: Option<f64>, scenario: Option<ScenarioTimes>) -> Option<f64> {
+    match (asked, scenario) {
+        (Some(d), _) => Some(d),
+        (
+            None,
+            Some(ScenarioTimes {
+                duration_s: Some(d), ..
+            }),
+        ) => {
+            info!("the scenario lasts {d} s: the run ends then (--duration overrides)");
+            Some(d)
+        }
+        (None, Some(times)) => {
+            info!(
+                "the scenario's last event is at {} s; the run goes on after it until stopped (--duration S, or \"duration_s\" in the scenario, ends it)",
+                times.last_event_s
+            );
+            None
+        }
+        (None, None) => None,
+    }
+}
+
+/// Runs `plc` in virtual time for `duration` s of simulated time.
+fn run_virtual(mut plc: Plc, origin: &str, library: Option<&pkm_api::library::NcLibrary>, duration: f64) -> Ran {
+    let report = run::run_virtual(&mut plc, (duration * 1e9) as u64);
+    info!(
+        "virtual time: {:.3} s simulated in {:.3} s wall-clock ({:.0}x)",
+        duration,
+        report.wall.as_secs_f64(),
+        duration / report.wall.as_secs_f64().max(1e-9)
+    );
+    let failure = finish_trace(&mut plc);
+    let summary = Summary::collect(&plc, "virtual", origin, report.simulated_ns).with_program(&plc, library);
+    Ran { summary, failure }
 }
 
 /// The operator's screen of a real-time run: where, what it shows at connection, where its
@@ -297,7 +306,7 @@ fn run_realtime(
         .build()
         .map_err(|e| Failure::run(format!("cannot start the tokio runtime: {e}")))?;
     // The handlers before the first cycle: a signal from then on stops the run safely.
-    let mut signals = {
+    let signals = {
         let _inside = runtime.enter();
         crate::runtime::signals::Terminating::register()
     };
@@ -342,62 +351,7 @@ fn run_realtime(
         )?;
     }
     let run = run::start_realtime_with(plc, options, publisher).map_err(|e| Failure::run(e.to_string()))?;
-    let stop = run.stop_flag();
-    let snapshot = run.snapshot();
-    let heartbeat = run.heartbeat();
-    // A service manager's notifications (systemd, Type=notify), when it asked for them.
-    let mut notifier = crate::runtime::service::Notifier::from_env();
-    let outcome = runtime.block_on(async move {
-        let status_task = status::wanted().then(|| status::spawn(Arc::clone(&snapshot), Duration::from_millis(250)));
-        // Said once every class has run a cycle: scripts and tests wait for this line.
-        let mut ready = false;
-        let mut poll = tokio::time::interval(Duration::from_millis(20));
-        loop {
-            tokio::select! {
-                name = signals.recv() => {
-                    info!("{name}: stopping after the current cycle, outputs to safe values");
-                    stop.store(true, std::sync::atomic::Ordering::Relaxed);
-                    if let Some(n) = &mut notifier {
-                        n.stopping();
-                    }
-                    break;
-                }
-                _ = poll.tick() => {
-                    if run.is_finished() {
-                        break;
-                    }
-                    let (cycled, running, state) = match snapshot.lock() {
-                        Ok(s) => {
-                            let cycled = s.classes.iter().all(|c| c.cycles > 0);
-                            let state = if s.reason.is_empty() {
-                                s.state.clone()
-                            } else {
-                                format!("{}: {}", s.state, s.reason)
-                            };
-                            (cycled, cycled && !s.bus_fault, state)
-                        }
-                        Err(_) => (false, false, String::new()),
-                    };
-                    if !ready && cycled {
-                        ready = true;
-                        info!("running in real time; Ctrl-C, SIGTERM or SIGHUP stops it safely");
-                    }
-                    if let Some(n) = &mut notifier {
-                        n.tick(running, heartbeat.load(std::sync::atomic::Ordering::Relaxed), &state);
-                    }
-                }
-            }
-        }
-        // The cyclic thread ends within one wait (at most the shortest cycle time) of the stop.
-        while !run.is_finished() {
-            poll.tick().await;
-        }
-        if let Some(task) = status_task {
-            task.abort();
-        }
-        status::finish();
-        run.join()
-    });
+    let outcome = runtime.block_on(supervise(run, signals));
     // The run is over (its outputs are safe): the runtime is left without waiting for what it
     // still does — a screen job being planned on its blocking pool would hold its drop until
     // the plan ended, and the summary and the exit with it.
@@ -408,6 +362,70 @@ fn run_realtime(
         run::RunError::StationRefused(why) => Failure::usage(why),
         other => Failure::run(other.to_string()),
     })
+}
+
+/// Watches a real-time run from the tokio runtime until it ends: a terminating signal stops it
+/// safely; the status line is drawn, the first complete round of cycles is logged (scripts and
+/// tests wait for that line), and a service manager is told the run's state and fed its
+/// watchdog while the cycles run.
+async fn supervise(
+    run: run::RealTimeRun,
+    mut signals: crate::runtime::signals::Terminating,
+) -> Result<run::RealTimeOutcome, run::RunError> {
+    let stop = run.stop_flag();
+    let snapshot = run.snapshot();
+    let heartbeat = run.heartbeat();
+    // A service manager's notifications (systemd, Type=notify), when it asked for them.
+    let mut notifier = crate::runtime::service::Notifier::from_env();
+    let status_task = status::wanted().then(|| status::spawn(Arc::clone(&snapshot), Duration::from_millis(250)));
+    // Said once every class has run a cycle: scripts and tests wait for this line.
+    let mut ready = false;
+    let mut poll = tokio::time::interval(Duration::from_millis(20));
+    loop {
+        tokio::select! {
+            name = signals.recv() => {
+                info!("{name}: stopping after the current cycle, outputs to safe values");
+                stop.store(true, std::sync::atomic::Ordering::Relaxed);
+                if let Some(n) = &mut notifier {
+                    n.stopping();
+                }
+                break;
+            }
+            _ = poll.tick() => {
+                if run.is_finished() {
+                    break;
+                }
+                let (cycled, running, state) = match snapshot.lock() {
+                    Ok(s) => {
+                        let cycled = s.classes.iter().all(|c| c.cycles > 0);
+                        let state = if s.reason.is_empty() {
+                            s.state.clone()
+                        } else {
+                            format!("{}: {}", s.state, s.reason)
+                        };
+                        (cycled, cycled && !s.bus_fault, state)
+                    }
+                    Err(_) => (false, false, String::new()),
+                };
+                if !ready && cycled {
+                    ready = true;
+                    info!("running in real time; Ctrl-C, SIGTERM or SIGHUP stops it safely");
+                }
+                if let Some(n) = &mut notifier {
+                    n.tick(running, heartbeat.load(std::sync::atomic::Ordering::Relaxed), &state);
+                }
+            }
+        }
+    }
+    // The cyclic thread ends within one wait (at most the shortest cycle time) of the stop.
+    while !run.is_finished() {
+        poll.tick().await;
+    }
+    if let Some(task) = status_task {
+        task.abort();
+    }
+    status::finish();
+    run.join()
 }
 
 /// Serves the operator's screen on `listener` (inside the tokio runtime).

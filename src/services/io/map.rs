@@ -194,204 +194,16 @@ pub struct IoMap {
 }
 
 impl IoMap {
-    /// Parses and validates a map; `classes` are the configured task class names.
+    /// Parses and validates a map; `classes` are the configured task class names. Every problem
+    /// of the file is reported at once.
     pub fn parse(text: &str, origin: &str, classes: &[String]) -> Result<IoMap, ConfigError> {
         let file: IoMapFile = config::parse_strict(text, origin)?;
         let mut problems = Vec::new();
         let mut push = |at: String, message: String| problems.push(Problem { at, message });
-        let mut modules = Vec::new();
-        // Names and slots seen so far: each check is a lookup, so a map of thousands of entries
-        // is checked in linear time.
-        let mut names: HashMap<&str, usize> = HashMap::new();
-        let mut slots: HashMap<u16, usize> = HashMap::new();
-        for (i, m) in file.modules.iter().enumerate() {
-            let at = format!("modules[{i}]");
-            if let Some(&j) = names.get(m.name.as_str()) {
-                push(
-                    format!("{at}.name"),
-                    format!("module name \"{}\" is already used by modules[{j}]", m.name),
-                );
-            } else {
-                names.insert(&m.name, i);
-            }
-            if let Some(&j) = slots.get(&m.slot) {
-                push(
-                    format!("{at}.slot"),
-                    format!(
-                        "slot {} is already taken by module \"{}\" (modules[{j}])",
-                        m.slot, file.modules[j].name
-                    ),
-                );
-            } else {
-                slots.insert(m.slot, i);
-            }
-            let given = match m.id.as_ref().map(IdText::value) {
-                Some(Ok(id)) => Some(id),
-                Some(Err(message)) => {
-                    push(format!("{at}.id"), message);
-                    None
-                }
-                None => None,
-            };
-            match catalogue::module_type(&m.module_type) {
-                Some(ty) => {
-                    if let (Some(given), Some(known)) = (given, ty.hardware_id)
-                        && given != known
-                    {
-                        push(
-                            format!("{at}.id"),
-                            format!(
-                                "the {}'s hardware ID is {known:#06X} (its data sheet's B&R ID code), not {given:#06X}",
-                                ty.name
-                            ),
-                        );
-                    }
-                    modules.push(Module {
-                        name: m.name.clone(),
-                        ty,
-                        slot: m.slot,
-                        id: given.or(ty.hardware_id),
-                    });
-                }
-                None => {
-                    let known: Vec<&str> = catalogue::CATALOGUE.iter().map(|t| t.name).collect();
-                    push(
-                        format!("{at}.type"),
-                        format!(
-                            "unknown module type \"{}\"; known types: {}",
-                            m.module_type,
-                            known.join(", ")
-                        ),
-                    );
-                }
-            }
-        }
-        let mut bindings: Vec<Binding> = Vec::new();
-        let mut by_channel: HashMap<(usize, usize), usize> = HashMap::new();
-        let module_index: HashMap<&str, usize> = modules
-            .iter()
-            .enumerate()
-            .rev()
-            .map(|(i, m)| (m.name.as_str(), i))
-            .collect();
-        // Per variable, the bindings (indices into `bindings`) that bind it, in file order.
-        let mut by_variable: HashMap<&str, Vec<usize>> = HashMap::new();
-        for (i, b) in file.bindings.iter().enumerate() {
-            let at = format!("bindings[{i}]");
-            let Some(&mi) = module_index.get(b.module.as_str()) else {
-                let known: Vec<&str> = modules.iter().map(|m| m.name.as_str()).collect();
-                push(
-                    format!("{at}.module"),
-                    format!(
-                        "unknown module \"{}\"; modules in this map: {}",
-                        b.module,
-                        known.join(", ")
-                    ),
-                );
-                continue;
-            };
-            let ty = modules[mi].ty;
-            let Some((ci, channel)) = ty.channel(&b.channel) else {
-                let known: Vec<&str> = ty.channels.iter().map(|c| c.name).collect();
-                push(
-                    format!("{at}.channel"),
-                    format!(
-                        "module \"{}\" ({}) has no channel \"{}\"; its channels: {}",
-                        b.module,
-                        ty.name,
-                        b.channel,
-                        known.join(", ")
-                    ),
-                );
-                continue;
-            };
-            let Some(class) = classes.iter().position(|c| *c == b.task_class) else {
-                push(
-                    format!("{at}.task_class"),
-                    format!(
-                        "no task class \"{}\" in the configuration; task classes: {}",
-                        b.task_class,
-                        classes.join(", ")
-                    ),
-                );
-                continue;
-            };
-            if let Some(&j) = by_channel.get(&(mi, ci)) {
-                push(
-                    format!("{at}.channel"),
-                    format!("channel {}.{} is already bound by bindings[{j}]", b.module, b.channel),
-                );
-                continue;
-            }
-            by_channel.insert((mi, ci), i);
-            by_variable.entry(&b.variable).or_default().push(bindings.len());
-            bindings.push(Binding {
-                module: mi,
-                channel: ci,
-                variable: b.variable.clone(),
-                class,
-                direction: channel.direction,
-                ty: channel.ty,
-                at: format!("{origin}: {at} ({}.{})", b.module, b.channel),
-            });
-        }
-        // One problem per variable bound more than once, at its second binding, naming them all.
-        let mut shared: Vec<&Vec<usize>> = by_variable.values().filter(|v| v.len() > 1).collect();
-        shared.sort();
-        for list in shared {
-            let first = &bindings[list[0]];
-            let directions: Vec<Direction> = list.iter().map(|&k| bindings[k].direction).collect();
-            let what = if directions.iter().all(|d| *d == Direction::Input) {
-                "inputs"
-            } else if directions.iter().all(|d| *d == Direction::Output) {
-                "outputs"
-            } else {
-                "channels (inputs and outputs)"
-            };
-            let channel = |k: usize| {
-                let b = &bindings[k];
-                let index = b.at.rsplit_once(": ").map_or(b.at.as_str(), |(_, rest)| rest);
-                index.to_string()
-            };
-            const SHOWN: usize = 8;
-            let mut named: Vec<String> = list.iter().take(SHOWN).map(|&k| channel(k)).collect();
-            if list.len() > SHOWN {
-                named.push(format!("and {} more", list.len() - SHOWN));
-            }
-            let second = channel(list[1]);
-            let at = second.split_once(' ').map_or(second.as_str(), |(at, _)| at);
-            push(
-                format!("{at}.variable"),
-                format!(
-                    "variable \"{}\" is bound to {} {what}: {}; a variable is bound to one channel",
-                    first.variable,
-                    list.len(),
-                    named.join(", ")
-                ),
-            );
-        }
-        match (file.station, file.watchdog_ms) {
-            (StationKind::X20bc0087, watchdog) => {
-                check_bus_controller(&file, &modules, &mut push);
-                if let Some(ms) = watchdog.filter(|ms| !WATCHDOG_MS.contains(ms)) {
-                    push(
-                        "watchdog_ms".into(),
-                        format!(
-                            "{ms} ms is outside {}–{} ms: shorter trips on an ordinary late exchange, longer leaves \
-                             the drives running that long after the soft-PLC stopped",
-                            WATCHDOG_MS.start(),
-                            WATCHDOG_MS.end()
-                        ),
-                    );
-                }
-            }
-            (StationKind::Generic, Some(_)) => push(
-                "watchdog_ms".into(),
-                "the generic station has no watchdog to set (io-sim's is --watchdog-ms); watchdog_ms is an X20BC0087's"
-                    .into(),
-            ),
-            (StationKind::Generic, None) => {}
-        }
+        let modules = parse_modules(&file, &mut push);
+        let (bindings, by_variable) = parse_bindings(&file, &modules, classes, origin, &mut push);
+        shared_variables(&bindings, &by_variable, &mut push);
+        check_station(&file, &modules, &mut push);
         if problems.is_empty() {
             Ok(IoMap {
                 origin: origin.to_string(),
@@ -521,4 +333,225 @@ pub fn io_map_text(
             }
         },
     }))
+}
+
+/// The map's modules: each name and slot once, each type in the catalogue, a given ID the
+/// catalogue's.
+fn parse_modules(file: &IoMapFile, push: &mut impl FnMut(String, String)) -> Vec<Module> {
+    let mut modules = Vec::new();
+    // Names and slots seen so far: each check is a lookup, so a map of thousands of entries
+    // is checked in linear time.
+    let mut names: HashMap<&str, usize> = HashMap::new();
+    let mut slots: HashMap<u16, usize> = HashMap::new();
+    for (i, m) in file.modules.iter().enumerate() {
+        let at = format!("modules[{i}]");
+        if let Some(&j) = names.get(m.name.as_str()) {
+            push(
+                format!("{at}.name"),
+                format!("module name \"{}\" is already used by modules[{j}]", m.name),
+            );
+        } else {
+            names.insert(&m.name, i);
+        }
+        if let Some(&j) = slots.get(&m.slot) {
+            push(
+                format!("{at}.slot"),
+                format!(
+                    "slot {} is already taken by module \"{}\" (modules[{j}])",
+                    m.slot, file.modules[j].name
+                ),
+            );
+        } else {
+            slots.insert(m.slot, i);
+        }
+        let given = match m.id.as_ref().map(IdText::value) {
+            Some(Ok(id)) => Some(id),
+            Some(Err(message)) => {
+                push(format!("{at}.id"), message);
+                None
+            }
+            None => None,
+        };
+        match catalogue::module_type(&m.module_type) {
+            Some(ty) => {
+                if let (Some(given), Some(known)) = (given, ty.hardware_id)
+                    && given != known
+                {
+                    push(
+                        format!("{at}.id"),
+                        format!(
+                            "the {}'s hardware ID is {known:#06X} (its data sheet's B&R ID code), not {given:#06X}",
+                            ty.name
+                        ),
+                    );
+                }
+                modules.push(Module {
+                    name: m.name.clone(),
+                    ty,
+                    slot: m.slot,
+                    id: given.or(ty.hardware_id),
+                });
+            }
+            None => {
+                let known: Vec<&str> = catalogue::CATALOGUE.iter().map(|t| t.name).collect();
+                push(
+                    format!("{at}.type"),
+                    format!(
+                        "unknown module type \"{}\"; known types: {}",
+                        m.module_type,
+                        known.join(", ")
+                    ),
+                );
+            }
+        }
+    }
+    modules
+}
+
+/// Per variable, the bindings (indices into the bindings) that bind it, in file order.
+type ByVariable<'f> = HashMap<&'f str, Vec<usize>>;
+
+/// The map's bindings: each to a module of the map, a channel of its type not bound before, and
+/// a configured task class; and which bindings bind each variable.
+fn parse_bindings<'f>(
+    file: &'f IoMapFile,
+    modules: &[Module],
+    classes: &[String],
+    origin: &str,
+    push: &mut impl FnMut(String, String),
+) -> (Vec<Binding>, ByVariable<'f>) {
+    let mut bindings: Vec<Binding> = Vec::new();
+    let mut by_channel: HashMap<(usize, usize), usize> = HashMap::new();
+    let module_index: HashMap<&str, usize> = modules
+        .iter()
+        .enumerate()
+        .rev()
+        .map(|(i, m)| (m.name.as_str(), i))
+        .collect();
+    // Per variable, the bindings (indices into `bindings`) that bind it, in file order.
+    let mut by_variable: HashMap<&str, Vec<usize>> = HashMap::new();
+    for (i, b) in file.bindings.iter().enumerate() {
+        let at = format!("bindings[{i}]");
+        let Some(&mi) = module_index.get(b.module.as_str()) else {
+            let known: Vec<&str> = modules.iter().map(|m| m.name.as_str()).collect();
+            push(
+                format!("{at}.module"),
+                format!(
+                    "unknown module \"{}\"; modules in this map: {}",
+                    b.module,
+                    known.join(", ")
+                ),
+            );
+            continue;
+        };
+        let ty = modules[mi].ty;
+        let Some((ci, channel)) = ty.channel(&b.channel) else {
+            let known: Vec<&str> = ty.channels.iter().map(|c| c.name).collect();
+            push(
+                format!("{at}.channel"),
+                format!(
+                    "module \"{}\" ({}) has no channel \"{}\"; its channels: {}",
+                    b.module,
+                    ty.name,
+                    b.channel,
+                    known.join(", ")
+                ),
+            );
+            continue;
+        };
+        let Some(class) = classes.iter().position(|c| *c == b.task_class) else {
+            push(
+                format!("{at}.task_class"),
+                format!(
+                    "no task class \"{}\" in the configuration; task classes: {}",
+                    b.task_class,
+                    classes.join(", ")
+                ),
+            );
+            continue;
+        };
+        if let Some(&j) = by_channel.get(&(mi, ci)) {
+            push(
+                format!("{at}.channel"),
+                format!("channel {}.{} is already bound by bindings[{j}]", b.module, b.channel),
+            );
+            continue;
+        }
+        by_channel.insert((mi, ci), i);
+        by_variable.entry(&b.variable).or_default().push(bindings.len());
+        bindings.push(Binding {
+            module: mi,
+            channel: ci,
+            variable: b.variable.clone(),
+            class,
+            direction: channel.direction,
+            ty: channel.ty,
+            at: format!("{origin}: {at} ({}.{})", b.module, b.channel),
+        });
+    }
+    (bindings, by_variable)
+}
+
+/// One problem per variable bound more than once, at its second binding, naming them all.
+fn shared_variables(bindings: &[Binding], by_variable: &ByVariable<'_>, push: &mut impl FnMut(String, String)) {
+    let mut shared: Vec<&Vec<usize>> = by_variable.values().filter(|v| v.len() > 1).collect();
+    shared.sort();
+    for list in shared {
+        let first = &bindings[list[0]];
+        let directions: Vec<Direction> = list.iter().map(|&k| bindings[k].direction).collect();
+        let what = if directions.iter().all(|d| *d == Direction::Input) {
+            "inputs"
+        } else if directions.iter().all(|d| *d == Direction::Output) {
+            "outputs"
+        } else {
+            "channels (inputs and outputs)"
+        };
+        let channel = |k: usize| {
+            let b = &bindings[k];
+            let index = b.at.rsplit_once(": ").map_or(b.at.as_str(), |(_, rest)| rest);
+            index.to_string()
+        };
+        const SHOWN: usize = 8;
+        let mut named: Vec<String> = list.iter().take(SHOWN).map(|&k| channel(k)).collect();
+        if list.len() > SHOWN {
+            named.push(format!("and {} more", list.len() - SHOWN));
+        }
+        let second = channel(list[1]);
+        let at = second.split_once(' ').map_or(second.as_str(), |(at, _)| at);
+        push(
+            format!("{at}.variable"),
+            format!(
+                "variable \"{}\" is bound to {} {what}: {}; a variable is bound to one channel",
+                first.variable,
+                list.len(),
+                named.join(", ")
+            ),
+        );
+    }
+}
+
+/// The station's own rules: an X20BC0087's slots and watchdog; a generic station has no watchdog.
+fn check_station(file: &IoMapFile, modules: &[Module], push: &mut impl FnMut(String, String)) {
+    match (file.station, file.watchdog_ms) {
+        (StationKind::X20bc0087, watchdog) => {
+            check_bus_controller(file, modules, push);
+            if let Some(ms) = watchdog.filter(|ms| !WATCHDOG_MS.contains(ms)) {
+                push(
+                    "watchdog_ms".into(),
+                    format!(
+                        "{ms} ms is outside {}–{} ms: shorter trips on an ordinary late exchange, longer leaves \
+                         the drives running that long after the soft-PLC stopped",
+                        WATCHDOG_MS.start(),
+                        WATCHDOG_MS.end()
+                    ),
+                );
+            }
+        }
+        (StationKind::Generic, Some(_)) => push(
+            "watchdog_ms".into(),
+            "the generic station has no watchdog to set (io-sim's is --watchdog-ms); watchdog_ms is an X20BC0087's"
+                .into(),
+        ),
+        (StationKind::Generic, None) => {}
+    }
 }

@@ -181,9 +181,9 @@ const CLASS_FIGURES: [(&str, DataTypeId, &str); 7] = [
 
 impl Space {
     /// Builds the nodes of `info` into `space` (namespace index `ns`), with the values of
-    /// `first`.
+    /// `first`: the machine's object with its state, the task classes' figures, every variable of
+    /// the process image, and the methods.
     pub fn build(space: &mut AddressSpace, ns: u16, info: &SpaceInfo, first: &Frame) -> Space {
-        let id = |path: &str| NodeId::new(ns, format!("{}.{path}", info.machine));
         let root = NodeId::new(ns, "PkmPlc");
         ObjectBuilder::new(&root, QualifiedName::new(ns, "PkmPlc"), "PkmPlc")
             .description("pkm-plc, a soft-PLC for parallel-kinematic machine models")
@@ -198,195 +198,21 @@ impl Space {
         .description(format!("The {} machine of this run", info.machine))
         .organized_by(root.clone())
         .insert(space);
-        let text_var =
-            |space: &mut AddressSpace, node: &NodeId, name: &str, value: Variant, ty: DataTypeId, about: &str| {
-                VariableBuilder::new(node, QualifiedName::new(ns, name), name)
-                    .description(about)
-                    .data_type(ty)
-                    .value(value)
-                    .access_level(AccessLevel::CURRENT_READ)
-                    .user_access_level(AccessLevel::CURRENT_READ)
-                    .has_type_definition(VariableTypeId::BaseDataVariableType)
-                    .component_of(object.clone())
-                    .insert(space);
-            };
-        let state = [id("State"), id("Reason"), id("Note"), id("BusFault")];
-        text_var(
-            space,
-            &state[0],
-            "State",
-            Variant::from(""),
-            DataTypeId::String,
-            "the main state (REBOOT, INIT, READY, MOTION, AUTO, ERROR)",
-        );
-        text_var(
-            space,
-            &state[1],
-            "Reason",
-            Variant::from(""),
-            DataTypeId::String,
-            "the error reason in ERROR, else empty",
-        );
-        text_var(
-            space,
-            &state[2],
-            "Note",
-            Variant::from(""),
-            DataTypeId::String,
-            "the main program's note to the operator",
-        );
-        text_var(
-            space,
-            &state[3],
-            "BusFault",
-            Variant::Boolean(false),
-            DataTypeId::Boolean,
-            "the field bus reports a fault",
-        );
-        text_var(
-            space,
-            &id("Configuration"),
-            "Configuration",
-            Variant::from(info.config.as_str()),
-            DataTypeId::String,
-            "the configuration this run was built from",
-        );
-
-        let folder = |space: &mut AddressSpace, node: &NodeId, name: &str, parent: &NodeId| {
-            ObjectBuilder::new(node, QualifiedName::new(ns, name), name)
-                .is_folder()
-                .organized_by(parent.clone())
-                .insert(space);
+        let b = Builder {
+            ns,
+            machine: &info.machine,
+            object: object.clone(),
         };
-        let status_folder = id("Status");
-        folder(space, &status_folder, "Status", &object);
-        let program = id("Program");
-        folder(space, &program, "Program", &object);
-        let classes_folder = id("TaskClasses");
-        folder(space, &classes_folder, "TaskClasses", &object);
-
-        let mut classes = Vec::with_capacity(info.classes.len());
-        let mut class_vars = Vec::with_capacity(info.classes.len());
-        for (name, period_ns) in &info.classes {
-            let class = id(&format!("TaskClasses.{name}"));
-            folder(space, &class, name, &classes_folder);
-            let figure = |what: &str| id(&format!("TaskClasses.{name}.{what}"));
-            VariableBuilder::new(
-                &figure("CycleTimeMs"),
-                QualifiedName::new(ns, "CycleTimeMs"),
-                "CycleTimeMs",
-            )
-            .description("the class's cycle time (ms)")
-            .data_type(DataTypeId::Double)
-            .value(*period_ns as f64 / 1e6)
-            .organized_by(class.clone())
-            .insert(space);
-            let nodes = CLASS_FIGURES.map(|(what, ty, about)| {
-                let node = figure(what);
-                let zero = if ty == DataTypeId::UInt64 {
-                    Variant::UInt64(0)
-                } else {
-                    Variant::Double(0.0)
-                };
-                VariableBuilder::new(&node, QualifiedName::new(ns, what), what)
-                    .description(about)
-                    .data_type(ty)
-                    .value(zero)
-                    .organized_by(class.clone())
-                    .insert(space);
-                node
-            });
-            classes.push(nodes);
-            let vars = figure("Variables");
-            folder(space, &vars, "Variables", &class);
-            class_vars.push(vars);
-        }
-
-        let mut vars = Vec::with_capacity(info.variables.len());
-        for (k, v) in info.variables.iter().enumerate() {
-            let node = id(&v.name);
-            let parent = class_vars.get(v.class).unwrap_or(&classes_folder).clone();
-            let unit = super::units::of(&v.name);
-            let about = match unit {
-                Some(u) => format!("{} ({}), written by {}", v.ty, u.symbol, v.writer),
-                None => format!("{}, written by {}", v.ty, v.writer),
-            };
-            let value = first.image.get(k).copied().unwrap_or(Value::zero(v.ty));
-            VariableBuilder::new(&node, QualifiedName::new(ns, v.name.as_str()), v.name.as_str())
-                .description(about)
-                .data_type(data_type(v.ty))
-                .value(variant(value))
-                .access_level(AccessLevel::CURRENT_READ)
-                .user_access_level(AccessLevel::CURRENT_READ)
-                .minimum_sampling_interval(0.0)
-                .has_type_definition(if unit.is_some() {
-                    VariableTypeId::AnalogItemType
-                } else {
-                    VariableTypeId::BaseDataVariableType
-                })
-                .organized_by(parent)
-                .insert(space);
-            // IecType is this namespace's; EngineeringUnits the standard property (namespace 0).
-            let property = |space: &mut AddressSpace, name: QualifiedName, ty: DataTypeId, value: Variant| {
-                let p = id(&format!("{}.{}", v.name, name.name));
-                let display = name.name.to_string();
-                VariableBuilder::new(&p, name, display)
-                    .data_type(ty)
-                    .value(value)
-                    .has_type_definition(VariableTypeId::PropertyType)
-                    .property_of(node.clone())
-                    .insert(space);
-            };
-            property(
-                space,
-                QualifiedName::new(ns, "IecType"),
-                DataTypeId::String,
-                Variant::from(v.ty.to_string()),
-            );
-            if let Some(u) = unit {
-                let eu = EUInformation {
-                    namespace_uri: UAString::from(super::units::UNECE_NAMESPACE),
-                    unit_id: u.unit_id(),
-                    display_name: LocalizedText::new("", u.symbol),
-                    description: LocalizedText::new("", u.name),
-                };
-                property(
-                    space,
-                    QualifiedName::new(0, "EngineeringUnits"),
-                    DataTypeId::EUInformation,
-                    Variant::from(ExtensionObject::from_message(eu)),
-                );
-            }
-            if v.name.starts_with("NC_") || v.name.starts_with("SPINDLE_") {
-                space.insert_reference(&program, &node, ReferenceTypeId::Organizes);
-            }
-            vars.push(node);
-        }
-
-        let mut methods = Vec::with_capacity(Method::ALL.len());
-        for m in Method::ALL {
-            let node = id(m.name());
-            let mut builder = MethodBuilder::new(&node, QualifiedName::new(ns, m.name()), m.name())
-                .description(m.description())
-                .executable(true)
-                .user_executable(true)
-                .component_of(object.clone());
-            if m == Method::Load {
-                builder = builder.input_args(
-                    space,
-                    &id("Load.InputArguments"),
-                    &[("Program", DataTypeId::Int16).into()],
-                );
-            }
-            builder = builder.output_args(
-                space,
-                &id(&format!("{}.OutputArguments", m.name())),
-                &[("Result", DataTypeId::String).into()],
-            );
-            builder.insert(space);
-            methods.push((m, node));
-        }
-
+        let state = b.state(space, info);
+        let status_folder = b.id("Status");
+        b.folder(space, &status_folder, "Status", &object);
+        let program = b.id("Program");
+        b.folder(space, &program, "Program", &object);
+        let classes_folder = b.id("TaskClasses");
+        b.folder(space, &classes_folder, "TaskClasses", &object);
+        let (classes, class_vars) = b.classes(space, info, &classes_folder);
+        let vars = b.variables(space, info, first, &class_vars, &classes_folder, &program);
+        let methods = b.methods(space);
         Space {
             ns,
             machine: info.machine.clone(),
@@ -467,5 +293,259 @@ impl Space {
             out.push((node, value(Variant::Double(*v))));
         }
         out
+    }
+}
+
+/// What builds the address space's nodes: the namespace, the machine's name (every node id
+/// starts with it) and its object.
+struct Builder<'a> {
+    ns: u16,
+    machine: &'a str,
+    object: NodeId,
+}
+
+impl Builder<'_> {
+    /// The node id of `path` below the machine.
+    fn id(&self, path: &str) -> NodeId {
+        NodeId::new(self.ns, format!("{}.{path}", self.machine))
+    }
+
+    /// A folder `name` at `node`, organized by `parent`.
+    fn folder(&self, space: &mut AddressSpace, node: &NodeId, name: &str, parent: &NodeId) {
+        ObjectBuilder::new(node, QualifiedName::new(self.ns, name), name)
+            .is_folder()
+            .organized_by(parent.clone())
+            .insert(space);
+    }
+
+    /// A read-only variable `name` of the machine's object.
+    fn text_var(
+        &self,
+        space: &mut AddressSpace,
+        node: &NodeId,
+        name: &str,
+        value: Variant,
+        ty: DataTypeId,
+        about: &str,
+    ) {
+        VariableBuilder::new(node, QualifiedName::new(self.ns, name), name)
+            .description(about)
+            .data_type(ty)
+            .value(value)
+            .access_level(AccessLevel::CURRENT_READ)
+            .user_access_level(AccessLevel::CURRENT_READ)
+            .has_type_definition(VariableTypeId::BaseDataVariableType)
+            .component_of(self.object.clone())
+            .insert(space);
+    }
+
+    /// The main state, its reason and note, the bus fault and the configuration: the nodes of
+    /// the first four.
+    fn state(&self, space: &mut AddressSpace, info: &SpaceInfo) -> [NodeId; 4] {
+        let id = |path: &str| self.id(path);
+        let text_var =
+            |space: &mut AddressSpace, node: &NodeId, name: &str, value: Variant, ty: DataTypeId, about: &str| {
+                self.text_var(space, node, name, value, ty, about)
+            };
+        let state = [id("State"), id("Reason"), id("Note"), id("BusFault")];
+        text_var(
+            space,
+            &state[0],
+            "State",
+            Variant::from(""),
+            DataTypeId::String,
+            "the main state (REBOOT, INIT, READY, MOTION, AUTO, ERROR)",
+        );
+        text_var(
+            space,
+            &state[1],
+            "Reason",
+            Variant::from(""),
+            DataTypeId::String,
+            "the error reason in ERROR, else empty",
+        );
+        text_var(
+            space,
+            &state[2],
+            "Note",
+            Variant::from(""),
+            DataTypeId::String,
+            "the main program's note to the operator",
+        );
+        text_var(
+            space,
+            &state[3],
+            "BusFault",
+            Variant::Boolean(false),
+            DataTypeId::Boolean,
+            "the field bus reports a fault",
+        );
+        text_var(
+            space,
+            &id("Configuration"),
+            "Configuration",
+            Variant::from(info.config.as_str()),
+            DataTypeId::String,
+            "the configuration this run was built from",
+        );
+
+        state
+    }
+
+    /// Each task class's folder with its cycle time and figures, and the folder of its variables.
+    fn classes(
+        &self,
+        space: &mut AddressSpace,
+        info: &SpaceInfo,
+        classes_folder: &NodeId,
+    ) -> (Vec<[NodeId; CLASS_FIGURES.len()]>, Vec<NodeId>) {
+        let (ns, id) = (self.ns, |path: &str| self.id(path));
+        let folder = |space: &mut AddressSpace, node: &NodeId, name: &str, parent: &NodeId| {
+            self.folder(space, node, name, parent)
+        };
+        let mut classes = Vec::with_capacity(info.classes.len());
+        let mut class_vars = Vec::with_capacity(info.classes.len());
+        for (name, period_ns) in &info.classes {
+            let class = id(&format!("TaskClasses.{name}"));
+            folder(space, &class, name, classes_folder);
+            let figure = |what: &str| id(&format!("TaskClasses.{name}.{what}"));
+            VariableBuilder::new(
+                &figure("CycleTimeMs"),
+                QualifiedName::new(ns, "CycleTimeMs"),
+                "CycleTimeMs",
+            )
+            .description("the class's cycle time (ms)")
+            .data_type(DataTypeId::Double)
+            .value(*period_ns as f64 / 1e6)
+            .organized_by(class.clone())
+            .insert(space);
+            let nodes = CLASS_FIGURES.map(|(what, ty, about)| {
+                let node = figure(what);
+                let zero = if ty == DataTypeId::UInt64 {
+                    Variant::UInt64(0)
+                } else {
+                    Variant::Double(0.0)
+                };
+                VariableBuilder::new(&node, QualifiedName::new(ns, what), what)
+                    .description(about)
+                    .data_type(ty)
+                    .value(zero)
+                    .organized_by(class.clone())
+                    .insert(space);
+                node
+            });
+            classes.push(nodes);
+            let vars = figure("Variables");
+            folder(space, &vars, "Variables", &class);
+            class_vars.push(vars);
+        }
+
+        (classes, class_vars)
+    }
+
+    /// Every variable of the process image in its class's folder (the program's also in
+    /// `program`), with its IEC type and, where its name says, its engineering unit.
+    fn variables(
+        &self,
+        space: &mut AddressSpace,
+        info: &SpaceInfo,
+        first: &Frame,
+        class_vars: &[NodeId],
+        classes_folder: &NodeId,
+        program: &NodeId,
+    ) -> Vec<NodeId> {
+        let (ns, id) = (self.ns, |path: &str| self.id(path));
+        let mut vars = Vec::with_capacity(info.variables.len());
+        for (k, v) in info.variables.iter().enumerate() {
+            let node = id(&v.name);
+            let parent = class_vars.get(v.class).unwrap_or(classes_folder).clone();
+            let unit = super::units::of(&v.name);
+            let about = match unit {
+                Some(u) => format!("{} ({}), written by {}", v.ty, u.symbol, v.writer),
+                None => format!("{}, written by {}", v.ty, v.writer),
+            };
+            let value = first.image.get(k).copied().unwrap_or(Value::zero(v.ty));
+            VariableBuilder::new(&node, QualifiedName::new(ns, v.name.as_str()), v.name.as_str())
+                .description(about)
+                .data_type(data_type(v.ty))
+                .value(variant(value))
+                .access_level(AccessLevel::CURRENT_READ)
+                .user_access_level(AccessLevel::CURRENT_READ)
+                .minimum_sampling_interval(0.0)
+                .has_type_definition(if unit.is_some() {
+                    VariableTypeId::AnalogItemType
+                } else {
+                    VariableTypeId::BaseDataVariableType
+                })
+                .organized_by(parent)
+                .insert(space);
+            // IecType is this namespace's; EngineeringUnits the standard property (namespace 0).
+            let property = |space: &mut AddressSpace, name: QualifiedName, ty: DataTypeId, value: Variant| {
+                let p = id(&format!("{}.{}", v.name, name.name));
+                let display = name.name.to_string();
+                VariableBuilder::new(&p, name, display)
+                    .data_type(ty)
+                    .value(value)
+                    .has_type_definition(VariableTypeId::PropertyType)
+                    .property_of(node.clone())
+                    .insert(space);
+            };
+            property(
+                space,
+                QualifiedName::new(ns, "IecType"),
+                DataTypeId::String,
+                Variant::from(v.ty.to_string()),
+            );
+            if let Some(u) = unit {
+                let eu = EUInformation {
+                    namespace_uri: UAString::from(super::units::UNECE_NAMESPACE),
+                    unit_id: u.unit_id(),
+                    display_name: LocalizedText::new("", u.symbol),
+                    description: LocalizedText::new("", u.name),
+                };
+                property(
+                    space,
+                    QualifiedName::new(0, "EngineeringUnits"),
+                    DataTypeId::EUInformation,
+                    Variant::from(ExtensionObject::from_message(eu)),
+                );
+            }
+            if v.name.starts_with("NC_") || v.name.starts_with("SPINDLE_") {
+                space.insert_reference(program, &node, ReferenceTypeId::Organizes);
+            }
+            vars.push(node);
+        }
+
+        vars
+    }
+
+    /// The methods, with their arguments.
+    fn methods(&self, space: &mut AddressSpace) -> Vec<(Method, NodeId)> {
+        let (ns, id, object) = (self.ns, |path: &str| self.id(path), &self.object);
+        let mut methods = Vec::with_capacity(Method::ALL.len());
+        for m in Method::ALL {
+            let node = id(m.name());
+            let mut builder = MethodBuilder::new(&node, QualifiedName::new(ns, m.name()), m.name())
+                .description(m.description())
+                .executable(true)
+                .user_executable(true)
+                .component_of(object.clone());
+            if m == Method::Load {
+                builder = builder.input_args(
+                    space,
+                    &id("Load.InputArguments"),
+                    &[("Program", DataTypeId::Int16).into()],
+                );
+            }
+            builder = builder.output_args(
+                space,
+                &id(&format!("{}.OutputArguments", m.name())),
+                &[("Result", DataTypeId::String).into()],
+            );
+            builder.insert(space);
+            methods.push((m, node));
+        }
+
+        methods
     }
 }

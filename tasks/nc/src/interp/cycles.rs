@@ -9,6 +9,22 @@ use super::modes::stops;
 use super::state::{Cycle, State};
 use super::words::{count, format_code};
 
+/// What a canned cycle's block asks for (program units, as written).
+struct Asked {
+    /// The feed of its cuts (mm/min).
+    feed: f64,
+    /// The retract plane R.
+    r: f64,
+    /// The bottom of the hole (the plane's normal coordinate).
+    bottom: f64,
+    /// The dwell at the bottom (G82, s).
+    dwell: f64,
+    /// The depth of each peck (G83).
+    peck: f64,
+    /// How many times it runs (L).
+    repeats: u32,
+}
+
 /// How far above the bottom of the last peck a G83 rapid returns (mm): LinuxCNC 2.9's
 /// `G83_RAPID_DELTA`, 0.010 inch.
 const PECK_CLEARANCE_MM: f64 = 0.254;
@@ -33,58 +49,15 @@ impl State<'_> {
         let at = |w: &Word, message: String| NcError::new(line, w.column, message);
         let name = format_code('G', code);
         let [a0, a1, n] = self.plane.axes();
-        if let Some((_, w)) = axis_words.iter().find(|(c, _)| *c >= 3) {
-            return Err(at(
-                w,
-                format!("{name} moves X Y Z only: {} cannot move in a canned cycle", w.letter),
-            ));
-        }
-        let Some(feed) = self.feed_mm_min else {
-            return Err(at(first, format!("no feed rate: an F word is needed before {name}")));
-        };
-        // The values that carry from the cycle's last block when it continues.
-        let same = previous == Some(code);
         let normal = AXES[n];
-        let carried = |letter: char, last: f64, what: &str| match get(letter) {
-            Some(w) => Ok(w.value),
-            None if same => Ok(last),
-            None => Err(at(first, format!("{name} needs {letter}, {what}"))),
-        };
-        let r_given = carried('R', self.cycle.r, "the retract plane")?;
-        let bottom_given = carried(normal, self.cycle.bottom, "the bottom of the hole")?;
-        let dwell = if code == 820 {
-            let p = carried('P', self.cycle.dwell, "the dwell at the bottom in seconds")?;
-            if !(0.0..=MAX_DWELL_S).contains(&p) {
-                return Err(at(
-                    get('P').unwrap_or(first),
-                    format!("the dwell P must be between 0 and {MAX_DWELL_S} s, got {p}"),
-                ));
-            }
-            p
-        } else {
-            self.cycle.dwell
-        };
-        let peck = if code == 830 {
-            let q = carried('Q', self.cycle.peck, "the depth of each peck")?;
-            if q <= 0.0 {
-                return Err(at(
-                    get('Q').unwrap_or(first),
-                    format!("the peck depth Q must be positive, got {q}"),
-                ));
-            }
-            q
-        } else {
-            self.cycle.peck
-        };
-        let repeats = count(get('L'), 10_000).map_err(|l| {
-            at(
-                l,
-                format!(
-                    "L, the number of repeats, is a whole number from 1 to 10000, got {}",
-                    l.value
-                ),
-            )
-        })?;
+        let Asked {
+            feed,
+            r: r_given,
+            bottom: bottom_given,
+            dwell,
+            peck,
+            repeats,
+        } = self.asked(line, code, previous, first, get, axis_words)?;
         // In program coordinates: a0, a1 the plane's axes, n its normal (Z in G17).
         let mut p = self.program_position();
         let initial = *self.cycle_initial.get_or_insert(p[n]);
@@ -197,5 +170,81 @@ impl State<'_> {
         };
         stops(line, m, out);
         Ok(())
+    }
+
+    /// The values of canned cycle `code` this block asks for: its own words, else (continuing the
+    /// same cycle) the last block's; each checked.
+    fn asked<'w>(
+        &self,
+        line: usize,
+        code: u16,
+        previous: Option<u16>,
+        first: &Word,
+        get: &dyn Fn(char) -> Option<&'w Word>,
+        axis_words: &[(usize, &Word)],
+    ) -> Result<Asked, NcError> {
+        let at = |w: &Word, message: String| NcError::new(line, w.column, message);
+        let name = format_code('G', code);
+        let [_, _, n] = self.plane.axes();
+        if let Some((_, w)) = axis_words.iter().find(|(c, _)| *c >= 3) {
+            return Err(at(
+                w,
+                format!("{name} moves X Y Z only: {} cannot move in a canned cycle", w.letter),
+            ));
+        }
+        let Some(feed) = self.feed_mm_min else {
+            return Err(at(first, format!("no feed rate: an F word is needed before {name}")));
+        };
+        // The values that carry from the cycle's last block when it continues.
+        let same = previous == Some(code);
+        let normal = AXES[n];
+        let carried = |letter: char, last: f64, what: &str| match get(letter) {
+            Some(w) => Ok(w.value),
+            None if same => Ok(last),
+            None => Err(at(first, format!("{name} needs {letter}, {what}"))),
+        };
+        let r_given = carried('R', self.cycle.r, "the retract plane")?;
+        let bottom_given = carried(normal, self.cycle.bottom, "the bottom of the hole")?;
+        let dwell = if code == 820 {
+            let p = carried('P', self.cycle.dwell, "the dwell at the bottom in seconds")?;
+            if !(0.0..=MAX_DWELL_S).contains(&p) {
+                return Err(at(
+                    get('P').unwrap_or(first),
+                    format!("the dwell P must be between 0 and {MAX_DWELL_S} s, got {p}"),
+                ));
+            }
+            p
+        } else {
+            self.cycle.dwell
+        };
+        let peck = if code == 830 {
+            let q = carried('Q', self.cycle.peck, "the depth of each peck")?;
+            if q <= 0.0 {
+                return Err(at(
+                    get('Q').unwrap_or(first),
+                    format!("the peck depth Q must be positive, got {q}"),
+                ));
+            }
+            q
+        } else {
+            self.cycle.peck
+        };
+        let repeats = count(get('L'), 10_000).map_err(|l| {
+            at(
+                l,
+                format!(
+                    "L, the number of repeats, is a whole number from 1 to 10000, got {}",
+                    l.value
+                ),
+            )
+        })?;
+        Ok(Asked {
+            feed,
+            r: r_given,
+            bottom: bottom_given,
+            dwell,
+            peck,
+            repeats,
+        })
     }
 }
