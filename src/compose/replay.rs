@@ -1,15 +1,19 @@
 //! Replay: the recorded inputs of every class cycle are fed to the programs in virtual time and
 //! every output and the main state are compared with the record.
 
+use std::collections::HashMap;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
 use crate::compose::setup::Setup;
 use crate::image::{Value, VarIndex, VarType};
 use crate::runtime::config::ConfigError;
+use crate::runtime::plc::Plc;
 use crate::runtime::run::VirtualClock;
 use crate::services::trace::read::{Cut, ReadAhead, TraceError, TraceReader};
 use crate::services::trace::same;
+use crate::services::trace::{Header, TraceJob};
+use pkm_api::library::NcLibrary;
 
 /// The first difference between a trace and its replay.
 #[derive(Debug, Clone, PartialEq)]
@@ -131,7 +135,94 @@ pub fn replay(trace: &Path, setup: &Setup, force: bool) -> Result<ReplayReport, 
     let started = Instant::now();
     let reader = TraceReader::open(trace)?;
     let header = reader.header().clone();
-    let digest = setup.digest()?;
+    refuse_other_configuration(trace, &header, &setup.digest()?, force)?;
+    let (mut plc, library) = plc_of(trace, &header, setup)?;
+    let (index, by_position) = variables(trace, &header, &plc)?;
+    let mut classes = replayed_classes(trace, &header, &plc, &index, &by_position)?;
+    let mut changed: Vec<(VarIndex, Value)> = Vec::new();
+    let mut cycles = vec![0u64; classes.len()];
+    let mut clock = VirtualClock::default();
+    plc.init(0, &mut clock);
+    let (mut records, mut last_t) = (0u64, 0u64);
+    let mut ahead = ReadAhead::start(reader)
+        .map_err(|e| ReplayError::Refused(format!("{}: cannot start reading: {e}", trace.display())))?;
+    while let Some(r) = ahead.next_record()? {
+        let class = &classes[r.class];
+        let task = &header.task_classes[r.class].name;
+        let differs = |what: &str, recorded: String, replayed: String| {
+            ReplayError::Differs(Difference {
+                line: r.line,
+                task: task.clone(),
+                cycle: r.cycle,
+                t_us: r.t_us,
+                what: what.into(),
+                recorded,
+                replayed,
+            })
+        };
+        if r.cycle != cycles[r.class] {
+            return Err(differs(
+                "cycle number",
+                r.cycle.to_string(),
+                cycles[r.class].to_string(),
+            ));
+        }
+        cycles[r.class] += 1;
+        // A job the screen made, planned again before the cycle that loads it.
+        if let Some(job) = &r.job {
+            replay_job(trace, setup, library.as_ref(), job, r.line)?;
+        }
+        changed.clear();
+        changed.extend(r.inputs.iter().filter_map(|&(k, v)| class.input_at[k].map(|i| (i, v))));
+        let class = &mut classes[r.class];
+        for &(k, v) in &r.outputs {
+            // The reader took only the class's outputs from the record.
+            if let Some((g, at)) = class.output_at[k] {
+                class.check[g].values[at] = v;
+            }
+        }
+        clock.advance_to(r.t_us * 1000);
+        plc.replay_cycle(class.ci, r.t_us * 1000, &changed, r.violation, &mut clock);
+        let image = plc.class_image(class.ci);
+        if !class.check.iter().all(|group| group.all_same(image)) {
+            // The first in the header's order.
+            for (k, &(position, i)) in class.outputs.iter().enumerate() {
+                let name = class.names[k];
+                if let Some((g, at)) = class.output_at[position]
+                    && let want = class.check[g].values[at]
+                    && !same(want, image[usize::from(i)])
+                {
+                    return Err(differs(name, show(want), show(image[usize::from(i)])));
+                }
+            }
+        }
+        if let Some(state) = &r.state {
+            let status = plc.app_status();
+            let got = status.map(|s| s.state).unwrap_or("(none)");
+            // Compared in words: a library call per record cost a fortieth of the replay.
+            if !crate::services::trace::fast::same_bytes(got.as_bytes(), state.as_bytes()) {
+                return Err(differs("state", state.to_string(), got.to_string()));
+            }
+            let got = status.and_then(|s| s.reason);
+            if got != r.reason.as_deref() {
+                let show = |r: Option<&str>| r.map_or("(none)".to_string(), |r| format!("\"{r}\""));
+                return Err(differs("reason", show(r.reason.as_deref()), show(got)));
+            }
+        }
+        records += 1;
+        last_t = r.t_us;
+    }
+    Ok(ReplayReport {
+        records,
+        recorded_s: last_t as f64 * 1e-6,
+        wall: started.elapsed(),
+        cut: ahead.cut().cloned(),
+    })
+}
+
+/// A trace recorded with another configuration or I/O map than `digest`'s is refused, unless
+/// `force`, with a hint at the configuration it was recorded with.
+fn refuse_other_configuration(trace: &Path, header: &Header, digest: &str, force: bool) -> Result<(), ReplayError> {
     if header.config_digest != digest && !force {
         // Which configuration it was: a machine's own, or a file made for one.
         let hint = match (
@@ -146,14 +237,19 @@ pub fn replay(trace: &Path, setup: &Setup, force: bool) -> Result<ReplayReport, 
             ),
             (None, None) => "give the configuration it was recorded with (--config FILE or --machine NAME)".to_string(),
         };
-        return Err(ReplayError::Refused(format!(
+        Err(ReplayError::Refused(format!(
             "{}: recorded with another configuration or I/O map (digest {}, this one {digest}); {hint}, or use --force to replay anyway",
             trace.display(),
             header.config_digest
-        )));
+        )))
+    } else {
+        Ok(())
     }
+}
+
+/// The PLC the trace is replayed on, with the run's programs planned again as they were then.
+fn plc_of(trace: &Path, header: &Header, setup: &Setup) -> Result<(Plc, Option<NcLibrary>), ReplayError> {
     let refused = |m: String| ReplayError::Refused(format!("{}: {m}", trace.display()));
-    // The run's programs, planned again as they were then.
     let plan = |p: &crate::services::trace::TraceProgram| {
         crate::compose::nc_job::prepare_text(setup, p.file.clone(), p.text.clone())
             .and_then(crate::compose::nc_job::Prepared::into_job)
@@ -169,9 +265,18 @@ pub fn replay(trace: &Path, setup: &Setup, force: bool) -> Result<ReplayReport, 
     if screen {
         bus = setup.with_screen(bus).0;
     }
-    let mut plc = setup.plc_with(bus, library.as_ref())?;
-    // By name: the position among the header's variables, and the index here.
-    let mut index = std::collections::HashMap::new();
+    let plc = setup.plc_with(bus, library.as_ref())?;
+    Ok((plc, library))
+}
+
+/// The header's variables here, by name: each one's position among them and its index here,
+/// and by position its index; refused where one is not here or has another type.
+type Variables<'h> = (HashMap<&'h str, (usize, VarIndex)>, Vec<VarIndex>);
+
+/// The trace's variables in this configuration (see [`Variables`]).
+fn variables<'h>(trace: &Path, header: &'h Header, plc: &Plc) -> Result<Variables<'h>, ReplayError> {
+    let refused = |m: String| ReplayError::Refused(format!("{}: {m}", trace.display()));
+    let mut index = HashMap::new();
     let mut by_position: Vec<VarIndex> = Vec::new();
     for (position, (name, ty)) in header.variables.iter().enumerate() {
         let i = plc
@@ -187,6 +292,18 @@ pub fn replay(trace: &Path, setup: &Setup, force: bool) -> Result<ReplayReport, 
         index.insert(name.as_str(), (position, i));
         by_position.push(i);
     }
+    Ok((index, by_position))
+}
+
+/// The trace's task classes as the replay runs them.
+fn replayed_classes<'h>(
+    trace: &Path,
+    header: &'h Header,
+    plc: &Plc,
+    index: &HashMap<&'h str, (usize, VarIndex)>,
+    by_position: &[VarIndex],
+) -> Result<Vec<ReplayedClass<'h>>, ReplayError> {
+    let refused = |m: String| ReplayError::Refused(format!("{}: {m}", trace.display()));
     let initial = plc.global_image().to_vec();
     // Per class: its index here, its outputs (compared after every cycle) with their names,
     // and for each of the header's variables where it goes if the class latches it here.
@@ -239,101 +356,35 @@ pub fn replay(trace: &Path, setup: &Setup, force: bool) -> Result<ReplayReport, 
             input_at,
         });
     }
-    let mut changed: Vec<(VarIndex, Value)> = Vec::new();
-    let mut cycles = vec![0u64; classes.len()];
-    let mut clock = VirtualClock::default();
-    plc.init(0, &mut clock);
-    let (mut records, mut last_t) = (0u64, 0u64);
-    let mut ahead = ReadAhead::start(reader)
-        .map_err(|e| ReplayError::Refused(format!("{}: cannot start reading: {e}", trace.display())))?;
-    while let Some(r) = ahead.next_record()? {
-        let class = &classes[r.class];
-        let task = &header.task_classes[r.class].name;
-        let differs = |what: &str, recorded: String, replayed: String| {
-            ReplayError::Differs(Difference {
-                line: r.line,
-                task: task.clone(),
-                cycle: r.cycle,
-                t_us: r.t_us,
-                what: what.into(),
-                recorded,
-                replayed,
-            })
-        };
-        if r.cycle != cycles[r.class] {
-            return Err(differs(
-                "cycle number",
-                r.cycle.to_string(),
-                cycles[r.class].to_string(),
-            ));
-        }
-        cycles[r.class] += 1;
-        // A job the screen made, planned again before the cycle that loads it.
-        if let Some(job) = &r.job {
-            let library = library
-                .as_ref()
-                .ok_or_else(|| refused(format!("line {}: a screen job in a run without programs", r.line)))?;
-            let spec = job.spec().map_err(|m| refused(format!("line {}: {m}", r.line)))?;
-            let made = crate::compose::screen_job::plan(setup, library, &spec)
-                .map_err(|e| refused(format!("line {}: screen job {}: {e}", r.line, job.number)))?;
-            let slot = library.screen_slot(job.number).ok_or_else(|| {
-                refused(format!(
-                    "line {}: job number {} is a library program's",
-                    r.line, job.number
-                ))
-            })?;
-            library
-                .screen
-                .set(slot, pkm_api::screen_jobs::ScreenJob { spec, job: made })
-                .map_err(|e| refused(format!("line {}: {e}", r.line)))?;
-            // The job before it is replaced, as in the run: its plan is released (a replay of a
-            // run of a hundred large jobs holds one or two at a time, as the run did).
-            drop(library.screen.release_replaced(Some(slot)));
-        }
-        changed.clear();
-        changed.extend(r.inputs.iter().filter_map(|&(k, v)| class.input_at[k].map(|i| (i, v))));
-        let class = &mut classes[r.class];
-        for &(k, v) in &r.outputs {
-            // The reader took only the class's outputs from the record.
-            if let Some((g, at)) = class.output_at[k] {
-                class.check[g].values[at] = v;
-            }
-        }
-        clock.advance_to(r.t_us * 1000);
-        plc.replay_cycle(class.ci, r.t_us * 1000, &changed, r.violation, &mut clock);
-        let image = plc.class_image(class.ci);
-        if !class.check.iter().all(|group| group.all_same(image)) {
-            // The first in the header's order.
-            for (k, &(position, i)) in class.outputs.iter().enumerate() {
-                let name = class.names[k];
-                if let Some((g, at)) = class.output_at[position]
-                    && let want = class.check[g].values[at]
-                    && !same(want, image[usize::from(i)])
-                {
-                    return Err(differs(name, show(want), show(image[usize::from(i)])));
-                }
-            }
-        }
-        if let Some(state) = &r.state {
-            let status = plc.app_status();
-            let got = status.map(|s| s.state).unwrap_or("(none)");
-            // Compared in words: a library call per record cost a fortieth of the replay.
-            if !crate::services::trace::fast::same_bytes(got.as_bytes(), state.as_bytes()) {
-                return Err(differs("state", state.to_string(), got.to_string()));
-            }
-            let got = status.and_then(|s| s.reason);
-            if got != r.reason.as_deref() {
-                let show = |r: Option<&str>| r.map_or("(none)".to_string(), |r| format!("\"{r}\""));
-                return Err(differs("reason", show(r.reason.as_deref()), show(got)));
-            }
-        }
-        records += 1;
-        last_t = r.t_us;
-    }
-    Ok(ReplayReport {
-        records,
-        recorded_s: last_t as f64 * 1e-6,
-        wall: started.elapsed(),
-        cut: ahead.cut().cloned(),
-    })
+    Ok(classes)
+}
+
+/// A job the screen made in the run, planned again and put in its slot before the cycle that
+/// loads it; the job it replaced is released, as in the run.
+fn replay_job(
+    trace: &Path,
+    setup: &Setup,
+    library: Option<&NcLibrary>,
+    job: &TraceJob,
+    line: usize,
+) -> Result<(), ReplayError> {
+    let refused = |m: String| ReplayError::Refused(format!("{}: {m}", trace.display()));
+    let library = library.ok_or_else(|| refused(format!("line {}: a screen job in a run without programs", line)))?;
+    let spec = job.spec().map_err(|m| refused(format!("line {}: {m}", line)))?;
+    let made = crate::compose::screen_job::plan(setup, library, &spec)
+        .map_err(|e| refused(format!("line {}: screen job {}: {e}", line, job.number)))?;
+    let slot = library.screen_slot(job.number).ok_or_else(|| {
+        refused(format!(
+            "line {}: job number {} is a library program's",
+            line, job.number
+        ))
+    })?;
+    library
+        .screen
+        .set(slot, pkm_api::screen_jobs::ScreenJob { spec, job: made })
+        .map_err(|e| refused(format!("line {}: {e}", line)))?;
+    // The job before it is replaced, as in the run: its plan is released (a replay of a
+    // run of a hundred large jobs holds one or two at a time, as the run did).
+    drop(library.screen.release_replaced(Some(slot)));
+    Ok(())
 }
