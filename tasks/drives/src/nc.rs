@@ -239,6 +239,70 @@ impl Executor {
     /// [`Executor::sample`] is the set-point for this cycle and [`Executor::velocities`] the
     /// joints' velocities towards the next one.
     pub fn step(&mut self, command: Command, operator: Operator, dt: f64, frozen: bool) {
+        self.take(command);
+        self.velocities = [0.0; MAX_AXES];
+        if frozen || self.fault {
+            self.rate = 0.0;
+        }
+        if self.fault {
+            // Standing at the last pose that had joints.
+            return;
+        }
+        // The sample is a function of the time alone: last cycle's look-ahead is this one's,
+        // and an idle executor (every cycle of a run whose programs wait for a start) stands at
+        // the time it last sampled.
+        let sample = match self.next.take() {
+            Some((t, sample, cursor)) if t == self.t => {
+                self.cursor = cursor;
+                sample
+            }
+            _ if self.state == RunState::Idle && self.current_t == self.t => self.current,
+            _ => self.trajectory.sample(self.t, &mut self.cursor),
+        };
+        if sample.joints.iter().any(|q| !q.is_finite()) {
+            self.fault = true;
+            return;
+        }
+        self.current = sample;
+        self.current_t = self.t;
+        let duration = self.trajectory.duration_s();
+        let moving = matches!(self.state, RunState::Running | RunState::Holding) && !frozen;
+        if moving {
+            self.happen_events();
+        }
+        if self.at_pause {
+            // Standing at the M0: its line is the one executing.
+            self.current.line = self.line;
+        } else {
+            self.line = self.current.line;
+        }
+        if self.state == RunState::Paused {
+            return;
+        }
+        if moving && self.t >= duration && self.next_event >= self.trajectory.events().len() {
+            self.state = RunState::Done;
+        }
+        if !moving || self.state == RunState::Done || self.stands_at_block_end(operator, dt) {
+            return;
+        }
+        let speed = self.current.speed;
+        // The rate changes so that the speed along the path changes by at most the
+        // trajectory's tangential acceleration bound: v·dr/dt ≤ a.
+        let change = if speed > 1e-9 {
+            self.current.accel * dt / speed
+        } else {
+            1.0
+        };
+        let before = self.rate;
+        let Some(target) = self.new_rate(operator, speed, change, dt) else {
+            return;
+        };
+        self.look_ahead(operator, dt, before, target, change);
+    }
+
+    /// Takes the main program's command: off, run (from the start, or on after a hold or a
+    /// pause), hold.
+    fn take(&mut self, command: Command) {
         match (command, self.state) {
             (Command::Off, _) => {
                 self.state = RunState::Idle;
@@ -270,71 +334,35 @@ impl Executor {
             (Command::Hold, RunState::Paused | RunState::BlockDone) => self.state = RunState::Held,
             _ => {}
         }
-        self.velocities = [0.0; MAX_AXES];
-        if frozen || self.fault {
-            self.rate = 0.0;
-        }
-        if self.fault {
-            // Standing at the last pose that had joints.
-            return;
-        }
-        // The sample is a function of the time alone: last cycle's look-ahead is this one's,
-        // and an idle executor (every cycle of a run whose programs wait for a start) stands at
-        // the time it last sampled.
-        let sample = match self.next.take() {
-            Some((t, sample, cursor)) if t == self.t => {
-                self.cursor = cursor;
-                sample
-            }
-            _ if self.state == RunState::Idle && self.current_t == self.t => self.current,
-            _ => self.trajectory.sample(self.t, &mut self.cursor),
-        };
-        if sample.joints.iter().any(|q| !q.is_finite()) {
-            self.fault = true;
-            return;
-        }
-        self.current = sample;
-        self.current_t = self.t;
-        let duration = self.trajectory.duration_s();
-        let moving = matches!(self.state, RunState::Running | RunState::Holding) && !frozen;
+    }
+
+    /// The events where the tool stands happen, in order, up to a pause (the tool is at rest at
+    /// each).
+    fn happen_events(&mut self) {
         let events = self.trajectory.events();
-        if moving {
-            // The events where it stands happen, in order, up to a pause (the tool is at rest
-            // at each).
-            while let Some(e) = events.get(self.next_event)
-                && e.t <= self.t
-            {
-                match e.kind {
-                    TrajectoryEventKind::Spindle { direction, rpm } => {
-                        self.spindle = direction;
-                        self.rpm = if direction == 0 { 0.0 } else { rpm };
-                        self.next_event += 1;
-                    }
-                    TrajectoryEventKind::Pause => {
-                        self.line = e.line;
-                        self.at_pause = true;
-                        self.state = RunState::Paused;
-                        self.rate = 0.0;
-                        break;
-                    }
+        while let Some(e) = events.get(self.next_event)
+            && e.t <= self.t
+        {
+            match e.kind {
+                TrajectoryEventKind::Spindle { direction, rpm } => {
+                    self.spindle = direction;
+                    self.rpm = if direction == 0 { 0.0 } else { rpm };
+                    self.next_event += 1;
+                }
+                TrajectoryEventKind::Pause => {
+                    self.line = e.line;
+                    self.at_pause = true;
+                    self.state = RunState::Paused;
+                    self.rate = 0.0;
+                    break;
                 }
             }
         }
-        if self.at_pause {
-            // Standing at the M0: its line is the one executing.
-            self.current.line = self.line;
-        } else {
-            self.line = self.current.line;
-        }
-        if self.state == RunState::Paused {
-            return;
-        }
-        if moving && self.t >= duration && self.next_event >= events.len() {
-            self.state = RunState::Done;
-        }
-        if !moving || self.state == RunState::Done {
-            return;
-        }
+    }
+
+    /// Single block: whether the tool stands at the end of its line now (until the main program
+    /// holds and resumes); else where it will stand, and how hard it may brake there.
+    fn stands_at_block_end(&mut self, operator: Operator, dt: f64) -> bool {
         if !operator.single_block {
             self.block_stop = None;
         } else if self.state == RunState::Running {
@@ -342,7 +370,7 @@ impl Executor {
                 // At the end of the line: stand until the main program holds and resumes.
                 self.state = RunState::BlockDone;
                 self.rate = 0.0;
-                return;
+                return true;
             }
             if self.block_stop.is_none() {
                 self.block_stop = self.reachable_block_end();
@@ -359,21 +387,19 @@ impl Executor {
             }
             self.braking_accel = self.braking_accel.min(self.current.accel);
         }
-        let speed = self.current.speed;
-        // The rate changes so that the speed along the path changes by at most the
-        // trajectory's tangential acceleration bound: v·dr/dt ≤ a.
-        let change = if speed > 1e-9 {
-            self.current.accel * dt / speed
-        } else {
-            1.0
-        };
-        let before = self.rate;
+        false
+    }
+
+    /// The rate for this cycle: towards zero in a hold (`None` once held), else towards the
+    /// operator's override within the fast profile and the single block's braking; the rate
+    /// aimed at.
+    fn new_rate(&mut self, operator: Operator, speed: f64, change: f64, dt: f64) -> Option<f64> {
         let mut target = f64::INFINITY;
         if self.state == RunState::Holding {
             self.rate = (self.rate - change).max(0.0);
             if self.rate == 0.0 {
                 self.state = RunState::Held;
-                return;
+                return None;
             }
         } else {
             target = target_rate(&self.current, operator);
@@ -392,6 +418,13 @@ impl Executor {
                 self.rate = self.rate.min(self.braking_speed(s_stop - self.current.s, dt) / speed);
             }
         }
+        Some(target)
+    }
+
+    /// The time the next cycle stands at, its sample looked up now (the next cycle's), and the
+    /// joints' velocities towards it; above the planned profile the rate is kept where the step
+    /// ends too.
+    fn look_ahead(&mut self, operator: Operator, dt: f64, before: f64, target: f64, change: f64) {
         let mut next = self.next_time(dt);
         self.ahead = self.cursor;
         let mut ahead = self.trajectory.sample(next, &mut self.ahead);
