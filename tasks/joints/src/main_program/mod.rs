@@ -21,6 +21,7 @@ use reason::ReasonTexts;
 use pkm_api::hmi;
 use pkm_api::image::{Declare, Input, Output};
 use pkm_api::program::{AppStatus, Cycle, Program, ProgramArgs};
+use pkm_api::ranges;
 use pkm_drives::automaton::{MainState, StopButton, StopInputs, event as automaton_event};
 use pkm_drives::nc::{self, RunState};
 use pkm_kinematics::frame::{Home, MachineFrame};
@@ -139,13 +140,20 @@ const JOINT_NAMES: [&str; 6] = ["q1", "q2", "q3", "q4", "q5", "q6"];
 /// Checks the main parameters against the machine and its kinematics: every number within its
 /// range of [`pkm_api::ranges`], the lists as long as the machine needs.
 fn check(spec: &Spec, p: &MainParams, keys: &[&str], travel: &[[f64; 2]], decl: &mut Declare<'_>) {
-    use pkm_api::ranges;
-    let n = spec.joints();
     decl.within(
         "params.stop_lockout_ms",
         p.stop_lockout_ms as f64,
         &ranges::STOP_LOCKOUT_MS,
     );
+    check_joints(spec, p, travel, decl);
+    check_reference_order(spec, p, decl);
+    check_limits(p, keys, travel, decl);
+    check_jog(spec, p, keys, decl);
+}
+
+/// One entry per joint: its speed, acceleration and referencing.
+fn check_joints(spec: &Spec, p: &MainParams, travel: &[[f64; 2]], decl: &mut Declare<'_>) {
+    let n = spec.joints();
     if p.joints.len() != n {
         decl.issue(
             "params.joints",
@@ -192,6 +200,11 @@ fn check(spec: &Spec, p: &MainParams, keys: &[&str], travel: &[[f64; 2]], decl: 
             );
         }
     }
+}
+
+/// Every joint referenced once, in groups a shared reference input allows.
+fn check_reference_order(spec: &Spec, p: &MainParams, decl: &mut Declare<'_>) {
+    let n = spec.joints();
     let mut seen = vec![false; n];
     let shared = Switches::of(spec).shared();
     for (g, group) in p.reference_order.iter().enumerate() {
@@ -224,6 +237,11 @@ fn check(spec: &Spec, p: &MainParams, keys: &[&str], travel: &[[f64; 2]], decl: 
             format!("joint {} is never referenced", missing + 1),
         );
     }
+}
+
+/// The search's time, the software limits' margin, the world's limits (holding the reference
+/// pose) and the singularity threshold.
+fn check_limits(p: &MainParams, keys: &[&str], travel: &[[f64; 2]], decl: &mut Declare<'_>) {
     decl.within("params.search_timeout_s", p.search_timeout_s, &ranges::TIMEOUT_S);
     let shortest = travel.iter().map(|[lo, hi]| hi - lo).fold(f64::INFINITY, f64::min);
     decl.within(
@@ -266,6 +284,10 @@ fn check(spec: &Spec, p: &MainParams, keys: &[&str], travel: &[[f64; 2]], decl: 
         p.singularity_threshold,
         &ranges::SINGULARITY_THRESHOLD,
     );
+}
+
+/// The jog's speeds, acceleration, dead zone and the stick's pairs of world axes.
+fn check_jog(spec: &Spec, p: &MainParams, keys: &[&str], decl: &mut Declare<'_>) {
     let jog = &p.jog;
     decl.within(
         "params.jog.linear_speed_mm_s",
