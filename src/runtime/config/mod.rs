@@ -509,6 +509,9 @@ fn display_path(path: &str) -> String {
 }
 
 /// The checks of the configuration that need no knowledge of programs or the I/O map.
+///
+/// Long, and kept whole: a list of independent checks of a few lines each, in the order of the
+/// file, so that the report follows the file.
 pub fn check(config: &Config) -> Vec<Problem> {
     let mut issues = Vec::new();
     let mut push = |at: String, message: String| issues.push(Problem { at, message });

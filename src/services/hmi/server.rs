@@ -530,6 +530,10 @@ struct Refusals {
     refused: u64,
 }
 
+/// Serves one WebSocket client: frames out, commands in, until it goes.
+///
+/// Long, and kept whole: one `select!` loop whose branches (a frame, a message, the jog's
+/// refresh, a job's answer) share the client's state — its budget, its counters, its job.
 async fn client(mut socket: WebSocket, peer: SocketAddr, commands: bool, shared: &Arc<Shared>) {
     let id = shared.next_client.fetch_add(1, Ordering::Relaxed);
     let mut frames = shared.frames.subscribe();

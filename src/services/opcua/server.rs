@@ -34,6 +34,10 @@ const SPARE_CONNECTIONS: usize = 4;
 /// address space from the first frame, a task that writes every newer frame's changes, the
 /// methods that command through `sink`, the gate that bounds the connections. Returns the
 /// endpoint URL clients connect to.
+///
+/// Long, and kept whole: it is the server builder's one chain of settings (endpoints, security
+/// policies, limits, the node manager) followed by the tasks that serve it; split, each part
+/// would hand the half-built server to the next.
 pub fn start(
     options: &OpcUaOptions,
     public: TcpListener,

@@ -181,6 +181,9 @@ const DEFAULT_PLOT: [&str; 12] = [
 
 /// Plots `vars` (none given: [`DEFAULT_PLOT`]) and the main state against time into an SVG
 /// file, one panel each.
+///
+/// Long, and kept whole: it draws one picture from top to bottom (the panels, their axes and
+/// curves, the state's band), and its parts share the plot's scales and the drawing area.
 pub fn to_svg(trace: &Path, out: &Path, vars: &[String]) -> Result<Exported, ExportError> {
     let err = |e: String| ExportError::Output {
         file: out.display().to_string(),

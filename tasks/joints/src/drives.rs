@@ -270,6 +270,9 @@ impl Drives {
 }
 
 impl Program for Drives {
+    // Long, and kept whole: the fast interlock's cycle reads every joint's feedback, decides
+    // once whether the drives may move, then writes every joint's output; the order is the
+    // safety rule, and one place shows it.
     fn cycle(&mut self, ctx: &mut Cycle<'_>) {
         let dt = ctx.period_ns() as f64 * 1e-9;
         let ack = ctx.get(self.ack);

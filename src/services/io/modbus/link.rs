@@ -226,6 +226,12 @@ impl Link {
         runtime.block_on(self.exchange_loop(&mut inputs, &mut outputs));
     }
 
+    /// Connects, makes the station ready and exchanges every period until stopped, counting
+    /// failures and reconnecting with a back-off.
+    ///
+    /// Long, and kept whole: the connection loop and the exchange loop share the link's state
+    /// across reconnections (back-off, failures, the station's fault and its watchdog, whether
+    /// outputs are written, the slow-link window); split, it would pass in and out of every part.
     async fn exchange_loop(&mut self, inputs: &mut MailboxWriter, outputs: &mut MailboxReader) {
         let shared = Arc::clone(&self.shared);
         let received = Arc::new(AtomicU64::new(0));
@@ -235,10 +241,7 @@ impl Link {
         // once — which without it made 4774 attempts in 5 s), back to the first after one that
         // did.
         let mut backoff = RECONNECT_FIRST;
-        // The latest exchanges' durations (ns), for the slow-link supervision.
-        let mut recent = [0u64; SLOW_WINDOW];
-        let mut taken = 0usize;
-        let mut slow = false;
+        let mut slowness = Slowness::default();
         let mut out_values: Vec<Value> = self.exchange.outputs.iter().map(|s| Value::zero(s.ty)).collect();
         let mut in_values: Vec<Value> = self.exchange.inputs.iter().map(|s| Value::zero(s.ty)).collect();
         // An X20BC0087's state: whether it was made ready on a connection before (a refusal
@@ -305,23 +308,7 @@ impl Link {
             while !shared.stop.load(Ordering::Relaxed) {
                 tick.tick().await;
                 outputs.take_latest(&mut out_values);
-                let fresh = self.outputs_fresh();
-                if fresh != writing {
-                    writing = fresh;
-                    if fresh {
-                        tracing::info!(
-                            "modbus {}: the cycle publishes outputs again: they are written",
-                            self.name
-                        );
-                    } else {
-                        tracing::warn!(
-                            "modbus {}: the cycle has handed over no outputs for {} ms: they are no longer written, so the \
-                             station's watchdog sets them safe",
-                            self.name,
-                            self.max_output_age.as_millis()
-                        );
-                    }
-                }
+                writing = self.still_writing(writing);
                 let started = Instant::now();
                 match self
                     .exchange
@@ -335,14 +322,8 @@ impl Link {
                         let took = started.elapsed().as_nanos() as u64;
                         shared.stats.succeeded(took);
                         failures = 0;
-                        recent[taken % SLOW_WINDOW] = took;
-                        taken += 1;
-                        let mut sorted = recent;
-                        sorted.sort_unstable();
-                        let median = sorted[SLOW_WINDOW / 2];
-                        if taken >= SLOW_WINDOW && Duration::from_nanos(median) > self.max_exchange {
-                            if !slow {
-                                slow = true;
+                        if let Some(median) = slowness.took(took, self.max_exchange) {
+                            if slowness.began() {
                                 shared.stats.slow.fetch_add(1, Ordering::Relaxed);
                             }
                             shared.declare_fault(
@@ -355,7 +336,6 @@ impl Link {
                             );
                             continue;
                         }
-                        slow = false;
                         exchanges += 1;
                         if self.exchange.bus_controller.is_some() && exchanges.is_multiple_of(STATUS_EVERY) {
                             match self.station_status(&mut ctx, &mut expired_since, writing).await {
@@ -386,6 +366,28 @@ impl Link {
                 }
             }
         }
+    }
+
+    /// Whether the outputs are written from now on: while the cycle hands them over fresh
+    /// (said when that changes: without them the station's watchdog sets them safe).
+    fn still_writing(&self, writing: bool) -> bool {
+        let fresh = self.outputs_fresh();
+        if fresh != writing {
+            if fresh {
+                tracing::info!(
+                    "modbus {}: the cycle publishes outputs again: they are written",
+                    self.name
+                );
+            } else {
+                tracing::warn!(
+                    "modbus {}: the cycle has handed over no outputs for {} ms: they are no longer written, so the \
+                     station's watchdog sets them safe",
+                    self.name,
+                    self.max_output_age.as_millis()
+                );
+            }
+        }
+        fresh
     }
 
     /// Counts the failed exchange `f`; when the link is to be opened again after it (`reconnect`,
@@ -523,5 +525,37 @@ impl Link {
                 format!("{failures} failed exchanges in a row, the last: {}", last.cause),
             );
         }
+    }
+}
+
+/// The latest exchanges' durations, for the slow-link supervision: the link is too slow while
+/// the median of the last [`SLOW_WINDOW`] is over the bound.
+#[derive(Default)]
+struct Slowness {
+    recent: [u64; SLOW_WINDOW],
+    taken: usize,
+    /// Too slow at the last exchange.
+    slow: bool,
+    /// Too slow now, and not at the one before.
+    began: bool,
+}
+
+impl Slowness {
+    /// Takes an exchange of `took_ns`; the median (ns) when the link is too slow for `bound`.
+    fn took(&mut self, took_ns: u64, bound: Duration) -> Option<u64> {
+        self.recent[self.taken % SLOW_WINDOW] = took_ns;
+        self.taken += 1;
+        let mut sorted = self.recent;
+        sorted.sort_unstable();
+        let median = sorted[SLOW_WINDOW / 2];
+        let slow = self.taken >= SLOW_WINDOW && Duration::from_nanos(median) > bound;
+        self.began = slow && !self.slow;
+        self.slow = slow;
+        slow.then_some(median)
+    }
+
+    /// Whether the last exchange made the link too slow after it was not.
+    fn began(&self) -> bool {
+        self.began
     }
 }

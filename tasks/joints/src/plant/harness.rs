@@ -82,6 +82,8 @@ const BRIDGE_ERROR: [&str; 6] = keys!("bridge_error");
 const PWM_PERIOD: [&str; 3] = ["pwm_period1", "pwm_period2", "pwm_period3"];
 
 /// The machine's signals and what each is, in wiring order, with each signal's default channel.
+///
+/// Long, and kept whole: a table, one entry per signal of the machine family.
 pub fn signals(spec: &Spec) -> Vec<(Signal, Wire, String)> {
     use Direction::{Input as I, Output as O};
     use VarType::{Bool, Int, Real, Uint};

@@ -34,6 +34,9 @@ impl State<'_> {
     /// `convert_cycle_xy` (and its other planes) makes it: up to the R plane if below it, over
     /// the hole, down to R, the cycle, back to the clearance level (R in G99, the series'
     /// starting height in G98); L times. Every move stops exactly at its end.
+    ///
+    /// Long, and kept whole: the cycle's moves are made by one closure over the position being
+    /// built, which every part of the cycle (the approach, each repeat, each peck) calls.
     #[allow(clippy::too_many_arguments)]
     pub(super) fn cycle<'w>(
         &mut self,

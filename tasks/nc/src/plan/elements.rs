@@ -176,6 +176,10 @@ pub(super) fn elements_and_events(program: &Program) -> (Vec<Element>, f64, Vec<
 }
 
 /// Rounds the corners between consecutive lines within their tolerance; marks the others stops.
+///
+/// Long, and kept whole: one pass over the elements that carries the corner at hand (what a
+/// blend took of the element's start, the element waiting for its end); split, that state would
+/// pass in and out of every part.
 fn blend_corners(elements: Vec<Element>) -> Vec<Element> {
     let mut out: Vec<Element> = Vec::with_capacity(elements.len() * 2);
     let mut iter = elements.into_iter();
