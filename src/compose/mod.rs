@@ -1,10 +1,12 @@
-//! The composition root: resolved options → a built PLC with its handles.
+//! Composition: a configuration turned into a built PLC, and the built PLC's run.
 //!
-//! One place knows how to assemble a soft-PLC from a configuration: which machine it runs (and
-//! so which programs, configuration checks, I/O map and plant), which bus, which joystick. The
-//! command line (`run`, `check`, `replay`, `io-sim`, `link-bench`) and the tests all come here,
-//! so they cannot drift apart. Every problem of the configuration and its I/O map is reported
-//! at once, as one list per file.
+//! One place knows how to assemble a soft-PLC from a configuration: which machine it runs
+//! ([`setup`], [`machines`]: its programs, configuration checks, I/O map and plant), which bus,
+//! which joystick, which NC programs ([`nc_job`], [`screen_job`]) — [`build`] — and how the
+//! built PLC runs with its screen and OPC UA server ([`serve`]) or replays a trace ([`replay`]).
+//! The command line and the tests all come here, so they cannot drift apart. Every problem of
+//! the configuration and its I/O map is reported at once, as one list per file. This layer
+//! builds on the services and the runtime core; neither knows it.
 
 pub mod machines;
 pub mod nc_job;

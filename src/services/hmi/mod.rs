@@ -1,6 +1,6 @@
 //! The operator's screen: a web page served by the soft-PLC, off the cyclic path.
 //!
-//! - [`frame`]: what the cycle publishes for the screen, wait-free.
+//! - [`crate::runtime::frame`] (the core's): what the cycle publishes for the screen, wait-free.
 //! - [`commands`]: the screen's commands, taken wait-free before each cycle into the `HMI_*`
 //!   variables by a bus laid over the field bus.
 //! - [`mechanism`]: the machine's links in its pose, drawn by its kinematics.
