@@ -356,6 +356,9 @@ fn linuxcnc(rs274: &std::path::Path, text: &str) -> Vec<Canonical> {
     let stdout = String::from_utf8_lossy(&out.stdout);
     let mut at = [0.0; 3];
     let mut moves = Vec::new();
+    // rs274 prints positions in program coordinates, with the offsets it sets apart: the work
+    // system's (`SET_G5X_OFFSET`) and G92's or G52's (`SET_G92_OFFSET`), added back here.
+    let (mut g5x, mut g92) = ([0.0; 3], [0.0; 3]);
     // rs274 prints lengths in the units in force (inches after G20), arcs in their plane.
     let mut unit = 1.0;
     let mut plane = [0, 1, 2];
@@ -384,6 +387,19 @@ fn linuxcnc(rs274: &std::path::Path, text: &str) -> Vec<Canonical> {
             .filter_map(|x| x.trim().parse::<f64>().ok())
             .map(|x| x * unit)
             .collect();
+        match call {
+            "SET_G5X_OFFSET" if n.len() >= 4 => {
+                // The first value is the system's number, not a length.
+                g5x = [n[1], n[2], n[3]];
+                continue;
+            }
+            "SET_G92_OFFSET" if n.len() >= 3 => {
+                g92 = [n[0], n[1], n[2]];
+                continue;
+            }
+            _ => {}
+        }
+        let offset: [f64; 3] = std::array::from_fn(|c| g5x[c] + g92[c]);
         let (kind, end, arc) = match call {
             "STRAIGHT_TRAVERSE" => ("rapid", [n[0], n[1], n[2]], None),
             "STRAIGHT_FEED" => ("feed", [n[0], n[1], n[2]], None),
@@ -398,7 +414,8 @@ fn linuxcnc(rs274: &std::path::Path, text: &str) -> Vec<Canonical> {
             }
             _ => continue,
         };
-        let end = rounded(end);
+        let end = rounded(std::array::from_fn(|c| end[c] + offset[c]));
+        let arc = arc.map(|([c0, c1], cw)| ([c0 + offset[plane[0]], c1 + offset[plane[1]]], cw));
         if kind != "arc" && end == rounded(at) {
             continue;
         }
@@ -457,6 +474,12 @@ fn the_cam_dialect_gives_the_moves_linuxcnc_gives() {
         CANNED_CYCLES,
         "G0 Z5\nG18 G81 X-3 Y1 Z2 R4 F50\nX-6\nG80\nG0 Y5\nG19 G99 G82 X-2 Y1 Z-2 R3 P0.5\nM2\n",
         "G20 G0 Z1\nG83 X0.5 Z-0.3 R0.1 Q0.1 F4\nM2\n",
+        // Going home: G28 through a point, the stored position of G28.1, G30 for one axis, and
+        // a cycle series that G28 ends.
+        "G0 X10 Y5 Z3\nG28.1\nG0 X1 Y1 Z1\nG91 G28 Z0\nG90 G28\nG0 X4 Y4\nG30 X2\nG30.1\nG0 X0\nG30\nM2\n",
+        "G81 X1 Z-1 R1 F10\nG28 Z5\nX3\nM2\n",
+        // G92 and its variants, G52 (which shares G92's offset), G92 after G52.
+        "G0 X3\nG92 X5\nG0 X0 Y1\nG92.2\nG0 X1\nG92.3\nG0 X2\nG92.1\nG0 X3\nG52 X5 Y-1\nG0 X0 Y0\nG92 X2\nG0 X1\nG52 X0 Y0\nG0 X1\nM2\n",
     ];
     for text in programs {
         let (o, l) = (ours(text), linuxcnc(rs274, text));

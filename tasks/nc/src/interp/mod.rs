@@ -3,17 +3,17 @@
 //!
 //! Supported (docs/nc.md): G0 G1 G2 G3 (centre by I J K, incremental as in LinuxCNC, or by R;
 //! helical with the axis normal to the plane; P full turns), G4 P (dwell, s), G17 G18 G19,
-//! G20 G21, G53 (machine coordinates, this block), G54–G59 (work offsets), G61, G64 \[P\], G90 G91,
-//! G92, the canned cycles G81 G82 G83 with G98 G99 and G80, F (per minute), S, M0 M1 M2 M30 M3
-//! M4 M5, N, axis words X Y Z and A B C (degrees) as far as the machine has them; parameters,
-//! expressions and O-words ([`crate::flow`]). Everything else is refused with its line, column
-//! and reason.
+//! G20 G21, G28 G30 with G28.1 G30.1 (going home), G52, G53 (machine coordinates, this block),
+//! G54–G59 (work offsets), G61, G64 \[P\], G90 G91, G92 G92.1 G92.2 G92.3, the canned cycles
+//! G81 G82 G83 with G98 G99 and G80, F (per minute), S, M0 M1 M2 M30 M3 M4 M5, N, axis words
+//! X Y Z and A B C (degrees) as far as the machine has them; parameters, expressions and O-words
+//! ([`crate::flow`]). Everything else is refused with its line, column and reason.
 //!
 //! The conversion goes group by group as LinuxCNC's does (`convert_*`): [`words`] sorts and
-//! checks a block's words, [`modes`] the modal settings, [`offsets`] the coordinate systems and
-//! G92, [`motion`] the moves and arcs, [`cycles`] the canned cycles; [`state`] holds the modal
-//! state and runs a block through them; the O-word control flow and expressions are
-//! [`crate::flow`]'s.
+//! checks a block's words, [`modes`] the modal settings, [`offsets`] the coordinate systems, G92
+//! and G52 and going home, [`motion`] the moves and arcs, [`cycles`] the canned cycles; [`state`]
+//! holds the modal state and runs a block through them; the O-word control flow and expressions
+//! are [`crate::flow`]'s.
 
 pub mod block;
 mod cycles;

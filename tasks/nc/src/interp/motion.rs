@@ -20,6 +20,10 @@ impl State<'_> {
     /// in force (G80 in the block makes none).
     pub(super) fn motion_now(&self, words: &Words<'_>) -> Option<u16> {
         let has_axis_word = super::block::AXES.iter().any(|a| words.get(*a).is_some());
+        // G28, G30, G52 and G92 take the block's axis words: the motion mode makes no move.
+        if words.uses_axis_words() {
+            return words.motion_word().map(|(c, _)| c);
+        }
         match words.motion_word() {
             Some((c, _)) => Some(c),
             None if has_axis_word && !words.has_g(800) => self.motion,
@@ -69,7 +73,7 @@ impl State<'_> {
             let [o0, o1] = self.plane.offsets();
             get(o0).is_some() || get(o1).is_some()
         };
-        let moves = !words.has_g(920) && (!axis_words.is_empty() || full_circle);
+        let moves = !words.uses_axis_words() && (!axis_words.is_empty() || full_circle);
         if let Some(w) = words.g_word(530) {
             if !matches!(self.motion, Some(0 | 10)) || !moves {
                 return Err(at(w, "G53 goes with a G0 or G1 move in this block".into()));
@@ -82,7 +86,7 @@ impl State<'_> {
         // an arc alone needs its centre.
         if let Some((20 | 30, w)) = motion_word
             && !moves
-            && !words.has_g(920)
+            && !words.uses_axis_words()
         {
             let [o0, o1] = self.plane.offsets();
             return Err(at(

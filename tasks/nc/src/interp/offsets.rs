@@ -1,35 +1,136 @@
-//! Where program coordinates are: the work coordinate systems' origins with G92's offset on top,
-//! and G92 itself (the tool's position reads as the given values from now on).
+//! Where program coordinates are: the work coordinate systems' origins with G92's offset on top;
+//! G92 (the tool's position reads as the given values from now on), G92.1, G92.2, G92.3 and G52
+//! (which set that offset as LinuxCNC does: G52 shares it); and going home by G28 and G30 to the
+//! positions G28.1 and G30.1 store.
 
 use crate::NcError;
 use crate::lexer::Word;
 
-use super::block::Pose;
+use super::block::{Action, Block, Path, Pose};
 use super::state::State;
-use super::words::Words;
+use super::words::{Words, format_code};
 
 impl State<'_> {
-    /// G92: the program coordinates the tool is at, for the axes the block names.
+    /// G92, G92.1, G92.2, G92.3 and G52: the offset on top of the work coordinate system. G92
+    /// makes the tool's position read as the given values (for the axes named), G52 sets the
+    /// offset to the given values, G92.1 clears it and its parameters, G92.2 suspends it (its
+    /// parameters kept), G92.3 brings it back from them.
     pub(super) fn set_origin(&mut self, words: &Words<'_>) -> Result<(), NcError> {
         let line = words.line;
         let at = |w: &Word, message: String| NcError::new(line, w.column, message);
         let axis_words = words.axis_words();
+        let taker = words.g.iter().find(|(c, _)| matches!(c, 280 | 300 | 520 | 920));
+        if let (Some((taker, _)), Some((code, w)), false) = (taker, words.motion_word(), axis_words.is_empty()) {
+            return Err(at(
+                w,
+                format!(
+                    "{} and {} both use the block's axis words: a block holds one of them",
+                    format_code('G', code),
+                    format_code('G', *taker)
+                ),
+            ));
+        }
         // A length in machine units: mm for X Y Z, degrees for A B C.
         let unit = self.unit();
         let scale = |c: usize| if c < 3 { unit } else { 1.0 };
-        if let Some(w) = words.g_word(920) {
-            if axis_words.is_empty() {
+        for (code, needs) in [
+            (920, "the program coordinates the tool is at"),
+            (520, "the offset of the local coordinate system"),
+        ] {
+            if let Some(w) = words.g_word(code)
+                && axis_words.is_empty()
+            {
                 return Err(at(
                     w,
-                    "G92 needs at least one axis word: the program coordinates the tool is at".into(),
+                    format!("{} needs at least one axis word: {needs}", format_code('G', code)),
                 ));
             }
+        }
+        if words.has_g(920) {
             // The tool's position reads as the given values from now on.
             let work = self.machine.work_offsets[self.system];
             for (c, w) in &axis_words {
                 self.g92[*c] = self.position[*c] - work[*c] - w.value * scale(*c);
             }
+            self.g92_kept = self.g92;
         }
+        if words.has_g(520) {
+            for (c, w) in &axis_words {
+                self.g92[*c] = w.value * scale(*c);
+            }
+            self.g92_kept = self.g92;
+        }
+        if words.has_g(921) {
+            (self.g92, self.g92_kept) = ([0.0; 6], [0.0; 6]);
+        }
+        if words.has_g(922) {
+            self.g92 = [0.0; 6];
+        }
+        if words.has_g(923) {
+            self.g92 = self.g92_kept;
+        }
+        Ok(())
+    }
+
+    /// G28 and G30: a rapid to the point the block's axis words give (if any), then a rapid to
+    /// the stored position — of the axes named, or of every axis without any. G28.1 and G30.1
+    /// store where the tool is.
+    pub(super) fn go_home(&mut self, words: &Words<'_>, out: &mut Vec<Block>) -> Result<(), NcError> {
+        let line = words.line;
+        let at = |w: &Word, message: String| NcError::new(line, w.column, message);
+        let axis_words = words.axis_words();
+        for (k, code) in [281u16, 301].into_iter().enumerate() {
+            if words.has_g(code) {
+                if let Some((_, a)) = axis_words.first() {
+                    return Err(at(
+                        a,
+                        format!(
+                            "{} stores where the tool is: axis words cannot go with it",
+                            format_code('G', code)
+                        ),
+                    ));
+                }
+                self.stored[k] = self.position;
+            }
+        }
+        let Some(k) = [280u16, 300].iter().position(|c| words.has_g(*c)) else {
+            return Ok(());
+        };
+        let unit = self.unit();
+        let scale = |c: usize| if c < 3 { unit } else { 1.0 };
+        let offset = self.offset();
+        let mut via = self.position;
+        for (c, w) in &axis_words {
+            let v = w.value * scale(*c);
+            via[*c] = if self.incremental {
+                self.position[*c] + v
+            } else {
+                v + offset[*c]
+            };
+        }
+        let home: Pose = std::array::from_fn(|c| {
+            if axis_words.is_empty() || axis_words.iter().any(|(a, _)| *a == c) {
+                self.stored[k][c]
+            } else {
+                self.position[c]
+            }
+        });
+        for to in [via, home] {
+            if to != self.position {
+                out.push(Block {
+                    line,
+                    action: Action::Move {
+                        from: self.position,
+                        to,
+                        path: Path::Line,
+                        feed_mm_min: None,
+                        blend: self.blend,
+                    },
+                });
+                self.position = to;
+            }
+        }
+        self.cycle_initial = None;
         Ok(())
     }
 

@@ -27,6 +27,12 @@ pub(super) struct State<'a> {
     pub(super) system: usize,
     /// G92's offset.
     pub(super) g92: Pose,
+    /// G92's offset as its parameters (#5211 …) keep it: G92.2 suspends the offset, G92.3 brings
+    /// it back from here.
+    pub(super) g92_kept: Pose,
+    /// The positions G28 and G30 go to (machine coordinates; #5161 …, #5181 …), as G28.1 and
+    /// G30.1 stored them.
+    pub(super) stored: [Pose; 2],
     pub(super) feed_mm_min: Option<f64>,
     pub(super) speed_rpm: f64,
     pub(super) blend: Blend,
@@ -58,8 +64,12 @@ impl flow::System for State<'_> {
     fn numbered(&self, index: usize) -> Option<f64> {
         let position = self.program_position();
         match index {
-            // G92's offsets.
-            5211..=5216 => Some(self.g92[index - 5211] / self.scale(index - 5211)),
+            // G28's and G30's stored positions (machine coordinates).
+            5161..=5166 => Some(self.stored[0][index - 5161] / self.scale(index - 5161)),
+            5181..=5186 => Some(self.stored[1][index - 5181] / self.scale(index - 5181)),
+            // Whether G92's offset is in force, and its parameters (kept while G92.2 suspends it).
+            5210 => Some(if self.g92 == [0.0; 6] { 0.0 } else { 1.0 }),
+            5211..=5216 => Some(self.g92_kept[index - 5211] / self.scale(index - 5211)),
             // The coordinate system in force, 1 for G54.
             5220 => Some((self.system + 1) as f64),
             // G54 … G59's origins, 20 parameters per system (X Y Z A B C first).
@@ -114,6 +124,8 @@ impl<'a> State<'a> {
             incremental: false,
             system: 0,
             g92: [0.0; 6],
+            g92_kept: [0.0; 6],
+            stored: [[0.0; 6]; 2],
             feed_mm_min: None,
             speed_rpm: 0.0,
             arc_absolute: false,
@@ -149,6 +161,7 @@ impl<'a> State<'a> {
         self.dwell(&words, out)?;
         self.modes(&words)?;
         self.set_origin(&words)?;
+        self.go_home(&words, out)?;
         self.motion(&words, out)
     }
 }

@@ -177,8 +177,8 @@ fn what_the_subset_lacks_is_refused_with_line_column_and_reason() {
         ),
         ("G43 H1", "1:1: G43 is not supported (tool length compensation)"),
         (
-            "G28",
-            "1:1: G28 is not supported (going home through an intermediate point)",
+            "G28.2",
+            "1:1: G28.2 is not supported (G28 and G30 variants other than G28.1, G30.1)",
         ),
         (
             "G93",
@@ -521,4 +521,46 @@ fn a_byte_order_mark_is_not_part_of_the_program() {
     assert_eq!(format!("{:?}", with.blocks), format!("{:?}", without.blocks));
     // Columns count from the first character after the mark.
     assert_eq!(refused("\u{feff}G1 X1 F0"), refused("G1 X1 F0"));
+}
+
+#[test]
+fn going_home_and_the_g92_variants_mean_what_linuxcnc_reads() {
+    // G28 through a point to the stored position of the axes named; G28.1 stores.
+    let blocks = run("G0 X10 Y5 Z3\nG28.1\nG0 X1 Y1 Z1\nG91 G28 Z0");
+    assert_eq!(
+        moves(&blocks).last().map(|m| m.0),
+        Some([1.0, 1.0, 3.0, 0.0, 0.0, 0.0]),
+        "Z alone goes to its stored height"
+    );
+    // The parameters give the stored positions and G92's offset (kept while G92.2 suspends it).
+    let blocks = run("G0 X10 Y5\nG30.1\nG92 X2\nG92.2\nG1 X#5181 Y#5211 Z#5210 F100");
+    assert_eq!(
+        moves(&blocks).last().map(|m| m.0),
+        Some([10.0, 8.0, 0.0, 0.0, 0.0, 0.0])
+    );
+    // Refused where LinuxCNC refuses, with why.
+    for (text, why) in [
+        (
+            "G0 G92 X1",
+            "1:1: G0 and G92 both use the block's axis words: a block holds one of them",
+        ),
+        (
+            "G28.1 X1",
+            "1:7: G28.1 stores where the tool is: axis words cannot go with it",
+        ),
+        (
+            "G52",
+            "1:1: G52 needs at least one axis word: the offset of the local coordinate system",
+        ),
+        (
+            "G28 G92 X1",
+            "1:5: G28 and G92 are in one modal group: a block holds one of them",
+        ),
+        (
+            "G28.2",
+            "1:1: G28.2 is not supported (G28 and G30 variants other than G28.1, G30.1)",
+        ),
+    ] {
+        assert_eq!(refused(text), why, "{text}");
+    }
 }

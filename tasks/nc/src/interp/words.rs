@@ -132,6 +132,12 @@ impl<'b> Words<'b> {
         self.g.iter().find(|(c, _)| *c == code).map(|(_, w)| *w)
     }
 
+    /// Whether a non-modal code takes the block's axis words (G28, G30, G52, G92), so that the
+    /// motion mode makes no move with them.
+    pub fn uses_axis_words(&self) -> bool {
+        [280, 300, 520, 920].iter().any(|c| self.has_g(*c))
+    }
+
     /// The block's motion code (G0 G1 G2 G3 G81 G82 G83) with its word, if it has one.
     pub fn motion_word(&self) -> Option<(u16, &'b Word)> {
         self.g
@@ -224,7 +230,9 @@ pub(super) fn g_group(code: u16) -> Option<u8> {
         40 => Some(0),
         170 | 180 | 190 => Some(2),
         200 | 210 => Some(6),
-        530 | 920 => Some(0),
+        530 => Some(0),
+        // Going home, storing a home, and G52/G92's offset: non-modal, one of them a block.
+        280 | 281 | 300 | 301 | 520 | 920 | 921 | 922 | 923 => Some(14),
         540..=590 => Some(12),
         610 | 611 | 640 => Some(13),
         900 | 910 => Some(3),
@@ -242,14 +250,14 @@ pub(super) fn g_refusal(code: u16) -> String {
     let name = format_code('G', code);
     let why = match code {
         50..=52 | 70 | 80 => "lathe and spline modes",
+        500 | 510 => "scaling",
         100 | 110 => "G10/G11 (tables, retraction)",
-        280..=309 => "going home through an intermediate point",
+        282..=299 | 302..=309 => "G28 and G30 variants other than G28.1, G30.1",
         330 | 331 | 760 => "threading",
         382..=385 => "probing",
         400..=429 => "cutter compensation",
         430..=499 => "tool length compensation",
         730..=899 => "canned cycles other than G81, G82, G83",
-        921..=923 => "G92 variants",
         930 | 950 => "feed modes other than units per minute",
         960 | 970 => "spindle speed modes",
         _ => "",
