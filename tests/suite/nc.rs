@@ -123,7 +123,7 @@ fn a_refused_word_is_named_with_file_line_and_column() {
     assert_eq!(o.status.code(), Some(2));
     assert_eq!(
         stderr(&o),
-        format!("error: {file}:2:3: G84 is not supported (canned cycles other than G81, G82, G83)\n")
+        format!("error: {file}:2:3: G84 is not supported (canned cycles other than G73, G81, G82, G83, G85, G89)\n")
     );
     let file = program(dir.path(), "tilt.ngc", "G1 A5 F100\n");
     let o = pkm(&["nc", "check", &file, "--machine", "ox-o"]);
@@ -474,6 +474,8 @@ fn the_cam_dialect_gives_the_moves_linuxcnc_gives() {
         CANNED_CYCLES,
         "G0 Z5\nG18 G81 X-3 Y1 Z2 R4 F50\nX-6\nG80\nG0 Y5\nG19 G99 G82 X-2 Y1 Z-2 R3 P0.5\nM2\n",
         "G20 G0 Z1\nG83 X0.5 Z-0.3 R0.1 Q0.1 F4\nM2\n",
+        // The chip-breaking peck, the bores with and without a dwell, in G98 and G99.
+        "G0 Z5\nG73 X1 Y1 Z-5 R2 Q2 F100\nX3 Q1.5\nG98 G85 X4 Y2 Z-3 R1\nG99 G89 X5 Z-2 R1 P0.5\nG80\nG0 X0\nM2\n",
         // Going home: G28 through a point, the stored position of G28.1, G30 for one axis, and
         // a cycle series that G28 ends.
         "G0 X10 Y5 Z3\nG28.1\nG0 X1 Y1 Z1\nG91 G28 Z0\nG90 G28\nG0 X4 Y4\nG30 X2\nG30.1\nG0 X0\nG30\nM2\n",

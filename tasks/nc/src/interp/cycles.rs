@@ -1,4 +1,4 @@
-//! The canned cycles G81, G82 and G83 as LinuxCNC makes them: the values that carry from block to
+//! The canned cycles G73, G81, G82, G83, G85 and G89 as LinuxCNC makes them: the values that carry from block to
 //! block of a series, and each cycle's moves.
 
 use crate::NcError;
@@ -19,18 +19,18 @@ struct Asked {
     bottom: f64,
     /// The dwell at the bottom (G82, s).
     dwell: f64,
-    /// The depth of each peck (G83).
+    /// The depth of each peck (G73, G83).
     peck: f64,
     /// How many times it runs (L).
     repeats: u32,
 }
 
-/// How far above the bottom of the last peck a G83 rapid returns (mm): LinuxCNC 2.9's
-/// `G83_RAPID_DELTA`, 0.010 inch.
+/// How far above the bottom of the last peck a G83 rapid returns, and how far G73 retracts to
+/// break the chip (mm): LinuxCNC 2.9's `G83_RAPID_DELTA` and `G73_RETRACTION`, 0.010 inch.
 const PECK_CLEARANCE_MM: f64 = 0.254;
 
 impl State<'_> {
-    /// A canned cycle (G81, G82, G83: `code`) at the block's position, as LinuxCNC's
+    /// A canned cycle (G73, G81, G82, G83, G85, G89: `code`) at the block's position, as LinuxCNC's
     /// `convert_cycle_xy` (and its other planes) makes it: up to the R plane if below it, over
     /// the hole, down to R, the cycle, back to the clearance level (R in G99, the series'
     /// starting height in G98); L times. Every move stops exactly at its end.
@@ -144,24 +144,32 @@ impl State<'_> {
                     go(self, out, [aa, bb, r], None);
                 }
             }
-            if code == 830 {
+            if matches!(code, 730 | 830) {
                 let mut depth = r - peck;
                 while depth > bottom {
                     if let Some(e) = full(out) {
                         return Err(e);
                     }
                     go(self, out, [aa, bb, depth], feed);
-                    go(self, out, [aa, bb, r], None);
+                    if code == 830 {
+                        // G83: out of the hole to R, then back down to just above the peck.
+                        go(self, out, [aa, bb, r], None);
+                    }
+                    // G73 breaks the chip with a short rapid up; G83 comes back down to here.
                     go(self, out, [aa, bb, depth + PECK_CLEARANCE_MM / unit], None);
                     depth -= peck;
                 }
             }
             go(self, out, [aa, bb, bottom], feed);
-            if code == 820 {
+            if matches!(code, 820 | 890) {
                 out.push(Block {
                     line,
                     action: Action::Dwell(dwell),
                 });
+            }
+            if matches!(code, 850 | 890) {
+                // A bore: out of the hole at the feed, to R.
+                go(self, out, [aa, bb, r], feed);
             }
             go(self, out, [aa, bb, clear], None);
         }
@@ -208,7 +216,7 @@ impl State<'_> {
         };
         let r_given = carried('R', self.cycle.r, "the retract plane")?;
         let bottom_given = carried(normal, self.cycle.bottom, "the bottom of the hole")?;
-        let dwell = if code == 820 {
+        let dwell = if matches!(code, 820 | 890) {
             let p = carried('P', self.cycle.dwell, "the dwell at the bottom in seconds")?;
             if !(0.0..=MAX_DWELL_S).contains(&p) {
                 return Err(at(
@@ -220,7 +228,7 @@ impl State<'_> {
         } else {
             self.cycle.dwell
         };
-        let peck = if code == 830 {
+        let peck = if matches!(code, 730 | 830) {
             let q = carried('Q', self.cycle.peck, "the depth of each peck")?;
             if q <= 0.0 {
                 return Err(at(

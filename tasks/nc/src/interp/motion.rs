@@ -1,4 +1,4 @@
-//! Motion: the motion mode (G0 G1 G2 G3, the canned cycles G81 G82 G83, G80's cancel), machine
+//! Motion: the motion mode (G0 G1 G2 G3, the canned cycles, G80's cancel), machine
 //! coordinates for one block (G53), and each move — a straight line, or an arc by its centre or
 //! radius, helical where the block moves the axis normal to its plane.
 
@@ -38,7 +38,7 @@ impl State<'_> {
         let at = |w: &Word, message: String| NcError::new(line, w.column, message);
         let get = |letter: char| words.get(letter);
         let motion_word = words.motion_word();
-        let cycle_now = matches!(self.motion_now(words), Some(810 | 820 | 830));
+        let cycle_now = self.motion_now(words).is_some_and(super::words::is_cycle);
         let axis_words = words.axis_words();
         // A length in machine units: mm for X Y Z, degrees for A B C.
         let unit = self.unit();

@@ -18,7 +18,7 @@ pub(super) struct State<'a> {
     pub(super) cost: Cost,
     /// The tool's position (machine world coordinates).
     pub(super) position: Pose,
-    /// The motion mode (G code in tenths: 0, 10, 20, 30, 810, 820, 830).
+    /// The motion mode (G code in tenths: 0, 10, 20, 30, or a canned cycle's: 730, 810 … 890).
     pub(super) motion: Option<u16>,
     pub(super) plane: Plane,
     pub(super) inches: bool,

@@ -173,7 +173,7 @@ fn what_the_subset_lacks_is_refused_with_line_column_and_reason() {
         ("G41 X1", "1:1: G41 is not supported (cutter compensation)"),
         (
             "G1 X1 F10\nG84 X1 Z-1 R1",
-            "2:1: G84 is not supported (canned cycles other than G81, G82, G83)",
+            "2:1: G84 is not supported (canned cycles other than G73, G81, G82, G83, G85, G89)",
         ),
         ("G43 H1", "1:1: G43 is not supported (tool length compensation)"),
         (
@@ -228,7 +228,7 @@ fn what_the_subset_lacks_is_refused_with_line_column_and_reason() {
         ),
         (
             "G1 X1 Q0.1 F100",
-            "1:7: Q belongs to G64 (merging lines within it) or G83 (the peck depth)",
+            "1:7: Q belongs to G64 (merging lines within it) or G73, G83 (the peck depth)",
         ),
         (
             "G64 P0.1 Q-1",
@@ -247,7 +247,7 @@ fn what_the_subset_lacks_is_refused_with_line_column_and_reason() {
         ("G4 P-1", "1:4: the dwell P must be zero or positive seconds, got -1"),
         (
             "G1 X1 P2 F1",
-            "1:7: P belongs to G4 (dwell), G64 (tolerance), an arc (turns) or G82 (dwell)",
+            "1:7: P belongs to G4 (dwell), G64 (tolerance), an arc (turns) or G82, G89 (dwell)",
         ),
         ("G1 X1 I2 F1", "1:7: I belongs to an arc (G2, G3)"),
         ("G2 X1 F1", "1:4: an arc needs its centre (I J) or its radius (R)"),
@@ -476,7 +476,7 @@ fn canned_cycles_make_linuxcncs_moves() {
         ),
         (
             "G1 X1 R2 F10",
-            "1:7: R belongs to an arc (G2, G3) or a canned cycle (G81 … G83)",
+            "1:7: R belongs to an arc (G2, G3) or a canned cycle (G73, G81 … G89)",
         ),
     ] {
         assert_eq!(refused(text), message, "{text}");
@@ -563,4 +563,38 @@ fn going_home_and_the_g92_variants_mean_what_linuxcnc_reads() {
     ] {
         assert_eq!(refused(text), why, "{text}");
     }
+}
+
+#[test]
+fn the_chip_breaking_peck_and_the_bores_move_as_linuxcnc_moves() {
+    let z = |blocks: &[Block]| -> Vec<(f64, bool)> {
+        moves(blocks)
+            .iter()
+            .map(|(to, _, feed)| ((to[2] * 1e4).round() / 1e4, feed.is_some()))
+            .collect()
+    };
+    // G73: each peck fed, then 0.254 mm up at a rapid; the last to the bottom; out at a rapid.
+    let blocks = run("G0 X1 Y1 Z5\nG73 Z-5 R2 Q2 F100");
+    assert_eq!(
+        z(&blocks),
+        [
+            (5.0, false),
+            (2.0, false),
+            (0.0, true),
+            (0.254, false),
+            (-2.0, true),
+            (-1.746, false),
+            (-4.0, true),
+            (-3.746, false),
+            (-5.0, true),
+            (2.0, false)
+        ]
+    );
+    // G89: in at the feed, the dwell, out at the feed to R, then (G98) up to where it started.
+    let blocks = run("G0 X1 Y1 Z5\nG98 G89 Z-5 R2 P0.5 F100");
+    assert_eq!(
+        z(&blocks),
+        [(5.0, false), (2.0, false), (-5.0, true), (2.0, true), (5.0, false)]
+    );
+    assert!(blocks.iter().any(|b| b.action == Action::Dwell(0.5)));
 }

@@ -138,11 +138,11 @@ impl<'b> Words<'b> {
         [280, 300, 520, 920].iter().any(|c| self.has_g(*c))
     }
 
-    /// The block's motion code (G0 G1 G2 G3 G81 G82 G83) with its word, if it has one.
+    /// The block's motion code (G0 G1 G2 G3, a canned cycle) with its word, if it has one.
     pub fn motion_word(&self) -> Option<(u16, &'b Word)> {
         self.g
             .iter()
-            .find(|(c, _)| matches!(c, 0 | 10 | 20 | 30 | 810 | 820 | 830))
+            .find(|(c, _)| matches!(c, 0 | 10 | 20 | 30) || is_cycle(*c))
             .map(|(c, w)| (*c, *w))
     }
 
@@ -179,21 +179,21 @@ impl<'b> Words<'b> {
         let line = self.line;
         let at = |w: &Word, message: String| NcError::new(line, w.column, message);
         let arc_now = matches!(motion, Some(20 | 30));
-        let cycle_now = matches!(motion, Some(810 | 820 | 830));
+        let cycle_now = motion.is_some_and(is_cycle);
         if let Some(w) = self.get('P')
-            && !(self.has_g(40) || self.has_g(640) || arc_now || motion == Some(820))
+            && !(self.has_g(40) || self.has_g(640) || arc_now || matches!(motion, Some(820 | 890)))
         {
             return Err(at(
                 w,
-                "P belongs to G4 (dwell), G64 (tolerance), an arc (turns) or G82 (dwell)".into(),
+                "P belongs to G4 (dwell), G64 (tolerance), an arc (turns) or G82, G89 (dwell)".into(),
             ));
         }
         if let Some(w) = self.get('Q')
-            && !(self.has_g(640) || motion == Some(830))
+            && !(self.has_g(640) || matches!(motion, Some(730 | 830)))
         {
             return Err(at(
                 w,
-                "Q belongs to G64 (merging lines within it) or G83 (the peck depth)".into(),
+                "Q belongs to G64 (merging lines within it) or G73, G83 (the peck depth)".into(),
             ));
         }
         for letter in ['I', 'J', 'K'] {
@@ -208,7 +208,7 @@ impl<'b> Words<'b> {
         {
             return Err(at(
                 w,
-                "R belongs to an arc (G2, G3) or a canned cycle (G81 … G83)".into(),
+                "R belongs to an arc (G2, G3) or a canned cycle (G73, G81 … G89)".into(),
             ));
         }
         if let Some(w) = self.get('L')
@@ -226,7 +226,8 @@ impl<'b> Words<'b> {
 /// The modal groups of the supported G codes (RS274NGC's numbering), for the one-per-group rule.
 pub(super) fn g_group(code: u16) -> Option<u8> {
     match code {
-        0 | 10 | 20 | 30 | 800 | 810 | 820 | 830 => Some(1),
+        0 | 10 | 20 | 30 | 800 => Some(1),
+        c if is_cycle(c) => Some(1),
         40 => Some(0),
         170 | 180 | 190 => Some(2),
         200 | 210 => Some(6),
@@ -245,6 +246,11 @@ pub(super) fn g_group(code: u16) -> Option<u8> {
     }
 }
 
+/// Whether G code `code` (tenths) is one of the canned cycles: G73, G81, G82, G83, G85, G89.
+pub(super) fn is_cycle(code: u16) -> bool {
+    matches!(code, 730 | 810 | 820 | 830 | 850 | 890)
+}
+
 /// Why a G code is not in the subset.
 pub(super) fn g_refusal(code: u16) -> String {
     let name = format_code('G', code);
@@ -257,7 +263,7 @@ pub(super) fn g_refusal(code: u16) -> String {
         382..=385 => "probing",
         400..=429 => "cutter compensation",
         430..=499 => "tool length compensation",
-        730..=899 => "canned cycles other than G81, G82, G83",
+        730..=899 => "canned cycles other than G73, G81, G82, G83, G85, G89",
         930 | 950 => "feed modes other than units per minute",
         960 | 970 => "spindle speed modes",
         _ => "",
