@@ -474,6 +474,8 @@ fn the_cam_dialect_gives_the_moves_linuxcnc_gives() {
         CANNED_CYCLES,
         "G0 Z5\nG18 G81 X-3 Y1 Z2 R4 F50\nX-6\nG80\nG0 Y5\nG19 G99 G82 X-2 Y1 Z-2 R3 P0.5\nM2\n",
         "G20 G0 Z1\nG83 X0.5 Z-0.3 R0.1 Q0.1 F4\nM2\n",
+        // G10 L2 and L20 on the system in force and on another.
+        "G10 L2 P2 X5 Y1\nG0 X1\nG55\nG0 X1\nG10 L20 P2 X0\nG0 X1\nG10 L2 P0 Z3\nG0 X0\nG54\nG0 X0\nG0 X3\nG10 L20 P1 X1\nG0 X0\nM2\n",
         // The chip-breaking peck, the bores with and without a dwell, in G98 and G99.
         "G0 Z5\nG73 X1 Y1 Z-5 R2 Q2 F100\nX3 Q1.5\nG98 G85 X4 Y2 Z-3 R1\nG99 G89 X5 Z-2 R1 P0.5\nG80\nG0 X0\nM2\n",
         // Going home: G28 through a point, the stored position of G28.1, G30 for one axis, and

@@ -1,4 +1,5 @@
-//! Where program coordinates are: the work coordinate systems' origins with G92's offset on top;
+//! Where program coordinates are: the work coordinate systems' origins (G10 L2 and L20 set them)
+//! with G92's offset on top;
 //! G92 (the tool's position reads as the given values from now on), G92.1, G92.2, G92.3 and G52
 //! (which set that offset as LinuxCNC does: G52 shares it); and going home by G28 and G30 to the
 //! positions G28.1 and G30.1 store.
@@ -19,7 +20,7 @@ impl State<'_> {
         let line = words.line;
         let at = |w: &Word, message: String| NcError::new(line, w.column, message);
         let axis_words = words.axis_words();
-        let taker = words.g.iter().find(|(c, _)| matches!(c, 280 | 300 | 520 | 920));
+        let taker = words.g.iter().find(|(c, _)| matches!(c, 100 | 280 | 300 | 520 | 920));
         if let (Some((taker, _)), Some((code, w)), false) = (taker, words.motion_word(), axis_words.is_empty()) {
             return Err(at(
                 w,
@@ -48,7 +49,7 @@ impl State<'_> {
         }
         if words.has_g(920) {
             // The tool's position reads as the given values from now on.
-            let work = self.machine.work_offsets[self.system];
+            let work = self.work[self.system];
             for (c, w) in &axis_words {
                 self.g92[*c] = self.position[*c] - work[*c] - w.value * scale(*c);
             }
@@ -68,6 +69,64 @@ impl State<'_> {
         }
         if words.has_g(923) {
             self.g92 = self.g92_kept;
+        }
+        Ok(())
+    }
+
+    /// G10 L2 and L20: a work coordinate system's origin (P1 … P6 for G54 … G59, P0 the one in
+    /// force) set for the axes named — L2 to the machine coordinates given, L20 so that the
+    /// tool's position reads as the values given. Other tables (L1, L10, L11: tools) are refused.
+    pub(super) fn set_coordinate_system(&mut self, words: &Words<'_>) -> Result<(), NcError> {
+        let Some(g10) = words.g_word(100) else {
+            return Ok(());
+        };
+        let line = words.line;
+        let at = |w: &Word, message: String| NcError::new(line, w.column, message);
+        let l = words
+            .get('L')
+            .ok_or_else(|| at(g10, "G10 needs L: L2 or L20 (a work coordinate system)".into()))?;
+        if l.value != 2.0 && l.value != 20.0 {
+            let what = if matches!(l.value as i64, 1 | 10 | 11) && l.value.fract() == 0.0 {
+                " (the tool table)"
+            } else {
+                ""
+            };
+            return Err(at(
+                l,
+                format!(
+                    "G10 L{} is not supported{what}: L2 and L20 set a work coordinate system",
+                    l.value
+                ),
+            ));
+        }
+        let p = words.get('P').ok_or_else(|| {
+            at(
+                g10,
+                "G10 L2 and L20 need P: the coordinate system (1 … 6 for G54 … G59, 0 the one in force)".into(),
+            )
+        })?;
+        let system = match p.value {
+            0.0 => self.system,
+            v if v.fract() == 0.0 && (1.0..=6.0).contains(&v) => v as usize - 1,
+            v => {
+                return Err(at(
+                    p,
+                    format!("P is the coordinate system, 1 … 6 for G54 … G59 or 0 for the one in force; got {v}"),
+                ));
+            }
+        };
+        if let Some(r) = words.get('R') {
+            return Err(at(r, "R (a coordinate system's rotation) is not supported".into()));
+        }
+        let unit = self.unit();
+        let scale = |c: usize| if c < 3 { unit } else { 1.0 };
+        for (c, w) in words.axis_words() {
+            let v = w.value * scale(c);
+            self.work[system][c] = if l.value == 2.0 {
+                v
+            } else {
+                self.position[c] - self.g92[c] - v
+            };
         }
         Ok(())
     }
@@ -136,7 +195,7 @@ impl State<'_> {
 
     /// The offset from program to machine coordinates now.
     pub(super) fn offset(&self) -> Pose {
-        let w = self.machine.work_offsets[self.system];
+        let w = self.work[self.system];
         std::array::from_fn(|c| w[c] + self.g92[c])
     }
 

@@ -27,6 +27,9 @@ pub(super) struct State<'a> {
     pub(super) system: usize,
     /// G92's offset.
     pub(super) g92: Pose,
+    /// The work coordinate systems' origins G54 … G59 (machine coordinates): the machine's, as
+    /// G10 L2 and L20 change them.
+    pub(super) work: [Pose; 6],
     /// G92's offset as its parameters (#5211 …) keep it: G92.2 suspends the offset, G92.3 brings
     /// it back from here.
     pub(super) g92_kept: Pose,
@@ -75,7 +78,7 @@ impl flow::System for State<'_> {
             // G54 … G59's origins, 20 parameters per system (X Y Z A B C first).
             5221..=5326 if (index - 5221) % 20 < 6 => {
                 let (system, c) = ((index - 5221) / 20, (index - 5221) % 20);
-                Some(self.machine.work_offsets[system][c] / self.scale(c))
+                Some(self.work[system][c] / self.scale(c))
             }
             // The tool's position in the coordinate system in force.
             5420..=5425 => Some(position[index - 5420]),
@@ -124,6 +127,7 @@ impl<'a> State<'a> {
             incremental: false,
             system: 0,
             g92: [0.0; 6],
+            work: machine.work_offsets,
             g92_kept: [0.0; 6],
             stored: [[0.0; 6]; 2],
             feed_mm_min: None,
@@ -160,6 +164,7 @@ impl<'a> State<'a> {
         words.check_owners(self.motion_now(&words))?;
         self.dwell(&words, out)?;
         self.modes(&words)?;
+        self.set_coordinate_system(&words)?;
         self.set_origin(&words)?;
         self.go_home(&words, out)?;
         self.motion(&words, out)

@@ -193,8 +193,8 @@ fn what_the_subset_lacks_is_refused_with_line_column_and_reason() {
         ("M100", "1:1: M100 is not supported (user-defined M codes)"),
         ("G1 U1", "1:4: U: axes U V W are not supported"),
         (
-            "G10 L2 P1 X0",
-            "1:1: G10 is not supported (G10/G11 (tables, retraction))",
+            "G10 L1 P1 Z0",
+            "1:5: G10 L1 is not supported (the tool table): L2 and L20 set a work coordinate system",
         ),
         (
             "G0 G1 X1",
@@ -247,7 +247,7 @@ fn what_the_subset_lacks_is_refused_with_line_column_and_reason() {
         ("G4 P-1", "1:4: the dwell P must be zero or positive seconds, got -1"),
         (
             "G1 X1 P2 F1",
-            "1:7: P belongs to G4 (dwell), G64 (tolerance), an arc (turns) or G82, G89 (dwell)",
+            "1:7: P belongs to G4 (dwell), G10 (the coordinate system), G64 (tolerance), an arc (turns) or G82, G89 (dwell)",
         ),
         ("G1 X1 I2 F1", "1:7: I belongs to an arc (G2, G3)"),
         ("G2 X1 F1", "1:4: an arc needs its centre (I J) or its radius (R)"),
@@ -472,7 +472,7 @@ fn canned_cycles_make_linuxcncs_moves() {
         ("G81 X1 Z-1 R1", "1:5: no feed rate: an F word is needed before G81"),
         (
             "G1 X1 L2 F10",
-            "1:7: L belongs to a canned cycle (its repeats); G10 tables are not supported",
+            "1:7: L belongs to a canned cycle (its repeats) or G10 (L2, L20)",
         ),
         (
             "G1 X1 R2 F10",
@@ -597,4 +597,31 @@ fn the_chip_breaking_peck_and_the_bores_move_as_linuxcnc_moves() {
         [(5.0, false), (2.0, false), (-5.0, true), (2.0, true), (5.0, false)]
     );
     assert!(blocks.iter().any(|b| b.action == Action::Dwell(0.5)));
+}
+
+#[test]
+fn g10_sets_a_work_coordinate_system_as_linuxcnc_does() {
+    // L2: G55's origin at X5 Y1; L20: G55 moved so that the tool reads X0 where it stands.
+    let blocks = run("G10 L2 P2 X5 Y1\nG55 G0 X1\nG10 L20 P2 X0\nG0 X1\nG1 X#5241 Y#5242 F100");
+    let to: Vec<Pose> = moves(&blocks).iter().map(|m| m.0).collect();
+    assert_eq!(to[0], [6.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+    assert_eq!(to[1], [7.0, 0.0, 0.0, 0.0, 0.0, 0.0], "G55's X origin at 6 now");
+    assert_eq!(to[2], [12.0, 2.0, 0.0, 0.0, 0.0, 0.0], "#5241, #5242: G55's origin");
+    for (text, why) in [
+        (
+            "G10 L2 X1",
+            "1:1: G10 L2 and L20 need P: the coordinate system (1 … 6 for G54 … G59, 0 the one in force)",
+        ),
+        (
+            "G10 L2 P7 X1",
+            "1:8: P is the coordinate system, 1 … 6 for G54 … G59 or 0 for the one in force; got 7",
+        ),
+        (
+            "G10 L2 P1 R30",
+            "1:11: R (a coordinate system's rotation) is not supported",
+        ),
+        ("G10 P1 X1", "1:1: G10 needs L: L2 or L20 (a work coordinate system)"),
+    ] {
+        assert_eq!(refused(text), why, "{text}");
+    }
 }

@@ -132,10 +132,10 @@ impl<'b> Words<'b> {
         self.g.iter().find(|(c, _)| *c == code).map(|(_, w)| *w)
     }
 
-    /// Whether a non-modal code takes the block's axis words (G28, G30, G52, G92), so that the
+    /// Whether a non-modal code takes the block's axis words (G10, G28, G30, G52, G92), so that the
     /// motion mode makes no move with them.
     pub fn uses_axis_words(&self) -> bool {
-        [280, 300, 520, 920].iter().any(|c| self.has_g(*c))
+        [100, 280, 300, 520, 920].iter().any(|c| self.has_g(*c))
     }
 
     /// The block's motion code (G0 G1 G2 G3, a canned cycle) with its word, if it has one.
@@ -173,7 +173,8 @@ impl<'b> Words<'b> {
     }
 
     /// Refuses a value that does not belong to what the block does: P to G4, G64, an arc or G82;
-    /// Q to G64 or G83; I, J, K to an arc; R to an arc or a canned cycle, L to a canned cycle.
+    /// Q to G64 or G83; I, J, K to an arc; R to an arc or a canned cycle, L to a canned cycle or
+    /// G10.
     /// `motion` is the motion the block makes, if any.
     pub fn check_owners(&self, motion: Option<u16>) -> Result<(), NcError> {
         let line = self.line;
@@ -181,11 +182,12 @@ impl<'b> Words<'b> {
         let arc_now = matches!(motion, Some(20 | 30));
         let cycle_now = motion.is_some_and(is_cycle);
         if let Some(w) = self.get('P')
-            && !(self.has_g(40) || self.has_g(640) || arc_now || matches!(motion, Some(820 | 890)))
+            && !(self.has_g(40) || self.has_g(100) || self.has_g(640) || arc_now || matches!(motion, Some(820 | 890)))
         {
             return Err(at(
                 w,
-                "P belongs to G4 (dwell), G64 (tolerance), an arc (turns) or G82, G89 (dwell)".into(),
+                "P belongs to G4 (dwell), G10 (the coordinate system), G64 (tolerance), an arc (turns) or G82, G89 (dwell)"
+                    .into(),
             ));
         }
         if let Some(w) = self.get('Q')
@@ -203,8 +205,9 @@ impl<'b> Words<'b> {
                 return Err(at(w, format!("{letter} belongs to an arc (G2, G3)")));
             }
         }
+        // With G10, R (a rotation) is refused there, with its reason.
         if let Some(w) = self.get('R')
-            && !(arc_now || cycle_now)
+            && !(arc_now || cycle_now || self.has_g(100))
         {
             return Err(at(
                 w,
@@ -212,11 +215,11 @@ impl<'b> Words<'b> {
             ));
         }
         if let Some(w) = self.get('L')
-            && !cycle_now
+            && !(cycle_now || self.has_g(100))
         {
             return Err(at(
                 w,
-                "L belongs to a canned cycle (its repeats); G10 tables are not supported".into(),
+                "L belongs to a canned cycle (its repeats) or G10 (L2, L20)".into(),
             ));
         }
         Ok(())
@@ -233,7 +236,7 @@ pub(super) fn g_group(code: u16) -> Option<u8> {
         200 | 210 => Some(6),
         530 => Some(0),
         // Going home, storing a home, and G52/G92's offset: non-modal, one of them a block.
-        280 | 281 | 300 | 301 | 520 | 920 | 921 | 922 | 923 => Some(14),
+        100 | 280 | 281 | 300 | 301 | 520 | 920 | 921 | 922 | 923 => Some(14),
         540..=590 => Some(12),
         610 | 611 | 640 => Some(13),
         900 | 910 => Some(3),
@@ -257,7 +260,7 @@ pub(super) fn g_refusal(code: u16) -> String {
     let why = match code {
         50..=52 | 70 | 80 => "lathe and spline modes",
         500 | 510 => "scaling",
-        100 | 110 => "G10/G11 (tables, retraction)",
+        110 => "G11 (retraction)",
         282..=299 | 302..=309 => "G28 and G30 variants other than G28.1, G30.1",
         330 | 331 | 760 => "threading",
         382..=385 => "probing",
