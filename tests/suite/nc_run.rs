@@ -237,6 +237,53 @@ fn m0_pauses_until_resumed_and_m3_m5_drive_the_spindle() {
 }
 
 #[test]
+fn m7_m8_m9_switch_the_coolant_while_the_program_runs_and_stop_turns_it_off() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let program = write_program(dir.path(), "M8\nG1 X5 F600\nM7\nG1 X10\nM9\nG1 X5\nM8\nG1 X0\nM2\n");
+    // The program starts at O-X's READY (11.65 s); STOP while the last move runs.
+    let mut plc = build("ox-x", &program, "[]");
+    let mut log: Vec<(i16, bool, bool)> = Vec::new();
+    transitions(&mut plc, 30_000, |plc, _| {
+        let entry = (
+            get(plc, vars::NC_STATE),
+            get(plc, vars::COOLANT_MIST),
+            get(plc, vars::COOLANT_FLOOD),
+        );
+        if log.last() != Some(&entry) {
+            log.push(entry);
+        }
+    });
+    let mut coolant: Vec<(bool, bool)> = log.iter().map(|e| (e.1, e.2)).collect();
+    coolant.dedup();
+    assert_eq!(
+        coolant,
+        [
+            (false, false),
+            (false, true),
+            (true, true),
+            (false, false),
+            (false, true),
+            (false, false)
+        ],
+        "flood, mist too, off, flood, and off at the end: {log:?}"
+    );
+    assert!(get(&plc, vars::NC_COMPLETED));
+    // STOP while a slow move runs with the flood on: ERROR, and the coolant off with it.
+    let program = write_program(dir.path(), "M8\nG1 X5 F60\nG0 X0\nM2\n");
+    let events = r#"[{"at_ms": 14000, "input": "BUTTON_STOP", "value": true}]"#;
+    let mut plc = build("ox-x", &program, events);
+    let (mut flooded, mut flooded_in_error) = (false, false);
+    let seen = transitions(&mut plc, 16_000, |plc, _| {
+        let on = get(plc, vars::COOLANT_FLOOD);
+        flooded |= on;
+        flooded_in_error |= on && plc.app_status().is_some_and(|s| s.state == "ERROR");
+    });
+    assert!(seen.iter().any(|(_, s, _)| s == "ERROR"), "{seen:?}");
+    assert!(flooded, "the flood ran before the STOP");
+    assert!(!flooded_in_error, "no coolant in ERROR");
+}
+
+#[test]
 fn a_start_away_from_the_programs_start_is_refused_with_a_note() {
     let dir = tempfile::tempdir().expect("tempdir");
     let program = write_program(dir.path(), "G1 X5 F600\nG0 X0\nM2\n");

@@ -49,6 +49,10 @@ pub mod vars {
     pub const SPINDLE_REVERSE: Var<bool> = Var::new("SPINDLE_REVERSE");
     /// The programmed spindle speed (rpm; 0 when off).
     pub const SPINDLE_RPM: Var<f64> = Var::new("SPINDLE_RPM");
+    /// Mist coolant on (M7, until M9).
+    pub const COOLANT_MIST: Var<bool> = Var::new("COOLANT_MIST");
+    /// Flood coolant on (M8, until M9).
+    pub const COOLANT_FLOOD: Var<bool> = Var::new("COOLANT_FLOOD");
     /// The contour error now: the distance from the measured tool point to the programmed path
     /// (mm), measured on feed moves (G1, G2, G3; not on rapids).
     pub const NC_CONTOUR_ERROR: Var<f64> = Var::new("NC_CONTOUR_ERROR");
@@ -129,6 +133,13 @@ pub struct TrajectorySample {
 pub enum TrajectoryEventKind {
     /// M0, or M1 (the optional stop): wait for a resume.
     Pause,
+    /// M7, M8, M9: the coolant as it is from here on.
+    Coolant {
+        /// Mist (M7).
+        mist: bool,
+        /// Flood (M8).
+        flood: bool,
+    },
     /// M3 (1), M4 (−1), M5 (0) with the programmed speed (rpm).
     Spindle {
         /// 1 clockwise, −1 counter-clockwise, 0 off.

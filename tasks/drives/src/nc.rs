@@ -150,6 +150,8 @@ pub struct Executor {
     next_event: usize,
     spindle: i8,
     rpm: f64,
+    /// The coolant (M7, M8; M9 off): mist, flood.
+    coolant: (bool, bool),
     /// The executing line, kept at an event's.
     line: u32,
     /// Standing at an M0 (paused, or held after it): its line is the one executing.
@@ -183,6 +185,7 @@ impl Executor {
             next_event: 0,
             spindle: 0,
             rpm: 0.0,
+            coolant: (false, false),
             line: current.line,
             at_pause: false,
             fault: false,
@@ -227,6 +230,11 @@ impl Executor {
     /// The spindle: direction (1, −1, 0) and speed (rpm).
     pub fn spindle(&self) -> (i8, f64) {
         (self.spindle, self.rpm)
+    }
+
+    /// The coolant as the program has it: mist (M7), flood (M8).
+    pub fn coolant(&self) -> (bool, bool) {
+        self.coolant
     }
 
     /// The trajectory.
@@ -308,6 +316,7 @@ impl Executor {
                 self.state = RunState::Idle;
                 self.spindle = 0;
                 self.rpm = 0.0;
+                self.coolant = (false, false);
             }
             (Command::Run, RunState::Idle) => {
                 self.state = RunState::Running;
@@ -347,6 +356,10 @@ impl Executor {
                 TrajectoryEventKind::Spindle { direction, rpm } => {
                     self.spindle = direction;
                     self.rpm = if direction == 0 { 0.0 } else { rpm };
+                    self.next_event += 1;
+                }
+                TrajectoryEventKind::Coolant { mist, flood } => {
+                    self.coolant = (mist, flood);
                     self.next_event += 1;
                 }
                 TrajectoryEventKind::Pause => {
@@ -595,6 +608,8 @@ pub struct NcChannel {
     spindle_on: Output<bool>,
     spindle_reverse: Output<bool>,
     spindle_rpm: Output<f64>,
+    coolant_mist: Output<bool>,
+    coolant_flood: Output<bool>,
     contour: Output<f64>,
     contour_max: Output<f64>,
     contour_rms: Output<f64>,
@@ -642,6 +657,8 @@ impl NcChannel {
             spindle_on: decl.write(vars::SPINDLE_ON, false),
             spindle_reverse: decl.write(vars::SPINDLE_REVERSE, false),
             spindle_rpm: decl.write(vars::SPINDLE_RPM, 0.0),
+            coolant_mist: decl.write(vars::COOLANT_MIST, false),
+            coolant_flood: decl.write(vars::COOLANT_FLOOD, false),
             contour: decl.write(vars::NC_CONTOUR_ERROR, 0.0),
             contour_max: decl.write(vars::NC_CONTOUR_MAX, 0.0),
             contour_rms: decl.write(vars::NC_CONTOUR_RMS, 0.0),
@@ -731,6 +748,11 @@ impl NcChannel {
         ctx.set(self.spindle_on, turning);
         ctx.set(self.spindle_reverse, turning && direction < 0);
         ctx.set(self.spindle_rpm, if turning { rpm } else { 0.0 });
+        // The coolant too: on only while the program runs and the drives may move.
+        let (mist, flood) = self.executor.coolant();
+        let flows = auto && !interlock;
+        ctx.set(self.coolant_mist, flows && mist);
+        ctx.set(self.coolant_flood, flows && flood);
         if !auto || state == RunState::Idle {
             return None;
         }

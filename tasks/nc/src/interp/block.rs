@@ -124,6 +124,13 @@ pub enum Action {
         /// The speed (rpm).
         speed_rpm: f64,
     },
+    /// M7, M8, M9: the coolant as it is from here on.
+    Coolant {
+        /// Mist (M7).
+        mist: bool,
+        /// Flood (M8).
+        flood: bool,
+    },
     /// M2/M30: the end of the program.
     End,
 }

@@ -1,5 +1,5 @@
 //! The modal settings a block changes, each group as LinuxCNC converts it: feed and spindle speed
-//! (F, S), the spindle (M3 M4 M5), the dwell (G4), the plane (G17 G18 G19), the units (G20 G21),
+//! (F, S), the spindle (M3 M4 M5), the coolant (M7 M8 M9), the dwell (G4), the plane (G17 G18 G19), the units (G20 G21),
 //! the work coordinate system (G54 … G59), path control (G61 G64), the distance modes (G90 G91,
 //! G90.1 G91.1), the canned cycles' retract (G98 G99), and the program stops (M0 M1 M2 M30).
 
@@ -70,6 +70,24 @@ impl State<'_> {
                 },
             });
         }
+    }
+
+    /// Switches the coolant: M7 mist on, M8 flood on, M9 both off.
+    pub(super) fn coolant(&mut self, words: &Words<'_>, out: &mut Vec<Block>) {
+        let (mut mist, mut flood) = self.coolant;
+        for (code, _) in &words.m {
+            match code {
+                70 => mist = true,
+                80 => flood = true,
+                90 => (mist, flood) = (false, false),
+                _ => continue,
+            }
+            out.push(Block {
+                line: words.line,
+                action: Action::Coolant { mist, flood },
+            });
+        }
+        self.coolant = (mist, flood);
     }
 
     /// Dwells (G4 P seconds).

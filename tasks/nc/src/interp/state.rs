@@ -38,6 +38,8 @@ pub(super) struct State<'a> {
     pub(super) stored: [Pose; 2],
     pub(super) feed_mm_min: Option<f64>,
     pub(super) speed_rpm: f64,
+    /// The coolant: mist (M7), flood (M8); M9 turns both off.
+    pub(super) coolant: (bool, bool),
     pub(super) blend: Blend,
     /// G90.1: an arc's I J K are absolute program coordinates (G91.1, the default: offsets from
     /// its start).
@@ -132,6 +134,7 @@ impl<'a> State<'a> {
             stored: [[0.0; 6]; 2],
             feed_mm_min: None,
             speed_rpm: 0.0,
+            coolant: (false, false),
             arc_absolute: false,
             retract_to_r: true,
             cycle: Cycle::default(),
@@ -161,6 +164,7 @@ impl<'a> State<'a> {
         words.check_axes(self.machine)?;
         self.feed_and_speed(&words)?;
         self.spindle(&words, out);
+        self.coolant(&words, out);
         words.check_owners(self.motion_now(&words))?;
         self.dwell(&words, out)?;
         self.modes(&words)?;

@@ -188,7 +188,10 @@ fn what_the_subset_lacks_is_refused_with_line_column_and_reason() {
         ("G1.5", "1:1: G1.5 is not supported"),
         ("T1 M6", "1:1: tool selection (T) is not supported"),
         ("M6", "1:1: M6 is not supported (tool changes)"),
-        ("M8", "1:1: M8 is not supported (coolant)"),
+        (
+            "M7 M8",
+            "1:4: M7 and M8 are in one modal group: a block holds one of them",
+        ),
         ("M98 P10", "1:1: M98 is not supported (subprograms, user codes)"),
         ("M100", "1:1: M100 is not supported (user-defined M codes)"),
         ("G1 U1", "1:4: U: axes U V W are not supported"),
@@ -624,4 +627,17 @@ fn g10_sets_a_work_coordinate_system_as_linuxcnc_does() {
     ] {
         assert_eq!(refused(text), why, "{text}");
     }
+}
+
+#[test]
+fn m7_m8_m9_switch_the_coolant() {
+    let blocks = run("M8\nG0 X1\nM7\nM9");
+    let coolant: Vec<(bool, bool)> = blocks
+        .iter()
+        .filter_map(|b| match b.action {
+            Action::Coolant { mist, flood } => Some((mist, flood)),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(coolant, [(false, true), (true, true), (false, false)]);
 }

@@ -56,13 +56,11 @@ impl<'b> Words<'b> {
                         }
                         g.push((code, w));
                     } else {
-                        let group = match code {
-                            0 | 10 | 20 | 300 => 4,
-                            30 | 40 | 50 => 7,
-                            _ => {
+                        let group = match m_group(code) {
+                            Some(group) => group,
+                            None => {
                                 let why = match code {
                                     60 => " (tool changes)",
-                                    70..=90 => " (coolant)",
                                     480..=530 => " (overrides)",
                                     600..=990 => " (subprograms, user codes)",
                                     1000..=1999 => " (user-defined M codes)",
@@ -71,10 +69,7 @@ impl<'b> Words<'b> {
                                 return Err(at(w, format!("{} is not supported{why}", format_code('M', code))));
                             }
                         };
-                        if let Some((other, _)) = m.iter().find(|(c, _)| {
-                            let og = if matches!(c, 0 | 10 | 20 | 300) { 4 } else { 7 };
-                            og == group
-                        }) {
+                        if let Some((other, _)) = m.iter().find(|(c, _)| m_group(*c) == Some(group)) {
                             return Err(at(
                                 w,
                                 format!(
@@ -245,6 +240,17 @@ pub(super) fn g_group(code: u16) -> Option<u8> {
         400 => Some(7),
         490 => Some(8),
         980 | 990 => Some(10),
+        _ => None,
+    }
+}
+
+/// The modal groups of the supported M codes (RS274NGC's numbering): stops, the spindle, the
+/// coolant.
+fn m_group(code: u16) -> Option<u8> {
+    match code {
+        0 | 10 | 20 | 300 => Some(4),
+        30 | 40 | 50 => Some(7),
+        70 | 80 | 90 => Some(8),
         _ => None,
     }
 }

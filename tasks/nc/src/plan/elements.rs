@@ -137,7 +137,7 @@ pub(super) fn elements_and_events(program: &Program) -> (Vec<Element>, f64, Vec<
                     None => initial_dwell += s,
                 }
             }
-            Action::Pause { .. } | Action::Spindle { .. } | Action::End => {
+            Action::Pause { .. } | Action::Spindle { .. } | Action::Coolant { .. } | Action::End => {
                 if let Some(e) = out.last_mut() {
                     e.stop_after = true;
                 }
@@ -150,6 +150,7 @@ pub(super) fn elements_and_events(program: &Program) -> (Vec<Element>, f64, Vec<
                         },
                         rpm: if direction == Spindle::Off { 0.0 } else { speed_rpm },
                     }),
+                    Action::Coolant { mist, flood } => Some(TrajectoryEventKind::Coolant { mist, flood }),
                     // M1 stops as M0 does: the optional-stop switch is taken as on, as
                     // LinuxCNC's is by default.
                     Action::Pause { .. } => Some(TrajectoryEventKind::Pause),
