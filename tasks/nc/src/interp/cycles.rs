@@ -4,7 +4,7 @@
 use crate::NcError;
 use crate::lexer::Word;
 
-use super::block::{AXES, Action, Blend, Block, MAX_DWELL_S, Path};
+use super::block::{AXES, Action, Blend, Block, MAX_DWELL_S};
 use super::modes::stops;
 use super::state::{Cycle, State};
 use super::words::{count, format_code};
@@ -88,22 +88,8 @@ impl State<'_> {
         let feed = Some(feed);
         let mut go = |this: &mut Self, out: &mut Vec<Block>, point: [f64; 3], feed: Option<f64>| {
             (p[a0], p[a1], p[n]) = (point[0], point[1], point[2]);
-            let to = this.machine_position(&p);
-            // LinuxCNC writes moves that go nowhere (over the hole when the tool is there
-            // already); they change nothing.
-            if to != this.position {
-                out.push(Block {
-                    line,
-                    action: Action::Move {
-                        from: this.position,
-                        to,
-                        path: Path::Line,
-                        feed_mm_min: feed,
-                        blend: Blend::ExactStop,
-                    },
-                });
-                this.position = to;
-            }
+            // Over the hole when the tool is there already, a move goes nowhere: none is made.
+            this.line_to(line, this.machine_position(&p), feed, Blend::ExactStop, out);
         };
         // Below the R plane: straight up to it first.
         if old < r {

@@ -40,9 +40,6 @@ impl State<'_> {
         let motion_word = words.motion_word();
         let cycle_now = self.motion_now(words).is_some_and(super::words::is_cycle);
         let axis_words = words.axis_words();
-        // A length in machine units: mm for X Y Z, degrees for A B C.
-        let unit = self.unit();
-        let scale = |c: usize| if c < 3 { unit } else { 1.0 };
         let machine_coords = words.has_g(530);
         if words.has_g(800) {
             // G80 (canned cycle cancel) sets no motion mode; CAM programs write it in their
@@ -102,18 +99,7 @@ impl State<'_> {
                     "an axis word needs a motion mode: G0, G1, G2 or G3 first".into(),
                 ));
             };
-            let offset = self.offset();
-            let mut to = self.position;
-            for (c, w) in &axis_words {
-                let v = w.value * scale(*c);
-                to[*c] = if machine_coords {
-                    v
-                } else if self.incremental {
-                    self.position[*c] + v
-                } else {
-                    v + offset[*c]
-                };
-            }
+            let to = self.target(&axis_words, machine_coords);
             let first = axis_words
                 .first()
                 .map_or_else(|| motion_word.map(|(_, w)| w).unwrap_or(words.first), |(_, w)| *w);

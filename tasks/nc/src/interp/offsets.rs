@@ -7,7 +7,7 @@
 use crate::NcError;
 use crate::lexer::Word;
 
-use super::block::{Action, Block, Path, Pose};
+use super::block::{Action, Blend, Block, Path, Pose};
 use super::state::State;
 use super::words::{Words, format_code};
 
@@ -20,20 +20,18 @@ impl State<'_> {
         let line = words.line;
         let at = |w: &Word, message: String| NcError::new(line, w.column, message);
         let axis_words = words.axis_words();
-        let taker = words.g.iter().find(|(c, _)| matches!(c, 100 | 280 | 300 | 520 | 920));
-        if let (Some((taker, _)), Some((code, w)), false) = (taker, words.motion_word(), axis_words.is_empty()) {
+        if let (Some(taker), Some((code, w)), false) =
+            (words.axis_word_taker(), words.motion_word(), axis_words.is_empty())
+        {
             return Err(at(
                 w,
                 format!(
                     "{} and {} both use the block's axis words: a block holds one of them",
                     format_code('G', code),
-                    format_code('G', *taker)
+                    format_code('G', taker)
                 ),
             ));
         }
-        // A length in machine units: mm for X Y Z, degrees for A B C.
-        let unit = self.unit();
-        let scale = |c: usize| if c < 3 { unit } else { 1.0 };
         for (code, needs) in [
             (920, "the program coordinates the tool is at"),
             (520, "the offset of the local coordinate system"),
@@ -51,13 +49,13 @@ impl State<'_> {
             // The tool's position reads as the given values from now on.
             let work = self.work[self.system];
             for (c, w) in &axis_words {
-                self.g92[*c] = self.position[*c] - work[*c] - w.value * scale(*c);
+                self.g92[*c] = self.position[*c] - work[*c] - w.value * self.scale(*c);
             }
             self.g92_kept = self.g92;
         }
         if words.has_g(520) {
             for (c, w) in &axis_words {
-                self.g92[*c] = w.value * scale(*c);
+                self.g92[*c] = w.value * self.scale(*c);
             }
             self.g92_kept = self.g92;
         }
@@ -118,10 +116,8 @@ impl State<'_> {
         if let Some(r) = words.get('R') {
             return Err(at(r, "R (a coordinate system's rotation) is not supported".into()));
         }
-        let unit = self.unit();
-        let scale = |c: usize| if c < 3 { unit } else { 1.0 };
         for (c, w) in words.axis_words() {
-            let v = w.value * scale(c);
+            let v = w.value * self.scale(c);
             self.work[system][c] = if l.value == 2.0 {
                 v
             } else {
@@ -155,18 +151,7 @@ impl State<'_> {
         let Some(k) = [280u16, 300].iter().position(|c| words.has_g(*c)) else {
             return Ok(());
         };
-        let unit = self.unit();
-        let scale = |c: usize| if c < 3 { unit } else { 1.0 };
-        let offset = self.offset();
-        let mut via = self.position;
-        for (c, w) in &axis_words {
-            let v = w.value * scale(*c);
-            via[*c] = if self.incremental {
-                self.position[*c] + v
-            } else {
-                v + offset[*c]
-            };
-        }
+        let via = self.target(&axis_words, false);
         let home: Pose = std::array::from_fn(|c| {
             if axis_words.is_empty() || axis_words.iter().any(|(a, _)| *a == c) {
                 self.stored[k][c]
@@ -175,22 +160,48 @@ impl State<'_> {
             }
         });
         for to in [via, home] {
-            if to != self.position {
-                out.push(Block {
-                    line,
-                    action: Action::Move {
-                        from: self.position,
-                        to,
-                        path: Path::Line,
-                        feed_mm_min: None,
-                        blend: self.blend,
-                    },
-                });
-                self.position = to;
-            }
+            self.line_to(line, to, None, self.blend, out);
         }
         self.cycle_initial = None;
         Ok(())
+    }
+
+    /// Where the block's axis words put the tool (machine coordinates): at the machine
+    /// coordinates they give (G53, `machine_coords`), that far from where it is (G91), or there
+    /// in program coordinates; the other axes stay.
+    pub(super) fn target(&self, axis_words: &[(usize, &Word)], machine_coords: bool) -> Pose {
+        let offset = self.offset();
+        let mut to = self.position;
+        for (c, w) in axis_words {
+            let v = w.value * self.scale(*c);
+            to[*c] = if machine_coords {
+                v
+            } else if self.incremental {
+                self.position[*c] + v
+            } else {
+                v + offset[*c]
+            };
+        }
+        to
+    }
+
+    /// A straight move of line `line` to `to` at `feed` (`None`: a rapid), ending as `blend`
+    /// says; none where the tool is there already (LinuxCNC writes such moves, and they change
+    /// nothing).
+    pub(super) fn line_to(&mut self, line: usize, to: Pose, feed: Option<f64>, blend: Blend, out: &mut Vec<Block>) {
+        if to != self.position {
+            out.push(Block {
+                line,
+                action: Action::Move {
+                    from: self.position,
+                    to,
+                    path: Path::Line,
+                    feed_mm_min: feed,
+                    blend,
+                },
+            });
+            self.position = to;
+        }
     }
 
     /// The offset from program to machine coordinates now.

@@ -130,7 +130,15 @@ impl<'b> Words<'b> {
     /// Whether a non-modal code takes the block's axis words (G10, G28, G30, G52, G92), so that the
     /// motion mode makes no move with them.
     pub fn uses_axis_words(&self) -> bool {
-        [100, 280, 300, 520, 920].iter().any(|c| self.has_g(*c))
+        self.axis_word_taker().is_some()
+    }
+
+    /// The non-modal code that takes the block's axis words (G10, G28, G30, G52, G92), if any.
+    pub fn axis_word_taker(&self) -> Option<u16> {
+        self.g
+            .iter()
+            .map(|(c, _)| *c)
+            .find(|c| matches!(c, 100 | 280 | 300 | 520 | 920))
     }
 
     /// The block's motion code (G0 G1 G2 G3, a canned cycle) with its word, if it has one.
