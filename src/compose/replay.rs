@@ -144,8 +144,7 @@ pub fn replay(trace: &Path, setup: &Setup, force: bool) -> Result<ReplayReport, 
     let mut clock = VirtualClock::default();
     plc.init(0, &mut clock);
     let (mut records, mut last_t) = (0u64, 0u64);
-    let mut ahead = ReadAhead::start(reader)
-        .map_err(|e| ReplayError::Refused(format!("{}: cannot start reading: {e}", trace.display())))?;
+    let mut ahead = ReadAhead::start(reader).map_err(|e| refused(trace, format!("cannot start reading: {e}")))?;
     while let Some(r) = ahead.next_record()? {
         let class = &classes[r.class];
         let task = &header.task_classes[r.class].name;
@@ -220,6 +219,11 @@ pub fn replay(trace: &Path, setup: &Setup, force: bool) -> Result<ReplayReport, 
     })
 }
 
+/// The replay of `trace` refused, with why.
+fn refused(trace: &Path, why: String) -> ReplayError {
+    ReplayError::Refused(format!("{}: {why}", trace.display()))
+}
+
 /// A trace recorded with another configuration or I/O map than `digest`'s is refused, unless
 /// `force`, with a hint at the configuration it was recorded with.
 fn refuse_other_configuration(trace: &Path, header: &Header, digest: &str, force: bool) -> Result<(), ReplayError> {
@@ -237,11 +241,13 @@ fn refuse_other_configuration(trace: &Path, header: &Header, digest: &str, force
             ),
             (None, None) => "give the configuration it was recorded with (--config FILE or --machine NAME)".to_string(),
         };
-        Err(ReplayError::Refused(format!(
-            "{}: recorded with another configuration or I/O map (digest {}, this one {digest}); {hint}, or use --force to replay anyway",
-            trace.display(),
-            header.config_digest
-        )))
+        Err(refused(
+            trace,
+            format!(
+                "recorded with another configuration or I/O map (digest {}, this one {digest}); {hint}, or use --force to replay anyway",
+                header.config_digest
+            ),
+        ))
     } else {
         Ok(())
     }
@@ -249,11 +255,10 @@ fn refuse_other_configuration(trace: &Path, header: &Header, digest: &str, force
 
 /// The PLC the trace is replayed on, with the run's programs planned again as they were then.
 fn plc_of(trace: &Path, header: &Header, setup: &Setup) -> Result<(Plc, Option<NcLibrary>), ReplayError> {
-    let refused = |m: String| ReplayError::Refused(format!("{}: {m}", trace.display()));
     let plan = |p: &crate::services::trace::TraceProgram| {
         crate::compose::nc_job::prepare_text(setup, p.file.clone(), p.text.clone())
             .and_then(crate::compose::nc_job::Prepared::into_job)
-            .map_err(|e| refused(format!("its program {}: {e}", p.file)))
+            .map_err(|e| refused(trace, format!("its program {}: {e}", p.file)))
     };
     let first = header.program.as_ref().map(plan).transpose()?;
     let offered = header.library.iter().map(plan).collect::<Result<Vec<_>, _>>()?;
@@ -275,19 +280,19 @@ type Variables<'h> = (HashMap<&'h str, (usize, VarIndex)>, Vec<VarIndex>);
 
 /// The trace's variables in this configuration (see [`Variables`]).
 fn variables<'h>(trace: &Path, header: &'h Header, plc: &Plc) -> Result<Variables<'h>, ReplayError> {
-    let refused = |m: String| ReplayError::Refused(format!("{}: {m}", trace.display()));
     let mut index = HashMap::new();
     let mut by_position: Vec<VarIndex> = Vec::new();
     for (position, (name, ty)) in header.variables.iter().enumerate() {
         let i = plc
             .vars()
             .index_of(name)
-            .ok_or_else(|| refused(format!("variable \"{name}\" is not in this configuration")))?;
+            .ok_or_else(|| refused(trace, format!("variable \"{name}\" is not in this configuration")))?;
         let have = plc.vars().vars()[usize::from(i)].ty;
         if have != *ty {
-            return Err(refused(format!(
-                "variable \"{name}\" is {ty} in the trace but {have} here"
-            )));
+            return Err(refused(
+                trace,
+                format!("variable \"{name}\" is {ty} in the trace but {have} here"),
+            ));
         }
         index.insert(name.as_str(), (position, i));
         by_position.push(i);
@@ -303,7 +308,6 @@ fn replayed_classes<'h>(
     index: &HashMap<&'h str, (usize, VarIndex)>,
     by_position: &[VarIndex],
 ) -> Result<Vec<ReplayedClass<'h>>, ReplayError> {
-    let refused = |m: String| ReplayError::Refused(format!("{}: {m}", trace.display()));
     let initial = plc.global_image().to_vec();
     // Per class: its index here, its outputs (compared after every cycle) with their names,
     // and for each of the header's variables where it goes if the class latches it here.
@@ -313,10 +317,13 @@ fn replayed_classes<'h>(
             .classes()
             .position(|k| k.name == c.name && k.period_ns == c.cycle_us * 1000)
             .ok_or_else(|| {
-                refused(format!(
-                    "task class \"{}\" ({} µs) is not in this configuration",
-                    c.name, c.cycle_us
-                ))
+                refused(
+                    trace,
+                    format!(
+                        "task class \"{}\" ({} µs) is not in this configuration",
+                        c.name, c.cycle_us
+                    ),
+                )
             })?;
         let outputs: Vec<(usize, VarIndex)> = c.outputs.iter().map(|n| index[n.as_str()]).collect();
         let names: Vec<&str> = c.outputs.iter().map(String::as_str).collect();
@@ -368,21 +375,21 @@ fn replay_job(
     job: &TraceJob,
     line: usize,
 ) -> Result<(), ReplayError> {
-    let refused = |m: String| ReplayError::Refused(format!("{}: {m}", trace.display()));
-    let library = library.ok_or_else(|| refused(format!("line {}: a screen job in a run without programs", line)))?;
-    let spec = job.spec().map_err(|m| refused(format!("line {}: {m}", line)))?;
+    let library =
+        library.ok_or_else(|| refused(trace, format!("line {}: a screen job in a run without programs", line)))?;
+    let spec = job.spec().map_err(|m| refused(trace, format!("line {}: {m}", line)))?;
     let made = crate::compose::screen_job::plan(setup, library, &spec)
-        .map_err(|e| refused(format!("line {}: screen job {}: {e}", line, job.number)))?;
+        .map_err(|e| refused(trace, format!("line {}: screen job {}: {e}", line, job.number)))?;
     let slot = library.screen_slot(job.number).ok_or_else(|| {
-        refused(format!(
-            "line {}: job number {} is a library program's",
-            line, job.number
-        ))
+        refused(
+            trace,
+            format!("line {}: job number {} is a library program's", line, job.number),
+        )
     })?;
     library
         .screen
         .set(slot, pkm_api::screen_jobs::ScreenJob { spec, job: made })
-        .map_err(|e| refused(format!("line {}: {e}", line)))?;
+        .map_err(|e| refused(trace, format!("line {}: {e}", line)))?;
     // The job before it is replaced, as in the run: its plan is released (a replay of a
     // run of a hundred large jobs holds one or two at a time, as the run did).
     drop(library.screen.release_replaced(Some(slot)));
