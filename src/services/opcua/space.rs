@@ -342,13 +342,13 @@ impl Builder<'_> {
     /// The main state, its reason and note, the bus fault and the configuration: the nodes of
     /// the first four.
     fn state(&self, space: &mut AddressSpace, info: &SpaceInfo) -> [NodeId; 4] {
-        let id = |path: &str| self.id(path);
-        let text_var =
-            |space: &mut AddressSpace, node: &NodeId, name: &str, value: Variant, ty: DataTypeId, about: &str| {
-                self.text_var(space, node, name, value, ty, about)
-            };
-        let state = [id("State"), id("Reason"), id("Note"), id("BusFault")];
-        text_var(
+        let state = [
+            self.id("State"),
+            self.id("Reason"),
+            self.id("Note"),
+            self.id("BusFault"),
+        ];
+        self.text_var(
             space,
             &state[0],
             "State",
@@ -356,7 +356,7 @@ impl Builder<'_> {
             DataTypeId::String,
             "the main state (REBOOT, INIT, READY, MOTION, AUTO, ERROR)",
         );
-        text_var(
+        self.text_var(
             space,
             &state[1],
             "Reason",
@@ -364,7 +364,7 @@ impl Builder<'_> {
             DataTypeId::String,
             "the error reason in ERROR, else empty",
         );
-        text_var(
+        self.text_var(
             space,
             &state[2],
             "Note",
@@ -372,7 +372,7 @@ impl Builder<'_> {
             DataTypeId::String,
             "the main program's note to the operator",
         );
-        text_var(
+        self.text_var(
             space,
             &state[3],
             "BusFault",
@@ -380,9 +380,9 @@ impl Builder<'_> {
             DataTypeId::Boolean,
             "the field bus reports a fault",
         );
-        text_var(
+        self.text_var(
             space,
-            &id("Configuration"),
+            &self.id("Configuration"),
             "Configuration",
             Variant::from(info.config.as_str()),
             DataTypeId::String,
@@ -399,16 +399,13 @@ impl Builder<'_> {
         info: &SpaceInfo,
         classes_folder: &NodeId,
     ) -> (Vec<[NodeId; CLASS_FIGURES.len()]>, Vec<NodeId>) {
-        let (ns, id) = (self.ns, |path: &str| self.id(path));
-        let folder = |space: &mut AddressSpace, node: &NodeId, name: &str, parent: &NodeId| {
-            self.folder(space, node, name, parent)
-        };
+        let ns = self.ns;
         let mut classes = Vec::with_capacity(info.classes.len());
         let mut class_vars = Vec::with_capacity(info.classes.len());
         for (name, period_ns) in &info.classes {
-            let class = id(&format!("TaskClasses.{name}"));
-            folder(space, &class, name, classes_folder);
-            let figure = |what: &str| id(&format!("TaskClasses.{name}.{what}"));
+            let class = self.id(&format!("TaskClasses.{name}"));
+            self.folder(space, &class, name, classes_folder);
+            let figure = |what: &str| self.id(&format!("TaskClasses.{name}.{what}"));
             VariableBuilder::new(
                 &figure("CycleTimeMs"),
                 QualifiedName::new(ns, "CycleTimeMs"),
@@ -436,7 +433,7 @@ impl Builder<'_> {
             });
             classes.push(nodes);
             let vars = figure("Variables");
-            folder(space, &vars, "Variables", &class);
+            self.folder(space, &vars, "Variables", &class);
             class_vars.push(vars);
         }
 
@@ -454,10 +451,10 @@ impl Builder<'_> {
         classes_folder: &NodeId,
         program: &NodeId,
     ) -> Vec<NodeId> {
-        let (ns, id) = (self.ns, |path: &str| self.id(path));
+        let ns = self.ns;
         let mut vars = Vec::with_capacity(info.variables.len());
         for (k, v) in info.variables.iter().enumerate() {
-            let node = id(&v.name);
+            let node = self.id(&v.name);
             let parent = class_vars.get(v.class).unwrap_or(classes_folder).clone();
             let unit = super::units::of(&v.name);
             let about = match unit {
@@ -481,7 +478,7 @@ impl Builder<'_> {
                 .insert(space);
             // IecType is this namespace's; EngineeringUnits the standard property (namespace 0).
             let property = |space: &mut AddressSpace, name: QualifiedName, ty: DataTypeId, value: Variant| {
-                let p = id(&format!("{}.{}", v.name, name.name));
+                let p = self.id(&format!("{}.{}", v.name, name.name));
                 let display = name.name.to_string();
                 VariableBuilder::new(&p, name, display)
                     .data_type(ty)
@@ -521,10 +518,10 @@ impl Builder<'_> {
 
     /// The methods, with their arguments.
     fn methods(&self, space: &mut AddressSpace) -> Vec<(Method, NodeId)> {
-        let (ns, id, object) = (self.ns, |path: &str| self.id(path), &self.object);
+        let (ns, object) = (self.ns, &self.object);
         let mut methods = Vec::with_capacity(Method::ALL.len());
         for m in Method::ALL {
-            let node = id(m.name());
+            let node = self.id(m.name());
             let mut builder = MethodBuilder::new(&node, QualifiedName::new(ns, m.name()), m.name())
                 .description(m.description())
                 .executable(true)
@@ -533,13 +530,13 @@ impl Builder<'_> {
             if m == Method::Load {
                 builder = builder.input_args(
                     space,
-                    &id("Load.InputArguments"),
+                    &self.id("Load.InputArguments"),
                     &[("Program", DataTypeId::Int16).into()],
                 );
             }
             builder = builder.output_args(
                 space,
-                &id(&format!("{}.OutputArguments", m.name())),
+                &self.id(&format!("{}.OutputArguments", m.name())),
                 &[("Result", DataTypeId::String).into()],
             );
             builder.insert(space);
