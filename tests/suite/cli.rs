@@ -408,6 +408,19 @@ fn a_time_source_with_virtual_time_is_a_usage_error() {
     assert!(stderr(&o).contains("cannot be used with"), "{}", stderr(&o));
 }
 
+/// A run in virtual time for `duration` seconds of the scenario `text`, written to `path`.
+fn virtual_run(path: &std::path::Path, text: &str, duration: &str) -> std::process::Output {
+    std::fs::write(path, text).expect("write the scenario");
+    pkm(&[
+        "run",
+        "--virtual",
+        "--duration",
+        duration,
+        "--scenario",
+        path.to_str().expect("utf-8"),
+    ])
+}
+
 #[test]
 fn a_scenario_says_how_long_its_run_lasts() {
     let dir = tempfile::tempdir().expect("tempdir");
@@ -439,19 +452,11 @@ fn a_scenario_says_how_long_its_run_lasts() {
     let ran = written["duration_s"].as_f64().expect("duration_s");
     assert!((0.4..10.0).contains(&ran), "{written}");
     // One that would end before its last event is refused.
-    std::fs::write(
+    let o = virtual_run(
         &path,
         r#"{"duration_s": 0.1, "events": [{"at_ms": 200, "input": "BUTTON_STOP", "value": true}]}"#,
-    )
-    .expect("write");
-    let o = pkm(&[
-        "run",
-        "--virtual",
-        "--duration",
         "1",
-        "--scenario",
-        path.to_str().expect("utf-8"),
-    ]);
+    );
     assert_eq!(o.status.code(), Some(2));
     assert_eq!(
         stderr(&o),
@@ -475,19 +480,11 @@ fn run_takes_a_scenario_and_refuses_a_bad_one() {
     assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
     let dir = tempfile::tempdir().expect("tempdir");
     let path = dir.path().join("s.json");
-    std::fs::write(
+    let o = virtual_run(
         &path,
         r#"{"events": [{"at_ms": 1, "fault": "bridge_error", "drive": "middle"}]}"#,
-    )
-    .expect("write");
-    let o = pkm(&[
-        "run",
-        "--virtual",
-        "--duration",
         "3",
-        "--scenario",
-        path.to_str().expect("utf-8"),
-    ]);
+    );
     assert_eq!(o.status.code(), Some(2));
     assert_eq!(
         stderr(&o),
