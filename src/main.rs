@@ -27,14 +27,8 @@ fn main() -> ExitCode {
         Command::IoSim(args) => cli::io_sim::run(args),
         Command::LinkBench(args) => cli::link_bench::command(args),
         Command::Station(args) => cli::station::command(args),
-        Command::Kin(args) => cli::kin::run(args, cli::load_config).map_err(|e| Failure {
-            code: e.code,
-            message: e.message,
-        }),
-        Command::Nc(args) => cli::nc::run(args, cli::load_config).map_err(|e| Failure {
-            code: e.code,
-            message: e.message,
-        }),
+        Command::Kin(args) => cli::kin::run(args),
+        Command::Nc(args) => cli::nc::run(args).map_err(Failure::from),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -7,29 +7,22 @@ use serde_json::{Map, Value, json};
 
 use pkm_kinematics::hexapod::Hexapod;
 use pkm_kinematics::{Kinematics, KinematicsConfig, Machine, workspace};
-use pkm_plc::runtime::config::{ConfigError, LoadedConfig};
+use pkm_plc::runtime::config::ConfigError;
 
-use super::args::{KinArgs, KinOp};
+use super::Failure;
+use super::args::{ConfigArg, KinArgs, KinOp};
 
-/// A failure with its exit code.
-pub struct KinFailure {
-    pub code: u8,
-    pub message: String,
-}
-
-fn fail(code: u8, message: impl Into<String>) -> KinFailure {
-    KinFailure {
+/// A failure with exit code `code` (1 an input the model does not reach, 2 usage).
+fn fail(code: u8, message: impl Into<String>) -> Failure {
+    Failure {
         code,
         message: message.into(),
     }
 }
 
 /// Runs `pkm-plc kin`.
-pub fn run(
-    args: KinArgs,
-    load: impl Fn(&super::args::ConfigArg) -> Result<LoadedConfig, ConfigError>,
-) -> Result<(), KinFailure> {
-    let loaded = load(&super::args::ConfigArg {
+pub fn run(args: KinArgs) -> Result<(), Failure> {
+    let loaded = super::load_config(&ConfigArg {
         config: args.config.clone(),
         machine: None,
     })
@@ -98,7 +91,7 @@ pub fn run(
     Ok(())
 }
 
-fn expect_len(values: &[f64], n: usize, what: &str) -> Result<(), KinFailure> {
+fn expect_len(values: &[f64], n: usize, what: &str) -> Result<(), Failure> {
     if values.len() == n {
         Ok(())
     } else {

@@ -9,14 +9,13 @@ use pkm_kinematics::{KinematicsConfig, Machine as Model};
 use pkm_nc::interp::{self, AXES};
 use pkm_plc::compose::Setup;
 use pkm_plc::compose::nc_job::{Prepared, prepare};
-use pkm_plc::runtime::config::{ConfigError, LoadedConfig};
 
-use super::args::{ConfigArg, NcArgs, NcOp};
+use super::args::{NcArgs, NcOp};
 
 pub use pkm_plc::compose::nc_job::NcFailure;
 
 /// Runs `pkm-plc nc`.
-pub fn run(args: NcArgs, load: impl Fn(&ConfigArg) -> Result<LoadedConfig, ConfigError>) -> Result<(), NcFailure> {
+pub fn run(args: NcArgs) -> Result<(), NcFailure> {
     let NcOp::Check {
         file,
         config,
@@ -25,7 +24,7 @@ pub fn run(args: NcArgs, load: impl Fn(&ConfigArg) -> Result<LoadedConfig, Confi
         verbose,
     } = args.op;
     let fail = |code: u8, message: String| NcFailure { code, message };
-    let loaded = load(&config).map_err(|e| fail(2, e.to_string()))?;
+    let loaded = super::load_config(&config).map_err(|e| fail(2, e.to_string()))?;
     let setup = Setup::new(loaded).map_err(|e| fail(2, e.to_string()))?;
     let prepared = prepare(&setup, &file)?;
     let Prepared {

@@ -383,6 +383,15 @@ impl Failure {
     }
 }
 
+impl From<nc_job::NcFailure> for Failure {
+    fn from(e: nc_job::NcFailure) -> Self {
+        Failure {
+            code: e.code,
+            message: e.message,
+        }
+    }
+}
+
 impl From<ConfigError> for Failure {
     fn from(e: ConfigError) -> Self {
         Failure::usage(e.to_string())
