@@ -1068,3 +1068,100 @@ async fn the_screen_sets_the_overrides_steps_a_program_line_by_line_runs_mdi_and
     }
     common::assert_replays_identically(&trace, &["--config", config.to_str().expect("utf-8")]);
 }
+
+/// The manual tool change on the screen: the program stands at `T1 M6` and the page asks for
+/// tool 1 with its comment from the tool table; the program's message (MSG) is shown; "Tool
+/// changed" goes on; the run replays from its trace (which carries the tool table), and the
+/// program's messages are in the log.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_screen_asks_for_the_tool_of_a_manual_tool_change_and_shows_the_programs_message() {
+    let Some(chromium) = chromium() else {
+        common::skip(
+            "hmi_browser::the_screen_asks_for_the_tool_of_a_manual_tool_change_and_shows_the_programs_message",
+            NO_CHROMIUM,
+        );
+        return;
+    };
+    let _turn = take_turn().await;
+    let dir = tempfile::tempdir().expect("tempdir");
+    let program = dir.path().join("tools.ngc");
+    std::fs::write(
+        &program,
+        "(MSG, clamp the part)\nT1 M6\nG43 H1\n(DEBUG, tool #5400 in, Z offset #5403)\nG1 X4 F600\nG0 X0\nM2\n",
+    )
+    .expect("the program");
+    let table = dir.path().join("tool.tbl");
+    std::fs::write(&table, "T1 P1 Z30 D6 ;6 mm end mill\n").expect("the table");
+    let trace = dir.path().join("tools.jsonl");
+    let browser = launch(chromium, dir.path(), &[]).await;
+    let page = browser.new_page("about:blank").await.expect("a page");
+    let config = quick_config(dir.path());
+    let mut plc = start_plc(
+        &config,
+        120,
+        &[
+            "--program",
+            program.to_str().expect("utf-8"),
+            "--tool-table",
+            table.to_str().expect("utf-8"),
+            "--trace",
+            trace.to_str().expect("utf-8"),
+        ],
+    );
+    page.goto(plc.url.as_str()).await.expect("loads");
+    let asked = async |p: &Page| {
+        text(
+            p,
+            "document.getElementById('tool-change').hidden ? '' : document.getElementById('tool-ask').textContent",
+        )
+        .await
+    };
+    until(&page, Duration::from_secs(60), "the tool change asked for", async |p| {
+        !asked(p).await.is_empty()
+    })
+    .await;
+    assert_eq!(
+        asked(&page).await,
+        "Tool change: put tool 1 (6 mm end mill) in the spindle, then confirm."
+    );
+    assert_eq!(state(&page).await, "AUTO");
+    assert!(
+        text(&page, "document.getElementById('message').textContent")
+            .await
+            .ends_with("clamp the part"),
+        "the program's message shown"
+    );
+    // It stands: a second later the tool has not moved and the change still waits.
+    tokio::time::sleep(Duration::from_secs(1)).await;
+    assert_eq!(watched(&page, "TOOL_CHANGE").await, "true");
+    assert!(x(&page).await.abs() < 0.01);
+    click(&page, "#tool-changed").await;
+    until(
+        &page,
+        Duration::from_secs(30),
+        "the program done with tool 1",
+        async |p| watched(p, "NC_COMPLETED").await == "true" && watched(p, "TOOL_NUMBER").await == "1",
+    )
+    .await;
+    assert!(asked(&page).await.is_empty(), "the prompt is gone");
+    assert_eq!(
+        text(&page, "document.getElementById('tool-in').textContent").await,
+        "tool 1 (6 mm end mill) in the spindle"
+    );
+    browser.close().await;
+    let stopped = Command::new("kill")
+        .args(["-TERM", &plc.run.child.id().to_string()])
+        .status()
+        .expect("kill runs");
+    assert!(stopped.success());
+    assert!(plc.run.wait().success(), "{}", plc.log());
+    let log = plc.log();
+    assert!(log.contains("screen 127.0.0.1:"), "{log}");
+    assert!(log.contains("tool change confirmed"), "{log}");
+    assert!(log.contains("NC line 1 (MSG): clamp the part"), "{log}");
+    assert!(
+        log.contains("NC line 4 (DEBUG): tool 1.000000 in, Z offset 30.000000"),
+        "{log}"
+    );
+    common::assert_replays_identically(&trace, &["--config", config.to_str().expect("utf-8")]);
+}

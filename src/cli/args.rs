@@ -248,6 +248,10 @@ pub struct RunArgs {
     /// if it cannot run), started once the machine is READY after referencing (state AUTO).
     #[arg(long, value_name = "FILE")]
     pub program: Option<PathBuf>,
+    /// The tool table NC programs are read with (LinuxCNC's `tool.tbl` format), in place of the
+    /// configuration's `nc.tool_table`.
+    #[arg(long, value_name = "FILE")]
+    pub tool_table: Option<PathBuf>,
     /// The programs (`*.ngc`) the operator may load from the screen, each checked and planned
     /// at start (those that cannot run on the machine are listed with why), or `none`. Real
     /// time with a screen only; default `programs` (if that directory exists).
@@ -477,6 +481,10 @@ pub enum NcOp {
         /// List every block whose feed the machine lowers, not one line per cause.
         #[arg(long)]
         verbose: bool,
+        /// The tool table the program is read with (LinuxCNC's `tool.tbl` format), in place of
+        /// the configuration's `nc.tool_table`.
+        #[arg(long, value_name = "FILE")]
+        tool_table: Option<PathBuf>,
     },
 }
 

@@ -85,7 +85,13 @@ pub fn load_setup(arg: &ConfigArg) -> Result<Setup, ConfigError> {
 
 /// Builds a PLC through the composition root.
 pub fn build(arg: &ConfigArg, options: Options) -> Result<Built, Failure> {
-    compose::build(load_setup(arg)?, options).map_err(|e| Failure::usage(e.0))
+    build_with_tools(arg, options, None)
+}
+
+/// [`build`] with the tool table `tool_table` names (else the configuration's).
+pub fn build_with_tools(arg: &ConfigArg, options: Options, tool_table: Option<&Path>) -> Result<Built, Failure> {
+    let setup = load_setup(arg)?.with_tool_table(tool_table)?;
+    compose::build(setup, options).map_err(|e| Failure::usage(e.0))
 }
 
 /// An output file opened before the work that fills it, so that a path that cannot be written

@@ -9,7 +9,7 @@ use std::time::Duration;
 use tracing::info;
 
 use super::args::{HmiAddr, RunArgs, parse_hmi};
-use super::{Failure, OutputFile, build};
+use super::{Failure, OutputFile, build_with_tools};
 use pkm_plc::compose::serve::{OpcUaRequest, Ran, RunRequest};
 use pkm_plc::compose::{JoystickChoice, Options};
 use pkm_plc::runtime::config::TimeSourceKind;
@@ -50,7 +50,7 @@ pub fn run(args: RunArgs) -> Result<(), Failure> {
         programs,
         hmi: served,
     };
-    let built = build(&args.config, options)?;
+    let built = build_with_tools(&args.config, options, args.tool_table.as_deref())?;
     let summary_file = args.summary.as_deref().map(OutputFile::create).transpose()?;
     let request = RunRequest {
         virtual_time: args.virtual_time,

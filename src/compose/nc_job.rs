@@ -287,6 +287,7 @@ pub(crate) fn prepare_from(
             start,
             work_offsets: nc.origins(n),
             block_delete: nc.block_delete,
+            tools: setup.tools.as_ref().map(|t| &t.table),
         },
         &nc.bounds(),
         watch,

@@ -136,6 +136,20 @@ pub fn replay(trace: &Path, setup: &Setup, force: bool) -> Result<ReplayReport, 
     let reader = TraceReader::open(trace)?;
     let header = reader.header().clone();
     refuse_other_configuration(trace, &header, &setup.digest()?, force)?;
+    // The programs are read with the tool table they were read with in the run.
+    let with_tools;
+    let setup = match &header.tool_table {
+        Some(t) => {
+            let mut s = setup.clone();
+            s.tools = Some(
+                crate::compose::setup::ToolTableFile::parse(t.file.clone(), t.text.clone())
+                    .map_err(|e| refused(trace, format!("its tool table: {e}")))?,
+            );
+            with_tools = s;
+            &with_tools
+        }
+        None => setup,
+    };
     let (mut plc, library) = plc_of(trace, &header, setup)?;
     let (index, by_position) = variables(trace, &header, &plc)?;
     let mut classes = replayed_classes(trace, &header, &plc, &index, &by_position)?;

@@ -117,7 +117,7 @@ impl Standing for StandingPose {
 /// spindle as the blocks before left it is switched on there, once the tool has arrived.
 /// Dwells and pauses before the line do not run.
 pub fn from_line(program: Program, line: usize, start: [f64; 6]) -> Result<Program, NcFailure> {
-    let blocks = program.blocks;
+    let Program { blocks, messages } = program;
     let last = blocks
         .iter()
         .filter(|b| !matches!(b.action, Action::End))
@@ -164,7 +164,7 @@ pub fn from_line(program: Program, line: usize, start: [f64; 6]) -> Result<Progr
         });
     }
     run.extend_from_slice(&blocks[at..]);
-    Ok(Program { blocks: run })
+    Ok(Program { blocks: run, messages })
 }
 
 /// Where the tool stands commanded, from a published image: the forward kinematics of the
@@ -252,6 +252,7 @@ mod tests {
                 line_move(5, at(5.0, 5.0), at(0.0, 5.0)),
                 block(6, Action::End),
             ],
+            messages: Vec::new(),
         }
     }
 

@@ -73,8 +73,17 @@ pub fn run(built: Built, request: RunRequest) -> Result<Ran, Failure> {
     }
     if let Some(path) = &request.trace {
         let digest = setup.digest()?;
-        let recorder = crate::services::trace::record::Recorder::create_with(path, &plc, &digest, library.as_ref())
-            .map_err(|e| Failure::run(format!("{}: cannot create the trace: {e}", path.display())))?;
+        let recorder = crate::services::trace::record::Recorder::create_with(
+            path,
+            &plc,
+            &digest,
+            library.as_ref(),
+            setup.tools.as_ref().map(|t| crate::services::trace::TraceProgram {
+                file: t.file.clone(),
+                text: t.text.clone(),
+            }),
+        )
+        .map_err(|e| Failure::run(format!("{}: cannot create the trace: {e}", path.display())))?;
         plc.set_recorder(Box::new(recorder));
     }
     info!("configuration: {}; bus: {}", loaded.origin, plc.bus_name());
@@ -134,7 +143,7 @@ pub fn run(built: Built, request: RunRequest) -> Result<Ran, Failure> {
         }),
         _ => None,
     };
-    let mut outcome = run_realtime(plc, options, screen, opcua)?;
+    let mut outcome = run_realtime(plc, options, screen, opcua, library.as_ref())?;
     if let Some((probe, stop)) = probe {
         stop.store(true, std::sync::atomic::Ordering::Relaxed);
         if let Some(l) = probe.summary(outcome.epoch_ns) {
@@ -179,7 +188,13 @@ fn duration(asked: Option<f64>, scenario: Option<ScenarioTimes>) -> Option<f64> 
 
 /// Runs `plc` in virtual time for `duration` s of simulated time.
 fn run_virtual(mut plc: Plc, origin: &str, library: Option<&pkm_api::library::NcLibrary>, duration: f64) -> Ran {
-    let report = run::run_virtual(&mut plc, (duration * 1e9) as u64);
+    // The programs' message comments to the log as the run reaches them.
+    let mut messages = crate::runtime::messages::MessageWatch::new(plc.vars(), library);
+    let report = run::run_virtual_observed(&mut plc, (duration * 1e9) as u64, &mut |plc| {
+        if let Some(m) = &mut messages {
+            m.log(plc.global_image());
+        }
+    });
     info!(
         "virtual time: {:.3} s simulated in {:.3} s wall-clock ({:.0}x)",
         duration,
@@ -250,6 +265,12 @@ fn screen_info(
                     .map(usize::from);
                 crate::services::hmi::jobs::JobDesk::new(setup.clone(), l.clone(), standing, loaded)
             }),
+        tools: setup
+            .tools
+            .as_ref()
+            .map(|t| t.table.tools.iter().map(|t| (t.number, t.comment.clone())).collect())
+            .unwrap_or_default(),
+        library: library.cloned(),
     }
 }
 
@@ -300,6 +321,7 @@ fn run_realtime(
     options: RealTimeOptions,
     screen: Option<Screen>,
     opcua: Option<OpcUa>,
+    library: Option<&pkm_api::library::NcLibrary>,
 ) -> Result<run::RealTimeOutcome, Failure> {
     let runtime = tokio::runtime::Builder::new_current_thread()
         .enable_all()
@@ -332,13 +354,23 @@ fn run_realtime(
                 .map(|listener| (server, listener))
         })
         .transpose()?;
-    // Both are fed from one publication per main cycle.
-    let (publisher, feed) = if screen.is_some() || opcua.is_some() {
+    // Both are fed from one publication per main cycle, as is the log of the programs'
+    // messages.
+    let messages = crate::runtime::messages::MessageWatch::new(plc.vars(), library);
+    let (publisher, feed) = if screen.is_some() || opcua.is_some() || messages.is_some() {
         let (publisher, reader) = crate::runtime::frame::frames(&plc);
         (Some(publisher), Some(crate::runtime::frame::FrameFeed::spawn(reader)))
     } else {
         (None, None)
     };
+    if let (Some(mut watch), Some(feed)) = (messages, &feed) {
+        let mut feed = feed.clone();
+        tokio::spawn(async move {
+            while let Some(frame) = feed.next().await {
+                watch.log(&frame.image);
+            }
+        });
+    }
     if let (Some((screen, listener)), Some(feed)) = (screen, &feed) {
         serve_screen(screen, listener, feed.clone());
     }

@@ -24,6 +24,28 @@ pub struct Setup {
     pub loaded: LoadedConfig,
     /// The machine it runs (`None`: the runtime's self-test programs only).
     pub machine: Option<&'static dyn Machine>,
+    /// The tool table NC programs are read with (`None`: the run has none).
+    pub tools: Option<ToolTableFile>,
+}
+
+/// A tool table as a run reads it: its file, its text (a trace carries it, so that a replay
+/// reads the programs with the same tools) and the table.
+#[derive(Clone, Debug)]
+pub struct ToolTableFile {
+    /// The file, as the user or the configuration named it.
+    pub file: String,
+    /// Its text.
+    pub text: String,
+    /// The table.
+    pub table: pkm_nc::tools::ToolTable,
+}
+
+impl ToolTableFile {
+    /// Reads `text` (from `file`); a problem names the file, line and column.
+    pub fn parse(file: String, text: String) -> Result<ToolTableFile, String> {
+        let table = pkm_nc::tools::ToolTable::parse(&text).map_err(|e| format!("{file}:{e}"))?;
+        Ok(ToolTableFile { file, text, table })
+    }
 }
 
 impl Setup {
@@ -45,7 +67,30 @@ impl Setup {
                 })?,
             ),
         };
-        Ok(Setup { loaded, machine })
+        Ok(Setup {
+            loaded,
+            machine,
+            tools: None,
+        })
+    }
+
+    /// With the tool table `path` names (the command line's `--tool-table`), else the one the
+    /// configuration's `nc.tool_table` names (relative to the configuration's directory), else
+    /// none. A file that cannot be read or parsed is a usage error (exit 2) naming it.
+    pub fn with_tool_table(mut self, path: Option<&Path>) -> Result<Setup, super::Failure> {
+        let file = match (path, &self.loaded.config.nc.tool_table) {
+            (Some(p), _) => p.to_path_buf(),
+            (None, Some(name)) => match &self.loaded.dir {
+                Some(dir) => dir.join(name),
+                None => std::path::PathBuf::from(name),
+            },
+            (None, None) => return Ok(self),
+        };
+        let name = file.display().to_string();
+        let text = std::fs::read_to_string(&file)
+            .map_err(|e| super::Failure::usage(format!("{name}: cannot read the tool table: {e}")))?;
+        self.tools = Some(ToolTableFile::parse(name, text).map_err(super::Failure::usage)?);
+        Ok(self)
     }
 
     /// Loads `path` (or the built-in configuration) and resolves its machine.

@@ -3,7 +3,8 @@
 //! in real time on its own thread or in virtual time, keeping time by a source of [`timing`];
 //! [`signals`] turns the process's terminating signals into a safe stop; [`stats`], [`status`]
 //! and [`summary`] measure and report the cycles; [`frame`] hands each main cycle's state to
-//! whoever watches (the screen, OPC UA) without the cyclic thread waiting; [`config`] is the
+//! whoever watches (the screen, OPC UA) without the cyclic thread waiting; [`messages`] turns
+//! the NC programs' message comments the cycle reached back into their texts; [`config`] is the
 //! configuration file's schema, reading and checks. Nothing here imports the services or the
 //! composition above it.
 
@@ -13,6 +14,7 @@ pub mod config;
 pub mod files;
 pub mod frame;
 pub mod log_limit;
+pub mod messages;
 pub mod plc;
 pub mod run;
 pub mod service;

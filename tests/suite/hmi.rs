@@ -290,8 +290,9 @@ fn the_screen_loads_another_program_outside_auto_and_the_run_replays_with_it() {
     let (mut plc, sink) = (built.plc, built.hmi.expect("the screen's commands"));
     let trace = dir.path().join("load.jsonl");
     let digest = built.setup.digest().expect("a digest");
-    let recorder = pkm_plc::services::trace::record::Recorder::create_with(&trace, &plc, &digest, Some(&library_of))
-        .expect("the trace");
+    let recorder =
+        pkm_plc::services::trace::record::Recorder::create_with(&trace, &plc, &digest, Some(&library_of), None)
+            .expect("the trace");
     plc.set_recorder(Box::new(recorder));
     let mut loaded = Vec::new();
     let mut text_completed = false;
@@ -337,5 +338,94 @@ fn the_screen_loads_another_program_outside_auto_and_the_run_replays_with_it() {
     // Replayed with the programs the trace carries.
     let setup = Setup::new(machine_config("ox-x", |_| {})).expect("the O-X glide");
     let report = pkm_plc::compose::replay::replay(&trace, &setup, false).unwrap_or_else(|e| panic!("{e}"));
+    assert!(report.records > 1000, "{}", report.records);
+}
+
+/// A manual tool change: the program stands at each `T… M6` with the tool asked for, the
+/// screen's confirmation goes on, and the run — the requests and confirmations are process-image
+/// variables — replays from its trace, which carries the tool table.
+#[test]
+fn a_manual_tool_change_waits_for_the_screen_and_the_run_replays() {
+    use pkm_api::trajectory::vars as nc;
+    use pkm_plc::services::hmi::commands::press;
+    let dir = tempfile::tempdir().expect("a temporary directory");
+    let table = dir.path().join("tool.tbl");
+    std::fs::write(&table, "T1 P1 Z10 D6 ;6 mm end mill\nT2 P2 Z20 D3 ;3 mm drill\n").expect("the table");
+    let program = dir.path().join("tools.ngc");
+    std::fs::write(
+        &program,
+        "(MSG, clamp the part)\nT1 M6\nG43 H1\nG1 X5 F600\nT2 M6\nG43 H2\nG0 X0\nM2\n",
+    )
+    .expect("the program");
+    let setup = || {
+        Setup::new(machine_config("ox-x", |_| {}))
+            .expect("the O-X glide")
+            .with_tool_table(Some(&table))
+            .unwrap_or_else(|e| panic!("{}", e.message))
+    };
+    let options = Options {
+        hmi: true,
+        program: Some(program.clone()),
+        ..Options::default()
+    };
+    let built = compose::build(setup(), options).unwrap_or_else(|e| panic!("{e}"));
+    let (mut plc, sink) = (built.plc, built.hmi.expect("the screen's commands"));
+    let trace = dir.path().join("tools.jsonl");
+    let tools = built
+        .setup
+        .tools
+        .as_ref()
+        .map(|t| pkm_plc::services::trace::TraceProgram {
+            file: t.file.clone(),
+            text: t.text.clone(),
+        });
+    let digest = built.setup.digest().expect("a digest");
+    let recorder =
+        pkm_plc::services::trace::record::Recorder::create_with(&trace, &plc, &digest, built.library.as_ref(), tools)
+            .expect("the trace");
+    plc.set_recorder(Box::new(recorder));
+    // (state, a change waits, the tool asked, the tool in the spindle), as they change.
+    let mut log: Vec<(i16, bool, i32, i32)> = Vec::new();
+    let mut changes = Vec::new();
+    transitions(&mut plc, 30_000, |plc, t| {
+        let entry = (
+            get(plc, nc::NC_STATE),
+            get(plc, nc::TOOL_CHANGE),
+            get(plc, nc::TOOL_PREP_NUMBER),
+            get(plc, nc::TOOL_NUMBER),
+        );
+        if log.last() != Some(&entry) {
+            if entry.1 && !log.last().is_some_and(|l| l.1) {
+                changes.push((t, entry.2));
+            }
+            log.push(entry);
+        }
+        // The operator confirms each change a few seconds after it was asked for.
+        if t == 16_000 || t == 22_000 {
+            sink.update(|c| c.presses[press::TOOL_CHANGED] += 1);
+        }
+    });
+    assert_eq!(changes.len(), 2, "{log:?}");
+    assert_eq!(changes[0].1, 1, "tool 1 first: {log:?}");
+    assert_eq!(changes[1].1, 2, "then tool 2: {log:?}");
+    assert!(
+        changes[0].0 < 16_000 && changes[1].0 > 16_000 && changes[1].0 < 22_000,
+        "{changes:?}"
+    );
+    assert!(
+        log.contains(&(7, true, 1, 0)),
+        "standing at the first change, no tool yet: {log:?}"
+    );
+    assert!(log.contains(&(7, true, 2, 1)), "at the second, tool 1 in: {log:?}");
+    assert!(get(&plc, nc::NC_COMPLETED), "{log:?}");
+    assert_eq!(get(&plc, nc::TOOL_NUMBER), 2);
+    assert_eq!(get(&plc, nc::NC_MESSAGES), 1, "the MSG was reached");
+    match plc.take_recorder().map(|r| r.finish()) {
+        Some(Ok(_)) => {}
+        other => panic!("the trace: {:?}", other.map(|r| r.map_err(|e| e.to_string()))),
+    }
+    // The replay reads the program with the trace's tool table, not the setup's (here none).
+    let bare = Setup::new(machine_config("ox-x", |_| {})).expect("the O-X glide");
+    let report = pkm_plc::compose::replay::replay(&trace, &bare, false).unwrap_or_else(|e| panic!("{e}"));
     assert!(report.records > 1000, "{}", report.records);
 }

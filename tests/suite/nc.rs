@@ -71,6 +71,60 @@ fn a_feed_the_joints_cannot_give_is_reported_with_the_reachable_feed_and_why() {
     );
 }
 
+/// `nc check --tool-table`: a program's tools read from LinuxCNC's `tool.tbl`; without a table,
+/// or with a table that cannot be read, the refusal names the file and what is wrong.
+#[test]
+fn nc_check_reads_the_programs_tools_from_the_tool_table() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let file = program(dir.path(), "tools.ngc", "T1 M6\nG43 H1\nG1 Z-5 F100\nG49 G0 Z0\nM2\n");
+    let table = dir.path().join("tool.tbl");
+    std::fs::write(&table, "T1 P1 Z30 D6 ;6 mm end mill\n").expect("write");
+    let table = table.to_str().expect("utf-8").to_string();
+    let o = pkm(&["nc", "check", &file, "--machine", "ox-x", "--tool-table", &table]);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    let o = pkm(&["nc", "check", &file, "--machine", "ox-x"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert_eq!(
+        stderr(&o),
+        format!(
+            "error: {file}:1:1: T1: there is no tool table (give one with --tool-table or nc.tool_table in the configuration)\n"
+        )
+    );
+    std::fs::write(&table, "T1 P1 Z30\nT2 Zx\n").expect("write");
+    let o = pkm(&["nc", "check", &file, "--machine", "ox-x", "--tool-table", &table]);
+    assert_eq!(o.status.code(), Some(2));
+    assert_eq!(stderr(&o), format!("error: {table}:2:4: Z needs a number, got 'x'\n"));
+    // The configuration's `nc.tool_table`, relative to the configuration's directory.
+    std::fs::write(dir.path().join("tool.tbl"), "T1 P1 Z30\n").expect("write");
+    let config = ox_x_with_nc(dir.path(), serde_json::json!({"tool_table": "tool.tbl"}));
+    let o = pkm(&["nc", "check", &file, "--config", &config]);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    // The shipped example: two tools on the O-X glide.
+    let (example, example_table) = (
+        common::root().join("programs/tools/ox-x-tools.ngc"),
+        common::root().join("programs/tools/tool.tbl"),
+    );
+    let o = pkm(&[
+        "nc",
+        "check",
+        example.to_str().expect("utf-8"),
+        "--machine",
+        "ox-x",
+        "--tool-table",
+        example_table.to_str().expect("utf-8"),
+    ]);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    let missing = dir.path().join("none.tbl");
+    let missing = missing.to_str().expect("utf-8");
+    let o = pkm(&["nc", "check", &file, "--machine", "ox-x", "--tool-table", missing]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(
+        stderr(&o).starts_with(&format!("error: {missing}: cannot read the tool table: ")),
+        "{}",
+        stderr(&o)
+    );
+}
+
 /// A program with many blocks the machine slows gets one line per cause, not a line
 /// per block (a CAM program's 19 321 lines); `--verbose` lists every block.
 #[test]
@@ -279,25 +333,58 @@ struct Canonical {
     kind: &'static str,
     end: [f64; 3],
     arc: Option<([f64; 2], bool)>,
+    /// A feed move's feed (mm/min).
+    feed: Option<f64>,
+}
+
+/// The tool table both interpreters read the comparison programs with (mm).
+const TOOL_TABLE: &str = "T1 P1 Z50 D6 ;6 mm end mill\nT2 P2 X0.5 Z30.5 D3 ;3 mm drill\nT5 P5 Z-2 D10\n";
+
+/// [`TOOL_TABLE`] for `rs274`, which reads a tool table in inches (its machine units): every
+/// offset divided by 25.4.
+fn tool_table_in_inches() -> String {
+    let table = pkm_nc::tools::ToolTable::parse(TOOL_TABLE).expect("the test's table");
+    table
+        .tools
+        .iter()
+        .map(|t| {
+            format!(
+                "T{} P{} X{:.9} Y{:.9} Z{:.9} D{:.9}\n",
+                t.number,
+                t.pocket,
+                t.offsets[0] / 25.4,
+                t.offsets[1] / 25.4,
+                t.offsets[2] / 25.4,
+                t.diameter / 25.4
+            )
+        })
+        .collect()
 }
 
 fn rounded(v: [f64; 3]) -> [f64; 3] {
     v.map(|x| (x * 1e4).round() / 1e4)
 }
 
-/// Our moves of `text` (a machine with X Y Z, no work offsets, starting at 0).
-fn ours(text: &str) -> Vec<Canonical> {
-    use pkm_nc::interp::{Action, Machine, Path, read};
-    let program = read(
+/// Our reading of `text` on a machine with X Y Z, no work offsets, starting at 0, with
+/// [`TOOL_TABLE`].
+fn our_program(text: &str) -> Result<pkm_nc::interp::Program, pkm_nc::NcError> {
+    let tools = pkm_nc::tools::ToolTable::parse(TOOL_TABLE).expect("the test's table");
+    pkm_nc::interp::read(
         text,
-        &Machine {
+        &pkm_nc::interp::Machine {
             axes: &["x", "y", "z"],
             start: [0.0; 6],
             work_offsets: [[0.0; 6]; 6],
             block_delete: false,
+            tools: Some(&tools),
         },
     )
-    .unwrap_or_else(|e| panic!("{e}"));
+}
+
+/// Our moves of `text` ([`our_program`]).
+fn ours(text: &str) -> Vec<Canonical> {
+    use pkm_nc::interp::{Action, Path};
+    let program = our_program(text).unwrap_or_else(|e| panic!("{e}"));
     program
         .blocks
         .iter()
@@ -322,6 +409,7 @@ fn ours(text: &str) -> Vec<Canonical> {
                     Path::Arc { center, clockwise, .. } => Some(([center[0], center[1]], clockwise)),
                     Path::Line => None,
                 },
+                feed: feed_mm_min,
             }),
             _ => None,
         })
@@ -331,75 +419,79 @@ fn ours(text: &str) -> Vec<Canonical> {
 /// LinuxCNC's moves of `text`, from its `rs274` (canonical calls); moves that go nowhere (the
 /// zero-length feed it issues for a motion mode set alone) left out.
 fn linuxcnc(rs274: &std::path::Path, text: &str) -> Vec<Canonical> {
-    let dir = tempfile::tempdir().expect("tempdir");
-    let file = dir.path().join("p.ngc");
-    std::fs::write(&file, text).expect("write");
-    // One rs274 at a time: two run at once (two tests) have printed nothing for one of them.
-    static ONE_AT_A_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
-    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
-    // A run that ends without PROGRAM_END (seen once in CI, not reproduced) is tried again.
-    let run = || {
-        std::process::Command::new(rs274)
-            .arg("-g")
-            .arg(&file)
-            .current_dir(dir.path())
-            .output()
-            .expect("rs274 runs")
-    };
-    let mut out = run();
-    for _ in 0..2 {
-        if String::from_utf8_lossy(&out.stdout).contains("PROGRAM_END") {
-            break;
-        }
-        out = run();
-    }
-    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stdout = rs274_output(rs274, text);
     let mut at = [0.0; 3];
     let mut moves = Vec::new();
     // rs274 prints positions in program coordinates, with the offsets it sets apart: the work
-    // system's (`SET_G5X_OFFSET`) and G92's or G52's (`SET_G92_OFFSET`), added back here.
-    let (mut g5x, mut g92) = ([0.0; 3], [0.0; 3]);
+    // system's (`SET_G5X_OFFSET`), G92's or G52's (`SET_G92_OFFSET`) and the tool's
+    // (`USE_TOOL_LENGTH_OFFSET`), added back here.
+    let (mut g5x, mut g92, mut tool) = ([0.0; 3], [0.0; 3], [0.0; 3]);
     // rs274 prints lengths in the units in force (inches after G20), arcs in their plane.
     let mut unit = 1.0;
     let mut plane = [0, 1, 2];
+    // The feed: per minute, or per revolution at the spindle's speed.
+    let (mut feed, mut per_rev, mut rpm) = (0.0, false, 0.0);
     for line in stdout.lines() {
         let Some((call, args)) = line.split_once('(') else {
             continue;
         };
         let call = call.rsplit(' ').next().unwrap_or("");
-        if call == "USE_LENGTH_UNITS" {
-            unit = if args.contains("INCHES") { 25.4 } else { 1.0 };
-            continue;
-        }
-        if call == "SELECT_PLANE" {
-            plane = if args.contains("XZ") {
-                [2, 0, 1]
-            } else if args.contains("YZ") {
-                [1, 2, 0]
-            } else {
-                [0, 1, 2]
-            };
-            continue;
+        match call {
+            "USE_LENGTH_UNITS" => {
+                unit = if args.contains("INCHES") { 25.4 } else { 1.0 };
+                continue;
+            }
+            "SELECT_PLANE" => {
+                plane = if args.contains("XZ") {
+                    [2, 0, 1]
+                } else if args.contains("YZ") {
+                    [1, 2, 0]
+                } else {
+                    [0, 1, 2]
+                };
+                continue;
+            }
+            "USE_TOOL_LENGTH_OFFSET" => {
+                // "x y z, a b c, u v w": the first group.
+                let first = args.split(',').next().unwrap_or("");
+                let v: Vec<f64> = first.split_whitespace().filter_map(|x| x.parse().ok()).collect();
+                tool = [v[0] * unit, v[1] * unit, v[2] * unit];
+                continue;
+            }
+            _ => {}
         }
         let n: Vec<f64> = args
             .trim_end_matches(')')
             .split(',')
             .filter_map(|x| x.trim().parse::<f64>().ok())
-            .map(|x| x * unit)
             .collect();
+        let lengths: Vec<f64> = n.iter().map(|x| x * unit).collect();
         match call {
             "SET_G5X_OFFSET" if n.len() >= 4 => {
                 // The first value is the system's number, not a length.
-                g5x = [n[1], n[2], n[3]];
+                g5x = [lengths[1], lengths[2], lengths[3]];
                 continue;
             }
             "SET_G92_OFFSET" if n.len() >= 3 => {
-                g92 = [n[0], n[1], n[2]];
+                g92 = [lengths[0], lengths[1], lengths[2]];
+                continue;
+            }
+            "SET_FEED_MODE" if n.len() >= 2 => {
+                per_rev = n[1] == 1.0;
+                continue;
+            }
+            "SET_FEED_RATE" if !n.is_empty() => {
+                feed = lengths[0];
+                continue;
+            }
+            "SET_SPINDLE_SPEED" if n.len() >= 2 => {
+                rpm = n[1];
                 continue;
             }
             _ => {}
         }
-        let offset: [f64; 3] = std::array::from_fn(|c| g5x[c] + g92[c]);
+        let n = lengths;
+        let offset: [f64; 3] = std::array::from_fn(|c| g5x[c] + g92[c] + tool[c]);
         let (kind, end, arc) = match call {
             "STRAIGHT_TRAVERSE" => ("rapid", [n[0], n[1], n[2]], None),
             "STRAIGHT_FEED" => ("feed", [n[0], n[1], n[2]], None),
@@ -420,9 +512,38 @@ fn linuxcnc(rs274: &std::path::Path, text: &str) -> Vec<Canonical> {
             continue;
         }
         at = end;
-        moves.push(Canonical { kind, end, arc });
+        let feed = (kind != "rapid").then_some(if per_rev { feed * rpm } else { feed });
+        moves.push(Canonical { kind, end, arc, feed });
     }
     moves
+}
+
+/// What LinuxCNC 2.9's `rs274` prints for `text`, read with [`tool_table_in_inches`].
+fn rs274_output(rs274: &std::path::Path, text: &str) -> String {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let file = dir.path().join("p.ngc");
+    std::fs::write(&file, text).expect("write");
+    std::fs::write(dir.path().join("tool.tbl"), tool_table_in_inches()).expect("write");
+    // One rs274 at a time: two run at once (two tests) have printed nothing for one of them.
+    static ONE_AT_A_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+    // A run that ends without PROGRAM_END (seen once in CI, not reproduced) is tried again.
+    let run = || {
+        std::process::Command::new(rs274)
+            .args(["-t", "tool.tbl", "-g"])
+            .arg(&file)
+            .current_dir(dir.path())
+            .output()
+            .expect("rs274 runs")
+    };
+    let mut out = run();
+    for _ in 0..2 {
+        if String::from_utf8_lossy(&out.stdout).contains("PROGRAM_END") {
+            break;
+        }
+        out = run();
+    }
+    String::from_utf8_lossy(&out.stdout).into_owned()
 }
 
 /// Subroutines with arguments, defined after M2 (LinuxCNC finds them), named and numbered
@@ -484,6 +605,21 @@ fn the_cam_dialect_gives_the_moves_linuxcnc_gives() {
         "G81 X1 Z-1 R1 F10\nG28 Z5\nX3\nM2\n",
         // G92 and its variants, G52 (which shares G92's offset), G92 after G52.
         "G0 X3\nG92 X5\nG0 X0 Y1\nG92.2\nG0 X1\nG92.3\nG0 X2\nG92.1\nG0 X3\nG52 X5 Y-1\nG0 X0 Y0\nG92 X2\nG0 X1\nG52 X0 Y0\nG0 X1\nM2\n",
+        // Tools: a change, G43 with H and with the tool in the spindle, G43.1 (the axes it
+        // names), G49, in inches. (Not G20 while an offset is in force: rs274 then mixes an
+        // offset in millimetres with positions in inches.)
+        "G21 G90\nT1 M6\nG43 H1\nG0 X1 Y1 Z5\nG1 Z-1 F100\nG49 G0 Z2\nT2 M6 M3 S1000\nG43\nG0 Z0\nG43.1 X1 Z2\nG0 Z0\nG43.1 Z3\nG0 Z1\nG49\nG20 G43.1 Z0.5\nG0 Z1\nG21 G49\nG0 Z0\nM2\n",
+        // (M61 then G43 without H: rs274 applies no offset, its stand-alone tool table not knowing
+        // M61's tool; LinuxCNC's documented meaning, ours, applies the tool's.)
+        "G43 H2 G0 Z1 X1\nG43 H0\nG0 Z2\nM61 Q5\nG43 H5\nG0 Z3\nM5 M9\nM2\n",
+        // The tool table changed by G10 L1 and L10; offsets under G92 and G10 L20; G28 and G53
+        // with a tool offset.
+        "T1 M6\nG10 L1 P1 Z20 R2\nG43 H1\nG0 Z1\nG0 X1 Z3\nG10 L10 P2 Z0\nG43 H2\nG0 Z1\nM2\n",
+        "G43 H1\nG0 Z1\nG92 Z0\nG0 Z-1\nG10 L20 P1 Z5\nG0 Z0\nG92.1\nG0 Z10\nG28 Z5\nG53 G0 Z2\nG0 Z1\nM2\n",
+        // Feed modes: inverse time on lines and arcs, per revolution at the programmed speed.
+        "G93 G1 X10 F2\nG2 X20 I5 F3\nG1 Y5 Z1 F0.5\nG94 G1 X0 F100\nS2000 G95 G1 X5 F0.1\nY3\nS1000 G1 X2\nG94 G1 Y0 F50\nM2\n",
+        // Messages do not move the tool.
+        "(MSG, starting)\nG0 X1 (MSG,on a move)\n#1=2\n(DEBUG, at #1 #<_x>)\nG0 X#1\nM2\n",
     ];
     for text in programs {
         let (o, l) = (ours(text), linuxcnc(rs274, text));
@@ -495,9 +631,16 @@ fn the_cam_dialect_gives_the_moves_linuxcnc_gives() {
 /// prints (4 decimals, of inches after G20: 0.00254 mm).
 fn agree(ours: &[Canonical], theirs: &[Canonical]) -> bool {
     let close = |a: &[f64], b: &[f64]| a.iter().zip(b).all(|(x, y)| (x - y).abs() <= 0.003);
+    // Feeds as rs274 prints them: 4 decimals of the program's units per minute.
+    let feeds = |a: Option<f64>, b: Option<f64>| match (a, b) {
+        (Some(x), Some(y)) => (x - y).abs() <= 0.003 + 1e-6 * x.abs(),
+        (None, None) => true,
+        _ => false,
+    };
     ours.len() == theirs.len()
         && ours.iter().zip(theirs).all(|(a, b)| {
             a.kind == b.kind
+                && feeds(a.feed, b.feed)
                 && close(&a.end, &b.end)
                 && match (a.arc, b.arc) {
                     (None, None) => true,
@@ -542,17 +685,20 @@ fn linuxcncs_example_programs_give_its_moves() {
             .and_then(|n| n.to_str())
             .unwrap_or_default()
             .to_string();
-        let program = pkm_nc::interp::read(
-            &text,
-            &pkm_nc::interp::Machine {
-                axes: &["x", "y", "z"],
-                start: [0.0; 6],
-                work_offsets: [[0.0; 6]; 6],
-                block_delete: false,
-            },
-        );
-        match program {
+        match our_program(&text) {
             Err(e) => eprintln!("{name}: not read: {e}"),
+            // `T1 M06 G43 H1` on one line: after a tool change rs274 takes the position again
+            // from its stand-alone canon, which knows nothing of the tool offset, so that its
+            // next `G0 X1 Y1` raises Z by the tool's length; LinuxCNC itself takes the position
+            // with the offset, and Z stays. Ours keeps Z too (asserted below).
+            Ok(program) if name == "skeleton" => {
+                let first_xy = program.blocks.iter().find_map(|b| match b.action {
+                    pkm_nc::interp::Action::Move { from, to, .. } if to[0] != 0.0 => Some((from[2], to[2])),
+                    _ => None,
+                });
+                assert_eq!(first_xy, Some((0.0, 0.0)), "skeleton: the move to X1 Y1 stays at Z0");
+                read.push(name);
+            }
             Ok(_) => {
                 let (o, l) = (ours(&text), linuxcnc(rs274, &text));
                 let first = o
@@ -580,7 +726,58 @@ fn linuxcncs_example_programs_give_its_moves() {
         "factorial",
         "g881",
         "g882",
+        "skeleton",
     ] {
         assert!(read.iter().any(|r| r == name), "{name} was not read: {read:?}");
+    }
+}
+
+/// Message comments read as LinuxCNC 2.9's `rs274` writes them (`MESSAGE(…)`): which comments
+/// are messages, the text after the comma, DEBUG's parameters substituted, a line's last comment
+/// only; and programs both refuse (a tool not in the table, T not whole, G95 with no spindle
+/// speed, G93 without F).
+#[test]
+fn messages_and_refusals_agree_with_linuxcnc() {
+    let Some(rs274) = [std::path::Path::new("/usr/bin/rs274")]
+        .into_iter()
+        .find(|p| p.exists())
+    else {
+        common::skip(
+            "nc::messages_and_refusals_agree_with_linuxcnc",
+            "no rs274 here (apt-get install linuxcnc-uspace; .ci/run installs it)",
+        );
+        return;
+    };
+    let text = "( MSG,a)\n(msg,b)\n(MSG c)\n(MSG,)\n#1=2.5\n(DEBUG,x=#1 y=#<nope> z=#<_y> w=#5220 #)\n(debug, -#1)\nG0 X1 (MSG, in block)\nG0 X2 (DEBUG,#1) (MSG,two)\n(DEBUG,#[1+1])\nT1 M6 (MSG, tool 1)\nM2\n";
+    let theirs: Vec<String> = rs274_output(rs274, text)
+        .lines()
+        .filter_map(|l| {
+            l.split_once("MESSAGE(\"")
+                .map(|(_, m)| m.trim_end_matches("\")").to_string())
+        })
+        .collect();
+    let ours: Vec<String> = our_program(text)
+        .unwrap_or_else(|e| panic!("{e}"))
+        .messages
+        .into_iter()
+        .map(|m| m.text)
+        .collect();
+    assert_eq!(ours, theirs);
+    assert_eq!(theirs.len(), 9, "{theirs:?}");
+    for text in [
+        "T99 M6\nM2\n",
+        "G43 H99\nM2\n",
+        "T1.5\nM2\n",
+        "T-1 M6\nM2\n",
+        "T1 T2 M6\nM2\n",
+        "G95 G1 X10 F2\nM2\n",
+        "G93 G1 X10 F2\nG1 X20\nM2\n",
+        "G93 G81 X1 Z-1 R1 F2\nM2\n",
+    ] {
+        assert!(our_program(text).is_err(), "we read {text:?}");
+        assert!(
+            !rs274_output(rs274, text).contains("PROGRAM_END"),
+            "rs274 read {text:?}"
+        );
     }
 }

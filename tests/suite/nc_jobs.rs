@@ -71,7 +71,7 @@ fn mdi_lines_and_a_run_from_a_line_start_where_the_tool_stands_and_replay_identi
     let (library, sink) = (library.expect("a library"), hmi.expect("the screen's inputs"));
     let trace = dir.path().join("jobs.jsonl");
     let digest = setup.digest().expect("a digest");
-    let recorder = pkm_plc::services::trace::record::Recorder::create_with(&trace, &plc, &digest, Some(&library))
+    let recorder = pkm_plc::services::trace::record::Recorder::create_with(&trace, &plc, &digest, Some(&library), None)
         .expect("the trace");
     let mut plc = plc;
     plc.set_recorder(Box::new(recorder));

@@ -80,6 +80,10 @@ pub struct NcConfig {
     /// default, as LinuxCNC's), they run.
     #[serde(default)]
     pub block_delete: bool,
+    /// The tool table, in LinuxCNC's `tool.tbl` format, relative to this file's directory
+    /// (`--tool-table` overrides it); without one, T, M6 and G43 H are refused.
+    #[serde(default)]
+    pub tool_table: Option<String>,
     /// The share of each joint's and world axis' acceleration a program's plan uses (1 by
     /// default): a machine whose drives follow the planned (trapezoidal) speed profile within
     /// the contour tolerance only at less sets it lower.

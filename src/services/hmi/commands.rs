@@ -5,7 +5,9 @@
 
 use std::sync::{Arc, Mutex};
 
-use pkm_api::hmi::{HMI_AXES, HMI_JOG, HMI_JOG_AXIS, HMI_NC, HMI_NC_PROGRAM, HMI_STOP, JOG_AXIS_RANGE};
+use pkm_api::hmi::{
+    HMI_AXES, HMI_JOG, HMI_JOG_AXIS, HMI_NC, HMI_NC_PROGRAM, HMI_STOP, HMI_TOOL_CHANGED, JOG_AXIS_RANGE,
+};
 use pkm_api::trajectory::{OVERRIDE_DEFAULT, vars};
 
 use crate::image::{Value, VarIndex, VarTable, VarType, Writer};
@@ -19,10 +21,10 @@ pub const PRESS_NS: u64 = 100_000_000;
 /// the jog's deflection, the program's overrides and single block.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Commands {
-    /// Presses of STOP, the axis button, and the program's start, hold and resume. A press
-    /// while the previous one of its button is still held merges with it (a double click is one
-    /// press).
-    pub presses: [u64; 5],
+    /// Presses of STOP, the axis button, the program's start, hold and resume, and the tool
+    /// change's confirmation. A press while the previous one of its button is still held merges
+    /// with it (a double click is one press).
+    pub presses: [u64; PRESSES],
     /// Acknowledgements of an error: each is a STOP press that starts only once STOP has been
     /// released for the programs' STOP lockout — so an acknowledgement sent right after STOP is
     /// a press of its own, neither merged with the STOP nor ignored by the lockout (OPC UA's
@@ -47,7 +49,7 @@ impl Default for Commands {
     /// No press, no jog, no program chosen, 100 % overrides, single block off.
     fn default() -> Self {
         Commands {
-            presses: [0; 5],
+            presses: [0; PRESSES],
             acknowledgements: 0,
             jog: [0.0; 2],
             jog_axis: 0,
@@ -64,6 +66,9 @@ pub const FEED_OVERRIDE_RANGE: std::ops::RangeInclusive<i16> = 0..=150;
 /// The rapid override's range on the screen (percent).
 pub const RAPID_OVERRIDE_RANGE: std::ops::RangeInclusive<i16> = 0..=100;
 
+/// How many buttons the screen presses.
+pub const PRESSES: usize = 6;
+
 /// Which of [`Commands::presses`] is which.
 pub mod press {
     /// STOP (and the acknowledgement in ERROR).
@@ -72,6 +77,8 @@ pub mod press {
     pub const AXES: usize = 1;
     /// Program start, hold, resume.
     pub const NC: [usize; 3] = [2, 3, 4];
+    /// The confirmation of a manual tool change.
+    pub const TOOL_CHANGED: usize = 5;
 }
 
 /// The server's end: any connection may command (they share it, and the commands as last
@@ -100,12 +107,13 @@ pub struct HmiBus {
     /// The class that latches the screen's variables (the fastest: STOP reaches the interlock).
     class: usize,
     output: triple_buffer::Output<Commands>,
-    /// The variables: the five presses' (in [`press`] order), the jog's x and y, its axis, the
-    /// program to load, the feed and rapid overrides, single block.
-    vars: [VarIndex; 12],
-    seen: [u64; 5],
+    /// The variables: the first five presses' (in [`press`] order), the jog's x and y, its axis,
+    /// the program to load, the feed and rapid overrides, single block, then the tool change's
+    /// confirmation (declared last, so that the earlier ones keep their order in traces).
+    vars: [VarIndex; 7 + PRESSES],
+    seen: [u64; PRESSES],
     /// Until when each press holds its variable on (ns of the schedule).
-    until: [u64; 5],
+    until: [u64; PRESSES],
     /// Acknowledgements seen, and whether one waits for STOP's release.
     acknowledged: u64,
     acknowledgement_waits: bool,
@@ -122,9 +130,9 @@ impl HmiBus {
             inner,
             class,
             output,
-            vars: [0; 12],
-            seen: [0; 5],
-            until: [0; 5],
+            vars: [0; 7 + PRESSES],
+            seen: [0; PRESSES],
+            until: [0; PRESSES],
             acknowledged: 0,
             acknowledgement_waits: false,
             acknowledgement_gap_ns: stop_lockout_ns.max(PRESS_NS),
@@ -167,6 +175,7 @@ impl Bus for HmiBus {
                 Value::Int(OVERRIDE_DEFAULT),
             ),
             declare(vars::NC_SINGLE_BLOCK.name(), VarType::Bool, Value::Bool(false)),
+            declare(HMI_TOOL_CHANGED.name(), VarType::Bool, Value::Bool(false)),
         ];
     }
 
@@ -189,12 +198,13 @@ impl Bus for HmiBus {
             self.acknowledgement_waits = false;
             self.until[stop] = t_ns + PRESS_NS;
         }
-        for k in 0..5 {
+        for k in 0..PRESSES {
             if c.presses[k] != self.seen[k] {
                 self.seen[k] = c.presses[k];
                 self.until[k] = t_ns + PRESS_NS;
             }
-            image[usize::from(self.vars[k])] = Value::Bool(t_ns < self.until[k]);
+            let var = if k < 5 { self.vars[k] } else { self.vars[12] };
+            image[usize::from(var)] = Value::Bool(t_ns < self.until[k]);
         }
         for (i, v) in c.jog.iter().enumerate() {
             image[usize::from(self.vars[5 + i])] = Value::Real(v.clamp(-1.0, 1.0));

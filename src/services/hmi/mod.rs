@@ -17,6 +17,7 @@ pub mod cut;
 pub mod jobs;
 pub mod listener;
 pub mod mechanism;
+mod served;
 pub mod server;
 
 use std::net::SocketAddr;

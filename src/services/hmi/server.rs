@@ -35,9 +35,10 @@ use super::commands::{CommandSink, FEED_OVERRIDE_RANGE, RAPID_OVERRIDE_RANGE, pr
 use super::cut::CutPath;
 use super::jobs::JobDesk;
 use super::listener::Peer;
-use crate::image::Value;
+pub use super::served::{ScreenProgram, TEXT_WINDOW};
+use super::served::{Served, frame_json};
 use crate::runtime::backoff::Backoff;
-use crate::runtime::frame::{Frame, FrameFeed};
+use crate::runtime::frame::FrameFeed;
 use crate::runtime::log_limit::Limited;
 
 /// A jog not refreshed for this long stops (the page refreshes it every 20 ms while held).
@@ -51,10 +52,6 @@ pub const MAX_CLIENT_MESSAGE: usize = 4096;
 pub const COMMANDS_PER_S: f64 = 100.0;
 /// How often a client may ask for the cut path (it is up to about 100 kB).
 pub const CUT_EVERY: Duration = Duration::from_secs(1);
-/// The most lines of a program's text sent in one answer.
-pub const TEXT_WINDOW: usize = 400;
-/// A line of a program's text is sent cut to this many characters.
-const MAX_LINE_CHARS: usize = 300;
 /// The most programs refused by `--programs` that the hello lists (the rest are counted).
 const MAX_REFUSED_LISTED: usize = 50;
 
@@ -87,6 +84,8 @@ pub struct Shared {
     running: AtomicBool,
     /// The machine is in ERROR (the last frame's state): there is an error to acknowledge.
     in_error: AtomicBool,
+    /// A manual tool change waits for its confirmation (the last frame's `TOOL_CHANGE`).
+    tool_change: AtomicBool,
     /// The run's programs: text and path, served on request.
     programs: Vec<Served>,
     /// Where jobs are made.
@@ -122,70 +121,10 @@ pub struct HmiInfo {
     pub mechanism: Option<super::mechanism::Mechanism>,
     /// Where the screen makes jobs (MDI, a program from a line), if the run has a library.
     pub jobs: Option<JobDesk>,
-}
-
-/// An NC program as the screen shows it.
-#[derive(Clone)]
-pub struct ScreenProgram {
-    /// Its file.
-    pub file: String,
-    /// Its text.
-    pub text: String,
-    /// The programmed tool path (x y z of the commanded pose along the program's time line),
-    /// for the page's preview.
-    pub path: Vec<[f64; 3]>,
-}
-
-/// A program as the screen serves it: its text with where every [`TEXT_WINDOW`]-th line starts,
-/// so that a window costs at most two windows' lines, not the whole text: the last window of a
-/// 16 MB text (500 000 lines) took 18–33 ms when the text was counted and skipped through for
-/// every request — which a watching client may send 100 times a second — and takes 29 µs.
-#[derive(Clone)]
-struct Served {
-    program: ScreenProgram,
-    /// How many lines the text has.
-    total: usize,
-    /// Byte offsets of lines 1, 1 + [`TEXT_WINDOW`], 1 + 2·[`TEXT_WINDOW`], …
-    checkpoints: Vec<usize>,
-}
-
-impl Served {
-    fn new(program: ScreenProgram) -> Served {
-        let base = program.text.as_ptr() as usize;
-        let mut total = 0;
-        let mut checkpoints = Vec::new();
-        for (i, line) in program.text.lines().enumerate() {
-            if i % TEXT_WINDOW == 0 {
-                // `lines` yields slices of the text: the offset is where this one starts.
-                checkpoints.push(line.as_ptr() as usize - base);
-            }
-            total = i + 1;
-        }
-        Served {
-            program,
-            total,
-            checkpoints,
-        }
-    }
-
-    /// Lines `from` … (1-based) of the text, at most [`TEXT_WINDOW`], each cut to
-    /// [`MAX_LINE_CHARS`] characters; and how many lines the text has.
-    fn window(&self, from: usize) -> (Vec<String>, usize) {
-        let skip = from.max(1) - 1;
-        let Some(&start) = self.checkpoints.get(skip / TEXT_WINDOW) else {
-            return (Vec::new(), self.total);
-        };
-        let lines = self.program.text[start..]
-            .lines()
-            .skip(skip % TEXT_WINDOW)
-            .take(TEXT_WINDOW)
-            .map(|l| match l.char_indices().nth(MAX_LINE_CHARS) {
-                Some((at, _)) => format!("{}…", &l[..at]),
-                None => l.to_string(),
-            })
-            .collect();
-        (lines, self.total)
-    }
+    /// The tool table's tools: number and comment (the manual tool change names them).
+    pub tools: Vec<(u32, String)>,
+    /// The run's programs, whose messages (MSG) the screen shows as the run reaches them.
+    pub library: Option<pkm_api::library::NcLibrary>,
 }
 
 /// Builds the router and the task that pushes frames.
@@ -202,7 +141,13 @@ pub fn router(info: HmiInfo, mut frames: FrameFeed, sink: CommandSink, options: 
         "axes": info.axes,
         "joints": info.joints,
         "jobs": info.jobs.is_some(),
+        "tools": info.tools.iter().map(|(n, comment)| json!([n, comment])).collect::<Vec<_>>(),
     });
+    let tool_change_at = info
+        .variables
+        .iter()
+        .position(|(n, _)| n == pkm_api::trajectory::vars::TOOL_CHANGE.name());
+    let mut messages = crate::runtime::messages::MessageWatch::of_names(&info.variables, info.library.as_ref());
     let (tx, _) = broadcast::channel::<Arc<str>>(16);
     let shared = Arc::new(Shared {
         hello,
@@ -214,6 +159,7 @@ pub fn router(info: HmiInfo, mut frames: FrameFeed, sink: CommandSink, options: 
         jog_owner: std::sync::Mutex::new(None),
         running: AtomicBool::new(false),
         in_error: AtomicBool::new(false),
+        tool_change: AtomicBool::new(false),
         programs,
         jobs: info.jobs,
         watchers: AtomicUsize::new(0),
@@ -224,6 +170,7 @@ pub fn router(info: HmiInfo, mut frames: FrameFeed, sink: CommandSink, options: 
     });
     let pump = Arc::clone(&shared);
     let mut mechanism = info.mechanism;
+    let mut last_message: Option<Json> = None;
     tokio::spawn(async move {
         // A held jog whose client went quiet is looked at between frames too.
         let mut tick = tokio::time::interval(STALE_JOG_POLL);
@@ -241,6 +188,20 @@ pub fn router(info: HmiInfo, mut frames: FrameFeed, sink: CommandSink, options: 
             if let Some(frame) = &newer {
                 pump.running.store(frame.status.state == "AUTO", Ordering::Relaxed);
                 pump.in_error.store(frame.status.state == "ERROR", Ordering::Relaxed);
+                let waits = tool_change_at.and_then(|i| frame.image.get(i)) == Some(&crate::image::Value::Bool(true));
+                pump.tool_change.store(waits, Ordering::Relaxed);
+                // The newest message (MSG) the run reached, with when: the page shows it.
+                if let Some(watch) = &mut messages {
+                    let t_s = frame.status.t_ns as f64 * 1e-9;
+                    let (new, _) = watch.take(&frame.image);
+                    if let Some(m) = new
+                        .iter()
+                        .rev()
+                        .find(|m| m.kind == pkm_api::trajectory::NcMessageKind::Msg)
+                    {
+                        last_message = Some(json!([t_s, m.line, m.text.trim()]));
+                    }
+                }
                 if let Some(desk) = &pump.jobs {
                     // A replaced job's plan is freed on a thread of its own, not waited for.
                     drop(desk.observe(&frame.status.state, &frame.image));
@@ -258,7 +219,7 @@ pub fn router(info: HmiInfo, mut frames: FrameFeed, sink: CommandSink, options: 
                     .as_mut()
                     .filter(|_| operating)
                     .and_then(|m| m.links(&frame.image));
-                let _ = tx.send(Arc::from(frame_json(&frame, links).as_str()));
+                let _ = tx.send(Arc::from(frame_json(&frame, links, last_message.as_ref()).as_str()));
             }
             pump.release_stale_jog();
         }
@@ -327,37 +288,6 @@ async fn index(
 
 fn asset(content_type: &'static str, body: &'static str) -> Response {
     ([(header::CONTENT_TYPE, content_type)], body).into_response()
-}
-
-/// A frame as the page reads it.
-fn frame_json(f: &Frame, links: Option<&[[[f64; 3]; 2]]>) -> String {
-    let s = &f.status;
-    let value = |v: &Value| match *v {
-        Value::Bool(b) => json!(b),
-        Value::Int(i) => json!(i),
-        Value::Uint(u) => json!(u),
-        Value::Dint(d) => json!(d),
-        Value::Real(x) => serde_json::Number::from_f64(x).map_or(Json::Null, Json::Number),
-    };
-    json!({
-        "type": "frame",
-        "seq": f.seq,
-        "t_s": s.t_ns as f64 * 1e-9,
-        "state": s.state,
-        "reason": s.reason,
-        "note": s.note,
-        "values": s.values.iter().map(|(n, v)| json!([n, serde_json::Number::from_f64(*v).map_or(Json::Null, Json::Number)])).collect::<Vec<_>>(),
-        "classes": s.classes.iter().map(|c| json!({
-            "name": c.name, "cycles": c.cycles, "overruns": c.overruns, "violations": c.violations,
-            "late_mean_us": c.lateness_mean_ns / 1e3, "late_max_us": c.lateness_max_ns as f64 / 1e3,
-            "exec_mean_us": c.exec_mean_ns / 1e3, "exec_max_us": c.exec_max_ns as f64 / 1e3,
-        })).collect::<Vec<_>>(),
-        "bus_fault": f.bus_fault,
-        "published_unix_us": f.published_unix_us,
-        "links": links.map(|l| l.iter().map(|[a, b]| json!([a, b])).collect::<Vec<_>>()),
-        "image": f.image.iter().map(value).collect::<Vec<_>>(),
-    })
-    .to_string()
 }
 
 /// The query of the page's and the WebSocket's address: the token, if the client has one.
@@ -459,6 +389,8 @@ enum Command {
     },
     /// Single block on or off.
     SingleBlock { on: bool },
+    /// The tool the manual tool change asks for is in the spindle: the program goes on.
+    ToolChanged {},
     /// Lines `from` … of program `program`'s text (a read: watchers may ask too).
     Text { program: usize, from: usize },
     /// The programmed path of program `program` (a read).
@@ -887,6 +819,13 @@ impl Shared {
                 info!("screen {peer}: single block {}", if on { "on" } else { "off" });
                 self.sink.update(|c| c.single_block = on);
             }
+            Command::ToolChanged {} => {
+                if !self.tool_change.load(Ordering::Relaxed) {
+                    return Err("no tool change waits for a confirmation".into());
+                }
+                info!("screen {peer}: tool change confirmed");
+                self.sink.update(|c| c.presses[press::TOOL_CHANGED] += 1);
+            }
             Command::Acknowledge {} => {
                 if !self.in_error.load(Ordering::Relaxed) {
                     return Err("there is no error to acknowledge: the machine is not in ERROR".into());
@@ -992,6 +931,7 @@ fn finite(v: f64) -> f64 {
 
 #[cfg(test)]
 mod tests {
+    use super::super::served::MAX_LINE_CHARS;
     use super::*;
     use proptest::prelude::*;
 

@@ -54,6 +54,10 @@ pub struct Header {
     /// `program`: a replay plans them again.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub library: Vec<TraceProgram>,
+    /// The tool table the programs were read with (its file and text): a replay reads them
+    /// with it again.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tool_table: Option<TraceProgram>,
 }
 
 impl Header {

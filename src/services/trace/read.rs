@@ -213,6 +213,7 @@ impl TraceReader {
                 variables: Default::default(),
                 program: None,
                 library: Vec::new(),
+                tool_table: None,
             },
             classes: HashMap::new(),
             variables: Vec::new(),

@@ -14,7 +14,7 @@ use std::sync::mpsc::{Receiver, RecvTimeoutError, SyncSender, TrySendError, sync
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use super::{ClassHeader, FORMAT, Header, VERSION, same, value_to_json};
+use super::{ClassHeader, FORMAT, Header, TraceProgram, VERSION, same, value_to_json};
 use crate::image::{Value, VarIndex};
 use crate::runtime::plc::{CycleRecord, CycleSink, Plc, SinkError};
 
@@ -127,15 +127,17 @@ pub struct Recorder {
 impl Recorder {
     /// Creates the trace file, writes its header and starts the writer thread.
     pub fn create(path: &Path, plc: &Plc, config_digest: &str) -> io::Result<Recorder> {
-        Recorder::create_with(path, plc, config_digest, None)
+        Recorder::create_with(path, plc, config_digest, None, None)
     }
 
-    /// [`Recorder::create`] for a run with NC programs: the header carries them.
+    /// [`Recorder::create`] for a run with NC programs: the header carries them, and the tool
+    /// table they were read with.
     pub fn create_with(
         path: &Path,
         plc: &Plc,
         config_digest: &str,
         library: Option<&pkm_api::library::NcLibrary>,
+        tool_table: Option<TraceProgram>,
     ) -> io::Result<Recorder> {
         let nc = library;
         let (program, library) = Header::programs(library);
@@ -160,6 +162,7 @@ impl Recorder {
             variables: vars.iter().map(|v| (v.name.clone(), v.ty)).collect(),
             program,
             library,
+            tool_table,
         };
         let var_names: Vec<String> = vars.iter().map(|v| v.name.clone()).collect();
         // The screen's jobs go into the trace where the screen loads them.

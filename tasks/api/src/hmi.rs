@@ -31,6 +31,9 @@ pub const HMI_NC: [Var<bool>; 3] = [
     Var::new("HMI_NC_HOLD"),
     Var::new("HMI_NC_RESUME"),
 ];
+/// The screen's confirmation of a manual tool change (a press), in addition to the panel's
+/// `TOOL_CHANGED`.
+pub const HMI_TOOL_CHANGED: Var<bool> = Var::new("HMI_TOOL_CHANGED");
 /// The program the screen asks to load: its (1-based) number in the run's
 /// [`NcLibrary`](crate::library::NcLibrary); 0 asks for nothing. Taken by the main program
 /// outside AUTO (a level: the last choice stands).

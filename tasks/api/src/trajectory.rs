@@ -53,6 +53,24 @@ pub mod vars {
     pub const COOLANT_MIST: Var<bool> = Var::new("COOLANT_MIST");
     /// Flood coolant on (M8, until M9).
     pub const COOLANT_FLOOD: Var<bool> = Var::new("COOLANT_FLOOD");
+    /// A manual tool change (M6) waits for the operator: the program stands until
+    /// `TOOL_CHANGED` (or the screen's `HMI_TOOL_CHANGED`) rises.
+    pub const TOOL_CHANGE: Var<bool> = Var::new("TOOL_CHANGE");
+    /// The tool the change asks for (0: empty the spindle); the last one asked when no change
+    /// waits.
+    pub const TOOL_PREP_NUMBER: Var<i32> = Var::new("TOOL_PREP_NUMBER");
+    /// The operator's confirmation that the tool asked for is in the spindle (a press: its
+    /// rising edge confirms). Optional: the screen's `HMI_TOOL_CHANGED` does the same.
+    pub const TOOL_CHANGED: Var<bool> = Var::new("TOOL_CHANGED");
+    /// The tool in the spindle as the last confirmed change put it there (0: none, or not
+    /// known since the PLC started).
+    pub const TOOL_NUMBER: Var<i32> = Var::new("TOOL_NUMBER");
+    /// The last message comment the running program reached: its 1-based index in the loaded
+    /// program's messages (0: none yet in this run).
+    pub const NC_MESSAGE: Var<i32> = Var::new("NC_MESSAGE");
+    /// How many message comments programs have reached since the PLC started: an observer that
+    /// sees it grow by k knows the last k messages up to `NC_MESSAGE` are new.
+    pub const NC_MESSAGES: Var<i32> = Var::new("NC_MESSAGES");
     /// The contour error now: the distance from the measured tool point to the programmed path
     /// (mm), measured on feed moves (G1, G2, G3; not on rapids).
     pub const NC_CONTOUR_ERROR: Var<f64> = Var::new("NC_CONTOUR_ERROR");
@@ -140,6 +158,18 @@ pub enum TrajectoryEventKind {
         /// Flood (M8).
         flood: bool,
     },
+    /// M6: a manual tool change — stand until the operator confirms that tool `tool` is in the
+    /// spindle (0: the spindle emptied).
+    ToolChange {
+        /// The tool asked for.
+        tool: u32,
+    },
+    /// A message comment: the `index`-th (0-based) of [`Trajectory::messages`]. The tool does
+    /// not stop for it.
+    Message {
+        /// Its index.
+        index: u32,
+    },
     /// M3 (1), M4 (−1), M5 (0) with the programmed speed (rpm).
     Spindle {
         /// 1 clockwise, −1 counter-clockwise, 0 off.
@@ -147,6 +177,39 @@ pub enum TrajectoryEventKind {
         /// The programmed speed (rpm).
         rpm: f64,
     },
+}
+
+/// What a program's message comment asks for (LinuxCNC's `(MSG,…)`, `(DEBUG,…)`, `(PRINT,…)`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum NcMessageKind {
+    /// `(MSG,…)`: shown to the operator (the screen) and logged.
+    Msg,
+    /// `(DEBUG,…)`: logged, its parameters substituted.
+    Debug,
+    /// `(PRINT,…)`: logged, its parameters substituted.
+    Print,
+}
+
+impl NcMessageKind {
+    /// The comment's keyword, upper case.
+    pub fn keyword(self) -> &'static str {
+        match self {
+            NcMessageKind::Msg => "MSG",
+            NcMessageKind::Debug => "DEBUG",
+            NcMessageKind::Print => "PRINT",
+        }
+    }
+}
+
+/// A message of a program, as the executor reaches it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct NcMessage {
+    /// Its program line.
+    pub line: u32,
+    /// What it asks for.
+    pub kind: NcMessageKind,
+    /// Its text (for DEBUG and PRINT with the parameters' values as they were at its line).
+    pub text: String,
 }
 
 /// A timed event of a trajectory.
@@ -174,6 +237,10 @@ pub trait Trajectory: Send + Sync {
     fn sample(&self, t: f64, cursor: &mut usize) -> TrajectorySample;
     /// The events, in time order.
     fn events(&self) -> &[TrajectoryEvent];
+    /// The program's messages, in the order its events reach them.
+    fn messages(&self) -> &[NcMessage] {
+        &[]
+    }
     /// The first place after `s` (mm along the path) where one program line's motion ends and
     /// the next one's begins: its distance along the path and its planned time (s). `None`
     /// after the last line's motion began. Single block stands there.

@@ -63,11 +63,14 @@ pub enum RunState {
     /// Standing at the end of a line in single block, until the main program holds and
     /// resumes (as at an M0).
     BlockDone = 6,
+    /// Standing at an M6 until the operator confirms the tool change (`TOOL_CHANGED`); a hold
+    /// or resume does not leave it.
+    ToolChange = 7,
 }
 
 impl RunState {
     /// Every state, in code order.
-    pub const ALL: [RunState; 7] = [
+    pub const ALL: [RunState; 8] = [
         RunState::Idle,
         RunState::Running,
         RunState::Holding,
@@ -75,6 +78,7 @@ impl RunState {
         RunState::Paused,
         RunState::Done,
         RunState::BlockDone,
+        RunState::ToolChange,
     ];
 
     /// The state with this code.
@@ -92,6 +96,7 @@ impl RunState {
             RunState::Paused => "paused (M0)",
             RunState::Done => "done",
             RunState::BlockDone => "single block: line done",
+            RunState::ToolChange => "tool change (M6)",
         }
     }
 }
@@ -105,6 +110,9 @@ pub struct Operator {
     pub rapid: f64,
     /// Stand at the end of every line.
     pub single_block: bool,
+    /// The operator's confirmation of a manual tool change (a level; its rising edge
+    /// confirms).
+    pub tool_changed: bool,
 }
 
 impl Default for Operator {
@@ -114,6 +122,7 @@ impl Default for Operator {
             feed: 1.0,
             rapid: 1.0,
             single_block: false,
+            tool_changed: false,
         }
     }
 }
@@ -126,6 +135,7 @@ impl Operator {
             feed: (f64::from(feed) / 100.0).clamp(0.0, MAX_FEED_OVERRIDE),
             rapid: (f64::from(rapid) / 100.0).clamp(0.0, 1.0),
             single_block,
+            tool_changed: false,
         }
     }
 }
@@ -154,8 +164,16 @@ pub struct Executor {
     coolant: (bool, bool),
     /// The executing line, kept at an event's.
     line: u32,
-    /// Standing at an M0 (paused, or held after it): its line is the one executing.
+    /// Standing at an M0 (paused, or held after it) or an M6: its line is the one executing.
     at_pause: bool,
+    /// The tool the M6 it stands at asks for.
+    tool_asked: u32,
+    /// A tool change confirmed and not yet taken by [`Executor::confirmed_tool`].
+    tool_confirmed: Option<u32>,
+    /// The tool-change confirmation's level last cycle.
+    tool_changed_was: bool,
+    /// How many of the program's messages this run has reached.
+    messages: u32,
     /// A sampled pose had no joints: standing at the last one that had.
     fault: bool,
     current: TrajectorySample,
@@ -188,6 +206,10 @@ impl Executor {
             coolant: (false, false),
             line: current.line,
             at_pause: false,
+            tool_asked: 0,
+            tool_confirmed: None,
+            tool_changed_was: false,
+            messages: 0,
             fault: false,
             current,
             current_t: 0.0,
@@ -237,6 +259,22 @@ impl Executor {
         self.coolant
     }
 
+    /// The tool the M6 it stands at asks for (in [`RunState::ToolChange`]).
+    pub fn tool_asked(&self) -> Option<u32> {
+        (self.state == RunState::ToolChange).then_some(self.tool_asked)
+    }
+
+    /// The tool of a change confirmed since the last call (then in the spindle).
+    pub fn confirmed_tool(&mut self) -> Option<u32> {
+        self.tool_confirmed.take()
+    }
+
+    /// How many of the program's messages this run has reached: the last one reached is
+    /// [`Trajectory::messages`]`[n − 1]`.
+    pub fn messages_reached(&self) -> u32 {
+        self.messages
+    }
+
     /// The trajectory.
     pub fn trajectory(&self) -> &Arc<dyn Trajectory> {
         &self.trajectory
@@ -247,6 +285,15 @@ impl Executor {
     /// [`Executor::sample`] is the set-point for this cycle and [`Executor::velocities`] the
     /// joints' velocities towards the next one.
     pub fn step(&mut self, command: Command, operator: Operator, dt: f64, frozen: bool) {
+        let confirm = operator.tool_changed && !self.tool_changed_was;
+        self.tool_changed_was = operator.tool_changed;
+        if confirm && self.state == RunState::ToolChange {
+            // The tool is in: on from the M6.
+            self.state = RunState::Running;
+            self.at_pause = false;
+            self.next_event += 1;
+            self.tool_confirmed = Some(self.tool_asked);
+        }
         self.take(command);
         self.velocities = [0.0; MAX_AXES];
         if frozen || self.fault {
@@ -284,7 +331,7 @@ impl Executor {
         } else {
             self.line = self.current.line;
         }
-        if self.state == RunState::Paused {
+        if matches!(self.state, RunState::Paused | RunState::ToolChange) {
             return;
         }
         if moving && self.t >= duration && self.next_event >= self.trajectory.events().len() {
@@ -327,6 +374,7 @@ impl Executor {
                 self.block_stop = None;
                 self.cursor = 0;
                 self.next_event = 0;
+                self.messages = 0;
             }
             (Command::Run, RunState::Holding | RunState::Held) => {
                 self.state = RunState::Running;
@@ -362,10 +410,22 @@ impl Executor {
                     self.coolant = (mist, flood);
                     self.next_event += 1;
                 }
+                TrajectoryEventKind::Message { index } => {
+                    self.messages = index.saturating_add(1);
+                    self.next_event += 1;
+                }
                 TrajectoryEventKind::Pause => {
                     self.line = e.line;
                     self.at_pause = true;
                     self.state = RunState::Paused;
+                    self.rate = 0.0;
+                    break;
+                }
+                TrajectoryEventKind::ToolChange { tool } => {
+                    self.line = e.line;
+                    self.at_pause = true;
+                    self.tool_asked = tool;
+                    self.state = RunState::ToolChange;
                     self.rate = 0.0;
                     break;
                 }
@@ -481,7 +541,12 @@ impl Executor {
         if let Some(pause) = events[self.next_event.min(events.len())..]
             .iter()
             .take_while(|e| e.t <= next)
-            .find(|e| e.kind == TrajectoryEventKind::Pause)
+            .find(|e| {
+                matches!(
+                    e.kind,
+                    TrajectoryEventKind::Pause | TrajectoryEventKind::ToolChange { .. }
+                )
+            })
         {
             next = pause.t.max(self.t);
         }
@@ -600,6 +665,13 @@ pub struct NcChannel {
     feed_override: Input<i16>,
     rapid_override: Input<i16>,
     single_block: Input<bool>,
+    /// The tool-change confirmations: the panel's and the screen's.
+    tool_changed: [Input<bool>; 2],
+    tool_change: Output<bool>,
+    tool_prep: Output<i32>,
+    tool_number: Output<i32>,
+    message: Output<i32>,
+    messages: Output<i32>,
     state: Output<i16>,
     line: Output<i32>,
     time: Output<f64>,
@@ -643,6 +715,12 @@ impl NcChannel {
             feed_override: decl.read_optional_or(vars::NC_FEED_OVERRIDE, OVERRIDE_DEFAULT),
             rapid_override: decl.read_optional_or(vars::NC_RAPID_OVERRIDE, OVERRIDE_DEFAULT),
             single_block: decl.read_optional(vars::NC_SINGLE_BLOCK),
+            tool_changed: [vars::TOOL_CHANGED, pkm_api::hmi::HMI_TOOL_CHANGED].map(|v| decl.read_optional(v)),
+            tool_change: decl.write(vars::TOOL_CHANGE, false),
+            tool_prep: decl.write(vars::TOOL_PREP_NUMBER, 0),
+            tool_number: decl.write(vars::TOOL_NUMBER, 0),
+            message: decl.write(vars::NC_MESSAGE, 0),
+            messages: decl.write(vars::NC_MESSAGES, 0),
             state: decl.write(vars::NC_STATE, RunState::Idle as i16),
             line: decl.write(vars::NC_LINE, 0),
             time: decl.write(vars::NC_TIME_S, 0.0),
@@ -690,6 +768,25 @@ impl NcChannel {
         }
     }
 
+    /// The tool change's and the messages' outputs after a step; `reached`: the messages the
+    /// run had reached before it.
+    fn tool_outputs(&mut self, ctx: &mut Cycle<'_>, reached: u32) {
+        let asked = self.executor.tool_asked();
+        ctx.set(self.tool_change, asked.is_some());
+        if let Some(tool) = asked {
+            ctx.set(self.tool_prep, i32::try_from(tool).unwrap_or(i32::MAX));
+        }
+        if let Some(tool) = self.executor.confirmed_tool() {
+            ctx.set(self.tool_number, i32::try_from(tool).unwrap_or(i32::MAX));
+        }
+        let now = self.executor.messages_reached();
+        ctx.set(self.message, i32::try_from(now).unwrap_or(i32::MAX));
+        if now > reached {
+            let new = i32::try_from(now - reached).unwrap_or(i32::MAX);
+            ctx.set(self.messages, ctx.output_value(self.messages).saturating_add(new));
+        }
+    }
+
     /// One fast cycle: `auto` (the main state is AUTO), `interlock` (the drives are being
     /// stopped), the joints' measured `positions`. Returns the joints' set-points and
     /// velocities while the program drives them (in AUTO).
@@ -720,14 +817,19 @@ impl NcChannel {
         } else {
             Command::Off
         };
-        let operator = Operator::from_percent(
-            ctx.get(self.feed_override),
-            ctx.get(self.rapid_override),
-            ctx.get(self.single_block),
-        );
+        let operator = Operator {
+            tool_changed: self.tool_changed.iter().any(|i| ctx.get(*i)),
+            ..Operator::from_percent(
+                ctx.get(self.feed_override),
+                ctx.get(self.rapid_override),
+                ctx.get(self.single_block),
+            )
+        };
         let before = self.executor.state();
+        let reached = self.executor.messages_reached();
         self.executor.step(command, operator, dt, interlock);
         let state = self.executor.state();
+        self.tool_outputs(ctx, reached);
         if before == RunState::Idle && state != RunState::Idle {
             self.new_run(ctx);
         }
@@ -839,6 +941,9 @@ pub mod notes {
     pub const NOT_AT_START: &str = "program not started: the tool is not at the program's start, the reference pose (STOP, acknowledge and reference to return there)";
     /// Standing at the end of a line in single block.
     pub const BLOCK_DONE: &str = "single block: the line is done; NC_RESUME runs the next";
+    /// Standing at a manual tool change.
+    pub const TOOL_CHANGE: &str =
+        "tool change (M6): put the tool TOOL_PREP_NUMBER names in the spindle, then confirm (TOOL_CHANGED)";
 }
 
 impl ProgramControl {
@@ -961,6 +1066,7 @@ impl ProgramControl {
                 "the program stands (feed hold or M0): NC_RESUME goes on"
             }
             Some(RunState::Paused) => "M0: the program stands; NC_RESUME goes on",
+            Some(RunState::ToolChange) => notes::TOOL_CHANGE,
             Some(RunState::BlockDone) => notes::BLOCK_DONE,
             Some(RunState::Done) => "program done",
             _ => "running the program",
@@ -1123,6 +1229,20 @@ mod tests {
         Executor::new(Arc::new(TwoMoves::new(pause)))
     }
 
+    /// [`TwoMoves`] with a tool change (tool 7) and two messages where the M0 would stand.
+    fn with_tool_change() -> Executor {
+        let mut t = TwoMoves::new(false);
+        let at = |kind| TrajectoryEvent {
+            t: MOVE_S,
+            line: 3,
+            kind,
+        };
+        t.events.insert(1, at(TrajectoryEventKind::Message { index: 0 }));
+        t.events.insert(2, at(TrajectoryEventKind::ToolChange { tool: 7 }));
+        t.events.insert(3, at(TrajectoryEventKind::Message { index: 1 }));
+        Executor::new(Arc::new(t))
+    }
+
     /// Steps under `command` until `until` holds or `max` cycles; the positions seen.
     fn walk(e: &mut Executor, command: Command, max: usize, until: impl Fn(&Executor) -> bool) -> Vec<f64> {
         let mut seen = Vec::new();
@@ -1164,6 +1284,49 @@ mod tests {
         let empty = NcLibrary::new(Vec::new(), false);
         let control = ProgramControl::of(Some(&empty));
         assert_eq!((control.number(), control.trajectory().is_some()), (0, false));
+    }
+
+    #[test]
+    fn a_tool_change_stands_until_the_operator_confirms_and_holds_do_not_leave_it() {
+        let mut e = with_tool_change();
+        walk(&mut e, Command::Run, 300, |e| e.state() == RunState::ToolChange);
+        assert_eq!(e.state(), RunState::ToolChange);
+        assert_eq!((e.tool_asked(), e.sample().joints[0], e.line()), (Some(7), 10.0, 3));
+        assert_eq!(
+            e.messages_reached(),
+            1,
+            "the message before the change, not the one after"
+        );
+        // Neither a run, a hold, nor a hold and run leave it.
+        for command in [Command::Run, Command::Hold, Command::Run] {
+            e.step(command, Operator::default(), DT, false);
+            assert_eq!(e.state(), RunState::ToolChange, "{command:?}");
+        }
+        let confirm = Operator {
+            tool_changed: true,
+            ..Operator::default()
+        };
+        e.step(Command::Run, confirm, DT, false);
+        assert_eq!(
+            (e.state(), e.confirmed_tool(), e.confirmed_tool()),
+            (RunState::Running, Some(7), None)
+        );
+        assert_eq!(e.messages_reached(), 2);
+        // A confirmation held on does not confirm the next change: only its rising edge does.
+        let mut e = with_tool_change();
+        walk(&mut e, Command::Run, 300, |e| e.state() == RunState::ToolChange);
+        e.step(Command::Run, confirm, DT, false);
+        assert_eq!(e.state(), RunState::Running);
+        e.step(Command::Off, confirm, DT, false);
+        e.step(Command::Run, confirm, DT, false);
+        for _ in 0..300 {
+            e.step(Command::Run, confirm, DT, false);
+        }
+        assert_eq!(e.state(), RunState::ToolChange, "a held confirmation is not a new one");
+        assert_eq!(e.messages_reached(), 1, "a new run counts its messages afresh");
+        // STOP (off) leaves the change idle.
+        e.step(Command::Off, Operator::default(), DT, false);
+        assert_eq!((e.state(), e.tool_asked()), (RunState::Idle, None));
     }
 
     #[test]

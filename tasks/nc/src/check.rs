@@ -192,6 +192,7 @@ mod tests {
                 axes: f.kinematics().pose_keys(),
                 start: [0.0; 6],
                 work_offsets: [[0.0; 6]; 6],
+                tools: None,
             },
         )
         .unwrap_or_else(|e| panic!("{e}"));

@@ -134,7 +134,7 @@ impl Parameters for Scope<'_, '_> {
         }
         self.system.numbered(index).ok_or_else(|| {
             format!(
-                "#{index} is part of LinuxCNC's machine state that this interpreter does not keep (it keeps #5211-#5216, #5220, #5221-#5326, #5420-#5425)"
+                "#{index} is part of LinuxCNC's machine state that this interpreter does not keep (it keeps #5161-#5166, #5181-#5186, #5210-#5216, #5220, #5221-#5326, #5400-#5406 once known, #5420-#5425)"
             )
         })
     }
@@ -246,7 +246,7 @@ impl<'t> Flow<'t> {
                 Line::Percent => return Ok(Event::Percent(index + 1)),
                 Line::Words { block, assignments } => {
                     self.assign(&assignments, index, system)?;
-                    if !block.words.is_empty() {
+                    if !block.words.is_empty() || block.message.is_some() {
                         return Ok(Event::Block(block));
                     }
                 }
@@ -797,7 +797,7 @@ mod tests {
         );
         assert_eq!(
             refused("X#5063\n"),
-            "1:2: #5063 is part of LinuxCNC's machine state that this interpreter does not keep (it keeps #5211-#5216, #5220, #5221-#5326, #5420-#5425)"
+            "1:2: #5063 is part of LinuxCNC's machine state that this interpreter does not keep (it keeps #5161-#5166, #5181-#5186, #5210-#5216, #5220, #5221-#5326, #5400-#5406 once known, #5420-#5425)"
         );
     }
 

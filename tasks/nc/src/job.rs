@@ -82,6 +82,10 @@ impl Trajectory for PlannedProgram {
         &self.plan.events
     }
 
+    fn messages(&self) -> &[pkm_api::trajectory::NcMessage] {
+        &self.plan.messages
+    }
+
     fn block_end(&self, s: f64) -> Option<(f64, f64)> {
         self.plan.block_end(s)
     }

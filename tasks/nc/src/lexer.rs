@@ -12,6 +12,8 @@
 //! parameters as they were before it (a line's own settings take effect after it, "in
 //! parallel", as in LinuxCNC).
 
+use pkm_api::trajectory::{NcMessage, NcMessageKind};
+
 use crate::NcError;
 
 /// A letter and its value, where it starts.
@@ -30,8 +32,10 @@ pub struct Word {
 pub struct Block {
     /// The line (1-based).
     pub line: usize,
-    /// Its words, in order.
+    /// Its words, in order (none on a line of only a message comment).
     pub words: Vec<Word>,
+    /// The message its last comment asks for (`(MSG,…)`, `(DEBUG,…)`, `(PRINT,…)`).
+    pub message: Option<NcMessage>,
 }
 
 /// The parameter an assignment sets.
@@ -208,7 +212,17 @@ const WHOLE: f64 = 1e-4;
 /// the switch (on: a line starting with `/` is skipped). Values are computed from `params`.
 pub fn read_line(text: &str, number: usize, block_delete: bool, params: &dyn Parameters) -> Result<Line, NcError> {
     let Some(chars) = clean(text, number, block_delete)? else {
-        return Ok(Line::Nothing);
+        return Ok(match message_of(text, number, block_delete, params) {
+            Some(message) => Line::Words {
+                block: Block {
+                    line: number,
+                    words: Vec::new(),
+                    message: Some(message),
+                },
+                assignments: Vec::new(),
+            },
+            None => Line::Nothing,
+        });
     };
     let mut cursor = Cursor {
         chars: &chars,
@@ -217,7 +231,97 @@ pub fn read_line(text: &str, number: usize, block_delete: bool, params: &dyn Par
         params: Some(params),
         depth: 0,
     };
-    cursor.line_items()
+    let mut line = cursor.line_items()?;
+    if let Line::Words { block, .. } = &mut line {
+        block.message = message_of(text, number, block_delete, params);
+    }
+    Ok(line)
+}
+
+/// What line `number`'s message comment asks for: its last comment in parentheses (LinuxCNC
+/// acts on a line's last comment only) if it starts, after blanks, with `MSG,`, `DEBUG,` or
+/// `PRINT,` in any case. DEBUG and PRINT have their parameters substituted as LinuxCNC does:
+/// `#1` and `#<name>` by their value with six decimals, one that is not set by `######`; a `#`
+/// at the text's end is dropped, any other `#` kept. A line skipped by block delete has none.
+fn message_of(text: &str, number: usize, block_delete: bool, params: &dyn Parameters) -> Option<NcMessage> {
+    if block_delete && text.trim_start().starts_with('/') {
+        return None;
+    }
+    let code = text.split(';').next().unwrap_or("");
+    let mut last = None;
+    let mut rest = code;
+    while let Some(open) = rest.find('(') {
+        let after = &rest[open + 1..];
+        let close = after.find(')')?;
+        last = Some(&after[..close]);
+        rest = &after[close + 1..];
+    }
+    let comment = last?.trim_start();
+    let (kind, body) = [NcMessageKind::Msg, NcMessageKind::Debug, NcMessageKind::Print]
+        .into_iter()
+        .find_map(|kind| {
+            let head = kind.keyword().len() + 1;
+            let starts = comment.len() >= head
+                && comment[..head - 1].eq_ignore_ascii_case(kind.keyword())
+                && comment.as_bytes()[head - 1] == b',';
+            starts.then(|| (kind, &comment[head..]))
+        })?;
+    let text = match kind {
+        NcMessageKind::Msg => body.to_string(),
+        NcMessageKind::Debug | NcMessageKind::Print => substitute(body, params),
+    };
+    Some(NcMessage {
+        line: u32::try_from(number).unwrap_or(u32::MAX),
+        kind,
+        text,
+    })
+}
+
+/// `body` with its parameters' values written in, as LinuxCNC's DEBUG and PRINT write them.
+fn substitute(body: &str, params: &dyn Parameters) -> String {
+    const UNSET: &str = "######";
+    let chars: Vec<char> = body.chars().collect();
+    let mut out = String::with_capacity(body.len());
+    let mut at = 0;
+    while at < chars.len() {
+        let c = chars[at];
+        at += 1;
+        if c != '#' {
+            out.push(c);
+            continue;
+        }
+        match chars.get(at) {
+            None => {}
+            Some(d) if d.is_ascii_digit() => {
+                let start = at;
+                while chars.get(at).is_some_and(char::is_ascii_digit) {
+                    at += 1;
+                }
+                let index: String = chars[start..at].iter().collect();
+                match index.parse::<usize>().ok().map(|i| params.numbered(i)) {
+                    Some(Ok(v)) => out.push_str(&format!("{v:.6}")),
+                    _ => out.push_str(UNSET),
+                }
+            }
+            Some('<') => match chars[at..].iter().position(|c| *c == '>') {
+                Some(end) => {
+                    let name: String = chars[at + 1..at + end]
+                        .iter()
+                        .filter(|c| !c.is_whitespace())
+                        .map(|c| c.to_ascii_lowercase())
+                        .collect();
+                    at += end + 1;
+                    match params.named(&name) {
+                        Some(v) => out.push_str(&format!("{v:.6}")),
+                        None => out.push_str(UNSET),
+                    }
+                }
+                None => out.push('#'),
+            },
+            Some(_) => out.push('#'),
+        }
+    }
+    out
 }
 
 /// The O-word statement of line `number`, looked at without reading its values (while lines are
@@ -480,7 +584,11 @@ impl Cursor<'_> {
             first = false;
         }
         Ok(Line::Words {
-            block: Block { line: self.line, words },
+            block: Block {
+                line: self.line,
+                words,
+                message: None,
+            },
             assignments,
         })
     }

@@ -11,6 +11,7 @@
 //!   an arc or helix, a dwell, a pause, a spindle change or the end — with its line. Anything the
 //!   subset does not have is refused with its line and column and the reason, before anything
 //!   moves.
+//! - [`tools`]: the tool table, in LinuxCNC's `tool.tbl` format.
 //! - [`path`]: a move's geometry: its length along the path, its pose at a fraction of it.
 //! - [`check`]: every point of the path, sampled finely, inside the world limits, reachable with
 //!   every joint inside its software limits and away from singularities; the path's length and
@@ -32,6 +33,7 @@ pub mod job;
 pub mod lexer;
 pub mod path;
 pub mod plan;
+pub mod tools;
 pub mod watch;
 
 /// A problem in a program, where it is (1-based line and column, in characters).

@@ -34,6 +34,10 @@ let index = {};
 // The mechanism's views: the planes of its largest extents, each with a frame that grows to
 // everything drawn so far (so that it does not jump).
 let views = null;
+// The tool table's tools: number → comment (the tool change names them).
+let tools = {};
+// The last message (MSG) shown: its time, so that a new one replaces it.
+let shownMessage = null;
 // The update latency: from the cycle's publication to this page (ms), the last 2000 frames.
 window.latency = [];
 
@@ -76,6 +80,8 @@ function hello(m) {
   m.variables.forEach(([n], i) => { index[n] = i; });
   programs = m.programs || [];
   jobs = !!m.jobs;
+  tools = {};
+  (m.tools || []).forEach(([n, comment]) => { tools[n] = comment; });
   cutAsked = false;
   $("mdi-box").hidden = !jobs;
   $("from-line-box").hidden = !jobs;
@@ -239,6 +245,7 @@ function frame(m) {
     if (cell) cell.textContent = typeof v === "number" && !Number.isInteger(v) ? v.toFixed(4) : String(v);
   });
   showOverrides(m);
+  showTools(m);
   // The loaded program, as the PLC says (a load takes effect outside AUTO).
   if ("NC_PROGRAM" in index && m.image[index.NC_PROGRAM] !== shownProgram) showProgram(m.image[index.NC_PROGRAM]);
   // What was cut before this page connected (once the loaded program is known).
@@ -265,6 +272,29 @@ function frame(m) {
   }
 }
 
+// The manual tool change (the program stands until confirmed), the tool in the spindle, and
+// the program's last message (MSG).
+function showTools(m) {
+  const value = (name) => (name in index ? m.image[index[name]] : null);
+  const asked = value("TOOL_PREP_NUMBER");
+  const waits = value("TOOL_CHANGE") === true;
+  $("tool-change").hidden = !waits;
+  if (waits) {
+    const name = tools[asked] ? ` (${tools[asked]})` : "";
+    $("tool-ask").textContent = asked === 0
+      ? "Tool change: take the tool out of the spindle, then confirm."
+      : `Tool change: put tool ${asked}${name} in the spindle, then confirm.`;
+  }
+  const inSpindle = value("TOOL_NUMBER");
+  $("tool-in").textContent = inSpindle ? `tool ${inSpindle}${tools[inSpindle] ? " (" + tools[inSpindle] + ")" : ""} in the spindle` : "";
+  if (m.message && (!shownMessage || shownMessage[0] !== m.message[0] || shownMessage[2] !== m.message[2])) {
+    shownMessage = m.message;
+    const [t, line, text] = m.message;
+    $("message").hidden = false;
+    $("message").textContent = `message, line ${line} (t = ${t.toFixed(1)} s): ${text}`;
+  }
+}
+
 // The overrides and single block as the PLC has them (a slider being dragged shows its own).
 function showOverrides(m) {
   for (const [name, id] of [["NC_FEED_OVERRIDE", "feed"], ["NC_RAPID_OVERRIDE", "rapid"]]) {
@@ -281,8 +311,9 @@ function drawPath(m) {
   if (programmed.length < 2) return;
   const value = (name) => (name in index ? m.image[index[name]] : null);
   const tool = ["NC_TOOL_X", "NC_TOOL_Y", "NC_TOOL_Z"].map(value);
-  // Running, holding, held, paused at an M0, standing after a line in single block.
-  const running = [1, 2, 3, 4, 6].includes(value("NC_STATE"));
+  // Running, holding, held, paused at an M0, standing after a line in single block, at a tool
+  // change.
+  const running = [1, 2, 3, 4, 6, 7].includes(value("NC_STATE"));
   if (running && tool[0] !== null && tool[1] !== null) {
     cut.push(tool.map((v) => v ?? 0));
     if (cut.length > 20000) cut.shift();
@@ -401,6 +432,7 @@ $("nc-load").addEventListener("click", () => { $("access").textContent = ""; sen
 $("nc-start").addEventListener("click", () => send({ cmd: "program", what: "start" }));
 $("nc-hold").addEventListener("click", () => send({ cmd: "program", what: "hold" }));
 $("nc-resume").addEventListener("click", () => send({ cmd: "program", what: "resume" }));
+$("tool-changed").addEventListener("click", () => send({ cmd: "tool_changed" }));
 for (const id of ["feed", "rapid"]) {
   $(id + "-override").addEventListener("input", (e) => {
     $(id + "-value").textContent = `${e.target.value} %`;

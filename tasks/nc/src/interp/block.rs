@@ -2,6 +2,10 @@
 //! in world coordinates (moves, dwells, the spindle, pauses, the end), and the machine it reads
 //! for.
 
+use pkm_api::trajectory::NcMessage;
+
+use crate::tools::ToolTable;
+
 /// A pose in the machine's world coordinates: x y z (mm), a b c (degrees); the machine's
 /// coordinates first, unused ones zero.
 pub type Pose = [f64; 6];
@@ -131,6 +135,14 @@ pub enum Action {
         /// Flood (M8).
         flood: bool,
     },
+    /// M6: stand until the operator has put tool `tool` in the spindle (0: emptied it) and
+    /// confirmed (a manual tool change, as LinuxCNC's `hal_manualtoolchange`).
+    ToolChange {
+        /// The tool asked for.
+        tool: u32,
+    },
+    /// A message comment: the `index`-th of the program's [`Program::messages`].
+    Message(u32),
     /// M2/M30: the end of the program.
     End,
 }
@@ -157,11 +169,15 @@ pub struct Machine<'a> {
     /// The block-delete switch: on, lines starting with `/` are skipped; off (LinuxCNC's
     /// default), they run.
     pub block_delete: bool,
+    /// The tool table (`None`: the run has none, and T, M6 and G43 H are refused with why).
+    pub tools: Option<&'a ToolTable>,
 }
 
 /// A program read into blocks.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, Default, PartialEq)]
 pub struct Program {
     /// Its actions, in order.
     pub blocks: Vec<Block>,
+    /// Its messages, in the order its [`Action::Message`]s name them.
+    pub messages: Vec<NcMessage>,
 }

@@ -6,7 +6,7 @@ use crate::lexer::Word;
 
 use super::block::{AXES, Action, Blend, Block, MAX_DWELL_S};
 use super::modes::stops;
-use super::state::{Cycle, State};
+use super::state::{Cycle, FeedMode, State};
 use super::words::{count, format_code};
 
 /// What a canned cycle's block asks for (program units, as written).
@@ -189,9 +189,13 @@ impl State<'_> {
                 format!("{name} moves X Y Z only: {} cannot move in a canned cycle", w.letter),
             ));
         }
-        let Some(feed) = self.feed_mm_min else {
-            return Err(at(first, format!("no feed rate: an F word is needed before {name}")));
-        };
+        if self.feed_mode == FeedMode::InverseTime {
+            return Err(at(
+                first,
+                format!("{name} cannot run in inverse time (G93), as in LinuxCNC: G94 or G95 first"),
+            ));
+        }
+        let feed = self.feed_of(0.0, first, line, &name)?;
         // The values that carry from the cycle's last block when it continues.
         let same = previous == Some(code);
         let normal = AXES[n];

@@ -21,6 +21,7 @@ mod modes;
 mod motion;
 mod offsets;
 mod state;
+mod tool;
 mod words;
 
 pub use block::{
@@ -107,7 +108,10 @@ pub fn read_bounded(text: &str, machine: &Machine<'_>, bounds: &Bounds, watch: &
     }
     // Grown by doubling: the memory past the last block is given back.
     blocks.shrink_to_fit();
-    Ok(Program { blocks })
+    Ok(Program {
+        blocks,
+        messages: state.messages,
+    })
 }
 
 #[cfg(test)]

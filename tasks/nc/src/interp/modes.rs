@@ -7,11 +7,12 @@ use crate::NcError;
 use crate::lexer::Word;
 
 use super::block::{Action, Blend, Block, MAX_DWELL_S, MAX_SPINDLE_RPM, MIN_FEED, Plane, Spindle};
-use super::state::State;
+use super::state::{FeedMode, State};
 use super::words::{Words, g_refusal};
 
 impl State<'_> {
-    /// Checks the feed (F, set with the units below) and sets the spindle speed (S).
+    /// Checks the feed (F, set with the units and the feed mode below) and sets the spindle
+    /// speed (S).
     pub(super) fn feed_and_speed(&mut self, words: &Words<'_>) -> Result<(), NcError> {
         let line = words.line;
         let at = |w: &Word, message: String| NcError::new(line, w.column, message);
@@ -118,11 +119,32 @@ impl State<'_> {
         Ok(())
     }
 
-    /// Sets the plane, the units, the work coordinate system, the feed (in the units now in
-    /// force), path control, the distance modes and the canned cycles' retract.
+    /// Sets the feed mode and the feed (in the units in force before the block), the plane, the
+    /// units, the work coordinate system, path control, the distance modes and the canned cycles' retract.
     pub(super) fn modes(&mut self, words: &Words<'_>) -> Result<(), NcError> {
         let line = words.line;
         let at = |w: &Word, message: String| NcError::new(line, w.column, message);
+        // The feed mode first (a change forgets the feed, as LinuxCNC sets it to zero), then F
+        // in it: in G93 a move's own, not modal; otherwise in the units in force before the
+        // block's G20 or G21, which LinuxCNC sets after the feed.
+        for (code, mode) in [
+            (930, FeedMode::InverseTime),
+            (940, FeedMode::PerMinute),
+            (950, FeedMode::PerRevolution),
+        ] {
+            if words.has_g(code) && self.feed_mode != mode {
+                self.feed_mode = mode;
+                self.feed_mm_min = None;
+            }
+        }
+        self.inverse_time = None;
+        if let Some(w) = words.get('F') {
+            if self.feed_mode == FeedMode::InverseTime {
+                self.inverse_time = Some(w.value);
+            } else {
+                self.feed_mm_min = Some(w.value * self.unit());
+            }
+        }
         for (code, _) in &words.g {
             match code {
                 170 => self.plane = Plane::Xy,
@@ -140,9 +162,6 @@ impl State<'_> {
             .find(|(c, _)| (540..=590).contains(c) && !c.is_multiple_of(10))
         {
             return Err(at(w, g_refusal(*code)));
-        }
-        if let Some(w) = words.get('F') {
-            self.feed_mm_min = Some(w.value * self.unit());
         }
         // G61 and G61.1 (exact path: the same here, as every move follows its programmed path).
         if words.has_g(610) || words.has_g(611) {
@@ -182,6 +201,42 @@ impl State<'_> {
             self.retract_to_r = true;
         }
         Ok(())
+    }
+}
+
+impl State<'_> {
+    /// The feed of a feed move `length` long (mm, or degrees where only rotations move) in the
+    /// feed mode in force (mm/min): F in G94; `length`·F in G93 (the move takes 1/F minutes, F
+    /// in this block); F·S in G95, at the programmed spindle speed (the machine has no spindle
+    /// encoder to follow). `first`: where a missing feed is reported; `what`: the move's name.
+    pub(super) fn feed_of(&self, length: f64, first: &Word, line: usize, what: &str) -> Result<f64, NcError> {
+        let at = |message: String| NcError::new(line, first.column, message);
+        match self.feed_mode {
+            FeedMode::PerMinute => self
+                .feed_mm_min
+                .ok_or_else(|| at(format!("no feed rate: an F word is needed before the first {what}"))),
+            FeedMode::InverseTime => {
+                let f = self.inverse_time.ok_or_else(|| {
+                    at(format!(
+                        "in inverse time (G93) every {what} needs F in its own block: the move takes 1/F minutes"
+                    ))
+                })?;
+                Ok((length * f).max(MIN_FEED))
+            }
+            FeedMode::PerRevolution => {
+                let per_rev = self.feed_mm_min.ok_or_else(|| {
+                    at(format!(
+                        "no feed rate: an F word (per revolution, G95) is needed before the first {what}"
+                    ))
+                })?;
+                if self.speed_rpm <= 0.0 {
+                    return Err(at(format!(
+                        "with the spindle speed S at 0, {what} cannot feed per revolution (G95): set S first"
+                    )));
+                }
+                Ok(per_rev * self.speed_rpm)
+            }
+        }
     }
 }
 

@@ -103,18 +103,16 @@ impl State<'_> {
             let first = axis_words
                 .first()
                 .map_or_else(|| motion_word.map(|(_, w)| w).unwrap_or(words.first), |(_, w)| *w);
-            let feed = match mode {
-                0 => None,
-                _ => Some(self.feed_mm_min.ok_or_else(|| {
-                    at(
-                        first,
-                        "no feed rate: an F word is needed before the first G1, G2 or G3".into(),
-                    )
-                })?),
-            };
             let path = match mode {
                 0 | 10 => Path::Line,
                 _ => self.arc(line, first, mode == 20, &to, &get)?,
+            };
+            let feed = match mode {
+                0 => None,
+                _ => {
+                    let length = crate::path::Segment::new(self.position, to, path).length();
+                    Some(self.feed_of(length, first, line, "G1, G2 or G3")?)
+                }
             };
             out.push(Block {
                 line,

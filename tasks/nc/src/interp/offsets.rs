@@ -49,7 +49,7 @@ impl State<'_> {
             // The tool's position reads as the given values from now on.
             let work = self.work[self.system];
             for (c, w) in &axis_words {
-                self.g92[*c] = self.position[*c] - work[*c] - w.value * self.scale(*c);
+                self.g92[*c] = self.position[*c] - work[*c] - self.tool_offset[*c] - w.value * self.scale(*c);
             }
             self.g92_kept = self.g92;
         }
@@ -73,26 +73,28 @@ impl State<'_> {
 
     /// G10 L2 and L20: a work coordinate system's origin (P1 … P6 for G54 … G59, P0 the one in
     /// force) set for the axes named — L2 to the machine coordinates given, L20 so that the
-    /// tool's position reads as the values given. Other tables (L1, L10, L11: tools) are refused.
+    /// tool's position reads as the values given. L1 and L10 (a tool's offsets) are
+    /// [`State::set_tool_entry`]'s.
     pub(super) fn set_coordinate_system(&mut self, words: &Words<'_>) -> Result<(), NcError> {
         let Some(g10) = words.g_word(100) else {
             return Ok(());
         };
         let line = words.line;
         let at = |w: &Word, message: String| NcError::new(line, w.column, message);
-        let l = words
-            .get('L')
-            .ok_or_else(|| at(g10, "G10 needs L: L2 or L20 (a work coordinate system)".into()))?;
+        let l = words.get('L').ok_or_else(|| {
+            at(
+                g10,
+                "G10 needs L: L1 or L10 (a tool's offsets), L2 or L20 (a work coordinate system)".into(),
+            )
+        })?;
+        if l.value == 1.0 || l.value == 10.0 || l.value == 11.0 {
+            return self.set_tool_entry(words, l);
+        }
         if l.value != 2.0 && l.value != 20.0 {
-            let what = if matches!(l.value as i64, 1 | 10 | 11) && l.value.fract() == 0.0 {
-                " (the tool table)"
-            } else {
-                ""
-            };
             return Err(at(
                 l,
                 format!(
-                    "G10 L{} is not supported{what}: L2 and L20 set a work coordinate system",
+                    "G10 L{} is not supported: L1 and L10 set a tool's offsets, L2 and L20 a work coordinate system",
                     l.value
                 ),
             ));
@@ -121,7 +123,7 @@ impl State<'_> {
             self.work[system][c] = if l.value == 2.0 {
                 v
             } else {
-                self.position[c] - self.g92[c] - v
+                self.position[c] - self.g92[c] - self.tool_offset[c] - v
             };
         }
         Ok(())
@@ -204,10 +206,11 @@ impl State<'_> {
         }
     }
 
-    /// The offset from program to machine coordinates now.
+    /// The offset from program to machine coordinates now: the work system's origin, G92's
+    /// offset and the tool's (G43).
     pub(super) fn offset(&self) -> Pose {
         let w = self.work[self.system];
-        std::array::from_fn(|c| w[c] + self.g92[c])
+        std::array::from_fn(|c| w[c] + self.g92[c] + self.tool_offset[c])
     }
 
     /// The tool's position in program coordinates and units.

@@ -7,6 +7,10 @@ use crate::budget::{Bounds, Cost};
 use crate::flow;
 use crate::lexer;
 
+use pkm_api::trajectory::NcMessage;
+
+use crate::tools::ToolTable;
+
 use super::block::{AXES, Blend, Block, Machine, Plane, Pose};
 use super::words::Words;
 
@@ -36,8 +40,24 @@ pub(super) struct State<'a> {
     /// The positions G28 and G30 go to (machine coordinates; #5161 …, #5181 …), as G28.1 and
     /// G30.1 stored them.
     pub(super) stored: [Pose; 2],
+    /// The feed (mm/min; in G95 mm per revolution), as F set it in the feed mode in force.
     pub(super) feed_mm_min: Option<f64>,
+    /// The feed mode (G93, G94, G95).
+    pub(super) feed_mode: FeedMode,
+    /// In G93, this block's F (moves per minute); F is not modal there.
+    pub(super) inverse_time: Option<f64>,
     pub(super) speed_rpm: f64,
+    /// The tool table as the program has changed it (G10 L1, L10).
+    pub(super) tools: ToolTable,
+    /// The tool T selected (for the next M6).
+    pub(super) selected: Option<u32>,
+    /// The tool in the spindle as the program put it there (M6, M61); `None` until it does:
+    /// what a program before it left is not known when this one is read.
+    pub(super) in_spindle: Option<u32>,
+    /// The tool offsets in force (G43, G43.1; machine units), added to the work offsets.
+    pub(super) tool_offset: Pose,
+    /// The messages so far.
+    pub(super) messages: Vec<NcMessage>,
     /// The coolant: mist (M7), flood (M8); M9 turns both off.
     pub(super) coolant: (bool, bool),
     pub(super) blend: Blend,
@@ -52,6 +72,17 @@ pub(super) struct State<'a> {
     /// The height (normal coordinate, program units) where the present series of canned
     /// cycles started; `None` after any other motion.
     pub(super) cycle_initial: Option<f64>,
+}
+
+/// How F is read.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum FeedMode {
+    /// G93: each move takes 1/F minutes.
+    InverseTime,
+    /// G94 (the default): units per minute.
+    PerMinute,
+    /// G95: units per spindle revolution, at the programmed speed S.
+    PerRevolution,
 }
 
 /// A canned cycle's values as its last block gave them (program units, as written: in G91, R
@@ -82,6 +113,9 @@ impl flow::System for State<'_> {
                 let (system, c) = ((index - 5221) / 20, (index - 5221) % 20);
                 Some(self.work[system][c] / self.scale(c))
             }
+            // The tool in the spindle (once the program has put one there), its offsets.
+            5400 => self.in_spindle.map(f64::from),
+            5401..=5406 => Some(self.tool_offset[index - 5401] / self.scale(index - 5401)),
             // The tool's position in the coordinate system in force.
             5420..=5425 => Some(position[index - 5420]),
             _ => None,
@@ -100,6 +134,8 @@ impl flow::System for State<'_> {
             }
             "_feed" => self.feed_mm_min.map_or(0.0, |f| f / self.unit()),
             "_rpm" => self.speed_rpm,
+            "_current_tool" => f64::from(self.in_spindle?),
+            "_selected_tool" => self.selected.map_or(-1.0, f64::from),
             "_metric" => truth(!self.inches),
             "_imperial" => truth(self.inches),
             "_absolute" => truth(!self.incremental),
@@ -133,7 +169,14 @@ impl<'a> State<'a> {
             g92_kept: [0.0; 6],
             stored: [[0.0; 6]; 2],
             feed_mm_min: None,
+            feed_mode: FeedMode::PerMinute,
+            inverse_time: None,
             speed_rpm: 0.0,
+            tools: machine.tools.cloned().unwrap_or_default(),
+            selected: None,
+            in_spindle: None,
+            tool_offset: [0.0; 6],
+            messages: Vec::new(),
             coolant: (false, false),
             arc_absolute: false,
             retract_to_r: true,
@@ -156,18 +199,26 @@ impl<'a> State<'a> {
         if c < 3 { self.unit() } else { 1.0 }
     }
 
-    /// Converts one block, in LinuxCNC's order of execution: feed, speed, spindle, dwell, plane,
-    /// units, work offsets, path control, distance mode, G92, motion, stop. Each group's
+    /// Converts one block, in LinuxCNC's order of execution: its message, feed, speed, tool
+    /// selection and change, spindle, coolant, dwell, plane, units, tool offsets, work offsets,
+    /// path control, distance mode, G10, G92, going home, motion, stop. Each group's
     /// conversion is in the file that names it.
     pub(super) fn block(&mut self, block: &lexer::Block, out: &mut Vec<Block>) -> Result<(), NcError> {
+        self.message(block, out);
+        if block.words.is_empty() {
+            return Ok(());
+        }
         let words = Words::sort(block)?;
         words.check_axes(self.machine)?;
         self.feed_and_speed(&words)?;
+        self.select_tool(&words)?;
+        self.change_tool(&words, out)?;
         self.spindle(&words, out);
         self.coolant(&words, out);
         words.check_owners(self.motion_now(&words))?;
         self.dwell(&words, out)?;
         self.modes(&words)?;
+        self.tool_length(&words)?;
         self.set_coordinate_system(&words)?;
         self.set_origin(&words)?;
         self.go_home(&words, out)?;

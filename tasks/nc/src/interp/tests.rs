@@ -13,6 +13,7 @@ fn machine(axes: &'static [&'static str]) -> Machine<'static> {
         start: [0.0; 6],
         work_offsets,
         block_delete: false,
+        tools: None,
     }
 }
 
@@ -45,7 +46,7 @@ fn moves(blocks: &[Block]) -> Vec<(Pose, Path, Option<f64>)> {
 
 #[test]
 fn rapid_and_feed_moves_absolute_incremental_inch_and_modal() {
-    let b = run("G0 X10 Y5\nG1 Z-1 F600\nX20\nG91 X1 Y1\nG20 G90 X1 F10\nG21 G0 X0 Y0 Z0\n");
+    let b = run("G0 X10 Y5\nG1 Z-1 F600\nX20\nG91 X1 Y1\nG20\nG90 X1 F10\nG21 G0 X0 Y0 Z0\n");
     let m = moves(&b);
     assert_eq!(m[0], ([10.0, 5.0, 0.0, 0.0, 0.0, 0.0], Path::Line, None));
     assert_eq!(m[1], ([10.0, 5.0, -1.0, 0.0, 0.0, 0.0], Path::Line, Some(600.0)));
@@ -60,7 +61,7 @@ fn rapid_and_feed_moves_absolute_incremental_inch_and_modal() {
     assert!(
         b.iter()
             .filter(|b| matches!(b.action, Action::Move { .. }))
-            .all(|b| b.line >= 1 && b.line <= 6)
+            .all(|b| b.line >= 1 && b.line <= 7)
     );
     assert_eq!(b[1].line, 2);
 }
@@ -170,24 +171,26 @@ fn rotations_on_the_hexapod_only() {
 #[test]
 fn what_the_subset_lacks_is_refused_with_line_column_and_reason() {
     for (text, message) in [
-        ("G41 X1", "1:1: G41 is not supported (cutter compensation)"),
+        (
+            "G41 X1",
+            "1:1: G41 is not supported (cutter compensation: the program's path is the tool's centre; see docs/nc.md)",
+        ),
+        ("G43.2 H1", "1:1: G43.2 is not supported (adding tool offsets)"),
+        ("G96 S100", "1:1: G96 is not supported (spindle speed modes)"),
         (
             "G1 X1 F10\nG84 X1 Z-1 R1",
             "2:1: G84 is not supported (canned cycles other than G73, G81, G82, G83, G85, G89)",
         ),
-        ("G43 H1", "1:1: G43 is not supported (tool length compensation)"),
         (
             "G28.2",
             "1:1: G28.2 is not supported (G28 and G30 variants other than G28.1, G30.1)",
         ),
-        (
-            "G93",
-            "1:1: G93 is not supported (feed modes other than units per minute)",
-        ),
         ("G54.1", "1:1: G54.1 is not supported"),
         ("G1.5", "1:1: G1.5 is not supported"),
-        ("T1 M6", "1:1: tool selection (T) is not supported"),
-        ("M6", "1:1: M6 is not supported (tool changes)"),
+        (
+            "T1 M6",
+            "1:1: T1: there is no tool table (give one with --tool-table or nc.tool_table in the configuration)",
+        ),
         (
             "M7 M8",
             "1:4: M7 and M8 are in one modal group: a block holds one of them",
@@ -197,7 +200,11 @@ fn what_the_subset_lacks_is_refused_with_line_column_and_reason() {
         ("G1 U1", "1:4: U: axes U V W are not supported"),
         (
             "G10 L1 P1 Z0",
-            "1:5: G10 L1 is not supported (the tool table): L2 and L20 set a work coordinate system",
+            "1:8: G10 L1: there is no tool table (give one with --tool-table or nc.tool_table in the configuration)",
+        ),
+        (
+            "G10 L3 P1 Z0",
+            "1:5: G10 L3 is not supported: L1 and L10 set a tool's offsets, L2 and L20 a work coordinate system",
         ),
         (
             "G0 G1 X1",
@@ -231,7 +238,7 @@ fn what_the_subset_lacks_is_refused_with_line_column_and_reason() {
         ),
         (
             "G1 X1 Q0.1 F100",
-            "1:7: Q belongs to G64 (merging lines within it) or G73, G83 (the peck depth)",
+            "1:7: Q belongs to G64 (merging lines within it), G73, G83 (the peck depth), M61 (the tool) or G10 L1 (a lathe tool's orientation)",
         ),
         (
             "G64 P0.1 Q-1",
@@ -472,7 +479,10 @@ fn canned_cycles_make_linuxcncs_moves() {
             "G81 X1 Z-1 R1 L0 F10",
             "1:15: L, the number of repeats, is a whole number from 1 to 10000, got 0",
         ),
-        ("G81 X1 Z-1 R1", "1:5: no feed rate: an F word is needed before G81"),
+        (
+            "G81 X1 Z-1 R1",
+            "1:5: no feed rate: an F word is needed before the first G81",
+        ),
         (
             "G1 X1 L2 F10",
             "1:7: L belongs to a canned cycle (its repeats) or G10 (L2, L20)",
@@ -623,7 +633,10 @@ fn g10_sets_a_work_coordinate_system_as_linuxcnc_does() {
             "G10 L2 P1 R30",
             "1:11: R (a coordinate system's rotation) is not supported",
         ),
-        ("G10 P1 X1", "1:1: G10 needs L: L2 or L20 (a work coordinate system)"),
+        (
+            "G10 P1 X1",
+            "1:1: G10 needs L: L1 or L10 (a tool's offsets), L2 or L20 (a work coordinate system)",
+        ),
     ] {
         assert_eq!(refused(text), why, "{text}");
     }
@@ -640,4 +653,152 @@ fn m7_m8_m9_switch_the_coolant() {
         })
         .collect();
     assert_eq!(coolant, [(false, true), (true, true), (false, false)]);
+}
+
+/// The tool table of the tool tests.
+const TOOLS: &str = "T1 P1 Z50 D6 ;6 mm end mill\nT2 P2 X0.5 Z30.5 D3 ;drill\n";
+
+/// `text` read on an X Y Z machine with [`TOOLS`].
+fn with_tools(text: &str) -> Result<Program, NcError> {
+    let tools = crate::tools::ToolTable::parse(TOOLS).expect("a table");
+    let mut m = machine(&XYZ);
+    m.tools = Some(&tools);
+    read(&ended(text), &m)
+}
+
+#[test]
+fn a_tool_change_stops_the_spindle_and_waits_for_the_tool_asked_for() {
+    let p = with_tools("M3 S1000\nT2 M6\nG43\nG0 Z1\nT0 M6\nG49").expect("read");
+    let actions: Vec<Action> = p.blocks.iter().map(|b| b.action).collect();
+    assert_eq!(
+        actions[1..3],
+        [
+            Action::Spindle {
+                direction: Spindle::Off,
+                speed_rpm: 1000.0
+            },
+            Action::ToolChange { tool: 2 }
+        ]
+    );
+    // G43 takes the tool in the spindle: the tool's tip at Z1 puts the spindle 30.5 mm higher,
+    // its X offset 0.5 mm over.
+    assert_eq!(moves(&p.blocks)[0].0, [0.0, 0.0, 31.5, 0.0, 0.0, 0.0]);
+    assert!(
+        actions.contains(&Action::ToolChange { tool: 0 }),
+        "T0 M6 empties the spindle"
+    );
+}
+
+#[test]
+fn tool_offsets_follow_g43_g43_1_g49_and_the_parameters_show_them() {
+    let p = with_tools("G43 H1\nG0 Z1\nG43.1 X2\nG0 X0\nG49\nG0 Z0\nG43 H1\nG0 X#5403").expect("read");
+    let to: Vec<Pose> = moves(&p.blocks).iter().map(|m| m.0).collect();
+    assert_eq!(to[0], [0.0, 0.0, 51.0, 0.0, 0.0, 0.0]);
+    assert_eq!(to[1], [2.0, 0.0, 51.0, 0.0, 0.0, 0.0], "G43.1 X2 keeps Z's offset");
+    assert_eq!(to[2], [2.0, 0.0, 0.0, 0.0, 0.0, 0.0], "G49: none");
+    // #5403 the Z offset (50); #5400 the tool in the spindle: refused until the program has
+    // put one there, then its number.
+    assert!(with_tools("G0 X#5400").is_err());
+    assert_eq!(
+        moves(&with_tools("T2 M6\nG0 X#5400").expect("read").blocks)[0].0[0],
+        2.0
+    );
+    // X to #5403 (tool 1's Z offset, 50); Z stays where G0 Z0 put it.
+    assert_eq!(to[3], [50.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+    // G10 L1 changes tool 1 for the rest of the program; L10 sets it from where the tool is.
+    let p = with_tools("G10 L1 P1 Z20\nG43 H1\nG0 Z0\nG10 L10 P2 Z5\nG43 H2\nG0 Z5").expect("read");
+    let to: Vec<Pose> = moves(&p.blocks).iter().map(|m| m.0).collect();
+    assert_eq!(to[0][2], 20.0);
+    assert_eq!(
+        to[1], to[0],
+        "L10 makes the tool read Z5 where it stands: G0 Z5 goes nowhere"
+    );
+}
+
+#[test]
+fn tool_words_are_refused_with_why() {
+    for (text, why) in [
+        ("T3 M6", "1:1: T3: tool 3 is not in the tool table"),
+        ("T1.5", "1:1: T is a tool's number, a whole number 0 … 99999; got 1.5"),
+        (
+            "M6",
+            "1:1: M6 needs a tool selected first: T… (T0 empties the spindle); the tool a program before this one left is not known here",
+        ),
+        (
+            "G43",
+            "1:1: G43 without H applies the tool in the spindle, and this program has not put one there (T… M6, or M61 Q…): write G43 H…",
+        ),
+        ("G0 X1 H1", "1:7: H belongs to G43 (the tool whose offsets apply)"),
+        ("M61", "1:1: M61 needs Q: the number of the tool in the spindle"),
+        ("M61 Q4", "1:5: Q4: tool 4 is not in the tool table"),
+        (
+            "G1 X1 D1 F100",
+            "1:7: D (cutter compensation's tool) is not supported: cutter compensation (G41, G42) is refused, see docs/nc.md",
+        ),
+        (
+            "G10 L11 P1 Z1",
+            "1:5: G10 L11 is not supported: it measures a tool against G59.3, a coordinate system this interpreter does not have (G54 … G59); L10 measures it in the system in force",
+        ),
+        ("G10 L1 Z1", "1:5: G10 L1 needs P: the tool's number"),
+        (
+            "G10 L1 P1 R-1",
+            "1:11: R is the tool's radius, zero or positive; got -1",
+        ),
+        ("G43.1", "1:1: G43.1 needs at least one axis word: the tool's offsets"),
+        ("T1 T2", "1:4: T twice in one block"),
+    ] {
+        assert_eq!(with_tools(text).map(|_| ()).expect_err(text).to_string(), why, "{text}");
+    }
+}
+
+#[test]
+fn inverse_time_and_per_revolution_feeds_are_per_minute_on_the_path() {
+    let p = with_tools("G93 G1 X10 F2\nG1 X20 F0.5\nG94 G1 X0 F100\nS2000 G95 G1 X5 F0.1\nG94 G20 G1 X10 F10")
+        .expect("read");
+    let feeds: Vec<Option<f64>> = moves(&p.blocks).iter().map(|m| m.2).collect();
+    // 10 mm in 1/2 min; 10 mm in 2 min; 100 mm/min; 0.1 mm a turn at 2000 rpm; F10 read in
+    // millimetres before the block's G20, as LinuxCNC reads it.
+    assert_eq!(feeds, [Some(20.0), Some(5.0), Some(100.0), Some(200.0), Some(10.0)]);
+    for (text, why) in [
+        (
+            "G93 G1 X10 F2\nX20",
+            "2:1: in inverse time (G93) every G1, G2 or G3 needs F in its own block: the move takes 1/F minutes",
+        ),
+        (
+            "G95 G1 X1 F0.1",
+            "1:8: with the spindle speed S at 0, G1, G2 or G3 cannot feed per revolution (G95): set S first",
+        ),
+        (
+            "G93 G81 X1 Z-1 R1 F2",
+            "1:9: G81 cannot run in inverse time (G93), as in LinuxCNC: G94 or G95 first",
+        ),
+        (
+            "G1 X1 F100\nG93 G1 X2",
+            "2:8: in inverse time (G93) every G1, G2 or G3 needs F in its own block: the move takes 1/F minutes",
+        ),
+    ] {
+        assert_eq!(with_tools(text).map(|_| ()).expect_err(text).to_string(), why, "{text}");
+    }
+}
+
+#[test]
+fn message_comments_become_messages_in_order() {
+    let p = with_tools(
+        "(MSG, load the part)\n#1 = 4\nG0 X1 (print,x is #<_x>, #1 is #1) ; (MSG,not this)\n/(DEBUG,#2)\n(msg x)",
+    )
+    .expect("read");
+    let m: Vec<(u32, pkm_api::trajectory::NcMessageKind, &str)> =
+        p.messages.iter().map(|m| (m.line, m.kind, m.text.as_str())).collect();
+    use pkm_api::trajectory::NcMessageKind::*;
+    assert_eq!(
+        m,
+        [
+            (1, Msg, " load the part"),
+            (3, Print, "x is 0.000000, 4.000000 is 4.000000"),
+            (4, Debug, "0.000000")
+        ]
+    );
+    // The message comes before the block's move, as LinuxCNC's.
+    assert_eq!(p.blocks[1].action, Action::Message(1));
+    assert!(matches!(p.blocks[2].action, Action::Move { .. }));
 }

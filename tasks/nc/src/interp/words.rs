@@ -60,7 +60,6 @@ impl<'b> Words<'b> {
                             Some(group) => group,
                             None => {
                                 let why = match code {
-                                    60 => " (tool changes)",
                                     480..=530 => " (overrides)",
                                     600..=990 => " (subprograms, user codes)",
                                     1000..=1999 => " (user-defined M codes)",
@@ -87,15 +86,19 @@ impl<'b> Words<'b> {
                         return Err(at(w, "a line number (N) comes first in its block".into()));
                     }
                 }
-                'X' | 'Y' | 'Z' | 'A' | 'B' | 'C' | 'I' | 'J' | 'K' | 'R' | 'F' | 'S' | 'P' | 'Q' | 'L' => {
+                'X' | 'Y' | 'Z' | 'A' | 'B' | 'C' | 'I' | 'J' | 'K' | 'R' | 'F' | 'S' | 'P' | 'Q' | 'L' | 'T' | 'H' => {
                     let slot = &mut values[(w.letter as u8 - b'A') as usize];
                     if slot.is_some() {
                         return Err(at(w, format!("{} twice in one block", w.letter)));
                     }
                     *slot = Some(w);
                 }
-                'T' => return Err(at(w, "tool selection (T) is not supported".into())),
-                'D' | 'H' => return Err(at(w, format!("{} (tool compensation) is not supported", w.letter))),
+                'D' => {
+                    return Err(at(
+                        w,
+                        "D (cutter compensation's tool) is not supported: cutter compensation (G41, G42) is refused, see docs/nc.md".into(),
+                    ));
+                }
                 'E' => return Err(at(w, "E (extruders) is not supported".into())),
                 'U' | 'V' | 'W' => {
                     return Err(at(w, format!("{}: axes U V W are not supported", w.letter)));
@@ -117,6 +120,11 @@ impl<'b> Words<'b> {
         self.values[(letter as u8 - b'A') as usize]
     }
 
+    /// Whether the block holds M code `code` (tenths).
+    pub fn has_m(&self, code: u16) -> bool {
+        self.m.iter().any(|(c, _)| *c == code)
+    }
+
     /// Whether the block holds G code `code` (tenths).
     pub fn has_g(&self, code: u16) -> bool {
         self.g.iter().any(|(c, _)| *c == code)
@@ -127,18 +135,18 @@ impl<'b> Words<'b> {
         self.g.iter().find(|(c, _)| *c == code).map(|(_, w)| *w)
     }
 
-    /// Whether a non-modal code takes the block's axis words (G10, G28, G30, G52, G92), so that the
+    /// Whether a code takes the block's axis words (G10, G28, G30, G43.1, G52, G92), so that the
     /// motion mode makes no move with them.
     pub fn uses_axis_words(&self) -> bool {
         self.axis_word_taker().is_some()
     }
 
-    /// The non-modal code that takes the block's axis words (G10, G28, G30, G52, G92), if any.
+    /// The code that takes the block's axis words (G10, G28, G30, G43.1, G52, G92), if any.
     pub fn axis_word_taker(&self) -> Option<u16> {
         self.g
             .iter()
             .map(|(c, _)| *c)
-            .find(|c| matches!(c, 100 | 280 | 300 | 520 | 920))
+            .find(|c| matches!(c, 100 | 280 | 300 | 431 | 520 | 920))
     }
 
     /// The block's motion code (G0 G1 G2 G3, a canned cycle) with its word, if it has one.
@@ -194,12 +202,17 @@ impl<'b> Words<'b> {
             ));
         }
         if let Some(w) = self.get('Q')
-            && !(self.has_g(640) || matches!(motion, Some(730 | 830)))
+            && !(self.has_g(640) || self.has_g(100) || self.has_m(610) || matches!(motion, Some(730 | 830)))
         {
             return Err(at(
                 w,
-                "Q belongs to G64 (merging lines within it) or G73, G83 (the peck depth)".into(),
+                "Q belongs to G64 (merging lines within it), G73, G83 (the peck depth), M61 (the tool) or G10 L1 (a lathe tool's orientation)".into(),
             ));
+        }
+        if let Some(w) = self.get('H')
+            && !self.has_g(430)
+        {
+            return Err(at(w, "H belongs to G43 (the tool whose offsets apply)".into()));
         }
         for letter in ['I', 'J', 'K'] {
             if let Some(w) = self.get(letter)
@@ -244,20 +257,21 @@ pub(super) fn g_group(code: u16) -> Option<u8> {
         610 | 611 | 640 => Some(13),
         900 | 910 => Some(3),
         901 | 911 => Some(4),
-        940 => Some(5),
+        930 | 940 | 950 => Some(5),
         400 => Some(7),
-        490 => Some(8),
+        430 | 431 | 490 => Some(8),
         980 | 990 => Some(10),
         _ => None,
     }
 }
 
 /// The modal groups of the supported M codes (RS274NGC's numbering): stops, the spindle, the
-/// coolant.
+/// tool change, the coolant.
 fn m_group(code: u16) -> Option<u8> {
     match code {
         0 | 10 | 20 | 300 => Some(4),
         30 | 40 | 50 => Some(7),
+        60 | 610 => Some(6),
         70 | 80 | 90 => Some(8),
         _ => None,
     }
@@ -278,10 +292,10 @@ pub(super) fn g_refusal(code: u16) -> String {
         282..=299 | 302..=309 => "G28 and G30 variants other than G28.1, G30.1",
         330 | 331 | 760 => "threading",
         382..=385 => "probing",
-        400..=429 => "cutter compensation",
-        430..=499 => "tool length compensation",
+        410..=429 => "cutter compensation: the program's path is the tool's centre; see docs/nc.md",
+        432 => "adding tool offsets",
+        430..=499 => "tool length compensation other than G43, G43.1, G49",
         730..=899 => "canned cycles other than G73, G81, G82, G83, G85, G89",
-        930 | 950 => "feed modes other than units per minute",
         960 | 970 => "spindle speed modes",
         _ => "",
     };

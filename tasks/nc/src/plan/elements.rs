@@ -137,7 +137,19 @@ pub(super) fn elements_and_events(program: &Program) -> (Vec<Element>, f64, Vec<
                     None => initial_dwell += s,
                 }
             }
-            Action::Pause { .. } | Action::Spindle { .. } | Action::Coolant { .. } | Action::End => {
+            Action::Message(index) => {
+                // The tool does not stop for a message: it is shown as the tool passes.
+                events.push(Pending {
+                    line: block.line,
+                    kind: TrajectoryEventKind::Message { index },
+                    dwelt_s: dwelt,
+                });
+            }
+            Action::Pause { .. }
+            | Action::Spindle { .. }
+            | Action::Coolant { .. }
+            | Action::ToolChange { .. }
+            | Action::End => {
                 if let Some(e) = out.last_mut() {
                     e.stop_after = true;
                 }
@@ -154,6 +166,7 @@ pub(super) fn elements_and_events(program: &Program) -> (Vec<Element>, f64, Vec<
                     // M1 stops as M0 does: the optional-stop switch is taken as on, as
                     // LinuxCNC's is by default.
                     Action::Pause { .. } => Some(TrajectoryEventKind::Pause),
+                    Action::ToolChange { tool } => Some(TrajectoryEventKind::ToolChange { tool }),
                     _ => None,
                 };
                 if let Some(kind) = kind {

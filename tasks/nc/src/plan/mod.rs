@@ -45,8 +45,11 @@ pub struct Plan {
     pub length_mm: f64,
     /// The blocks whose speed is limited below their feed, and why.
     pub limited: Vec<Limited>,
-    /// What happens besides motion (M0/M1, spindle), in time order.
+    /// What happens besides motion (M0/M1, spindle, coolant, tool changes, messages), in time
+    /// order.
     pub events: Vec<TrajectoryEvent>,
+    /// The program's messages, as its message events name them.
+    pub messages: Vec<pkm_api::trajectory::NcMessage>,
     /// How long the feed moves (not the rapids) take as planned (s), dwells excluded.
     pub feed_time_s: f64,
     /// How long they would take at their programmed feeds: Σ length ÷ feed (s).
@@ -114,6 +117,7 @@ pub fn plan_watched(
         points,
         limited,
         events,
+        messages: program.messages.clone(),
         feed_time_s,
         programmed_feed_time_s,
     })
@@ -180,7 +184,12 @@ impl Plan {
             + arcs * crate::path::ARC_BYTES
             + self.points.capacity() * size_of::<Point>()
             + self.limited.capacity() * size_of::<Limited>()
-            + self.events.capacity() * size_of::<TrajectoryEvent>()) as u64
+            + self.events.capacity() * size_of::<TrajectoryEvent>()
+            + self
+                .messages
+                .iter()
+                .map(|m| size_of_val(m) + m.text.capacity())
+                .sum::<usize>()) as u64
     }
 }
 

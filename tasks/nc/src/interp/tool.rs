@@ -1,0 +1,202 @@
+//! Tools, as LinuxCNC converts them: T selects a tool of the table, M6 changes it by hand (the
+//! program stands until the operator confirms), M61 says which tool is in the spindle without a
+//! change, G43 H / G43.1 / G49 set and cancel the tool offsets, G10 L1 and L10 change a tool's
+//! entry for the rest of the program; and a block's message comment.
+
+use crate::NcError;
+use crate::lexer::{self, Word};
+use crate::tools::MAX_TOOL;
+
+use super::block::{Action, Block, Pose};
+use super::state::State;
+use super::words::Words;
+
+impl State<'_> {
+    /// A line's message comment (`(MSG,…)`, `(DEBUG,…)`, `(PRINT,…)`), first of all its block
+    /// does, as in LinuxCNC.
+    pub(super) fn message(&mut self, block: &lexer::Block, out: &mut Vec<Block>) {
+        if let Some(message) = &block.message {
+            let index = u32::try_from(self.messages.len()).unwrap_or(u32::MAX);
+            self.messages.push(message.clone());
+            out.push(Block {
+                line: block.line,
+                action: Action::Message(index),
+            });
+        }
+    }
+
+    /// T: selects a tool of the table for the next M6 (T0: none, the spindle emptied).
+    pub(super) fn select_tool(&mut self, words: &Words<'_>) -> Result<(), NcError> {
+        if let Some(t) = words.get('T') {
+            self.selected = Some(self.tool_number(words.line, t, "T")?);
+        }
+        Ok(())
+    }
+
+    /// M6 (a manual tool change to the selected tool; the spindle stops first, as LinuxCNC
+    /// stops it) and M61 Q (the tool in the spindle is Q, without a change).
+    pub(super) fn change_tool(&mut self, words: &Words<'_>, out: &mut Vec<Block>) -> Result<(), NcError> {
+        let line = words.line;
+        let at = |w: &Word, message: String| NcError::new(line, w.column, message);
+        for (code, w) in &words.m {
+            match code {
+                60 => {
+                    let tool = self.selected.ok_or_else(|| {
+                        at(
+                            w,
+                            "M6 needs a tool selected first: T… (T0 empties the spindle); the tool a program before this one left is not known here".into(),
+                        )
+                    })?;
+                    out.push(Block {
+                        line,
+                        action: Action::Spindle {
+                            direction: super::block::Spindle::Off,
+                            speed_rpm: self.speed_rpm,
+                        },
+                    });
+                    out.push(Block {
+                        line,
+                        action: Action::ToolChange { tool },
+                    });
+                    self.in_spindle = Some(tool);
+                }
+                610 => {
+                    let q = words
+                        .get('Q')
+                        .ok_or_else(|| at(w, "M61 needs Q: the number of the tool in the spindle".into()))?;
+                    self.in_spindle = Some(self.tool_number(line, q, "Q")?);
+                }
+                _ => {}
+            }
+        }
+        Ok(())
+    }
+
+    /// A tool's number from `word` (`letter` names it in messages): a whole number, 0 or a tool
+    /// of the table.
+    fn tool_number(&self, line: usize, word: &Word, letter: &str) -> Result<u32, NcError> {
+        let at = |message: String| NcError::new(line, word.column, message);
+        let v = word.value;
+        if !(v.fract() == 0.0 && (0.0..=f64::from(MAX_TOOL)).contains(&v)) {
+            return Err(at(format!(
+                "{letter} is a tool's number, a whole number 0 … {MAX_TOOL}; got {v}"
+            )));
+        }
+        let number = v as u32;
+        if number != 0 && self.tools.get(number).is_none() {
+            return Err(at(if self.machine.tools.is_none() {
+                format!(
+                    "{letter}{number}: there is no tool table (give one with --tool-table or nc.tool_table in the configuration)"
+                )
+            } else {
+                format!("{letter}{number}: tool {number} is not in the tool table")
+            }));
+        }
+        Ok(number)
+    }
+
+    /// G43 (the offsets of tool H, or of the tool in the spindle), G43.1 (the offsets of the
+    /// axes its words name replaced by their values, the others kept) and G49 (none). The tool does not move; where it is reads
+    /// differently from here on.
+    pub(super) fn tool_length(&mut self, words: &Words<'_>) -> Result<(), NcError> {
+        let line = words.line;
+        let at = |w: &Word, message: String| NcError::new(line, w.column, message);
+        if let Some(g43) = words.g_word(430) {
+            let number = match words.get('H') {
+                Some(h) => self.tool_number(line, h, "H")?,
+                None => self.in_spindle.ok_or_else(|| {
+                    at(
+                        g43,
+                        "G43 without H applies the tool in the spindle, and this program has not put one there (T… M6, or M61 Q…): write G43 H…".into(),
+                    )
+                })?,
+            };
+            let offsets = self.tools.get(number).map_or([0.0; 6], |t| t.offsets);
+            self.tool_offset = self.on_machine(offsets);
+        }
+        if words.has_g(431) {
+            let given = words.axis_words();
+            if given.is_empty() {
+                return Err(at(
+                    words.first,
+                    "G43.1 needs at least one axis word: the tool's offsets".into(),
+                ));
+            }
+            for (c, w) in given {
+                self.tool_offset[c] = w.value * self.scale(c);
+            }
+        }
+        if words.has_g(490) {
+            self.tool_offset = [0.0; 6];
+        }
+        Ok(())
+    }
+
+    /// `offsets` with the coordinates the machine does not have left out (a mill's Z length on a
+    /// planar machine changes nothing).
+    fn on_machine(&self, offsets: Pose) -> Pose {
+        let n = self.machine.axes.len();
+        std::array::from_fn(|c| if c < n { offsets[c] } else { 0.0 })
+    }
+
+    /// G10 L1 (tool P's offsets to the values the axis words give, R its radius) and L10 (its
+    /// offsets so that where the tool is reads as the values given, in the work system in force,
+    /// G92 included), for the rest of the program: the tool table's file is not written. L11
+    /// (relative to G59.3, which this interpreter has not) is refused.
+    pub(super) fn set_tool_entry(&mut self, words: &Words<'_>, l: &Word) -> Result<(), NcError> {
+        let line = words.line;
+        let at = |w: &Word, message: String| NcError::new(line, w.column, message);
+        if l.value == 11.0 {
+            return Err(at(
+                l,
+                "G10 L11 is not supported: it measures a tool against G59.3, a coordinate system this interpreter does not have (G54 … G59); L10 measures it in the system in force".into(),
+            ));
+        }
+        let name = if l.value == 1.0 { "G10 L1" } else { "G10 L10" };
+        let p = words
+            .get('P')
+            .ok_or_else(|| at(l, format!("{name} needs P: the tool's number")))?;
+        let number = match p.value {
+            v if v.fract() == 0.0 && (1.0..=f64::from(MAX_TOOL)).contains(&v) => v as u32,
+            v => return Err(at(p, format!("P is the tool's number, 1 … {MAX_TOOL}; got {v}"))),
+        };
+        if self.machine.tools.is_none() {
+            return Err(at(
+                p,
+                format!(
+                    "{name}: there is no tool table (give one with --tool-table or nc.tool_table in the configuration)"
+                ),
+            ));
+        }
+        let diameter = match words.get('R') {
+            Some(r) if r.value < 0.0 => {
+                return Err(at(
+                    r,
+                    format!("R is the tool's radius, zero or positive; got {}", r.value),
+                ));
+            }
+            Some(r) => Some(2.0 * r.value * self.unit()),
+            None => None,
+        };
+        let values: Vec<(usize, f64)> = words
+            .axis_words()
+            .into_iter()
+            .map(|(c, w)| {
+                let v = w.value * self.scale(c);
+                if l.value == 1.0 {
+                    (c, v)
+                } else {
+                    (c, self.position[c] - self.work[self.system][c] - self.g92[c] - v)
+                }
+            })
+            .collect();
+        let entry = self.tools.entry(number);
+        for (c, v) in values {
+            entry.offsets[c] = v;
+        }
+        if let Some(d) = diameter {
+            entry.diameter = d;
+        }
+        Ok(())
+    }
+}
