@@ -1071,8 +1071,9 @@ async fn the_screen_sets_the_overrides_steps_a_program_line_by_line_runs_mdi_and
 
 /// The manual tool change on the screen: the program stands at `T1 M6` and the page asks for
 /// tool 1 with its comment from the tool table; the program's message (MSG) is shown; "Tool
-/// changed" goes on; the run replays from its trace (which carries the tool table), and the
-/// program's messages are in the log.
+/// changed" goes on. Then a touch-off moves G54, kept in the parameter file, and the program
+/// planned again runs at the new origin. The run replays from its trace (which carries the tool
+/// table and the job's offsets), and the program's messages are in the log.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_screen_asks_for_the_tool_of_a_manual_tool_change_and_shows_the_programs_message() {
     let Some(chromium) = chromium() else {
@@ -1093,6 +1094,7 @@ async fn the_screen_asks_for_the_tool_of_a_manual_tool_change_and_shows_the_prog
     let table = dir.path().join("tool.tbl");
     std::fs::write(&table, "T1 P1 Z30 D6 ;6 mm end mill\n").expect("the table");
     let trace = dir.path().join("tools.jsonl");
+    let var = dir.path().join("ox-x.var");
     let browser = launch(chromium, dir.path(), &[]).await;
     let page = browser.new_page("about:blank").await.expect("a page");
     let config = quick_config(dir.path());
@@ -1104,6 +1106,8 @@ async fn the_screen_asks_for_the_tool_of_a_manual_tool_change_and_shows_the_prog
             program.to_str().expect("utf-8"),
             "--tool-table",
             table.to_str().expect("utf-8"),
+            "--var-file",
+            var.to_str().expect("utf-8"),
             "--trace",
             trace.to_str().expect("utf-8"),
         ],
@@ -1148,6 +1152,50 @@ async fn the_screen_asks_for_the_tool_of_a_manual_tool_change_and_shows_the_prog
         text(&page, "document.getElementById('tool-in').textContent").await,
         "tool 1 (6 mm end mill) in the spindle"
     );
+    // Touch-off: X reads 5 where the tool stands (the reference pose, after the program): G54's
+    // origin moves to X −5, the parameter file keeps it, the program is planned again and
+    // loaded; started, it runs 5 mm to the left and ends at X −5.
+    until(&page, Duration::from_secs(10), "READY after the program", async |p| {
+        state(p).await == "READY"
+    })
+    .await;
+    page.evaluate("document.getElementById('touch-value').value = '5'")
+        .await
+        .expect("the value typed");
+    click(&page, "#touch-off").await;
+    let said = async |p: &Page| text(p, "document.getElementById('access').textContent").await;
+    until(
+        &page,
+        Duration::from_secs(30),
+        "the touch-off and the program planned again",
+        async |p| said(p).await.contains("planned again and loaded"),
+    )
+    .await;
+    assert_eq!(
+        said(&page).await,
+        format!(
+            "G54 X = 5: origin 0.000 → -5.000 mm; {} from line 1 planned again and loaded",
+            program.display()
+        )
+    );
+    let kept = std::fs::read_to_string(&var).expect("the parameter file");
+    assert!(kept.contains("5221\t-5.000000\n"), "{kept}");
+    click(&page, "#nc-start").await;
+    until(
+        &page,
+        Duration::from_secs(30),
+        "the tool change asked again",
+        async |p| !asked(p).await.is_empty(),
+    )
+    .await;
+    click(&page, "#tool-changed").await;
+    until(
+        &page,
+        Duration::from_secs(30),
+        "the program done at the new origin",
+        async |p| state(p).await == "READY" && (x(p).await + 5.0).abs() < 0.01,
+    )
+    .await;
     browser.close().await;
     let stopped = Command::new("kill")
         .args(["-TERM", &plc.run.child.id().to_string()])

@@ -94,7 +94,14 @@ fn main() {
         .vars()
         .index_of(pkm_api::trajectory::vars::NC_PROGRAM.name())
         .map(usize::from);
-    let desk = JobDesk::new(setup.clone(), library.clone(), standing, loaded);
+    let desk = JobDesk::new(
+        setup.clone(),
+        library.clone(),
+        standing,
+        loaded,
+        setup.persistent(3),
+        None,
+    );
     let mut run = Run {
         plc,
         clock: VirtualClock::default(),

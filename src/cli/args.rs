@@ -252,6 +252,11 @@ pub struct RunArgs {
     /// configuration's `nc.tool_table`.
     #[arg(long, value_name = "FILE")]
     pub tool_table: Option<PathBuf>,
+    /// The parameter file (LinuxCNC's `.var` format) that keeps the work offsets and G28/G30
+    /// positions across runs, in place of the configuration's `nc.var_file`: programs start
+    /// from it, a touch-off on the screen writes it (created then if it does not exist).
+    #[arg(long, value_name = "FILE")]
+    pub var_file: Option<PathBuf>,
     /// The programs (`*.ngc`) the operator may load from the screen, each checked and planned
     /// at start (those that cannot run on the machine are listed with why), or `none`. Real
     /// time with a screen only; default `programs` (if that directory exists).
@@ -485,6 +490,10 @@ pub enum NcOp {
         /// the configuration's `nc.tool_table`.
         #[arg(long, value_name = "FILE")]
         tool_table: Option<PathBuf>,
+        /// The parameter file whose work offsets the program is read with (LinuxCNC's `.var`
+        /// format), in place of the configuration's `nc.var_file`.
+        #[arg(long, value_name = "FILE")]
+        var_file: Option<PathBuf>,
     },
 }
 

@@ -85,13 +85,32 @@ pub fn load_setup(arg: &ConfigArg) -> Result<Setup, ConfigError> {
 
 /// Builds a PLC through the composition root.
 pub fn build(arg: &ConfigArg, options: Options) -> Result<Built, Failure> {
-    build_with_tools(arg, options, None)
+    build_with_nc_files(arg, options, &NcFiles::default())
 }
 
-/// [`build`] with the tool table `tool_table` names (else the configuration's).
-pub fn build_with_tools(arg: &ConfigArg, options: Options, tool_table: Option<&Path>) -> Result<Built, Failure> {
-    let setup = load_setup(arg)?.with_tool_table(tool_table)?;
+/// [`build`] with the NC programs' files: the tool table and the parameter file the command line
+/// names (else the configuration's).
+pub fn build_with_nc_files(arg: &ConfigArg, options: Options, files: &NcFiles) -> Result<Built, Failure> {
+    let setup = files.apply(load_setup(arg)?)?;
     compose::build(setup, options).map_err(|e| Failure::usage(e.0))
+}
+
+/// The NC programs' files a command line names: the tool table, the parameter file.
+#[derive(Clone, Debug, Default)]
+pub struct NcFiles {
+    /// `--tool-table FILE`.
+    pub tool_table: Option<PathBuf>,
+    /// `--var-file FILE`.
+    pub var_file: Option<PathBuf>,
+}
+
+impl NcFiles {
+    /// `setup` with these files (else the configuration's).
+    pub fn apply(&self, setup: compose::Setup) -> Result<compose::Setup, Failure> {
+        setup
+            .with_tool_table(self.tool_table.as_deref())?
+            .with_param_file(self.var_file.as_deref())
+    }
 }
 
 /// An output file opened before the work that fills it, so that a path that cannot be written

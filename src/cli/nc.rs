@@ -23,12 +23,14 @@ pub fn run(args: NcArgs) -> Result<(), NcFailure> {
         svg,
         verbose,
         tool_table,
+        var_file,
     } = args.op;
     let fail = |code: u8, message: String| NcFailure { code, message };
     let loaded = super::load_config(&config).map_err(|e| fail(2, e.to_string()))?;
     let setup = Setup::new(loaded)
         .map_err(|e| fail(2, e.to_string()))?
         .with_tool_table(tool_table.as_deref())
+        .and_then(|s| s.with_param_file(var_file.as_deref()))
         .map_err(|e| fail(e.code, e.message))?;
     let prepared = prepare(&setup, &file)?;
     let Prepared {

@@ -9,7 +9,7 @@ use std::time::Duration;
 use tracing::info;
 
 use super::args::{HmiAddr, RunArgs, parse_hmi};
-use super::{Failure, OutputFile, build_with_tools};
+use super::{Failure, NcFiles, OutputFile, build_with_nc_files};
 use pkm_plc::compose::serve::{OpcUaRequest, Ran, RunRequest};
 use pkm_plc::compose::{JoystickChoice, Options};
 use pkm_plc::runtime::config::TimeSourceKind;
@@ -50,7 +50,11 @@ pub fn run(args: RunArgs) -> Result<(), Failure> {
         programs,
         hmi: served,
     };
-    let built = build_with_tools(&args.config, options, args.tool_table.as_deref())?;
+    let files = NcFiles {
+        tool_table: args.tool_table.clone(),
+        var_file: args.var_file.clone(),
+    };
+    let built = build_with_nc_files(&args.config, options, &files)?;
     let summary_file = args.summary.as_deref().map(OutputFile::create).transpose()?;
     let request = RunRequest {
         virtual_time: args.virtual_time,

@@ -278,6 +278,7 @@ pub(crate) fn prepare_from(
     if !problems.is_empty() {
         return Err(invalid(setup, problems));
     }
+    let persistent = setup.persistent(n);
     let program = interp::read_bounded(
         &text,
         &interp::Machine {
@@ -285,7 +286,8 @@ pub(crate) fn prepare_from(
             // A program starts at the reference point, the origin of the machine frame; a
             // screen job where the tool stands.
             start,
-            work_offsets: nc.origins(n),
+            work_offsets: persistent.origins,
+            homes: persistent.homes,
             block_delete: nc.block_delete,
             tools: setup.tools.as_ref().map(|t| &t.table),
         },

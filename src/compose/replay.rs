@@ -136,19 +136,24 @@ pub fn replay(trace: &Path, setup: &Setup, force: bool) -> Result<ReplayReport, 
     let reader = TraceReader::open(trace)?;
     let header = reader.header().clone();
     refuse_other_configuration(trace, &header, &setup.digest()?, force)?;
-    // The programs are read with the tool table they were read with in the run.
-    let with_tools;
-    let setup = match &header.tool_table {
-        Some(t) => {
-            let mut s = setup.clone();
+    // The programs are read with the tool table and planned with the work offsets they were
+    // in the run.
+    let as_recorded;
+    let setup = if header.tool_table.is_some() || header.offsets.is_some() {
+        let mut s = setup.clone();
+        if let Some(t) = &header.tool_table {
             s.tools = Some(
                 crate::compose::setup::ToolTableFile::parse(t.file.clone(), t.text.clone())
                     .map_err(|e| refused(trace, format!("its tool table: {e}")))?,
             );
-            with_tools = s;
-            &with_tools
         }
-        None => setup,
+        if let Some(o) = header.offsets {
+            s.persistent = Some(o.into());
+        }
+        as_recorded = s;
+        &as_recorded
+    } else {
+        setup
     };
     let (mut plc, library) = plc_of(trace, &header, setup)?;
     let (index, by_position) = variables(trace, &header, &plc)?;

@@ -37,6 +37,17 @@ pub fn plan_watched(
     spec: &ScreenJobSpec,
     watch: &Deadline<'_>,
 ) -> Result<NcJob, NcFailure> {
+    // Planned with the offsets a touch-off had set, where it had.
+    let with_offsets;
+    let setup = match spec.offsets {
+        Some(offsets) => {
+            let mut s = setup.clone();
+            s.persistent = Some(offsets);
+            with_offsets = s;
+            &with_offsets
+        }
+        None => setup,
+    };
     match &spec.kind {
         ScreenJobKind::Mdi { text } => {
             if text.len() > MAX_MDI_BYTES {

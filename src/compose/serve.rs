@@ -73,7 +73,7 @@ pub fn run(built: Built, request: RunRequest) -> Result<Ran, Failure> {
     }
     if let Some(path) = &request.trace {
         let digest = setup.digest()?;
-        let recorder = crate::services::trace::record::Recorder::create_with(
+        let recorder = crate::services::trace::record::Recorder::create_for(
             path,
             &plc,
             &digest,
@@ -82,6 +82,7 @@ pub fn run(built: Built, request: RunRequest) -> Result<Ran, Failure> {
                 file: t.file.clone(),
                 text: t.text.clone(),
             }),
+            setup.persistent.map(Into::into),
         )
         .map_err(|e| Failure::run(format!("{}: cannot create the trace: {e}", path.display())))?;
         plc.set_recorder(Box::new(recorder));
@@ -263,7 +264,18 @@ fn screen_info(
                     .vars()
                     .index_of(pkm_api::trajectory::vars::NC_PROGRAM.name())
                     .map(usize::from);
-                crate::services::hmi::jobs::JobDesk::new(setup.clone(), l.clone(), standing, loaded)
+                let n = setup
+                    .machine
+                    .and_then(|m| m.motion(&setup.loaded.json).ok())
+                    .map_or(0, |m| m.axes.len());
+                crate::services::hmi::jobs::JobDesk::new(
+                    setup.clone(),
+                    l.clone(),
+                    standing,
+                    loaded,
+                    setup.persistent(n),
+                    setup.keeper(n),
+                )
             }),
         tools: setup
             .tools

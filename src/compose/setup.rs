@@ -26,6 +26,11 @@ pub struct Setup {
     pub machine: Option<&'static dyn Machine>,
     /// The tool table NC programs are read with (`None`: the run has none).
     pub tools: Option<ToolTableFile>,
+    /// What NC programs start from — the work offsets and G28/G30 positions — where they are
+    /// not the configuration's (a parameter file's, a touch-off's, a trace's).
+    pub persistent: Option<pkm_nc::params::WorkOffsets>,
+    /// The parameter file touch-offs are written to (`None`: they last for the run).
+    pub param_file: Option<std::path::PathBuf>,
 }
 
 /// A tool table as a run reads it: its file, its text (a trace carries it, so that a replay
@@ -71,7 +76,65 @@ impl Setup {
             loaded,
             machine,
             tools: None,
+            persistent: None,
+            param_file: None,
         })
+    }
+
+    /// What NC programs start from on a machine of `n` coordinates: the parameter file's (or a
+    /// touch-off's, a trace's) work offsets and G28/G30 positions, else the configuration's
+    /// `nc.work_offsets` and the reference point.
+    pub fn persistent(&self, n: usize) -> pkm_nc::params::WorkOffsets {
+        self.persistent.unwrap_or_else(|| pkm_nc::params::WorkOffsets {
+            origins: self.loaded.config.nc.origins(n),
+            homes: [[0.0; 6]; 2],
+        })
+    }
+
+    /// With the parameter file `path` names (the command line's `--var-file`), else the one the
+    /// configuration's `nc.var_file` names (relative to its directory), else none: its values
+    /// when it exists (else the configuration's until the first touch-off writes it). A file
+    /// that cannot be read or parsed is a usage error (exit 2) naming it.
+    pub fn with_param_file(mut self, path: Option<&Path>) -> Result<Setup, super::Failure> {
+        let file = match (path, &self.loaded.config.nc.var_file) {
+            (Some(p), _) => p.to_path_buf(),
+            (None, Some(name)) => match &self.loaded.dir {
+                Some(dir) => dir.join(name),
+                None => std::path::PathBuf::from(name),
+            },
+            (None, None) => return Ok(self),
+        };
+        let name = file.display().to_string();
+        match std::fs::read_to_string(&file) {
+            Ok(text) => {
+                let values = pkm_nc::params::parse(&text).map_err(|e| super::Failure::usage(format!("{name}:{e}")))?;
+                self.persistent = Some(values);
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+            Err(e) => {
+                return Err(super::Failure::usage(format!(
+                    "{name}: cannot read the parameter file: {e}"
+                )));
+            }
+        }
+        self.param_file = Some(file);
+        Ok(self)
+    }
+
+    /// What keeps a touch-off's work offsets for a machine of `n` coordinates: writes the
+    /// parameter file (a new file beside it, then renamed over it, so that a crash leaves the
+    /// old one or the new one, never half of one); `None` without a parameter file.
+    pub fn keeper(&self, n: usize) -> Option<crate::services::hmi::jobs::Keep> {
+        let path = self.param_file.clone()?;
+        Some(Box::new(move |offsets: &pkm_nc::params::WorkOffsets| {
+            let text = pkm_nc::params::format(offsets, n);
+            let name = path.display();
+            let mut temporary = path.clone().into_os_string();
+            temporary.push(".new");
+            std::fs::write(&temporary, text)
+                .and_then(|()| std::fs::rename(&temporary, &path))
+                .map_err(|e| format!("{name}: cannot write the parameter file: {e}"))
+        }))
     }
 
     /// With the tool table `path` names (the command line's `--tool-table`), else the one the

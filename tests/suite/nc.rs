@@ -114,6 +114,25 @@ fn nc_check_reads_the_programs_tools_from_the_tool_table() {
         example_table.to_str().expect("utf-8"),
     ]);
     assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    // A parameter file moves G54: the same program's box moves with it.
+    let var = dir.path().join("ox-x.var");
+    std::fs::write(&var, "5221 3\n5222 -4\n").expect("write");
+    let plain = program(dir.path(), "plain.ngc", "G1 X5 Y5 F600\nG0 X0 Y0\nM2\n");
+    let o = pkm(&[
+        "nc",
+        "check",
+        &plain,
+        "--machine",
+        "ox-x",
+        "--var-file",
+        var.to_str().expect("utf-8"),
+    ]);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    assert!(
+        stdout(&o).contains("X 0.000 … 8.000, Y -4.000 … 1.000"),
+        "{}",
+        stdout(&o)
+    );
     let missing = dir.path().join("none.tbl");
     let missing = missing.to_str().expect("utf-8");
     let o = pkm(&["nc", "check", &file, "--machine", "ox-x", "--tool-table", missing]);
@@ -376,6 +395,7 @@ fn our_program(text: &str) -> Result<pkm_nc::interp::Program, pkm_nc::NcError> {
             start: [0.0; 6],
             work_offsets: [[0.0; 6]; 6],
             block_delete: false,
+            homes: [[0.0; 6]; 2],
             tools: Some(&tools),
         },
     )

@@ -85,7 +85,11 @@ fn mdi_lines_and_a_run_from_a_line_start_where_the_tool_stands_and_replay_identi
         let start = standing.pose(plc.global_image()).expect("a pose");
         let mut at = [0.0; 6];
         at.copy_from_slice(&start);
-        let spec = ScreenJobSpec { kind, start: at };
+        let spec = ScreenJobSpec {
+            kind,
+            start: at,
+            offsets: None,
+        };
         let job = screen_job::plan(&setup, &library, &spec).unwrap_or_else(|e| panic!("{e}"));
         let slot = library.screen.push(ScreenJob { spec, job }).expect("room");
         let number = library.screen_number(slot).expect("a number");
@@ -150,6 +154,7 @@ fn a_job_that_cannot_run_is_refused_with_its_line_and_nothing_is_stored() {
     let spec = |text: &str| ScreenJobSpec {
         kind: ScreenJobKind::Mdi { text: text.into() },
         start: [0.0; 6],
+        offsets: None,
     };
     let refused = |text: &str| {
         screen_job::plan(&setup, &library, &spec(text))
@@ -170,6 +175,7 @@ fn a_job_that_cannot_run_is_refused_with_its_line_and_nothing_is_stored() {
     let from = ScreenJobSpec {
         kind: ScreenJobKind::FromLine { program: 1, line: 3 },
         start: [0.0; 6],
+        offsets: None,
     };
     let e = screen_job::plan(&setup, &library, &from)
         .map(|_| ())
@@ -191,7 +197,14 @@ fn the_screen_makes_a_job_from_ready_only_numbered_after_the_programs() {
     } = compose::build(setup, options).unwrap_or_else(|e| panic!("{e}"));
     let library = library.expect("a screen's run has a library");
     let standing = StandingPose::of(&setup, &plc).expect("the set-points");
-    let desk = JobDesk::new(setup.clone(), library.clone(), standing, None);
+    let desk = JobDesk::new(
+        setup.clone(),
+        library.clone(),
+        standing,
+        None,
+        setup.persistent(3),
+        None,
+    );
     let runtime = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()
@@ -216,4 +229,90 @@ fn the_screen_makes_a_job_from_ready_only_numbered_after_the_programs() {
     assert_eq!((made.number, made.job.file.as_str()), (1, "MDI"));
     assert_eq!(made.job.text, "G1 X2 F300\nM2\n");
     assert_eq!(library.screen.made(), 1);
+}
+
+/// A touch-off: from READY only, the work system moved so that where the tool stands reads the
+/// value (as G10 L20), written to the parameter file (LinuxCNC's `.var`), a job planned after it
+/// with the new origin — and a run started with that file starts from it.
+#[test]
+fn a_touch_off_moves_the_work_origin_keeps_it_in_the_parameter_file_and_jobs_follow_it() {
+    use pkm_plc::services::hmi::jobs::JobDesk;
+    let dir = tempfile::tempdir().expect("tempdir");
+    let var = dir.path().join("ox-x.var");
+    let setup = Setup::new(machine_config("ox-x", |_| {}))
+        .expect("ox-x")
+        .with_param_file(Some(&var))
+        .unwrap_or_else(|e| panic!("{}", e.message));
+    assert_eq!(setup.persistent, None, "no file yet: the configuration's offsets");
+    let options = Options {
+        hmi: true,
+        ..Options::default()
+    };
+    let Built {
+        setup, plc, library, ..
+    } = compose::build(setup, options).unwrap_or_else(|e| panic!("{e}"));
+    let library = library.expect("a screen's run has a library");
+    let standing = StandingPose::of(&setup, &plc).expect("the set-points");
+    let desk = JobDesk::new(
+        setup.clone(),
+        library.clone(),
+        standing,
+        None,
+        setup.persistent(3),
+        setup.keeper(3),
+    );
+    desk.observe("INIT", plc.global_image());
+    assert_eq!(
+        desk.touch_off(0, 0, 5.0).map(|_| ()),
+        Err("a touch-off is made in READY: the machine is INIT".to_string())
+    );
+    desk.observe("READY", plc.global_image());
+    // The tool stands at the reference pose (0, 0, 0): X reads 5 there when G54's origin is at −5.
+    let t = desk.touch_off(0, 0, 5.0).expect("a touch-off");
+    assert_eq!((t.was, t.now), (0.0, -5.0));
+    let t = desk.touch_off(1, 2, -2.5).expect("G55 Z");
+    assert_eq!(t.now, 2.5);
+    assert!(desk.offsets_changed());
+    let text = std::fs::read_to_string(&var).expect("the parameter file");
+    assert!(text.contains("5221\t-5.000000\n"), "{text}");
+    assert!(text.contains("5243\t2.500000\n"), "{text}");
+    // A job planned now: G1 X10 in G54 goes to machine X 5.
+    let runtime = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .expect("a runtime");
+    let made = runtime
+        .block_on(desk.make(ScreenJobKind::Mdi {
+            text: "G1 X10 F300".into(),
+        }))
+        .unwrap_or_else(|e| panic!("{e}"));
+    let end = made
+        .job
+        .trajectory
+        .sample(made.job.trajectory.duration_s(), &mut 0)
+        .pose;
+    assert!((end[0] - 5.0).abs() < 1e-9, "{end:?}");
+    assert!(
+        library.screen_spec(made.number).and_then(|s| s.offsets).is_some(),
+        "the job carries them"
+    );
+    // The next run starts from the file; a file that cannot be read names its line.
+    let next = Setup::new(machine_config("ox-x", |_| {}))
+        .expect("ox-x")
+        .with_param_file(Some(&var))
+        .unwrap_or_else(|e| panic!("{}", e.message));
+    assert_eq!(next.persistent(3).origins[0][0], -5.0);
+    std::fs::write(&var, "5221 -5\n5230 90\n").expect("write");
+    let refused = Setup::new(machine_config("ox-x", |_| {}))
+        .expect("ox-x")
+        .with_param_file(Some(&var))
+        .map(|_| ())
+        .expect_err("a rotation");
+    assert_eq!(
+        refused.message,
+        format!(
+            "{}:2:1: #5230 rotates a coordinate system by 90°: rotation (G10 R) is not supported",
+            var.display()
+        )
+    );
 }

@@ -84,6 +84,11 @@ pub struct NcConfig {
     /// (`--tool-table` overrides it); without one, T, M6 and G43 H are refused.
     #[serde(default)]
     pub tool_table: Option<String>,
+    /// The parameter file (LinuxCNC's `.var` format) that keeps the work offsets and G28/G30
+    /// positions across runs, relative to this file's directory (`--var-file` overrides it);
+    /// a touch-off on the screen writes it.
+    #[serde(default)]
+    pub var_file: Option<String>,
     /// The share of each joint's and world axis' acceleration a program's plan uses (1 by
     /// default): a machine whose drives follow the planned (trapezoidal) speed profile within
     /// the contour tolerance only at less sets it lower.

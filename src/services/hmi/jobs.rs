@@ -14,6 +14,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 
 use pkm_api::library::NcLibrary;
+use pkm_api::offsets::WorkOffsets;
 use pkm_api::screen_jobs::{ScreenJob, ScreenJobKind, ScreenJobSpec};
 use pkm_api::trajectory::NcJob;
 
@@ -60,6 +61,27 @@ pub struct JobDesk {
     planning: AtomicBool,
     /// Why the job being planned is abandoned: the operator's Cancel, a STOP.
     cancel: Arc<Mutex<Option<&'static str>>>,
+    /// The work offsets jobs are planned with now (a touch-off changes them).
+    offsets: Mutex<WorkOffsets>,
+    /// The ones the run's programs were planned with at its start.
+    planned_with: WorkOffsets,
+    /// Keeps the offsets across runs (writes the parameter file), if the run has a place for
+    /// them; says why not.
+    keep: Option<Keep>,
+    /// The loaded program's number in the newest frame.
+    loaded: Mutex<i16>,
+}
+
+/// What keeps the work offsets across runs: writes them, or says why it could not.
+pub type Keep = Box<dyn Fn(&WorkOffsets) -> Result<(), String> + Send + Sync>;
+
+/// A touch-off made: the coordinate system's origin in the axis before and after.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TouchOff {
+    /// The origin's coordinate before (machine frame).
+    pub was: f64,
+    /// After.
+    pub now: f64,
 }
 
 /// A job made: its number, its file name and its text (as the screen shows it).
@@ -89,6 +111,8 @@ impl JobDesk {
         library: NcLibrary,
         standing: impl Standing,
         program_var: Option<usize>,
+        offsets: WorkOffsets,
+        keep: Option<Keep>,
     ) -> JobDesk {
         JobDesk {
             planner: Arc::new(planner),
@@ -99,7 +123,60 @@ impl JobDesk {
             state: Arc::new(Mutex::new(String::new())),
             planning: AtomicBool::new(false),
             cancel: Arc::new(Mutex::new(None)),
+            offsets: Mutex::new(offsets),
+            planned_with: offsets,
+            keep,
+            loaded: Mutex::new(0),
         }
+    }
+
+    /// The work offsets jobs are planned with now.
+    pub fn offsets(&self) -> WorkOffsets {
+        *self.offsets.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    /// Whether a touch-off has changed the work offsets since the run's programs were planned:
+    /// they are then planned again (as a run from their first line) before they are loaded.
+    pub fn offsets_changed(&self) -> bool {
+        self.offsets() != self.planned_with
+    }
+
+    /// The run's program (from 1) the loaded one runs: itself, or the program a run from a line
+    /// runs; `None` for MDI lines or nothing loaded.
+    pub fn loaded_program(&self) -> Option<i16> {
+        let k = *self.loaded.lock().unwrap_or_else(|p| p.into_inner());
+        match self.library.screen_spec(k).map(|s| &s.kind) {
+            Some(ScreenJobKind::FromLine { program, .. }) => Some(*program),
+            Some(ScreenJobKind::Mdi { .. }) => None,
+            None => (k >= 1 && usize::try_from(k).is_ok_and(|k| k <= self.library.jobs.len())).then_some(k),
+        }
+    }
+
+    /// Touches off: work coordinate system `system` (0: G54 … 5: G59) is moved in axis `axis`
+    /// (0: x … 5: c) so that where the tool stands reads `value`, as G10 L20 would, and the
+    /// offsets are kept (the parameter file). In READY only; refused, and nothing changed,
+    /// when they cannot be kept.
+    pub fn touch_off(&self, system: usize, axis: usize, value: f64) -> Result<TouchOff, String> {
+        let Some(here) = *self.here.lock().unwrap_or_else(|p| p.into_inner()) else {
+            let state = self.state.lock().unwrap_or_else(|p| p.into_inner()).clone();
+            return Err(format!("a touch-off is made in READY: the machine is {state}"));
+        };
+        if system >= 6 || axis >= 6 {
+            return Err("a touch-off names G54 … G59 and an axis of x y z a b c".into());
+        }
+        if !value.is_finite() || value.abs() > 1e5 {
+            return Err(format!("a touch-off's value is a number within ±100 000, got {value}"));
+        }
+        let mut offsets = self.offsets.lock().unwrap_or_else(|p| p.into_inner());
+        let mut changed = *offsets;
+        let was = changed.origins[system][axis];
+        let now = here[axis] - value;
+        changed.origins[system][axis] = now;
+        if let Some(keep) = &self.keep {
+            keep(&changed)?;
+        }
+        *offsets = changed;
+        Ok(TouchOff { was, now })
     }
 
     /// The run's library.
@@ -120,10 +197,12 @@ impl JobDesk {
                 s.push_str(state);
             }
         }
-        let loaded = match self.program_var.and_then(|i| image.get(i)) {
-            Some(Value::Int(k)) => self.library.screen_slot(*k),
-            _ => None,
+        let number = match self.program_var.and_then(|i| image.get(i)) {
+            Some(Value::Int(k)) => *k,
+            _ => 0,
         };
+        *self.loaded.lock().unwrap_or_else(|p| p.into_inner()) = number;
+        let loaded = self.library.screen_slot(number);
         free_elsewhere(self.library.screen.release_replaced(loaded))
     }
 
@@ -161,7 +240,12 @@ impl JobDesk {
         *self.cancel.lock().unwrap_or_else(|p| p.into_inner()) = None;
         let mut at = [0.0; pkm_api::trajectory::MAX_AXES];
         at[..6].copy_from_slice(&start);
-        let spec = ScreenJobSpec { kind, start: at };
+        let offsets = self.offsets();
+        let spec = ScreenJobSpec {
+            kind,
+            start: at,
+            offsets: (offsets != self.planned_with).then_some(offsets),
+        };
         let (planner, library, asked) = (Arc::clone(&self.planner), self.library.clone(), spec.clone());
         let (cancel, state) = (Arc::clone(&self.cancel), Arc::clone(&self.state));
         let planned = tokio::task::spawn_blocking(move || {

@@ -86,6 +86,8 @@ pub struct Shared {
     in_error: AtomicBool,
     /// A manual tool change waits for its confirmation (the last frame's `TOOL_CHANGE`).
     tool_change: AtomicBool,
+    /// The machine's pose coordinates (`x`, `y`, …), which a touch-off names.
+    axes: Vec<String>,
     /// The run's programs: text and path, served on request.
     programs: Vec<Served>,
     /// Where jobs are made.
@@ -160,6 +162,7 @@ pub fn router(info: HmiInfo, mut frames: FrameFeed, sink: CommandSink, options: 
         running: AtomicBool::new(false),
         in_error: AtomicBool::new(false),
         tool_change: AtomicBool::new(false),
+        axes: info.axes.clone(),
         programs,
         jobs: info.jobs,
         watchers: AtomicUsize::new(0),
@@ -391,6 +394,14 @@ enum Command {
     SingleBlock { on: bool },
     /// The tool the manual tool change asks for is in the spindle: the program goes on.
     ToolChanged {},
+    /// Touch-off: work coordinate system `system` (1: G54 … 6: G59; G54 when left out) moved in
+    /// `axis` so that where the tool stands reads `value`, as G10 L20 would; from READY.
+    TouchOff {
+        axis: String,
+        value: f64,
+        #[serde(default)]
+        system: Option<u8>,
+    },
     /// Lines `from` … of program `program`'s text (a read: watchers may ask too).
     Text { program: usize, from: usize },
     /// The programmed path of program `program` (a read).
@@ -531,7 +542,9 @@ async fn client(mut socket: WebSocket, peer: SocketAddr, commands: bool, shared:
                             }
                             shared.read(c)
                         }
-                        Ok(c @ (Command::Mdi { .. } | Command::RunFrom { .. })) if commands => {
+                        Ok(c @ (Command::Mdi { .. } | Command::RunFrom { .. } | Command::TouchOff { .. } | Command::Load { .. }))
+                            if commands && (!matches!(c, Command::Load { .. }) || shared.replans_on_load()) =>
+                        {
                             if job_pending {
                                 counts.refused += 1;
                                 Some(json!({"type": "refused", "why": "your last job is being planned (Cancel abandons it)"}))
@@ -734,6 +747,21 @@ impl Shared {
                 info!("screen {peer}: run program {program} from line {line}");
                 pkm_api::screen_jobs::ScreenJobKind::FromLine { program, line }
             }
+            Command::TouchOff { axis, value, system } => return self.touch_off(peer, desk, &axis, value, system).await,
+            Command::Load { program } => {
+                // Planned again with the offsets a touch-off set, then loaded (not started).
+                if let Err(why) = self.may_load(program) {
+                    return json!({"type": "refused", "why": why, "job": true});
+                }
+                info!("screen {peer}: load program {program}, planned again with the touched-off offsets");
+                return self
+                    .load_job(
+                        peer,
+                        desk,
+                        pkm_api::screen_jobs::ScreenJobKind::FromLine { program, line: 1 },
+                    )
+                    .await;
+            }
             _ => return json!({"type": "refused", "why": "not a job"}),
         };
         match desk.make(kind).await {
@@ -755,6 +783,94 @@ impl Shared {
                     "file": made.job.file,
                     "lines": made.job.text.lines().count(),
                     "planned_s": made.job.trajectory.duration_s(),
+                    "started": true,
+                })
+            }
+            Err(why) => {
+                info!("screen {peer}: job refused: {}", why.lines().next().unwrap_or_default());
+                json!({"type": "refused", "why": why, "job": true})
+            }
+        }
+    }
+
+    /// Whether program `program` may be loaded now: one of the run's, and no program runs.
+    fn may_load(&self, program: i16) -> Result<(), String> {
+        let known = usize::try_from(program).is_ok_and(|k| (1..=self.programs.len()).contains(&k));
+        if !known {
+            return Err(format!("no program {program}: the run has {}", self.programs.len()));
+        }
+        if self.running.load(Ordering::Relaxed) {
+            return Err("a program runs: another is loaded once it has ended or stopped".into());
+        }
+        Ok(())
+    }
+
+    /// Whether a Load plans the program again first: a touch-off has changed the work offsets
+    /// since the run's programs were planned.
+    fn replans_on_load(&self) -> bool {
+        self.jobs.as_ref().is_some_and(JobDesk::offsets_changed)
+    }
+
+    /// A touch-off (see [`Command::TouchOff`]): the offsets changed and kept, then the loaded
+    /// program (or the program a loaded run from a line runs) planned again with them and
+    /// loaded in its place, not started.
+    async fn touch_off(&self, peer: SocketAddr, desk: &JobDesk, axis: &str, value: f64, system: Option<u8>) -> Json {
+        let refused = |why: String| json!({"type": "refused", "why": why, "job": true});
+        let system = usize::from(system.unwrap_or(1));
+        if !(1..=6).contains(&system) {
+            return refused(format!("a touch-off's system is 1 … 6 (G54 … G59), got {system}"));
+        }
+        let Some(c) = self.axes.iter().position(|a| a.eq_ignore_ascii_case(axis)) else {
+            return refused(format!("no axis {axis:?}: this machine's are {}", self.axes.join(" ")));
+        };
+        let name = format!("G{}", 53 + system);
+        let t = match desk.touch_off(system - 1, c, value) {
+            Ok(t) => t,
+            Err(why) => {
+                info!("screen {peer}: touch-off {name} {axis} = {value} refused: {why}");
+                return refused(why);
+            }
+        };
+        info!(
+            "screen {peer}: touch-off {name} {} = {value:.4}: its origin {:.4} → {:.4} mm",
+            axis.to_uppercase(),
+            t.was,
+            t.now
+        );
+        let mut reply =
+            json!({"type": "touch_off", "system": name, "axis": axis, "value": value, "was": t.was, "now": t.now});
+        if let Some(k) = desk.loaded_program() {
+            let job = self
+                .load_job(
+                    peer,
+                    desk,
+                    pkm_api::screen_jobs::ScreenJobKind::FromLine { program: k, line: 1 },
+                )
+                .await;
+            reply["job"] = job;
+        }
+        reply
+    }
+
+    /// Makes job `kind` and loads it without starting it; the reply as [`Shared::make_job`]'s.
+    async fn load_job(&self, peer: SocketAddr, desk: &JobDesk, kind: pkm_api::screen_jobs::ScreenJobKind) -> Json {
+        match desk.make(kind).await {
+            Ok(made) => {
+                info!(
+                    "screen {peer}: job {} ({}, {:.2} s planned) loaded",
+                    made.number,
+                    made.job.file,
+                    made.job.trajectory.duration_s()
+                );
+                let number = made.number;
+                self.sink.update(|c| c.program = number);
+                json!({
+                    "type": "job",
+                    "program": number,
+                    "file": made.job.file,
+                    "lines": made.job.text.lines().count(),
+                    "planned_s": made.job.trajectory.duration_s(),
+                    "started": false,
                 })
             }
             Err(why) => {
@@ -771,7 +887,8 @@ impl Shared {
             | Command::Path { .. }
             | Command::Cut {}
             | Command::Mdi { .. }
-            | Command::RunFrom { .. } => {}
+            | Command::RunFrom { .. }
+            | Command::TouchOff { .. } => {}
             Command::Cancel {} => {
                 let cancelled = self
                     .jobs
@@ -783,14 +900,9 @@ impl Shared {
                 info!("screen {peer}: the job being planned is cancelled");
             }
             Command::Load { program } => {
-                let known = usize::try_from(program).is_ok_and(|k| (1..=self.programs.len()).contains(&k));
-                if !known {
-                    return Err(format!("no program {program}: the run has {}", self.programs.len()));
-                }
-                if self.running.load(Ordering::Relaxed) {
-                    info!("screen {peer}: load program {program} refused: a program runs");
-                    return Err("a program runs: another is loaded once it has ended or stopped".into());
-                }
+                self.may_load(program).inspect_err(|why| {
+                    info!("screen {peer}: load program {program} refused: {why}");
+                })?;
                 info!("screen {peer}: load program {program}");
                 self.sink.update(|c| c.program = program);
             }

@@ -58,6 +58,10 @@ pub struct Header {
     /// with it again.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub tool_table: Option<TraceProgram>,
+    /// The work offsets the programs were planned with, where they were not the
+    /// configuration's (a parameter file's): a replay plans them with these again.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub offsets: Option<TraceOffsets>,
 }
 
 impl Header {
@@ -91,6 +95,38 @@ pub struct TraceJob {
     /// The program and line it runs from.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub from_line: Option<TraceFromLine>,
+    /// The work offsets it was planned with, where a touch-off had changed them.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub offsets: Option<TraceOffsets>,
+}
+
+/// Work offsets as a trace carries them: G54 … G59's origins and G28's and G30's positions
+/// (machine frame; x y z a b c each).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TraceOffsets {
+    /// G54 … G59.
+    pub origins: [[f64; 6]; 6],
+    /// G28, G30.
+    pub homes: [[f64; 6]; 2],
+}
+
+impl From<pkm_api::offsets::WorkOffsets> for TraceOffsets {
+    fn from(o: pkm_api::offsets::WorkOffsets) -> Self {
+        TraceOffsets {
+            origins: o.origins,
+            homes: o.homes,
+        }
+    }
+}
+
+impl From<TraceOffsets> for pkm_api::offsets::WorkOffsets {
+    fn from(o: TraceOffsets) -> Self {
+        pkm_api::offsets::WorkOffsets {
+            origins: o.origins,
+            homes: o.homes,
+        }
+    }
 }
 
 /// A program run from a line, in a [`TraceJob`].
@@ -124,6 +160,7 @@ impl TraceJob {
             start,
             mdi,
             from_line,
+            offsets: spec.offsets.map(TraceOffsets::from),
         }
     }
 
@@ -140,7 +177,11 @@ impl TraceJob {
         };
         let mut start = [0.0; pkm_api::trajectory::MAX_AXES];
         start[..6].copy_from_slice(&self.start);
-        Ok(ScreenJobSpec { kind, start })
+        Ok(ScreenJobSpec {
+            kind,
+            start,
+            offsets: self.offsets.map(Into::into),
+        })
     }
 }
 

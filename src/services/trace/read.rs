@@ -214,6 +214,7 @@ impl TraceReader {
                 program: None,
                 library: Vec::new(),
                 tool_table: None,
+                offsets: None,
             },
             classes: HashMap::new(),
             variables: Vec::new(),

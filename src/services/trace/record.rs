@@ -139,6 +139,19 @@ impl Recorder {
         library: Option<&pkm_api::library::NcLibrary>,
         tool_table: Option<TraceProgram>,
     ) -> io::Result<Recorder> {
+        Recorder::create_for(path, plc, config_digest, library, tool_table, None)
+    }
+
+    /// [`Recorder::create_with`] for programs planned with `offsets` (a parameter file's), not
+    /// the configuration's.
+    pub fn create_for(
+        path: &Path,
+        plc: &Plc,
+        config_digest: &str,
+        library: Option<&pkm_api::library::NcLibrary>,
+        tool_table: Option<TraceProgram>,
+        offsets: Option<super::TraceOffsets>,
+    ) -> io::Result<Recorder> {
         let nc = library;
         let (program, library) = Header::programs(library);
         let file = Output::create(path)?;
@@ -163,6 +176,7 @@ impl Recorder {
             program,
             library,
             tool_table,
+            offsets,
         };
         let var_names: Vec<String> = vars.iter().map(|v| v.name.clone()).collect();
         // The screen's jobs go into the trace where the screen loads them.

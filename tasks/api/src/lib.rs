@@ -13,6 +13,7 @@ pub mod hmi;
 pub mod image;
 pub mod library;
 pub mod machine;
+pub mod offsets;
 pub mod problem;
 pub mod program;
 pub mod ranges;

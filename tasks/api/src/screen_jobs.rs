@@ -31,6 +31,9 @@ pub struct ScreenJobSpec {
     pub kind: ScreenJobKind,
     /// Where the tool stood when the job was made: where it starts (machine frame).
     pub start: [f64; MAX_AXES],
+    /// The work offsets it was planned with, where they were not the run's at its start (a
+    /// touch-off changed them).
+    pub offsets: Option<crate::offsets::WorkOffsets>,
 }
 
 /// The kinds of screen jobs.
@@ -256,6 +259,7 @@ mod tests {
             spec: ScreenJobSpec {
                 kind: ScreenJobKind::Mdi { text: text.into() },
                 start: [0.0; MAX_AXES],
+                offsets: None,
             },
             job: NcJob {
                 file: "MDI".into(),

@@ -192,6 +192,7 @@ mod tests {
                 axes: f.kinematics().pose_keys(),
                 start: [0.0; 6],
                 work_offsets: [[0.0; 6]; 6],
+                homes: [[0.0; 6]; 2],
                 tools: None,
             },
         )

@@ -12,6 +12,7 @@
 //!   subset does not have is refused with its line and column and the reason, before anything
 //!   moves.
 //! - [`tools`]: the tool table, in LinuxCNC's `tool.tbl` format.
+//! - [`params`]: the parameter file, in LinuxCNC's `.var` format (work offsets, G28/G30 homes).
 //! - [`path`]: a move's geometry: its length along the path, its pose at a fraction of it.
 //! - [`check`]: every point of the path, sampled finely, inside the world limits, reachable with
 //!   every joint inside its software limits and away from singularities; the path's length and
@@ -31,6 +32,7 @@ pub mod flow;
 pub mod interp;
 pub mod job;
 pub mod lexer;
+pub mod params;
 pub mod path;
 pub mod plan;
 pub mod tools;

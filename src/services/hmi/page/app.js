@@ -66,6 +66,7 @@ function connect() {
     else if (m.type === "text") text(m);
     else if (m.type === "path") path(m);
     else if (m.type === "job") job(m);
+    else if (m.type === "touch_off") touchedOff(m);
     else if (m.type === "planning") planning(true);
     else if (m.type === "cut" && m.program === shownProgram) cut = m.points;
     else if (m.type === "refused") {
@@ -102,6 +103,8 @@ function hello(m) {
   $("jog-buttons").innerHTML = (m.axes || []).map((a, k) => pair(a, k + 1, `the tool along ${a}`)).join("");
   $("joint-buttons").innerHTML = (m.joints || []).map((v, k) => pair(`q${k + 1}`, -(k + 1), `joint ${k + 1} alone (${v})`)).join("");
   $("joint-hint").hidden = !(m.joints || []).length;
+  $("touch-axis").innerHTML = (m.axes || []).map((a) => `<option value="${a}">${a.toUpperCase()}</option>`).join("");
+  $("touch-off-box").hidden = !m.jobs || !(m.axes || []).length;
   for (const b of document.querySelectorAll(".jog-btn")) {
     b.addEventListener("pointerdown", (e) => {
       b.setPointerCapture(e.pointerId);
@@ -158,7 +161,20 @@ function planning(on) {
 function job(m) {
   planning(false);
   programs[m.program - 1] = { file: m.file, lines: m.lines };
-  $("access").textContent = `${m.file}: planned ${m.planned_s.toFixed(2)} s, started`;
+  $("access").textContent = `${m.file}: planned ${m.planned_s.toFixed(2)} s, ${m.started ? "started" : "loaded"}`;
+}
+
+// A touch-off made: the system's origin before and after; the loaded program planned again.
+function touchedOff(m) {
+  planning(false);
+  let said = `${m.system} ${m.axis.toUpperCase()} = ${m.value}: origin ${m.was.toFixed(3)} → ${m.now.toFixed(3)} mm`;
+  if (m.job && m.job.type === "job") {
+    programs[m.job.program - 1] = { file: m.job.file, lines: m.job.lines };
+    said += `; ${m.job.file} planned again and loaded`;
+  } else if (m.job) {
+    said += `; the loaded program could not be planned again: ${m.job.why}`;
+  }
+  $("access").textContent = said;
 }
 
 // Asks for the window of the shown program's text that starts at line `from`.
@@ -207,7 +223,7 @@ function followLine(line) {
 
 // Enables or disables every control: the buttons, the program choice, the jog pad.
 function enableControls(on) {
-  for (const c of document.querySelectorAll("button, select, .overrides input, #from-line, #mdi-text")) c.disabled = !on;
+  for (const c of document.querySelectorAll("button, select, .overrides input, #from-line, #mdi-text, #touch-value")) c.disabled = !on;
   $("pad").classList.toggle("disabled", !on);
 }
 
@@ -433,6 +449,9 @@ $("nc-start").addEventListener("click", () => send({ cmd: "program", what: "star
 $("nc-hold").addEventListener("click", () => send({ cmd: "program", what: "hold" }));
 $("nc-resume").addEventListener("click", () => send({ cmd: "program", what: "resume" }));
 $("tool-changed").addEventListener("click", () => send({ cmd: "tool_changed" }));
+$("touch-off").addEventListener("click", () => {
+  send({ cmd: "touch_off", system: Number($("touch-system").value), axis: $("touch-axis").value, value: Number($("touch-value").value) });
+});
 for (const id of ["feed", "rapid"]) {
   $(id + "-override").addEventListener("input", (e) => {
     $(id + "-value").textContent = `${e.target.value} %`;

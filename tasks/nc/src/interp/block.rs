@@ -166,6 +166,9 @@ pub struct Machine<'a> {
     pub start: Pose,
     /// The work offsets of G54 … G59 (machine coordinates of each system's origin).
     pub work_offsets: [Pose; 6],
+    /// The positions G28 and G30 go to until the program stores others (G28.1, G30.1; machine
+    /// coordinates): the parameter file's.
+    pub homes: [Pose; 2],
     /// The block-delete switch: on, lines starting with `/` are skipped; off (LinuxCNC's
     /// default), they run.
     pub block_delete: bool,

@@ -167,7 +167,7 @@ impl<'a> State<'a> {
             g92: [0.0; 6],
             work: machine.work_offsets,
             g92_kept: [0.0; 6],
-            stored: [[0.0; 6]; 2],
+            stored: machine.homes,
             feed_mm_min: None,
             feed_mode: FeedMode::PerMinute,
             inverse_time: None,

@@ -13,6 +13,7 @@ fn machine(axes: &'static [&'static str]) -> Machine<'static> {
         start: [0.0; 6],
         work_offsets,
         block_delete: false,
+        homes: [[0.0; 6]; 2],
         tools: None,
     }
 }

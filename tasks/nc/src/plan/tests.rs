@@ -28,6 +28,7 @@ fn planned(model: pkm_kinematics::Machine, text: &str, l: &PlanLimits) -> Plan {
             axes: f.kinematics().pose_keys(),
             start: [0.0; 6],
             work_offsets: [[0.0; 6]; 6],
+            homes: [[0.0; 6]; 2],
             tools: None,
         },
     )
@@ -69,6 +70,7 @@ fn the_counted_cost_bounds_the_memory_of_the_program_and_its_plan() {
                 axes: f.kinematics().pose_keys(),
                 start: [0.0; 6],
                 work_offsets: [[0.0; 6]; 6],
+                homes: [[0.0; 6]; 2],
                 tools: None,
             },
         )

@@ -1,0 +1,168 @@
+//! The parameter file, in LinuxCNC's `.var` format: one `NUMBER VALUE` a line, the numbered
+//! parameters that outlive a run. Kept here: the origins of G54 … G59 (`#5221` …, twenty numbers
+//! a system, x y z a b c first) and the positions G28 and G30 go to (`#5161` …, `#5181` …), in
+//! machine units (mm, degrees). A touch-off on the screen writes it; every program starts from
+//! it.
+//!
+//! A file LinuxCNC wrote is read: its other persistent numbers are taken as LinuxCNC's and left
+//! aside where this interpreter has nothing for them — axes U V W, G59.1 … G59.3, the coordinate
+//! system in force (a program here starts in G54), G92's offset (a program here starts without,
+//! as LinuxCNC with `DISABLE_G92_PERSISTENCE`); a rotation of a coordinate system (`#5230` …)
+//! other than 0 is refused, as is any number LinuxCNC does not keep, with its line.
+
+pub use pkm_api::offsets::WorkOffsets;
+
+use crate::NcError;
+
+/// The first parameter of G54's origin; each further system's is 20 on.
+const G54: usize = 5221;
+
+/// Reads a parameter file; a problem names its line and column (the file's name is the caller's
+/// to add).
+pub fn parse(text: &str) -> Result<WorkOffsets, NcError> {
+    let mut p = WorkOffsets::default();
+    for (i, line) in text.lines().enumerate() {
+        let number = i + 1;
+        // The fields with the columns they start at.
+        let mut fields = fields_of(line).into_iter();
+        let Some(first) = fields.next() else {
+            continue;
+        };
+        let second = fields.next();
+        let err = |field: (usize, &str), message: String| NcError::new(number, field.0, message);
+        let index: usize = first
+            .1
+            .parse()
+            .map_err(|_| err(first, format!("'{}' is not a parameter's number", first.1)))?;
+        let value_field = second.ok_or_else(|| err(first, format!("#{index} has no value")))?;
+        if let Some(extra) = fields.next() {
+            return Err(err(
+                extra,
+                format!("one number and one value a line; '{}' is more", extra.1),
+            ));
+        }
+        let value: f64 = value_field
+            .1
+            .parse()
+            .ok()
+            .filter(|v: &f64| v.is_finite() && v.abs() <= 1e6)
+            .ok_or_else(|| {
+                err(
+                    value_field,
+                    format!("#{index}: '{}' is not a number within ±10⁶", value_field.1),
+                )
+            })?;
+        set(&mut p, index, value).map_err(|why| err(first, why))?;
+    }
+    Ok(p)
+}
+
+/// Takes parameter `index`'s value into `p`, or says why not.
+fn set(p: &mut WorkOffsets, index: usize, value: f64) -> Result<(), String> {
+    match index {
+        // G28's and G30's positions: x y z a b c kept, u v w left aside.
+        5161..=5166 => p.homes[0][index - 5161] = value,
+        5181..=5186 => p.homes[1][index - 5181] = value,
+        5167..=5169 | 5187..=5189 => {}
+        // G92's offset and whether it is in force, the coordinate system in force.
+        5210..=5220 => {}
+        // G54 … G59.3: x y z a b c, u v w, the rotation.
+        G54..=5390 => {
+            let (system, at) = ((index - G54) / 20, (index - G54) % 20);
+            match at {
+                0..=5 if system < 6 => p.origins[system][at] = value,
+                9 if value != 0.0 => {
+                    return Err(format!(
+                        "#{index} rotates a coordinate system by {value}°: rotation (G10 R) is not supported"
+                    ));
+                }
+                0..=9 => {}
+                _ => return Err(format!("#{index} is not a parameter LinuxCNC keeps in its file")),
+            }
+        }
+        _ => return Err(format!("#{index} is not a parameter LinuxCNC keeps in its file")),
+    }
+    Ok(())
+}
+
+/// The file's text of `p` for a machine of `axes` coordinates (x y z a b c, the first `axes`):
+/// LinuxCNC's format, sorted by number.
+pub fn format(p: &WorkOffsets, axes: usize) -> String {
+    let mut out = String::new();
+    let n = axes.min(6);
+    for (k, home) in p.homes.iter().enumerate() {
+        for (c, v) in home.iter().enumerate().take(n) {
+            out.push_str(&format!("{}\t{v:.6}\n", [5161, 5181][k] + c));
+        }
+    }
+    for (system, origin) in p.origins.iter().enumerate() {
+        for (c, v) in origin.iter().enumerate().take(n) {
+            out.push_str(&format!("{}\t{v:.6}\n", G54 + 20 * system + c));
+        }
+    }
+    out
+}
+
+/// The blank-separated fields of `line`, each with the 1-based column it starts at.
+fn fields_of(line: &str) -> Vec<(usize, &str)> {
+    let mut out = Vec::new();
+    let mut start = None;
+    for (column, (at, c)) in line.char_indices().enumerate() {
+        match (c.is_whitespace(), start) {
+            (false, None) => start = Some((column + 1, at)),
+            (true, Some((col, from))) => {
+                out.push((col, &line[from..at]));
+                start = None;
+            }
+            _ => {}
+        }
+    }
+    if let Some((col, from)) = start {
+        out.push((col, &line[from..]));
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_file_written_is_read_back_and_linuxcncs_other_numbers_are_left_aside() {
+        let mut p = WorkOffsets::default();
+        p.origins[0] = [10.0, -2.5, 3.0, 0.0, 0.0, 0.0];
+        p.origins[5][1] = 7.25;
+        p.homes[1][2] = 40.0;
+        let text = format(&p, 3);
+        assert!(text.starts_with("5161\t0.000000\n"), "{text}");
+        assert!(
+            text.contains("5221\t10.000000\n5222\t-2.500000\n5223\t3.000000\n"),
+            "{text}"
+        );
+        assert!(text.contains("5322\t7.250000\n"), "{text}");
+        assert_eq!(parse(&text), Ok(p));
+        // A LinuxCNC file: G92, the system in force, U V W, G59.3, a rotation of 0.
+        let linuxcnc = "5161 1\n5167 9\n5210 1\n5211 3\n5220 2\n5221 4\n5227 8\n5230 0\n5381 6\n\n";
+        let read = parse(linuxcnc).expect("read");
+        assert_eq!((read.homes[0][0], read.origins[0][0]), (1.0, 4.0));
+        assert_eq!(read.origins[1], [0.0; 6]);
+    }
+
+    #[test]
+    fn problems_name_their_line_and_column() {
+        for (text, why) in [
+            ("5221 1\nfive 2\n", "2:1: 'five' is not a parameter's number"),
+            ("5221\n", "1:1: #5221 has no value"),
+            ("5221 x\n", "1:6: #5221: 'x' is not a number within ±10⁶"),
+            ("5221 1 2\n", "1:8: one number and one value a line; '2' is more"),
+            (
+                "5230 90\n",
+                "1:1: #5230 rotates a coordinate system by 90°: rotation (G10 R) is not supported",
+            ),
+            ("  31 4\n", "1:3: #31 is not a parameter LinuxCNC keeps in its file"),
+            ("5232 4\n", "1:1: #5232 is not a parameter LinuxCNC keeps in its file"),
+        ] {
+            assert_eq!(parse(text).map_err(|e| e.to_string()), Err(why.to_string()), "{text}");
+        }
+    }
+}
