@@ -2,9 +2,12 @@
 //! cycle to the browser, and the 10 ms class's lateness and execution time with N headless
 //! Chromium browsers connected.
 //!
-//! `cargo build --release && cargo run --release --example hmi_latency -- [BROWSERS] [SECONDS]`
-//! (3 browsers, 30 s by default; 0 browsers measures the PLC alone). Needs Chromium
-//! (`apt-get install chromium`) and runs `target/release/pkm-plc run --machine ox-x`.
+//! `cargo build --release && cargo run --release --example hmi_latency -- [BROWSERS] [SECONDS]
+//! [PROGRAM]` (3 browsers, 30 s by default; 0 browsers measures the PLC alone). Needs Chromium
+//! (`apt-get install chromium`) and runs `target/release/pkm-plc run --machine ox-x` (with
+//! `--program PROGRAM`, which then runs: the screen draws its cut path as it goes). It also
+//! measures what the pages cost the browsers: the CPU time of every Chromium process of each
+//! browser (its profile's), as a share of one core, from 5 s after the pages opened.
 
 use std::io::BufRead;
 use std::process::{Command, Stdio};
@@ -33,6 +36,7 @@ async fn main() {
         a.parse()
             .unwrap_or_else(|_| fail(format!("{a} is not a number of seconds")))
     });
+    let program: Option<String> = args.next();
     let dir = std::env::temp_dir().join(format!("hmi-latency-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap_or_else(|e| fail(format!("{}: {e}", dir.display())));
     let summary = dir.join("summary.json");
@@ -47,7 +51,8 @@ async fn main() {
             "127.0.0.1:0",
             "--duration",
         ])
-        .arg((seconds + 5).to_string())
+        .arg((seconds + 15).to_string())
+        .args(program.iter().flat_map(|p| ["--program", p.as_str()]))
         .arg("--summary")
         .arg(&summary)
         .env("RUST_LOG", "info")
@@ -82,7 +87,16 @@ async fn main() {
             .unwrap_or_else(|e| fail(format!("the page: {e}")));
         open.push((browser, page));
     }
+    // The browsers' CPU time from 5 s after the pages opened (their start and first drawing
+    // left out).
+    tokio::time::sleep(Duration::from_secs(5)).await;
+    let profiles: Vec<String> = (0..browsers)
+        .map(|i| dir.join(format!("profile-{i}")).display().to_string())
+        .collect();
+    let (cpu_from, wall_from) = (browsers_cpu_s(&profiles), std::time::Instant::now());
     tokio::time::sleep(Duration::from_secs(seconds)).await;
+    let cpu = browsers_cpu_s(&profiles) - cpu_from;
+    let wall = wall_from.elapsed().as_secs_f64();
     let mut all: Vec<f64> = Vec::new();
     for (_, page) in &open {
         let latency: Vec<f64> = page
@@ -113,6 +127,13 @@ async fn main() {
         fast["exec_us"]["max"],
         fast["overruns"]
     );
+    if browsers > 0 {
+        println!(
+            "the pages cost the browsers {:.1} % of one core each ({:.2} CPU-s over {wall:.1} s, {browsers} browsers)",
+            cpu / wall / browsers as f64 * 100.0,
+            cpu
+        );
+    }
     if !all.is_empty() {
         all.sort_by(f64::total_cmp);
         let mean = all.iter().sum::<f64>() / all.len() as f64;
@@ -124,4 +145,36 @@ async fn main() {
         );
     }
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The CPU time (user and system, s) of every process whose command line names one of
+/// `profiles` (a Chromium's browser, renderer, GPU and utility processes all carry its profile
+/// directory).
+fn browsers_cpu_s(profiles: &[String]) -> f64 {
+    let ticks_per_s = 100.0; // USER_HZ on Linux
+    let mut total = 0u64;
+    let Ok(entries) = std::fs::read_dir("/proc") else {
+        return 0.0;
+    };
+    for entry in entries.flatten() {
+        let path = entry.path();
+        let Ok(cmdline) = std::fs::read(path.join("cmdline")) else {
+            continue;
+        };
+        let cmdline = String::from_utf8_lossy(&cmdline);
+        if !profiles.iter().any(|p| cmdline.contains(p.as_str())) {
+            continue;
+        }
+        let Ok(stat) = std::fs::read_to_string(path.join("stat")) else {
+            continue;
+        };
+        // After the command's name in parentheses: fields 14 and 15 (utime, stime).
+        let Some(after) = stat.rsplit_once(')').map(|(_, a)| a) else {
+            continue;
+        };
+        let fields: Vec<&str> = after.split_whitespace().collect();
+        let get = |k: usize| fields.get(k).and_then(|f| f.parse::<u64>().ok()).unwrap_or(0);
+        total += get(11) + get(12);
+    }
+    total as f64 / ticks_per_s
 }

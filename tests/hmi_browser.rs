@@ -1137,7 +1137,10 @@ async fn the_screen_asks_for_the_tool_of_a_manual_tool_change_and_shows_the_prog
     );
     // It stands: a second later the tool has not moved and the change still waits.
     tokio::time::sleep(Duration::from_secs(1)).await;
-    assert_eq!(watched(&page, "TOOL_CHANGE").await, "true");
+    until(&page, Duration::from_secs(5), "TOOL_CHANGE in the image", async |p| {
+        watched(p, "TOOL_CHANGE").await == "true"
+    })
+    .await;
     assert!(x(&page).await.abs() < 0.01);
     click(&page, "#tool-changed").await;
     until(
@@ -1212,4 +1215,147 @@ async fn the_screen_asks_for_the_tool_of_a_manual_tool_change_and_shows_the_prog
         "{log}"
     );
     common::assert_replays_identically(&trace, &["--config", config.to_str().expect("utf-8")]);
+}
+
+/// What a machine-tool user looks for first: the DRO (work and machine positions, marked as not
+/// trustworthy before referencing), the spindle override, the incremental jog (a 1 mm step), the
+/// 3-D view of the path, the mechanism kept and dimmed in ERROR with what to do next, and the
+/// alarm history with who acknowledged. Screenshots for docs/hmi.md with PKM_SCREENSHOTS=DIR.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_screen_shows_a_dro_steps_the_jog_keeps_an_alarm_history_and_dims_the_mechanism_in_error() {
+    let Some(chromium) = chromium() else {
+        common::skip(
+            "hmi_browser::the_screen_shows_a_dro_steps_the_jog_keeps_an_alarm_history_and_dims_the_mechanism_in_error",
+            NO_CHROMIUM,
+        );
+        return;
+    };
+    let _turn = take_turn().await;
+    let dir = tempfile::tempdir().expect("tempdir");
+    let programs = dir.path().join("programs");
+    std::fs::create_dir(&programs).expect("a directory");
+    std::fs::write(
+        programs.join("square.ngc"),
+        "G0 X2 Y2\nG1 Z-1 F300\nG1 X8 F600\nY8\nX2\nY2\nG0 Z0\nG0 X0 Y0\nM2\n",
+    )
+    .expect("the program");
+    let browser = launch(chromium, dir.path(), &[]).await;
+    let page = browser.new_page("about:blank").await.expect("a page");
+    let config = quick_config(dir.path());
+    let mut plc = start_plc(&config, 120, &["--programs", programs.to_str().expect("utf-8")]);
+    page.goto(plc.url.as_str()).await.expect("loads");
+    // Before referencing the positions are marked as not trustworthy.
+    until(&page, Duration::from_secs(30), "INIT shown", async |p| {
+        state(p).await == "INIT"
+    })
+    .await;
+    let untrusted = async |p: &Page| text(p, "String(document.body.classList.contains('untrusted'))").await;
+    assert_eq!(untrusted(&page).await, "true");
+    until(&page, Duration::from_secs(60), "READY shown", async |p| {
+        state(p).await == "READY"
+    })
+    .await;
+    until(&page, Duration::from_secs(5), "the positions trusted", async |p| {
+        untrusted(p).await == "false"
+    })
+    .await;
+    let work = async |p: &Page, a: &str| {
+        text(p, &format!("document.getElementById('work-{a}').textContent"))
+            .await
+            .parse::<f64>()
+            .unwrap_or(f64::NAN)
+    };
+    assert!(work(&page, "x").await.abs() < 0.01 && x(&page).await.abs() < 0.01);
+    // The spindle override is an input like the feed override.
+    page.evaluate("(() => { const s = document.getElementById('spindle-override'); s.value = 80; s.dispatchEvent(new Event('input')); })()")
+        .await
+        .expect("the slider moves");
+    until(
+        &page,
+        Duration::from_secs(5),
+        "the spindle override in the PLC",
+        async |p| watched(p, "NC_SPINDLE_OVERRIDE").await == "80",
+    )
+    .await;
+    // A 1 mm step along X: the tool goes 1 mm and stands (READY again).
+    page.evaluate("(() => { const s = document.getElementById('jog-step'); s.value = '1'; })()")
+        .await
+        .expect("the step chosen");
+    click(&page, r#".jog-btn[data-axis="1"][data-x="1"]"#).await;
+    until(&page, Duration::from_secs(20), "the step made", async |p| {
+        state(p).await == "READY" && (x(p).await - 1.0).abs() < 0.005
+    })
+    .await;
+    assert!(
+        (work(&page, "x").await - 1.0).abs() < 0.005,
+        "the work position follows"
+    );
+    // The 3-D view of the program's path: switched on, it draws.
+    until(&page, Duration::from_secs(10), "the path box", async |p| {
+        text(p, "String(!document.getElementById('path-box').hidden)").await == "true"
+    })
+    .await;
+    click(&page, "#view3d").await;
+    let drawn = "(() => { const c = document.getElementById('path'); const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data; let n = 0; for (let i = 3; i < d.length; i += 4) if (d[i]) n++; return String(n > 200 && view3d.on); })()";
+    until(&page, Duration::from_secs(5), "the 3-D view drawn", async |p| {
+        text(p, drawn).await == "true"
+    })
+    .await;
+    if let Some(shots) = std::env::var_os("PKM_SCREENSHOTS") {
+        let shots = std::path::PathBuf::from(shots);
+        page.screenshot(&shots.join("hmi-dro.png")).await.expect("a screenshot");
+    }
+    // STOP: ERROR in the history; the mechanism stays, dimmed, with what to do next.
+    click(&page, "#stop").await;
+    until(&page, Duration::from_secs(5), "ERROR shown", async |p| {
+        state(p).await == "ERROR"
+    })
+    .await;
+    until(&page, Duration::from_secs(5), "the mechanism dimmed with a note", async |p| {
+        text(p, "String(document.getElementById('mechanism-box').classList.contains('dimmed') && !document.getElementById('mechanism-box').hidden)").await == "true"
+            && text(p, "document.getElementById('mechanism-note').textContent").await
+                == "ERROR: the last pose drawn before it. Press Acknowledge, then reference the machine."
+    })
+    .await;
+    if let Some(shots) = std::env::var_os("PKM_SCREENSHOTS") {
+        let shots = std::path::PathBuf::from(shots);
+        page.screenshot(&shots.join("hmi-error.png"))
+            .await
+            .expect("a screenshot");
+    }
+    click(&page, "#ack").await;
+    let history = async |p: &Page| {
+        text(
+            p,
+            "Array.from(document.querySelectorAll('#alarms tr.alarm')).map(r => r.textContent).join(' | ')",
+        )
+        .await
+    };
+    until(
+        &page,
+        Duration::from_secs(10),
+        "the acknowledgement in the history",
+        async |p| history(p).await.contains("acknowledged"),
+    )
+    .await;
+    let h = history(&page).await;
+    assert!(h.contains("errorSTOP"), "{h}");
+    assert!(h.contains("by screen 127.0.0.1:"), "{h}");
+    // A page opened later gets the history.
+    let late = browser.new_page(plc.url.as_str()).await.expect("a second page");
+    until(
+        &late,
+        Duration::from_secs(10),
+        "the history on a late page",
+        async |p| history(p).await.contains("errorSTOP"),
+    )
+    .await;
+    browser.close().await;
+    let stopped = Command::new("kill")
+        .args(["-TERM", &plc.run.child.id().to_string()])
+        .status()
+        .expect("kill runs");
+    assert!(stopped.success());
+    assert!(plc.run.wait().success(), "{}", plc.log());
+    assert!(plc.log().contains("step G91 G0 X1"), "{}", plc.log());
 }

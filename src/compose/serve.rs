@@ -246,6 +246,7 @@ fn screen_info(
                 file: j.file.clone(),
                 text: j.text.clone(),
                 path: crate::services::hmi::server::preview(j.trajectory.as_ref()),
+                planned_s: j.trajectory.duration_s(),
             })
             .collect(),
         refused,

@@ -293,6 +293,17 @@ impl Page {
         .await
     }
 
+    /// Writes a PNG of the page's viewport to `path`.
+    pub async fn screenshot(&self, path: &std::path::Path) -> Result<(), String> {
+        use base64::Engine;
+        let shot = self.call("Page.captureScreenshot", json!({"format": "png"})).await?;
+        let data = shot["data"].as_str().ok_or("no screenshot data")?;
+        let png = base64::engine::general_purpose::STANDARD
+            .decode(data)
+            .map_err(|e| format!("the screenshot's data: {e}"))?;
+        std::fs::write(path, png).map_err(|e| format!("{}: {e}", path.display()))
+    }
+
     /// Presses (or releases) the left mouse button at `at` (CSS pixels of the viewport), as a
     /// hand on the page would.
     pub async fn mouse(&self, at: (f64, f64), pressed: bool) -> Result<(), String> {

@@ -429,3 +429,82 @@ fn a_manual_tool_change_waits_for_the_screen_and_the_run_replays() {
     let report = pkm_plc::compose::replay::replay(&trace, &bare, false).unwrap_or_else(|e| panic!("{e}"));
     assert!(report.records > 1000, "{}", report.records);
 }
+
+/// The screen's preview of a program marks its rapids, which the page draws dashed: the points
+/// of `G0 X10` are rapids, those of the `G1` after it are not.
+#[test]
+fn the_preview_marks_the_rapids() {
+    let setup = Setup::new(machine_config("ox-x", |_| {})).expect("the O-X glide");
+    let job =
+        pkm_plc::compose::nc_job::prepare_text(&setup, "p.ngc".into(), "G0 X10\nG1 Y10 F600\nG0 X0 Y0\nM2\n".into())
+            .and_then(pkm_plc::compose::nc_job::Prepared::into_job)
+            .unwrap_or_else(|e| panic!("{}", e.message));
+    let points = pkm_plc::services::hmi::server::preview(job.trajectory.as_ref());
+    let rapid_out = points
+        .iter()
+        .filter(|p| p[3] == 1.0 && p[1].abs() < 1e-9 && p[0] > 0.5)
+        .count();
+    let feed = points
+        .iter()
+        .filter(|p| p[3] == 0.0 && (p[0] - 10.0).abs() < 1e-9 && p[1] > 0.5)
+        .count();
+    assert!(rapid_out > 10, "the G0 X10 is drawn as a rapid: {rapid_out} points");
+    assert!(feed > 10, "the G1 Y10 as a feed move: {feed} points");
+    assert!(points.iter().all(|p| p[3] == 0.0 || p[3] == 1.0));
+}
+
+/// What the DRO shows of a running program: the commanded feed, the measured one, the distance
+/// to go along the line, and the spindle at the screen's override.
+#[test]
+fn the_dro_gets_the_feed_the_distance_to_go_and_the_spindle_at_its_override() {
+    use pkm_api::trajectory::vars as nc;
+    let dir = tempfile::tempdir().expect("a temporary directory");
+    let program = dir.path().join("line.ngc");
+    std::fs::write(&program, "S1000 M3\nG1 X20 F600\nM5\nG0 X0\nM2\n").expect("the program");
+    let options = Options {
+        hmi: true,
+        program: Some(program),
+        ..Options::default()
+    };
+    let setup = Setup::new(machine_config("ox-x", |_| {})).expect("the O-X glide");
+    let built = compose::build(setup, options).unwrap_or_else(|e| panic!("{e}"));
+    let (mut plc, sink) = (built.plc, built.hmi.expect("the screen's commands"));
+    sink.update(|c| c.spindle_override = 50);
+    // (feed, measured feed, distance to go, rpm) while the G1 runs at its feed.
+    let mut at_feed: Vec<(f64, f64, f64, f64)> = Vec::new();
+    let mut togo = Vec::new();
+    transitions(&mut plc, 20_000, |plc, _| {
+        let line: i32 = get(plc, nc::NC_LINE);
+        let feed: f64 = get(plc, nc::NC_FEED);
+        if line == 2 {
+            togo.push(get::<f64>(plc, nc::NC_DISTANCE_TO_GO));
+            if (feed - 600.0).abs() < 1e-6 {
+                at_feed.push((
+                    feed,
+                    get(plc, nc::NC_FEED_MEASURED),
+                    togo[togo.len() - 1],
+                    get(plc, nc::SPINDLE_RPM),
+                ));
+            }
+        }
+    });
+    assert!(
+        at_feed.len() > 50,
+        "the line ran at its feed: {} samples",
+        at_feed.len()
+    );
+    for (_, measured, _, rpm) in &at_feed[10..] {
+        assert!((measured - 600.0).abs() < 15.0, "measured {measured} mm/min");
+        assert_eq!(*rpm, 500.0, "S1000 at 50 %");
+    }
+    assert!(
+        togo.first().is_some_and(|d| *d > 19.9) && togo.last().is_some_and(|d| *d < 0.1),
+        "{:?} … {:?}",
+        togo.first(),
+        togo.last()
+    );
+    assert!(
+        togo.windows(2).all(|w| w[1] <= w[0] + 1e-9),
+        "the distance to go only falls"
+    );
+}

@@ -41,6 +41,8 @@ pub struct Commands {
     pub feed_override: i16,
     /// The rapid override (percent, 0 … 100).
     pub rapid_override: i16,
+    /// The spindle override (percent, 0 … 150).
+    pub spindle_override: i16,
     /// Single block.
     pub single_block: bool,
 }
@@ -56,6 +58,7 @@ impl Default for Commands {
             program: 0,
             feed_override: OVERRIDE_DEFAULT,
             rapid_override: OVERRIDE_DEFAULT,
+            spindle_override: OVERRIDE_DEFAULT,
             single_block: false,
         }
     }
@@ -65,6 +68,8 @@ impl Default for Commands {
 pub const FEED_OVERRIDE_RANGE: std::ops::RangeInclusive<i16> = 0..=150;
 /// The rapid override's range on the screen (percent).
 pub const RAPID_OVERRIDE_RANGE: std::ops::RangeInclusive<i16> = 0..=100;
+/// The spindle override's range on the screen (percent).
+pub const SPINDLE_OVERRIDE_RANGE: std::ops::RangeInclusive<i16> = 0..=150;
 
 /// How many buttons the screen presses.
 pub const PRESSES: usize = 6;
@@ -109,8 +114,9 @@ pub struct HmiBus {
     output: triple_buffer::Output<Commands>,
     /// The variables: the first five presses' (in [`press`] order), the jog's x and y, its axis,
     /// the program to load, the feed and rapid overrides, single block, then the tool change's
-    /// confirmation (declared last, so that the earlier ones keep their order in traces).
-    vars: [VarIndex; 7 + PRESSES],
+    /// confirmation and the spindle override (declared last, so that the earlier ones keep their
+    /// order in traces).
+    vars: [VarIndex; 8 + PRESSES],
     seen: [u64; PRESSES],
     /// Until when each press holds its variable on (ns of the schedule).
     until: [u64; PRESSES],
@@ -130,7 +136,7 @@ impl HmiBus {
             inner,
             class,
             output,
-            vars: [0; 7 + PRESSES],
+            vars: [0; 8 + PRESSES],
             seen: [0; PRESSES],
             until: [0; PRESSES],
             acknowledged: 0,
@@ -176,6 +182,11 @@ impl Bus for HmiBus {
             ),
             declare(vars::NC_SINGLE_BLOCK.name(), VarType::Bool, Value::Bool(false)),
             declare(HMI_TOOL_CHANGED.name(), VarType::Bool, Value::Bool(false)),
+            declare(
+                vars::NC_SPINDLE_OVERRIDE.name(),
+                VarType::Int,
+                Value::Int(OVERRIDE_DEFAULT),
+            ),
         ];
     }
 
@@ -215,6 +226,7 @@ impl Bus for HmiBus {
         image[usize::from(self.vars[9])] = Value::Int(clamp(c.feed_override, &FEED_OVERRIDE_RANGE));
         image[usize::from(self.vars[10])] = Value::Int(clamp(c.rapid_override, &RAPID_OVERRIDE_RANGE));
         image[usize::from(self.vars[11])] = Value::Bool(c.single_block);
+        image[usize::from(self.vars[13])] = Value::Int(clamp(c.spindle_override, &SPINDLE_OVERRIDE_RANGE));
     }
 
     fn write_outputs(&mut self, class: usize, t_ns: u64, image: &[Value]) {

@@ -12,6 +12,7 @@
 //! whenever one is set (see "The operator's screen" in the README).
 
 pub mod access;
+pub mod alarms;
 pub mod commands;
 pub mod cut;
 pub mod jobs;

@@ -18,9 +18,32 @@ pub struct ScreenProgram {
     pub file: String,
     /// Its text.
     pub text: String,
-    /// The programmed tool path (x y z of the commanded pose along the program's time line),
+    /// The programmed tool path (x y z of the commanded pose along the program's time line, and
+    /// 1 where the way there is a rapid),
     /// for the page's preview.
-    pub path: Vec<[f64; 3]>,
+    pub path: Vec<[f64; 4]>,
+    /// Its planned duration (s): the screen shows the time left.
+    pub planned_s: f64,
+}
+
+/// The programmed path for the screen's preview: at most 4000 points along the time line, each
+/// x y z and whether the way to it is a rapid (1) or a feed move (0), so that the page draws the
+/// rapids dashed.
+pub fn preview(trajectory: &dyn pkm_api::trajectory::Trajectory) -> Vec<[f64; 4]> {
+    const POINTS: usize = 4000;
+    let duration = trajectory.duration_s();
+    let mut cursor = 0;
+    let mut points: Vec<[f64; 4]> = Vec::with_capacity(POINTS + 1);
+    for i in 0..=POINTS {
+        let sample = trajectory.sample(duration * i as f64 / POINTS as f64, &mut cursor);
+        let p = sample.pose;
+        let point = [p[0], p[1], p[2], if sample.rapid { 1.0 } else { 0.0 }];
+        // Where the tool stands (dwells, stops), one point is enough.
+        if points.last() != Some(&point) {
+            points.push(point);
+        }
+    }
+    points
 }
 
 /// A program as the screen serves it: its text with where every [`TEXT_WINDOW`]-th line starts,

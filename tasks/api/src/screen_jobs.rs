@@ -21,8 +21,9 @@ use arc_swap::ArcSwapOption;
 use crate::trajectory::{MAX_AXES, NcJob};
 
 /// The most jobs the screen makes in one run (their specs stay until the run ends; their plans
-/// only while they may run).
-pub const MAX_SCREEN_JOBS: usize = 1000;
+/// only while they may run): MDI lines, runs from a line, the steps of the incremental jog and the
+/// programs planned again after a touch-off count. About 600 bytes of slot each, made at start.
+pub const MAX_SCREEN_JOBS: usize = 10_000;
 
 /// What a screen job is made of: enough to plan it again (a replay does).
 #[derive(Clone, Debug, PartialEq)]

@@ -71,6 +71,19 @@ pub mod vars {
     /// How many message comments programs have reached since the PLC started: an observer that
     /// sees it grow by k knows the last k messages up to `NC_MESSAGE` are new.
     pub const NC_MESSAGES: Var<i32> = Var::new("NC_MESSAGES");
+    /// The spindle override (percent, 0 … 150; clamped there): the spindle turns at the
+    /// programmed speed times it. Written by the screen as `NC_FEED_OVERRIDE`; 100 when nothing
+    /// writes it. (A G95 feed was planned at the programmed speed: the override does not change
+    /// it.)
+    pub const NC_SPINDLE_OVERRIDE: Var<i16> = Var::new("NC_SPINDLE_OVERRIDE");
+    /// The commanded feed now: the speed along the path the executor commands (mm/min; degrees
+    /// per minute where only rotations move), overrides included.
+    pub const NC_FEED: Var<f64> = Var::new("NC_FEED");
+    /// The measured feed: the speed of the measured tool point (x y z) over the last 100 ms
+    /// (mm/min), while a program runs.
+    pub const NC_FEED_MEASURED: Var<f64> = Var::new("NC_FEED_MEASURED");
+    /// The distance to go: along the path to the end of the executing line's motion (mm).
+    pub const NC_DISTANCE_TO_GO: Var<f64> = Var::new("NC_DISTANCE_TO_GO");
     /// The contour error now: the distance from the measured tool point to the programmed path
     /// (mm), measured on feed moves (G1, G2, G3; not on rapids).
     pub const NC_CONTOUR_ERROR: Var<f64> = Var::new("NC_CONTOUR_ERROR");

@@ -2,9 +2,18 @@
 // commands sent back. The jog is a dead-man: released on pointer up, when the tab is hidden,
 // when the connection drops; while held it is refreshed every 20 ms (the server stops a jog not
 // refreshed for 60 ms).
+//
+// What a frame costs the browser is kept small (the page and the PLC often share one PC): every
+// frame is taken in as it comes (the cut path's points, the update latency), but the page is
+// drawn at most DISPLAY_HZ times a second, from the newest frame; text is written only where it
+// changed, the process image's table only while it is in view (else once a second), the task
+// classes' table once a second, and the drawings only where something they show moved.
 "use strict";
 
 const $ = (id) => document.getElementById(id);
+// How often the page is drawn (Hz): each drawing costs a software-rendering browser about
+// 30 ms of CPU, so at 20 Hz (the frames' rate) a page took 45 % of a core.
+const DISPLAY_HZ = 4;
 const token = new URLSearchParams(location.search).get("token");
 let ws = null;
 let variables = [];
@@ -24,27 +33,53 @@ let jobs = false;
 let refused = [];
 let jogTimer = null;
 let lastLine = 0;
-// The tool path: programmed (from the server), cut (the measured tool point x y z while a
-// program runs: what the server kept of the run before this page saw it, then every frame).
+// The tool path: programmed (from the server: x y z and whether the way there is a rapid), cut
+// (the measured tool point x y z while a program runs: what the server kept of the run before
+// this page saw it, then every frame).
 let programmed = [];
 let cut = [];
 let cutAsked = false;
 let plane = [0, 1];
 let index = {};
+// The machine's pose coordinates (x, y, …) and the work systems' origins (G54 first).
+let axes = [];
+let origins = null;
 // The mechanism's views: the planes of its largest extents, each with a frame that grows to
-// everything drawn so far (so that it does not jump).
+// everything drawn so far (so that it does not jump); the last links drawn.
 let views = null;
+let links = null;
+// The 3-D view of the path (and the mechanism): its turn, tilt and zoom, and a drag under way.
+const view3d = { on: false, yaw: -0.6, pitch: 0.9, zoom: 1, drag: null };
 // The tool table's tools: number → comment (the tool change names them).
 let tools = {};
 // The last message (MSG) shown: its time, so that a new one replaces it.
 let shownMessage = null;
+// What each element shows now (written only when it changes).
+const shown = new Map();
+let watchVisible = false;
+let watchAt = 0;
+let classesAt = 0;
+let drawPending = false;
+// What the path's layers show: the programmed path (drawn again only when the program or the
+// view changes) and how much of the cut path is drawn (only the newest segments are added).
+let pathDrawn = false;
+let cutMoved = false;
+let cutDrawn = 0;
 // The update latency: from the cycle's publication to this page (ms), the last 2000 frames.
 window.latency = [];
+let latencyAt = 0;
 
 function send(command) {
   if (ws && ws.readyState === WebSocket.OPEN) {
     ws.send(JSON.stringify(command));
   }
+}
+
+// Sets an element's text (or a cell's) only where it changed.
+function put(element, text) {
+  if (!element || shown.get(element) === text) return;
+  shown.set(element, text);
+  element.textContent = text;
 }
 
 function connect() {
@@ -62,13 +97,15 @@ function connect() {
   ws.onmessage = (e) => {
     const m = JSON.parse(e.data);
     if (m.type === "hello") hello(m);
-    else if (m.type === "frame") frame(m);
+    else if (m.type === "frame") take(m);
     else if (m.type === "text") text(m);
     else if (m.type === "path") path(m);
     else if (m.type === "job") job(m);
     else if (m.type === "touch_off") touchedOff(m);
+    else if (m.type === "origins") { origins = m.origins; }
+    else if (m.type === "alarm") alarm(m, true);
     else if (m.type === "planning") planning(true);
-    else if (m.type === "cut" && m.program === shownProgram) cut = m.points;
+    else if (m.type === "cut" && m.program === shownProgram) { cut = m.points; redraw(true); }
     else if (m.type === "refused") {
       if (m.job) planning(false);
       $("access").textContent = m.why;
@@ -78,11 +115,14 @@ function connect() {
 
 function hello(m) {
   index = {};
+  shown.clear();
   m.variables.forEach(([n], i) => { index[n] = i; });
   programs = m.programs || [];
   jobs = !!m.jobs;
   tools = {};
   (m.tools || []).forEach(([n, comment]) => { tools[n] = comment; });
+  axes = m.axes || [];
+  origins = m.origins || null;
   cutAsked = false;
   $("mdi-box").hidden = !jobs;
   $("from-line-box").hidden = !jobs;
@@ -95,24 +135,37 @@ function hello(m) {
   $("refused").innerHTML = refused.map((r) => `<div>not offered: ${escape(r.why.split("\n")[0])}</div>`).join("") +
     (m.refused_more ? `<div>… and ${m.refused_more} more (see the log)</div>` : "");
   showProgram(programs.length ? 1 : 0);
+  // The DRO: per pose coordinate its work and machine position (large), per joint its position
+  // and whether it is referenced.
+  $("dro").innerHTML = "<tr><th></th><th>work <span id=\"dro-system\">G54</span></th><th>machine</th></tr>" +
+    axes.map((a) => `<tr data-axis="${a}"><th class="big">${a.toUpperCase()}</th><td class="num big" id="work-${a}">–</td><td class="num" data-value="${a}">–</td></tr>`).join("");
+  $("joints").innerHTML = (m.joints || []).map((v, k) =>
+    `<span class="joint" title="${escape(v)}"><span id="homed-${k + 1}">○</span> q${k + 1} <span class="num" data-value="q${k + 1}">–</span></span>`).join(" ");
   // A pair of press-and-hold buttons per pose coordinate of the machine (axis k), and per joint
   // (axis −k: the joint alone, once referenced).
   const pair = (label, axis, title) =>
     `<button class="jog-btn" data-axis="${axis}" data-x="-1" title="${title}">− ${label}</button>` +
     `<button class="jog-btn" data-axis="${axis}" data-x="1" title="${title}">+ ${label}</button>`;
-  $("jog-buttons").innerHTML = (m.axes || []).map((a, k) => pair(a, k + 1, `the tool along ${a}`)).join("");
+  $("jog-buttons").innerHTML = axes.map((a, k) => pair(a, k + 1, `the tool along ${a}`)).join("");
   $("joint-buttons").innerHTML = (m.joints || []).map((v, k) => pair(`q${k + 1}`, -(k + 1), `joint ${k + 1} alone (${v})`)).join("");
   $("joint-hint").hidden = !(m.joints || []).length;
-  $("touch-axis").innerHTML = (m.axes || []).map((a) => `<option value="${a}">${a.toUpperCase()}</option>`).join("");
-  $("touch-off-box").hidden = !m.jobs || !(m.axes || []).length;
   for (const b of document.querySelectorAll(".jog-btn")) {
     b.addEventListener("pointerdown", (e) => {
+      const axis = Number(b.dataset.axis), step = Number($("jog-step").value);
+      // A step per click along a pose coordinate; a joint jogs while held.
+      if (step > 0 && axis > 0) {
+        send({ cmd: "step", axis: axes[axis - 1], mm: step * Number(b.dataset.x) });
+        return;
+      }
       b.setPointerCapture(e.pointerId);
       b.classList.add("held");
-      startJog(Number(b.dataset.x), 0, Number(b.dataset.axis));
+      startJog(Number(b.dataset.x), 0, axis);
     });
     for (const end of ["pointerup", "pointercancel", "lostpointercapture"]) b.addEventListener(end, stopJog);
   }
+  $("touch-axis").innerHTML = axes.map((a) => `<option value="${a}">${a.toUpperCase()}</option>`).join("");
+  $("touch-off-box").hidden = !m.jobs || !axes.length;
+  $("view3d-switch").hidden = axes.length < 3;
   $("machine").textContent = m.machine;
   $("config").textContent = m.config;
   variables = m.variables;
@@ -128,6 +181,20 @@ function hello(m) {
   watch.innerHTML = "<tr><th>variable</th><th>type</th><th>value</th></tr>" +
     variables.map(([n, t], i) => `<tr data-name="${n.toLowerCase()}"><td>${n}</td><td>${t}</td><td class="num" id="v-${i}"></td></tr>`).join("");
   filter();
+  $("alarms").innerHTML = "<tr><th>time</th><th>what</th><th></th></tr>";
+  (m.alarms || []).forEach((a) => alarm(a, false));
+}
+
+// An entry of the alarm and message history, newest first.
+function alarm(a, fresh) {
+  const row = document.createElement("tr");
+  row.className = "alarm " + a.kind.replace(/ /g, "-");
+  const at = new Date(a.unix_ms).toLocaleTimeString();
+  row.innerHTML = `<td class="num" title="t = ${a.t_s.toFixed(2)} s">${at}</td><td>${escape(a.kind)}</td><td>${escape(a.text)}${a.by ? ` <span class="hint">by ${escape(a.by)}</span>` : ""}</td>`;
+  const header = $("alarms").firstChild;
+  header.after(row);
+  while ($("alarms").rows.length > 201) $("alarms").deleteRow(-1);
+  if (fresh && a.kind === "error") row.classList.add("fresh");
 }
 
 // Shows the run's program number k (from 1; 0: none): its text and path as the server sends
@@ -160,7 +227,7 @@ function planning(on) {
 
 function job(m) {
   planning(false);
-  programs[m.program - 1] = { file: m.file, lines: m.lines };
+  programs[m.program - 1] = { file: m.file, lines: m.lines, planned_s: m.planned_s };
   $("access").textContent = `${m.file}: planned ${m.planned_s.toFixed(2)} s, ${m.started ? "started" : "loaded"}`;
 }
 
@@ -169,7 +236,7 @@ function touchedOff(m) {
   planning(false);
   let said = `${m.system} ${m.axis.toUpperCase()} = ${m.value}: origin ${m.was.toFixed(3)} → ${m.now.toFixed(3)} mm`;
   if (m.job && m.job.type === "job") {
-    programs[m.job.program - 1] = { file: m.job.file, lines: m.job.lines };
+    programs[m.job.program - 1] = { file: m.job.file, lines: m.job.lines, planned_s: m.job.planned_s };
     said += `; ${m.job.file} planned again and loaded`;
   } else if (m.job) {
     said += `; the loaded program could not be planned again: ${m.job.why}`;
@@ -204,10 +271,18 @@ function path(m) {
   if (m.program !== shownProgram) return;
   programmed = m.path;
   if (programmed.length > 1) {
-    const extent = [0, 1, 2].map((c) => Math.max(...programmed.map((p) => p[c])) - Math.min(...programmed.map((p) => p[c])));
-    plane = [0, 1, 2].sort((a, b) => extent[b] - extent[a] || a - b).slice(0, 2).sort();
+    const extent = [0, 1, 2].map((c) => extentOf(programmed, c));
+    plane = [0, 1, 2].sort((a, b) => extent[b][1] - extent[b][0] - (extent[a][1] - extent[a][0]) || a - b).slice(0, 2).sort();
   }
   $("path-box").hidden = programmed.length < 2;
+  redraw(true);
+}
+
+// The smallest and largest coordinate c of `points` (without spreading a large array).
+function extentOf(points, c) {
+  let lo = Infinity, hi = -Infinity;
+  for (const p of points) { if (p[c] < lo) lo = p[c]; if (p[c] > hi) hi = p[c]; }
+  return [lo, hi];
 }
 
 // Keeps the executing line in the text's window: a new window around it when it nears an edge
@@ -235,33 +310,57 @@ function num(v, digits) {
   return v === null || v === undefined || Number.isNaN(v) ? "–" : Number(v).toFixed(digits);
 }
 
-function frame(m) {
-  const latency = performance.timeOrigin + performance.now() - m.published_unix_us / 1000;
-  window.latency.push(latency);
+// A frame as it comes: its latency and the tool's point; drawn at the next display tick.
+let newest = null;
+function take(m) {
+  window.latency.push(performance.timeOrigin + performance.now() - m.published_unix_us / 1000);
   if (window.latency.length > 2000) window.latency.shift();
-  const sorted = [...window.latency].sort((a, b) => a - b);
-  const mean = sorted.reduce((a, b) => a + b, 0) / sorted.length;
-  $("latency").textContent = `update ${mean.toFixed(1)} ms mean, ${sorted[Math.floor(sorted.length * 0.99)].toFixed(1)} ms p99`;
+  if (Object.keys(index).length) takeCut((name) => (name in index ? m.image[index[name]] : null));
+  newest = m;
+}
+setInterval(() => {
+  if (newest) {
+    const m = newest;
+    newest = null;
+    frame(m);
+  }
+}, 1000 / DISPLAY_HZ);
+
+function frame(m) {
+  const now = performance.now();
+  if (now - latencyAt > 1000) {
+    latencyAt = now;
+    const sorted = [...window.latency].sort((a, b) => a - b);
+    const mean = sorted.reduce((a, b) => a + b, 0) / sorted.length;
+    put($("latency"), `update ${mean.toFixed(1)} ms mean, ${sorted[Math.floor(sorted.length * 0.99)].toFixed(1)} ms p99`);
+  }
+  const value = (name) => (name in index ? m.image[index[name]] : null);
   const state = $("state");
-  state.textContent = m.state || "—";
+  put(state, m.state || "—");
   state.className = "state " + (m.state || "");
-  $("reason").textContent = m.reason;
-  $("note").textContent = m.note;
+  put($("reason"), m.reason);
+  put($("note"), m.note);
   document.body.dataset.state = m.state;
-  $("values").innerHTML = m.values
-    .map(([n, v]) => `<tr><td>${n}</td><td class="num" data-value="${n}">${num(v, n === "line" ? 0 : 3)}</td></tr>`).join("");
-  $("classes").innerHTML = "<tr><th>class</th><th>cycles</th><th>late mean / max µs</th><th>exec mean / max µs</th><th>overruns</th></tr>" +
-    m.classes.map((c) => `<tr><td>${c.name}</td><td class="num">${c.cycles}</td><td class="num">${num(c.late_mean_us, 1)} / ${num(c.late_max_us, 1)}</td><td class="num">${num(c.exec_mean_us, 1)} / ${num(c.exec_max_us, 1)}</td><td class="num">${c.overruns}</td></tr>`).join("") +
-    `<tr><td>bus</td><td colspan="4">${m.bus_fault ? "FAULT" : "ok"}</td></tr>` +
-    ("JOYSTICK_CONNECTED" in index
-      ? `<tr><td>joystick</td><td colspan="4">${m.image[index.JOYSTICK_CONNECTED] ? "connected" : "not connected"}</td></tr>`
-      : "");
-  m.image.forEach((v, i) => {
-    const cell = document.getElementById("v-" + i);
-    if (cell) cell.textContent = typeof v === "number" && !Number.isInteger(v) ? v.toFixed(4) : String(v);
-  });
+  showPositions(m, value);
+  if (now - classesAt > 1000) {
+    classesAt = now;
+    $("classes").innerHTML = "<tr><th>class</th><th>cycles</th><th>late mean / max µs</th><th>exec mean / max µs</th><th>overruns</th></tr>" +
+      m.classes.map((c) => `<tr><td>${c.name}</td><td class="num">${c.cycles}</td><td class="num">${num(c.late_mean_us, 1)} / ${num(c.late_max_us, 1)}</td><td class="num">${num(c.exec_mean_us, 1)} / ${num(c.exec_max_us, 1)}</td><td class="num">${c.overruns}</td></tr>`).join("") +
+      `<tr><td>bus</td><td colspan="4">${m.bus_fault ? "FAULT" : "ok"}</td></tr>` +
+      ("JOYSTICK_CONNECTED" in index
+        ? `<tr><td>joystick</td><td colspan="4">${m.image[index.JOYSTICK_CONNECTED] ? "connected" : "not connected"}</td></tr>`
+        : "");
+  }
+  // Every frame while in view, once a second out of it (a search of the page finds it current).
+  if (watchVisible || now - watchAt > 1000) {
+    watchAt = now;
+    m.image.forEach((v, i) => {
+      put(document.getElementById("v-" + i), typeof v === "number" && !Number.isInteger(v) ? v.toFixed(4) : String(v));
+    });
+  }
   showOverrides(m);
   showTools(m);
+  showProgress(m, value);
   // The loaded program, as the PLC says (a load takes effect outside AUTO).
   if ("NC_PROGRAM" in index && m.image[index.NC_PROGRAM] !== shownProgram) showProgram(m.image[index.NC_PROGRAM]);
   // What was cut before this page connected (once the loaded program is known).
@@ -269,23 +368,64 @@ function frame(m) {
     cutAsked = true;
     send({ cmd: "cut" });
   }
-  drawPath(m);
-  drawMechanism(m.links);
-  const lineIndex = variables.findIndex(([n]) => n === "NC_LINE");
-  const line = lineIndex >= 0 ? m.image[lineIndex] : 0;
+  // The mechanism in ERROR: its last pose, dimmed, and what to do next.
+  const error = m.state === "ERROR";
+  $("mechanism-box").classList.toggle("dimmed", error);
+  $("mechanism-note").hidden = !error;
+  put($("mechanism-note"), error ? "ERROR: the last pose drawn before it. Press Acknowledge, then reference the machine." : "");
+  if (m.links && JSON.stringify(m.links) !== JSON.stringify(links)) { links = m.links; redraw(); }
+  if (cutMoved) { cutMoved = false; redraw(); }
+  const line = value("NC_LINE") || 0;
   if (line !== lastLine) {
     followLine(line);
     const old = document.getElementById("line-" + lastLine);
     if (old) old.classList.remove("current");
-    const now = document.getElementById("line-" + line);
-    if (now) {
-      now.classList.add("current");
+    const current = document.getElementById("line-" + line);
+    if (current) {
+      current.classList.add("current");
       // Scrolls the program's text alone (never the page) to keep the line in view.
-      const box = $("program-text"), r = now.getBoundingClientRect(), b = box.getBoundingClientRect();
+      const box = $("program-text"), r = current.getBoundingClientRect(), b = box.getBoundingClientRect();
       if (r.top < b.top || r.bottom > b.bottom) box.scrollTop += r.top - b.top - b.height / 2;
     }
     lastLine = line;
   }
+}
+
+// The DRO: machine positions as the main program shows them (the forward kinematics of the
+// measured joints), work positions against the G54 origin, the joints with their referenced
+// mark; before referencing every position is marked as not trustworthy.
+function showPositions(m, value) {
+  const values = new Map(m.values);
+  const referenced = !("referenced" in index) || value("referenced") === true;
+  document.body.classList.toggle("untrusted", !referenced);
+  $("untrusted-note").hidden = referenced;
+  axes.forEach((a, c) => {
+    const machine = values.get(a);
+    const cell = document.querySelector(`#dro td[data-value="${a}"]`);
+    put(cell, num(machine, 3));
+    const work = machine === undefined || machine === null ? null : machine - (origins ? origins[0][c] : 0);
+    put($("work-" + a), num(work, 3));
+  });
+  document.querySelectorAll("#joints [data-value]").forEach((cell, k) => {
+    put(cell, num(values.get(`q${k + 1}`), 3));
+    put($(`homed-${k + 1}`), referenced ? "✓" : "○");
+  });
+}
+
+// Feed, spindle, the distance to go and the program's progress.
+function showProgress(m, value) {
+  const feed = value("NC_FEED"), measured = value("NC_FEED_MEASURED");
+  put($("feed-line"), feed === null ? "–" : `${num(feed, 0)} commanded, ${num(measured, 0)} measured mm/min`);
+  put($("dtg"), value("NC_DISTANCE_TO_GO") === null ? "–" : `${num(value("NC_DISTANCE_TO_GO"), 3)} mm`);
+  const on = value("SPINDLE_ON"), rpm = value("SPINDLE_RPM");
+  put($("spindle-line"), on === null ? "–" : on ? `${value("SPINDLE_REVERSE") ? "CCW" : "CW"} ${num(rpm, 0)} rpm` : "off");
+  const program = programs[shownProgram - 1];
+  const line = value("NC_LINE"), total = textWindow.total;
+  const elapsed = value("NC_RUN_S"), at = value("NC_TIME_S");
+  let progress = line ? `line ${line} of ${total}` : "–";
+  if (elapsed !== null && line) progress += `, ${num(elapsed, 1)} s`;
+  if (program && program.planned_s && at !== null && line) progress += `, ${num(Math.max(0, program.planned_s - at), 1)} s to go`;
+  put($("progress-line"), progress);
 }
 
 // The manual tool change (the program stands until confirmed), the tool in the spindle, and
@@ -297,12 +437,12 @@ function showTools(m) {
   $("tool-change").hidden = !waits;
   if (waits) {
     const name = tools[asked] ? ` (${tools[asked]})` : "";
-    $("tool-ask").textContent = asked === 0
+    put($("tool-ask"), asked === 0
       ? "Tool change: take the tool out of the spindle, then confirm."
-      : `Tool change: put tool ${asked}${name} in the spindle, then confirm.`;
+      : `Tool change: put tool ${asked}${name} in the spindle, then confirm.`);
   }
   const inSpindle = value("TOOL_NUMBER");
-  $("tool-in").textContent = inSpindle ? `tool ${inSpindle}${tools[inSpindle] ? " (" + tools[inSpindle] + ")" : ""} in the spindle` : "";
+  put($("tool-in"), inSpindle ? `tool ${inSpindle}${tools[inSpindle] ? " (" + tools[inSpindle] + ")" : ""} in the spindle` : "");
   if (m.message && (!shownMessage || shownMessage[0] !== m.message[0] || shownMessage[2] !== m.message[2])) {
     shownMessage = m.message;
     const [t, line, text] = m.message;
@@ -313,55 +453,133 @@ function showTools(m) {
 
 // The overrides and single block as the PLC has them (a slider being dragged shows its own).
 function showOverrides(m) {
-  for (const [name, id] of [["NC_FEED_OVERRIDE", "feed"], ["NC_RAPID_OVERRIDE", "rapid"]]) {
+  for (const [name, id] of [["NC_FEED_OVERRIDE", "feed"], ["NC_RAPID_OVERRIDE", "rapid"], ["NC_SPINDLE_OVERRIDE", "spindle"]]) {
     if (!(name in index)) continue;
     const v = m.image[index[name]];
     const slider = $(id + "-override");
-    if (document.activeElement !== slider) slider.value = v;
-    $(id + "-value").textContent = `${v} %`;
+    if (document.activeElement !== slider && Number(slider.value) !== v) slider.value = v;
+    put($(id + "-value"), `${v} %`);
   }
   if ("NC_SINGLE_BLOCK" in index) $("single-block").checked = m.image[index.NC_SINGLE_BLOCK];
 }
 
-function drawPath(m) {
+// The measured tool point, while a program runs: running, holding, held, paused at an M0,
+// standing after a line in single block, at a tool change.
+function takeCut(value) {
   if (programmed.length < 2) return;
-  const value = (name) => (name in index ? m.image[index[name]] : null);
   const tool = ["NC_TOOL_X", "NC_TOOL_Y", "NC_TOOL_Z"].map(value);
-  // Running, holding, held, paused at an M0, standing after a line in single block, at a tool
-  // change.
   const running = [1, 2, 3, 4, 6, 7].includes(value("NC_STATE"));
   if (running && tool[0] !== null && tool[1] !== null) {
-    cut.push(tool.map((v) => v ?? 0));
-    if (cut.length > 20000) cut.shift();
+    const last = cut[cut.length - 1], p = tool.map((v) => v ?? 0);
+    if (!last || last[0] !== p[0] || last[1] !== p[1] || last[2] !== p[2]) {
+      cut.push(p);
+      if (cut.length > 20000) {
+        cut.shift();
+        cutDrawn = Math.max(0, cutDrawn - 1);
+      }
+      cutMoved = true;
+    }
   }
-  const canvas = $("path");
-  const g = canvas.getContext("2d");
-  const pts = programmed.map((p) => [p[plane[0]], p[plane[1]]]);
-  const xs = pts.map((p) => p[0]), ys = pts.map((p) => p[1]);
-  const [x0, x1, y0, y1] = [Math.min(...xs), Math.max(...xs), Math.min(...ys), Math.max(...ys)];
-  const span = Math.max(x1 - x0, y1 - y0, 1e-3) * 1.1;
-  const [cx, cy] = [(x0 + x1) / 2, (y0 + y1) / 2];
-  const px = (p) => [(p[0] - cx) / span * canvas.width + canvas.width / 2, canvas.height / 2 - (p[1] - cy) / span * canvas.height];
-  g.clearRect(0, 0, canvas.width, canvas.height);
-  const line = (points, style, width) => {
-    g.strokeStyle = style; g.lineWidth = width; g.beginPath();
-    points.forEach((p, i) => { const [x, y] = px(p); if (i === 0) g.moveTo(x, y); else g.lineTo(x, y); });
-    g.stroke();
+}
+
+// Draws what moved at the next animation frame (once, however many frames came); `all`: the
+// path's layers from scratch (another program, cut path or view).
+function redraw(all = false) {
+  if (all) pathDrawn = false;
+  if (drawPending) return;
+  drawPending = true;
+  requestAnimationFrame(() => {
+    drawPending = false;
+    drawPath();
+    drawMechanism();
+  });
+}
+
+// A projection of 3-D points onto the canvas: the path's plane (2-D), or the 3-D view turned
+// and tilted as dragged.
+function projection(canvas) {
+  const c = [0, 1, 2].map((k) => extentOf(programmed.length > 1 ? programmed : (links || []).flat(), k));
+  const centre = c.map(([lo, hi]) => (lo + hi) / 2 || 0);
+  if (!view3d.on) {
+    const [u, v] = plane;
+    const span = Math.max(c[u][1] - c[u][0], c[v][1] - c[v][0], 1e-3) * 1.1;
+    return (p) => [(p[u] - centre[u]) / span * canvas.width + canvas.width / 2, canvas.height / 2 - (p[v] - centre[v]) / span * canvas.height];
+  }
+  const span = Math.max(...c.map(([lo, hi]) => hi - lo), 1e-3) * 1.6 / view3d.zoom;
+  const [cy, sy, cp, sp] = [Math.cos(view3d.yaw), Math.sin(view3d.yaw), Math.cos(view3d.pitch), Math.sin(view3d.pitch)];
+  return (p) => {
+    const [x, y, z] = [p[0] - centre[0], p[1] - centre[1], p[2] - centre[2]];
+    const u = x * cy - y * sy, w = x * sy + y * cy;
+    const v = w * cp + z * sp;
+    return [u / span * canvas.width + canvas.width / 2, canvas.height / 2 - v / span * canvas.height];
   };
-  line(pts, "#bbb", 3);
-  const cutIn = cut.map((p) => [p[plane[0]], p[plane[1]]]);
-  line(cutIn, "#06c", 1.5);
-  const at = cutIn[cutIn.length - 1];
+}
+
+// The path in three layers: the programmed path, the cut path (segments added as the tool
+// goes) and the tool (with the mechanism in 3-D), so that a frame draws a few segments, not the
+// whole path.
+function drawPath() {
+  if (programmed.length < 2) return;
+  const canvas = $("path");
+  const px = projection(canvas);
+  if (!pathDrawn) {
+    pathDrawn = true;
+    cutDrawn = 0;
+    drawProgrammed(canvas.getContext("2d"), px);
+    $("path-cut").getContext("2d").clearRect(0, 0, canvas.width, canvas.height);
+  }
+  if (cutDrawn > cut.length) {
+    cutDrawn = 0;
+    $("path-cut").getContext("2d").clearRect(0, 0, canvas.width, canvas.height);
+  }
+  const c = $("path-cut").getContext("2d");
+  if (cut.length - cutDrawn > 0) {
+    c.strokeStyle = "#06c"; c.lineWidth = 1.5; c.beginPath();
+    const from = Math.max(0, cutDrawn - 1);
+    for (let i = from; i < cut.length; i++) { const [x, y] = px(cut[i]); if (i === from) c.moveTo(x, y); else c.lineTo(x, y); }
+    c.stroke();
+    cutDrawn = cut.length;
+  }
+  const g = $("path-tool").getContext("2d");
+  g.clearRect(0, 0, canvas.width, canvas.height);
+  if (view3d.on && links) {
+    g.strokeStyle = "#333"; g.lineWidth = 2;
+    for (const [a, b] of links) { const [x0, y0] = px(a), [x1, y1] = px(b); g.beginPath(); g.moveTo(x0, y0); g.lineTo(x1, y1); g.stroke(); }
+  }
+  const at = cut[cut.length - 1];
   if (at) { const [x, y] = px(at); g.fillStyle = "#c00"; g.beginPath(); g.arc(x, y, 4, 0, 2 * Math.PI); g.fill(); }
 }
 
-function drawMechanism(links) {
+function drawProgrammed(g, px) {
+  const canvas = g.canvas;
+  g.clearRect(0, 0, canvas.width, canvas.height);
+  // The programmed path: feed moves solid, rapids dashed.
+  g.strokeStyle = "#aaa"; g.lineWidth = 2;
+  let rapid = null;
+  for (let i = 1; i < programmed.length; i++) {
+    const isRapid = programmed[i][3] === 1;
+    if (isRapid !== rapid) {
+      if (rapid !== null) g.stroke();
+      rapid = isRapid;
+      g.setLineDash(rapid ? [6, 5] : []);
+      g.beginPath();
+      const [x, y] = px(programmed[i - 1]);
+      g.moveTo(x, y);
+    }
+    const [x, y] = px(programmed[i]);
+    g.lineTo(x, y);
+  }
+  g.stroke();
+  g.setLineDash([]);
+}
+
+function drawMechanism() {
   if (!links) return;
   $("mechanism-box").hidden = false;
   if (!views) {
     // The two largest extents (of x y z) make the first view; a third that matters, a second.
     const points = links.flat();
-    const size = [0, 1, 2].map((c) => Math.max(...points.map((p) => p[c])) - Math.min(...points.map((p) => p[c])));
+    const size = [0, 1, 2].map((c) => { const [lo, hi] = extentOf(points, c); return hi - lo; });
     const order = [0, 1, 2].sort((a, b) => size[b] - size[a] || a - b);
     views = [[order[0], order[1]].sort()];
     if (size[order[2]] > 0.1 * size[order[0]]) views.push([order[0], order[2]].sort());
@@ -407,6 +625,9 @@ function filter() {
 
 function startJog(x, y, axis = 0) {
   if (!commands) return;
+  // The continuous jog's speed: a share of the machine's.
+  const share = Number($("jog-speed").value) / 100;
+  x *= share; y *= share;
   jog = [x, y, axis];
   send({ cmd: "jog", x, y, axis });
   if (!jogTimer) jogTimer = setInterval(() => { if (jog) send({ cmd: "jog", x: jog[0], y: jog[1], axis: jog[2] }); }, 20);
@@ -452,7 +673,7 @@ $("tool-changed").addEventListener("click", () => send({ cmd: "tool_changed" }))
 $("touch-off").addEventListener("click", () => {
   send({ cmd: "touch_off", system: Number($("touch-system").value), axis: $("touch-axis").value, value: Number($("touch-value").value) });
 });
-for (const id of ["feed", "rapid"]) {
+for (const id of ["feed", "rapid", "spindle"]) {
   $(id + "-override").addEventListener("input", (e) => {
     $(id + "-value").textContent = `${e.target.value} %`;
     send({ cmd: "override", [id]: Number(e.target.value) });
@@ -464,6 +685,30 @@ $("nc-mdi").addEventListener("click", () => {
   send({ cmd: "mdi", text: $("mdi-text").value });
 });
 $("nc-cancel").addEventListener("click", () => send({ cmd: "cancel" }));
+$("jog-speed").addEventListener("input", (e) => { $("jog-speed-value").textContent = `${e.target.value} %`; });
+$("view3d").addEventListener("change", () => { view3d.on = $("view3d").checked; redraw(true); });
+// The 3-D view: dragged to turn, the wheel zooms.
+$("path-tool").addEventListener("pointerdown", (e) => {
+  if (!view3d.on) return;
+  $("path-tool").setPointerCapture(e.pointerId);
+  view3d.drag = [e.clientX, e.clientY];
+});
+$("path-tool").addEventListener("pointermove", (e) => {
+  if (!view3d.drag) return;
+  view3d.yaw += (e.clientX - view3d.drag[0]) * 0.01;
+  view3d.pitch = Math.max(0, Math.min(Math.PI / 2, view3d.pitch + (e.clientY - view3d.drag[1]) * 0.01));
+  view3d.drag = [e.clientX, e.clientY];
+  redraw(true);
+});
+for (const end of ["pointerup", "pointercancel", "lostpointercapture"]) $("path-tool").addEventListener(end, () => { view3d.drag = null; });
+$("path-tool").addEventListener("wheel", (e) => {
+  if (!view3d.on) return;
+  e.preventDefault();
+  view3d.zoom = Math.max(0.2, Math.min(20, view3d.zoom * Math.exp(-e.deltaY * 0.001)));
+  redraw(true);
+}, { passive: false });
+// The process image's table is written only while it is in view.
+new IntersectionObserver((entries) => { watchVisible = entries.some((e) => e.isIntersecting); }).observe($("watch-box"));
 $("nc-from-line").addEventListener("click", () => {
   $("access").textContent = "";
   send({ cmd: "run_from", program: shownProgram, line: Number($("from-line").value) });

@@ -31,12 +31,14 @@ use tracing::{info, warn};
 use pkm_api::hmi::JOG_AXIS_RANGE;
 
 use super::access::{Access, Credentials, header_text};
-use super::commands::{CommandSink, FEED_OVERRIDE_RANGE, RAPID_OVERRIDE_RANGE, press};
+use super::commands::{CommandSink, FEED_OVERRIDE_RANGE, RAPID_OVERRIDE_RANGE, SPINDLE_OVERRIDE_RANGE, press};
 use super::cut::CutPath;
 use super::jobs::JobDesk;
 use super::listener::Peer;
-pub use super::served::{ScreenProgram, TEXT_WINDOW};
+pub use super::served::{ScreenProgram, TEXT_WINDOW, preview};
 use super::served::{Served, frame_json};
+
+mod job_commands;
 use crate::runtime::backoff::Backoff;
 use crate::runtime::frame::FrameFeed;
 use crate::runtime::log_limit::Limited;
@@ -52,12 +54,14 @@ pub const MAX_CLIENT_MESSAGE: usize = 4096;
 pub const COMMANDS_PER_S: f64 = 100.0;
 /// How often a client may ask for the cut path (it is up to about 100 kB).
 pub const CUT_EVERY: Duration = Duration::from_secs(1);
+/// The longest incremental jog (mm, or degrees) a step from the screen makes.
+pub const MAX_STEP_MM: f64 = 10.0;
 /// The most programs refused by `--programs` that the hello lists (the rest are counted).
 const MAX_REFUSED_LISTED: usize = 50;
 
-const INDEX_HTML: &str = include_str!("page/index.html");
-const APP_JS: &str = include_str!("page/app.js");
-const APP_CSS: &str = include_str!("page/app.css");
+const INDEX_HTML: &str = include_str!("../page/index.html");
+const APP_JS: &str = include_str!("../page/app.js");
+const APP_CSS: &str = include_str!("../page/app.css");
 
 /// How the screen is served: who may reach it and how many.
 #[derive(Clone, Debug)]
@@ -88,6 +92,8 @@ pub struct Shared {
     tool_change: AtomicBool,
     /// The machine's pose coordinates (`x`, `y`, …), which a touch-off names.
     axes: Vec<String>,
+    /// The alarm and message history.
+    alarms: super::alarms::Alarms,
     /// The run's programs: text and path, served on request.
     programs: Vec<Served>,
     /// Where jobs are made.
@@ -137,7 +143,7 @@ pub fn router(info: HmiInfo, mut frames: FrameFeed, sink: CommandSink, options: 
         "machine": info.machine,
         "config": info.config,
         "variables": info.variables.iter().map(|(n, t)| json!([n, t])).collect::<Vec<_>>(),
-        "programs": programs.iter().map(|p| json!({"file": p.program.file, "lines": p.total})).collect::<Vec<_>>(),
+        "programs": programs.iter().map(|p| json!({"file": p.program.file, "lines": p.total, "planned_s": p.program.planned_s})).collect::<Vec<_>>(),
         "refused": info.refused.iter().take(MAX_REFUSED_LISTED).map(|(file, why)| json!({"file": file, "why": crate::runtime::config::shorten(why)})).collect::<Vec<_>>(),
         "refused_more": info.refused.len().saturating_sub(MAX_REFUSED_LISTED),
         "axes": info.axes,
@@ -163,6 +169,7 @@ pub fn router(info: HmiInfo, mut frames: FrameFeed, sink: CommandSink, options: 
         in_error: AtomicBool::new(false),
         tool_change: AtomicBool::new(false),
         axes: info.axes.clone(),
+        alarms: super::alarms::Alarms::default(),
         programs,
         jobs: info.jobs,
         watchers: AtomicUsize::new(0),
@@ -193,7 +200,9 @@ pub fn router(info: HmiInfo, mut frames: FrameFeed, sink: CommandSink, options: 
                 pump.in_error.store(frame.status.state == "ERROR", Ordering::Relaxed);
                 let waits = tool_change_at.and_then(|i| frame.image.get(i)) == Some(&crate::image::Value::Bool(true));
                 pump.tool_change.store(waits, Ordering::Relaxed);
-                // The newest message (MSG) the run reached, with when: the page shows it.
+                // The newest message (MSG) the run reached, with when: the page shows it, the
+                // history keeps it.
+                let mut reached = None;
                 if let Some(watch) = &mut messages {
                     let t_s = frame.status.t_ns as f64 * 1e-9;
                     let (new, _) = watch.take(&frame.image);
@@ -203,6 +212,13 @@ pub fn router(info: HmiInfo, mut frames: FrameFeed, sink: CommandSink, options: 
                         .find(|m| m.kind == pkm_api::trajectory::NcMessageKind::Msg)
                     {
                         last_message = Some(json!([t_s, m.line, m.text.trim()]));
+                        reached = Some((m.line, m.text.trim().to_string()));
+                    }
+                }
+                let message = reached.as_ref().map(|(l, t)| (*l, t.as_str()));
+                for entry in pump.alarms.observe(frame, message) {
+                    if tx.receiver_count() > 0 {
+                        let _ = tx.send(Arc::from(entry.to_string().as_str()));
                     }
                 }
                 if let Some(desk) = &pump.jobs {
@@ -383,17 +399,22 @@ enum Command {
     Program { what: String },
     /// Load the run's program of this number (from 1) in place of the loaded one.
     Load { program: i16 },
-    /// The feed override, the rapid override, or both (percent).
+    /// The feed, rapid or spindle override, or several (percent).
     Override {
         #[serde(default)]
         feed: Option<i16>,
         #[serde(default)]
         rapid: Option<i16>,
+        #[serde(default)]
+        spindle: Option<i16>,
     },
     /// Single block on or off.
     SingleBlock { on: bool },
     /// The tool the manual tool change asks for is in the spindle: the program goes on.
     ToolChanged {},
+    /// An incremental jog: axis `axis` moved by `mm` (at most [`MAX_STEP_MM`] either way) at
+    /// rapid speed, as the MDI line `G91 G0 X…` (planned, checked, traced as one); from READY.
+    Step { axis: String, mm: f64 },
     /// Touch-off: work coordinate system `system` (1: G54 … 6: G59; G54 when left out) moved in
     /// `axis` so that where the tool stands reads `value`, as G10 L20 would; from READY.
     TouchOff {
@@ -489,6 +510,8 @@ async fn client(mut socket: WebSocket, peer: SocketAddr, commands: bool, shared:
     }
     let mut hello = shared.hello.clone();
     hello["commands"] = json!(commands);
+    hello["alarms"] = json!(shared.alarms.history());
+    hello["origins"] = json!(shared.jobs.as_ref().map(|d| d.offsets().origins));
     if socket.send(Message::Text(hello.to_string().into())).await.is_err() {
         return;
     }
@@ -542,7 +565,7 @@ async fn client(mut socket: WebSocket, peer: SocketAddr, commands: bool, shared:
                             }
                             shared.read(c)
                         }
-                        Ok(c @ (Command::Mdi { .. } | Command::RunFrom { .. } | Command::TouchOff { .. } | Command::Load { .. }))
+                        Ok(c @ (Command::Mdi { .. } | Command::RunFrom { .. } | Command::TouchOff { .. } | Command::Step { .. } | Command::Load { .. }))
                             if commands && (!matches!(c, Command::Load { .. }) || shared.replans_on_load()) =>
                         {
                             if job_pending {
@@ -724,158 +747,8 @@ impl Shared {
                     file: self.file(k),
                     text: super::jobs::mdi_program(text),
                     path: Vec::new(),
+                    planned_s: 0.0,
                 })))
-            }
-        }
-    }
-
-    /// Makes a screen job (MDI, a program from a line) and has it loaded and started; the
-    /// reply says its number, or why not.
-    async fn make_job(&self, peer: SocketAddr, command: Command) -> Json {
-        let Some(desk) = &self.jobs else {
-            return json!({"type": "refused", "why": "this run makes no jobs: it has no machine to plan them for", "job": true});
-        };
-        let kind = match command {
-            Command::Mdi { text } => {
-                info!(
-                    "screen {peer}: MDI {}",
-                    crate::runtime::config::shorten(&text.replace('\n', " / "))
-                );
-                pkm_api::screen_jobs::ScreenJobKind::Mdi { text }
-            }
-            Command::RunFrom { program, line } => {
-                info!("screen {peer}: run program {program} from line {line}");
-                pkm_api::screen_jobs::ScreenJobKind::FromLine { program, line }
-            }
-            Command::TouchOff { axis, value, system } => return self.touch_off(peer, desk, &axis, value, system).await,
-            Command::Load { program } => {
-                // Planned again with the offsets a touch-off set, then loaded (not started).
-                if let Err(why) = self.may_load(program) {
-                    return json!({"type": "refused", "why": why, "job": true});
-                }
-                info!("screen {peer}: load program {program}, planned again with the touched-off offsets");
-                return self
-                    .load_job(
-                        peer,
-                        desk,
-                        pkm_api::screen_jobs::ScreenJobKind::FromLine { program, line: 1 },
-                    )
-                    .await;
-            }
-            _ => return json!({"type": "refused", "why": "not a job"}),
-        };
-        match desk.make(kind).await {
-            Ok(made) => {
-                info!(
-                    "screen {peer}: job {} ({}, {:.2} s planned) loaded and started",
-                    made.number,
-                    made.job.file,
-                    made.job.trajectory.duration_s()
-                );
-                let number = made.number;
-                self.sink.update(|c| {
-                    c.program = number;
-                    c.presses[press::NC[0]] += 1;
-                });
-                json!({
-                    "type": "job",
-                    "program": number,
-                    "file": made.job.file,
-                    "lines": made.job.text.lines().count(),
-                    "planned_s": made.job.trajectory.duration_s(),
-                    "started": true,
-                })
-            }
-            Err(why) => {
-                info!("screen {peer}: job refused: {}", why.lines().next().unwrap_or_default());
-                json!({"type": "refused", "why": why, "job": true})
-            }
-        }
-    }
-
-    /// Whether program `program` may be loaded now: one of the run's, and no program runs.
-    fn may_load(&self, program: i16) -> Result<(), String> {
-        let known = usize::try_from(program).is_ok_and(|k| (1..=self.programs.len()).contains(&k));
-        if !known {
-            return Err(format!("no program {program}: the run has {}", self.programs.len()));
-        }
-        if self.running.load(Ordering::Relaxed) {
-            return Err("a program runs: another is loaded once it has ended or stopped".into());
-        }
-        Ok(())
-    }
-
-    /// Whether a Load plans the program again first: a touch-off has changed the work offsets
-    /// since the run's programs were planned.
-    fn replans_on_load(&self) -> bool {
-        self.jobs.as_ref().is_some_and(JobDesk::offsets_changed)
-    }
-
-    /// A touch-off (see [`Command::TouchOff`]): the offsets changed and kept, then the loaded
-    /// program (or the program a loaded run from a line runs) planned again with them and
-    /// loaded in its place, not started.
-    async fn touch_off(&self, peer: SocketAddr, desk: &JobDesk, axis: &str, value: f64, system: Option<u8>) -> Json {
-        let refused = |why: String| json!({"type": "refused", "why": why, "job": true});
-        let system = usize::from(system.unwrap_or(1));
-        if !(1..=6).contains(&system) {
-            return refused(format!("a touch-off's system is 1 … 6 (G54 … G59), got {system}"));
-        }
-        let Some(c) = self.axes.iter().position(|a| a.eq_ignore_ascii_case(axis)) else {
-            return refused(format!("no axis {axis:?}: this machine's are {}", self.axes.join(" ")));
-        };
-        let name = format!("G{}", 53 + system);
-        let t = match desk.touch_off(system - 1, c, value) {
-            Ok(t) => t,
-            Err(why) => {
-                info!("screen {peer}: touch-off {name} {axis} = {value} refused: {why}");
-                return refused(why);
-            }
-        };
-        info!(
-            "screen {peer}: touch-off {name} {} = {value:.4}: its origin {:.4} → {:.4} mm",
-            axis.to_uppercase(),
-            t.was,
-            t.now
-        );
-        let mut reply =
-            json!({"type": "touch_off", "system": name, "axis": axis, "value": value, "was": t.was, "now": t.now});
-        if let Some(k) = desk.loaded_program() {
-            let job = self
-                .load_job(
-                    peer,
-                    desk,
-                    pkm_api::screen_jobs::ScreenJobKind::FromLine { program: k, line: 1 },
-                )
-                .await;
-            reply["job"] = job;
-        }
-        reply
-    }
-
-    /// Makes job `kind` and loads it without starting it; the reply as [`Shared::make_job`]'s.
-    async fn load_job(&self, peer: SocketAddr, desk: &JobDesk, kind: pkm_api::screen_jobs::ScreenJobKind) -> Json {
-        match desk.make(kind).await {
-            Ok(made) => {
-                info!(
-                    "screen {peer}: job {} ({}, {:.2} s planned) loaded",
-                    made.number,
-                    made.job.file,
-                    made.job.trajectory.duration_s()
-                );
-                let number = made.number;
-                self.sink.update(|c| c.program = number);
-                json!({
-                    "type": "job",
-                    "program": number,
-                    "file": made.job.file,
-                    "lines": made.job.text.lines().count(),
-                    "planned_s": made.job.trajectory.duration_s(),
-                    "started": false,
-                })
-            }
-            Err(why) => {
-                info!("screen {peer}: job refused: {}", why.lines().next().unwrap_or_default());
-                json!({"type": "refused", "why": why, "job": true})
             }
         }
     }
@@ -888,7 +761,8 @@ impl Shared {
             | Command::Cut {}
             | Command::Mdi { .. }
             | Command::RunFrom { .. }
-            | Command::TouchOff { .. } => {}
+            | Command::TouchOff { .. }
+            | Command::Step { .. } => {}
             Command::Cancel {} => {
                 let cancelled = self
                     .jobs
@@ -906,7 +780,7 @@ impl Shared {
                 info!("screen {peer}: load program {program}");
                 self.sink.update(|c| c.program = program);
             }
-            Command::Override { feed, rapid } => {
+            Command::Override { feed, rapid, spindle } => {
                 let check = |what: &str, v: Option<i16>, range: &std::ops::RangeInclusive<i16>| match v {
                     Some(v) if !range.contains(&v) => Err(format!(
                         "{what} override {v} % is outside {} … {} %",
@@ -917,13 +791,21 @@ impl Shared {
                 };
                 check("feed", feed, &FEED_OVERRIDE_RANGE)?;
                 check("rapid", rapid, &RAPID_OVERRIDE_RANGE)?;
+                check("spindle", spindle, &SPINDLE_OVERRIDE_RANGE)?;
                 let now = self.sink.current();
-                let (feed, rapid) = (feed.unwrap_or(now.feed_override), rapid.unwrap_or(now.rapid_override));
-                if (feed, rapid) != (now.feed_override, now.rapid_override) {
-                    info!("screen {peer}: feed override {feed} %, rapid override {rapid} %");
+                let (feed, rapid, spindle) = (
+                    feed.unwrap_or(now.feed_override),
+                    rapid.unwrap_or(now.rapid_override),
+                    spindle.unwrap_or(now.spindle_override),
+                );
+                if (feed, rapid, spindle) != (now.feed_override, now.rapid_override, now.spindle_override) {
+                    info!(
+                        "screen {peer}: feed override {feed} %, rapid override {rapid} %, spindle override {spindle} %"
+                    );
                     self.sink.update(|c| {
                         c.feed_override = feed;
                         c.rapid_override = rapid;
+                        c.spindle_override = spindle;
                     });
                 }
             }
@@ -943,10 +825,15 @@ impl Shared {
                     return Err("there is no error to acknowledge: the machine is not in ERROR".into());
                 }
                 info!("screen {peer}: acknowledge");
+                self.alarms.acknowledging(peer.to_string());
                 self.sink.update(|c| c.acknowledgements += 1);
             }
             Command::Stop {} => {
                 info!("screen {peer}: STOP");
+                // In ERROR a STOP press acknowledges, as the panel's does.
+                if self.in_error.load(Ordering::Relaxed) {
+                    self.alarms.acknowledging(peer.to_string());
+                }
                 self.sink.update(|c| c.presses[press::STOP] += 1);
                 // A job being planned would find the machine in ERROR; it is abandoned now.
                 if self.jobs.as_ref().is_some_and(|desk| desk.cancel("STOP pressed")) {
@@ -1020,23 +907,6 @@ impl Shared {
     }
 }
 
-/// The programmed path for the screen's preview: at most 4000 points along the time line.
-pub fn preview(trajectory: &dyn pkm_api::trajectory::Trajectory) -> Vec<[f64; 3]> {
-    const POINTS: usize = 4000;
-    let duration = trajectory.duration_s();
-    let mut cursor = 0;
-    let mut points: Vec<[f64; 3]> = Vec::with_capacity(POINTS + 1);
-    for i in 0..=POINTS {
-        let p = trajectory.sample(duration * i as f64 / POINTS as f64, &mut cursor).pose;
-        let point = [p[0], p[1], p[2]];
-        // Where the tool stands (dwells, stops), one point is enough.
-        if points.last() != Some(&point) {
-            points.push(point);
-        }
-    }
-    points
-}
-
 fn finite(v: f64) -> f64 {
     if v.is_finite() { v } else { 0.0 }
 }
@@ -1052,6 +922,7 @@ mod tests {
             file: "p.ngc".into(),
             text: text.into(),
             path: Vec::new(),
+            planned_s: 0.0,
         })
     }
 

@@ -1,0 +1,183 @@
+//! The screen's commands that make jobs: MDI lines, a run from a line, a step of the
+//! incremental jog, a touch-off (and the loaded program planned again after it), a Load that
+//! plans the program again with the offsets a touch-off set.
+
+use std::net::SocketAddr;
+use std::sync::Arc;
+use std::sync::atomic::Ordering;
+
+use serde_json::{Value as Json, json};
+use tracing::info;
+
+use super::super::commands::press;
+use super::super::jobs::JobDesk;
+use super::{Command, MAX_STEP_MM, Shared};
+
+impl Shared {
+    /// Makes a screen job (MDI, a program from a line) and has it loaded and started; the
+    /// reply says its number, or why not.
+    pub(super) async fn make_job(&self, peer: SocketAddr, command: Command) -> Json {
+        let Some(desk) = &self.jobs else {
+            return json!({"type": "refused", "why": "this run makes no jobs: it has no machine to plan them for", "job": true});
+        };
+        let kind = match command {
+            Command::Mdi { text } => {
+                info!(
+                    "screen {peer}: MDI {}",
+                    crate::runtime::config::shorten(&text.replace('\n', " / "))
+                );
+                pkm_api::screen_jobs::ScreenJobKind::Mdi { text }
+            }
+            Command::RunFrom { program, line } => {
+                info!("screen {peer}: run program {program} from line {line}");
+                pkm_api::screen_jobs::ScreenJobKind::FromLine { program, line }
+            }
+            Command::Step { axis, mm } => {
+                let Some(c) = self.axes.iter().position(|a| a.eq_ignore_ascii_case(&axis)) else {
+                    return json!({"type": "refused", "why": format!("no axis {axis:?}: this machine's are {}", self.axes.join(" ")), "job": true});
+                };
+                if !(mm.is_finite() && mm != 0.0 && mm.abs() <= MAX_STEP_MM) {
+                    return json!({"type": "refused", "why": format!("a step is 0 < |mm| ≤ {MAX_STEP_MM}, got {mm}"), "job": true});
+                }
+                let text = format!("G91 G0 {}{mm}", self.axes[c].to_uppercase());
+                info!("screen {peer}: step {text}");
+                pkm_api::screen_jobs::ScreenJobKind::Mdi { text }
+            }
+            Command::TouchOff { axis, value, system } => return self.touch_off(peer, desk, &axis, value, system).await,
+            Command::Load { program } => {
+                // Planned again with the offsets a touch-off set, then loaded (not started).
+                if let Err(why) = self.may_load(program) {
+                    return json!({"type": "refused", "why": why, "job": true});
+                }
+                info!("screen {peer}: load program {program}, planned again with the touched-off offsets");
+                return self
+                    .load_job(
+                        peer,
+                        desk,
+                        pkm_api::screen_jobs::ScreenJobKind::FromLine { program, line: 1 },
+                    )
+                    .await;
+            }
+            _ => return json!({"type": "refused", "why": "not a job"}),
+        };
+        match desk.make(kind).await {
+            Ok(made) => {
+                info!(
+                    "screen {peer}: job {} ({}, {:.2} s planned) loaded and started",
+                    made.number,
+                    made.job.file,
+                    made.job.trajectory.duration_s()
+                );
+                let number = made.number;
+                self.sink.update(|c| {
+                    c.program = number;
+                    c.presses[press::NC[0]] += 1;
+                });
+                json!({
+                    "type": "job",
+                    "program": number,
+                    "file": made.job.file,
+                    "lines": made.job.text.lines().count(),
+                    "planned_s": made.job.trajectory.duration_s(),
+                    "started": true,
+                })
+            }
+            Err(why) => {
+                info!("screen {peer}: job refused: {}", why.lines().next().unwrap_or_default());
+                json!({"type": "refused", "why": why, "job": true})
+            }
+        }
+    }
+
+    /// Whether program `program` may be loaded now: one of the run's, and no program runs.
+    pub(super) fn may_load(&self, program: i16) -> Result<(), String> {
+        let known = usize::try_from(program).is_ok_and(|k| (1..=self.programs.len()).contains(&k));
+        if !known {
+            return Err(format!("no program {program}: the run has {}", self.programs.len()));
+        }
+        if self.running.load(Ordering::Relaxed) {
+            return Err("a program runs: another is loaded once it has ended or stopped".into());
+        }
+        Ok(())
+    }
+
+    /// Whether a Load plans the program again first: a touch-off has changed the work offsets
+    /// since the run's programs were planned.
+    pub(super) fn replans_on_load(&self) -> bool {
+        self.jobs.as_ref().is_some_and(JobDesk::offsets_changed)
+    }
+
+    /// A touch-off (see [`Command::TouchOff`]): the offsets changed and kept, then the loaded
+    /// program (or the program a loaded run from a line runs) planned again with them and
+    /// loaded in its place, not started.
+    async fn touch_off(&self, peer: SocketAddr, desk: &JobDesk, axis: &str, value: f64, system: Option<u8>) -> Json {
+        let refused = |why: String| json!({"type": "refused", "why": why, "job": true});
+        let system = usize::from(system.unwrap_or(1));
+        if !(1..=6).contains(&system) {
+            return refused(format!("a touch-off's system is 1 … 6 (G54 … G59), got {system}"));
+        }
+        let Some(c) = self.axes.iter().position(|a| a.eq_ignore_ascii_case(axis)) else {
+            return refused(format!("no axis {axis:?}: this machine's are {}", self.axes.join(" ")));
+        };
+        let name = format!("G{}", 53 + system);
+        let t = match desk.touch_off(system - 1, c, value) {
+            Ok(t) => t,
+            Err(why) => {
+                info!("screen {peer}: touch-off {name} {axis} = {value} refused: {why}");
+                return refused(why);
+            }
+        };
+        info!(
+            "screen {peer}: touch-off {name} {} = {value:.4}: its origin {:.4} → {:.4} mm",
+            axis.to_uppercase(),
+            t.was,
+            t.now
+        );
+        // Every page's DRO shows the new origin.
+        if self.frames.receiver_count() > 0 {
+            let origins = json!({"type": "origins", "origins": desk.offsets().origins}).to_string();
+            let _ = self.frames.send(Arc::from(origins.as_str()));
+        }
+        let mut reply =
+            json!({"type": "touch_off", "system": name, "axis": axis, "value": value, "was": t.was, "now": t.now});
+        if let Some(k) = desk.loaded_program() {
+            let job = self
+                .load_job(
+                    peer,
+                    desk,
+                    pkm_api::screen_jobs::ScreenJobKind::FromLine { program: k, line: 1 },
+                )
+                .await;
+            reply["job"] = job;
+        }
+        reply
+    }
+
+    /// Makes job `kind` and loads it without starting it; the reply as [`Shared::make_job`]'s.
+    async fn load_job(&self, peer: SocketAddr, desk: &JobDesk, kind: pkm_api::screen_jobs::ScreenJobKind) -> Json {
+        match desk.make(kind).await {
+            Ok(made) => {
+                info!(
+                    "screen {peer}: job {} ({}, {:.2} s planned) loaded",
+                    made.number,
+                    made.job.file,
+                    made.job.trajectory.duration_s()
+                );
+                let number = made.number;
+                self.sink.update(|c| c.program = number);
+                json!({
+                    "type": "job",
+                    "program": number,
+                    "file": made.job.file,
+                    "lines": made.job.text.lines().count(),
+                    "planned_s": made.job.trajectory.duration_s(),
+                    "started": false,
+                })
+            }
+            Err(why) => {
+                info!("screen {peer}: job refused: {}", why.lines().next().unwrap_or_default());
+                json!({"type": "refused", "why": why, "job": true})
+            }
+        }
+    }
+}
