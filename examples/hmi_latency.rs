@@ -3,11 +3,12 @@
 //! Chromium browsers connected.
 //!
 //! `cargo build --release && cargo run --release --example hmi_latency -- [BROWSERS] [SECONDS]
-//! [PROGRAM]` (3 browsers, 30 s by default; 0 browsers measures the PLC alone). Needs Chromium
+//! [PROGRAM|none] [SETTLE]` (3 browsers, 30 s by default; 0 browsers measures the PLC alone). Needs Chromium
 //! (`apt-get install chromium`) and runs `target/release/pkm-plc run --machine ox-x` (with
 //! `--program PROGRAM`, which then runs: the screen draws its cut path as it goes). It also
 //! measures what the pages cost the browsers: the CPU time of every Chromium process of each
-//! browser (its profile's), as a share of one core, from 5 s after the pages opened.
+//! browser (its profile's), as a share of one core, from SETTLE seconds (5 by default; 20 lets
+//! the O-X glide reference first) after the pages opened.
 
 use std::io::BufRead;
 use std::process::{Command, Stdio};
@@ -36,7 +37,11 @@ async fn main() {
         a.parse()
             .unwrap_or_else(|_| fail(format!("{a} is not a number of seconds")))
     });
-    let program: Option<String> = args.next();
+    let program: Option<String> = args.next().filter(|p| p != "none");
+    let settle: u64 = args.next().map_or(5, |a| {
+        a.parse()
+            .unwrap_or_else(|_| fail(format!("{a} is not a number of seconds")))
+    });
     let dir = std::env::temp_dir().join(format!("hmi-latency-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap_or_else(|e| fail(format!("{}: {e}", dir.display())));
     let summary = dir.join("summary.json");
@@ -51,7 +56,7 @@ async fn main() {
             "127.0.0.1:0",
             "--duration",
         ])
-        .arg((seconds + 15).to_string())
+        .arg((seconds + settle + 10).to_string())
         .args(program.iter().flat_map(|p| ["--program", p.as_str()]))
         .arg("--summary")
         .arg(&summary)
@@ -87,9 +92,9 @@ async fn main() {
             .unwrap_or_else(|e| fail(format!("the page: {e}")));
         open.push((browser, page));
     }
-    // The browsers' CPU time from 5 s after the pages opened (their start and first drawing
-    // left out).
-    tokio::time::sleep(Duration::from_secs(5)).await;
+    // The browsers' CPU time from `settle` s after the pages opened (their start and first
+    // drawing left out, and the referencing where it asks for it).
+    tokio::time::sleep(Duration::from_secs(settle)).await;
     let profiles: Vec<String> = (0..browsers)
         .map(|i| dir.join(format!("profile-{i}")).display().to_string())
         .collect();

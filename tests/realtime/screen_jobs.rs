@@ -40,12 +40,13 @@ async fn next_within(ws: &mut Ws, within: Duration) -> Option<serde_json::Value>
     .ok()
 }
 
-/// The next message that is not a frame: a reply to a command.
+/// The next message that is a reply to a command: not a frame, nor what the screen tells every
+/// page (an alarm of the history, the work offsets after a touch-off).
 async fn reply(ws: &mut Ws, within: Duration) -> serde_json::Value {
     let start = Instant::now();
     loop {
         let m = next(ws, within.saturating_sub(start.elapsed())).await;
-        if m["type"] != "frame" {
+        if !matches!(m["type"].as_str(), Some("frame" | "alarm" | "origins")) {
             return m;
         }
     }

@@ -99,7 +99,12 @@ impl Served {
 }
 
 /// A frame as the page reads it.
-pub(super) fn frame_json(f: &Frame, links: Option<&[[[f64; 3]; 2]]>, message: Option<&Json>) -> String {
+pub(super) fn frame_json(
+    f: &Frame,
+    links: Option<&[[[f64; 3]; 2]]>,
+    message: Option<&Json>,
+    trail: &std::collections::VecDeque<[f64; 4]>,
+) -> String {
     let s = &f.status;
     let value = |v: &Value| match *v {
         Value::Bool(b) => json!(b),
@@ -124,6 +129,7 @@ pub(super) fn frame_json(f: &Frame, links: Option<&[[[f64; 3]; 2]]>, message: Op
         "bus_fault": f.bus_fault,
         "published_unix_us": f.published_unix_us,
         "message": message,
+        "trail": trail.iter().map(|p| json!(p)).collect::<Vec<_>>(),
         "links": links.map(|l| l.iter().map(|[a, b]| json!([a, b])).collect::<Vec<_>>()),
         "image": f.image.iter().map(value).collect::<Vec<_>>(),
     })

@@ -3,16 +3,16 @@
 // when the connection drops; while held it is refreshed every 20 ms (the server stops a jog not
 // refreshed for 60 ms).
 //
-// What a frame costs the browser is kept small (the page and the PLC often share one PC): every
-// frame is taken in as it comes (the cut path's points, the update latency), but the page is
-// drawn at most DISPLAY_HZ times a second, from the newest frame; text is written only where it
-// changed, the process image's table only while it is in view (else once a second), the task
+// What the page costs the browser is kept small (the page and the PLC often share one PC): it
+// asks the server for DISPLAY_HZ frames a second (each carries the tool's recent points, so the
+// cut path misses none) and draws each at the next animation frame; text is written only where
+// it changed, the process image's table only while it is in view (else once a second), the task
 // classes' table once a second, and the drawings only where something they show moved.
 "use strict";
 
 const $ = (id) => document.getElementById(id);
 // How often the page is drawn (Hz): each drawing costs a software-rendering browser about
-// 30 ms of CPU, so at 20 Hz (the frames' rate) a page took 45 % of a core.
+// 30 ms of CPU and each message a few, so at 20 Hz (the PLC's frames) a page took 45 % of a core.
 const DISPLAY_HZ = 4;
 const token = new URLSearchParams(location.search).get("token");
 let ws = null;
@@ -87,7 +87,11 @@ function connect() {
   url.protocol = location.protocol === "https:" ? "wss:" : "ws:";
   if (token) url.searchParams.set("token", token);
   ws = new WebSocket(url);
-  ws.onopen = () => { $("link").textContent = "connected"; $("link").className = "good"; };
+  ws.onopen = () => {
+    $("link").textContent = "connected";
+    $("link").className = "good";
+    send({ cmd: "frames", hz: DISPLAY_HZ });
+  };
   ws.onclose = () => {
     $("link").textContent = "disconnected: reconnecting…";
     $("link").className = "bad";
@@ -124,6 +128,7 @@ function hello(m) {
   axes = m.axes || [];
   origins = m.origins || null;
   cutAsked = false;
+  trailSeq = 0;
   $("mdi-box").hidden = !jobs;
   $("from-line-box").hidden = !jobs;
   shownProgram = 0;
@@ -310,21 +315,18 @@ function num(v, digits) {
   return v === null || v === undefined || Number.isNaN(v) ? "–" : Number(v).toFixed(digits);
 }
 
-// A frame as it comes: its latency and the tool's point; drawn at the next display tick.
+// A frame as it comes: its latency and the tool's points; drawn at the next animation frame
+// (once, however many came).
 let newest = null;
+let trailSeq = 0;
 function take(m) {
   window.latency.push(performance.timeOrigin + performance.now() - m.published_unix_us / 1000);
   if (window.latency.length > 2000) window.latency.shift();
-  if (Object.keys(index).length) takeCut((name) => (name in index ? m.image[index[name]] : null));
+  takeCut(m.trail || []);
+  const drawing = newest !== null;
   newest = m;
+  if (!drawing) requestAnimationFrame(() => { const f = newest; newest = null; if (f) frame(f); });
 }
-setInterval(() => {
-  if (newest) {
-    const m = newest;
-    newest = null;
-    frame(m);
-  }
-}, 1000 / DISPLAY_HZ);
 
 function frame(m) {
   const now = performance.now();
@@ -463,14 +465,14 @@ function showOverrides(m) {
   if ("NC_SINGLE_BLOCK" in index) $("single-block").checked = m.image[index.NC_SINGLE_BLOCK];
 }
 
-// The measured tool point, while a program runs: running, holding, held, paused at an M0,
-// standing after a line in single block, at a tool change.
-function takeCut(value) {
-  if (programmed.length < 2) return;
-  const tool = ["NC_TOOL_X", "NC_TOOL_Y", "NC_TOOL_Z"].map(value);
-  const running = [1, 2, 3, 4, 6, 7].includes(value("NC_STATE"));
-  if (running && tool[0] !== null && tool[1] !== null) {
-    const last = cut[cut.length - 1], p = tool.map((v) => v ?? 0);
+// The measured tool points of the frames since the last one taken (the server keeps them while
+// a program runs: running, holding, held, paused, standing after a line, at a tool change).
+function takeCut(trail) {
+  for (const [seq, x, y, z] of trail) {
+    if (seq <= trailSeq) continue;
+    trailSeq = seq;
+    if (programmed.length < 2) continue;
+    const last = cut[cut.length - 1], p = [x, y, z];
     if (!last || last[0] !== p[0] || last[1] !== p[1] || last[2] !== p[2]) {
       cut.push(p);
       if (cut.length > 20000) {

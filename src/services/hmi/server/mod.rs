@@ -54,6 +54,9 @@ pub const MAX_CLIENT_MESSAGE: usize = 4096;
 pub const COMMANDS_PER_S: f64 = 100.0;
 /// How often a client may ask for the cut path (it is up to about 100 kB).
 pub const CUT_EVERY: Duration = Duration::from_secs(1);
+/// How many of the tool's recent points every frame carries (a client may take one frame in
+/// twenty).
+const TRAIL: usize = 20;
 /// The longest incremental jog (mm, or degrees) a step from the screen makes.
 pub const MAX_STEP_MM: f64 = 10.0;
 /// The most programs refused by `--programs` that the hello lists (the rest are counted).
@@ -181,6 +184,16 @@ pub fn router(info: HmiInfo, mut frames: FrameFeed, sink: CommandSink, options: 
     let pump = Arc::clone(&shared);
     let mut mechanism = info.mechanism;
     let mut last_message: Option<Json> = None;
+    // The measured tool point of the last frames while a program runs (frame number, x y z):
+    // every frame carries them, so a client that takes one frame in five misses no point.
+    let mut trail: std::collections::VecDeque<[f64; 4]> = std::collections::VecDeque::with_capacity(TRAIL + 1);
+    let at = |name: &str| info.variables.iter().position(|(n, _)| n == name);
+    let tool_at = [
+        at(pkm_api::trajectory::vars::NC_TOOL[0].name()),
+        at(pkm_api::trajectory::vars::NC_TOOL[1].name()),
+        at(pkm_api::trajectory::vars::NC_TOOL[2].name()),
+    ];
+    let nc_state_at = at(pkm_api::trajectory::vars::NC_STATE.name());
     tokio::spawn(async move {
         // A held jog whose client went quiet is looked at between frames too.
         let mut tick = tokio::time::interval(STALE_JOG_POLL);
@@ -215,6 +228,20 @@ pub fn router(info: HmiInfo, mut frames: FrameFeed, sink: CommandSink, options: 
                         reached = Some((m.line, m.text.trim().to_string()));
                     }
                 }
+                let real = |i: Option<usize>| match i.and_then(|i| frame.image.get(i)) {
+                    Some(crate::image::Value::Real(v)) => *v,
+                    _ => 0.0,
+                };
+                let running = matches!(
+                    nc_state_at.and_then(|i| frame.image.get(i)),
+                    Some(crate::image::Value::Int(1 | 2 | 3 | 4 | 6 | 7))
+                );
+                if running && tool_at[0].is_some() {
+                    if trail.len() == TRAIL {
+                        trail.pop_front();
+                    }
+                    trail.push_back([frame.seq as f64, real(tool_at[0]), real(tool_at[1]), real(tool_at[2])]);
+                }
                 let message = reached.as_ref().map(|(l, t)| (*l, t.as_str()));
                 for entry in pump.alarms.observe(frame, message) {
                     if tx.receiver_count() > 0 {
@@ -238,7 +265,9 @@ pub fn router(info: HmiInfo, mut frames: FrameFeed, sink: CommandSink, options: 
                     .as_mut()
                     .filter(|_| operating)
                     .and_then(|m| m.links(&frame.image));
-                let _ = tx.send(Arc::from(frame_json(&frame, links, last_message.as_ref()).as_str()));
+                let _ = tx.send(Arc::from(
+                    frame_json(&frame, links, last_message.as_ref(), &trail).as_str(),
+                ));
             }
             pump.release_stale_jog();
         }
@@ -435,12 +464,19 @@ enum Command {
     RunFrom { program: i16, line: u32 },
     /// Abandon the job being planned.
     Cancel {},
+    /// Send this client at most `hz` frames a second (1 … 20; the newest each time): a page
+    /// that draws 4 times a second need not take 20. Each frame carries the tool's recent
+    /// points, so the cut path misses none.
+    Frames { hz: f64 },
 }
 
 impl Command {
     /// Whether it only reads (a watching client may send it).
     fn reads(&self) -> bool {
-        matches!(self, Command::Text { .. } | Command::Path { .. } | Command::Cut {})
+        matches!(
+            self,
+            Command::Text { .. } | Command::Path { .. } | Command::Cut {} | Command::Frames { .. }
+        )
     }
 
     /// Whether it stops something: STOP, a jog's release, a cancel. Never dropped for the rate.
@@ -522,6 +558,8 @@ async fn client(mut socket: WebSocket, peer: SocketAddr, commands: bool, shared:
     // messages (a STOP, a Cancel) and sending frames; the reply comes here when it is done.
     let (job_done, mut job_replies) = tokio::sync::mpsc::channel::<Json>(1);
     let mut job_pending = false;
+    // The frames this client takes: at most one per `frame_gap` (None: every one).
+    let (mut frame_gap, mut frame_sent): (Option<Duration>, Option<Instant>) = (None, None);
     loop {
         tokio::select! {
             Some(reply) = job_replies.recv() => {
@@ -535,6 +573,15 @@ async fn client(mut socket: WebSocket, peer: SocketAddr, commands: bool, shared:
             },
             frame = frames.recv() => match frame {
                 Ok(text) => {
+                    // Frames beyond the client's rate are left out (the newest comes next);
+                    // alarms and the like never are.
+                    let is_frame = text.contains(r#""type":"frame""#);
+                    if is_frame && frame_gap.is_some_and(|gap| frame_sent.is_some_and(|at| at.elapsed() < gap)) {
+                        continue;
+                    }
+                    if is_frame {
+                        frame_sent = Some(Instant::now());
+                    }
                     if socket.send(Message::Text(text.as_ref().into())).await.is_err() {
                         break;
                     }
@@ -558,6 +605,17 @@ async fn client(mut socket: WebSocket, peer: SocketAddr, commands: bool, shared:
                         Ok(Command::Cut {}) if cut_asked.is_some_and(|at| at.elapsed() < CUT_EVERY) => {
                             counts.refused += 1;
                             Some(json!({"type": "refused", "why": "the cut path is sent once a second at most"}))
+                        }
+                        Ok(Command::Frames { hz }) => {
+                            if (1.0..=20.0).contains(&hz) {
+                                // A little under the gap, so that the frame due is not missed by
+                                // a scheduling jitter.
+                                frame_gap = (hz < 20.0).then(|| Duration::from_secs_f64(0.9 / hz));
+                                None
+                            } else {
+                                counts.refused += 1;
+                                Some(json!({"type": "refused", "why": format!("frames: 1 … 20 a second, got {hz}")}))
+                            }
                         }
                         Ok(c) if c.reads() => {
                             if matches!(c, Command::Cut {}) {
@@ -762,7 +820,8 @@ impl Shared {
             | Command::Mdi { .. }
             | Command::RunFrom { .. }
             | Command::TouchOff { .. }
-            | Command::Step { .. } => {}
+            | Command::Step { .. }
+            | Command::Frames { .. } => {}
             Command::Cancel {} => {
                 let cancelled = self
                     .jobs
