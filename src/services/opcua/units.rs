@@ -45,6 +45,12 @@ pub const PERCENT: Unit = Unit {
     symbol: "%",
     name: "percent",
 };
+/// Millimetres per minute (a feed).
+pub const MM_MIN: Unit = Unit {
+    code: "H81",
+    symbol: "mm/min",
+    name: "millimetre per minute",
+};
 /// Revolutions per minute.
 pub const RPM: Unit = Unit {
     code: "RPM",
@@ -75,6 +81,12 @@ pub fn of(name: &str) -> Option<Unit> {
     }
     if n == "SPINDLE_RPM" {
         return Some(RPM);
+    }
+    if n == "NC_FEED" || n == "NC_FEED_MEASURED" {
+        return Some(MM_MIN);
+    }
+    if n == "NC_DISTANCE_TO_GO" {
+        return Some(MM);
     }
     // Pose coordinates: x y z in mm, a b c in degrees.
     let pose = ["TOOL_", "NC_TOOL_", "NC_"]
@@ -138,6 +150,12 @@ mod tests {
             ("velocity_left_mm_s", Some(MM_S)),
             ("NC_FEED_OVERRIDE", Some(PERCENT)),
             ("SPINDLE_RPM", Some(RPM)),
+            ("NC_FEED", Some(MM_MIN)),
+            ("NC_FEED_MEASURED", Some(MM_MIN)),
+            ("NC_DISTANCE_TO_GO", Some(MM)),
+            ("NC_SPINDLE_OVERRIDE", Some(PERCENT)),
+            ("TOOL_NUMBER", None),
+            ("NC_MESSAGES", None),
             ("JOINT1_CAPTURES", None),
             ("JOINT1_COUNTER", None),
             ("JOINT1_PWM", None),
