@@ -191,9 +191,9 @@ fn duration(asked: Option<f64>, scenario: Option<ScenarioTimes>) -> Option<f64> 
 fn run_virtual(mut plc: Plc, origin: &str, library: Option<&pkm_api::library::NcLibrary>, duration: f64) -> Ran {
     // The programs' message comments to the log as the run reaches them.
     let mut messages = crate::runtime::messages::MessageWatch::new(plc.vars(), library);
-    let report = run::run_virtual_observed(&mut plc, (duration * 1e9) as u64, &mut |plc| {
+    let report = run::run_virtual_observed(&mut plc, (duration * 1e9) as u64, &mut |plc, t| {
         if let Some(m) = &mut messages {
-            m.log(plc.global_image());
+            m.log(plc.global_image(), t);
         }
     });
     info!(
@@ -380,7 +380,7 @@ fn run_realtime(
         let mut feed = feed.clone();
         tokio::spawn(async move {
             while let Some(frame) = feed.next().await {
-                watch.log(&frame.image);
+                watch.log(&frame.image, frame.status.t_ns);
             }
         });
     }

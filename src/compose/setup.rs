@@ -105,7 +105,7 @@ impl Setup {
             (None, None) => return Ok(self),
         };
         let name = file.display().to_string();
-        match std::fs::read_to_string(&file) {
+        match crate::runtime::files::read_text(&file, crate::runtime::files::MAX_TEXT_BYTES) {
             Ok(text) => {
                 let values = pkm_nc::params::parse(&text).map_err(|e| super::Failure::usage(format!("{name}:{e}")))?;
                 self.persistent = Some(values);
@@ -150,7 +150,7 @@ impl Setup {
             (None, None) => return Ok(self),
         };
         let name = file.display().to_string();
-        let text = std::fs::read_to_string(&file)
+        let text = crate::runtime::files::read_text(&file, crate::runtime::files::MAX_TEXT_BYTES)
             .map_err(|e| super::Failure::usage(format!("{name}: cannot read the tool table: {e}")))?;
         self.tools = Some(ToolTableFile::parse(name, text).map_err(super::Failure::usage)?);
         Ok(self)

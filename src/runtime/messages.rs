@@ -12,6 +12,11 @@ use crate::image::{Value, VarTable};
 /// The most messages taken from one look (a program that reaches more between two looks has
 /// the latest ones shown and logged, and a line saying how many were passed over).
 pub const MAX_PER_LOOK: usize = 64;
+/// The most messages logged per second of the PLC's time (a loop of DEBUG comments would fill
+/// the log); the others are counted, and the count logged.
+pub const MAX_LOGGED_PER_S: u32 = 50;
+/// A message's text is logged (and shown) cut to this many characters.
+pub const MAX_TEXT_CHARS: usize = 300;
 
 /// Where a run's messages are read from: the loaded program's number, the last message's index
 /// in it, and the count of messages reached since the start.
@@ -20,6 +25,11 @@ pub struct MessageWatch {
     at: [usize; 3],
     /// `NC_MESSAGES` at the last look.
     seen: i32,
+    /// The second of the PLC's time messages are being logged in, how many were, and how many
+    /// were left out.
+    second: u64,
+    logged: u32,
+    left_out: u64,
 }
 
 impl MessageWatch {
@@ -43,6 +53,9 @@ impl MessageWatch {
                 index(vars::NC_MESSAGES.name())?,
             ],
             seen: 0,
+            second: 0,
+            logged: 0,
+            left_out: 0,
         })
     }
 
@@ -72,20 +85,133 @@ impl MessageWatch {
         (messages[start..end].to_vec(), passed)
     }
 
-    /// Takes the new messages of `image` and writes them to the log; returns them.
-    pub fn log(&mut self, image: &[Value]) -> Vec<NcMessage> {
+    /// Takes the new messages of `image` (published at `t_ns` of the PLC's time) and writes
+    /// them to the log, at most [`MAX_LOGGED_PER_S`] a second; returns them.
+    pub fn log(&mut self, image: &[Value], t_ns: u64) -> Vec<NcMessage> {
         let (messages, passed) = self.take(image);
-        if passed > 0 {
-            info!("NC: {passed} messages passed over (more than {MAX_PER_LOOK} since the last look)");
+        let second = t_ns / 1_000_000_000;
+        if second != self.second {
+            if self.left_out > 0 {
+                info!(
+                    "NC: {} messages not logged in the second before t={} s (more than {MAX_LOGGED_PER_S} a second)",
+                    self.left_out, second
+                );
+            }
+            (self.second, self.logged, self.left_out) = (second, 0, 0);
         }
+        self.left_out += passed as u64;
         for m in &messages {
-            log_one(m);
+            if self.logged < MAX_LOGGED_PER_S {
+                self.logged += 1;
+                info!("NC line {} ({}): {}", m.line, m.kind.keyword(), shown(&m.text));
+            } else {
+                self.left_out += 1;
+            }
         }
         messages
     }
 }
 
-/// One message in the log, with its line and kind: `NC line 12 (MSG): change the clamp`.
-fn log_one(m: &NcMessage) {
-    info!("NC line {} ({}): {}", m.line, m.kind.keyword(), m.text.trim());
+/// A message's text as it is logged and shown: without blanks around it, cut to
+/// [`MAX_TEXT_CHARS`] characters.
+pub fn shown(text: &str) -> String {
+    let text = text.trim();
+    match text.char_indices().nth(MAX_TEXT_CHARS) {
+        Some((at, _)) => format!("{}…", &text[..at]),
+        None => text.to_string(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::sync::Arc;
+
+    use pkm_api::trajectory::{MAX_AXES, NcJob, NcMessageKind, Trajectory, TrajectoryEvent, TrajectorySample};
+
+    use super::*;
+
+    /// A program of `n` DEBUG messages and no motion.
+    struct Messages(Vec<NcMessage>);
+
+    impl Trajectory for Messages {
+        fn dof(&self) -> usize {
+            1
+        }
+        fn duration_s(&self) -> f64 {
+            0.0
+        }
+        fn length_mm(&self) -> f64 {
+            0.0
+        }
+        fn sample(&self, _t: f64, _cursor: &mut usize) -> TrajectorySample {
+            TrajectorySample::default()
+        }
+        fn events(&self) -> &[TrajectoryEvent] {
+            &[]
+        }
+        fn messages(&self) -> &[NcMessage] {
+            &self.0
+        }
+        fn block_end(&self, _s: f64) -> Option<(f64, f64)> {
+            None
+        }
+        fn forward(&self, _j: &[f64], _h: &[f64; MAX_AXES], _p: &mut [f64; MAX_AXES]) -> bool {
+            false
+        }
+        fn path_distance(&self, _p: &[f64; MAX_AXES], _t: f64) -> f64 {
+            0.0
+        }
+    }
+
+    fn watch(n: usize) -> MessageWatch {
+        let messages = (0..n)
+            .map(|i| NcMessage {
+                line: 2,
+                kind: NcMessageKind::Debug,
+                text: format!("i = {i}"),
+            })
+            .collect();
+        let job = NcJob {
+            file: "p.ngc".into(),
+            text: String::new(),
+            trajectory: Arc::new(Messages(messages)),
+        };
+        let library = NcLibrary::new(vec![job], true);
+        MessageWatch {
+            library,
+            at: [0, 1, 2],
+            seen: 0,
+            second: 0,
+            logged: 0,
+            left_out: 0,
+        }
+    }
+
+    fn image(program: i16, last: i32, count: i32) -> Vec<Value> {
+        vec![Value::Int(program), Value::Dint(last), Value::Dint(count)]
+    }
+
+    #[test]
+    fn the_messages_reached_are_taken_once_in_order_and_the_log_is_bounded() {
+        let mut w = watch(200);
+        let (new, passed) = w.take(&image(1, 3, 3));
+        assert_eq!(
+            new.iter().map(|m| m.text.as_str()).collect::<Vec<_>>(),
+            ["i = 0", "i = 1", "i = 2"]
+        );
+        assert_eq!(passed, 0);
+        assert!(w.take(&image(1, 3, 3)).0.is_empty(), "nothing new");
+        // 197 more in one look: the newest 64 taken, the rest counted.
+        let (new, passed) = w.take(&image(1, 200, 200));
+        assert_eq!((new.len(), passed), (MAX_PER_LOOK, 197 - MAX_PER_LOOK));
+        assert_eq!(new.last().map(|m| m.text.as_str()), Some("i = 199"));
+        // The log: at most 50 a second of the PLC's time.
+        let mut w = watch(200);
+        let logged = w.log(&image(1, 60, 60), 1_000_000_000);
+        assert_eq!(logged.len(), 60, "all returned");
+        assert_eq!((w.logged, w.left_out), (MAX_LOGGED_PER_S, 10));
+        w.log(&image(1, 61, 61), 2_000_000_000);
+        assert_eq!((w.logged, w.left_out), (1, 0), "a new second");
+        assert_eq!(shown(&"y".repeat(400)).chars().count(), MAX_TEXT_CHARS + 1);
+    }
 }

@@ -82,12 +82,12 @@ pub struct VirtualReport {
 /// Runs the PLC in virtual time for `duration_ns` of simulated time: every release before
 /// `duration_ns` is run. Ends with [`Plc::shutdown`].
 pub fn run_virtual(plc: &mut Plc, duration_ns: u64) -> VirtualReport {
-    run_virtual_observed(plc, duration_ns, &mut |_| {})
+    run_virtual_observed(plc, duration_ns, &mut |_, _| {})
 }
 
-/// [`run_virtual`], with `observe` called after each pass (off the cycles' own time: virtual
-/// time waits for it).
-pub fn run_virtual_observed(plc: &mut Plc, duration_ns: u64, observe: &mut dyn FnMut(&Plc)) -> VirtualReport {
+/// [`run_virtual`], with `observe` called after each pass with its time (ns; off the cycles' own
+/// time: virtual time waits for it).
+pub fn run_virtual_observed(plc: &mut Plc, duration_ns: u64, observe: &mut dyn FnMut(&Plc, u64)) -> VirtualReport {
     let started = Instant::now();
     let mut clock = VirtualClock::default();
     let mut log = StateLog::default();
@@ -100,7 +100,7 @@ pub fn run_virtual_observed(plc: &mut Plc, duration_ns: u64, observe: &mut dyn F
         clock.advance_to(t);
         plc.run_due(&mut clock, duration_ns);
         log.observe(plc, t);
-        observe(plc);
+        observe(plc, t);
     }
     plc.shutdown();
     VirtualReport {

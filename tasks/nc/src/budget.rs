@@ -52,6 +52,8 @@ pub struct Cost {
     pub points: u64,
     /// Samples of the check (one every [`crate::check::SAMPLE_SPACING`] along the path).
     pub samples: u64,
+    /// The bytes the program's messages take (their text is kept twice: read, and in the plan).
+    pub text: u64,
 }
 
 /// The memory one action takes while the program is planned, beyond its points: the block the
@@ -80,12 +82,19 @@ impl Cost {
         self.samples = self.samples.saturating_add(samples);
     }
 
-    /// The memory the program and its plan take at the most (bytes): its actions, and the
-    /// points of its velocity profile.
+    /// Adds a message of `text_bytes` bytes (its text kept twice, with its record).
+    pub fn add_message(&mut self, text_bytes: usize) {
+        let one = (text_bytes + size_of::<pkm_api::trajectory::NcMessage>()) as u64;
+        self.text = self.text.saturating_add(2 * one);
+    }
+
+    /// The memory the program and its plan take at the most (bytes): its actions, the points
+    /// of its velocity profile, its messages.
     pub fn bytes(&self) -> u64 {
         (self.moves as u64)
             .saturating_mul(BYTES_PER_ACTION)
             .saturating_add(self.points.saturating_mul(crate::plan::POINT_BYTES))
+            .saturating_add(self.text)
     }
 
     /// Why the cost passes `bounds`, if it does.
@@ -135,7 +144,8 @@ mod tests {
             Cost {
                 moves: 1,
                 points: 20 + EXTRA_POINTS,
-                samples: 100
+                samples: 100,
+                text: 0
             }
         );
         // A short move: two points, one sample.

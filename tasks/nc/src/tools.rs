@@ -14,6 +14,9 @@ use crate::interp::Pose;
 /// The largest tool number accepted (LinuxCNC's tables are searched by number; a number this
 /// large is a typing error).
 pub const MAX_TOOL: u32 = 99_999;
+/// The most tools a table holds (LinuxCNC's default pocket count, `CANON_POCKETS_MAX`, less
+/// the spindle's).
+pub const MAX_TOOLS: usize = 1000;
 
 /// One tool.
 #[derive(Clone, Debug, PartialEq)]
@@ -52,6 +55,13 @@ impl ToolTable {
                 continue;
             }
             let tool = parse_line(words, comment, number)?;
+            if tools.len() == MAX_TOOLS {
+                return Err(NcError::new(
+                    number,
+                    1,
+                    format!("more than {MAX_TOOLS} tools: a table holds at most {MAX_TOOLS}, as LinuxCNC's"),
+                ));
+            }
             if tools.iter().any(|t| t.number == tool.number) {
                 return Err(NcError::new(
                     number,
@@ -70,10 +80,11 @@ impl ToolTable {
     }
 
     /// The tool numbered `number`, to change (a new entry with no offsets where the table has
-    /// none, as LinuxCNC's G10 L1 makes one).
-    pub fn entry(&mut self, number: u32) -> &mut Tool {
+    /// none, as LinuxCNC's G10 L1 makes one); `None` when the table is full ([`MAX_TOOLS`]).
+    pub fn entry(&mut self, number: u32) -> Option<&mut Tool> {
         let at = match self.tools.iter().position(|t| t.number == number) {
             Some(at) => at,
+            None if self.tools.len() >= MAX_TOOLS => return None,
             None => {
                 self.tools.push(Tool {
                     number,
@@ -85,7 +96,7 @@ impl ToolTable {
                 self.tools.len() - 1
             }
         };
-        &mut self.tools[at]
+        self.tools.get_mut(at)
     }
 }
 
@@ -242,6 +253,11 @@ mod tests {
             ),
             ("T1 %\n", "1:4: '%' does not start a word of a tool table"),
         ];
+        let many: String = (1..=1001).map(|t| format!("T{t} Z1\n")).collect();
+        assert_eq!(
+            ToolTable::parse(&many).map_err(|e| e.to_string()),
+            Err("1001:1: more than 1000 tools: a table holds at most 1000, as LinuxCNC's".to_string())
+        );
         for (text, want) in cases {
             assert_eq!(
                 ToolTable::parse(text).map_err(|e| e.to_string()),
@@ -254,8 +270,8 @@ mod tests {
     #[test]
     fn an_entry_is_made_where_the_table_has_none() {
         let mut t = ToolTable::parse("T1 Z5\n").expect("a table");
-        t.entry(7).offsets[2] = 3.0;
-        t.entry(1).offsets[2] = 4.0;
+        t.entry(7).expect("room").offsets[2] = 3.0;
+        t.entry(1).expect("there").offsets[2] = 4.0;
         assert_eq!(t.get(7).map(|t| (t.pocket, t.offsets[2])), Some((7, 3.0)));
         assert_eq!(t.get(1).map(|t| t.offsets[2]), Some(4.0));
     }

@@ -224,8 +224,9 @@ pub fn router(info: HmiInfo, mut frames: FrameFeed, sink: CommandSink, options: 
                         .rev()
                         .find(|m| m.kind == pkm_api::trajectory::NcMessageKind::Msg)
                     {
-                        last_message = Some(json!([t_s, m.line, m.text.trim()]));
-                        reached = Some((m.line, m.text.trim().to_string()));
+                        let text = crate::runtime::messages::shown(&m.text);
+                        last_message = Some(json!([t_s, m.line, text]));
+                        reached = Some((m.line, text));
                     }
                 }
                 let real = |i: Option<usize>| match i.and_then(|i| frame.image.get(i)) {

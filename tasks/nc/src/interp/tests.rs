@@ -714,6 +714,12 @@ fn tool_offsets_follow_g43_g43_1_g49_and_the_parameters_show_them() {
         to[1], to[0],
         "L10 makes the tool read Z5 where it stands: G0 Z5 goes nowhere"
     );
+    // G10 L1 fills the table to its most, not beyond.
+    let fill = "#1 = 1\no1 while [#1 LE 1001]\nG10 L1 P#1 Z1\n#1 = [#1 + 1]\no1 endwhile";
+    assert_eq!(
+        with_tools(fill).map(|_| ()).expect_err("full").to_string(),
+        "3:8: G10 L1: the tool table holds 1000 tools already, its most"
+    );
 }
 
 #[test]
@@ -802,4 +808,19 @@ fn message_comments_become_messages_in_order() {
     // The message comes before the block's move, as LinuxCNC's.
     assert_eq!(p.blocks[1].action, Action::Message(1));
     assert!(matches!(p.blocks[2].action, Action::Move { .. }));
+}
+
+#[test]
+fn a_loop_of_long_messages_is_refused_where_it_passes_the_memory_bound() {
+    // 20 000 messages of 4 kB: 160 MB kept (twice), past a 64 MiB bound, refused at the message's
+    // line before the memory is taken.
+    let long = "x".repeat(4000);
+    let text = format!("o1 repeat [20000]\n(DEBUG, {long})\no1 endrepeat\nM2\n");
+    let bounds = crate::budget::Bounds {
+        max_bytes: 64 << 20,
+        ..crate::budget::Bounds::default()
+    };
+    let e = read_bounded(&text, &machine(&XYZ), &bounds, &crate::watch::Unwatched).expect_err("refused");
+    assert_eq!(e.line, 2, "{e}");
+    assert!(e.message.contains("more than 64 MiB"), "{e}");
 }

@@ -17,6 +17,9 @@ impl State<'_> {
     pub(super) fn message(&mut self, block: &lexer::Block, out: &mut Vec<Block>) {
         if let Some(message) = &block.message {
             let index = u32::try_from(self.messages.len()).unwrap_or(u32::MAX);
+            // Counted against the program's memory bound: a loop of long messages is refused
+            // where it passes it, as a loop of moves is.
+            self.cost.add_message(message.text.len());
             self.messages.push(message.clone());
             out.push(Block {
                 line: block.line,
@@ -190,7 +193,15 @@ impl State<'_> {
                 }
             })
             .collect();
-        let entry = self.tools.entry(number);
+        let entry = self.tools.entry(number).ok_or_else(|| {
+            at(
+                p,
+                format!(
+                    "{name}: the tool table holds {} tools already, its most",
+                    crate::tools::MAX_TOOLS
+                ),
+            )
+        })?;
         for (c, v) in values {
             entry.offsets[c] = v;
         }
