@@ -42,6 +42,17 @@ impl Plc {
         self.run.log()
     }
 
+    /// Stops the run as a service manager would (SIGTERM) and waits for its end: a run that
+    /// does not end with success fails the test, with its log.
+    fn stop(&mut self) {
+        let stopped = Command::new("kill")
+            .args(["-TERM", &self.run.child.id().to_string()])
+            .status()
+            .expect("kill runs");
+        assert!(stopped.success());
+        assert!(self.run.wait().success(), "{}", self.log());
+    }
+
     /// The screen's port.
     fn port(&self) -> u16 {
         self.url
@@ -301,12 +312,7 @@ async fn the_page_shows_referencing_jogs_while_held_stops_and_acknowledges() {
     .await;
     browser.close().await;
     // The screen's commands are inputs like the panel's: in the trace, and replayed.
-    let stopped = Command::new("kill")
-        .args(["-TERM", &plc.run.child.id().to_string()])
-        .status()
-        .expect("kill runs");
-    assert!(stopped.success());
-    assert!(plc.run.wait().success());
+    plc.stop();
     let recorded = std::fs::read_to_string(&trace).expect("the trace");
     assert!(
         recorded.contains(r#""HMI_STOP":true"#),
@@ -1050,12 +1056,7 @@ async fn the_screen_sets_the_overrides_steps_a_program_line_by_line_runs_mdi_and
     .await;
     browser.close().await;
     // The overrides and single block are inputs like the panel's: in the trace, and replayed.
-    let stopped = Command::new("kill")
-        .args(["-TERM", &plc.run.child.id().to_string()])
-        .status()
-        .expect("kill runs");
-    assert!(stopped.success());
-    assert!(plc.run.wait().success(), "{}", plc.log());
+    plc.stop();
     let recorded = std::fs::read_to_string(&trace).expect("the trace");
     for recorded_input in [
         r#""NC_FEED_OVERRIDE":50"#,
@@ -1200,12 +1201,7 @@ async fn the_screen_asks_for_the_tool_of_a_manual_tool_change_and_shows_the_prog
     )
     .await;
     browser.close().await;
-    let stopped = Command::new("kill")
-        .args(["-TERM", &plc.run.child.id().to_string()])
-        .status()
-        .expect("kill runs");
-    assert!(stopped.success());
-    assert!(plc.run.wait().success(), "{}", plc.log());
+    plc.stop();
     let log = plc.log();
     assert!(log.contains("screen 127.0.0.1:"), "{log}");
     assert!(log.contains("tool change confirmed"), "{log}");
@@ -1351,11 +1347,6 @@ async fn the_screen_shows_a_dro_steps_the_jog_keeps_an_alarm_history_and_dims_th
     )
     .await;
     browser.close().await;
-    let stopped = Command::new("kill")
-        .args(["-TERM", &plc.run.child.id().to_string()])
-        .status()
-        .expect("kill runs");
-    assert!(stopped.success());
-    assert!(plc.run.wait().success(), "{}", plc.log());
+    plc.stop();
     assert!(plc.log().contains("step G91 G0 X1"), "{}", plc.log());
 }

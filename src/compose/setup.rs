@@ -96,13 +96,8 @@ impl Setup {
     /// when it exists (else the configuration's until the first touch-off writes it). A file
     /// that cannot be read or parsed is a usage error (exit 2) naming it.
     pub fn with_param_file(mut self, path: Option<&Path>) -> Result<Setup, super::Failure> {
-        let file = match (path, &self.loaded.config.nc.var_file) {
-            (Some(p), _) => p.to_path_buf(),
-            (None, Some(name)) => match &self.loaded.dir {
-                Some(dir) => dir.join(name),
-                None => std::path::PathBuf::from(name),
-            },
-            (None, None) => return Ok(self),
+        let Some(file) = self.nc_file(path, self.loaded.config.nc.var_file.as_deref()) else {
+            return Ok(self);
         };
         let name = file.display().to_string();
         match crate::runtime::files::read_text(&file, crate::runtime::files::MAX_TEXT_BYTES) {
@@ -119,6 +114,19 @@ impl Setup {
         }
         self.param_file = Some(file);
         Ok(self)
+    }
+
+    /// The NC file `given` names (the command line's), else the one the configuration names as
+    /// `configured` (relative to its directory), else none.
+    fn nc_file(&self, given: Option<&Path>, configured: Option<&str>) -> Option<std::path::PathBuf> {
+        match (given, configured) {
+            (Some(p), _) => Some(p.to_path_buf()),
+            (None, Some(name)) => Some(match &self.loaded.dir {
+                Some(dir) => dir.join(name),
+                None => std::path::PathBuf::from(name),
+            }),
+            (None, None) => None,
+        }
     }
 
     /// What keeps a touch-off's work offsets for a machine of `n` coordinates: writes the
@@ -141,13 +149,8 @@ impl Setup {
     /// configuration's `nc.tool_table` names (relative to the configuration's directory), else
     /// none. A file that cannot be read or parsed is a usage error (exit 2) naming it.
     pub fn with_tool_table(mut self, path: Option<&Path>) -> Result<Setup, super::Failure> {
-        let file = match (path, &self.loaded.config.nc.tool_table) {
-            (Some(p), _) => p.to_path_buf(),
-            (None, Some(name)) => match &self.loaded.dir {
-                Some(dir) => dir.join(name),
-                None => std::path::PathBuf::from(name),
-            },
-            (None, None) => return Ok(self),
+        let Some(file) = self.nc_file(path, self.loaded.config.nc.tool_table.as_deref()) else {
+            return Ok(self);
         };
         let name = file.display().to_string();
         let text = crate::runtime::files::read_text(&file, crate::runtime::files::MAX_TEXT_BYTES)

@@ -184,10 +184,9 @@ fn a_job_that_cannot_run_is_refused_with_its_line_and_nothing_is_stored() {
     assert_eq!(library.screen.made(), 0);
 }
 
-#[test]
-fn the_screen_makes_a_job_from_ready_only_numbered_after_the_programs() {
-    use pkm_plc::services::hmi::jobs::JobDesk;
-    let setup = Setup::new(machine_config("ox-x", |_| {})).expect("ox-x");
+/// An O-X run built with a screen from `setup` (its 3 coordinates), its library, and the desk
+/// the screen makes jobs at — its offsets and their keeper as the setup gives them.
+fn screen_desk(setup: Setup) -> (Plc, pkm_api::library::NcLibrary, pkm_plc::services::hmi::jobs::JobDesk) {
     let options = Options {
         hmi: true,
         ..Options::default()
@@ -197,14 +196,20 @@ fn the_screen_makes_a_job_from_ready_only_numbered_after_the_programs() {
     } = compose::build(setup, options).unwrap_or_else(|e| panic!("{e}"));
     let library = library.expect("a screen's run has a library");
     let standing = StandingPose::of(&setup, &plc).expect("the set-points");
-    let desk = JobDesk::new(
+    let desk = pkm_plc::services::hmi::jobs::JobDesk::new(
         setup.clone(),
         library.clone(),
         standing,
         None,
         setup.persistent(3),
-        None,
+        setup.keeper(3),
     );
+    (plc, library, desk)
+}
+
+#[test]
+fn the_screen_makes_a_job_from_ready_only_numbered_after_the_programs() {
+    let (plc, library, desk) = screen_desk(Setup::new(machine_config("ox-x", |_| {})).expect("ox-x"));
     let runtime = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()
@@ -236,7 +241,6 @@ fn the_screen_makes_a_job_from_ready_only_numbered_after_the_programs() {
 /// with the new origin — and a run started with that file starts from it.
 #[test]
 fn a_touch_off_moves_the_work_origin_keeps_it_in_the_parameter_file_and_jobs_follow_it() {
-    use pkm_plc::services::hmi::jobs::JobDesk;
     let dir = tempfile::tempdir().expect("tempdir");
     let var = dir.path().join("ox-x.var");
     let setup = Setup::new(machine_config("ox-x", |_| {}))
@@ -244,23 +248,7 @@ fn a_touch_off_moves_the_work_origin_keeps_it_in_the_parameter_file_and_jobs_fol
         .with_param_file(Some(&var))
         .unwrap_or_else(|e| panic!("{}", e.message));
     assert_eq!(setup.persistent, None, "no file yet: the configuration's offsets");
-    let options = Options {
-        hmi: true,
-        ..Options::default()
-    };
-    let Built {
-        setup, plc, library, ..
-    } = compose::build(setup, options).unwrap_or_else(|e| panic!("{e}"));
-    let library = library.expect("a screen's run has a library");
-    let standing = StandingPose::of(&setup, &plc).expect("the set-points");
-    let desk = JobDesk::new(
-        setup.clone(),
-        library.clone(),
-        standing,
-        None,
-        setup.persistent(3),
-        setup.keeper(3),
-    );
+    let (plc, library, desk) = screen_desk(setup);
     desk.observe("INIT", plc.global_image());
     assert_eq!(
         desk.touch_off(0, 0, 5.0).map(|_| ()),

@@ -50,43 +50,12 @@ impl Shared {
                     return json!({"type": "refused", "why": why, "job": true});
                 }
                 info!("screen {peer}: load program {program}, planned again with the touched-off offsets");
-                return self
-                    .load_job(
-                        peer,
-                        desk,
-                        pkm_api::screen_jobs::ScreenJobKind::FromLine { program, line: 1 },
-                    )
-                    .await;
+                let kind = pkm_api::screen_jobs::ScreenJobKind::FromLine { program, line: 1 };
+                return self.make_and_load(peer, desk, kind, false).await;
             }
             _ => return json!({"type": "refused", "why": "not a job"}),
         };
-        match desk.make(kind).await {
-            Ok(made) => {
-                info!(
-                    "screen {peer}: job {} ({}, {:.2} s planned) loaded and started",
-                    made.number,
-                    made.job.file,
-                    made.job.trajectory.duration_s()
-                );
-                let number = made.number;
-                self.sink.update(|c| {
-                    c.program = number;
-                    c.presses[press::NC[0]] += 1;
-                });
-                json!({
-                    "type": "job",
-                    "program": number,
-                    "file": made.job.file,
-                    "lines": made.job.text.lines().count(),
-                    "planned_s": made.job.trajectory.duration_s(),
-                    "started": true,
-                })
-            }
-            Err(why) => {
-                info!("screen {peer}: job refused: {}", why.lines().next().unwrap_or_default());
-                json!({"type": "refused", "why": why, "job": true})
-            }
-        }
+        self.make_and_load(peer, desk, kind, true).await
     }
 
     /// Whether program `program` may be loaded now: one of the run's, and no program runs.
@@ -141,37 +110,44 @@ impl Shared {
         let mut reply =
             json!({"type": "touch_off", "system": name, "axis": axis, "value": value, "was": t.was, "now": t.now});
         if let Some(k) = desk.loaded_program() {
-            let job = self
-                .load_job(
-                    peer,
-                    desk,
-                    pkm_api::screen_jobs::ScreenJobKind::FromLine { program: k, line: 1 },
-                )
-                .await;
-            reply["job"] = job;
+            let kind = pkm_api::screen_jobs::ScreenJobKind::FromLine { program: k, line: 1 };
+            reply["job"] = self.make_and_load(peer, desk, kind, false).await;
         }
         reply
     }
 
-    /// Makes job `kind` and loads it without starting it; the reply as [`Shared::make_job`]'s.
-    async fn load_job(&self, peer: SocketAddr, desk: &JobDesk, kind: pkm_api::screen_jobs::ScreenJobKind) -> Json {
+    /// Makes job `kind` and loads it, and starts it if `start`: the reply says its number, file,
+    /// lines, planned time and whether it started, or why it was refused.
+    async fn make_and_load(
+        &self,
+        peer: SocketAddr,
+        desk: &JobDesk,
+        kind: pkm_api::screen_jobs::ScreenJobKind,
+        start: bool,
+    ) -> Json {
         match desk.make(kind).await {
             Ok(made) => {
                 info!(
-                    "screen {peer}: job {} ({}, {:.2} s planned) loaded",
+                    "screen {peer}: job {} ({}, {:.2} s planned) loaded{}",
                     made.number,
                     made.job.file,
-                    made.job.trajectory.duration_s()
+                    made.job.trajectory.duration_s(),
+                    if start { " and started" } else { "" }
                 );
                 let number = made.number;
-                self.sink.update(|c| c.program = number);
+                self.sink.update(|c| {
+                    c.program = number;
+                    if start {
+                        c.presses[press::NC[0]] += 1;
+                    }
+                });
                 json!({
                     "type": "job",
                     "program": number,
                     "file": made.job.file,
                     "lines": made.job.text.lines().count(),
                     "planned_s": made.job.trajectory.duration_s(),
-                    "started": false,
+                    "started": start,
                 })
             }
             Err(why) => {
