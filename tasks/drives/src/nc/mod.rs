@@ -585,14 +585,25 @@ impl Executor {
     }
 
     /// The highest speed from which the tool, braking at the lowest bound met on the way to the
-    /// line's end, comes to rest within `distance` (mm) in whole cycles of `dt`: v·dt + (v − a·dt)·dt + … ≤ distance.
+    /// line's end, comes to rest exactly `distance` (mm) ahead in whole cycles of `dt`: n cycles
+    /// at v, v − a·dt, …, v − (n−1)·a·dt that cover the distance, the last at most a·dt, so that
+    /// the tool stands the cycle after. (The continuous v² = 2·a·d, taken cycle by cycle, leaves
+    /// a last step up to 1.125 a·dt harsher than the bound where the distance is not a sum of
+    /// whole decrements.)
     fn braking_speed(&self, distance: f64, dt: f64) -> f64 {
         let a = self.braking_accel;
         if !(a.is_finite() && a > 0.0) {
             return f64::INFINITY;
         }
         let step = a * dt;
-        (step * (-0.5 + (0.25 + 2.0 * distance.max(0.0) / (step * dt)).sqrt())).max(0.0)
+        // The distance in units of one step's travel: d / (a·dt²).
+        let d = distance.max(0.0) / (step * dt);
+        if d <= 0.0 {
+            return 0.0;
+        }
+        // The fewest cycles: n (n + 1) / 2 ≥ d.
+        let n = (-0.5 + (0.25 + 2.0 * d).sqrt()).ceil().max(1.0);
+        step * (d / n + (n - 1.0) / 2.0)
     }
 
     /// The first end of a line ahead that the tool can still stop at from its speed now.

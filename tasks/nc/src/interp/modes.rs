@@ -178,7 +178,10 @@ impl State<'_> {
                     ));
                 }
                 Some(q) => Some(q.value * self.unit()).filter(|q| *q > 0.0),
-                None => None,
+                // Without Q, LinuxCNC's naive CAM tolerance is P (rs274 prints
+                // SET_NAIVECAM_TOLERANCE(P) after G64 P): a CAM post's short lines within P of
+                // one straight line run as that line.
+                None => tolerance,
             };
             self.blend = Blend::Within { tolerance, merge };
         }

@@ -346,8 +346,9 @@ fn the_cam_dialect_means_what_linuxcnc_reads() {
     let m = moves(&run("G0 X2\nG90.1 G2 X10 Y0 I6 J0 F100\nG91.1 G2 X2 Y0 I-4 J0"));
     assert!(matches!(m[1].1, Path::Arc { center, .. } if center == [6.0, 0.0]));
     assert!(matches!(m[2].1, Path::Arc { center, .. } if center == [6.0, 0.0]));
-    // G61.1 stops exactly; G64 P0 and P-1 are G64 without a tolerance; Q merges.
-    let b = run("G61.1\nG1 X1 F100\nG64 P0\nG1 X2\nG64 P0.01 Q0.02\nX3\nG64 P-1\nX4");
+    // G61.1 stops exactly; G64 P0 and P-1 are G64 without a tolerance; Q merges, within P
+    // where Q is not given (as LinuxCNC), not at all with Q0.
+    let b = run("G61.1\nG1 X1 F100\nG64 P0\nG1 X2\nG64 P0.01 Q0.02\nX3\nG64 P-1\nX4\nG64 P0.03\nX5\nG64 P0.03 Q0\nX6");
     let blends: Vec<Blend> = b
         .iter()
         .filter_map(|b| match b.action {
@@ -362,7 +363,9 @@ fn the_cam_dialect_means_what_linuxcnc_reads() {
             Blend::ExactStop,
             within(None, None),
             within(Some(0.01), Some(0.02)),
-            within(None, None)
+            within(None, None),
+            within(Some(0.03), Some(0.03)),
+            within(Some(0.03), None)
         ]
     );
     // What follows the end is never read (LinuxCNC ignores it), even what is not G-code.

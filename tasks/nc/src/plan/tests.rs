@@ -57,7 +57,11 @@ fn the_counted_cost_bounds_the_memory_of_the_program_and_its_plan() {
     let lines: String = (0..300).map(|i| format!("X{} Y{}\n", i % 2 * 30, i % 3 * 10)).collect();
     let tilts: String = (0..300).map(|i| format!("X{} A{}\n", i % 2, i % 3)).collect();
     for (model, text) in [
-        (pkm_kinematics::Machine::OxX, format!("G64 P0.01\nG1 F3000\n{spiral}")),
+        // Q0: every line its own element, the most a program of lines holds.
+        (
+            pkm_kinematics::Machine::OxX,
+            format!("G64 P0.01 Q0\nG1 F3000\n{spiral}"),
+        ),
         (pkm_kinematics::Machine::OxX, format!("G64 P0.05\nG1 F600\n{arcs}")),
         (pkm_kinematics::Machine::OxX, format!("G61\nG1 F600\n{lines}")),
         (pkm_kinematics::Machine::Hexapod, format!("G64\nG1 F300\n{tilts}")),
@@ -91,7 +95,7 @@ fn the_counted_cost_bounds_the_memory_of_the_program_and_its_plan() {
 
 /// G64 Q (LinuxCNC's naive CAM detector): a CAM program's run of short lines that stray less
 /// than Q from one straight line is run as that line — fewer corners, a shorter time — and
-/// lines that turn more than Q stay lines of their own.
+/// lines that turn more than Q stay lines of their own; without Q, within P; Q0 merges none.
 #[test]
 fn g64_q_merges_nearly_collinear_lines_within_q() {
     let zigzag: String = (1..=100)
@@ -100,9 +104,16 @@ fn g64_q_merges_nearly_collinear_lines_within_q() {
     let l = limits(3, 20.0, 100.0);
     let without = planned(
         pkm_kinematics::Machine::OxX,
+        &format!("G64 P0.01 Q0\nG1 F600\n{zigzag}"),
+        &l,
+    );
+    // G64 P alone merges within P, as LinuxCNC's naive CAM tolerance is P where Q is not given.
+    let by_p = planned(
+        pkm_kinematics::Machine::OxX,
         &format!("G64 P0.01\nG1 F600\n{zigzag}"),
         &l,
     );
+    assert_eq!(by_p.elements().len(), 2, "{}", by_p.elements().len());
     let merged = planned(
         pkm_kinematics::Machine::OxX,
         &format!("G64 P0.01 Q0.01\nG1 F600\n{zigzag}"),
