@@ -290,8 +290,8 @@ pub struct RunArgs {
     #[arg(long, value_name = "FILE")]
     pub opcua_users: Option<PathBuf>,
     /// The OPC UA server's certificate store: its certificate and key (made on first use) and
-    /// the clients' trusted/ and rejected/ certificates. Default
-    /// $XDG_DATA_HOME/pkm-plc/opcua-pki (~/.local/share/pkm-plc/opcua-pki).
+    /// the clients' trusted/ and rejected/ certificates. Default: one per machine,
+    /// $XDG_DATA_HOME/pkm-plc/opcua-pki/MACHINE (~/.local/share/pkm-plc/opcua-pki/MACHINE).
     #[arg(long, value_name = "DIR")]
     pub opcua_pki: Option<PathBuf>,
     /// The most OPC UA sessions at once.

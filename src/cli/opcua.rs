@@ -45,6 +45,7 @@ pub fn options(
         host,
         users,
         pki_dir: pki.cloned().unwrap_or_else(default_pki),
+        pki_per_machine: pki.is_none(),
         max_sessions,
     };
     options.check()?;
@@ -55,8 +56,9 @@ pub fn options(
 /// computer): 4841 … 4849, then any free one.
 const DEFAULT_NEXT_PORTS: u16 = 9;
 
-/// The default certificate store: `$XDG_DATA_HOME/pkm-plc/opcua-pki`, else
-/// `~/.local/share/pkm-plc/opcua-pki`, else `opcua-pki` here.
+/// Where the default certificate stores are, one per machine in a directory of its name:
+/// `$XDG_DATA_HOME/pkm-plc/opcua-pki`, else `~/.local/share/pkm-plc/opcua-pki`, else
+/// `opcua-pki` here.
 fn default_pki() -> PathBuf {
     let data = std::env::var_os("XDG_DATA_HOME")
         .filter(|d| !d.is_empty())

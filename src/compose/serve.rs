@@ -574,6 +574,9 @@ fn finish_trace(plc: &mut Plc) -> Result<(), Failure> {
 fn space_info(plc: &Plc, setup: &Setup, programs: Vec<String>) -> crate::services::opcua::space::SpaceInfo {
     let classes: Vec<(String, u64)> = plc.classes().map(|c| (c.name.to_string(), c.period_ns)).collect();
     let names: Vec<&str> = classes.iter().map(|(n, _)| n.as_str()).collect();
+    // The machine's limits bound some variables' ranges (a configuration the machine refuses
+    // has none: the run would not have started).
+    let motion = setup.machine.and_then(|m| m.motion(&setup.loaded.json).ok());
     let variables = plc
         .vars()
         .vars()
@@ -592,6 +595,7 @@ fn space_info(plc: &Plc, setup: &Setup, programs: Vec<String>) -> crate::service
                 None => "nobody (it keeps its default)".to_string(),
             };
             crate::services::opcua::space::VarNode {
+                range: crate::services::opcua::ranges::of(&v.name, motion.as_ref()),
                 name: v.name.clone(),
                 ty: v.ty,
                 class,

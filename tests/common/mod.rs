@@ -641,6 +641,64 @@ fn make_venv(name: &str, packages: &[(&str, &str)]) -> Result<PathBuf, String> {
     Ok(python)
 }
 
+/// The npm packages the Node.js interop clients use (exact versions: the same code on every run).
+pub const NODE_PACKAGES: [&str; 2] = ["node-opcua-client@2.186.4", "node-opcua-certificate-manager@2.186.4"];
+
+/// A `node` command that finds every one of [`NODE_PACKAGES`], installed with npm into a
+/// directory under `target/` on first use (never globally), once per test binary. `Err`: why
+/// there is none (no Node.js or npm, no registry), for the test to say it skips.
+pub fn node_interop() -> Result<std::process::Command, String> {
+    static MADE: std::sync::Mutex<Option<Result<PathBuf, String>>> = std::sync::Mutex::new(None);
+    let mut made = MADE.lock().unwrap_or_else(|p| p.into_inner());
+    let modules = made.get_or_insert_with(make_node_modules).clone()?;
+    let mut node = std::process::Command::new("node");
+    node.env("NODE_PATH", modules);
+    Ok(node)
+}
+
+fn make_node_modules() -> Result<PathBuf, String> {
+    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("interop-node");
+    let modules = dir.join("node_modules");
+    let names: Vec<&str> = NODE_PACKAGES
+        .iter()
+        .map(|p| p.rsplit_once('@').map_or(*p, |(name, _)| name))
+        .collect();
+    let requires: String = names.iter().map(|n| format!("require('{n}');")).collect();
+    let has = || {
+        std::process::Command::new("node")
+            .args(["-e", &requires])
+            .env("NODE_PATH", &modules)
+            .stderr(std::process::Stdio::null())
+            .status()
+            .is_ok_and(|s| s.success())
+    };
+    if has() {
+        return Ok(modules);
+    }
+    std::fs::create_dir_all(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+    // A package.json of its own, so npm installs here and not in a parent's project.
+    std::fs::write(
+        dir.join("package.json"),
+        r#"{"name": "pkm-plc-interop", "private": true}"#,
+    )
+    .map_err(|e| format!("{}: {e}", dir.display()))?;
+    let npm = std::process::Command::new("npm")
+        .args(["install", "--no-audit", "--no-fund", "--loglevel=error", "--prefix"])
+        .arg(&dir)
+        .args(NODE_PACKAGES)
+        .output()
+        .map_err(|e| format!("npm does not run (Debian: apt-get install nodejs npm): {e}"))?;
+    if !npm.status.success() || !has() {
+        return Err(format!(
+            "npm install {} into {} failed: {}",
+            NODE_PACKAGES.join(" "),
+            dir.display(),
+            String::from_utf8_lossy(&npm.stderr).lines().last().unwrap_or("")
+        ));
+    }
+    Ok(modules)
+}
+
 /// Replays `trace` with the configuration arguments `config` (`--config FILE` or `--machine
 /// NAME`): the replay must succeed and find every record identical.
 pub fn assert_replays_identically(trace: &Path, config: &[&str]) {

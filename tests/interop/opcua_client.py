@@ -2,15 +2,20 @@
 
     opcua_client.py survey URL MACHINE
         Browses PkmPlc/MACHINE and reads every variable: JSON on stdout with, per process-image
-        variable, its class folder, data type, IecType property, unit and value; the state; the
-        classes' figures; the methods and whether this (anonymous) session may execute them.
+        variable, its class folder, data type, type definition, IecType property, unit, EURange,
+        value and source timestamp (s since the Unix epoch); the state, as text and as MainState
+        (value, data type, type definition, EnumStrings); the Status values' data types; the
+        classes' figures; the methods and whether this (anonymous) session may execute them; the
+        server's StartTime and CurrentTime (read alone and in ServerStatus) and this computer's
+        time when they were read.
     opcua_client.py subscribe URL MACHINE SECONDS [all]
         Subscribes (publishing interval 50 ms, queue 4) to the main class's Cycles, the State and
         every JOINTn_POSITION (with `all`: every process-image variable) for SECONDS; JSON with
         the count of data changes per node and the latency of the Cycles updates (client receive
         time - source timestamp, same computer).
     opcua_client.py endpoints URL
-        The server's endpoints: JSON list of [security policy, mode, [user token types]].
+        The server's endpoints: JSON list of [security policy, mode, [user token types], URL]
+        (the URL the server advertises for each).
     opcua_client.py usercert DIR
         Makes a user certificate and key in DIR (cert.der, key.pem) for an X.509 identity token.
     opcua_client.py abandon URL N
@@ -32,6 +37,7 @@
 """
 
 import asyncio
+import datetime
 import json
 import shutil
 import sys
@@ -42,6 +48,15 @@ from asyncua import Client, ua
 from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
 
 NS = "urn:pkm-plc"
+
+
+def unix(when):
+    """Seconds since the Unix epoch of an OPC UA DateTime as asyncua gives it (UTC)."""
+    if when is None:
+        return None
+    if when.tzinfo is None:
+        when = when.replace(tzinfo=datetime.timezone.utc)
+    return when.timestamp()
 
 
 async def machine_node(client, machine):
@@ -73,11 +88,14 @@ async def survey(url, machine):
                 vname = (await var.read_browse_name()).Name
                 dv = await var.read_data_value()
                 dtype = await var.read_data_type()
+                typedef = await var.read_type_definition()
                 entry = {
                     "class": name,
                     "type": ua.object_ids.ObjectIdNames.get(dtype.Identifier, str(dtype)),
+                    "typedef": ua.object_ids.ObjectIdNames.get(typedef.Identifier, str(typedef)),
                     "variant": dv.Value.VariantType.name,
                     "value": dv.Value.Value,
+                    "source_ts": unix(dv.SourceTimestamp),
                 }
                 for prop in await var.get_properties():
                     pname = (await prop.read_browse_name()).Name
@@ -87,6 +105,8 @@ async def survey(url, machine):
                     elif pname == "EngineeringUnits":
                         entry["unit"] = value.DisplayName.Text
                         entry["unit_id"] = value.UnitId
+                    elif pname == "EURange":
+                        entry["range"] = [value.Low, value.High]
                 out["vars"][vname] = entry
         for node in await root.get_children(refs=ua.ObjectIds.HasComponent, nodeclassmask=ua.NodeClass.Method):
             name = (await node.read_browse_name()).Name
@@ -94,6 +114,32 @@ async def survey(url, machine):
             out["methods"][name] = executable.Value.Value
         for node in await (await child(root, ns, "Program")).get_children():
             out["program"].append((await node.read_browse_name()).Name)
+        main = await child(root, ns, "MainState")
+        main_type = await main.read_data_type()
+        enum_strings = await (await main.get_child(["0:EnumStrings"])).read_value()
+        out["main_state"] = {
+            "value": await main.read_value(),
+            "type": ua.object_ids.ObjectIdNames.get(main_type.Identifier, str(main_type)),
+            "typedef": ua.object_ids.ObjectIdNames.get(
+                (await main.read_type_definition()).Identifier, ""
+            ),
+            "enum_strings": [t.Text for t in enum_strings],
+        }
+        out["status"] = {}
+        for node in await (await child(root, ns, "Status")).get_children():
+            dtype = await node.read_data_type()
+            out["status"][(await node.read_browse_name()).Name] = ua.object_ids.ObjectIdNames.get(
+                dtype.Identifier, str(dtype)
+            )
+        status = client.get_node(ua.ObjectIds.Server_ServerStatus)
+        whole = await status.read_value()
+        alone = await client.get_node(ua.ObjectIds.Server_ServerStatus_CurrentTime).read_value()
+        out["server_time"] = {
+            "start": unix(whole.StartTime),
+            "current_in_status": unix(whole.CurrentTime),
+            "current": unix(alone),
+            "here": time.time(),
+        }
         print(json.dumps(out))
 
 
@@ -226,7 +272,7 @@ async def endpoints(url):
     out = []
     for e in await client.connect_and_get_server_endpoints():
         tokens = sorted(t.TokenType.name for t in e.UserIdentityTokens)
-        out.append([e.SecurityPolicyUri.split("#")[-1], e.SecurityMode.name, tokens])
+        out.append([e.SecurityPolicyUri.split("#")[-1], e.SecurityMode.name, tokens, e.EndpointUrl])
     print(json.dumps(out))
 
 

@@ -104,14 +104,16 @@ fn a_client_browses_every_variable_with_its_type_and_unit_and_subscribes_at_the_
     let mut plc = Plc::start(&["--duration", "300"]);
     // On loopback: the unsecured endpoint besides the secure ones; anonymous sessions only
     // (no users file).
+    // Each at the URL the client used: the host it asked with, the port the server was started on.
     let endpoints = client(&python, &["endpoints", &plc.url]);
+    let url = plc.url.as_str();
     assert_eq!(
         endpoints,
         serde_json::json!([
-            ["Aes256_Sha256_RsaPss", "SignAndEncrypt", ["Anonymous"]],
-            ["Basic256Sha256", "Sign", ["Anonymous"]],
-            ["Basic256Sha256", "SignAndEncrypt", ["Anonymous"]],
-            ["None", "None_", ["Anonymous"]]
+            ["Aes256_Sha256_RsaPss", "SignAndEncrypt", ["Anonymous"], url],
+            ["Basic256Sha256", "Sign", ["Anonymous"], url],
+            ["Basic256Sha256", "SignAndEncrypt", ["Anonymous"], url],
+            ["None", "None_", ["Anonymous"], url]
         ])
     );
     let survey = client(&python, &["survey", &plc.url, "trijoint"]);
@@ -148,6 +150,58 @@ fn a_client_browses_every_variable_with_its_type_and_unit_and_subscribes_at_the_
     assert!(var("counts_left").get("unit").is_none(), "a count has no unit");
     assert_eq!(var("period_duration")["iec"], "UINT");
     assert_eq!(var("HMI_STOP")["value"], false);
+    // An integrator's types: a value with a unit is an AnalogItem with its EURange where the
+    // range is known (the overrides, clamped by the PLC), else a BaseAnalog (a counter's
+    // position since power-on); a BOOL never has a unit.
+    assert_eq!(var("NC_FEED_OVERRIDE")["typedef"], "AnalogItemType");
+    assert_eq!(var("NC_FEED_OVERRIDE")["range"], serde_json::json!([0.0, 150.0]));
+    assert_eq!(var("NC_RAPID_OVERRIDE")["range"], serde_json::json!([0.0, 100.0]));
+    assert_eq!(var("JOINT1_POSITION")["typedef"], "BaseAnalogType");
+    assert_eq!(var("counts_left")["typedef"], "BaseDataVariableType");
+    for (name, v) in vars {
+        let analog = v["typedef"] == "AnalogItemType";
+        assert_eq!(
+            analog,
+            v.get("range").is_some(),
+            "{name}: an AnalogItem has its EURange: {v}"
+        );
+        if v["iec"] == "BOOL" {
+            assert!(v.get("unit").is_none(), "{name}: a BOOL with a unit: {v}");
+        }
+    }
+    // Real source timestamps: none before the server started (1970-01-01 once), none after
+    // the read; the server's CurrentTime advances (read alone and in ServerStatus).
+    let times = &survey["server_time"];
+    let (start, here) = (
+        times["start"].as_f64().expect("start"),
+        times["here"].as_f64().expect("here"),
+    );
+    for (name, v) in vars {
+        let at = v["source_ts"]
+            .as_f64()
+            .unwrap_or_else(|| panic!("{name}: no source timestamp: {v}"));
+        assert!(
+            at > start - 5.0 && at < here + 1.0,
+            "{name}: {at} (start {start}, read {here})"
+        );
+    }
+    for current in ["current", "current_in_status"] {
+        let t = times[current].as_f64().expect("a time");
+        assert!(t >= start && (t - here).abs() < 2.0, "{current}: {times}");
+    }
+    // The state as a number beside its text: a MultiStateDiscrete named by its EnumStrings.
+    let main = &survey["main_state"];
+    assert_eq!(main["typedef"], "MultiStateDiscreteType", "{main}");
+    assert_eq!(main["type"], "UInt32", "{main}");
+    assert_eq!(
+        main["enum_strings"],
+        serde_json::json!(["REBOOT", "INIT", "READY", "MOTION", "ERROR", "AUTO"])
+    );
+    // (Read a moment after the text: the referencing may have ended in between.)
+    let named = main["value"]
+        .as_u64()
+        .and_then(|v| main["enum_strings"][v as usize].as_str());
+    assert!(matches!(named, Some("REBOOT" | "INIT" | "READY")), "{main}");
     // The classes with their cycle times and figures; the program's variables; the state.
     let classes = &survey["classes"];
     for (class, ms) in [("fast", 10.0), ("main", 50.0), ("spare", 100.0)] {
@@ -245,20 +299,24 @@ fn users_on_encrypted_channels_stop_acknowledge_and_load_beyond_loopback_and_the
             &trace,
         ],
     );
-    // Beyond loopback: the secure endpoints only, each with every kind of login.
-    let endpoints = client(&python, &["endpoints", &plc.url]);
+    // Beyond loopback: the secure endpoints only, each with every kind of login, and each at
+    // the host the client asked with and the port the server was started on — here through
+    // another address than the one it was started on (every address), as a client on the
+    // lab's network reaches it.
+    let via = plc.url.replace("127.0.0.1", "127.0.0.2");
+    let endpoints = client(&python, &["endpoints", &via]);
     let logins = serde_json::json!(["Anonymous", "Certificate", "UserName"]);
     assert_eq!(
         endpoints,
         serde_json::json!([
-            ["Aes256_Sha256_RsaPss", "SignAndEncrypt", logins],
-            ["Basic256Sha256", "Sign", logins],
-            ["Basic256Sha256", "SignAndEncrypt", logins]
+            ["Aes256_Sha256_RsaPss", "SignAndEncrypt", logins, via],
+            ["Basic256Sha256", "Sign", logins, via],
+            ["Basic256Sha256", "SignAndEncrypt", logins, via]
         ])
     );
     let secure = ["--secure".to_string(), path("client"), "--pki".to_string(), pki.clone()];
     let call = |login: &[&str], steps: &[&str]| {
-        let mut args = vec!["call", plc.url.as_str(), "trijoint"];
+        let mut args = vec!["call", via.as_str(), "trijoint"];
         args.extend(secure.iter().map(String::as_str));
         args.extend_from_slice(login);
         args.extend_from_slice(steps);
@@ -343,6 +401,82 @@ fn users_on_encrypted_channels_stop_acknowledge_and_load_beyond_loopback_and_the
     common::assert_replays_identically(Path::new(&trace), &["--config", &plc.config()]);
 }
 
+/// Runs the node-opcua client script with `args`; its last stdout line as JSON.
+fn node_client(node: std::process::Command, args: &[&str]) -> Json {
+    let mut node = node;
+    let script = format!("{}/tests/interop/opcua_node_client.js", env!("CARGO_MANIFEST_DIR"));
+    let o = node.arg(script).args(args).output().expect("node runs");
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        o.status.success(),
+        "node client {args:?} failed:\n{stdout}\n{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let last = stdout.lines().last().unwrap_or_default();
+    serde_json::from_str(last).unwrap_or_else(|e| panic!("{e}: {stdout}"))
+}
+
+/// node-opcua's client (Node-RED's stack) connects with its defaults, which refuse an endpoint
+/// the server does not advertise (`endpointMustExist`): on loopback unsecured, with and without
+/// the root's `/`, and beyond it through another address than the one the server was started
+/// on, signed and encrypted, its certificate trusted as an administrator would.
+#[test]
+fn node_opcua_connects_with_its_defaults_on_loopback_and_through_another_address() {
+    let name = "opcua::node_opcua_connects_with_its_defaults_on_loopback_and_through_another_address";
+    if let Err(why) = common::node_interop() {
+        common::skip(name, &why);
+        return;
+    }
+    let node = || common::node_interop().expect("made above");
+    let mut plc = Plc::start(&["--duration", "300"]);
+    let bare = plc.url.trim_end_matches('/').to_string();
+    for url in [plc.url.as_str(), bare.as_str()] {
+        let out = node_client(node(), &["read", url, "trijoint"]);
+        assert!(matches!(out["state"].as_str(), Some("INIT" | "READY")), "{out}");
+        // Every endpoint is advertised at the URL the client used.
+        for e in out["endpoints"].as_array().expect("endpoints") {
+            assert_eq!(e[0], url, "{out}");
+        }
+    }
+    let status = plc.run.terminate();
+    assert!(status.success(), "{status}");
+
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = |name: &str| dir.path().join(name).to_str().expect("utf-8").to_string();
+    let users = dir.path().join("users.json");
+    std::fs::write(
+        &users,
+        r#"{"users": [{"name": "operator", "password": "a-long-passphrase"}]}"#,
+    )
+    .expect("users");
+    use std::os::unix::fs::PermissionsExt;
+    std::fs::set_permissions(&users, std::fs::Permissions::from_mode(0o600)).expect("chmod");
+    let pki = path("pki");
+    let mut plc = Plc::serving(
+        "opc.tcp://0.0.0.0:0",
+        &[
+            "--duration",
+            "300",
+            "--opcua-users",
+            &path("users.json"),
+            "--opcua-pki",
+            &pki,
+        ],
+    );
+    let via = plc.url.replace("127.0.0.1", "127.0.0.2");
+    let out = node_client(
+        node(),
+        &["read", &via, "trijoint", "--secure", &path("client"), "--pki", &pki],
+    );
+    assert!(matches!(out["state"].as_str(), Some("INIT" | "READY")), "{out}");
+    assert_eq!(out["untrusted_first"], true, "{out}");
+    for e in out["endpoints"].as_array().expect("endpoints") {
+        assert_eq!(e[0], via.as_str(), "{out}");
+    }
+    let status = plc.run.terminate();
+    assert!(status.success(), "{status}");
+}
+
 #[test]
 fn a_malformed_hello_is_refused_and_the_server_serves_on() {
     let plc = Plc::start(&["--duration", "30"]);
@@ -384,6 +518,70 @@ fn a_malformed_hello_is_refused_and_the_server_serves_on() {
     let log = plc.log();
     assert!(!log.contains("panic"), "{log}");
     assert!(log.contains("t=0.050 s: INIT"), "{log}");
+}
+
+/// Each machine's server has a certificate of its own, in a store of its own (by default one
+/// directory per machine): its common name and application URI name the machine, so a client
+/// trusted for one machine is not trusted for another. A store named for one machine and given
+/// to another is refused with why, before anything runs.
+#[test]
+fn each_machine_has_a_certificate_of_its_own() {
+    let data = tempfile::tempdir().expect("tempdir");
+    let run = |machine: &str, extra: &[&str]| {
+        common::pkm_command()
+            .args([
+                "run",
+                "--hmi",
+                "none",
+                "--opcua",
+                "opc.tcp://127.0.0.1:0",
+                "--duration",
+                "0.5",
+            ])
+            .args(["--machine", machine])
+            .args(extra)
+            .env("XDG_DATA_HOME", data.path())
+            .env("RUST_LOG", "warn")
+            .output()
+            .expect("the binary runs")
+    };
+    let host = std::fs::read_to_string("/proc/sys/kernel/hostname")
+        .map(|h| h.trim().to_string())
+        .unwrap_or_default();
+    let stores = data.path().join("pkm-plc/opcua-pki");
+    for machine in ["trijoint", "ox-x"] {
+        let o = run(machine, &[]);
+        assert!(o.status.success(), "{machine}: {}", common::stderr(&o));
+        let der = std::fs::read(stores.join(machine).join("own/cert.der")).expect("its certificate");
+        let cert = opcua::crypto::X509::from_der(&der).expect("a certificate");
+        assert_eq!(
+            cert.common_name().expect("a common name"),
+            format!("CN=pkm-plc ({machine})")
+        );
+        let uri = format!(
+            "urn:{}:pkm-plc:{machine}",
+            if host.is_empty() { "localhost" } else { &host }
+        );
+        assert!(cert.is_application_uri_valid(&uri).is_ok(), "{machine}: not {uri}");
+        // Started again, the machine keeps its certificate.
+        let o = run(machine, &[]);
+        assert!(o.status.success(), "{machine}: {}", common::stderr(&o));
+        assert_eq!(
+            std::fs::read(stores.join(machine).join("own/cert.der")).expect("kept"),
+            der
+        );
+    }
+    // The TRIJOINT's store given to the O-X glide.
+    let trijoint = stores.join("trijoint");
+    let o = run("ox-x", &["--opcua-pki", trijoint.to_str().expect("utf-8")]);
+    assert_eq!(o.status.code(), Some(2), "{}", common::stderr(&o));
+    let err = common::stderr(&o);
+    assert!(
+        err.contains("the certificate there was made for another server")
+            && err.contains("pkm-plc (trijoint)")
+            && err.contains(":pkm-plc:ox-x: give this machine a certificate store of its own (--opcua-pki DIR)"),
+        "{err}"
+    );
 }
 
 /// A well-formed OPC UA hello for `url` (OPC UA Part 6, 7.1.2.3).

@@ -12,6 +12,7 @@
 //!   user.
 //! - [`auth`]: anonymous sessions read; users of the users file ([`users`]) also command.
 //! - [`units`]: engineering units from the variables' names.
+//! - [`ranges`]: their EURange, where the configuration or the PLC bounds them.
 //! - [`gate`]: the bound on connections held at once.
 //!
 //! Loopback only by default. Beyond it the server needs a users file and offers only the
@@ -22,6 +23,7 @@ pub mod auth;
 pub mod gate;
 pub mod methods;
 pub mod nodes;
+pub mod ranges;
 pub mod server;
 pub mod space;
 pub mod units;
@@ -47,6 +49,11 @@ pub struct OpcUaOptions {
     pub users: Option<users::Users>,
     /// The server's certificate and key, and the clients' trusted and rejected certificates.
     pub pki_dir: PathBuf,
+    /// Whether `pki_dir` holds a store per machine (the default store: each machine's in a
+    /// directory of its name, so that each has a certificate of its own and a client trusted
+    /// for one is not trusted for the others) rather than being the store itself (as
+    /// `--opcua-pki` names it).
+    pub pki_per_machine: bool,
     /// Sessions at once.
     pub max_sessions: usize,
 }
@@ -101,6 +108,26 @@ impl OpcUaOptions {
         Ok(())
     }
 
+    /// The certificate store of `machine`'s server.
+    pub fn pki_of(&self, machine: &str) -> PathBuf {
+        if self.pki_per_machine {
+            // A directory name whatever the machine's name holds.
+            let name: String = machine
+                .chars()
+                .map(|c| {
+                    if c.is_ascii_alphanumeric() || "-_.".contains(c) {
+                        c
+                    } else {
+                        '_'
+                    }
+                })
+                .collect();
+            self.pki_dir.join(name.trim_start_matches('.'))
+        } else {
+            self.pki_dir.clone()
+        }
+    }
+
     /// Whether the server is reached from this computer only.
     pub fn loopback(&self) -> bool {
         self.addr.ip().is_loopback()
@@ -143,6 +170,7 @@ mod tests {
                 host,
                 users,
                 pki_dir: PathBuf::from("pki"),
+                pki_per_machine: false,
                 max_sessions: DEFAULT_MAX_SESSIONS,
             }
         };

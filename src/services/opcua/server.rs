@@ -56,10 +56,14 @@ pub fn start(
     let url = format!("opc.tcp://{}:{port}{ENDPOINT_PATH}", url_host(&options.host));
     let main_ms = (main_period_ns as f64 / 1e6).max(1.0);
     let anonymous = vec![opcua::server::ANONYMOUS_USER_TOKEN_ID.to_string()];
+    let pki = options.pki_of(&info.machine);
+    // One certificate per machine: its URI names the computer and the machine, and the
+    // certificate made for it says so (its common name is the application's name).
+    let application_uri = format!("urn:{}:pkm-plc:{}", host_name(), info.machine);
+    own_certificate_fits(&pki, &application_uri)?;
     let mut builder = ServerBuilder::new()
         .application_name(format!("pkm-plc ({})", info.machine))
-        // One certificate per computer, whichever machine runs: the URI names the computer.
-        .application_uri(format!("urn:{}:pkm-plc", host_name()))
+        .application_uri(application_uri)
         .product_uri("urn:pkm-plc")
         .build_info(BuildInfo {
             product_uri: "urn:pkm-plc".into(),
@@ -72,7 +76,7 @@ pub fn start(
         .discovery_urls(vec![url.clone()])
         .host(options.host.clone())
         .port(port)
-        .pki_dir(options.pki_dir.clone())
+        .pki_dir(pki.clone())
         .create_sample_keypair(true)
         .trust_client_certs(false)
         .hello_timeout(HELLO_TIMEOUT_S)
@@ -120,10 +124,10 @@ pub fn start(
     let limits = builder.limits_mut();
     limits.subscriptions.min_publishing_interval_ms = main_ms;
     limits.subscriptions.min_sampling_interval_ms = main_ms;
-    private_store(&options.pki_dir)?;
+    private_store(&pki)?;
     let (server, handle) = builder.build()?;
     // The key the library may just have made: the owner's alone.
-    let key = options.pki_dir.join("private/private.pem");
+    let key = pki.join("private/private.pem");
     if key.exists() {
         std::fs::set_permissions(&key, std::fs::Permissions::from_mode(0o600))
             .map_err(|e| format!("{}: {e}", key.display()))?;
@@ -188,6 +192,31 @@ fn private_store(pki: &std::path::Path) -> Result<(), String> {
         .map_err(|e| format!("cannot make the certificate store {}: {e}", private.display()))?;
     std::fs::set_permissions(&private, std::fs::Permissions::from_mode(0o700))
         .map_err(|e| format!("{}: {e}", private.display()))
+}
+
+/// Refuses a store whose certificate was made for another application (another machine's, or
+/// one made before certificates were per machine): clients check the server's certificate
+/// against its application URI, and a store shared by two machines would give a client trusted
+/// for one the other's trust too.
+fn own_certificate_fits(pki: &std::path::Path, application_uri: &str) -> Result<(), String> {
+    let cert = pki.join("own/cert.der");
+    let Ok(der) = std::fs::read(&cert) else {
+        // None yet: the library makes one for this machine.
+        return Ok(());
+    };
+    let x509 =
+        opcua::crypto::X509::from_der(&der).map_err(|e| format!("{}: not a certificate: {e}", cert.display()))?;
+    x509.is_application_uri_valid(application_uri).map_err(|_| {
+        format!(
+            "{}: the certificate there was made for another server ({}), not for {application_uri}: \
+             give this machine a certificate store of its own (--opcua-pki DIR), or remove {}/own and {}/private \
+             to have one made for it",
+            pki.display(),
+            x509.subject_name(),
+            pki.display(),
+            pki.display()
+        )
+    })
 }
 
 /// This computer's name (`localhost` where it cannot be read).

@@ -5,6 +5,7 @@
 //! └─ PkmPlc
 //!    └─ MACHINE                        the running machine (hexapod, trijoint, …)
 //!       ├─ State, Reason, Note         the main state, its error reason, the note to the operator
+//!       ├─ MainState                    the main state as a number (MultiStateDiscreteType)
 //!       ├─ BusFault, Configuration
 //!       ├─ Status/                      the values the main program shows (x, y, q1, …: Double)
 //!       ├─ Program/                     the NC program's variables (NC_LINE, NC_STATE, NC_RUN_S, …)
@@ -18,15 +19,18 @@
 //! A process-image variable's node id is `ns=…;s=MACHINE.NAME`, its browse name its name, its
 //! data type the OPC UA type of its IEC type (BOOL → Boolean, INT → Int16, UINT → UInt16, DINT →
 //! Int32, REAL → Double), with the IEC type itself as the property `IecType` and, where the name
-//! tells it, the unit as the property `EngineeringUnits`. Every variable is read-only.
+//! tells it, the unit as the property `EngineeringUnits`: an `AnalogItemType` with its `EURange`
+//! where the range is known ([`super::ranges`]), else a `BaseAnalogType`. Every variable is
+//! read-only.
 
 use std::collections::HashMap;
 
 use opcua::server::address_space::{AccessLevel, AddressSpace, MethodBuilder, ObjectBuilder, VariableBuilder};
 use opcua::types::{
     DataTypeId, DataValue, DateTime, EUInformation, ExtensionObject, LocalizedText, NodeId, ObjectId, QualifiedName,
-    ReferenceTypeId, UAString, VariableTypeId, Variant,
+    Range, ReferenceTypeId, StatusCode, UAString, VariableTypeId, Variant,
 };
+use pkm_api::machine::MAIN_STATES;
 
 use crate::image::{Value, VarType};
 use crate::runtime::frame::Frame;
@@ -60,6 +64,8 @@ pub struct VarNode {
     pub class: usize,
     /// Who writes it, for its description.
     pub writer: String,
+    /// The values it takes in normal operation, where known ([`super::ranges`]).
+    pub range: Option<[f64; 2]>,
 }
 
 /// The commands, as methods of the machine's object.
@@ -124,7 +130,7 @@ pub struct Space {
     machine: String,
     vars: Vec<NodeId>,
     last: Vec<Option<Value>>,
-    state: [NodeId; 4],
+    state: [NodeId; 5],
     last_state: Option<(String, String, String, bool)>,
     classes: Vec<[NodeId; 7]>,
     status_folder: NodeId,
@@ -232,7 +238,12 @@ impl Space {
     /// they changed, the classes' figures. Status values seen for the first time get their node
     /// (in `space`).
     pub fn changes(&mut self, space: &mut AddressSpace, frame: &Frame) -> Vec<(NodeId, DataValue)> {
-        let at = date_time(frame.published_unix_us);
+        // A frame not yet published (the first, before the cycle ran) carries no time: its values
+        // are the ones known now (1970-01-01 before, for every value unchanged since the start).
+        let at = match frame.published_unix_us {
+            0 => DateTime::now(),
+            us => date_time(us),
+        };
         let value = |v: Variant| DataValue {
             value: Some(v),
             status: None,
@@ -253,6 +264,19 @@ impl Space {
         let s = &frame.status;
         let state = (s.state.clone(), s.reason.clone(), s.note.clone(), frame.bus_fault);
         if self.last_state.as_ref() != Some(&state) {
+            // The state's number: its code in the automaton (EnumStrings' index); a state
+            // outside the automaton (the runtime's self-test) has none.
+            let code = MAIN_STATES.iter().position(|m| *m == state.0);
+            out.push((
+                self.state[4].clone(),
+                match code {
+                    Some(code) => value(Variant::UInt32(code as u32)),
+                    None => DataValue {
+                        status: Some(StatusCode::BadWaitingForInitialData),
+                        ..value(Variant::UInt32(0))
+                    },
+                },
+            ));
             out.push((self.state[0].clone(), value(Variant::from(state.0.as_str()))));
             out.push((self.state[1].clone(), value(Variant::from(state.1.as_str()))));
             out.push((self.state[2].clone(), value(Variant::from(state.2.as_str()))));
@@ -274,14 +298,20 @@ impl Space {
             }
         }
         for (name, v) in &s.values {
+            // The program line is a count, not a measure.
+            let (ty, v) = match *name {
+                "line" if v.is_finite() && *v >= 0.0 => (DataTypeId::UInt32, Variant::UInt32(*v as u32)),
+                "line" => (DataTypeId::UInt32, Variant::UInt32(0)),
+                _ => (DataTypeId::Double, Variant::Double(*v)),
+            };
             let node = match self.status.get(name) {
                 Some(node) => node.clone(),
                 None => {
                     let node = NodeId::new(self.ns, format!("{}.Status.{name}", self.machine));
                     VariableBuilder::new(&node, QualifiedName::new(self.ns, *name), *name)
                         .description("a value the main program shows with its state")
-                        .data_type(DataTypeId::Double)
-                        .value(*v)
+                        .data_type(ty)
+                        .value(v.clone())
                         .access_level(AccessLevel::CURRENT_READ)
                         .user_access_level(AccessLevel::CURRENT_READ)
                         .organized_by(self.status_folder.clone())
@@ -290,7 +320,7 @@ impl Space {
                     node
                 }
             };
-            out.push((node, value(Variant::Double(*v))));
+            out.push((node, value(v)));
         }
         out
     }
@@ -339,15 +369,39 @@ impl Builder<'_> {
             .insert(space);
     }
 
-    /// The main state, its reason and note, the bus fault and the configuration: the nodes of
-    /// the first four.
-    fn state(&self, space: &mut AddressSpace, info: &SpaceInfo) -> [NodeId; 4] {
+    /// The main state (as text and as a number), its reason and note, the bus fault and the
+    /// configuration: the nodes of all but the configuration.
+    fn state(&self, space: &mut AddressSpace, info: &SpaceInfo) -> [NodeId; 5] {
         let state = [
             self.id("State"),
             self.id("Reason"),
             self.id("Note"),
             self.id("BusFault"),
+            self.id("MainState"),
         ];
+        // The number beside the text, for a SCADA that maps states to numbers: a
+        // MultiStateDiscrete whose EnumStrings name each code.
+        VariableBuilder::new(&state[4], QualifiedName::new(self.ns, "MainState"), "MainState")
+            .description("the main state as a number: its code, named by EnumStrings (0 REBOOT, 1 INIT, 2 READY, 3 MOTION, 4 ERROR, 5 AUTO)")
+            .data_type(DataTypeId::UInt32)
+            .value(Variant::UInt32(0))
+            .access_level(AccessLevel::CURRENT_READ)
+            .user_access_level(AccessLevel::CURRENT_READ)
+            .has_type_definition(VariableTypeId::MultiStateDiscreteType)
+            .component_of(self.object.clone())
+            .insert(space);
+        let names: Vec<LocalizedText> = MAIN_STATES.iter().map(|m| LocalizedText::new("", m)).collect();
+        VariableBuilder::new(
+            &self.id("MainState.EnumStrings"),
+            QualifiedName::new(0, "EnumStrings"),
+            "EnumStrings",
+        )
+        .data_type(DataTypeId::LocalizedText)
+        .value_rank(1)
+        .value(Variant::from(names))
+        .has_type_definition(VariableTypeId::PropertyType)
+        .property_of(state[4].clone())
+        .insert(space);
         self.text_var(
             space,
             &state[0],
@@ -456,7 +510,8 @@ impl Builder<'_> {
         for (k, v) in info.variables.iter().enumerate() {
             let node = self.id(&v.name);
             let parent = class_vars.get(v.class).unwrap_or(classes_folder).clone();
-            let unit = super::units::of(&v.name);
+            // A BOOL is a state, never a measure (JOINT1_REFERENCE is a switch, not a length).
+            let unit = super::units::of(&v.name).filter(|_| v.ty != VarType::Bool);
             let about = match unit {
                 Some(u) => format!("{} ({}), written by {}", v.ty, u.symbol, v.writer),
                 None => format!("{}, written by {}", v.ty, v.writer),
@@ -469,10 +524,10 @@ impl Builder<'_> {
                 .access_level(AccessLevel::CURRENT_READ)
                 .user_access_level(AccessLevel::CURRENT_READ)
                 .minimum_sampling_interval(0.0)
-                .has_type_definition(if unit.is_some() {
-                    VariableTypeId::AnalogItemType
-                } else {
-                    VariableTypeId::BaseDataVariableType
+                .has_type_definition(match (unit, v.range) {
+                    (Some(_), Some(_)) => VariableTypeId::AnalogItemType,
+                    (Some(_), None) => VariableTypeId::BaseAnalogType,
+                    (None, _) => VariableTypeId::BaseDataVariableType,
                 })
                 .organized_by(parent)
                 .insert(space);
@@ -506,6 +561,14 @@ impl Builder<'_> {
                     DataTypeId::EUInformation,
                     Variant::from(ExtensionObject::from_message(eu)),
                 );
+                if let Some([low, high]) = v.range {
+                    property(
+                        space,
+                        QualifiedName::new(0, "EURange"),
+                        DataTypeId::Range,
+                        Variant::from(ExtensionObject::from_message(Range { low, high })),
+                    );
+                }
             }
             if v.name.starts_with("NC_") || v.name.starts_with("SPINDLE_") {
                 space.insert_reference(program, &node, ReferenceTypeId::Organizes);
@@ -544,5 +607,121 @@ impl Builder<'_> {
         }
 
         methods
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::runtime::snapshot::Snapshot;
+
+    fn info() -> SpaceInfo {
+        let var = |name: &str, ty: VarType, range: Option<[f64; 2]>| VarNode {
+            name: name.to_string(),
+            ty,
+            class: 0,
+            writer: "program main".into(),
+            range,
+        };
+        SpaceInfo {
+            machine: "ox-x".into(),
+            config: "ox-x.json".into(),
+            classes: vec![("main".into(), 50_000_000)],
+            variables: vec![
+                var("JOINT1_REFERENCE", VarType::Bool, None),
+                var("TOOL_X", VarType::Real, Some([-40.0, 40.0])),
+                var("JOINT1_POSITION", VarType::Real, None),
+            ],
+            programs: vec![],
+        }
+    }
+
+    fn frame(state: &str, values: Vec<(&'static str, f64)>, published_unix_us: u64) -> Frame {
+        Frame {
+            seq: 1,
+            status: Snapshot {
+                state: state.into(),
+                values,
+                ..Snapshot::default()
+            },
+            image: vec![Value::Bool(true), Value::Real(1.5), Value::Real(2.0)],
+            bus_fault: false,
+            published_unix_us,
+        }
+    }
+
+    /// The node `path` below the machine, in `space`.
+    fn node(space: &Space, path: &str) -> NodeId {
+        NodeId::new(space.ns, format!("{}.{path}", space.machine))
+    }
+
+    #[test]
+    fn the_state_has_its_number_the_line_is_an_integer_and_a_value_never_dates_from_1970() {
+        let mut address_space = AddressSpace::new();
+        address_space.add_namespace(NAMESPACE, 1);
+        let ns = 1;
+        let before = DateTime::now();
+        let first = frame("", vec![], 0);
+        let mut space = Space::build(&mut address_space, ns, &info(), &first);
+        // Before the first cycle published anything, values carry the time they were known.
+        let changes = space.changes(&mut address_space, &first);
+        assert!(!changes.is_empty());
+        for (id, v) in &changes {
+            let at = v
+                .source_timestamp
+                .unwrap_or_else(|| panic!("{id}: no source timestamp"));
+            assert!(at >= before, "{id}: {at}");
+        }
+        // No state yet: MainState waits for one.
+        let main = changes
+            .iter()
+            .find(|(id, _)| *id == node(&space, "MainState"))
+            .expect("MainState");
+        assert_eq!(main.1.status, Some(StatusCode::BadWaitingForInitialData));
+
+        let running = frame("AUTO", vec![("line", 12.0), ("x", 1.25)], 1_795_000_000_000_000);
+        let changes = space.changes(&mut address_space, &running);
+        let value = |path: &str| {
+            changes
+                .iter()
+                .find(|(id, _)| *id == node(&space, path))
+                .and_then(|(_, v)| v.value.clone())
+                .unwrap_or_else(|| panic!("{path}: no change"))
+        };
+        assert_eq!(value("MainState"), Variant::UInt32(5));
+        assert_eq!(MAIN_STATES[5], "AUTO");
+        assert_eq!(value("State"), Variant::from("AUTO"));
+        assert_eq!(value("Status.line"), Variant::UInt32(12));
+        assert_eq!(value("Status.x"), Variant::Double(1.25));
+        // The published time, not the time of the read.
+        let (_, v) = changes
+            .iter()
+            .find(|(id, _)| *id == node(&space, "State"))
+            .expect("State");
+        assert_eq!(v.source_timestamp, Some(date_time(1_795_000_000_000_000)));
+    }
+
+    #[test]
+    fn a_switch_has_no_unit_and_an_analog_item_has_its_range() {
+        let mut address_space = AddressSpace::new();
+        address_space.add_namespace(NAMESPACE, 1);
+        let ns = 1;
+        let space = Space::build(&mut address_space, ns, &info(), &frame("", vec![], 0));
+        let has = |path: &str| address_space.find(&node(&space, path)).is_some();
+        // JOINT1_REFERENCE reads as a length by its name, but it is a BOOL: a switch.
+        assert!(!has("JOINT1_REFERENCE.EngineeringUnits"));
+        assert!(has("TOOL_X.EngineeringUnits") && has("TOOL_X.EURange"));
+        // A counter's position since power-on: a unit, no range.
+        assert!(has("JOINT1_POSITION.EngineeringUnits") && !has("JOINT1_POSITION.EURange"));
+        let typed = |path: &str, ty: VariableTypeId| {
+            let ty: NodeId = ty.into();
+            let id = node(&space, path);
+            address_space.has_reference(&id, &ty, &NodeId::from(ReferenceTypeId::HasTypeDefinition))
+        };
+        assert!(typed("TOOL_X", VariableTypeId::AnalogItemType));
+        assert!(typed("JOINT1_POSITION", VariableTypeId::BaseAnalogType));
+        assert!(!typed("JOINT1_POSITION", VariableTypeId::AnalogItemType));
+        assert!(typed("JOINT1_REFERENCE", VariableTypeId::BaseDataVariableType));
+        assert!(typed("MainState", VariableTypeId::MultiStateDiscreteType));
     }
 }

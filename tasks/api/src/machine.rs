@@ -15,6 +15,10 @@ use crate::image::{Direction, Value, VarType};
 use crate::problem::Problem;
 use crate::program::ProgramInfo;
 
+/// The main automaton's states as users and clients read them, each at the index of its code
+/// in the process image: what a SCADA maps the state's number to (OPC UA's `MainState`).
+pub const MAIN_STATES: [&str; 6] = ["REBOOT", "INIT", "READY", "MOTION", "ERROR", "AUTO"];
+
 /// The configuration sections that belong to the machine (each `None` when config.json leaves it
 /// out: the machine's defaults apply).
 #[derive(Clone, Copy, Debug, Default)]

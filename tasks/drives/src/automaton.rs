@@ -357,6 +357,14 @@ impl<A: Application> Automaton<A> {
 mod tests {
     use super::*;
 
+    #[test]
+    fn the_states_names_and_codes_are_the_ones_the_interface_publishes() {
+        for state in MainState::ALL {
+            assert_eq!(pkm_api::machine::MAIN_STATES[state.code() as usize], state.name());
+        }
+        assert_eq!(pkm_api::machine::MAIN_STATES.len(), MainState::ALL.len());
+    }
+
     /// An application that records what the automaton asked of it, and answers as told.
     #[derive(Default)]
     struct Probe {

@@ -14,7 +14,7 @@ use tracing::{debug, error, warn};
 use crate::authenticator::{user_pass_security_policy_id, Password};
 use crate::diagnostics::{ServerDiagnostics, ServerDiagnosticsSummary};
 use crate::node_manager::TypeTreeForUser;
-use opcua_core::comms::url::{hostname_from_url, url_matches_except_host};
+use opcua_core::comms::url::{hostname_from_url, url_matches_except_host, url_with_replaced_hostname};
 use opcua_core::handle::AtomicHandle;
 use opcua_core::sync::RwLock;
 use opcua_crypto::{
@@ -126,11 +126,13 @@ impl ServerInfo {
             if !hostname.eq_ignore_ascii_case(&self.config.tcp_config.host) {
                 debug!("Endpoint url \"{}\" hostname supplied by caller does not match server's hostname \"{}\"", endpoint_url, &self.config.tcp_config.host);
             }
+            // pkm-plc: the endpoints carry the host the client asked with: a server on every
+            // address has no one name that every client reaches it by.
             let endpoints = self
                 .config
                 .endpoints
                 .values()
-                .map(|e| self.new_endpoint_description(e, true))
+                .map(|e| self.new_endpoint_description(e, true, Some(endpoint_url.as_ref())))
                 .collect();
             Some(endpoints)
         } else {
@@ -139,7 +141,7 @@ impl ServerInfo {
                 endpoint_url
             );
             if let Some(e) = self.config.default_endpoint() {
-                Some(vec![self.new_endpoint_description(e, true)])
+                Some(vec![self.new_endpoint_description(e, true, None)])
             } else {
                 Some(vec![])
             }
@@ -181,7 +183,8 @@ impl ServerInfo {
                 // Test end point's security_policy_uri and matching url
                 url_matches_except_host(&e.endpoint_url(&base_endpoint_url), endpoint_url)
             })
-            .map(|(_, e)| self.new_endpoint_description(e, false))
+            // pkm-plc: as in `endpoints`, on the host the client asked with.
+            .map(|(_, e)| self.new_endpoint_description(e, false, Some(endpoint_url)))
             .collect();
         if endpoints.is_empty() {
             None
@@ -195,8 +198,27 @@ impl ServerInfo {
         &self,
         endpoint: &ServerEndpoint,
         all_fields: bool,
+        requested: Option<&str>,
     ) -> EndpointDescription {
-        let base_endpoint_url = self.base_endpoint();
+        // pkm-plc: the endpoint on the host the client asked with (`requested`, the URL of its
+        // request), at the served port, written with or without the root path's `/` as the
+        // client wrote it: node-opcua's client, by default, connects only to an endpoint the
+        // server advertises, compared as text. The discovery URLs on that host too.
+        let host = requested.and_then(|r| hostname_from_url(r).ok());
+        let base_endpoint_url = self.base_endpoint_for(host.as_deref());
+        let mut endpoint_url = endpoint.endpoint_url(&base_endpoint_url);
+        if requested.is_some_and(|r| !r.ends_with('/')) && endpoint.path == "/" {
+            endpoint_url.pop();
+        }
+        let discovery_urls = self.discovery_urls().map(|urls| {
+            urls.iter()
+                .map(|u| {
+                    host.as_deref()
+                        .and_then(|h| url_with_replaced_hostname(u.as_ref(), h).ok())
+                        .map_or_else(|| u.clone(), UAString::from)
+                })
+                .collect()
+        });
 
         let user_identity_tokens = self.authenticator.user_token_policies(endpoint);
 
@@ -212,7 +234,7 @@ impl ServerInfo {
                     application_type: self.application_type(),
                     gateway_server_uri: self.gateway_server_uri(),
                     discovery_profile_uri: UAString::null(),
-                    discovery_urls: self.discovery_urls(),
+                    discovery_urls: discovery_urls.clone(),
                 },
                 self.server_certificate_as_byte_string(),
             )
@@ -225,14 +247,14 @@ impl ServerInfo {
                     application_type: self.application_type(),
                     gateway_server_uri: self.gateway_server_uri(),
                     discovery_profile_uri: UAString::null(),
-                    discovery_urls: self.discovery_urls(),
+                    discovery_urls,
                 },
                 ByteString::null(),
             )
         };
 
         EndpointDescription {
-            endpoint_url: endpoint.endpoint_url(&base_endpoint_url).into(),
+            endpoint_url: endpoint_url.into(),
             server,
             server_certificate,
             security_mode: endpoint.message_security_mode(),
@@ -285,6 +307,15 @@ impl ServerInfo {
             self.config.tcp_config.host,
             self.port.load(Ordering::Relaxed)
         )
+    }
+
+    /// pkm-plc: the base endpoint with `host` (as a client asked with) in place of the
+    /// configured host; the configured one where there is none or it does not fit in a URL.
+    pub fn base_endpoint_for(&self, host: Option<&str>) -> String {
+        let base = self.base_endpoint();
+        host.and_then(|h| url_with_replaced_hostname(&base, h).ok())
+            .map(|u| u.trim_end_matches('/').to_string())
+            .unwrap_or(base)
     }
 
     /// Get the server certificate as a byte string.

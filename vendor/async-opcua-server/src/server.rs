@@ -323,9 +323,15 @@ impl Server {
             .map_err(|e| format!("Failed to bind socket: {e:?}"))?;
         info!("Now listening for connections on {addr}");
 
+        // pkm-plc: the port the endpoints advertise is the configured one where it is set: the
+        // listener given may sit behind a relay on a port of its own, which no client reaches.
+        let advertised = match self.config.tcp_config.port {
+            0 => addr.port(),
+            configured => configured,
+        };
         self.info
             .port
-            .store(addr.port(), std::sync::atomic::Ordering::Relaxed);
+            .store(advertised, std::sync::atomic::Ordering::Relaxed);
 
         self.log_endpoint_info();
 

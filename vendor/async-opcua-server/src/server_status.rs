@@ -221,6 +221,10 @@ impl ServerStatusWrapper {
 
     /// Get the full status object as an extension object.
     pub fn full_status_obj(&self) -> ExtensionObject {
-        ExtensionObject::from_message(self.status.lock().clone())
+        // pkm-plc: the status read as a whole carries the time of the read, as its CurrentTime
+        // read alone does (it kept the time the server was built, before its start time).
+        let mut status = self.status.lock();
+        status.current_time = DateTime::now();
+        ExtensionObject::from_message(status.clone())
     }
 }
