@@ -16,6 +16,12 @@
     opcua_client.py endpoints URL
         The server's endpoints: JSON list of [security policy, mode, [user token types], URL]
         (the URL the server advertises for each).
+    opcua_client.py alarms URL MACHINE [--user NAME --password PW] STEP ...
+        Subscribes to the events of MACHINE's alarms and conditions (AlarmConditionType and its
+        subtypes) and carries out the steps in turn: refresh (ConditionRefresh), a method of the
+        machine (Stop, ...), wait=NAME:active|inactive|acked, ack=NAME (Acknowledge the
+        condition's latest event), sleep=SECONDS. JSON: every event received (name, active,
+        acked, retain, message, severity, type, user) and each step's outcome.
     opcua_client.py usercert DIR
         Makes a user certificate and key in DIR (cert.der, key.pem) for an X.509 identity token.
     opcua_client.py abandon URL N
@@ -325,6 +331,126 @@ async def usercert(directory):
     print(json.dumps({"cert": str(directory / "cert.der")}))
 
 
+class Alarms:
+    """Collects the condition events of a subscription."""
+
+    def __init__(self):
+        self.events = []
+        self.changed = asyncio.Event()
+
+    def event_notification(self, event):
+        fields = event.get_event_props_as_fields_dict()
+
+        def value(name):
+            v = fields.get(name)
+            return None if v is None else v.Value
+
+        message = value("Message")
+        self.events.append(
+            {
+                "name": value("ConditionName"),
+                "active": value("ActiveState/Id"),
+                "acked": value("AckedState/Id"),
+                "retain": value("Retain"),
+                "message": message.Text if message is not None else None,
+                "severity": value("Severity"),
+                "type": ua.object_ids.ObjectIdNames.get(value("EventType").Identifier, str(value("EventType"))),
+                "event_id": value("EventId"),
+                "condition": value("NodeId"),
+                "time": unix(value("Time")),
+                "user": value("ClientUserId"),
+            }
+        )
+        self.changed.set()
+
+    def latest(self, name):
+        for e in reversed(self.events):
+            if e["name"] == name:
+                return e
+        return None
+
+
+async def alarms(url, machine, args):
+    """Subscribes to MACHINE's condition events and carries out STEPs in turn:
+    refresh (ConditionRefresh for this subscription), a method of the machine (Stop, ...),
+    wait=NAME:active|inactive|acked (an event of that condition so, within 30 s), ack=NAME
+    (Acknowledge its latest event, comment "by the test"), sleep=SECONDS. JSON: every event
+    received and each step's outcome."""
+    user = password = None
+    steps = []
+    it = iter(args)
+    for a in it:
+        if a == "--user":
+            user = next(it)
+        elif a == "--password":
+            password = next(it)
+        else:
+            steps.append(a)
+    client = Client(url, timeout=10)
+    if user:
+        client.set_user(user)
+        client.set_password(password)
+    out = {"steps": []}
+    async with client:
+        ns, root = await machine_node(client, machine)
+        handler = Alarms()
+        sub = await client.create_subscription(50, handler)
+        await sub.subscribe_events(root, ua.ObjectIds.AlarmConditionType)
+        for step in steps:
+            entry = {"step": step}
+            try:
+                if step == "refresh":
+                    condition_type = client.get_node(ua.ObjectIds.ConditionType)
+                    await condition_type.call_method(
+                        ua.NodeId(ua.ObjectIds.ConditionType_ConditionRefresh),
+                        ua.Variant(sub.subscription_id, ua.VariantType.UInt32),
+                    )
+                    entry["status"] = "Good"
+                elif step.startswith("wait="):
+                    name, how = step[5:].split(":")
+                    deadline = time.monotonic() + 30
+                    field = {"active": ("active", True), "inactive": ("active", False), "acked": ("acked", True)}[how]
+
+                    def met():
+                        return any(e["name"] == name and e[field[0]] == field[1] for e in handler.events)
+
+                    while not met() and time.monotonic() < deadline:
+                        handler.changed.clear()
+                        try:
+                            await asyncio.wait_for(handler.changed.wait(), 1)
+                        except asyncio.TimeoutError:
+                            pass
+                    entry["status"] = "Good" if met() else "Timeout"
+                elif step.startswith("ack="):
+                    latest = handler.latest(step[4:])
+                    if latest is None:
+                        entry["status"] = "NoEvent"
+                    else:
+                        condition = client.get_node(latest["condition"])
+                        await condition.call_method(
+                            ua.NodeId(ua.ObjectIds.AcknowledgeableConditionType_Acknowledge),
+                            ua.Variant(latest["event_id"], ua.VariantType.ByteString),
+                            ua.LocalizedText("by the test"),
+                        )
+                        entry["status"] = "Good"
+                elif step.startswith("sleep="):
+                    await asyncio.sleep(float(step[6:]))
+                    entry["status"] = "Good"
+                else:
+                    method = await child(root, ns, step)
+                    await root.call_method(method)
+                    entry["status"] = "Good"
+            except ua.UaStatusCodeError as e:
+                entry["status"] = type(e).__name__
+            out["steps"].append(entry)
+        await sub.delete()
+    for e in handler.events:
+        e["event_id"] = e["event_id"].decode("utf-8", "replace") if e["event_id"] else None
+        e["condition"] = e["condition"].to_string() if e["condition"] else None
+    out["events"] = handler.events
+    print(json.dumps(out))
+
+
 def main():
     cmd, *rest = sys.argv[1:]
     if cmd == "endpoints":
@@ -346,6 +472,8 @@ def main():
         asyncio.run(subscribe(url, machine, float(rest[0]), rest[1:] == ["all"]))
     elif cmd == "call":
         asyncio.run(call(url, machine, rest))
+    elif cmd == "alarms":
+        asyncio.run(alarms(url, machine, rest))
     else:
         sys.exit(f"unknown command {cmd}")
 

@@ -401,6 +401,234 @@ fn users_on_encrypted_channels_stop_acknowledge_and_load_beyond_loopback_and_the
     common::assert_replays_identically(Path::new(&trace), &["--config", &plc.config()]);
 }
 
+/// The events of one condition, as `alarms` reports them: (active, acked, retain, message).
+fn condition_events(out: &Json, name: &str) -> Vec<(bool, bool, bool, String)> {
+    out["events"]
+        .as_array()
+        .expect("events")
+        .iter()
+        .filter(|e| e["name"] == name)
+        .map(|e| {
+            (
+                e["active"].as_bool().unwrap_or_default(),
+                e["acked"].as_bool().unwrap_or_default(),
+                e["retain"].as_bool().unwrap_or_default(),
+                e["message"].as_str().unwrap_or_default().to_string(),
+            )
+        })
+        .collect()
+}
+
+/// The outcome of each step of `alarms`.
+fn step_outcomes(out: &Json) -> Vec<(String, String)> {
+    out["steps"]
+        .as_array()
+        .expect("steps")
+        .iter()
+        .map(|s| {
+            (
+                s["step"].as_str().unwrap_or_default().to_string(),
+                s["status"].as_str().unwrap_or_default().to_string(),
+            )
+        })
+        .collect()
+}
+
+/// Alarms and conditions as a SCADA sees them: STOP raises the `Stop` condition (an
+/// AlarmConditionType, severity 600, "ERROR: STOP"); an anonymous session sees it on a refresh
+/// but may not acknowledge it; the operator's Acknowledge acknowledges the PLC (an input, so the
+/// trace replays) and the condition clears when the PLC leaves ERROR. The station vanishing
+/// raises `BusFault` (a SystemOffNormalAlarmType), then its ERROR.
+#[test]
+fn conditions_are_raised_acknowledged_and_cleared_as_the_plc_sees_them() {
+    let name = "opcua::conditions_are_raised_acknowledged_and_cleared_as_the_plc_sees_them";
+    let python = match python() {
+        Ok(p) => p,
+        Err(why) => {
+            common::skip(name, &why);
+            return;
+        }
+    };
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = |name: &str| dir.path().join(name).to_str().expect("utf-8").to_string();
+    let users = dir.path().join("users.json");
+    std::fs::write(
+        &users,
+        r#"{"users": [{"name": "operator", "password": "a-long-passphrase"}]}"#,
+    )
+    .expect("users");
+    use std::os::unix::fs::PermissionsExt;
+    std::fs::set_permissions(&users, std::fs::Permissions::from_mode(0o600)).expect("chmod");
+    let (station, address) = common::start_io_sim("127.0.0.1:0", &[]);
+    let trace = path("alarms.jsonl");
+    let mut plc = Plc::start(&[
+        "--duration",
+        "300",
+        "--bus",
+        &format!("tcp:{address}"),
+        "--opcua-users",
+        &path("users.json"),
+        "--trace",
+        &trace,
+    ]);
+    let operator = ["--user", "operator", "--password", "a-long-passphrase"];
+    let alarms = |login: &[&str], steps: &[&str]| {
+        let mut args = vec!["alarms", plc.url.as_str(), "trijoint"];
+        args.extend_from_slice(login);
+        args.extend_from_slice(steps);
+        client(&python, &args)
+    };
+    // STOP: the condition rises, unacknowledged.
+    let out = alarms(&operator, &["refresh", "Stop", "wait=Stop:active"]);
+    assert_eq!(
+        step_outcomes(&out)[1..],
+        [
+            ("Stop".into(), "Good".into()),
+            ("wait=Stop:active".into(), "Good".into())
+        ],
+        "{out}"
+    );
+    assert_eq!(
+        condition_events(&out, "Stop"),
+        [(true, false, true, "ERROR: STOP".to_string())],
+        "{out}"
+    );
+    let raised = out["events"]
+        .as_array()
+        .and_then(|e| e.iter().find(|e| e["name"] == "Stop"))
+        .expect("the Stop event");
+    assert_eq!(raised["severity"], 600, "{raised}");
+    assert_eq!(raised["type"], "AlarmConditionType", "{raised}");
+    assert_eq!(raised["condition"], "ns=2;s=trijoint.Alarms.Stop", "{raised}");
+    // A session that connects later sees it on its refresh; anonymous, it may not acknowledge.
+    let anonymous = alarms(&[], &["refresh", "wait=Stop:active", "ack=Stop"]);
+    assert_eq!(
+        step_outcomes(&anonymous),
+        [
+            ("refresh".into(), "Good".into()),
+            ("wait=Stop:active".into(), "Good".into()),
+            ("ack=Stop".into(), "BadUserAccessDenied".into())
+        ],
+        "{anonymous}\n{}",
+        plc.log()
+    );
+    // The operator acknowledges the condition: the PLC leaves ERROR and the condition clears.
+    let out = alarms(
+        &operator,
+        &["refresh", "wait=Stop:active", "ack=Stop", "wait=Stop:inactive"],
+    );
+    assert!(step_outcomes(&out).iter().all(|(_, s)| s == "Good"), "{out}");
+    let seen = condition_events(&out, "Stop");
+    assert_eq!(
+        seen[1..],
+        [
+            (true, true, true, "ERROR: STOP".to_string()),
+            (false, true, false, "REBOOT after the acknowledgement".to_string())
+        ],
+        "{out}"
+    );
+    // The station vanishes: the bus fault, then the ERROR it brings.
+    let _ = alarms(&operator, &["wait=Stop:inactive"]);
+    drop(station);
+    let out = alarms(&operator, &["refresh", "wait=BusFault:active", "sleep=2"]);
+    let bus = condition_events(&out, "BusFault");
+    assert!(bus.iter().all(|(active, acked, _, _)| *active && !acked), "{out}");
+    assert!(
+        bus.iter()
+            .any(|(_, _, _, m)| m.starts_with(&format!("ERROR: bus fault: tcp:{address}"))),
+        "{out}"
+    );
+    let bus_event = out["events"]
+        .as_array()
+        .and_then(|e| e.iter().find(|e| e["name"] == "BusFault"))
+        .expect("a BusFault event");
+    assert_eq!(bus_event["type"], "SystemOffNormalAlarmType", "{bus_event}");
+    assert_eq!(bus_event["severity"], 800, "{bus_event}");
+    let log = plc.log();
+    for line in [
+        "OPC UA: user \"operator\": Acknowledge: the error acknowledged",
+        "OPC UA: user \"operator\" acknowledged the condition Stop (by the test): ERROR: STOP",
+    ] {
+        assert!(log.contains(line), "{line}\n{log}");
+    }
+    assert!(plc.run.terminate().success(), "{}", plc.log());
+    // The acknowledgement entered the process image: the run replays.
+    common::assert_replays_identically(Path::new(&trace), &["--config", &plc.config()]);
+}
+
+/// A task class that overruns its cycle raises `CycleTime` (a SystemDiagnosticAlarmType, severity
+/// 700) naming the class and its counters, and clears it a second after the last overrun.
+#[test]
+fn overruns_raise_the_cycle_time_condition_and_it_clears() {
+    let name = "opcua::overruns_raise_the_cycle_time_condition_and_it_clears";
+    let python = match python() {
+        Ok(p) => p,
+        Err(why) => {
+            common::skip(name, &why);
+            return;
+        }
+    };
+    let dir = tempfile::tempdir().expect("tempdir");
+    // The runtime's self-test: the fast class burns 25 ms of its 10 ms cycle once in 200
+    // cycles (every 2 s), logging the overrun rather than stopping.
+    let config = dir.path().join("selftest.json");
+    std::fs::write(
+        &config,
+        r#"{"task_classes": [
+            {"name": "fast", "cycle_us": 10000, "tolerance_us": 5000, "priority": 1, "on_violation": "log",
+             "programs": [{"program": "selftest.producer", "params": {"burn_us": 25000, "burn_every": 200}}]},
+            {"name": "main", "cycle_us": 50000, "tolerance_us": 50000, "priority": 2,
+             "programs": [{"program": "selftest.consumer"}]}
+        ]}"#,
+    )
+    .expect("config");
+    let mut command = common::pkm_command();
+    command
+        .args([
+            "run",
+            "--hmi",
+            "none",
+            "--opcua",
+            "opc.tcp://127.0.0.1:0",
+            "--duration",
+            "300",
+        ])
+        .args(["--config", config.to_str().expect("utf-8")])
+        .env("RUST_LOG", "info");
+    let (mut run, announced) = common::Logged::start(command, "OPC UA server at ", Duration::from_secs(60));
+    let port = announced.rsplit(':').next().unwrap_or_default().trim_end_matches('/');
+    let url = format!("opc.tcp://127.0.0.1:{port}/");
+    let out = client(
+        &python,
+        &[
+            "alarms",
+            &url,
+            "runtime",
+            "refresh",
+            "wait=CycleTime:active",
+            "wait=CycleTime:inactive",
+        ],
+    );
+    assert!(step_outcomes(&out).iter().all(|(_, s)| s == "Good"), "{out}");
+    let seen = condition_events(&out, "CycleTime");
+    let (active, acked, _, message) = &seen[0];
+    assert!(*active && !acked, "{out}");
+    assert!(message.starts_with("task class fast: "), "{message}");
+    assert!(message.contains(" overrun(s)"), "{message}");
+    assert!(
+        seen.iter()
+            .any(|(active, _, _, m)| !active && m == "no new overrun or cycle time violation for a second"),
+        "{out}"
+    );
+    let event = out["events"]
+        .as_array()
+        .and_then(|e| e.iter().find(|e| e["name"] == "CycleTime"))
+        .expect("a CycleTime event");
+    assert_eq!(event["type"], "SystemDiagnosticAlarmType", "{event}");
+    assert_eq!(event["severity"], 700, "{event}");
+    assert!(run.terminate().success(), "{}", run.log());
+}
+
 /// Runs the node-opcua client script with `args`; its last stdout line as JSON.
 fn node_client(node: std::process::Command, args: &[&str]) -> Json {
     let mut node = node;

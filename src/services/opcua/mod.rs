@@ -10,6 +10,8 @@
 //!   screen's.
 //! - [`nodes`]: the node manager: the nodes in memory, the methods called with the session's
 //!   user.
+//! - [`conditions`], [`alarm_events`]: alarms and conditions: what goes wrong, as events a
+//!   SCADA subscribes to and acknowledges.
 //! - [`auth`]: anonymous sessions read; users of the users file ([`users`]) also command.
 //! - [`units`]: engineering units from the variables' names.
 //! - [`ranges`]: their EURange, where the configuration or the PLC bounds them.
@@ -19,7 +21,10 @@
 //! signed and encrypted endpoints (Basic256Sha256); the unsecured endpoint is offered on
 //! loopback only.
 
+pub mod alarm_events;
+pub mod alarm_methods;
 pub mod auth;
+pub mod conditions;
 pub mod gate;
 pub mod methods;
 pub mod nodes;

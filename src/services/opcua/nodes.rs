@@ -66,11 +66,16 @@ impl PlcNodes {
     pub fn set_commander(&self, commander: Commander) -> bool {
         self.commander.set(commander).is_ok()
     }
+
+    /// The methods' commander, once given.
+    pub fn commander(&self) -> Option<&Commander> {
+        self.commander.get()
+    }
 }
 
 impl Commander {
     /// Carries out `method` for `user`: logged with the user's name and the outcome.
-    fn call(&self, method: Method, args: &[Variant], user: &str) -> Result<Vec<Variant>, StatusCode> {
+    pub fn call(&self, method: Method, args: &[Variant], user: &str) -> Result<Vec<Variant>, StatusCode> {
         if !self
             .rate
             .lock()

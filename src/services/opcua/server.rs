@@ -13,7 +13,9 @@ use tokio::net::TcpListener;
 use tracing::warn;
 
 use super::OpcUaOptions;
+use super::alarm_methods::AlarmMethods;
 use super::auth::Auth;
+use super::conditions::Conditions;
 use super::methods::CallRate;
 use super::nodes::{Commander, PlcNodeManager};
 use super::space::{NAMESPACE, Space, SpaceInfo};
@@ -155,8 +157,29 @@ pub fn start(
     if !manager.inner().set_commander(commander) {
         return Err("the methods were given twice (a broken invariant of the server's start)".into());
     }
+    // The alarms and conditions, and who carries out their methods.
+    let conditions = Arc::new(Mutex::new(Conditions::new(
+        (space.object.clone(), info.machine.clone()),
+        space.reason_index,
+        |kind| {
+            space
+                .alarms
+                .iter()
+                .find(|(k, _)| *k == kind)
+                .map(|(_, node)| node.clone())
+                .unwrap_or_else(NodeId::null)
+        },
+    )));
+    let methods = AlarmMethods {
+        conditions: Arc::clone(&conditions),
+        manager: Arc::clone(&manager),
+        emitter: space.object.clone(),
+    };
+    if handle.info().condition_methods.set(Arc::new(methods)).is_err() {
+        return Err("the conditions' methods were given twice (a broken invariant of the server's start)".into());
+    }
     // The first frame's values (state texts, figures) before any client reads.
-    publish(&manager, &handle, &mut space, &first);
+    publish(&manager, &handle, &mut space, &conditions, &first);
 
     let (pump_manager, pump_handle) = (Arc::clone(&manager), handle.clone());
     let mut frames = feed;
@@ -165,7 +188,7 @@ pub fn start(
             if pump_handle.token().is_cancelled() {
                 break;
             }
-            publish(&pump_manager, &pump_handle, &mut space, &frame);
+            publish(&pump_manager, &pump_handle, &mut space, &conditions, &frame);
         }
     });
     tokio::spawn(async move {
@@ -237,12 +260,31 @@ fn url_host(host: &str) -> String {
     }
 }
 
-/// Writes `frame`'s changes and notifies the subscriptions.
-fn publish(manager: &PlcNodeManager, handle: &ServerHandle, space: &mut Space, frame: &crate::runtime::frame::Frame) {
+/// Writes `frame`'s changes and notifies the subscriptions; the conditions it changes raise
+/// their events.
+fn publish(
+    manager: &PlcNodeManager,
+    handle: &ServerHandle,
+    space: &mut Space,
+    conditions: &Mutex<Conditions>,
+    frame: &crate::runtime::frame::Frame,
+) {
     let changes = {
         let mut address_space = manager.address_space().write();
         space.changes(&mut address_space, frame)
     };
+    if frame.seq > 0 {
+        let at = changes
+            .first()
+            .and_then(|(_, v)| v.source_timestamp)
+            .unwrap_or_else(opcua::types::DateTime::now);
+        let events = conditions.lock().unwrap_or_else(|p| p.into_inner()).observe(frame, at);
+        if !events.is_empty() {
+            handle
+                .subscriptions()
+                .notify_events(events.iter().map(|e| (e as &dyn opcua::nodes::Event, &space.object)));
+        }
+    }
     let (ids, values): (Vec<NodeId>, Vec<DataValue>) = changes.into_iter().unzip();
     if let Err(e) = manager.set_values(
         handle.subscriptions(),

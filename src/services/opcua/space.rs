@@ -9,6 +9,8 @@
 //!       ├─ BusFault, Configuration
 //!       ├─ Status/                      the values the main program shows (x, y, q1, …: Double)
 //!       ├─ Program/                     the NC program's variables (NC_LINE, NC_STATE, NC_RUN_S, …)
+//!       ├─ Alarms/                      the conditions (Stop, LimitSwitch, EncoderFault, CycleTime,
+//!       │                               BusFault, Error), their events emitted on MACHINE
 //!       ├─ TaskClasses/
 //!       │  └─ CLASS/                    per task class: Cycles, Overruns, Violations, CycleTimeMs,
 //!       │     │                         LatenessMeanUs/MaxUs, ExecMeanUs/MaxUs
@@ -25,11 +27,14 @@
 
 use std::collections::HashMap;
 
+use opcua::server::address_space::EventNotifier;
 use opcua::server::address_space::{AccessLevel, AddressSpace, MethodBuilder, ObjectBuilder, VariableBuilder};
 use opcua::types::{
-    DataTypeId, DataValue, DateTime, EUInformation, ExtensionObject, LocalizedText, NodeId, ObjectId, QualifiedName,
-    Range, ReferenceTypeId, StatusCode, UAString, VariableTypeId, Variant,
+    DataTypeId, DataValue, DateTime, EUInformation, ExtensionObject, LocalizedText, MethodId, NodeId, ObjectId,
+    QualifiedName, Range, ReferenceTypeId, StatusCode, UAString, VariableTypeId, Variant,
 };
+
+use super::conditions::Kind;
 use pkm_api::machine::MAIN_STATES;
 
 use crate::image::{Value, VarType};
@@ -135,8 +140,14 @@ pub struct Space {
     classes: Vec<[NodeId; 7]>,
     status_folder: NodeId,
     status: HashMap<&'static str, NodeId>,
-    /// The machine object's node (the methods' object).
+    /// The machine object's node (the methods' object, the conditions' source and the node
+    /// their events are emitted on).
     pub object: NodeId,
+    /// The conditions' nodes ([`super::conditions`]).
+    pub alarms: Vec<(Kind, NodeId)>,
+    /// Where `error_reason` (the ERROR reason's code) is in the process image, if the run has
+    /// it.
+    pub reason_index: Option<usize>,
     /// The methods' nodes.
     pub methods: Vec<(Method, NodeId)>,
 }
@@ -203,6 +214,8 @@ impl Space {
         )
         .description(format!("The {} machine of this run", info.machine))
         .organized_by(root.clone())
+        // Its conditions' events are emitted on it (and so on the Server object).
+        .event_notifier(EventNotifier::SUBSCRIBE_TO_EVENTS)
         .insert(space);
         let b = Builder {
             ns,
@@ -219,7 +232,10 @@ impl Space {
         let (classes, class_vars) = b.classes(space, info, &classes_folder);
         let vars = b.variables(space, info, first, &class_vars, &classes_folder, &program);
         let methods = b.methods(space);
+        let alarms = b.alarms(space);
         Space {
+            alarms,
+            reason_index: info.variables.iter().position(|v| v.name == "error_reason"),
             ns,
             machine: info.machine.clone(),
             last: vec![None; vars.len()],
@@ -577,6 +593,36 @@ impl Builder<'_> {
         }
 
         vars
+    }
+
+    /// The folder `Alarms` with a condition of each kind: an object of the kind's alarm type
+    /// whose `Acknowledge` is the type's (the method clients call with the condition as its
+    /// object).
+    fn alarms(&self, space: &mut AddressSpace) -> Vec<(Kind, NodeId)> {
+        let folder = self.id("Alarms");
+        ObjectBuilder::new(&folder, QualifiedName::new(self.ns, "Alarms"), "Alarms")
+            .is_folder()
+            .description("the machine's alarms and conditions: subscribe to the events of this machine's object or the Server object")
+            .component_of(self.object.clone())
+            .insert(space);
+        Kind::ALL
+            .iter()
+            .map(|&kind| {
+                let node = self.id(&format!("Alarms.{}", kind.name()));
+                ObjectBuilder::new(&node, QualifiedName::new(self.ns, kind.name()), kind.name())
+                    .description(kind.description())
+                    .has_type_definition(kind.event_type())
+                    .organized_by(folder.clone())
+                    .insert(space);
+                space.insert_reference(
+                    &node,
+                    &NodeId::from(MethodId::AcknowledgeableConditionType_Acknowledge),
+                    ReferenceTypeId::HasComponent,
+                );
+                space.insert_reference(&self.object, &node, ReferenceTypeId::HasCondition);
+                (kind, node)
+            })
+            .collect()
     }
 
     /// The methods, with their arguments.

@@ -19,6 +19,43 @@ use crate::program::ProgramInfo;
 /// in the process image: what a SCADA maps the state's number to (OPC UA's `MainState`).
 pub const MAIN_STATES: [&str; 6] = ["REBOOT", "INIT", "READY", "MOTION", "ERROR", "AUTO"];
 
+/// What a machine's ERROR reason code (`error_reason` in the process image) says, by class: the
+/// ranges every machine's codes follow, so that a SCADA's alarms (OPC UA's conditions) tell a
+/// limit switch from an encoder fault on any machine.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ReasonClass {
+    /// No error (0).
+    None,
+    /// STOP pressed (1).
+    Stop,
+    /// A limit switch or limit input (10 … 19, 100 … 129).
+    LimitSwitch,
+    /// An implausible encoder change (20 … 29).
+    EncoderFault,
+    /// A cycle time violation the runtime reported (50).
+    CycleTime,
+    /// The field bus failed beyond its error bound (55).
+    BusFault,
+    /// Any other: a drive's bridge or following error, a referencing that failed, the
+    /// program's path.
+    Other,
+}
+
+impl ReasonClass {
+    /// The class of the ERROR reason `code`.
+    pub fn of(code: i16) -> ReasonClass {
+        match code {
+            0 => ReasonClass::None,
+            1 => ReasonClass::Stop,
+            10..=19 | 100..=129 => ReasonClass::LimitSwitch,
+            20..=29 => ReasonClass::EncoderFault,
+            50 => ReasonClass::CycleTime,
+            55 => ReasonClass::BusFault,
+            _ => ReasonClass::Other,
+        }
+    }
+}
+
 /// The configuration sections that belong to the machine (each `None` when config.json leaves it
 /// out: the machine's defaults apply).
 #[derive(Clone, Copy, Debug, Default)]

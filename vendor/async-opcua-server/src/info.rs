@@ -91,6 +91,9 @@ pub struct ServerInfo {
     pub type_loaders: RwLock<TypeLoaderCollection>,
     /// Current server diagnostics.
     pub diagnostics: ServerDiagnostics,
+    /// pkm-plc: who carries out the standard methods of conditions, once set
+    /// ([`crate::node_manager::ConditionMethods`]).
+    pub condition_methods: std::sync::OnceLock<Arc<dyn crate::node_manager::ConditionMethods>>,
 }
 
 impl ServerInfo {

@@ -183,6 +183,7 @@ impl Server {
                 enabled: config.diagnostics,
                 ..Default::default()
             },
+            condition_methods: std::sync::OnceLock::new(),
         };
 
         let certificate_store = Arc::new(RwLock::new(certificate_store));

@@ -157,3 +157,42 @@ impl ReasonTexts {
             .map_or("unknown reason", |(_, t)| t.as_str())
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use pkm_api::machine::ReasonClass;
+
+    /// The codes follow the classes every machine's codes follow (OPC UA's conditions tell the
+    /// causes apart by them).
+    #[test]
+    fn every_reason_code_is_in_its_class() {
+        for j in 0..6 {
+            assert_eq!(ReasonClass::of(Reason::Limit(j).code()), ReasonClass::LimitSwitch);
+            assert_eq!(
+                ReasonClass::of(Reason::EncoderFault(j).code()),
+                ReasonClass::EncoderFault
+            );
+            for other in [
+                Reason::BridgeError(j),
+                Reason::FollowingError(j),
+                Reason::InitTimeout(j),
+                Reason::InitFollowingError(j),
+                Reason::ReferenceStaysOn(j),
+                Reason::ReferenceNotFound(j),
+                Reason::ReferenceContradicts(j),
+            ] {
+                assert_eq!(ReasonClass::of(other.code()), ReasonClass::Other, "{other:?}");
+            }
+        }
+        // Twelve limit inputs at most (two per joint).
+        assert_eq!(ReasonClass::of(Reason::Limit(11).code()), ReasonClass::LimitSwitch);
+        assert_eq!(ReasonClass::of(Reason::Stop.code()), ReasonClass::Stop);
+        assert_eq!(
+            ReasonClass::of(Reason::CycleTimeViolation.code()),
+            ReasonClass::CycleTime
+        );
+        assert_eq!(ReasonClass::of(Reason::BusFault.code()), ReasonClass::BusFault);
+        assert_eq!(ReasonClass::of(Reason::ProgramFault.code()), ReasonClass::Other);
+    }
+}

@@ -109,3 +109,40 @@ impl Reason {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use pkm_api::machine::ReasonClass;
+
+    /// The codes follow the classes every machine's codes follow (OPC UA's conditions tell the
+    /// causes apart by them).
+    #[test]
+    fn every_reason_code_is_in_its_class() {
+        for i in 0..4 {
+            assert_eq!(ReasonClass::of(Reason::LimitSwitch(i).code()), ReasonClass::LimitSwitch);
+            for other in [
+                Reason::InitTimeout(i),
+                Reason::InitWrongSwitch(i),
+                Reason::InitFollowingError(i),
+            ] {
+                assert_eq!(ReasonClass::of(other.code()), ReasonClass::Other, "{other:?}");
+            }
+        }
+        for d in 0..2 {
+            assert_eq!(
+                ReasonClass::of(Reason::EncoderFault(d).code()),
+                ReasonClass::EncoderFault
+            );
+            assert_eq!(ReasonClass::of(Reason::BridgeError(d).code()), ReasonClass::Other);
+            assert_eq!(ReasonClass::of(Reason::FollowingError(d).code()), ReasonClass::Other);
+        }
+        assert_eq!(ReasonClass::of(Reason::Stop.code()), ReasonClass::Stop);
+        assert_eq!(
+            ReasonClass::of(Reason::CycleTimeViolation.code()),
+            ReasonClass::CycleTime
+        );
+        assert_eq!(ReasonClass::of(Reason::BusFault.code()), ReasonClass::BusFault);
+        assert_eq!(ReasonClass::of(Reason::ProgramFault.code()), ReasonClass::Other);
+    }
+}

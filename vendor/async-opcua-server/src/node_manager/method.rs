@@ -134,3 +134,15 @@ macro_rules! load_method_args {
 
     };
 }
+
+/// pkm-plc: the standard methods of conditions — `Acknowledge` (called with the condition as its
+/// object and `AcknowledgeableConditionType`'s method), `ConditionRefresh` and
+/// `ConditionRefresh2` — carried out by the server's owner. The library routes a method call to
+/// the node manager that owns the *method*, namespace 0's for these, which neither knows the
+/// owner's conditions nor lets another node manager see the call; a handler set on
+/// [`crate::info::ServerInfo::condition_methods`] sees every call first.
+pub trait ConditionMethods: Send + Sync {
+    /// Carries out `call` if it is one this handles (its status set, so that no node manager
+    /// sees it); `false` leaves it to the node managers.
+    fn call(&self, context: &super::RequestContext, call: &mut MethodCall) -> bool;
+}

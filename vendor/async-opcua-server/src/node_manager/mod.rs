@@ -45,7 +45,7 @@ pub use {
         TypeTreeReadContext,
     },
     history::{HistoryNode, HistoryResult, HistoryUpdateDetails, HistoryUpdateNode},
-    method::MethodCall,
+    method::{ConditionMethods, MethodCall},
     monitored_items::{MonitoredItemRef, MonitoredItemUpdateRef},
     node_management::{AddNodeItem, AddReferenceItem, DeleteNodeItem, DeleteReferenceItem},
     query::{ParsedNodeTypeDescription, ParsedQueryDataDescription, QueryRequest},

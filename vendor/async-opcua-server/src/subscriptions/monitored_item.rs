@@ -130,11 +130,23 @@ fn sanitize_sampling_interval(info: &ServerInfo, requested_sampling_interval: f6
     }
 }
 
+/// pkm-plc: the queue of an event monitored item that asks for 0 or 1 (OPC UA Part 4: the
+/// server's default for events). One event a publishing interval lost every other one of a
+/// condition refresh, or an acknowledgement's event when the PLC cleared the condition in the
+/// same interval.
+const DEFAULT_EVENT_QUEUE_SIZE: usize = 100;
+
 /// Takes the requested queue size and ensures it is within the range supported by the server
-fn sanitize_queue_size(info: &ServerInfo, requested_queue_size: usize) -> usize {
-    if requested_queue_size == 0 || requested_queue_size == 1 {
+fn sanitize_queue_size(info: &ServerInfo, requested_queue_size: usize, events: bool) -> usize {
+    let max = info
+        .config
+        .limits
+        .subscriptions
+        .max_monitored_item_queue_size;
+    if events && (requested_queue_size == 0 || requested_queue_size == 1) {
+        DEFAULT_EVENT_QUEUE_SIZE.min(max)
+    } else if requested_queue_size == 0 || requested_queue_size == 1 {
         // For data monitored items 0 -> 1
-        // Future - for event monitored items, queue size should be the default queue size for event notifications
         1
     // Future - for event monitored items, the minimum queue size the server requires for event notifications
     } else if requested_queue_size
@@ -169,7 +181,12 @@ impl CreateMonitoredItem {
             FilterType::from_filter(req.requested_parameters.filter, eu_range, type_tree);
         let sampling_interval =
             sanitize_sampling_interval(info, req.requested_parameters.sampling_interval);
-        let queue_size = sanitize_queue_size(info, req.requested_parameters.queue_size as usize);
+        let events = req.item_to_monitor.attribute_id == opcua_types::AttributeId::EventNotifier as u32;
+        let queue_size = sanitize_queue_size(
+            info,
+            req.requested_parameters.queue_size as usize,
+            events,
+        );
 
         let (filter, mut status) = match filter {
             Ok(s) => (s, StatusCode::BadNodeIdUnknown),
@@ -377,8 +394,11 @@ impl MonitoredItem {
         let parsed_sampling_interval =
             sanitize_sampling_interval(info, request.requested_parameters.sampling_interval);
         self.sampling_interval = parse_sampling_interval(parsed_sampling_interval);
-        self.queue_size =
-            sanitize_queue_size(info, request.requested_parameters.queue_size as usize);
+        self.queue_size = sanitize_queue_size(
+            info,
+            request.requested_parameters.queue_size as usize,
+            self.item_to_monitor.attribute_id == opcua_types::AttributeId::EventNotifier,
+        );
         self.client_handle = request.requested_parameters.client_handle;
         self.discard_oldest = request.requested_parameters.discard_oldest;
 

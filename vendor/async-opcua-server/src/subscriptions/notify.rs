@@ -227,6 +227,12 @@ impl<'a, 'b> SubscriptionEventNotifier<'a, 'b> {
         })
     }
 
+    /// pkm-plc: keeps only the notifications for the subscription `subscription_id`
+    /// (`ConditionRefresh` answers the subscription it was called for, not every one).
+    pub fn keep_only(&mut self, subscription_id: u32) {
+        self.by_subscription.retain(|id, _| *id == subscription_id);
+    }
+
     /// Notify the subscription cache of a new event for the given node ID and attribute ID.
     ///
     /// # Arguments

@@ -25,6 +25,14 @@ pub(crate) async fn call(node_managers: NodeManagers, request: Request<CallReque
         .map(|c| MethodCall::new(c, request.request.request_header.return_diagnostics))
         .collect();
 
+    // pkm-plc: the conditions' standard methods go to the owner's handler first; a call it
+    // carries out has its status set, so no node manager sees it.
+    if let Some(handler) = context.info.condition_methods.get() {
+        for call in &mut calls {
+            handler.call(&context, call);
+        }
+    }
+
     struct MethodServiceCb;
 
     impl ServiceCb<MethodCall> for MethodServiceCb {
