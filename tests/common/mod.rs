@@ -668,6 +668,8 @@ fn make_node_modules() -> Result<PathBuf, String> {
         std::process::Command::new("node")
             .args(["-e", &requires])
             .env("NODE_PATH", &modules)
+            // node-opcua says its warnings on loading on stdout.
+            .stdout(std::process::Stdio::null())
             .stderr(std::process::Stdio::null())
             .status()
             .is_ok_and(|s| s.success())

@@ -8,11 +8,12 @@
         classes' figures; the methods and whether this (anonymous) session may execute them; the
         server's StartTime and CurrentTime (read alone and in ServerStatus) and this computer's
         time when they were read.
-    opcua_client.py subscribe URL MACHINE SECONDS [all]
+    opcua_client.py subscribe URL MACHINE SECONDS [all] [events]
         Subscribes (publishing interval 50 ms, queue 4) to the main class's Cycles, the State and
-        every JOINTn_POSITION (with `all`: every process-image variable) for SECONDS; JSON with
-        the count of data changes per node and the latency of the Cycles updates (client receive
-        time - source timestamp, same computer).
+        every JOINTn_POSITION (with `all`: every process-image variable; with `events`: the
+        machine's condition events too) for SECONDS; JSON with the count of data changes per
+        node, the latency of the Cycles updates (client receive time - source timestamp, same
+        computer) and, with `events`, the count of events received.
     opcua_client.py endpoints URL
         The server's endpoints: JSON list of [security policy, mode, [user token types], URL]
         (the URL the server advertises for each).
@@ -22,6 +23,10 @@
         machine (Stop, ...), wait=NAME:active|inactive|acked, ack=NAME (Acknowledge the
         condition's latest event), sleep=SECONDS. JSON: every event received (name, active,
         acked, retain, message, severity, type, user) and each step's outcome.
+    opcua_client.py history URL MACHINE NAME SECONDS PART
+        Reads the raw history of NAME (MainState, BusFault or a process-image variable) over the
+        last SECONDS, whole and PART values a read: JSON with the values ([time, value]), the
+        reads the parts took and the values they gave.
     opcua_client.py usercert DIR
         Makes a user certificate and key in DIR (cert.der, key.pem) for an X.509 identity token.
     opcua_client.py abandon URL N
@@ -162,7 +167,7 @@ class Counter:
             self.latencies_ms.append((time.time() - ts.timestamp()) * 1000.0)
 
 
-async def subscribe(url, machine, seconds, every=False):
+async def subscribe(url, machine, seconds, every=False, events=False):
     async with Client(url, timeout=10) as client:
         ns, root = await machine_node(client, machine)
         classes = await child(root, ns, "TaskClasses")
@@ -179,8 +184,14 @@ async def subscribe(url, machine, seconds, every=False):
         handler = Counter()
         sub = await client.create_subscription(50, handler)
         await sub.subscribe_data_change(nodes, sampling_interval=50, queuesize=4)
+        if events:
+            alarms = Alarms()
+            events_sub = await client.create_subscription(50, alarms)
+            await events_sub.subscribe_events(root, ua.ObjectIds.AlarmConditionType)
         await asyncio.sleep(seconds)
         await sub.delete()
+        if events:
+            await events_sub.delete()
         lat = sorted(handler.latencies_ms)
         out = {
             "counts": {k.split(";s=")[-1]: v for k, v in handler.counts.items()},
@@ -190,6 +201,8 @@ async def subscribe(url, machine, seconds, every=False):
                 "max": lat[-1] if lat else None,
             },
         }
+        if events:
+            out["events"] = len(alarms.events)
         print(json.dumps(out))
 
 
@@ -451,6 +464,52 @@ async def alarms(url, machine, args):
     print(json.dumps(out))
 
 
+async def history(url, machine, name, seconds, part):
+    """Reads the raw history of MACHINE's variable NAME (MainState, BusFault, or a process-image
+    variable) over the last SECONDS: whole, and again PART values a read, following the
+    continuation points. JSON: the values as [time, value], the reads the parts took and how
+    many values they gave."""
+    async with Client(url, timeout=10) as client:
+        ns, root = await machine_node(client, machine)
+        node = None
+        if name in ("MainState", "BusFault"):
+            node = await child(root, ns, name)
+        else:
+            for cls in await (await child(root, ns, "TaskClasses")).get_children():
+                try:
+                    node = await cls.get_child([f"{ns}:Variables", f"{ns}:{name}"])
+                    break
+                except ua.UaStatusCodeError:
+                    continue
+        end = datetime.datetime.now(datetime.timezone.utc)
+        start = end - datetime.timedelta(seconds=seconds)
+        values = await node.read_raw_history(start, end)
+        details = ua.ReadRawModifiedDetails()
+        details.IsReadModified = False
+        details.StartTime = start
+        details.EndTime = end
+        details.NumValuesPerNode = part
+        details.ReturnBounds = False
+        reads, total, cp = 0, 0, None
+        while True:
+            result = await node.history_read(details, cp)
+            result.StatusCode.check()
+            reads += 1
+            total += len(result.HistoryData.DataValues)
+            cp = result.ContinuationPoint
+            if cp is None or reads > 10000:
+                break
+        print(
+            json.dumps(
+                {
+                    "values": [[unix(v.SourceTimestamp), v.Value.Value] for v in values],
+                    "reads": reads,
+                    "in_parts": total,
+                }
+            )
+        )
+
+
 def main():
     cmd, *rest = sys.argv[1:]
     if cmd == "endpoints":
@@ -469,11 +528,13 @@ def main():
     if cmd == "survey":
         asyncio.run(survey(url, machine))
     elif cmd == "subscribe":
-        asyncio.run(subscribe(url, machine, float(rest[0]), rest[1:] == ["all"]))
+        asyncio.run(subscribe(url, machine, float(rest[0]), "all" in rest[1:], "events" in rest[1:]))
     elif cmd == "call":
         asyncio.run(call(url, machine, rest))
     elif cmd == "alarms":
         asyncio.run(alarms(url, machine, rest))
+    elif cmd == "history":
+        asyncio.run(history(url, machine, rest[0], float(rest[1]), int(rest[2])))
     else:
         sys.exit(f"unknown command {cmd}")
 

@@ -527,6 +527,23 @@ fn conditions_are_raised_acknowledged_and_cleared_as_the_plc_sees_them() {
         ],
         "{out}"
     );
+    // What happened just now, from the history: the main state READY (or INIT) → ERROR →
+    // REBOOT → INIT, each code once, in time order; read again 5 values a read.
+    let history = client(&python, &["history", &plc.url, "trijoint", "MainState", "120", "5"]);
+    let values = history["values"].as_array().expect("values");
+    let codes: Vec<u64> = values.iter().filter_map(|v| v[1].as_u64()).collect();
+    let error_at = codes.iter().position(|c| *c == 4).expect("ERROR in the history");
+    assert_eq!(codes.get(error_at + 1), Some(&0), "REBOOT after ERROR: {history}");
+    assert!(
+        values.windows(2).all(|w| w[0][0].as_f64() <= w[1][0].as_f64()),
+        "{history}"
+    );
+    assert_eq!(history["in_parts"].as_u64(), Some(values.len() as u64), "{history}");
+    assert_eq!(
+        history["reads"].as_u64(),
+        Some((values.len() as u64).div_ceil(5).max(1)),
+        "{history}"
+    );
     // The station vanishes: the bus fault, then the ERROR it brings.
     let _ = alarms(&operator, &["wait=Stop:inactive"]);
     drop(station);

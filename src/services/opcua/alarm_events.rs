@@ -10,49 +10,27 @@ use opcua::types::{
     UAString, Variant, event_field::EventField,
 };
 
-use super::conditions::Condition;
-
-/// One event of a condition: its state when the event was made.
+/// One event of a condition: its state when the event was made (made by
+/// [`super::conditions`]).
 #[derive(Clone, Debug)]
 pub struct ConditionEvent {
-    event_id: ByteString,
-    event_type: NodeId,
-    source_node: NodeId,
-    source_name: String,
-    time: DateTime,
-    message: String,
-    severity: u16,
-    condition_id: NodeId,
-    condition_name: &'static str,
-    retain: bool,
-    active: bool,
-    acked: bool,
-    acked_by: String,
-    comment: String,
+    pub(super) event_id: ByteString,
+    pub(super) event_type: NodeId,
+    pub(super) source_node: NodeId,
+    pub(super) source_name: String,
+    pub(super) time: DateTime,
+    pub(super) message: String,
+    pub(super) severity: u16,
+    pub(super) condition_id: NodeId,
+    pub(super) condition_name: &'static str,
+    pub(super) retain: bool,
+    pub(super) active: bool,
+    pub(super) acked: bool,
+    pub(super) acked_by: String,
+    pub(super) comment: String,
 }
 
 impl ConditionEvent {
-    /// The event `id` of `condition` at `time`, raised on the machine `source` (its object and
-    /// name).
-    pub fn of(condition: &Condition, source: &(NodeId, String), id: ByteString, time: DateTime) -> ConditionEvent {
-        ConditionEvent {
-            event_id: id,
-            event_type: condition.kind.event_type().into(),
-            source_node: source.0.clone(),
-            source_name: source.1.clone(),
-            time,
-            message: condition.message.clone(),
-            severity: condition.kind.severity(),
-            condition_id: condition.node.clone(),
-            condition_name: condition.kind.name(),
-            retain: condition.retain(),
-            active: condition.active,
-            acked: condition.acked,
-            acked_by: condition.acked_by.clone(),
-            comment: condition.comment.clone(),
-        }
-    }
-
     /// Its id (an acknowledgement names it).
     pub fn event_id(&self) -> &ByteString {
         &self.event_id
@@ -166,7 +144,6 @@ impl Event for ConditionEvent {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::services::opcua::conditions::Kind;
 
     fn path(names: &[&str]) -> Vec<QualifiedName> {
         names.iter().map(|n| QualifiedName::new(0, *n)).collect()
@@ -174,20 +151,22 @@ mod tests {
 
     #[test]
     fn a_client_selects_the_fields_of_every_condition_type() {
-        let condition = Condition {
-            kind: Kind::LimitSwitch,
-            node: NodeId::new(2, "ox-x.Alarms.LimitSwitch"),
+        let e = ConditionEvent {
+            event_id: ByteString::from(b"7".to_vec()),
+            event_type: ObjectTypeId::OffNormalAlarmType.into(),
+            source_node: NodeId::new(2, "ox-x"),
+            source_name: "ox-x".into(),
+            time: DateTime::now(),
+            message: "ERROR: limit input JOINT1_LIMIT_POS".into(),
+            severity: 800,
+            condition_id: NodeId::new(2, "ox-x.Alarms.LimitSwitch"),
+            condition_name: "LimitSwitch",
+            retain: true,
             active: true,
             acked: false,
-            by_error: true,
-            message: "ERROR: limit input JOINT1_LIMIT_POS".into(),
-            event_id: ByteString::null(),
-            time: DateTime::now(),
             acked_by: String::new(),
             comment: String::new(),
         };
-        let source = (NodeId::new(2, "ox-x"), "ox-x".to_string());
-        let e = ConditionEvent::of(&condition, &source, ByteString::from(b"7".to_vec()), DateTime::now());
         let get = |attribute, names: &[&str]| {
             e.get_field(
                 &ObjectTypeId::BaseEventType.into(),

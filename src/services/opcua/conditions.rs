@@ -151,6 +151,26 @@ impl Condition {
     pub fn retain(&self) -> bool {
         self.active || !self.acked
     }
+
+    /// Its event `id` at `time`, raised on the machine `source` (its object and name).
+    pub fn event(&self, source: &(NodeId, String), id: ByteString, time: DateTime) -> ConditionEvent {
+        ConditionEvent {
+            event_id: id,
+            event_type: self.kind.event_type().into(),
+            source_node: source.0.clone(),
+            source_name: source.1.clone(),
+            time,
+            message: self.message.clone(),
+            severity: self.kind.severity(),
+            condition_id: self.node.clone(),
+            condition_name: self.kind.name(),
+            retain: self.retain(),
+            active: self.active,
+            acked: self.acked,
+            acked_by: self.acked_by.clone(),
+            comment: self.comment.clone(),
+        }
+    }
 }
 
 /// Why an acknowledgement is refused.
@@ -356,7 +376,7 @@ impl Conditions {
         self.all
             .iter()
             .filter(|c| c.retain())
-            .map(|c| ConditionEvent::of(c, &self.source, c.event_id.clone(), c.time))
+            .map(|c| c.event(&self.source, c.event_id.clone(), c.time))
             .collect()
     }
 
@@ -367,7 +387,7 @@ impl Conditions {
         let c = &mut self.all[k];
         c.event_id = id.clone();
         c.time = at;
-        ConditionEvent::of(c, &self.source, id, at)
+        c.event(&self.source, id, at)
     }
 }
 

@@ -16,6 +16,7 @@
 //! - [`units`]: engineering units from the variables' names.
 //! - [`ranges`]: their EURange, where the configuration or the PLC bounds them.
 //! - [`gate`]: the bound on connections held at once.
+//! - [`history`]: the main variables' last ten minutes, for HistoryRead.
 //!
 //! Loopback only by default. Beyond it the server needs a users file and offers only the
 //! signed and encrypted endpoints (Basic256Sha256); the unsecured endpoint is offered on
@@ -26,6 +27,7 @@ pub mod alarm_methods;
 pub mod auth;
 pub mod conditions;
 pub mod gate;
+pub mod history;
 pub mod methods;
 pub mod nodes;
 pub mod ranges;

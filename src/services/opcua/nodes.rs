@@ -3,18 +3,20 @@
 //! called with the session's user — so the log names who commanded the machine.
 
 use std::collections::HashMap;
-use std::sync::{Mutex, OnceLock};
+use std::sync::{Arc, Mutex, OnceLock};
 use std::time::Instant;
 
 use async_trait::async_trait;
+use opcua::server::ContinuationPoint;
 use opcua::server::address_space::AddressSpace;
 use opcua::server::diagnostics::NamespaceMetadata;
 use opcua::server::node_manager::memory::{InMemoryNodeManager, InMemoryNodeManagerBuilder, InMemoryNodeManagerImpl};
-use opcua::server::node_manager::{MethodCall, NodeManagerBuilder, RequestContext, ServerContext};
+use opcua::server::node_manager::{HistoryNode, MethodCall, NodeManagerBuilder, RequestContext, ServerContext};
 use opcua::sync::RwLock;
-use opcua::types::{NodeId, StatusCode, Variant};
+use opcua::types::{HistoryData, NodeId, ReadRawModifiedDetails, StatusCode, TimestampsToReturn, Variant};
 use tracing::info;
 
+use super::history::{Continuation, History};
 use super::methods::{CallRate, command};
 use super::space::{Method, NAMESPACE};
 use crate::runtime::frame::FrameFeed;
@@ -28,6 +30,7 @@ pub type PlcNodeManager = InMemoryNodeManager<PlcNodes>;
 pub struct PlcNodes {
     namespaces: Vec<NamespaceMetadata>,
     commander: OnceLock<Commander>,
+    history: OnceLock<Arc<Mutex<History>>>,
 }
 
 /// What the methods need: which node is which method, the newest frame's state, where commands
@@ -57,6 +60,7 @@ pub fn builder() -> impl NodeManagerBuilder {
                 ..Default::default()
             }],
             commander: OnceLock::new(),
+            history: OnceLock::new(),
         }
     })
 }
@@ -70,6 +74,11 @@ impl PlcNodes {
     /// The methods' commander, once given.
     pub fn commander(&self) -> Option<&Commander> {
         self.commander.get()
+    }
+
+    /// Gives the history HistoryRead reads; `false` if it had one already.
+    pub fn set_history(&self, history: Arc<Mutex<History>>) -> bool {
+        self.history.set(history).is_ok()
     }
 }
 
@@ -108,6 +117,54 @@ impl InMemoryNodeManagerImpl for PlcNodes {
 
     fn namespaces(&self) -> Vec<NamespaceMetadata> {
         self.namespaces.clone()
+    }
+
+    /// Raw values from the history kept in memory (the server has checked that each node may
+    /// be read so); modified values there are none of.
+    async fn history_read_raw_modified(
+        &self,
+        _context: &RequestContext,
+        details: &ReadRawModifiedDetails,
+        nodes: &mut [&mut &mut HistoryNode],
+        _timestamps_to_return: TimestampsToReturn,
+    ) -> Result<(), StatusCode> {
+        if details.is_read_modified {
+            return Err(StatusCode::BadHistoryOperationUnsupported);
+        }
+        let Some(history) = self.history.get() else {
+            return Err(StatusCode::BadHistoryOperationUnsupported);
+        };
+        let history = history.lock().unwrap_or_else(|p| p.into_inner());
+        for node in nodes {
+            let from = match node.continuation_point() {
+                Some(cp) => match cp.get::<Continuation>() {
+                    Some(c) => Some(c.clone()),
+                    None => {
+                        node.set_status(StatusCode::BadContinuationPointInvalid);
+                        continue;
+                    }
+                },
+                None => None,
+            };
+            let count = details.num_values_per_node as usize;
+            match history.read_raw(
+                node.node_id(),
+                details.start_time,
+                details.end_time,
+                count,
+                from.as_ref(),
+            ) {
+                Ok((values, next)) => {
+                    node.set_result(HistoryData {
+                        data_values: Some(values),
+                    });
+                    node.set_next_continuation_point(next.map(|c| ContinuationPoint::new(Box::new(c))));
+                    node.set_status(StatusCode::Good);
+                }
+                Err(refused) => node.set_status(refused.status()),
+            }
+        }
+        Ok(())
     }
 
     /// The server has checked that the method exists on its object, that the arguments fit its

@@ -4,7 +4,7 @@
 //! counter position since power-on, a time, a feed the program chooses) a `BaseAnalogType`,
 //! whose EURange is optional — rather than a range made up.
 
-use pkm_api::machine::Motion;
+use pkm_api::machine::{Motion, NO_WORLD_LIMIT};
 
 /// The range `[low, high]` of the variable `name`, if known: the world limits of a pose
 /// coordinate (where the machine has them) (`TOOL_X`, `NC_X`, `NC_TOOL_X`, …), 0 … 150 % for the feed and spindle overrides
@@ -24,10 +24,12 @@ pub fn of(name: &str, motion: Option<&Motion>) -> Option<[f64; 2]> {
         let lower = axis.to_ascii_lowercase();
         let k = motion.axes.iter().position(|a| *a == lower)?;
         // A machine without world limits (the TRIJOINT: its joints bound it) gives the
-        // kinematics' sanity bound, which is no range of normal operation.
-        return motion.world_limits.get(k).copied().filter(|[low, high]| {
-            low.abs() < pkm_kinematics::MAX_LENGTH_MM && high.abs() < pkm_kinematics::MAX_LENGTH_MM
-        });
+        // kinematics' bound on any length, which is no range of normal operation.
+        return motion
+            .world_limits
+            .get(k)
+            .copied()
+            .filter(|[low, high]| low.abs() < NO_WORLD_LIMIT && high.abs() < NO_WORLD_LIMIT);
     }
     let joint = name
         .strip_prefix("JOINT")?
@@ -62,9 +64,9 @@ mod tests {
         assert_eq!(of("NC_TOOL_Z", m), Some([-10.0, 5.0]));
         // A coordinate the machine does not have.
         assert_eq!(of("TOOL_A", m), None);
-        // No world limits: the kinematics' sanity bound.
+        // No world limits.
         let unbounded = Motion {
-            world_limits: vec![[-pkm_kinematics::MAX_LENGTH_MM, pkm_kinematics::MAX_LENGTH_MM]; 3],
+            world_limits: vec![[-NO_WORLD_LIMIT, NO_WORLD_LIMIT]; 3],
             ..motion.clone()
         };
         assert_eq!(of("TOOL_X", Some(&unbounded)), None);

@@ -16,6 +16,7 @@ use super::OpcUaOptions;
 use super::alarm_methods::AlarmMethods;
 use super::auth::Auth;
 use super::conditions::Conditions;
+use super::history::History;
 use super::methods::CallRate;
 use super::nodes::{Commander, PlcNodeManager};
 use super::space::{NAMESPACE, Space, SpaceInfo};
@@ -178,8 +179,20 @@ pub fn start(
     if handle.info().condition_methods.set(Arc::new(methods)).is_err() {
         return Err("the conditions' methods were given twice (a broken invariant of the server's start)".into());
     }
+    // The history of the main variables.
+    let history = {
+        let mut h = History::default();
+        for (node, kind) in &space.historized {
+            h.keep(node.clone(), *kind);
+        }
+        Arc::new(Mutex::new(h))
+    };
+    if !manager.inner().set_history(Arc::clone(&history)) {
+        return Err("the history was given twice (a broken invariant of the server's start)".into());
+    }
+    let kept = Kept { conditions, history };
     // The first frame's values (state texts, figures) before any client reads.
-    publish(&manager, &handle, &mut space, &conditions, &first);
+    publish(&manager, &handle, &mut space, &kept, &first);
 
     let (pump_manager, pump_handle) = (Arc::clone(&manager), handle.clone());
     let mut frames = feed;
@@ -188,7 +201,7 @@ pub fn start(
             if pump_handle.token().is_cancelled() {
                 break;
             }
-            publish(&pump_manager, &pump_handle, &mut space, &conditions, &frame);
+            publish(&pump_manager, &pump_handle, &mut space, &kept, &frame);
         }
     });
     tokio::spawn(async move {
@@ -260,19 +273,38 @@ fn url_host(host: &str) -> String {
     }
 }
 
-/// Writes `frame`'s changes and notifies the subscriptions; the conditions it changes raise
-/// their events.
+/// What the server keeps of the frames besides the nodes' values.
+struct Kept {
+    /// The alarms and conditions.
+    conditions: Arc<Mutex<Conditions>>,
+    /// The main variables' history.
+    history: Arc<Mutex<History>>,
+}
+
+/// Writes `frame`'s changes, records the historized ones and notifies the subscriptions; the
+/// conditions it changes raise their events.
 fn publish(
     manager: &PlcNodeManager,
     handle: &ServerHandle,
     space: &mut Space,
-    conditions: &Mutex<Conditions>,
+    kept: &Kept,
     frame: &crate::runtime::frame::Frame,
 ) {
     let changes = {
         let mut address_space = manager.address_space().write();
         space.changes(&mut address_space, frame)
     };
+    {
+        let mut history = kept.history.lock().unwrap_or_else(|p| p.into_inner());
+        for (node, value) in &changes {
+            if let (Some(v), Some(at)) = (&value.value, value.source_timestamp)
+                && history.keeps(node)
+            {
+                history.record(node, at, v);
+            }
+        }
+    }
+    let conditions = &kept.conditions;
     if frame.seq > 0 {
         let at = changes
             .first()

@@ -148,8 +148,16 @@ pub struct Space {
     /// Where `error_reason` (the ERROR reason's code) is in the process image, if the run has
     /// it.
     pub reason_index: Option<usize>,
+    /// The variables whose history is kept ([`super::history`]), with their kind of value.
+    pub historized: Vec<(NodeId, super::history::Kind)>,
     /// The methods' nodes.
     pub methods: Vec<(Method, NodeId)>,
+}
+
+/// Whether the history of process-image variable `v` is kept: one with a unit (a position, a
+/// speed, a feed, an override, a time) or the program's line and state.
+fn historized_var(v: &VarNode) -> bool {
+    v.ty != VarType::Bool && super::units::of(&v.name).is_some() || v.name == "NC_LINE" || v.name == "NC_STATE"
 }
 
 /// The OPC UA data type of an IEC type.
@@ -233,7 +241,26 @@ impl Space {
         let vars = b.variables(space, info, first, &class_vars, &classes_folder, &program);
         let methods = b.methods(space);
         let alarms = b.alarms(space);
+        let mut historized = vec![
+            (state[4].clone(), super::history::Kind::UInt32),
+            (state[3].clone(), super::history::Kind::Bool),
+        ];
+        historized.extend(
+            info.variables
+                .iter()
+                .zip(&vars)
+                .filter(|(v, _)| historized_var(v))
+                .filter_map(|(v, node)| super::history::Kind::of(data_type(v.ty)).map(|k| (node.clone(), k))),
+        );
+        for (node, _) in &historized {
+            if let Some(opcua::server::address_space::NodeType::Variable(var)) = space.find_mut(node) {
+                var.set_access_level(AccessLevel::CURRENT_READ | AccessLevel::HISTORY_READ);
+                var.set_user_access_level(AccessLevel::CURRENT_READ | AccessLevel::HISTORY_READ);
+                var.set_historizing(true);
+            }
+        }
         Space {
+            historized,
             alarms,
             reason_index: info.variables.iter().position(|v| v.name == "error_reason"),
             ns,

@@ -15,6 +15,10 @@ use crate::image::{Direction, Value, VarType};
 use crate::problem::Problem;
 use crate::program::ProgramInfo;
 
+/// The world limit of a machine without world limits (its joints bound it): the kinematics'
+/// bound on any length (mm), past any lab model's travel.
+pub const NO_WORLD_LIMIT: f64 = 10_000.0;
+
 /// The main automaton's states as users and clients read them, each at the index of its code
 /// in the process image: what a SCADA maps the state's number to (OPC UA's `MainState`).
 pub const MAIN_STATES: [&str; 6] = ["REBOOT", "INIT", "READY", "MOTION", "ERROR", "AUTO"];
@@ -130,7 +134,8 @@ pub struct Motion {
     pub home: Home,
     /// The joints' software limits, `[min, max]` (mm).
     pub soft_limits: Vec<[f64; 2]>,
-    /// The world limits per coordinate of the machine frame, `[min, max]`.
+    /// The world limits per coordinate of the machine frame, `[min, max]`; ±[`NO_WORLD_LIMIT`]
+    /// where the machine has none (its joints bound it).
     pub world_limits: Vec<[f64; 2]>,
     /// The tool is never commanded where the singularity measure is below this.
     pub singularity_threshold: f64,

@@ -259,7 +259,7 @@ impl KinematicsConfig {
 }
 
 /// The largest length or travel end a machine of the papers' scale has (mm): 10 m.
-pub const MAX_LENGTH_MM: f64 = 10_000.0;
+pub const MAX_LENGTH_MM: f64 = pkm_api::machine::NO_WORLD_LIMIT;
 
 /// Helpers for parameter checks.
 pub(crate) fn positive(problems: &mut Vec<Problem>, path: &str, value: f64) {

@@ -114,7 +114,7 @@ impl Machine for Trijoint {
             // M's frame is the mechanism's; referencing ends at the start position.
             home: Home::Joints(p.start_position(t).to_vec()),
             soft_limits: travel.iter().map(|t| [m, t - m]).collect(),
-            world_limits: vec![[-pkm_kinematics::MAX_LENGTH_MM, pkm_kinematics::MAX_LENGTH_MM]; 2],
+            world_limits: vec![[-pkm_api::machine::NO_WORLD_LIMIT, pkm_api::machine::NO_WORLD_LIMIT]; 2],
             singularity_threshold: p.singularity_threshold,
             joint_speed: vec![p.max_joint_speed_mm_s; 2],
             joint_accel: vec![p.brake_decel_mm_s2; 2],
