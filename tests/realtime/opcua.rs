@@ -466,6 +466,12 @@ fn conditions_are_raised_acknowledged_and_cleared_as_the_plc_sees_them() {
         "300",
         "--bus",
         &format!("tcp:{address}"),
+        // A busy machine's loopback link may be slower than the drives are tuned for: this test
+        // is about the conditions, not the link's speed (the vanished station is its bus fault).
+        "--max-input-age-ms",
+        "500",
+        "--max-exchange-ms",
+        "50",
         "--opcua-users",
         &path("users.json"),
         "--trace",
@@ -627,9 +633,11 @@ fn overruns_raise_the_cycle_time_condition_and_it_clears() {
         ],
     );
     assert!(step_outcomes(&out).iter().all(|(_, s)| s == "Good"), "{out}");
+    // (A busy machine may have overrun before the client came: the refresh then shows that
+    // condition, cleared and not acknowledged, first.)
     let seen = condition_events(&out, "CycleTime");
-    let (active, acked, _, message) = &seen[0];
-    assert!(*active && !acked, "{out}");
+    let (_, acked, _, message) = seen.iter().find(|(active, ..)| *active).expect("an active CycleTime");
+    assert!(!acked, "{out}");
     assert!(message.starts_with("task class fast: "), "{message}");
     assert!(message.contains(" overrun(s)"), "{message}");
     assert!(
