@@ -72,12 +72,15 @@ impl Plc {
 
 /// Runs the client script with `args`; its last stdout line as JSON.
 fn client(python: &Path, args: &[&str]) -> Json {
-    let script = format!("{}/tests/interop/opcua_client.py", env!("CARGO_MANIFEST_DIR"));
-    let o = Command::new(python)
-        .arg(script)
-        .args(args)
-        .output()
-        .expect("the client runs");
+    let mut command = Command::new(python);
+    command.arg(format!("{}/tests/interop/opcua_client.py", env!("CARGO_MANIFEST_DIR")));
+    last_json(command, args)
+}
+
+/// Runs `command` (a client script, its interpreter and path) with `args`: it must succeed, and
+/// its last stdout line is its answer, as JSON.
+fn last_json(mut command: Command, args: &[&str]) -> Json {
+    let o = command.args(args).output().expect("the client runs");
     let stdout = String::from_utf8_lossy(&o.stdout);
     assert!(
         o.status.success(),
@@ -655,18 +658,12 @@ fn overruns_raise_the_cycle_time_condition_and_it_clears() {
 }
 
 /// Runs the node-opcua client script with `args`; its last stdout line as JSON.
-fn node_client(node: std::process::Command, args: &[&str]) -> Json {
-    let mut node = node;
-    let script = format!("{}/tests/interop/opcua_node_client.js", env!("CARGO_MANIFEST_DIR"));
-    let o = node.arg(script).args(args).output().expect("node runs");
-    let stdout = String::from_utf8_lossy(&o.stdout);
-    assert!(
-        o.status.success(),
-        "node client {args:?} failed:\n{stdout}\n{}",
-        String::from_utf8_lossy(&o.stderr)
-    );
-    let last = stdout.lines().last().unwrap_or_default();
-    serde_json::from_str(last).unwrap_or_else(|e| panic!("{e}: {stdout}"))
+fn node_client(mut node: Command, args: &[&str]) -> Json {
+    node.arg(format!(
+        "{}/tests/interop/opcua_node_client.js",
+        env!("CARGO_MANIFEST_DIR")
+    ));
+    last_json(node, args)
 }
 
 /// node-opcua's client (Node-RED's stack) connects with its defaults, which refuse an endpoint
