@@ -21,6 +21,31 @@ fn python() -> Result<PathBuf, String> {
     common::python_interop().map_err(|e| format!("no asyncua: {e}"))
 }
 
+/// The virtual environment's Python, or `None` once the test `name` has said why it skips.
+fn python_or_skip(name: &str) -> Option<PathBuf> {
+    python().map_err(|why| common::skip(name, &why)).ok()
+}
+
+/// Writes the users file `users.json` holding `users` into `dir` with `mode`; its path.
+fn users_file(dir: &Path, users: &str, mode: u32) -> PathBuf {
+    use std::os::unix::fs::PermissionsExt;
+    let file = dir.join("users.json");
+    std::fs::write(&file, users).expect("users");
+    std::fs::set_permissions(&file, std::fs::Permissions::from_mode(mode)).expect("chmod");
+    file
+}
+
+/// The users file of the one operator with a password.
+const OPERATOR: &str = r#"{"users": [{"name": "operator", "password": "a-long-passphrase"}]}"#;
+
+/// The first event of condition `name` in `alarms`' answer.
+fn first_event<'a>(out: &'a Json, name: &str) -> &'a Json {
+    out["events"]
+        .as_array()
+        .and_then(|e| e.iter().find(|e| e["name"] == name))
+        .unwrap_or_else(|| panic!("no {name} event: {out}"))
+}
+
 /// A running `pkm-plc run` with its OPC UA server, killed when dropped.
 struct Plc {
     run: common::Logged,
@@ -93,15 +118,10 @@ fn last_json(mut command: Command, args: &[&str]) -> Json {
 
 #[test]
 fn a_client_browses_every_variable_with_its_type_and_unit_and_subscribes_at_the_main_cycle_rate() {
-    let python = match python() {
-        Ok(p) => p,
-        Err(why) => {
-            common::skip(
-                "opcua::a_client_browses_every_variable_with_its_type_and_unit_and_subscribes_at_the_main_cycle_rate",
-                &why,
-            );
-            return;
-        }
+    let Some(python) = python_or_skip(
+        "opcua::a_client_browses_every_variable_with_its_type_and_unit_and_subscribes_at_the_main_cycle_rate",
+    ) else {
+        return;
     };
     // Ended by SIGTERM once the clients are done (each takes seconds on a busy machine).
     let mut plc = Plc::start(&["--duration", "300"]);
@@ -264,28 +284,20 @@ fn a_client_browses_every_variable_with_its_type_and_unit_and_subscribes_at_the_
 
 #[test]
 fn users_on_encrypted_channels_stop_acknowledge_and_load_beyond_loopback_and_the_trace_replays() {
-    let python = match python() {
-        Ok(p) => p,
-        Err(why) => {
-            common::skip(
-                "opcua::users_on_encrypted_channels_stop_acknowledge_and_load_beyond_loopback_and_the_trace_replays",
-                &why,
-            );
-            return;
-        }
+    let Some(python) = python_or_skip(
+        "opcua::users_on_encrypted_channels_stop_acknowledge_and_load_beyond_loopback_and_the_trace_replays",
+    ) else {
+        return;
     };
     let dir = tempfile::tempdir().expect("tempdir");
     let path = |name: &str| dir.path().join(name).to_str().expect("utf-8").to_string();
     // A user who logs in with a password, one with a certificate (made by the client's tools).
     client(&python, &["usercert", &path("cell-7")]);
-    let users = dir.path().join("users.json");
-    std::fs::write(
-        &users,
+    users_file(
+        dir.path(),
         r#"{"users": [{"name": "operator", "password": "a-long-passphrase"}, {"name": "cell-7", "certificate": "cell-7/cert.der"}]}"#,
-    )
-    .expect("users");
-    use std::os::unix::fs::PermissionsExt;
-    std::fs::set_permissions(&users, std::fs::Permissions::from_mode(0o600)).expect("chmod");
+        0o600,
+    );
     let (pki, trace) = (path("pki"), path("opcua.jsonl"));
     // On every address (so with users), as on the lab's network.
     // Ended by SIGTERM once the clients are done (each client takes seconds on a busy machine).
@@ -445,23 +457,12 @@ fn step_outcomes(out: &Json) -> Vec<(String, String)> {
 #[test]
 fn conditions_are_raised_acknowledged_and_cleared_as_the_plc_sees_them() {
     let name = "opcua::conditions_are_raised_acknowledged_and_cleared_as_the_plc_sees_them";
-    let python = match python() {
-        Ok(p) => p,
-        Err(why) => {
-            common::skip(name, &why);
-            return;
-        }
+    let Some(python) = python_or_skip(name) else {
+        return;
     };
     let dir = tempfile::tempdir().expect("tempdir");
     let path = |name: &str| dir.path().join(name).to_str().expect("utf-8").to_string();
-    let users = dir.path().join("users.json");
-    std::fs::write(
-        &users,
-        r#"{"users": [{"name": "operator", "password": "a-long-passphrase"}]}"#,
-    )
-    .expect("users");
-    use std::os::unix::fs::PermissionsExt;
-    std::fs::set_permissions(&users, std::fs::Permissions::from_mode(0o600)).expect("chmod");
+    users_file(dir.path(), OPERATOR, 0o600);
     let (station, address) = common::start_io_sim("127.0.0.1:0", &[]);
     let trace = path("alarms.jsonl");
     let mut plc = Plc::start(&[
@@ -502,10 +503,7 @@ fn conditions_are_raised_acknowledged_and_cleared_as_the_plc_sees_them() {
         [(true, false, true, "ERROR: STOP".to_string())],
         "{out}"
     );
-    let raised = out["events"]
-        .as_array()
-        .and_then(|e| e.iter().find(|e| e["name"] == "Stop"))
-        .expect("the Stop event");
+    let raised = first_event(&out, "Stop");
     assert_eq!(raised["severity"], 600, "{raised}");
     assert_eq!(raised["type"], "AlarmConditionType", "{raised}");
     assert_eq!(raised["condition"], "ns=2;s=trijoint.Alarms.Stop", "{raised}");
@@ -564,10 +562,7 @@ fn conditions_are_raised_acknowledged_and_cleared_as_the_plc_sees_them() {
             .any(|(_, _, _, m)| m.starts_with(&format!("ERROR: bus fault: tcp:{address}"))),
         "{out}"
     );
-    let bus_event = out["events"]
-        .as_array()
-        .and_then(|e| e.iter().find(|e| e["name"] == "BusFault"))
-        .expect("a BusFault event");
+    let bus_event = first_event(&out, "BusFault");
     assert_eq!(bus_event["type"], "SystemOffNormalAlarmType", "{bus_event}");
     assert_eq!(bus_event["severity"], 800, "{bus_event}");
     let log = plc.log();
@@ -587,12 +582,8 @@ fn conditions_are_raised_acknowledged_and_cleared_as_the_plc_sees_them() {
 #[test]
 fn overruns_raise_the_cycle_time_condition_and_it_clears() {
     let name = "opcua::overruns_raise_the_cycle_time_condition_and_it_clears";
-    let python = match python() {
-        Ok(p) => p,
-        Err(why) => {
-            common::skip(name, &why);
-            return;
-        }
+    let Some(python) = python_or_skip(name) else {
+        return;
     };
     let dir = tempfile::tempdir().expect("tempdir");
     // The runtime's self-test: the fast class burns 25 ms of its 10 ms cycle once in 200
@@ -648,10 +639,7 @@ fn overruns_raise_the_cycle_time_condition_and_it_clears() {
             .any(|(active, _, _, m)| !active && m == "no new overrun or cycle time violation for a second"),
         "{out}"
     );
-    let event = out["events"]
-        .as_array()
-        .and_then(|e| e.iter().find(|e| e["name"] == "CycleTime"))
-        .expect("a CycleTime event");
+    let event = first_event(&out, "CycleTime");
     assert_eq!(event["type"], "SystemDiagnosticAlarmType", "{event}");
     assert_eq!(event["severity"], 700, "{event}");
     assert!(run.terminate().success(), "{}", run.log());
@@ -693,14 +681,7 @@ fn node_opcua_connects_with_its_defaults_on_loopback_and_through_another_address
 
     let dir = tempfile::tempdir().expect("tempdir");
     let path = |name: &str| dir.path().join(name).to_str().expect("utf-8").to_string();
-    let users = dir.path().join("users.json");
-    std::fs::write(
-        &users,
-        r#"{"users": [{"name": "operator", "password": "a-long-passphrase"}]}"#,
-    )
-    .expect("users");
-    use std::os::unix::fs::PermissionsExt;
-    std::fs::set_permissions(&users, std::fs::Permissions::from_mode(0o600)).expect("chmod");
+    users_file(dir.path(), OPERATOR, 0o600);
     let pki = path("pki");
     let mut plc = Plc::serving(
         "opc.tcp://0.0.0.0:0",
@@ -874,14 +855,8 @@ fn serving_beyond_loopback_needs_users_and_the_options_are_checked_before_anythi
     let (code, err) = run(&["--opcua", "http://127.0.0.1:4840"]);
     assert_eq!(code, Some(2), "{err}");
     assert!(err.contains("an OPC UA endpoint is opc.tcp://HOST:PORT"), "{err}");
-    let users = dir.path().join("users.json");
-    std::fs::write(
-        &users,
-        r#"{"users": [{"name": "operator", "password": "a-long-passphrase"}]}"#,
-    )
-    .expect("users");
-    use std::os::unix::fs::PermissionsExt;
-    std::fs::set_permissions(&users, std::fs::Permissions::from_mode(0o644)).expect("chmod");
+    // Others may read it.
+    let users = users_file(dir.path(), OPERATOR, 0o644);
     let users = users.to_str().expect("utf-8");
     let (code, err) = run(&["--opcua", "opc.tcp://127.0.0.1:0", "--opcua-users", users]);
     assert_eq!(code, Some(2), "{err}");
