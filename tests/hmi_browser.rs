@@ -19,6 +19,15 @@ use futures::StreamExt;
 /// Why a browser test cannot run here.
 const NO_CHROMIUM: &str = "no Chromium here (apt-get install chromium)";
 
+/// The Chromium to drive, or `None` once the test `name` has said why it skips.
+fn chromium_or_skip(name: &str) -> Option<std::path::PathBuf> {
+    let found = chromium();
+    if found.is_none() {
+        common::skip(name, NO_CHROMIUM);
+    }
+    found
+}
+
 /// At most two tests at once, whatever libtest's thread count: each runs a PLC in real time and
 /// most a browser, which take little CPU (the eight tests: 12 CPU-seconds in 51 s one at a time)
 /// but come in bursts; two side by side leave a 2-core machine room for those bursts (and for
@@ -180,11 +189,9 @@ async fn click(page: &Page, selector: &str) {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_page_shows_referencing_jogs_while_held_stops_and_acknowledges() {
-    let Some(chromium) = chromium() else {
-        common::skip(
-            "hmi_browser::the_page_shows_referencing_jogs_while_held_stops_and_acknowledges",
-            NO_CHROMIUM,
-        );
+    let Some(chromium) =
+        chromium_or_skip("hmi_browser::the_page_shows_referencing_jogs_while_held_stops_and_acknowledges")
+    else {
         return;
     };
     let _turn = take_turn().await;
@@ -593,11 +600,8 @@ async fn until_state(
 /// through Chromium's host resolver rules): nothing it sends reaches the process image.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_page_of_another_origin_or_a_rebound_name_reaches_nothing() {
-    let Some(chromium) = chromium() else {
-        common::skip(
-            "hmi_browser::a_page_of_another_origin_or_a_rebound_name_reaches_nothing",
-            NO_CHROMIUM,
-        );
+    let Some(chromium) = chromium_or_skip("hmi_browser::a_page_of_another_origin_or_a_rebound_name_reaches_nothing")
+    else {
         return;
     };
     let _turn = take_turn().await;
@@ -685,11 +689,9 @@ async fn a_page_of_another_origin_or_a_rebound_name_reaches_nothing() {
 /// reload without it in the address still commands.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_watching_page_shows_its_controls_disabled_and_the_token_leaves_the_address() {
-    let Some(chromium) = chromium() else {
-        common::skip(
-            "hmi_browser::a_watching_page_shows_its_controls_disabled_and_the_token_leaves_the_address",
-            NO_CHROMIUM,
-        );
+    let Some(chromium) =
+        chromium_or_skip("hmi_browser::a_watching_page_shows_its_controls_disabled_and_the_token_leaves_the_address")
+    else {
         return;
     };
     let _turn = take_turn().await;
@@ -892,11 +894,9 @@ async fn watched(page: &Page, name: &str) -> String {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_screen_sets_the_overrides_steps_a_program_line_by_line_runs_mdi_and_runs_from_a_line() {
-    let Some(chromium) = chromium() else {
-        common::skip(
-            "hmi_browser::the_screen_sets_the_overrides_steps_a_program_line_by_line_runs_mdi_and_runs_from_a_line",
-            NO_CHROMIUM,
-        );
+    let Some(chromium) = chromium_or_skip(
+        "hmi_browser::the_screen_sets_the_overrides_steps_a_program_line_by_line_runs_mdi_and_runs_from_a_line",
+    ) else {
         return;
     };
     let _turn = take_turn().await;
@@ -1077,11 +1077,9 @@ async fn the_screen_sets_the_overrides_steps_a_program_line_by_line_runs_mdi_and
 /// table and the job's offsets), and the program's messages are in the log.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_screen_asks_for_the_tool_of_a_manual_tool_change_and_shows_the_programs_message() {
-    let Some(chromium) = chromium() else {
-        common::skip(
-            "hmi_browser::the_screen_asks_for_the_tool_of_a_manual_tool_change_and_shows_the_programs_message",
-            NO_CHROMIUM,
-        );
+    let Some(chromium) = chromium_or_skip(
+        "hmi_browser::the_screen_asks_for_the_tool_of_a_manual_tool_change_and_shows_the_programs_message",
+    ) else {
         return;
     };
     let _turn = take_turn().await;
@@ -1219,11 +1217,9 @@ async fn the_screen_asks_for_the_tool_of_a_manual_tool_change_and_shows_the_prog
 /// alarm history with who acknowledged. Screenshots for docs/hmi.md with PKM_SCREENSHOTS=DIR.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_screen_shows_a_dro_steps_the_jog_keeps_an_alarm_history_and_dims_the_mechanism_in_error() {
-    let Some(chromium) = chromium() else {
-        common::skip(
-            "hmi_browser::the_screen_shows_a_dro_steps_the_jog_keeps_an_alarm_history_and_dims_the_mechanism_in_error",
-            NO_CHROMIUM,
-        );
+    let Some(chromium) = chromium_or_skip(
+        "hmi_browser::the_screen_shows_a_dro_steps_the_jog_keeps_an_alarm_history_and_dims_the_mechanism_in_error",
+    ) else {
         return;
     };
     let _turn = take_turn().await;
