@@ -25,7 +25,7 @@ const TICKS_PER_S: i64 = 10_000_000;
 
 /// How a series' numbers are read back.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Kind {
+pub enum ValueKind {
     /// Boolean.
     Bool,
     /// Int16.
@@ -40,16 +40,16 @@ pub enum Kind {
     Double,
 }
 
-impl Kind {
+impl ValueKind {
     /// The kind of values of `data_type`, if it is kept.
-    pub fn of(data_type: DataTypeId) -> Option<Kind> {
+    pub fn of(data_type: DataTypeId) -> Option<ValueKind> {
         Some(match data_type {
-            DataTypeId::Boolean => Kind::Bool,
-            DataTypeId::Int16 => Kind::Int16,
-            DataTypeId::UInt16 => Kind::UInt16,
-            DataTypeId::Int32 => Kind::Int32,
-            DataTypeId::UInt32 => Kind::UInt32,
-            DataTypeId::Double => Kind::Double,
+            DataTypeId::Boolean => ValueKind::Bool,
+            DataTypeId::Int16 => ValueKind::Int16,
+            DataTypeId::UInt16 => ValueKind::UInt16,
+            DataTypeId::Int32 => ValueKind::Int32,
+            DataTypeId::UInt32 => ValueKind::UInt32,
+            DataTypeId::Double => ValueKind::Double,
             _ => return None,
         })
     }
@@ -68,19 +68,19 @@ impl Kind {
 
     fn variant(self, x: f64) -> Variant {
         match self {
-            Kind::Bool => Variant::Boolean(x != 0.0),
-            Kind::Int16 => Variant::Int16(x as i16),
-            Kind::UInt16 => Variant::UInt16(x as u16),
-            Kind::Int32 => Variant::Int32(x as i32),
-            Kind::UInt32 => Variant::UInt32(x as u32),
-            Kind::Double => Variant::Double(x),
+            ValueKind::Bool => Variant::Boolean(x != 0.0),
+            ValueKind::Int16 => Variant::Int16(x as i16),
+            ValueKind::UInt16 => Variant::UInt16(x as u16),
+            ValueKind::Int32 => Variant::Int32(x as i32),
+            ValueKind::UInt32 => Variant::UInt32(x as u32),
+            ValueKind::Double => Variant::Double(x),
         }
     }
 }
 
 /// One variable's values: (time in ticks, value), oldest first.
 struct Series {
-    kind: Kind,
+    kind: ValueKind,
     samples: VecDeque<(i64, f64)>,
 }
 
@@ -122,7 +122,7 @@ pub struct History {
 
 impl History {
     /// Keeps the history of `node`, whose values are of `kind`.
-    pub fn keep(&mut self, node: NodeId, kind: Kind) {
+    pub fn keep(&mut self, node: NodeId, kind: ValueKind) {
         self.series.insert(
             node,
             Series {
@@ -140,7 +140,7 @@ impl History {
     /// Records `value` of `node` (if historized) at `at`, and forgets what fell out of the
     /// window.
     pub fn record(&mut self, node: &NodeId, at: DateTime, value: &Variant) {
-        let (Some(series), Some(x)) = (self.series.get_mut(node), Kind::number(value)) else {
+        let (Some(series), Some(x)) = (self.series.get_mut(node), ValueKind::number(value)) else {
             return;
         };
         let ticks = at.checked_ticks();
@@ -270,7 +270,7 @@ mod tests {
     fn history() -> (History, NodeId) {
         let node = NodeId::new(2, "ox-x.TOOL_X");
         let mut h = History::default();
-        h.keep(node.clone(), Kind::Double);
+        h.keep(node.clone(), ValueKind::Double);
         for k in 0..10 {
             h.record(&node, at(f64::from(k)), &Variant::Double(f64::from(k) * 1.5));
         }
@@ -320,7 +320,7 @@ mod tests {
     fn the_window_and_the_count_bound_what_is_kept() {
         let node = NodeId::new(2, "ox-x.MainState");
         let mut h = History::default();
-        h.keep(node.clone(), Kind::UInt32);
+        h.keep(node.clone(), ValueKind::UInt32);
         // Two hours of a value a second: only the last ten minutes stay.
         for k in 0..7200 {
             h.record(&node, at(f64::from(k)), &Variant::UInt32(k % 6));
@@ -331,7 +331,7 @@ mod tests {
         assert_eq!(v[0].value, Some(Variant::UInt32(6599 % 6)));
         // A value every millisecond: at most MAX_SAMPLES.
         let fast = NodeId::new(2, "ox-x.TOOL_Y");
-        h.keep(fast.clone(), Kind::Double);
+        h.keep(fast.clone(), ValueKind::Double);
         for k in 0..(MAX_SAMPLES + 500) {
             h.record(&fast, at(k as f64 * 1e-3), &Variant::Double(0.0));
         }

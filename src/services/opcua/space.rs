@@ -149,7 +149,7 @@ pub struct Space {
     /// it.
     pub reason_index: Option<usize>,
     /// The variables whose history is kept ([`super::history`]), with their kind of value.
-    pub historized: Vec<(NodeId, super::history::Kind)>,
+    pub historized: Vec<(NodeId, super::history::ValueKind)>,
     /// The methods' nodes.
     pub methods: Vec<(Method, NodeId)>,
 }
@@ -242,15 +242,15 @@ impl Space {
         let methods = b.methods(space);
         let alarms = b.alarms(space);
         let mut historized = vec![
-            (state[4].clone(), super::history::Kind::UInt32),
-            (state[3].clone(), super::history::Kind::Bool),
+            (state[4].clone(), super::history::ValueKind::UInt32),
+            (state[3].clone(), super::history::ValueKind::Bool),
         ];
         historized.extend(
             info.variables
                 .iter()
                 .zip(&vars)
                 .filter(|(v, _)| historized_var(v))
-                .filter_map(|(v, node)| super::history::Kind::of(data_type(v.ty)).map(|k| (node.clone(), k))),
+                .filter_map(|(v, node)| super::history::ValueKind::of(data_type(v.ty)).map(|k| (node.clone(), k))),
         );
         for (node, _) in &historized {
             if let Some(opcua::server::address_space::NodeType::Variable(var)) = space.find_mut(node) {
