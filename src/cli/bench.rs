@@ -77,6 +77,7 @@ pub fn run(options: &BenchOptions, mut progress: impl FnMut(&str)) -> Result<Vec
         plant: Default::default(),
         joystick: Default::default(),
         nc: Default::default(),
+        identification: Default::default(),
     };
     let mut rows = Vec::new();
     let fifo_modes: &[bool] = if options.realtime_priority > 0 {

@@ -37,7 +37,9 @@ pub fn init_logging() {
     // The OPC UA crates say at info what the server's own line says once (endpoints, every
     // connection): their warnings and errors only, unless RUST_LOG asks for more.
     let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| {
-        EnvFilter::new("info,opcua_server=warn,opcua_core=warn,opcua_crypto=warn,opcua_types=warn,opcua_nodes=warn")
+        EnvFilter::new(
+            "info,opcua_server=warn,opcua_core=warn,opcua_crypto=warn,opcua_types=warn,opcua_nodes=warn,opcua_xml=warn",
+        )
     });
     // Every line, the libraries' too, within the log's budget: a peer's flood cannot fill the
     // disk (pkm_plc::runtime::log_limit).

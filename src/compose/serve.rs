@@ -603,11 +603,29 @@ fn space_info(plc: &Plc, setup: &Setup, programs: Vec<String>) -> crate::service
             }
         })
         .collect();
+    let nameplate = setup.machine.map(|m| {
+        let nameplate = crate::services::opcua::companion::Nameplate::new(
+            &setup.loaded.config.identification,
+            m.name(),
+            m.summary(),
+            &crate::services::opcua::server::host_name(),
+        );
+        if !nameplate.missing.is_empty() {
+            tracing::info!(
+                "OPC UA: the machine's nameplate shows \"{}\" for {} (not in {}: identification)",
+                crate::services::opcua::companion::UNKNOWN,
+                nameplate.missing.join(", "),
+                setup.origin()
+            );
+        }
+        nameplate
+    });
     crate::services::opcua::space::SpaceInfo {
         machine: setup.machine.map_or("runtime".to_string(), |m| m.name().to_string()),
         config: setup.origin().to_string(),
         classes,
         variables,
         programs,
+        nameplate,
     }
 }

@@ -27,6 +27,13 @@
         Reads the raw history of NAME (MainState, BusFault or a process-image variable) over the
         last SECONDS, whole and PART values a read: JSON with the values ([time, value]), the
         reads the parts took and the values they gave.
+    opcua_client.py machinery URL MACHINE
+        What an MES sees of OPC 40001-1 Machinery: the namespace array; the browse names in the
+        Machines folder; MACHINE found there by browse path (TranslateBrowsePathsToNodeIds with
+        the DI and Machinery namespaces' names); its Identification's type and fields; its
+        MachineryBuildingBlocks' add-ins; MachineryItemState's and MachineryOperationMode's type,
+        CurrentState, Id (the state's browse name) and Number; "together": the PLC's State and
+        both CurrentStates read in one Read; a tree of it all, to print.
     opcua_client.py usercert DIR
         Makes a user certificate and key in DIR (cert.der, key.pem) for an X.509 identity token.
     opcua_client.py abandon URL N
@@ -510,6 +517,66 @@ async def history(url, machine, name, seconds, part):
         )
 
 
+async def browse_name_of(client, node_id):
+    """The browse name (without its namespace) of the node `node_id`."""
+    return (await client.get_node(node_id).read_browse_name()).Name
+
+
+async def machinery(url, machine):
+    machinery_uri = "http://opcfoundation.org/UA/Machinery/"
+    di_uri = "http://opcfoundation.org/UA/DI/"
+    async with Client(url, timeout=10) as client:
+        namespaces = await client.get_namespace_array()
+        ns = namespaces.index(NS)
+        m = namespaces.index(machinery_uri)
+        di = namespaces.index(di_uri)
+        out = {"namespaces": namespaces, "tree": []}
+        machines = await client.nodes.objects.get_child([f"{m}:Machines"])
+        out["machines"] = [(await c.read_browse_name()).Name for c in await machines.get_children()]
+        node = await client.nodes.objects.get_child([f"{m}:Machines", f"{ns}:{machine}"])
+        out["tree"].append(f"Objects/Machines/{machine}")
+        ident = await node.get_child([f"{di}:Identification"])
+        out["identification_type"] = await browse_name_of(client, await ident.read_type_definition())
+        out["identification"] = {}
+        out["tree"].append(f"  Identification ({out['identification_type']})")
+        for prop in await ident.get_properties():
+            name = await prop.read_browse_name()
+            value = await prop.read_value()
+            if isinstance(value, ua.LocalizedText):
+                value = value.Text
+            out["identification"][f"{namespaces[name.NamespaceIndex]}{name.Name}"] = value
+            out["tree"].append(f"    {name.Name} = {value!r}")
+        blocks = await node.get_child([f"{m}:MachineryBuildingBlocks"])
+        out["tree"].append("  MachineryBuildingBlocks")
+        add_ins = await blocks.get_referenced_nodes(refs=ua.ObjectIds.HasAddIn)
+        out["building_blocks"] = sorted([(await a.read_browse_name()).Name for a in add_ins])
+        for name in ["MachineryItemState", "MachineryOperationMode"]:
+            sm = await blocks.get_child([f"{m}:{name}"])
+            current = await sm.get_child(["0:CurrentState"])
+            state_id = await (await current.get_child(["0:Id"])).read_value()
+            entry = {
+                "type": await browse_name_of(client, await sm.read_type_definition()),
+                "current": (await current.read_value()).Text,
+                "id": await browse_name_of(client, state_id),
+                "id_namespace": namespaces[state_id.NamespaceIndex],
+                "number": await (await current.get_child(["0:Number"])).read_value(),
+            }
+            out[name] = entry
+            out["tree"].append(
+                f"    {name} ({entry['type']}): CurrentState = {entry['current']!r}, Number = {entry['number']}"
+            )
+        # The PLC's state and both Machinery states in one Read: the values of one frame.
+        state = await child(await client.nodes.objects.get_child([f"{ns}:PkmPlc", f"{ns}:{machine}"]), ns, "State")
+        item = await blocks.get_child([f"{m}:MachineryItemState", "0:CurrentState"])
+        mode = await blocks.get_child([f"{m}:MachineryOperationMode", "0:CurrentState"])
+        plc, item_now, mode_now = await client.read_values([state, item, mode])
+        out["together"] = [plc, item_now.Text, mode_now.Text]
+        for add_in in out["building_blocks"]:
+            if add_in not in ("MachineryItemState", "MachineryOperationMode"):
+                out["tree"].append(f"    {add_in} (HasAddIn)")
+        print(json.dumps(out))
+
+
 def main():
     cmd, *rest = sys.argv[1:]
     if cmd == "endpoints":
@@ -533,6 +600,8 @@ def main():
         asyncio.run(call(url, machine, rest))
     elif cmd == "alarms":
         asyncio.run(alarms(url, machine, rest))
+    elif cmd == "machinery":
+        asyncio.run(machinery(url, machine))
     elif cmd == "history":
         asyncio.run(history(url, machine, rest[0], float(rest[1]), int(rest[2])))
     else:

@@ -65,12 +65,25 @@ impl Plc {
     /// The TRIJOINT as configured, save that these tests of OPC UA, not of timing, log a late
     /// cycle on a busy machine rather than raise ERROR ([`common::busy_machine_config`]).
     fn serving(url: &str, args: &[&str]) -> Plc {
+        Plc::configured(common::busy_machine_config(), url, args)
+    }
+
+    /// Starts `pkm-plc run ARGS --opcua URL` with the configuration `config`, as
+    /// [`Plc::serving`].
+    fn configured(config: Json, url: &str, args: &[&str]) -> Plc {
         let dir = tempfile::tempdir().expect("tempdir");
+        let json = config;
         let config = dir.path().join("trijoint.json");
-        std::fs::write(&config, common::busy_machine_config().to_string()).expect("the configuration");
+        std::fs::write(&config, json.to_string()).expect("the configuration");
         let mut command = common::pkm_command();
         command
-            .args(["run", "--hmi", "none", "--opcua", url])
+            .args(["run", "--opcua", url])
+            // No screen unless the test asks for one.
+            .args(if args.contains(&"--hmi") {
+                &[][..]
+            } else {
+                &["--hmi", "none"][..]
+            })
             .args(["--config", config.to_str().expect("utf-8")])
             .args(args)
             .env("RUST_LOG", "info");
@@ -575,6 +588,188 @@ fn conditions_are_raised_acknowledged_and_cleared_as_the_plc_sees_them() {
     assert!(plc.run.terminate().success(), "{}", plc.log());
     // The acknowledgement entered the process image: the run replays.
     common::assert_replays_identically(Path::new(&trace), &["--config", &plc.config()]);
+}
+
+/// What an MES sees of OPC 40001-1 Machinery: the machine in `Machines`, found by browse path
+/// through the DI and Machinery namespaces; its nameplate from the configuration; its building
+/// blocks; and its Machinery states following the PLC's: referencing (INIT) is Executing in Setup,
+/// ERROR is OutOfService in no mode, the acknowledgement brings back Setup.
+#[test]
+fn machinery_shows_the_machine_its_nameplate_and_states_that_follow_the_plc() {
+    let Some(python) =
+        python_or_skip("opcua::machinery_shows_the_machine_its_nameplate_and_states_that_follow_the_plc")
+    else {
+        return;
+    };
+    let mut config = common::busy_machine_config();
+    config["identification"] = serde_json::json!({
+        "manufacturer": "Machine-tool lab",
+        "serial_number": "TJ-0001",
+        "product_instance_uri": "urn:example-lab:trijoint:TJ-0001",
+        "year_of_construction": 2004
+    });
+    let dir = tempfile::tempdir().expect("tempdir");
+    let users = users_file(dir.path(), OPERATOR, 0o600);
+    let mut plc = Plc::configured(
+        config,
+        "opc.tcp://127.0.0.1:0",
+        &["--duration", "300", "--opcua-users", users.to_str().expect("utf-8")],
+    );
+    let machinery = || client(&python, &["machinery", &plc.url, "trijoint"]);
+    let out = machinery();
+    let namespaces = out["namespaces"].as_array().expect("namespaces");
+    for uri in [
+        "http://opcfoundation.org/UA/DI/",
+        "http://opcfoundation.org/UA/IA/",
+        "http://opcfoundation.org/UA/Machinery/",
+        "urn:pkm-plc",
+    ] {
+        assert!(namespaces.iter().any(|n| n == uri), "{uri}: {out}");
+    }
+    assert_eq!(out["machines"], serde_json::json!(["trijoint"]), "{out}");
+    assert_eq!(out["identification_type"], "MachineIdentificationType", "{out}");
+    let di = "http://opcfoundation.org/UA/DI/";
+    assert_eq!(
+        out["identification"],
+        serde_json::json!({
+            format!("{di}Manufacturer"): "Machine-tool lab",
+            format!("{di}Model"): "TRIJOINT 900H lab model",
+            format!("{di}SerialNumber"): "TJ-0001",
+            format!("{di}ProductInstanceUri"): "urn:example-lab:trijoint:TJ-0001",
+            format!("{di}SoftwareRevision"): format!("pkm-plc {}", env!("CARGO_PKG_VERSION")),
+            "http://opcfoundation.org/UA/Machinery/YearOfConstruction": 2004,
+        }),
+        "{out}"
+    );
+    assert_eq!(
+        out["building_blocks"],
+        serde_json::json!(["Identification", "MachineryItemState", "MachineryOperationMode"]),
+        "{out}"
+    );
+    for (machine, ty) in [
+        ("MachineryItemState", "MachineryItemState_StateMachineType"),
+        ("MachineryOperationMode", "MachineryOperationModeStateMachineType"),
+    ] {
+        assert_eq!(out[machine]["type"], ty, "{out}");
+        // CurrentState's Id is the state of the type, in Machinery's namespace.
+        assert_eq!(out[machine]["id"], out[machine]["current"], "{out}");
+        assert_eq!(
+            out[machine]["id_namespace"], "http://opcfoundation.org/UA/Machinery/",
+            "{out}"
+        );
+    }
+    // Referencing takes 40 s: the run is in INIT, or READY on a machine slow to get here.
+    let together = &out["together"];
+    assert!(
+        [
+            serde_json::json!(["INIT", "Executing", "Setup"]),
+            serde_json::json!(["READY", "NotExecuting", "Setup"]),
+        ]
+        .contains(together),
+        "{out}"
+    );
+    assert_eq!(
+        out["MachineryItemState"]["number"],
+        if together[0] == "INIT" { 3 } else { 2 }
+    );
+    assert_eq!(out["MachineryOperationMode"]["number"], 2, "{out}");
+    // STOP: out of service, in no mode; the acknowledgement: referencing again.
+    let operator = ["--user", "operator", "--password", "a-long-passphrase"];
+    let call = |steps: &[&str]| {
+        let mut args = vec!["call", plc.url.as_str(), "trijoint"];
+        args.extend_from_slice(&operator);
+        args.extend_from_slice(steps);
+        client(&python, &args)
+    };
+    let _ = call(&["Stop", "wait=ERROR"]);
+    let out = machinery();
+    assert_eq!(
+        out["together"],
+        serde_json::json!(["ERROR", "OutOfService", "None"]),
+        "{out}"
+    );
+    assert_eq!(out["MachineryItemState"]["number"], 1, "{out}");
+    assert_eq!(out["MachineryOperationMode"]["number"], 0, "{out}");
+    let _ = call(&["Acknowledge", "wait=INIT"]);
+    let out = machinery();
+    assert_eq!(
+        out["together"],
+        serde_json::json!(["INIT", "Executing", "Setup"]),
+        "{out}"
+    );
+    assert!(plc.run.terminate().success(), "{}", plc.log());
+}
+
+/// A job the operator's screen refuses raises `JobRefused` (a DiscreteAlarmType, severity 300)
+/// with the screen's why; a user acknowledges it, which the PLC has nothing to do with.
+#[test]
+fn a_job_the_screen_refuses_raises_job_refused() {
+    let Some(python) = python_or_skip("opcua::a_job_the_screen_refuses_raises_job_refused") else {
+        return;
+    };
+    let dir = tempfile::tempdir().expect("tempdir");
+    let users = users_file(dir.path(), OPERATOR, 0o600);
+    let mut plc = Plc::start(&[
+        "--duration",
+        "300",
+        "--hmi",
+        "127.0.0.1:0",
+        "--opcua-users",
+        users.to_str().expect("utf-8"),
+    ]);
+    let log = plc.log();
+    let screen = log
+        .lines()
+        .find_map(|l| l.split("operator screen at ").nth(1))
+        .and_then(|rest| rest.split_whitespace().next())
+        .unwrap_or_else(|| panic!("no screen: {log}"))
+        .to_string();
+    // Refused whatever the state: in INIT a job waits for READY, in READY this one nests too deep.
+    let text = format!("G1 X{}1{} F100", "[".repeat(100), "]".repeat(100));
+    common::screen_command(&screen, serde_json::json!({"cmd": "mdi", "text": text}));
+    let out = client(
+        &python,
+        &[
+            "alarms",
+            &plc.url,
+            "trijoint",
+            "--user",
+            "operator",
+            "--password",
+            "a-long-passphrase",
+            "refresh",
+            "wait=JobRefused:active",
+            "ack=JobRefused",
+            "wait=JobRefused:acked",
+        ],
+    );
+    assert!(
+        step_outcomes(&out).iter().all(|(_, s)| s == "Good"),
+        "{out}\n{}",
+        plc.log()
+    );
+    let seen = condition_events(&out, "JobRefused");
+    assert!(seen.len() >= 2, "{out}");
+    let (active, acked, retain, message) = &seen[0];
+    assert!(*active && !acked && *retain, "{out}");
+    assert!(message.starts_with("job refused (screen 127.0.0.1:"), "{message}");
+    let why = message.split_once("): ").map(|(_, w)| w).unwrap_or_default();
+    assert!(
+        why == "a job runs from READY: the machine is INIT" || why.contains("nests deeper than 64 levels"),
+        "{message}"
+    );
+    assert_eq!(seen.last().map(|e| (e.0, e.1)), Some((true, true)), "{out}");
+    let event = first_event(&out, "JobRefused");
+    assert_eq!(event["type"], "DiscreteAlarmType", "{event}");
+    assert_eq!(event["severity"], 300, "{event}");
+    // The PLC was not acknowledged: it was in no ERROR to leave.
+    let log = plc.log();
+    assert!(
+        log.contains("OPC UA: user \"operator\" acknowledged the condition JobRefused"),
+        "{log}"
+    );
+    assert!(!log.contains("Acknowledge: the error acknowledged"), "{log}");
+    assert!(plc.run.terminate().success(), "{}", plc.log());
 }
 
 /// A task class that overruns its cycle raises `CycleTime` (a SystemDiagnosticAlarmType, severity

@@ -4,6 +4,7 @@
 //! first malformed element (serde cannot go on), but semantic checks run over the whole
 //! configuration and report every problem at once.
 
+pub mod identification;
 pub mod joystick;
 
 use std::fmt;
@@ -55,6 +56,9 @@ pub struct Config {
     /// NC programs: work offsets and the world axes' limits.
     #[serde(default)]
     pub nc: NcConfig,
+    /// The machine's nameplate (OPC UA's Machinery `Identification`).
+    #[serde(default)]
+    pub identification: identification::Identification,
 }
 
 /// The work coordinate systems of NC programs, in order (G54 is the first).
@@ -634,6 +638,10 @@ pub fn check(config: &Config) -> Vec<Problem> {
     }
     for problem in config.joystick.check() {
         let Problem { at, message } = problem.under("joystick");
+        push(at, message);
+    }
+    for problem in config.identification.check() {
+        let Problem { at, message } = problem.under("identification");
         push(at, message);
     }
     if config.timing.realtime_priority > 99 {

@@ -10,6 +10,7 @@ use pkm_api::hmi::{
 };
 use pkm_api::trajectory::{OVERRIDE_DEFAULT, vars};
 
+use super::job_news::{JobNews, JobOutcome};
 use crate::image::{Value, VarIndex, VarTable, VarType, Writer};
 use crate::runtime::bus::Bus;
 
@@ -86,15 +87,18 @@ pub mod press {
     pub const TOOL_CHANGED: usize = 5;
 }
 
-/// The server's end: any connection may command (they share it, and the commands as last
-/// published, under a lock).
+/// The servers' end: any connection may command (they share it, and the commands as last
+/// published, under a lock); and what became of the screen's jobs, for OPC UA's conditions.
 #[derive(Clone)]
-pub struct CommandSink(Arc<Mutex<(triple_buffer::Input<Commands>, Commands)>>);
+pub struct CommandSink {
+    commands: Arc<Mutex<(triple_buffer::Input<Commands>, Commands)>>,
+    jobs: Arc<tokio::sync::watch::Sender<JobNews>>,
+}
 
 impl CommandSink {
     /// Changes the commands by `edit` and publishes them.
     pub fn update(&self, edit: impl FnOnce(&mut Commands)) {
-        let mut guard = self.0.lock().unwrap_or_else(|p| p.into_inner());
+        let mut guard = self.commands.lock().unwrap_or_else(|p| p.into_inner());
         let (input, current) = &mut *guard;
         edit(current);
         input.write(*current);
@@ -102,7 +106,20 @@ impl CommandSink {
 
     /// The commands as last published.
     pub fn current(&self) -> Commands {
-        self.0.lock().unwrap_or_else(|p| p.into_inner()).1
+        self.commands.lock().unwrap_or_else(|p| p.into_inner()).1
+    }
+
+    /// Tells what became of a screen job.
+    pub fn report_job(&self, outcome: JobOutcome) {
+        self.jobs.send_modify(|news| {
+            news.count += 1;
+            news.latest = Some(outcome);
+        });
+    }
+
+    /// What became of the screen's jobs: the latest outcome, as it changes.
+    pub fn job_news(&self) -> tokio::sync::watch::Receiver<JobNews> {
+        self.jobs.subscribe()
     }
 }
 
@@ -143,7 +160,11 @@ impl HmiBus {
             acknowledgement_waits: false,
             acknowledgement_gap_ns: stop_lockout_ns.max(PRESS_NS),
         };
-        (bus, CommandSink(Arc::new(Mutex::new((input, Commands::default())))))
+        let sink = CommandSink {
+            commands: Arc::new(Mutex::new((input, Commands::default()))),
+            jobs: Arc::new(tokio::sync::watch::Sender::new(JobNews::default())),
+        };
+        (bus, sink)
     }
 }
 

@@ -7,6 +7,8 @@
 //! - [`server`]: the page and its WebSocket (axum, on the runtime's tokio runtime).
 //! - [`access`]: who is served (Host, Origin) and who commands (the token).
 //! - [`listener`]: the listening socket, with a bound on the connections it holds.
+//! - [`jobs`]: the screen's jobs, planned off the cyclic thread; [`job_news`]: what became of
+//!   them, for OPC UA's `JobRefused` condition.
 //!
 //! Loopback only by default; binding to another address needs a token, and commands need it
 //! whenever one is set (see "The operator's screen" in the README).
@@ -15,6 +17,7 @@ pub mod access;
 pub mod alarms;
 pub mod commands;
 pub mod cut;
+pub mod job_news;
 pub mod jobs;
 pub mod listener;
 pub mod mechanism;

@@ -10,6 +10,7 @@
 //! | `CycleTime` | SystemDiagnosticAlarmType | ERROR for a cycle time violation, or a second after a class's overrun or violation counter rose |
 //! | `BusFault` | SystemOffNormalAlarmType | the bus reports a fault, or ERROR for it |
 //! | `Error` | AlarmConditionType | ERROR for any other reason (a drive, referencing, the program) |
+//! | `JobRefused` | DiscreteAlarmType | the screen's last job (MDI, a run from a line, a step, a program planned again) was refused, until one is made |
 //!
 //! The ERROR reason's class comes from the machine's `error_reason` code
 //! ([`pkm_api::machine::ReasonClass`]). A condition raised by ERROR is acknowledged by the PLC's
@@ -26,6 +27,7 @@ use opcua::types::{ByteString, DateTime, NodeId, ObjectTypeId, StatusCode};
 
 use super::alarm_events::ConditionEvent;
 use crate::runtime::frame::Frame;
+use crate::services::hmi::job_news::JobOutcome;
 use pkm_api::machine::ReasonClass;
 
 /// How long a rise of a class's overrun or violation counter keeps `CycleTime` active (s of the
@@ -47,17 +49,20 @@ pub enum Kind {
     BusFault,
     /// ERROR for any other reason.
     Error,
+    /// The screen's last job was refused.
+    JobRefused,
 }
 
 impl Kind {
     /// Every kind, in the order of the address space's `Alarms` folder.
-    pub const ALL: [Kind; 6] = [
+    pub const ALL: [Kind; 7] = [
         Kind::Stop,
         Kind::LimitSwitch,
         Kind::EncoderFault,
         Kind::CycleTime,
         Kind::BusFault,
         Kind::Error,
+        Kind::JobRefused,
     ];
 
     /// The condition's name (its browse name and `ConditionName`).
@@ -69,6 +74,7 @@ impl Kind {
             Kind::CycleTime => "CycleTime",
             Kind::BusFault => "BusFault",
             Kind::Error => "Error",
+            Kind::JobRefused => "JobRefused",
         }
     }
 
@@ -80,12 +86,14 @@ impl Kind {
             Kind::EncoderFault => ObjectTypeId::InstrumentDiagnosticAlarmType,
             Kind::CycleTime => ObjectTypeId::SystemDiagnosticAlarmType,
             Kind::BusFault => ObjectTypeId::SystemOffNormalAlarmType,
+            Kind::JobRefused => ObjectTypeId::DiscreteAlarmType,
         }
     }
 
     /// Its severity (1 … 1000; 801 and above: high).
     pub fn severity(self) -> u16 {
         match self {
+            Kind::JobRefused => 300,
             Kind::Stop => 600,
             Kind::CycleTime => 700,
             Kind::LimitSwitch | Kind::EncoderFault | Kind::BusFault | Kind::Error => 800,
@@ -104,6 +112,9 @@ impl Kind {
             Kind::BusFault => "the field bus reports a fault, or the machine is in ERROR for it",
             Kind::Error => {
                 "the machine is in ERROR for a reason the other conditions do not name (a drive's bridge or following error, a referencing that failed, the program's path)"
+            }
+            Kind::JobRefused => {
+                "the operator screen's last job (MDI, a run from a line, a step, a program planned again) was refused; it clears when the screen makes one"
             }
         }
     }
@@ -286,6 +297,10 @@ impl Conditions {
         let mut events = Vec::new();
         for k in 0..self.all.len() {
             let kind = self.all[k].kind;
+            if kind == Kind::JobRefused {
+                // The screen's jobs, not the frames, raise and clear it.
+                continue;
+            }
             let by_error = error_kind == Some(kind);
             let (active, message) = if by_error {
                 (true, format!("ERROR: {}", status.reason))
@@ -329,6 +344,28 @@ impl Conditions {
             }
         }
         events
+    }
+
+    /// Takes what became of a screen job (at `at`): `JobRefused`'s event, if it changes — raised
+    /// (again, unacknowledged) by each refusal, cleared by a job made.
+    pub fn job(&mut self, outcome: &JobOutcome, at: DateTime) -> Option<ConditionEvent> {
+        let k = self.all.iter().position(|c| c.kind == Kind::JobRefused)?;
+        let c = &mut self.all[k];
+        match outcome {
+            JobOutcome::Refused { why, peer } => {
+                c.active = true;
+                c.acked = false;
+                c.message = format!("job refused (screen {peer}): {why}");
+                c.acked_by.clear();
+                c.comment.clear();
+            }
+            JobOutcome::Made { .. } if !c.active => return None,
+            JobOutcome::Made { file } => {
+                c.active = false;
+                c.message = format!("a job was made: {file}");
+            }
+        }
+        Some(self.event(k, at))
     }
 
     /// Whether the condition at `node` whose latest event is `event_id` may be acknowledged,
@@ -568,6 +605,47 @@ mod tests {
         assert!(c.observe(&frame(1.5, "READY", 0, "", 2, false), now).is_empty());
         let quiet = c.observe(&frame(2.0, "READY", 0, "", 2, false), now);
         assert!(!seen(&quiet)[0].1, "{:?}", seen(&quiet));
+        // Not acknowledged: retained until it is.
+        assert_eq!(c.refresh().len(), 1);
+    }
+
+    #[test]
+    fn a_refused_job_raises_job_refused_until_a_job_is_made_and_frames_leave_it_alone() {
+        let mut c = conditions();
+        let now = DateTime::now();
+        let made = JobOutcome::Made { file: "MDI".into() };
+        // Nothing refused yet: a job made says nothing.
+        assert!(c.job(&made, now).is_none());
+        let refused = |why: &str| JobOutcome::Refused {
+            why: why.into(),
+            peer: "127.0.0.1:5000".into(),
+        };
+        let raised = c
+            .job(&refused("a job runs from READY: the machine is INIT"), now)
+            .expect("raised");
+        assert_eq!(
+            seen(std::slice::from_ref(&raised)),
+            [(
+                "JobRefused".into(),
+                true,
+                false,
+                "job refused (screen 127.0.0.1:5000): a job runs from READY: the machine is INIT".into()
+            )]
+        );
+        assert_eq!(raised.severity, 300);
+        // Frames do not clear it; its acknowledgement is the server's alone.
+        assert!(c.observe(&frame(0.0, "READY", 0, "", 0, false), now).is_empty());
+        assert_eq!(c.acknowledging(&node(Kind::JobRefused), raised.event_id()), Ok(false));
+        c.acknowledge(&node(Kind::JobRefused), raised.event_id(), "operator", "")
+            .expect("acknowledged");
+        // Refused again: unacknowledged again, with the new why.
+        let again = c.job(&refused("another job is being planned"), now).expect("raised");
+        assert!(again.active() && !again.acked());
+        let cleared = c.job(&made, now).expect("cleared");
+        assert_eq!(
+            seen(&[cleared]),
+            [("JobRefused".into(), false, false, "a job was made: MDI".into())]
+        );
         // Not acknowledged: retained until it is.
         assert_eq!(c.refresh().len(), 1);
     }

@@ -12,6 +12,8 @@
 //!   user.
 //! - [`conditions`], [`alarm_events`]: alarms and conditions: what goes wrong, as events a
 //!   SCADA subscribes to and acknowledges.
+//! - [`companion`]: OPC 40001-1 Machinery: the machine in the `Machines` folder, its
+//!   nameplate and its Machinery states.
 //! - [`auth`]: anonymous sessions read; users of the users file ([`users`]) also command.
 //! - [`units`]: engineering units from the variables' names.
 //! - [`ranges`]: their EURange, where the configuration or the PLC bounds them.
@@ -25,6 +27,7 @@
 pub mod alarm_events;
 pub mod alarm_methods;
 pub mod auth;
+pub mod companion;
 pub mod conditions;
 pub mod gate;
 pub mod history;

@@ -7,6 +7,7 @@ use std::sync::{Arc, Mutex, OnceLock};
 use std::time::Instant;
 
 use async_trait::async_trait;
+use opcua::nodes::NodeSet2Import;
 use opcua::server::ContinuationPoint;
 use opcua::server::address_space::AddressSpace;
 use opcua::server::diagnostics::NamespaceMetadata;
@@ -48,17 +49,29 @@ pub struct Commander {
     pub rate: Mutex<CallRate>,
 }
 
-/// The builder the server is given: registers [`NAMESPACE`].
-pub fn builder() -> impl NodeManagerBuilder {
-    InMemoryNodeManagerBuilder::new(|context: ServerContext, space: &mut AddressSpace| {
-        let index = context.type_tree.write().namespaces_mut().add_namespace(NAMESPACE);
+/// The builder the server is given: registers [`NAMESPACE`] and imports the `companions`
+/// (the namespaces and nodes of [`super::companion`]), whose instances live beside the run's.
+pub fn builder(companions: Vec<NodeSet2Import>) -> impl NodeManagerBuilder {
+    InMemoryNodeManagerBuilder::new(move |context: ServerContext, space: &mut AddressSpace| {
+        let mut type_tree = context.type_tree.write();
+        // The run's namespace first, so that its index does not depend on the companions.
+        let index = type_tree.namespaces_mut().add_namespace(NAMESPACE);
         space.add_namespace(NAMESPACE, index);
-        PlcNodes {
-            namespaces: vec![NamespaceMetadata {
-                namespace_uri: NAMESPACE.to_owned(),
-                namespace_index: index,
+        for import in &companions {
+            space.import_node_set(import, type_tree.namespaces_mut());
+        }
+        let mut namespaces: Vec<NamespaceMetadata> = space
+            .namespaces()
+            .iter()
+            .map(|(index, uri)| NamespaceMetadata {
+                namespace_uri: uri.clone(),
+                namespace_index: *index,
                 ..Default::default()
-            }],
+            })
+            .collect();
+        namespaces.sort_by_key(|n| n.namespace_index);
+        PlcNodes {
+            namespaces,
             commander: OnceLock::new(),
             history: OnceLock::new(),
         }

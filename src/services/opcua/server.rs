@@ -89,7 +89,7 @@ pub fn start(
         // main cycle: the rate data changes come at.
         .subscription_poll_interval_ms((main_period_ns / 5_000_000).max(1))
         .with_authenticator(Arc::new(Auth::new(options.users.clone())))
-        .with_node_manager(super::nodes::builder())
+        .with_node_manager(super::nodes::builder(super::companion::imports()?))
         .add_endpoint(
             "basic256sha256_sign",
             ServerEndpoint::new(
@@ -148,6 +148,8 @@ pub fn start(
         let mut address_space = manager.address_space().write();
         Space::build(&mut address_space, ns, &info, &first)
     };
+    // What becomes of the screen's jobs (JobRefused), read before the sink goes to the methods.
+    let job_news = sink.job_news();
     let commander = Commander {
         methods: space.methods.iter().map(|(m, node)| (node.clone(), *m)).collect(),
         feed: feed.clone(),
@@ -190,6 +192,7 @@ pub fn start(
     if !manager.inner().set_history(Arc::clone(&history)) {
         return Err("the history was given twice (a broken invariant of the server's start)".into());
     }
+    spawn_job_conditions(job_news, Arc::clone(&conditions), handle.clone(), space.object.clone());
     let kept = Kept { conditions, history };
     // The first frame's values (state texts, figures) before any client reads.
     publish(&manager, &handle, &mut space, &kept, &first);
@@ -218,6 +221,32 @@ pub fn start(
         ),
     );
     Ok(url)
+}
+
+/// Raises and clears `JobRefused` as the screen's jobs are refused and made (their `news`),
+/// emitting its events on the machine's object `emitter`, until the server stops.
+fn spawn_job_conditions(
+    mut news: tokio::sync::watch::Receiver<crate::services::hmi::job_news::JobNews>,
+    conditions: Arc<Mutex<Conditions>>,
+    handle: ServerHandle,
+    emitter: NodeId,
+) {
+    tokio::spawn(async move {
+        while news.changed().await.is_ok() && !handle.token().is_cancelled() {
+            let Some(outcome) = news.borrow_and_update().latest.clone() else {
+                continue;
+            };
+            let event = conditions
+                .lock()
+                .unwrap_or_else(|p| p.into_inner())
+                .job(&outcome, opcua::types::DateTime::now());
+            if let Some(event) = event {
+                handle
+                    .subscriptions()
+                    .notify_events(std::iter::once((&event as &dyn opcua::nodes::Event, &emitter)));
+            }
+        }
+    });
 }
 
 /// Makes the certificate store's directories, the private key's readable by its owner only (the

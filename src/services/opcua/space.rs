@@ -56,6 +56,9 @@ pub struct SpaceInfo {
     pub variables: Vec<VarNode>,
     /// The run's NC programs (files), numbered from 1 for `Load`.
     pub programs: Vec<String>,
+    /// The machine's nameplate (`None`: no machine, the runtime's self-test: nothing in
+    /// Machinery's `Machines`).
+    pub nameplate: Option<super::companion::Nameplate>,
 }
 
 /// A process-image variable as the address space shows it.
@@ -152,6 +155,8 @@ pub struct Space {
     pub historized: Vec<(NodeId, super::history::ValueKind)>,
     /// The methods' nodes.
     pub methods: Vec<(Method, NodeId)>,
+    /// The machine's Machinery nodes, where the companion is loaded and the run has a machine.
+    machinery: Option<super::companion::Machinery>,
 }
 
 /// Whether the history of process-image variable `v` is kept: one with a unit (a position, a
@@ -259,7 +264,16 @@ impl Space {
                 var.set_historizing(true);
             }
         }
+        let machinery = info.nameplate.as_ref().and_then(|nameplate| {
+            super::companion::Machinery::build(
+                space,
+                (ns, &info.machine, &object),
+                nameplate,
+                info.variables.iter().position(|v| v.name == "NC_STATE"),
+            )
+        });
         Space {
+            machinery,
             historized,
             alarms,
             reason_index: info.variables.iter().position(|v| v.name == "error_reason"),
@@ -325,6 +339,9 @@ impl Space {
             out.push((self.state[2].clone(), value(Variant::from(state.2.as_str()))));
             out.push((self.state[3].clone(), value(Variant::Boolean(state.3))));
             self.last_state = Some(state);
+        }
+        if let Some(machinery) = &mut self.machinery {
+            out.extend(machinery.changes(frame, value));
         }
         for (c, nodes) in s.classes.iter().zip(&self.classes) {
             let figures = [
@@ -704,8 +721,10 @@ mod tests {
                 var("JOINT1_REFERENCE", VarType::Bool, None),
                 var("TOOL_X", VarType::Real, Some([-40.0, 40.0])),
                 var("JOINT1_POSITION", VarType::Real, None),
+                var("NC_STATE", VarType::Int, None),
             ],
             programs: vec![],
+            nameplate: None,
         }
     }
 
@@ -717,7 +736,7 @@ mod tests {
                 values,
                 ..Snapshot::default()
             },
-            image: vec![Value::Bool(true), Value::Real(1.5), Value::Real(2.0)],
+            image: vec![Value::Bool(true), Value::Real(1.5), Value::Real(2.0), Value::Int(1)],
             bus_fault: false,
             published_unix_us,
         }
@@ -796,5 +815,68 @@ mod tests {
         assert!(!typed("JOINT1_POSITION", VariableTypeId::AnalogItemType));
         assert!(typed("JOINT1_REFERENCE", VariableTypeId::BaseDataVariableType));
         assert!(typed("MainState", VariableTypeId::MultiStateDiscreteType));
+    }
+
+    #[test]
+    fn the_machine_is_in_machinerys_machines_folder_with_its_nameplate_and_states() {
+        use super::super::companion::{self, DI, MACHINERY, Nameplate};
+        let mut address_space = AddressSpace::new();
+        let mut namespaces = opcua::types::NamespaceMap::new();
+        let ns = namespaces.add_namespace(NAMESPACE);
+        address_space.add_namespace(NAMESPACE, ns);
+        for import in companion::imports().expect("the node sets") {
+            address_space.import_node_set(&import, &mut namespaces);
+        }
+        let index = |uri: &str| *namespaces.known_namespaces().get(uri).expect("loaded");
+        let (di, m) = (index(DI), index(MACHINERY));
+        let mut info = info();
+        info.nameplate = Some(Nameplate::new(
+            &Default::default(),
+            "ox-x",
+            "O-X glide, crossed X configuration: …",
+            "lab-pc",
+        ));
+        let mut space = Space::build(&mut address_space, ns, &info, &frame("", vec![], 0));
+        let organizes = NodeId::from(ReferenceTypeId::Organizes);
+        assert!(address_space.has_reference(&NodeId::new(m, 1001u32), &space.object, &organizes));
+        // Browse names in the companions' namespaces, as an MES browses them.
+        let browse = |path: &str| {
+            address_space
+                .find(&node(&space, path))
+                .map(|n| n.as_node().browse_name().clone())
+                .unwrap_or_else(|| panic!("{path}: no node"))
+        };
+        assert_eq!(browse("Identification"), QualifiedName::new(di, "Identification"));
+        assert_eq!(
+            browse("Identification.SerialNumber"),
+            QualifiedName::new(di, "SerialNumber")
+        );
+        assert_eq!(
+            browse("MachineryBuildingBlocks.MachineryItemState"),
+            QualifiedName::new(m, "MachineryItemState")
+        );
+        let current = |changes: &[(NodeId, DataValue)], machine: &str| {
+            let id = NodeId::new(ns, format!("ox-x.MachineryBuildingBlocks.{machine}.CurrentState"));
+            changes
+                .iter()
+                .find(|(n, _)| *n == id)
+                .and_then(|(_, v)| v.value.clone())
+        };
+        let text = |s: &str| Some(Variant::from(LocalizedText::new("en", s)));
+        let changes = space.changes(&mut address_space, &frame("AUTO", vec![], 1));
+        assert_eq!(current(&changes, "MachineryItemState"), text("Executing"));
+        assert_eq!(current(&changes, "MachineryOperationMode"), text("Processing"));
+        // The same states: nothing to write.
+        let changes = space.changes(&mut address_space, &frame("AUTO", vec![("x", 1.0)], 2));
+        assert_eq!(current(&changes, "MachineryItemState"), None);
+        let changes = space.changes(&mut address_space, &frame("ERROR", vec![], 3));
+        assert_eq!(current(&changes, "MachineryItemState"), text("OutOfService"));
+        assert_eq!(current(&changes, "MachineryOperationMode"), text("None"));
+        let id = NodeId::new(ns, "ox-x.MachineryBuildingBlocks.MachineryItemState.CurrentState.Id");
+        let id = changes
+            .iter()
+            .find(|(n, _)| *n == id)
+            .and_then(|(_, v)| v.value.clone());
+        assert_eq!(id, Some(Variant::from(NodeId::new(m, 5004u32))));
     }
 }

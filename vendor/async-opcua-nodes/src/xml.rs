@@ -586,7 +586,9 @@ impl NodeSetImport for NodeSet2Import {
             let resolved_ns_index = namespaces
                 .get_index(index_in_node_set)
                 .expect("index in nodeset not in mapper");
-            println!("Adding new namespace: {resolved_ns_index} {ns}");
+            // pkm-plc: a debug line, not a line on standard output (which is the operator's
+            // status line and a command's answer).
+            tracing::debug!("Adding new namespace: {resolved_ns_index} {ns}");
         }
     }
 
@@ -668,7 +670,8 @@ impl NodeSetImport for NodeSet2Import {
             match r {
                 Ok(r) => Some(r),
                 Err(e) => {
-                    println!("Failed to import node {}: {e}", raw_node.base().node_id.0);
+                    // pkm-plc: a warning in the log, not a line on standard output.
+                    tracing::warn!("Failed to import node {}: {e}", raw_node.base().node_id.0);
                     None
                 }
             }

@@ -635,6 +635,9 @@ async fn client(mut socket: WebSocket, peer: SocketAddr, commands: bool, shared:
                                 let (shared, done) = (Arc::clone(shared), job_done.clone());
                                 tokio::spawn(async move {
                                     let reply = shared.make_job(peer, c).await;
+                                    if let Some(outcome) = super::job_news::JobOutcome::of_reply(&reply, &peer.to_string()) {
+                                        shared.sink.report_job(outcome);
+                                    }
                                     let _ = done.send(reply).await;
                                 });
                                 Some(json!({"type": "planning"}))

@@ -11,7 +11,7 @@ pub use opcua_core_namespace::CoreNamespace;
 use std::collections::VecDeque;
 
 use hashbrown::{HashMap, HashSet};
-use tracing::{debug, error, info, warn};
+use tracing::{debug, error, info};
 
 use crate::node_manager::{ParsedReadValueId, ParsedWriteValue, RequestContext};
 use opcua_types::{
@@ -138,7 +138,10 @@ impl AddressSpace {
                 path.push(node_type.as_node().browse_name());
 
                 if !seen_nodes.insert(child.target_node) {
-                    warn!(
+                    // pkm-plc: a debug line: a companion's instance declaration reachable on two
+                    // paths (DI's <ProfileIdentifier>) is legal, and no reason to warn at every
+                    // start.
+                    debug!(
                         "Found node {} more than once when browsing hierarchically",
                         child.target_node
                     );
