@@ -82,7 +82,7 @@ fn syntax_errors_give_line_and_column() {
 fn unknown_fields_are_refused_with_the_expected_ones() {
     assert_eq!(
         error(r#"{"tasks": []}"#),
-        "cfg.json: at tasks: unknown field `tasks`, expected one of `machine`, `task_classes`, `timing`, `io_map`, `plant`, `kinematics`, `joystick`, `nc`"
+        "cfg.json: at tasks: unknown field `tasks`, expected one of `machine`, `task_classes`, `timing`, `io_map`, `plant`, `kinematics`, `joystick`, `nc`, `identification`"
     );
     assert_eq!(
         error(&format!(r#"{{"task_classes": [{}]}}"#, class(r#"{"cycle_ms": 10}"#))),
@@ -207,6 +207,24 @@ fn task_class_checks() {
         "cfg.json: at task_classes[1].priority: task class \"fast\" (10000 µs, priority 2) is faster than \"main\" \
          (50000 µs, priority 1) but has the lower priority; a faster class must have the higher priority \
          (a smaller number)"
+    );
+}
+
+#[test]
+fn the_nameplate_is_strict_and_checked() {
+    assert_eq!(
+        error(r#"{"task_classes": [], "identification": {"serial": "1"}}"#),
+        "cfg.json: at identification.serial: unknown field `serial`, expected one of `manufacturer`, `model`, \
+         `serial_number`, `product_instance_uri`, `year_of_construction`"
+    );
+    assert_eq!(
+        error(&format!(
+            r#"{{"task_classes": [{}], "identification": {{"product_instance_uri": "my machine", "year_of_construction": 204}}}}"#,
+            class("{}")
+        )),
+        "cfg.json: 2 problems:\n  at identification.product_instance_uri: a URI (scheme:rest, without spaces, \
+         e.g. urn:example-lab:trijoint:0001), got \"my machine\"\n  at identification.year_of_construction: a year \
+         1900…2200, got 204"
     );
 }
 
