@@ -10,13 +10,16 @@
 //!       ├─ Status/                      the values the main program shows (x, y, q1, …: Double)
 //!       ├─ Program/                     the NC program's variables (NC_LINE, NC_STATE, NC_RUN_S, …)
 //!       ├─ Alarms/                      the conditions (Stop, LimitSwitch, EncoderFault, CycleTime,
-//!       │                               BusFault, Error), their events emitted on MACHINE
+//!       │                               BusFault, Error, JobRefused), their events emitted on MACHINE
 //!       ├─ TaskClasses/
 //!       │  └─ CLASS/                    per task class: Cycles, Overruns, Violations, CycleTimeMs,
 //!       │     │                         LatenessMeanUs/MaxUs, ExecMeanUs/MaxUs
 //!       │     └─ Variables/             every process-image variable the class writes or latches
 //!       └─ Stop() Acknowledge() Start() Hold() Resume() Load(Program)
 //! ```
+//!
+//! The machine's object is also in Machinery's `Machines` folder, with its nameplate and
+//! Machinery states ([`super::companion`]).
 //!
 //! A process-image variable's node id is `ns=…;s=MACHINE.NAME`, its browse name its name, its
 //! data type the OPC UA type of its IEC type (BOOL → Boolean, INT → Int16, UINT → UInt16, DINT →
