@@ -9,7 +9,9 @@
 //       untrusted, the certificate the server put into SERVER_PKI/rejected/ is moved to
 //       trusted/ as an administrator would, and it connects again), opens an anonymous session
 //       and reads PkmPlc/MACHINE/State. JSON on the last line of stdout: "state", the
-//       advertised "endpoints" (URL, policy, mode), "untrusted_first" with --secure.
+//       advertised "endpoints" (URL, policy, mode), "machinery" (the machine's Model and
+//       MachineryItemState found by browse path from Objects/Machines), "untrusted_first" with
+//       --secure.
 //
 // Exit 1 with the error on stderr where it cannot connect.
 
@@ -67,7 +69,24 @@ async function readState(url, machine, secure) {
             const target = (found.targets || [])[0];
             if (!target) throw new Error(`no State: ${found.statusCode.toString()}`);
             const state = await session.read({ nodeId: target.targetId, attributeId: AttributeIds.Value });
-            return { state: state.value.value, endpoints };
+            // The machine as an MES finds it: Machinery's Machines folder, by browse path
+            // through DI's and Machinery's namespaces.
+            const di = namespaces.indexOf("http://opcfoundation.org/UA/DI/");
+            const m = namespaces.indexOf("http://opcfoundation.org/UA/Machinery/");
+            const machinery = {};
+            for (const [name, browse] of [
+                ["model", `${di}:Identification/${di}:Model`],
+                ["item_state", `${m}:MachineryBuildingBlocks/${m}:MachineryItemState/0:CurrentState`],
+            ]) {
+                const at = await session.translateBrowsePath(
+                    makeBrowsePath("RootFolder", `/Objects/${m}:Machines/${ns}:${machine}/${browse}`),
+                );
+                const node = (at.targets || [])[0];
+                if (!node) throw new Error(`no ${browse}: ${at.statusCode.toString()}`);
+                const value = await session.read({ nodeId: node.targetId, attributeId: AttributeIds.Value });
+                machinery[name] = value.value.value.text;
+            }
+            return { state: state.value.value, endpoints, machinery };
         } finally {
             await session.close();
         }

@@ -866,6 +866,15 @@ fn node_opcua_connects_with_its_defaults_on_loopback_and_through_another_address
     for url in [plc.url.as_str(), bare.as_str()] {
         let out = node_client(node(), &["read", url, "trijoint"]);
         assert!(matches!(out["state"].as_str(), Some("INIT" | "READY")), "{out}");
+        // The Machinery view, by browse path through the companions' namespaces.
+        assert_eq!(out["machinery"]["model"], "TRIJOINT 900H lab model", "{out}");
+        assert!(
+            matches!(
+                out["machinery"]["item_state"].as_str(),
+                Some("Executing" | "NotExecuting")
+            ),
+            "{out}"
+        );
         // Every endpoint is advertised at the URL the client used.
         for e in out["endpoints"].as_array().expect("endpoints") {
             assert_eq!(e[0], url, "{out}");
