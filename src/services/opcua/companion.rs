@@ -63,21 +63,33 @@ pub fn imports() -> Result<Vec<NodeSet2Import>, String> {
         .collect()
 }
 
-/// The element `ByteString` (with or without a namespace prefix) whose content starts at
-/// `rest[start..]`'s first `>`, if `rest[at..]` starts its name (`at` just after `<` and the
-/// prefix).
-fn byte_string_content(rest: &str, at: usize) -> Option<(usize, usize)> {
-    let tag_start = rest[..at].rfind('<')?;
-    let between = &rest[tag_start + 1..at];
-    if between.starts_with('/') || between.contains(|c: char| c.is_whitespace() || c == '>') {
-        return None;
+/// Where the content of each `ByteString` element of `xml` (with or without a namespace prefix;
+/// not an empty `<ByteString/>`, not a closing tag, not the word in an attribute) starts and ends.
+fn byte_string_contents(xml: &str) -> Vec<std::ops::Range<usize>> {
+    let content = |at: usize| -> Option<std::ops::Range<usize>> {
+        // `at` must start the element's name: after `<` and a prefix, nothing else between.
+        let tag_start = xml[..at].rfind('<')?;
+        let between = &xml[tag_start + 1..at];
+        if between.starts_with('/') || between.contains(|c: char| c.is_whitespace() || c == '>') {
+            return None;
+        }
+        let open_end = at + xml[at..].find('>')? + 1;
+        if xml[..open_end].ends_with("/>") {
+            return None;
+        }
+        Some(open_end..open_end + xml[open_end..].find("</")?)
+    };
+    let mut spans = Vec::new();
+    let mut from = 0;
+    while let Some(found) = xml[from..].find("ByteString") {
+        let at = from + found;
+        from = at + "ByteString".len();
+        if let Some(span) = content(at) {
+            from = span.end;
+            spans.push(span);
+        }
     }
-    let open_end = at + rest[at..].find('>')? + 1;
-    if rest[..open_end].ends_with("/>") {
-        return None;
-    }
-    let close = open_end + rest[open_end..].find("</")?;
-    Some((open_end, close))
+    spans
 }
 
 /// `xml` with the white space inside every `ByteString` element removed: the files break
@@ -86,16 +98,10 @@ fn byte_string_content(rest: &str, at: usize) -> Option<(usize, usize)> {
 pub fn compact_byte_strings(xml: &str) -> String {
     let mut out = String::with_capacity(xml.len());
     let mut done = 0;
-    let mut from = 0;
-    while let Some(found) = xml[from..].find("ByteString") {
-        let at = from + found;
-        from = at + "ByteString".len();
-        if let Some((start, end)) = byte_string_content(xml, at) {
-            out.push_str(&xml[done..start]);
-            out.extend(xml[start..end].chars().filter(|c| !c.is_whitespace()));
-            done = end;
-            from = end;
-        }
+    for span in byte_string_contents(xml) {
+        out.push_str(&xml[done..span.start]);
+        out.extend(xml[span.clone()].chars().filter(|c| !c.is_whitespace()));
+        done = span.end;
     }
     out.push_str(&xml[done..]);
     out
@@ -535,20 +541,15 @@ mod tests {
         // Every byte string of the built-in files then decodes.
         for (name, xml) in NODESETS {
             let compact = compact_byte_strings(xml);
-            let mut from = 0;
-            let mut seen = 0;
-            while let Some(found) = compact[from..].find("ByteString") {
-                let at = from + found;
-                from = at + 1;
-                if let Some((start, end)) = byte_string_content(&compact, at) {
-                    seen += 1;
-                    assert!(
-                        opcua::types::ByteString::from_base64(&compact[start..end]).is_some(),
-                        "{name}: a byte string at {start} does not decode"
-                    );
-                }
+            let spans = byte_string_contents(&compact);
+            for span in &spans {
+                assert!(
+                    opcua::types::ByteString::from_base64(&compact[span.clone()]).is_some(),
+                    "{name}: a byte string at {} does not decode",
+                    span.start
+                );
             }
-            assert_eq!(seen, if name.contains("Machinery") { 0 } else { 2 }, "{name}");
+            assert_eq!(spans.len(), if name.contains("Machinery") { 0 } else { 2 }, "{name}");
         }
     }
 
