@@ -38,6 +38,9 @@ fn users_file(dir: &Path, users: &str, mode: u32) -> PathBuf {
 /// The users file of the one operator with a password.
 const OPERATOR: &str = r#"{"users": [{"name": "operator", "password": "a-long-passphrase"}]}"#;
 
+/// The login of [`OPERATOR`]'s user, as the client script takes it.
+const OPERATOR_LOGIN: [&str; 4] = ["--user", "operator", "--password", "a-long-passphrase"];
+
 /// The first event of condition `name` in `alarms`' answer.
 fn first_event<'a>(out: &'a Json, name: &str) -> &'a Json {
     out["events"]
@@ -113,6 +116,15 @@ fn client(python: &Path, args: &[&str]) -> Json {
     let mut command = Command::new(python);
     command.arg(format!("{}/tests/interop/opcua_client.py", env!("CARGO_MANIFEST_DIR")));
     last_json(command, args)
+}
+
+/// Runs the client script's `command` (`call`, `alarms`) on the TRIJOINT at `url`, logged in
+/// with `login` (none: anonymous), carrying out `steps`; its answer.
+fn client_steps(python: &Path, command: &str, url: &str, login: &[&str], steps: &[&str]) -> Json {
+    let mut args = vec![command, url, "trijoint"];
+    args.extend_from_slice(login);
+    args.extend_from_slice(steps);
+    client(python, &args)
 }
 
 /// Runs `command` (a client script, its interpreter and path) with `args`: it must succeed, and
@@ -356,9 +368,8 @@ fn users_on_encrypted_channels_stop_acknowledge_and_load_beyond_loopback_and_the
     assert_eq!(wrong["refused"], "BadUserAccessDenied", "{wrong}");
     assert_eq!(wrong["untrusted_first"], true, "{wrong}");
 
-    let operator = ["--user", "operator", "--password", "a-long-passphrase"];
     let out = call(
-        &operator,
+        &OPERATOR_LOGIN,
         &[
             "Stop",
             "wait=ERROR",
@@ -494,15 +505,9 @@ fn conditions_are_raised_acknowledged_and_cleared_as_the_plc_sees_them() {
         "--trace",
         &trace,
     ]);
-    let operator = ["--user", "operator", "--password", "a-long-passphrase"];
-    let alarms = |login: &[&str], steps: &[&str]| {
-        let mut args = vec!["alarms", plc.url.as_str(), "trijoint"];
-        args.extend_from_slice(login);
-        args.extend_from_slice(steps);
-        client(&python, &args)
-    };
+    let alarms = |login: &[&str], steps: &[&str]| client_steps(&python, "alarms", &plc.url, login, steps);
     // STOP: the condition rises, unacknowledged.
-    let out = alarms(&operator, &["refresh", "Stop", "wait=Stop:active"]);
+    let out = alarms(&OPERATOR_LOGIN, &["refresh", "Stop", "wait=Stop:active"]);
     assert_eq!(
         step_outcomes(&out)[1..],
         [
@@ -534,7 +539,7 @@ fn conditions_are_raised_acknowledged_and_cleared_as_the_plc_sees_them() {
     );
     // The operator acknowledges the condition: the PLC leaves ERROR and the condition clears.
     let out = alarms(
-        &operator,
+        &OPERATOR_LOGIN,
         &["refresh", "wait=Stop:active", "ack=Stop", "wait=Stop:inactive"],
     );
     assert!(step_outcomes(&out).iter().all(|(_, s)| s == "Good"), "{out}");
@@ -565,9 +570,9 @@ fn conditions_are_raised_acknowledged_and_cleared_as_the_plc_sees_them() {
         "{history}"
     );
     // The station vanishes: the bus fault, then the ERROR it brings.
-    let _ = alarms(&operator, &["wait=Stop:inactive"]);
+    let _ = alarms(&OPERATOR_LOGIN, &["wait=Stop:inactive"]);
     drop(station);
-    let out = alarms(&operator, &["refresh", "wait=BusFault:active", "sleep=2"]);
+    let out = alarms(&OPERATOR_LOGIN, &["refresh", "wait=BusFault:active", "sleep=2"]);
     let bus = condition_events(&out, "BusFault");
     assert!(bus.iter().all(|(active, acked, _, _)| *active && !acked), "{out}");
     assert!(
@@ -674,13 +679,7 @@ fn machinery_shows_the_machine_its_nameplate_and_states_that_follow_the_plc() {
     );
     assert_eq!(out["MachineryOperationMode"]["number"], 2, "{out}");
     // STOP: out of service, in no mode; the acknowledgement: referencing again.
-    let operator = ["--user", "operator", "--password", "a-long-passphrase"];
-    let call = |steps: &[&str]| {
-        let mut args = vec!["call", plc.url.as_str(), "trijoint"];
-        args.extend_from_slice(&operator);
-        args.extend_from_slice(steps);
-        client(&python, &args)
-    };
+    let call = |steps: &[&str]| client_steps(&python, "call", &plc.url, &OPERATOR_LOGIN, steps);
     let _ = call(&["Stop", "wait=ERROR"]);
     let out = machinery();
     assert_eq!(
@@ -727,16 +726,12 @@ fn a_job_the_screen_refuses_raises_job_refused() {
     // Refused whatever the state: in INIT a job waits for READY, in READY this one nests too deep.
     let text = format!("G1 X{}1{} F100", "[".repeat(100), "]".repeat(100));
     common::screen_command(&screen, serde_json::json!({"cmd": "mdi", "text": text}));
-    let out = client(
+    let out = client_steps(
         &python,
+        "alarms",
+        &plc.url,
+        &OPERATOR_LOGIN,
         &[
-            "alarms",
-            &plc.url,
-            "trijoint",
-            "--user",
-            "operator",
-            "--password",
-            "a-long-passphrase",
             "refresh",
             "wait=JobRefused:active",
             "ack=JobRefused",
