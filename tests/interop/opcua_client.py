@@ -213,23 +213,30 @@ async def subscribe(url, machine, seconds, every=False, events=False):
         print(json.dumps(out))
 
 
-async def call(url, machine, args):
-    user = password = secure = pki = user_cert = None
+def options_and_steps(args, names):
+    """The options `--NAME VALUE` of `args` whose NAMEs are `names` (a dict by NAME, None for one
+    not given), and the other arguments in order: the steps."""
+    options = dict.fromkeys(names)
     steps = []
     it = iter(args)
     for a in it:
-        if a == "--user":
-            user = next(it)
-        elif a == "--password":
-            password = next(it)
-        elif a == "--user-cert":
-            user_cert = Path(next(it))
-        elif a == "--secure":
-            secure = Path(next(it))
-        elif a == "--pki":
-            pki = Path(next(it))
+        if a.startswith("--") and a[2:] in options:
+            options[a[2:]] = next(it)
         else:
             steps.append(a)
+    return options, steps
+
+
+def path_or_none(text):
+    return Path(text) if text is not None else None
+
+
+async def call(url, machine, args):
+    options, steps = options_and_steps(args, ["user", "password", "user-cert", "secure", "pki"])
+    user, password = options["user"], options["password"]
+    user_cert = path_or_none(options["user-cert"])
+    secure = path_or_none(options["secure"])
+    pki = path_or_none(options["pki"])
     async def connect():
         client = Client(url, timeout=10)
         client.application_uri = "urn:pkm-plc-tests:asyncua"
@@ -396,16 +403,8 @@ async def alarms(url, machine, args):
     wait=NAME:active|inactive|acked (an event of that condition so, within 30 s), ack=NAME
     (Acknowledge its latest event, comment "by the test"), sleep=SECONDS. JSON: every event
     received and each step's outcome."""
-    user = password = None
-    steps = []
-    it = iter(args)
-    for a in it:
-        if a == "--user":
-            user = next(it)
-        elif a == "--password":
-            password = next(it)
-        else:
-            steps.append(a)
+    options, steps = options_and_steps(args, ["user", "password"])
+    user, password = options["user"], options["password"]
     client = Client(url, timeout=10)
     if user:
         client.set_user(user)
