@@ -101,8 +101,42 @@ impl Program for CheckSet {
     }
 }
 
+/// Counts its cycles into `bomb_count` and panics in the cycle `at` (from 1).
+struct Bomb {
+    count: Output<i32>,
+    at: i32,
+}
+
+impl Program for Bomb {
+    fn cycle(&mut self, ctx: &mut Cycle<'_>) {
+        let n = ctx.output_value(self.count) + 1;
+        ctx.set(self.count, n);
+        if n == self.at {
+            let plan: Vec<f64> = Vec::new();
+            panic!("boom in cycle {n}: {}", plan.len());
+        }
+    }
+}
+
+#[derive(Default, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+struct BombParams {
+    at: i32,
+}
+
 fn registry() -> Registry {
     let mut r = pkm_plc::compose::machines::all_programs();
+    r.register(ProgramInfo {
+        name: "bomb",
+        summary: "test: panics in a given cycle",
+        factory: |args, decl| {
+            let p: BombParams = args.parse(decl);
+            Box::new(Bomb {
+                count: decl.output("bomb_count", 0),
+                at: p.at,
+            })
+        },
+    });
     for name in ["stamp.a", "stamp.b", "stamp.c"] {
         r.register(ProgramInfo {
             name,
@@ -550,6 +584,85 @@ fn stopping_a_real_time_run_writes_safe_outputs() {
     let outcome = run.join().expect("join");
     assert!(class_stats(&outcome.plc, "fast").cycles > 0);
     assert_eq!(recorded.lock().expect("lock").safe, Some(Value::Dint(0)));
+}
+
+/// The self-test pair and a program of the fast class that panics in its cycle `at`.
+fn bomb_config(at: i32) -> String {
+    format!(
+        r#"{{"task_classes": [
+            {{"name": "fast", "cycle_us": 10000, "tolerance_us": 10000, "priority": 1,
+              "programs": [{{"program": "selftest.producer"}}, {{"program": "bomb", "params": {{"at": {at}}}}}]}},
+            {{"name": "main", "cycle_us": 50000, "tolerance_us": 50000, "priority": 2,
+              "programs": [{{"program": "selftest.consumer"}}]}}
+        ]}}"#
+    )
+}
+
+/// A cyclic program's panic is the PLC's ERROR (service mode), as B&R's runtime makes a task's
+/// exception: the reason names the program, its class, where it panicked and its message; the
+/// outputs go to their safe values at once and stay there (the bus is given them); no program
+/// runs again; and the run goes on to its end — the process does not exit.
+#[test]
+fn a_cyclic_programs_panic_is_error_with_safe_outputs_and_the_run_goes_on() {
+    let recorded = Arc::new(Mutex::new(Recorded::default()));
+    let mut plc = build(&bomb_config(5), Box::new(RecordingBus(Arc::clone(&recorded))));
+    run_virtual_keep(&mut plc, 1_000_000_000);
+    let status = plc.app_status().expect("a status");
+    assert_eq!(status.state, "ERROR");
+    // Where the bomb panics, as this file has it.
+    let line = include_str!("scheduling.rs")
+        .lines()
+        .position(|l| l.trim_start().starts_with("panic!(\"boom in cycle"))
+        .expect("the bomb's panic")
+        + 1;
+    assert_eq!(
+        status.reason,
+        Some(
+            format!(
+                "cyclic program bomb (task class fast) panicked at tests/scheduling.rs:{line}:13: boom in cycle 5: 0"
+            )
+            .as_str()
+        )
+    );
+    assert!(
+        status.note.is_some_and(|n| n.starts_with("service mode")),
+        "{:?}",
+        status.note
+    );
+    assert_eq!(plc.error_reason().as_deref(), status.reason);
+    let service = plc.service_mode().expect("in service mode");
+    assert_eq!((service.program.as_str(), service.class.as_str()), ("bomb", "fast"));
+    // The producer's counter reached 5 before the panic and is safe (0) since, in the image
+    // and on the bus; no program ran after (the counters stay at their safe values).
+    assert_eq!(dint(&plc, "selftest_seq"), 0);
+    assert_eq!(dint(&plc, "bomb_count"), 0);
+    assert_eq!(dint(&plc, "selftest_checked"), 0);
+    let r = recorded.lock().expect("lock");
+    assert_eq!(r.safe, Some(Value::Dint(0)), "the bus was given the safe image");
+    assert_eq!(
+        r.last_output,
+        Some(Value::Dint(0)),
+        "every cycle after writes the safe value"
+    );
+    // The cycles went on being scheduled (the screen and OPC UA are fed from them).
+    assert_eq!(class_stats(&plc, "fast").cycles, 100);
+}
+
+/// In real time too: the cyclic thread survives a program's panic, the run ends when it is
+/// stopped, and its outcome reports the ERROR and why.
+#[test]
+fn a_real_time_run_survives_a_programs_panic() {
+    let plc = build(&bomb_config(3), Box::new(NoBus));
+    let options = rt_options(TimeSourceKind::Nanosleep, 300);
+    let run = run::start_realtime(plc, options).expect("start");
+    let outcome = run.join().expect("the cyclic thread ends normally");
+    assert!(class_stats(&outcome.plc, "fast").cycles >= 10);
+    let reason = outcome.plc.error_reason().expect("a reason");
+    assert!(
+        reason.starts_with("cyclic program bomb (task class fast) panicked at tests/scheduling.rs:"),
+        "{reason}"
+    );
+    assert!(reason.ends_with("boom in cycle 3: 0"), "{reason}");
 }
 
 fn rt_options(source: TimeSourceKind, duration_ms: u64) -> RealTimeOptions {

@@ -16,7 +16,7 @@ use pkm_kinematics::{KinematicsConfig, Machine as Model};
 use pkm_nc::check::{Limits, Report, check_watched, format_pose};
 use pkm_nc::interp::{self, Program};
 use pkm_nc::job::PlannedProgram;
-use pkm_nc::plan::{Plan, PlanLimits, plan_watched};
+use pkm_nc::plan::{Checked, PlanLimits, plan_watched, verify};
 use pkm_nc::watch::Watch;
 
 use crate::compose::setup::Setup;
@@ -60,8 +60,9 @@ pub struct Prepared {
     pub program: Program,
     /// The check of every point of its path.
     pub report: Report,
-    /// The plan, where every point is reachable.
-    pub plan: Option<Plan>,
+    /// The plan, where every point is reachable: checked finite and within the machine's
+    /// limits as the fast class will sample it.
+    pub plan: Option<Checked>,
 }
 
 impl Prepared {
@@ -254,9 +255,72 @@ pub fn machine_of(setup: &Setup) -> Result<MachineOf, NcFailure> {
     })
 }
 
+/// The cycle of `setup`'s fastest task class (s), where the drives are fed a plan's samples.
+pub fn fast_cycle_s(setup: &Setup) -> f64 {
+    let fastest = setup
+        .loaded
+        .config
+        .task_classes
+        .iter()
+        .map(|c| c.cycle_us)
+        .min()
+        .unwrap_or(10_000);
+    f64::from(fastest.max(1)) * 1e-6
+}
+
+/// The limits `setup`'s programs are planned within on a machine of `n` coordinates with
+/// `motion`: the joints' speeds and accelerations, the world axes' where the configuration gives
+/// them (else the joints' bound every move, rapids included), the accelerations times
+/// `nc.accel_share`.
+pub fn plan_limits(setup: &Setup, motion: &Motion, n: usize) -> PlanLimits {
+    let nc = &setup.loaded.config.nc;
+    let per_axis = |v: &Option<Vec<f64>>| {
+        let mut a = [f64::INFINITY; 6];
+        if let Some(v) = v {
+            a[..n].copy_from_slice(v);
+        }
+        a
+    };
+    let share = nc.accel_share();
+    PlanLimits {
+        joint_speed: motion.joint_speed.clone(),
+        joint_accel: motion.joint_accel.iter().map(|a| a * share).collect(),
+        axis_speed: per_axis(&nc.axis_speed),
+        axis_accel: per_axis(&nc.axis_accel).map(|a| a * share),
+    }
+}
+
 /// Reads `text` (from the file `name`) with the tool at `start` (machine frame), gives the
 /// program read to `edit`, then checks and plans what `edit` makes of it.
+///
+/// A panic on the way (of the interpreter, the check, the planner: a bug) refuses the program
+/// and goes no further: a file of `--programs`, a screen job or `run --program` must never end
+/// the process, nor keep the PLC from starting.
 pub(crate) fn prepare_from(
+    setup: &Setup,
+    name: String,
+    text: String,
+    start: [f64; 6],
+    edit: impl FnOnce(Program) -> Result<Program, NcFailure>,
+    watch: &Deadline<'_>,
+) -> Result<Prepared, NcFailure> {
+    let named = name.clone();
+    std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        prepare_unguarded(setup, name, text, start, edit, watch)
+    }))
+    .unwrap_or_else(|payload| {
+        Err(fail(
+            1,
+            format!(
+                "{named}: the planner failed on this program (a fault of the planner: please report it with the program): {}",
+                crate::runtime::service_mode::panic_message(payload.as_ref())
+            ),
+        ))
+    })
+}
+
+/// [`prepare_from`] without its guard.
+fn prepare_unguarded(
     setup: &Setup,
     name: String,
     text: String,
@@ -309,28 +373,12 @@ pub(crate) fn prepare_from(
     .map_err(|s| fail(2, format!("{name}:{}: {}", s.line, s.why)))?;
     // Planned only where every point is reachable: the planner needs the joints everywhere.
     let planned = if report.unreachable.is_empty() {
-        // World-axis limits where the configuration gives them; else the joints' limits bound
-        // every move, rapids included.
-        let per_axis = |v: &Option<Vec<f64>>| {
-            let mut a = [f64::INFINITY; 6];
-            if let Some(v) = v {
-                a[..n].copy_from_slice(v);
-            }
-            a
-        };
-        let share = nc.accel_share();
-        let limits = PlanLimits {
-            joint_speed: motion.joint_speed.clone(),
-            joint_accel: motion.joint_accel.iter().map(|a| a * share).collect(),
-            axis_speed: per_axis(&nc.axis_speed),
-            axis_accel: per_axis(&nc.axis_accel).map(|a| a * share),
-        };
+        let limits = plan_limits(setup, &motion, n);
         // A plan the watch stopped is refused like a program too large (2); one the machine
-        // cannot follow, as an unreachable one (1).
-        Some(
-            plan_watched(&program, &frame, &limits, watch)
-                .map_err(|e| fail(if watch.stopped() { 2 } else { 1 }, format!("{name}: {e}")))?,
-        )
+        // cannot follow, or that fails its check, as an unreachable one (1).
+        let refused = |e: pkm_nc::plan::PlanError| fail(if watch.stopped() { 2 } else { 1 }, format!("{name}: {e}"));
+        let plan = plan_watched(&program, &frame, &limits, watch).map_err(refused)?;
+        Some(verify(plan, &frame, &limits, fast_cycle_s(setup), watch).map_err(refused)?)
     } else {
         None
     };
@@ -516,5 +564,40 @@ fn same_file(a: &Path, b: &Path) -> bool {
     match (a.canonicalize(), b.canonicalize()) {
         (Ok(a), Ok(b)) => a == b,
         _ => a == b,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn ox_x() -> Setup {
+        let machine = crate::compose::machines::find("ox-x").expect("built in");
+        let file = machine.configuration();
+        let loaded = crate::runtime::config::parse(file.text, file.name).unwrap_or_else(|e| panic!("{e}"));
+        Setup::new(loaded).unwrap_or_else(|e| panic!("{e}"))
+    }
+
+    #[test]
+    fn a_panic_while_a_program_is_prepared_refuses_it_and_goes_on() {
+        let setup = ox_x();
+        let refused = prepare_from(
+            &setup,
+            "bug.ngc".into(),
+            "G1 X1 F600\nM2\n".into(),
+            [0.0; 6],
+            |_| panic!("an invariant broken"),
+            &Deadline::none(),
+        )
+        .err()
+        .expect("refused");
+        assert_eq!(refused.code, 1);
+        assert_eq!(
+            refused.message,
+            "bug.ngc: the planner failed on this program (a fault of the planner: please report it with the program): an invariant broken"
+        );
+        // The next one is prepared as ever.
+        let next = prepare_text(&setup, "next.ngc".into(), "G1 X1 F600\nM2\n".into());
+        assert!(next.is_ok_and(|p| p.plan.is_some()));
     }
 }

@@ -128,7 +128,7 @@ impl Standing for StandingPose {
 /// spindle as the blocks before left it is switched on there, once the tool has arrived.
 /// Dwells and pauses before the line do not run.
 pub fn from_line(program: Program, line: usize, start: [f64; 6]) -> Result<Program, NcFailure> {
-    let Program { blocks, messages } = program;
+    let Program { blocks, messages, .. } = program;
     let last = blocks
         .iter()
         .filter(|b| !matches!(b.action, Action::End))
@@ -159,6 +159,7 @@ pub fn from_line(program: Program, line: usize, start: [f64; 6]) -> Result<Progr
     if (0..6).any(|c| (target[c] - start[c]).abs() > 1e-9) {
         run.push(Block {
             line: first_line,
+            column: 1,
             action: Action::Move {
                 from: start,
                 to: target,
@@ -171,11 +172,16 @@ pub fn from_line(program: Program, line: usize, start: [f64; 6]) -> Result<Progr
     if let Some((direction, speed_rpm)) = spindle.filter(|(d, _)| *d != Spindle::Off) {
         run.push(Block {
             line: first_line,
+            column: 1,
             action: Action::Spindle { direction, speed_rpm },
         });
     }
     run.extend_from_slice(&blocks[at..]);
-    Ok(Program { blocks: run, messages })
+    Ok(Program {
+        blocks: run,
+        messages,
+        start,
+    })
 }
 
 /// Where the tool stands commanded, from a published image: the forward kinematics of the
@@ -227,7 +233,11 @@ mod tests {
     use super::*;
 
     fn block(line: usize, action: Action) -> Block {
-        Block { line, action }
+        Block {
+            line,
+            column: 1,
+            action,
+        }
     }
 
     fn line_move(line: usize, from: [f64; 6], to: [f64; 6]) -> Block {
@@ -264,6 +274,7 @@ mod tests {
                 block(6, Action::End),
             ],
             messages: Vec::new(),
+            start: [0.0; 6],
         }
     }
 

@@ -4,7 +4,8 @@
 //! [`signals`] turns the process's terminating signals into a safe stop; [`stats`], [`status`]
 //! and [`summary`] measure and report the cycles; [`frame`] hands each main cycle's state to
 //! whoever watches (the screen, OPC UA) without the cyclic thread waiting; [`messages`] turns
-//! the NC programs' message comments the cycle reached back into their texts; [`config`] is the
+//! the NC programs' message comments the cycle reached back into their texts; [`service_mode`]
+//! is what a cyclic program's panic leads to; [`config`] is the
 //! configuration file's schema, reading and checks. Nothing here imports the services or the
 //! composition above it.
 
@@ -18,6 +19,7 @@ pub mod messages;
 pub mod plc;
 pub mod run;
 pub mod service;
+pub mod service_mode;
 pub mod signals;
 pub mod snapshot;
 pub mod stats;

@@ -5,12 +5,15 @@
 //! are never preempted: among the classes that are due, the one with the highest priority runs
 //! first (and so the faster one, which configuration checks enforce).
 
+use std::panic::AssertUnwindSafe;
+
 use tracing::warn;
 
 use crate::image::{Declare, Problem, Value, VarIndex, VarTable, Writer};
 use crate::program::{AppStatus, Clock, Cycle, CycleInfo, CycleViolation, Program, ProgramArgs, Registry};
 use crate::runtime::bus::Bus;
 use crate::runtime::config::{self, Config, Reaction};
+use crate::runtime::service_mode::{self, ServiceMode};
 use crate::runtime::stats::ClassStats;
 
 /// What a recorder sees of one class cycle.
@@ -107,6 +110,8 @@ pub struct Plc {
     bus_started: bool,
     /// The machine the configuration names (`"machine"`), if it names one.
     machine: Option<String>,
+    /// Set when a cyclic program panicked: programs no longer run, outputs stay safe.
+    service: Option<ServiceMode>,
 }
 
 /// A read-only view of one task class, for summaries and status lines.
@@ -140,6 +145,8 @@ impl Plc {
         mut bus: Box<dyn Bus>,
         nc: Option<&pkm_api::library::NcLibrary>,
     ) -> Result<Plc, Vec<Problem>> {
+        // A program's panic names where it was raised.
+        service_mode::install_hook();
         let mut issues = config::check(config);
         let mut table = VarTable::new();
         bus.declare(&mut table);
@@ -243,6 +250,7 @@ impl Plc {
             bus_fault,
             bus_started: false,
             machine: config.machine.clone(),
+            service: None,
         })
     }
 
@@ -325,8 +333,17 @@ impl Plc {
         })
     }
 
-    /// The main program's status: the first program (in priority order) that reports one.
+    /// The main program's status: the first program (in priority order) that reports one; in
+    /// service mode, ERROR with the panic's reason.
     pub fn app_status(&self) -> Option<AppStatus<'_>> {
+        if let Some(service) = &self.service {
+            return Some(AppStatus {
+                state: service_mode::STATE,
+                reason: Some(&service.reason),
+                note: Some(service_mode::NOTE),
+                values: &[],
+            });
+        }
         self.order
             .iter()
             .flat_map(|&c| self.classes[c].programs.iter())
@@ -388,7 +405,11 @@ impl Plc {
             for &i in &class.inputs {
                 class.image[usize::from(i)] = self.global[usize::from(i)];
             }
+            let serving = self.service.is_some();
             for slot in &mut class.programs {
+                if self.service.is_some() {
+                    break;
+                }
                 let info = CycleInfo {
                     time_ns: start_ns,
                     cycle: 0,
@@ -396,8 +417,15 @@ impl Plc {
                     violation: None,
                 };
                 let mut ctx = Cycle::new(&mut class.image, info, &mut *clock);
-                slot.program.init(&mut ctx);
+                let program = &mut slot.program;
+                if let Err(payload) = std::panic::catch_unwind(AssertUnwindSafe(|| program.init(&mut ctx))) {
+                    self.service = Some(ServiceMode::from_panic(&slot.name, &class.name, payload.as_ref()));
+                }
             }
+            if !serving && self.service.is_some() {
+                self.enter_service_mode();
+            }
+            let class = &mut self.classes[ci];
             for &o in &class.outputs {
                 self.global[usize::from(o)] = class.image[usize::from(o)];
             }
@@ -431,9 +459,14 @@ impl Plc {
     /// the recorded ones; otherwise each program gets the runtime's pending one. Returns whether a
     /// violation was delivered.
     fn execute(&mut self, ci: usize, release: u64, clock: &mut dyn Clock, replayed: Option<bool>) -> bool {
+        if self.service.is_some() {
+            // Service mode: no program runs; the outputs stay at their safe values.
+            return false;
+        }
         let class = &mut self.classes[ci];
         let cycle = class.stats.cycles;
         let mut delivered = false;
+        let mut panicked = None;
         for slot in &mut class.programs {
             let violation = match replayed {
                 Some(true) => Some(CycleViolation {
@@ -455,9 +488,42 @@ impl Plc {
                 violation,
             };
             let mut ctx = Cycle::new(&mut class.image, info, &mut *clock);
-            slot.program.cycle(&mut ctx);
+            // A panic is caught here, where the program was called (the cycle allocates
+            // nothing for it: the catch costs nothing until something is thrown).
+            let program = &mut slot.program;
+            if let Err(payload) = std::panic::catch_unwind(AssertUnwindSafe(|| program.cycle(&mut ctx))) {
+                panicked = Some(ServiceMode::from_panic(&slot.name, &class.name, payload.as_ref()));
+                break;
+            }
+        }
+        if let Some(service) = panicked {
+            self.service = Some(service);
+            self.enter_service_mode();
         }
         delivered
+    }
+
+    /// Service mode from now on: every program's output at its safe value in every class's
+    /// image (so that what each class publishes from here on is safe), the bus given the safe
+    /// image, and the reason logged.
+    fn enter_service_mode(&mut self) {
+        for (i, var) in self.table.vars().iter().enumerate() {
+            if let Some(Writer::Program { class, .. }) = var.writer {
+                if let Some(c) = self.classes.get_mut(class) {
+                    c.image[i] = var.safe;
+                }
+                self.global[i] = var.safe;
+            }
+        }
+        self.bus.write_safe(&self.global);
+        if let Some(service) = &self.service {
+            tracing::error!("{}; {}", service.reason, service_mode::NOTE);
+        }
+    }
+
+    /// Why the PLC is in service mode, if it is: a cyclic program panicked.
+    pub fn service_mode(&self) -> Option<&ServiceMode> {
+        self.service.as_ref()
     }
 
     /// Publishes class `ci`'s outputs to the global image.

@@ -115,7 +115,7 @@ fn a_few_bytes_that_make_millions_of_moves_or_metres_are_refused_at_the_line_tha
     assert_eq!(code, Some(2));
     assert!(
         error.starts_with(&format!(
-            "error: {turns}:3:1: the program's plan would take more than 1024 MiB (the bound: nc.max_plan_mib): 599 actions so far, and a velocity profile of "
+            "error: {turns}:3:1: the program's plan would take more than 2048 MiB (the bound: nc.max_plan_mib): 217 actions so far, and a velocity profile of "
         )),
         "{error}"
     );

@@ -46,18 +46,19 @@ impl Virtual {
     }
 }
 
-/// A program of the O-X glide's plane: a 10 mm square from its start, the reference pose.
-const SQUARE: &str = "G21 G90 G61\nG1 X10 F600\nY10\nX0\nY0\nM2\n";
-
-#[test]
-fn mdi_lines_and_a_run_from_a_line_start_where_the_tool_stands_and_replay_identically() {
-    let dir = tempfile::tempdir().expect("tempdir");
-    let programs = dir.path().join("programs");
-    std::fs::create_dir(&programs).expect("a directory");
-    std::fs::write(programs.join("square.ngc"), SQUARE).expect("the program");
+/// The O-X glide as shipped, built with a screen (and the `programs` folder, if any): its setup,
+/// PLC, library of programs and jobs, and the screen's inputs.
+fn ox_x_with_screen(
+    programs: Option<std::path::PathBuf>,
+) -> (
+    Setup,
+    Plc,
+    pkm_api::library::NcLibrary,
+    pkm_plc::services::hmi::commands::CommandSink,
+) {
     let setup = Setup::new(machine_config("ox-x", |_| {})).expect("ox-x");
     let options = Options {
-        programs: Some(programs),
+        programs,
         hmi: true,
         ..Options::default()
     };
@@ -68,7 +69,24 @@ fn mdi_lines_and_a_run_from_a_line_start_where_the_tool_stands_and_replay_identi
         hmi,
         ..
     } = compose::build(setup, options).unwrap_or_else(|e| panic!("{e}"));
-    let (library, sink) = (library.expect("a library"), hmi.expect("the screen's inputs"));
+    (
+        setup,
+        plc,
+        library.expect("a library for the screen's jobs"),
+        hmi.expect("the screen's inputs"),
+    )
+}
+
+/// A program of the O-X glide's plane: a 10 mm square from its start, the reference pose.
+const SQUARE: &str = "G21 G90 G61\nG1 X10 F600\nY10\nX0\nY0\nM2\n";
+
+#[test]
+fn mdi_lines_and_a_run_from_a_line_start_where_the_tool_stands_and_replay_identically() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let programs = dir.path().join("programs");
+    std::fs::create_dir(&programs).expect("a directory");
+    std::fs::write(programs.join("square.ngc"), SQUARE).expect("the program");
+    let (setup, plc, library, sink) = ox_x_with_screen(Some(programs));
     let trace = dir.path().join("jobs.jsonl");
     let digest = setup.digest().expect("a digest");
     let recorder = pkm_plc::services::trace::record::Recorder::create_with(&trace, &plc, &digest, Some(&library), None)
@@ -302,5 +320,45 @@ fn a_touch_off_moves_the_work_origin_keeps_it_in_the_parameter_file_and_jobs_fol
             "{}:2:1: #5230 rotates a coordinate system by 90°: rotation (G10 R) is not supported",
             var.display()
         )
+    );
+}
+
+/// Four lines of a few millimetres at F6000 near home: before the planner was rewritten more
+/// than half of such programs planned to NaN, and this one, sent as MDI, took the PLC down from
+/// its cyclic thread. The same text through every other entry point: `tests/suite/nc_entry_points.rs`.
+#[test]
+fn the_mdi_that_took_the_plc_down_runs_to_its_end() {
+    let (setup, plc, library, sink) = ox_x_with_screen(None);
+    let mut run = Virtual::new(plc);
+    let standing = StandingPose::of(&setup, &run.plc).expect("the O-X glide's set-points");
+    let seen = run.until(13_000, |_| {});
+    assert_eq!(seen.last().map(String::as_str), Some("READY"), "{seen:?}");
+    let start = standing.pose(run.plc.global_image()).expect("a pose");
+    let mut at = [0.0; 6];
+    at.copy_from_slice(&start);
+    let spec = ScreenJobSpec {
+        kind: ScreenJobKind::Mdi {
+            text: crate::nc_entry_points::NAN_PROGRAM.into(),
+        },
+        start: at,
+        offsets: None,
+    };
+    let job = screen_job::plan(&setup, &library, &spec).unwrap_or_else(|e| panic!("{e}"));
+    assert!(job.trajectory.duration_s().is_finite());
+    let slot = library.screen.push(ScreenJob { spec, job }).expect("room");
+    let number = library.screen_number(slot).expect("a number");
+    sink.update(|c| {
+        c.program = number;
+        c.presses[press::NC[0]] += 1;
+    });
+    let seen = run.until(25_000, |plc| {
+        assert!(get(plc, TOOL[0]).is_finite() && get(plc, TOOL[1]).is_finite());
+    });
+    assert_eq!(seen, ["AUTO", "READY"]);
+    assert!(get(&run.plc, vars::NC_COMPLETED));
+    let [x, y] = [get(&run.plc, TOOL[0]), get(&run.plc, TOOL[1])];
+    assert!(
+        (x + 4.204).abs() < 0.01 && (y - 2.846).abs() < 0.01,
+        "the MDI lines ended at ({x}, {y})"
     );
 }

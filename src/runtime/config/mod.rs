@@ -102,7 +102,7 @@ pub struct NcConfig {
     /// program that makes more is refused at the line where it passes the bound.
     #[serde(default)]
     pub max_moves: Option<u64>,
-    /// The most memory one program and its plan may take (MiB, 1024 by default), as counted
+    /// The most memory one program and its plan may take (MiB, 2048 by default), as counted
     /// from its moves and its path's length while it is read.
     #[serde(default)]
     pub max_plan_mib: Option<u64>,

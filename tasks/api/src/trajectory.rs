@@ -155,6 +155,10 @@ pub struct TrajectorySample {
     /// planned speed (mm/s²): a feed hold brakes, a resume and an override's change accelerate,
     /// with it.
     pub accel: f64,
+    /// How fast the planned speed changes here (mm/s², negative where the plan brakes): where
+    /// the tool runs at a fraction of the plan's time, its speed changes by that fraction
+    /// squared of this beside what the fraction's own change makes.
+    pub planned_accel: f64,
     /// A rapid (G0) executes: no programmed feed, no contour to keep.
     pub rapid: bool,
 }

@@ -133,6 +133,9 @@ pub fn check_watched(program: &Program, limits: &Limits<'_>, watch: &dyn Watch) 
         let samples = ((segment.linear_length().max(segment.angular()) / SAMPLE_SPACING).ceil() as usize).max(1);
         let begin = if first { 0 } else { 1 };
         first = false;
+        // The box takes every sample of the path; a move is reported at its first unreachable
+        // one.
+        let mut reported = false;
         for i in begin..=samples {
             watched.step().map_err(|why| Stopped { line: block.line, why })?;
             let pose = segment.at(i as f64 / samples as f64);
@@ -143,13 +146,16 @@ pub fn check_watched(program: &Program, limits: &Limits<'_>, watch: &dyn Watch) 
                 b[0] = b[0].min(pose[c]);
                 b[1] = b[1].max(pose[c]);
             }
+            if reported {
+                continue;
+            }
             if let Some(why) = why_not(limits, &pose) {
                 report.unreachable.push(Unreachable {
                     line: block.line,
                     pose,
                     why,
                 });
-                break;
+                reported = true;
             }
         }
     }
@@ -248,5 +254,17 @@ mod tests {
         let r = report(pkm_kinematics::Machine::Hexapod, "G1 A5 B-5 F100\nG1 A80\n");
         assert_eq!(r.unreachable.len(), 1, "{:?}", r.unreachable);
         assert_eq!(r.unreachable[0].line, 2);
+    }
+
+    #[test]
+    fn the_box_is_the_whole_paths_where_it_leaves_the_workspace() {
+        // Out to x = 500 mm (the O-X glide reaches ±120), then back to y = 40.
+        let r = report(
+            pkm_kinematics::Machine::OxX,
+            "G0 X10 Y5\nG1 X500 Y-30 F600\nG1 X20 Y40\n",
+        );
+        assert_eq!(r.unreachable.len(), 2, "{:?}", r.unreachable);
+        let b = r.bounding_box.expect("a box");
+        assert_eq!([b[0], b[1]], [[0.0, 500.0], [-30.0, 40.0]], "{b:?}");
     }
 }

@@ -5,7 +5,7 @@
 use pkm_api::trajectory::{MAX_AXES, Trajectory, TrajectoryEvent, TrajectorySample};
 use pkm_kinematics::frame::MachineFrame;
 
-use crate::plan::Plan;
+use crate::plan::{Checked, Plan};
 
 /// How far either side of the executor's time the path is searched for the point closest to
 /// the measured tool (s): more than any drive lags.
@@ -15,15 +15,15 @@ const SEARCH_STEPS: usize = 100;
 /// Refinement steps (each shrinks the bracket to 2/3).
 const REFINE_STEPS: usize = 40;
 
-/// A plan on its machine.
+/// A plan on its machine: only a [`Checked`] plan becomes one.
 pub struct PlannedProgram {
-    plan: Plan,
+    plan: Checked,
     frame: MachineFrame,
 }
 
 impl PlannedProgram {
-    /// `plan` on the machine `frame` it was planned for.
-    pub fn new(plan: Plan, frame: MachineFrame) -> PlannedProgram {
+    /// `plan` on the machine `frame` it was planned and checked for.
+    pub fn new(plan: Checked, frame: MachineFrame) -> PlannedProgram {
         PlannedProgram { plan, frame }
     }
 
@@ -58,7 +58,8 @@ impl Trajectory for PlannedProgram {
     }
 
     fn sample(&self, t: f64, cursor: &mut usize) -> TrajectorySample {
-        let s = self.plan.sample(t.clamp(0.0, self.plan.duration_s), cursor);
+        // max and min, not clamp, which panics on a bound that is not a number.
+        let s = self.plan.sample(t.max(0.0).min(self.plan.duration_s), cursor);
         let n = self.frame.dof();
         let mut joints = [0.0; MAX_AXES];
         // Every point of a plan was reachable when it was planned (its joints were computed
@@ -74,6 +75,7 @@ impl Trajectory for PlannedProgram {
             speed: s.speed,
             speed_max: s.speed_max,
             accel: s.accel,
+            planned_accel: s.planned_accel,
             rapid: s.rapid,
         }
     }

@@ -21,6 +21,8 @@ const G54: usize = 5221;
 /// to add).
 pub fn parse(text: &str) -> Result<WorkOffsets, NcError> {
     let mut p = WorkOffsets::default();
+    // LinuxCNC reads the numbers in increasing order and refuses a file that is not.
+    let mut last: Option<usize> = None;
     for (i, line) in text.lines().enumerate() {
         let number = i + 1;
         // The fields with the columns they start at.
@@ -34,6 +36,15 @@ pub fn parse(text: &str) -> Result<WorkOffsets, NcError> {
             .1
             .parse()
             .map_err(|_| err(first, format!("'{}' is not a parameter's number", first.1)))?;
+        if let Some(before) = last.filter(|&before| index <= before) {
+            return Err(err(
+                first,
+                format!(
+                    "#{index} after #{before}: the numbers must increase from line to line, as LinuxCNC reads them"
+                ),
+            ));
+        }
+        last = Some(index);
         let value_field = second.ok_or_else(|| err(first, format!("#{index} has no value")))?;
         if let Some(extra) = fields.next() {
             return Err(err(
@@ -161,6 +172,14 @@ mod tests {
             ),
             ("  31 4\n", "1:3: #31 is not a parameter LinuxCNC keeps in its file"),
             ("5232 4\n", "1:1: #5232 is not a parameter LinuxCNC keeps in its file"),
+            (
+                "5221 1\n5223 2\n5222 3\n",
+                "3:1: #5222 after #5223: the numbers must increase from line to line, as LinuxCNC reads them",
+            ),
+            (
+                "5221 1\n\n5221 2\n",
+                "3:1: #5221 after #5221: the numbers must increase from line to line, as LinuxCNC reads them",
+            ),
         ] {
             assert_eq!(parse(text).map_err(|e| e.to_string()), Err(why.to_string()), "{text}");
         }

@@ -22,8 +22,10 @@ pub struct Segment {
 /// The memory an arc's own part of a [`Segment`] takes (bytes).
 pub(crate) const ARC_BYTES: usize = size_of::<Arc>();
 
-/// A circular arc in x y z (a helix with `rise`): p(φ) = c + r·(cos φ·u + sin φ·v) + rise·φ/sweep·w
-/// for φ from 0 to `sweep`; u, v, w orthonormal.
+/// A circular arc in x y z (a helix with `rise`, a spiral with `spiral`):
+/// p(φ) = c + r(φ)·(cos φ·u + sin φ·v) + rise·φ/sweep·w for φ from 0 to `sweep`, with
+/// r(φ) = radius + spiral·φ/sweep and u, v, w orthonormal. A programmed arc whose end lies a little off its circle is a spiral from the
+/// start's radius to the end's, as LinuxCNC traces it.
 #[derive(Clone, Copy, Debug, PartialEq)]
 struct Arc {
     center: [f64; 3],
@@ -31,10 +33,89 @@ struct Arc {
     v: [f64; 3],
     w: [f64; 3],
     radius: f64,
+    /// How the radius changes from the start to the end (mm).
+    spiral: f64,
     /// The angle it turns (rad, positive).
     sweep: f64,
     /// How far it rises along w (mm).
     rise: f64,
+    /// Its length (mm), found once: [`Arc::measured`] sets it.
+    length: f64,
+}
+
+impl Arc {
+    /// How the radius changes per radian, and the part of the speed along the path that is not
+    /// the turn's (the radius' change and the rise, per radian): ds/dφ = √(r(φ)² + c²).
+    fn rates(&self) -> (f64, f64) {
+        let k = self.spiral / self.sweep;
+        let h = self.rise / self.sweep;
+        (k, (k * k + h * h).sqrt())
+    }
+
+    /// The arc with its length found.
+    fn measured(mut self) -> Arc {
+        self.length = self.length_to(self.sweep);
+        self
+    }
+
+    /// The length of the path from its start to the angle `phi` (mm): ∫ √(r(ψ)² + c²) dψ, by
+    /// eight-point Gauss–Legendre quadrature where the radius changes (its integrand is smooth
+    /// and changes little: the closed form, a difference of two large terms, loses the digits a
+    /// spiral of a thousandth of a millimetre on a large radius needs).
+    fn length_to(&self, phi: f64) -> f64 {
+        let (k, c) = self.rates();
+        let c2 = c * c;
+        if self.spiral == 0.0 {
+            return phi * (self.radius * self.radius + c2).sqrt();
+        }
+        // Nodes and weights on −1 … 1.
+        const NODES: [(f64, f64); 4] = [
+            (0.183_434_642_495_649_8, 0.362_683_783_378_362),
+            (0.525_532_409_916_329, 0.313_706_645_877_887_3),
+            (0.796_666_477_413_626_7, 0.222_381_034_453_374_5),
+            (0.960_289_856_497_536_3, 0.101_228_536_290_376_3),
+        ];
+        let half = phi / 2.0;
+        let speed = |psi: f64| {
+            let r = self.radius + k * psi;
+            (r * r + c2).sqrt()
+        };
+        half * NODES
+            .iter()
+            .map(|(x, w)| w * (speed(half * (1.0 + x)) + speed(half * (1.0 - x))))
+            .sum::<f64>()
+    }
+
+    /// The path's length (mm).
+    fn length(&self) -> f64 {
+        self.length
+    }
+
+    /// The angle at which the path has run the fraction `u` of its length: the fraction itself
+    /// of the sweep where the speed along the path is the same at every angle (a circle, a
+    /// helix), else found by Newton's method (a spiral, whose radius changes).
+    fn angle(&self, u: f64) -> f64 {
+        let phi = self.sweep * u;
+        if self.spiral == 0.0 {
+            return phi;
+        }
+        let (k, c) = self.rates();
+        let target = u * self.length;
+        let mut phi = phi;
+        for _ in 0..8 {
+            let r = self.radius + k * phi;
+            let speed = (r * r + c * c).sqrt();
+            if speed <= 0.0 {
+                break;
+            }
+            let step = (self.length_to(phi) - target) / speed;
+            phi -= step;
+            if step.abs() <= 1e-15 * self.sweep {
+                break;
+            }
+        }
+        phi
+    }
 }
 
 fn unit(axis: usize) -> [f64; 3] {
@@ -58,6 +139,7 @@ impl Segment {
                 let start_angle = (from[a1] - center[1]).atan2(from[a0] - center[0]);
                 let end_angle = (to[a1] - center[1]).atan2(to[a0] - center[0]);
                 let radius = (from[a0] - center[0]).hypot(from[a1] - center[1]);
+                let end_radius = (to[a0] - center[0]).hypot(to[a1] - center[1]);
                 // The sweep in the arc's direction, a full turn when it ends where it starts.
                 let mut sweep = if clockwise {
                     start_angle - end_angle
@@ -89,15 +171,20 @@ impl Segment {
                 let mut c = [from[0], from[1], from[2]];
                 c[a0] = center[0];
                 c[a1] = center[1];
-                Some(Box::new(Arc {
-                    center: c,
-                    u,
-                    v,
-                    w: unit(an),
-                    radius,
-                    sweep,
-                    rise: to[an] - from[an],
-                }))
+                Some(Box::new(
+                    Arc {
+                        center: c,
+                        u,
+                        v,
+                        w: unit(an),
+                        radius,
+                        spiral: end_radius - radius,
+                        sweep,
+                        rise: to[an] - from[an],
+                        length: 0.0,
+                    }
+                    .measured(),
+                ))
             }
         };
         Segment {
@@ -132,15 +219,20 @@ impl Segment {
         Segment {
             from,
             to,
-            arc: Some(Box::new(Arc {
-                center,
-                u,
-                v,
-                w,
-                radius,
-                sweep,
-                rise: 0.0,
-            })),
+            arc: Some(Box::new(
+                Arc {
+                    center,
+                    u,
+                    v,
+                    w,
+                    radius,
+                    spiral: 0.0,
+                    sweep,
+                    rise: 0.0,
+                    length: 0.0,
+                }
+                .measured(),
+            )),
             rotation_rates: Some(Box::new((rates.0.map(|r| r * length), rates.1.map(|r| r * length)))),
         }
     }
@@ -172,7 +264,7 @@ impl Segment {
     pub fn linear_length(&self) -> f64 {
         match self.arc.as_deref() {
             None => (0..3).map(|c| (self.to[c] - self.from[c]).powi(2)).sum::<f64>().sqrt(),
-            Some(a) => (a.radius * a.sweep).hypot(a.rise),
+            Some(a) => a.length(),
         }
     }
 
@@ -181,17 +273,23 @@ impl Segment {
     pub fn trimmed(&self, u0: f64, u1: f64) -> Segment {
         let (from, to) = (self.at(u0), self.at(u1));
         let arc = self.arc.as_deref().map(|a| {
-            let phi = a.sweep * u0;
+            let (phi, phi1) = (a.angle(u0), a.angle(u1));
+            let (f0, f1) = (phi / a.sweep, phi1 / a.sweep);
             let (cos, sin) = (phi.cos(), phi.sin());
-            Box::new(Arc {
-                center: std::array::from_fn(|c| a.center[c] + a.rise * u0 * a.w[c]),
-                u: std::array::from_fn(|c| cos * a.u[c] + sin * a.v[c]),
-                v: std::array::from_fn(|c| -sin * a.u[c] + cos * a.v[c]),
-                w: a.w,
-                radius: a.radius,
-                sweep: a.sweep * (u1 - u0),
-                rise: a.rise * (u1 - u0),
-            })
+            Box::new(
+                Arc {
+                    center: std::array::from_fn(|c| a.center[c] + a.rise * f0 * a.w[c]),
+                    u: std::array::from_fn(|c| cos * a.u[c] + sin * a.v[c]),
+                    v: std::array::from_fn(|c| -sin * a.u[c] + cos * a.v[c]),
+                    w: a.w,
+                    radius: a.radius + a.spiral * f0,
+                    spiral: a.spiral * (f1 - f0),
+                    sweep: phi1 - phi,
+                    rise: a.rise * (f1 - f0),
+                    length: 0.0,
+                }
+                .measured(),
+            )
         });
         Segment {
             from,
@@ -217,12 +315,21 @@ impl Segment {
             // The end point exactly, not as the circle's formula rounds it.
             return self.to;
         }
+        self.at_extended(u)
+    }
+
+    /// The pose at fraction `u` of the move, where `u` may lie a little outside 0 … 1: the line
+    /// or curve continued (the derivatives at its ends are measured across them).
+    pub fn at_extended(&self, u: f64) -> Pose {
         let mut p: Pose = std::array::from_fn(|c| self.from[c] + (self.to[c] - self.from[c]) * u);
         if let Some(a) = self.arc.as_deref() {
-            let phi = a.sweep * u;
+            // Along the path in proportion to its length.
+            let phi = a.angle(u);
+            let f = phi / a.sweep;
             let (cos, sin) = (phi.cos(), phi.sin());
+            let r = a.radius + a.spiral * f;
             for (c, x) in p.iter_mut().take(3).enumerate() {
-                *x = a.center[c] + a.radius * (cos * a.u[c] + sin * a.v[c]) + a.rise * u * a.w[c];
+                *x = a.center[c] + r * (cos * a.u[c] + sin * a.v[c]) + a.rise * f * a.w[c];
             }
         }
         if let Some((m0, m1)) = self.rotation_rates.as_deref() {
@@ -271,9 +378,14 @@ impl Segment {
                 self.to[2] - self.from[2],
             ],
             Some(a) => {
-                let phi = a.sweep * u;
+                let phi = a.angle(u);
                 let (cos, sin) = (phi.cos(), phi.sin());
-                std::array::from_fn(|c| a.radius * a.sweep * (-sin * a.u[c] + cos * a.v[c]) + a.rise * a.w[c])
+                let r = a.radius + a.spiral * phi / a.sweep;
+                std::array::from_fn(|c| {
+                    r * a.sweep * (-sin * a.u[c] + cos * a.v[c])
+                        + a.spiral * (cos * a.u[c] + sin * a.v[c])
+                        + a.rise * a.w[c]
+                })
             }
         };
         let n = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();

@@ -363,17 +363,22 @@ impl Executor {
         }
         let speed = self.current.speed;
         // The rate changes so that the speed along the path changes by at most the
-        // trajectory's tangential acceleration bound: v·dr/dt ≤ a.
+        // trajectory's tangential acceleration bound.
         let change = if speed > 1e-9 {
-            self.current.accel * dt / speed
+            Change::within(
+                self.rate,
+                speed,
+                self.current.planned_accel * dt,
+                self.current.accel * dt,
+            )
         } else {
-            1.0
+            Change { up: 1.0, down: 1.0 }
         };
         let before = self.rate;
         let Some(target) = self.new_rate(operator, speed, change, dt) else {
             return;
         };
-        self.look_ahead(operator, dt, before, target, change);
+        self.look_ahead(operator, dt, before, target, change.down);
     }
 
     /// Takes the main program's command: off, run (from the start, or on after a hold or a
@@ -487,10 +492,10 @@ impl Executor {
     /// The rate for this cycle: towards zero in a hold (`None` once held), else towards the
     /// operator's override within the fast profile and the single block's braking; the rate
     /// aimed at.
-    fn new_rate(&mut self, operator: Operator, speed: f64, change: f64, dt: f64) -> Option<f64> {
+    fn new_rate(&mut self, operator: Operator, speed: f64, change: Change, dt: f64) -> Option<f64> {
         let mut target = f64::INFINITY;
         if self.state == RunState::Holding {
-            self.rate = (self.rate - change).max(0.0);
+            self.rate = (self.rate - change.down).max(0.0);
             if self.rate == 0.0 {
                 self.state = RunState::Held;
                 return None;
@@ -498,9 +503,9 @@ impl Executor {
         } else {
             target = target_rate(&self.current, operator);
             self.rate = if self.rate < target {
-                (self.rate + change).min(target)
+                (self.rate + change.up).min(target)
             } else {
-                (self.rate - change).max(target)
+                (self.rate - change.down).max(target)
             };
             // Never faster than the fast profile where it stands (where the override was
             // lowered, the tool brakes towards the new rate, within what it can brake from).
@@ -509,7 +514,10 @@ impl Executor {
                 && speed > 1e-9
                 && !self.plan_stops
             {
-                self.rate = self.rate.min(self.braking_speed(s_stop - self.current.s, dt) / speed);
+                let step = self.braking_speed(s_stop - self.current.s, dt) * dt;
+                if step < self.rate * speed * dt {
+                    self.rate = self.rate_covering(step, dt);
+                }
             }
         }
         Some(target)
@@ -606,6 +614,29 @@ impl Executor {
         step * (d / n + (n - 1.0) / 2.0)
     }
 
+    /// The rate (at most the rate now) at which this cycle's step covers `step` (mm) of the path.
+    /// The plan's own speed changes within the step: where it brakes too, the rate from its
+    /// speed where the step begins covers less than `step`, and the next cycle catches up
+    /// (seen: a joint at 125 % of its acceleration for a cycle where a single block's braking met
+    /// the plan's own braking before a corner). A few Newton steps on the distance the plan's
+    /// time line covers (its derivative: the plan's speed where the step ends).
+    fn rate_covering(&self, step: f64, dt: f64) -> f64 {
+        let (high, here) = (self.rate, self.current.s);
+        let mut rate = (step / (self.current.speed * dt)).min(high);
+        for _ in 0..4 {
+            // From where the tool stands each time: a cursor behind the time looks forward
+            // from there, one past it would search from the plan's start.
+            let mut cursor = self.cursor;
+            let end = self.trajectory.sample(self.t + rate * dt, &mut cursor);
+            let miss = end.s - here - step;
+            if miss.abs() <= 1e-9 || end.speed <= 1e-9 {
+                break;
+            }
+            rate = (rate - miss / (end.speed * dt)).clamp(0.0, high);
+        }
+        rate
+    }
+
     /// The first end of a line ahead that the tool can still stop at from its speed now.
     fn reachable_block_end(&self) -> Option<(f64, f64)> {
         let here = &self.current;
@@ -622,6 +653,44 @@ impl Executor {
             end = self.trajectory.block_end(s_end);
         }
         end
+    }
+}
+
+/// How much the rate may rise and fall in one cycle.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Change {
+    up: f64,
+    down: f64,
+}
+
+impl Change {
+    /// The change of the rate from `r` that changes the tool's speed by at most `a_dt` (mm/s)
+    /// in a cycle, where the plan's speed is `v` (mm/s) and changes by `c` (mm/s) in a cycle of
+    /// its own time. The tool's speed is r·v; a cycle later, at the rate x, it is x·v plus what
+    /// the plan's own change gives in x of a cycle, x·(x·c): it changes by v·(x − r) + c·x².
+    /// (Taken without the plan's change, a resume that catches up with a plan speeding up at its
+    /// bound asks for up to twice the bound.) Where the plan's change works against the rate's,
+    /// c·x² is taken at r, where it is larger: the bound holds with room.
+    fn within(r: f64, v: f64, c: f64, a_dt: f64) -> Change {
+        // The rate x > 0 at which v·x + c·x² = u, for c > 0 (the larger root).
+        let root = |u: f64| (-v + (v * v + 4.0 * c * u).max(0.0).sqrt()) / (2.0 * c);
+        let up = if c > 0.0 {
+            root(v * r + a_dt) - r
+        } else {
+            (a_dt - c * r * r) / v
+        };
+        let down = if c >= 0.0 && v * r > a_dt {
+            r - if c > 0.0 { root(v * r - a_dt) } else { r - a_dt / v }
+        } else if c >= 0.0 {
+            // Slow enough to stand within the cycle.
+            r
+        } else {
+            (a_dt + c * r * r) / v
+        };
+        Change {
+            up: up.max(0.0),
+            down: down.max(0.0),
+        }
     }
 }
 
@@ -697,16 +766,16 @@ mod tests {
             }
         }
 
-        /// Position and speed within one move at `t`.
-        fn within(t: f64) -> (f64, f64) {
+        /// Position, speed and its change within one move at `t`.
+        fn within(t: f64) -> (f64, f64, f64) {
             let ramp = V / A;
             if t < ramp {
-                (0.5 * A * t * t, A * t)
+                (0.5 * A * t * t, A * t, A)
             } else if t < MOVE_S - ramp {
-                (0.5 * A * ramp * ramp + V * (t - ramp), V)
+                (0.5 * A * ramp * ramp + V * (t - ramp), V, 0.0)
             } else {
                 let left = (MOVE_S - t).max(0.0);
-                (10.0 - 0.5 * A * left * left, A * left)
+                (10.0 - 0.5 * A * left * left, A * left, -A)
             }
         }
     }
@@ -724,7 +793,7 @@ mod tests {
         fn sample(&self, t: f64, _cursor: &mut usize) -> TrajectorySample {
             let t = t.clamp(0.0, 2.0 * MOVE_S);
             let (second, local) = if t < MOVE_S { (false, t) } else { (true, t - MOVE_S) };
-            let (x, v) = Self::within(local);
+            let (x, v, planned_accel) = Self::within(local);
             let x = x + if second { 10.0 } else { 0.0 };
             let mut s = TrajectorySample {
                 line: if second { 4 } else { 2 },
@@ -732,6 +801,7 @@ mod tests {
                 speed: v,
                 speed_max: v,
                 accel: A,
+                planned_accel,
                 ..TrajectorySample::default()
             };
             s.pose[0] = x;
@@ -965,5 +1035,55 @@ mod tests {
         e.step(Command::Off, Operator::default(), DT, false);
         e.step(Command::Run, Operator::default(), DT, false);
         assert!(!e.fault());
+    }
+
+    /// The tool's speed (mm/s) a cycle after the rate becomes `x`, on a plan whose speed is `v`
+    /// and changes by `c` in a cycle of its own time: the plan runs x of a cycle, so its speed
+    /// is then v + c·x, and the tool moves at x times that.
+    fn speed_after(x: f64, v: f64, c: f64) -> f64 {
+        x * (v + c * x)
+    }
+
+    proptest::proptest! {
+        /// Whatever the plan's own acceleration (within the bound, as the planner keeps it), the
+        /// largest change `Change::within` allows in either direction from a rate up to 1
+        /// changes the tool's speed by at most the bound in a cycle; and where the plan does not
+        /// work against it, by the bound exactly (no speed is given away).
+        #[test]
+        fn a_rate_change_keeps_the_tool_within_its_acceleration(
+            r in 0.0f64..1.0,
+            v in 0.1f64..300.0,
+            share in -1.0f64..1.0,
+            a_dt in 0.01f64..2.0,
+        ) {
+            let c = share * a_dt;
+            let change = Change::within(r, v, c, a_dt);
+            // Now the tool moves at r times the plan's speed.
+            let now = r * v;
+            let up = speed_after(r + change.up, v, c) - now;
+            // (The executor's rate stops at standing.)
+            let down = speed_after((r - change.down).max(0.0), v, c) - now;
+            let slack = 1e-9 * (1.0 + now.abs());
+            proptest::prop_assert!(up <= a_dt + slack, "up {} by {up} over {a_dt}", change.up);
+            proptest::prop_assert!(down >= -a_dt - slack, "down {} by {down} over {a_dt}", change.down);
+            if c >= 0.0 {
+                proptest::prop_assert!((up - a_dt).abs() <= 1e-6 * (1.0 + a_dt), "up only {up} of {a_dt}");
+            }
+            if c >= 0.0 && now > a_dt {
+                proptest::prop_assert!((down + a_dt).abs() <= 1e-6 * (1.0 + a_dt), "down only {down} of {a_dt}");
+            }
+        }
+    }
+
+    #[test]
+    fn a_resume_behind_a_plan_speeding_up_catches_up_at_the_bound_not_twice_it() {
+        // Held at rate 0.5 on a plan that gains 1 mm/s a cycle at 100 mm/s: the rate may rise
+        // by less than a plain a_dt / v would give, since the plan's own gain comes with it.
+        let (r, v, c, a_dt) = (0.5, 100.0, 1.0, 1.0);
+        let change = Change::within(r, v, c, a_dt);
+        let plain = a_dt / v;
+        assert!(change.up < plain, "{} against {plain}", change.up);
+        let gained = speed_after(r + change.up, v, c) - r * v;
+        assert!((gained - a_dt).abs() < 1e-9, "{gained}");
     }
 }

@@ -152,6 +152,9 @@ pub enum Action {
 pub struct Block {
     /// The line (1-based).
     pub line: usize,
+    /// The column (1-based, in characters) of the word that made it: a move's first axis word,
+    /// else the line's first word.
+    pub column: usize,
     /// What it does.
     pub action: Action,
 }
@@ -183,4 +186,7 @@ pub struct Program {
     pub blocks: Vec<Block>,
     /// Its messages, in the order its [`Action::Message`]s name them.
     pub messages: Vec<NcMessage>,
+    /// Where the tool stands when it starts (machine world coordinates): where a program
+    /// without moves holds it.
+    pub start: Pose,
 }

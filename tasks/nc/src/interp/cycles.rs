@@ -150,6 +150,7 @@ impl State<'_> {
             if matches!(code, 820 | 890) {
                 out.push(Block {
                     line,
+                    column: 1,
                     action: Action::Dwell(dwell),
                 });
             }

@@ -59,6 +59,7 @@ pub fn read_bounded(text: &str, machine: &Machine<'_>, bounds: &Bounds, watch: &
                 } else if opened {
                     blocks.push(Block {
                         line: number,
+                        column: 1,
                         action: Action::End,
                     });
                     break;
@@ -73,7 +74,9 @@ pub fn read_bounded(text: &str, machine: &Machine<'_>, bounds: &Bounds, watch: &
             Event::Block(block) => {
                 let before = blocks.len();
                 state.block(&block, &mut blocks)?;
-                for made in &blocks[before..] {
+                let column = made_by(&block);
+                for made in &mut blocks[before..] {
+                    made.column = column;
                     state.cost.add(made);
                 }
                 if let Some(why) = state.cost.beyond(bounds) {
@@ -111,7 +114,19 @@ pub fn read_bounded(text: &str, machine: &Machine<'_>, bounds: &Bounds, watch: &
     Ok(Program {
         blocks,
         messages: state.messages,
+        start: machine.start,
     })
+}
+
+/// The column of the word that makes a line's actions: its first axis word (a move's end), else
+/// its first word.
+fn made_by(block: &crate::lexer::Block) -> usize {
+    block
+        .words
+        .iter()
+        .find(|w| block::AXES.contains(&w.letter))
+        .or(block.words.first())
+        .map_or(1, |w| w.column)
 }
 
 #[cfg(test)]

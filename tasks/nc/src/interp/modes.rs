@@ -21,7 +21,20 @@ impl State<'_> {
         {
             return Err(at(w, format!("the feed F must be positive, got {}", w.value)));
         }
+        // The feed mode this block's F is read in.
+        let mode = [
+            (930, FeedMode::InverseTime),
+            (940, FeedMode::PerMinute),
+            (950, FeedMode::PerRevolution),
+        ]
+        .into_iter()
+        .find(|(code, _)| words.has_g(*code))
+        .map_or(self.feed_mode, |(_, mode)| mode);
+        // Per minute, a feed below MIN_FEED is refused (a typing error, F.01 for F10, would run
+        // for days); per revolution it is the product with S that is bounded (at the move); in
+        // inverse time the move's feed is raised to MIN_FEED, as LinuxCNC 2.9 raises it.
         if let Some(w) = words.get('F')
+            && mode == FeedMode::PerMinute
             && w.value < MIN_FEED
         {
             return Err(at(
@@ -65,6 +78,7 @@ impl State<'_> {
             };
             out.push(Block {
                 line,
+                column: 1,
                 action: Action::Spindle {
                     direction,
                     speed_rpm: self.speed_rpm,
@@ -85,6 +99,7 @@ impl State<'_> {
             }
             out.push(Block {
                 line: words.line,
+                column: 1,
                 action: Action::Coolant { mist, flood },
             });
         }
@@ -113,6 +128,7 @@ impl State<'_> {
             }
             out.push(Block {
                 line,
+                column: 1,
                 action: Action::Dwell(p.value),
             });
         }
@@ -224,7 +240,7 @@ impl State<'_> {
                         "in inverse time (G93) every {what} needs F in its own block: the move takes 1/F minutes"
                     ))
                 })?;
-                Ok((length * f).max(MIN_FEED))
+                Ok((length * f).max(MIN_FEED * self.unit()))
             }
             FeedMode::PerRevolution => {
                 let per_rev = self.feed_mm_min.ok_or_else(|| {
@@ -237,7 +253,13 @@ impl State<'_> {
                         "with the spindle speed S at 0, {what} cannot feed per revolution (G95): set S first"
                     )));
                 }
-                Ok(per_rev * self.speed_rpm)
+                let feed = per_rev * self.speed_rpm;
+                if feed < MIN_FEED * self.unit() {
+                    return Err(at(format!(
+                        "per revolution (G95) the feed is F × S = {feed:.4} mm/min: it must be at least {MIN_FEED} units/min (slower, a millimetre takes hours)"
+                    )));
+                }
+                Ok(feed)
             }
         }
     }
@@ -249,10 +271,12 @@ pub(super) fn stops(line: usize, m: &[(u16, &Word)], out: &mut Vec<Block>) {
         match code {
             0 | 10 => out.push(Block {
                 line,
+                column: 1,
                 action: Action::Pause { optional: *code == 10 },
             }),
             20 | 300 => out.push(Block {
                 line,
+                column: 1,
                 action: Action::End,
             }),
             _ => {}

@@ -10,10 +10,17 @@ use super::modes::stops;
 use super::state::State;
 use super::words::{Words, count};
 
-/// Tolerance of an arc's end point off its circle (mm): LinuxCNC's default for mm programs.
-const ARC_TOLERANCE_MM: f64 = 0.002;
-/// … or this fraction of the radius, whichever is larger.
-const ARC_TOLERANCE_RELATIVE: f64 = 0.001;
+/// The least radius of an arc, and how far past half its chord an R may fall short (mm; LinuxCNC's
+/// `RADIUS_TOLERANCE`, 0.00005 in).
+const RADIUS_TOLERANCE_MM: f64 = 0.00005 * 25.4;
+/// How far the radius at an arc's end may differ from the radius at its start (mm; LinuxCNC's
+/// `CENTER_ARC_RADIUS_TOLERANCE_MM`, 2 · 0.01 · √2), or in inch programs (inches) …
+const SPIRAL_TOLERANCE_MM: f64 = 2.0 * 0.01 * std::f64::consts::SQRT_2;
+const SPIRAL_TOLERANCE_INCH: f64 = 2.0 * 0.001 * std::f64::consts::SQRT_2;
+/// … or, up to a hundred times that, this share of the radius (LinuxCNC's
+/// `SPIRAL_RELATIVE_TOLERANCE`). Within them the arc is traced as a spiral from the start's
+/// radius to the end's, as LinuxCNC traces it.
+const SPIRAL_RELATIVE_TOLERANCE: f64 = 0.001;
 
 impl State<'_> {
     /// The motion the block makes, if any: its motion code, or with axis words alone the mode
@@ -116,6 +123,7 @@ impl State<'_> {
             };
             out.push(Block {
                 line,
+                column: 1,
                 action: Action::Move {
                     from: self.position,
                     to,
@@ -176,7 +184,7 @@ impl State<'_> {
                 if d < 1e-9 {
                     return Err(at(r, "a full circle is given by its centre (I J K), not by R".into()));
                 }
-                if radius.abs() < d / 2.0 - ARC_TOLERANCE_MM {
+                if radius.abs() < d / 2.0 - RADIUS_TOLERANCE_MM {
                     return Err(at(
                         r,
                         format!(
@@ -223,12 +231,28 @@ impl State<'_> {
                 if r_start < 1e-9 {
                     return Err(at(first, "the arc's centre is its start point".into()));
                 }
-                let tolerance = ARC_TOLERANCE_MM.max(ARC_TOLERANCE_RELATIVE * r_start);
-                if (r_start - r_end).abs() > tolerance {
+                if r_start < RADIUS_TOLERANCE_MM || r_end < RADIUS_TOLERANCE_MM {
                     return Err(at(
                         first,
                         format!(
-                            "the arc's end is not on its circle: radius {r_start:.4} mm at the start, {r_end:.4} mm at the end"
+                            "the arc's radius is {r_start:.5} mm at the start and {r_end:.5} mm at the end: below {RADIUS_TOLERANCE_MM} mm an arc has no radius (as LinuxCNC reads it)"
+                        ),
+                    ));
+                }
+                // As LinuxCNC compares them: in the program's units.
+                let tolerance = if self.unit() == 1.0 {
+                    SPIRAL_TOLERANCE_MM
+                } else {
+                    SPIRAL_TOLERANCE_INCH * self.unit()
+                };
+                let differs = (r_start - r_end).abs();
+                let relative = differs / r_start.max(r_end);
+                if differs > 100.0 * tolerance || (relative > SPIRAL_RELATIVE_TOLERANCE && differs > tolerance) {
+                    return Err(at(
+                        first,
+                        format!(
+                            "the arc's end is not on its circle: radius {r_start:.4} mm at the start, {r_end:.4} mm at the end (LinuxCNC allows {tolerance:.4} mm, or {}% of the radius)",
+                            SPIRAL_RELATIVE_TOLERANCE * 100.0
                         ),
                     ));
                 }

@@ -194,6 +194,7 @@ impl State<'_> {
         if to != self.position {
             out.push(Block {
                 line,
+                column: 1,
                 action: Action::Move {
                     from: self.position,
                     to,

@@ -113,9 +113,17 @@ impl flow::System for State<'_> {
                 let (system, c) = ((index - 5221) / 20, (index - 5221) % 20);
                 Some(self.work[system][c] / self.scale(c))
             }
-            // The tool in the spindle (once the program has put one there), its offsets.
+            // The tool in the spindle (once the program has put one there), and its offsets in
+            // the tool table — whether G43 applies them or not, as LinuxCNC 2.9 gives them (0
+            // without a tool).
             5400 => self.in_spindle.map(f64::from),
-            5401..=5406 => Some(self.tool_offset[index - 5401] / self.scale(index - 5401)),
+            5401..=5406 => {
+                let table = self
+                    .in_spindle
+                    .and_then(|tool| self.tools.get(tool))
+                    .map_or([0.0; 6], |t| self.on_machine(t.offsets));
+                Some(table[index - 5401] / self.scale(index - 5401))
+            }
             // The tool's position in the coordinate system in force.
             5420..=5425 => Some(position[index - 5420]),
             _ => None,

@@ -272,7 +272,11 @@ fn what_the_subset_lacks_is_refused_with_line_column_and_reason() {
         ),
         (
             "G2 X10 I1 F1",
-            "1:4: the arc's end is not on its circle: radius 1.0000 mm at the start, 9.0000 mm at the end",
+            "1:4: the arc's end is not on its circle: radius 1.0000 mm at the start, 9.0000 mm at the end (LinuxCNC allows 0.0283 mm, or 0.1% of the radius)",
+        ),
+        (
+            "G2 X0.002 I0.001 F1",
+            "1:4: the arc's radius is 0.00100 mm at the start and 0.00100 mm at the end: below 0.00127 mm an arc has no radius (as LinuxCNC reads it)",
         ),
         ("G2 X0 I0 J0 F1", "1:4: the arc's centre is its start point"),
         (
@@ -695,7 +699,7 @@ fn a_tool_change_stops_the_spindle_and_waits_for_the_tool_asked_for() {
 
 #[test]
 fn tool_offsets_follow_g43_g43_1_g49_and_the_parameters_show_them() {
-    let p = with_tools("G43 H1\nG0 Z1\nG43.1 X2\nG0 X0\nG49\nG0 Z0\nG43 H1\nG0 X#5403").expect("read");
+    let p = with_tools("T1 M6\nG43 H1\nG0 Z1\nG43.1 X2\nG0 X0\nG49\nG0 Z0\nG43 H1\nG0 X#5403").expect("read");
     let to: Vec<Pose> = moves(&p.blocks).iter().map(|m| m.0).collect();
     assert_eq!(to[0], [0.0, 0.0, 51.0, 0.0, 0.0, 0.0]);
     assert_eq!(to[1], [2.0, 0.0, 51.0, 0.0, 0.0, 0.0], "G43.1 X2 keeps Z's offset");
@@ -709,6 +713,14 @@ fn tool_offsets_follow_g43_g43_1_g49_and_the_parameters_show_them() {
     );
     // X to #5403 (tool 1's Z offset, 50); Z stays where G0 Z0 put it.
     assert_eq!(to[3], [50.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+    // #5401 … #5406: the table's offsets of the tool in the spindle, applied or not (as
+    // LinuxCNC 2.9 gives them); 0 without a tool.
+    let p = with_tools("G0 X#5403\nT1 M6\nG0 X#5403\nG43.1 Z7\nG0 Y#5403\nG49\nT2 M6\nG0 X#5401 Y#5403").expect("read");
+    let to: Vec<Pose> = moves(&p.blocks).iter().map(|m| m.0).collect();
+    assert_eq!(to[0][0], 0.0);
+    assert_eq!(to[1][0], 50.0);
+    assert_eq!(to[2][1], 50.0, "G43.1 leaves the table's");
+    assert_eq!((to[3][0], to[3][1]), (0.5, 30.5));
     // G10 L1 changes tool 1 for the rest of the program; L10 sets it from where the tool is.
     let p = with_tools("G10 L1 P1 Z20\nG43 H1\nG0 Z0\nG10 L10 P2 Z5\nG43 H2\nG0 Z5").expect("read");
     let to: Vec<Pose> = moves(&p.blocks).iter().map(|m| m.0).collect();
@@ -769,7 +781,26 @@ fn inverse_time_and_per_revolution_feeds_are_per_minute_on_the_path() {
     // 10 mm in 1/2 min; 10 mm in 2 min; 100 mm/min; 0.1 mm a turn at 2000 rpm; F10 read in
     // millimetres before the block's G20, as LinuxCNC reads it.
     assert_eq!(feeds, [Some(20.0), Some(5.0), Some(100.0), Some(200.0), Some(10.0)]);
+    // Feeds below 0.1 a minute are ordinary per revolution and in inverse time: 0.05 mm a turn
+    // at 1000 rpm, 0.004 in a turn at 500 rpm (in mm), 7.46 mm in 20 min; and 0.001 mm in one
+    // minute at 0.1 mm/min, the least feed, as LinuxCNC 2.9 raises an inverse-time feed.
+    let p = with_tools("S1000 G95 G1 X1 F0.05\nG20\nS500 G1 X0.1 F0.004\nG21 G93 G1 X10 F0.05\nG1 X10.001 F1")
+        .expect("read");
+    let feeds: Vec<f64> = moves(&p.blocks).iter().filter_map(|m| m.2).collect();
+    let expected = [50.0, 0.004 * 25.4 * 500.0, (10.0 - 2.54) * 0.05, 0.1];
+    assert!(
+        feeds.len() == 4 && feeds.iter().zip(expected).all(|(f, e)| (f - e).abs() < 1e-9),
+        "{feeds:?}"
+    );
     for (text, why) in [
+        (
+            "G1 X1 F0.01",
+            "1:7: the feed F must be at least 0.1 units/min (slower, a millimetre takes hours), got 0.01",
+        ),
+        (
+            "S10 G95 G1 X1 F0.001",
+            "1:12: per revolution (G95) the feed is F × S = 0.0100 mm/min: it must be at least 0.1 units/min (slower, a millimetre takes hours)",
+        ),
         (
             "G93 G1 X10 F2\nX20",
             "2:1: in inverse time (G93) every G1, G2 or G3 needs F in its own block: the move takes 1/F minutes",

@@ -23,6 +23,7 @@ impl State<'_> {
             self.messages.push(message.clone());
             out.push(Block {
                 line: block.line,
+                column: 1,
                 action: Action::Message(index),
             });
         }
@@ -52,6 +53,7 @@ impl State<'_> {
                     })?;
                     out.push(Block {
                         line,
+                        column: 1,
                         action: Action::Spindle {
                             direction: super::block::Spindle::Off,
                             speed_rpm: self.speed_rpm,
@@ -59,6 +61,7 @@ impl State<'_> {
                     });
                     out.push(Block {
                         line,
+                        column: 1,
                         action: Action::ToolChange { tool },
                     });
                     self.in_spindle = Some(tool);
@@ -137,7 +140,7 @@ impl State<'_> {
 
     /// `offsets` with the coordinates the machine does not have left out (a mill's Z length on a
     /// planar machine changes nothing).
-    fn on_machine(&self, offsets: Pose) -> Pose {
+    pub(super) fn on_machine(&self, offsets: Pose) -> Pose {
         let n = self.machine.axes.len();
         std::array::from_fn(|c| if c < n { offsets[c] } else { 0.0 })
     }

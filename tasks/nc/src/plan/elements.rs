@@ -17,7 +17,7 @@ const STRAIGHT: f64 = 1e-6;
 /// feeds); here the bound is fixed, whatever the feed.
 pub const PLAIN_G64_MM: f64 = 1.0;
 /// Lines turning by more than this (rad) reverse: the tool stops.
-const REVERSAL: f64 = std::f64::consts::PI - 1e-3;
+pub const REVERSAL: f64 = std::f64::consts::PI - 1e-3;
 
 /// A piece of the planned path.
 #[derive(Clone, Debug, PartialEq)]
@@ -26,6 +26,8 @@ pub struct Element {
     pub segment: Segment,
     /// The program line it comes from (a blend: the line after the corner).
     pub line: usize,
+    /// The column of the word that made it on that line.
+    pub column: usize,
     /// Its programmed speed (mm/s; infinite for a rapid, which the axes' limits bound).
     pub feed: f64,
     /// Whether the tool stops at its end.
@@ -100,9 +102,13 @@ pub(super) fn elements_and_events(program: &Program) -> (Vec<Element>, f64, Vec<
                     Blend::ExactStop => (None, None),
                     Blend::Within { tolerance, merge } => (Some(tolerance), merge),
                 };
-                // G64 Q: a line that continues the last one within Q is merged into it.
+                // G64 Q: a line that continues the last one within Q is merged into it — as
+                // LinuxCNC merges, lines that keep the rotations only (a turn of the tool merged
+                // into a line a micrometre long would turn it within that micrometre).
                 if let (Some(q), Some(last), Path::Line) = (merge, out.last_mut(), path) {
                     let joins = !last.segment.is_arc()
+                        && segment.keeps_rotations()
+                        && last.segment.keeps_rotations()
                         && !last.stop_after
                         && last.feed == feed
                         && last.tolerance == tolerance
@@ -121,6 +127,7 @@ pub(super) fn elements_and_events(program: &Program) -> (Vec<Element>, f64, Vec<
                 out.push(Element {
                     segment,
                     line: block.line,
+                    column: block.column,
                     feed,
                     stop_after: blend == Blend::ExactStop,
                     dwell_after_s: 0.0,
@@ -227,7 +234,7 @@ fn blend_corners(elements: Vec<Element>) -> Vec<Element> {
             continue;
         }
         let rotations_stay = current.segment.keeps_rotations() && next.segment.keeps_rotations();
-        if !both_lines && same_kind && moving && rotations_stay && theta > 1e-3 && theta < REVERSAL {
+        if !both_lines && same_kind && moving && rotations_stay && theta > STRAIGHT && theta < REVERSAL {
             // A line into an arc, an arc into a line or an arc: two arcs tangent to both and
             // to each other (a biarc) within the tolerance, where they coplanar.
             let room = (current.segment.linear_length() + trimmed_start) / 2.0;
@@ -243,6 +250,7 @@ fn blend_corners(elements: Vec<Element>) -> Vec<Element> {
                     out.push(Element {
                         segment: piece,
                         line: next.line,
+                        column: next.column,
                         feed,
                         stop_after: false,
                         dwell_after_s: 0.0,
@@ -256,8 +264,9 @@ fn blend_corners(elements: Vec<Element>) -> Vec<Element> {
             }
         }
         if !(both_lines && same_kind && moving && theta > STRAIGHT && theta < REVERSAL) {
-            // Tangent-continuous arcs go on; anything else stops at the corner.
-            current.stop_after = !(moving && same_kind && theta < 1e-3 && rates_continue);
+            // Tangent-continuous arcs go on; anything else stops at the corner (a kink of even a
+            // milliradian taken at speed is a jump of the joints' velocities).
+            current.stop_after = !(moving && same_kind && theta <= STRAIGHT && rates_continue);
             out.push(current);
             current = next;
             trimmed_start = 0.0;
@@ -292,10 +301,13 @@ fn blend_corners(elements: Vec<Element>) -> Vec<Element> {
         let un = dot3(u_raw, u_raw).sqrt();
         let u = u_raw.map(|x| x / un);
         current.segment = Segment::new(a_from, a_end, crate::interp::block::Path::Line);
-        let rates = (current.segment.rotation_rates().1, next.segment.rotation_rates().0);
+        // The lines' own rates, found before the first was cut short: what is left of it may
+        // be too short to say.
+        let rates = (r1, r2);
         let blend = Element {
             segment: Segment::blend(a_end, b_start, center, u, d1, radius, theta, rates),
             line: next.line,
+            column: next.column,
             feed: current.feed.min(next.feed),
             stop_after: false,
             dwell_after_s: 0.0,
@@ -351,9 +363,12 @@ fn biarc_blend(
         if cut <= 1e-6 {
             return None;
         }
-        let before = a.trimmed(0.0, 1.0 - cut / len_a);
-        let after = b.trimmed(cut / len_b, 1.0);
-        if let Some(pieces) = biarc(*before.to(), before.direction(1.0), *after.from(), after.direction(0.0)) {
+        let (end_a, start_b) = (1.0 - cut / len_a, cut / len_b);
+        let before = a.trimmed(0.0, end_a);
+        let after = b.trimmed(start_b, 1.0);
+        // The directions where the pieces meet, from the moves themselves: what is left of a
+        // move may be too short to say.
+        if let Some(pieces) = biarc(a.at(end_a), a.direction(end_a), b.at(start_b), b.direction(start_b)) {
             let nearest = pieces
                 .iter()
                 .flat_map(|p| (0..=16).map(move |i| p.at(f64::from(i) / 16.0)))

@@ -59,10 +59,12 @@ pub struct Limited {
 
 /// Why a program cannot be planned.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
-#[error("line {line}: {message}")]
+#[error("line {line}, column {column}: {message}")]
 pub struct PlanError {
     /// The program line.
     pub line: usize,
+    /// The column of the word that made the move (1-based).
+    pub column: usize,
     /// What fails.
     pub message: String,
 }

@@ -6,37 +6,47 @@
 //! singularity rather than asking a drive for more than it has. It runs off the cyclic path and
 //! may allocate; [`Plan::sample`] gives the pose at any time without allocating.
 //!
-//! The profile is computed on points at most [`GRID_SPACING`] apart: at each, a speed cap (the
-//! feed; each axis' and joint's speed; the part of each acceleration the path's curvature uses)
-//! and a tangential acceleration bound; a forward and a backward pass bring the speed within
-//! reach of its neighbours' — twice: as programmed, and with every feed times
-//! [`MAX_FEED_OVERRIDE`] (the machine's limits unchanged), the speed a feed override above 100 %
-//! may take at each point. Half of each acceleration limit is given to the curvature and half
-//! to the change of speed, so their sum stays within the limit.
+//! The profile is computed on points at most [`GRID_SPACING`] (and [`ARC_STEP`] of a curve)
+//! apart, twice: as programmed, and with every feed times [`MAX_FEED_OVERRIDE`] (the machine's
+//! limits unchanged), the speed a feed override above 100 % may take at each point. Each is the
+//! fastest the limits allow along the path (`profile`), but for a share of each acceleration
+//! kept for braking on curves and a small margin below every limit. [`verify`] checks a plan
+//! against the machine's limits through the kinematics before it is handed on.
+//!
+//! [`MAX_FEED_OVERRIDE`]: pkm_api::trajectory::MAX_FEED_OVERRIDE
 
 mod elements;
 mod limits;
 mod profile;
+mod verify;
 
 use pkm_api::trajectory::TrajectoryEvent;
 use pkm_kinematics::frame::MachineFrame;
 
-pub use elements::{Element, PLAIN_G64_MM, elements};
+pub use elements::{Element, PLAIN_G64_MM, REVERSAL, elements};
 pub use limits::{Limit, Limited, PlanError, PlanLimits};
-pub(crate) use profile::POINT_BYTES;
+pub use profile::steps;
+pub(crate) use profile::{POINT_BYTES, allowance};
+pub use verify::{Checked, TOLERANCE, verify};
 
 use crate::interp::block::{Pose, Program};
 use crate::watch::{Unwatched, Watch, Watched};
 use elements::{Pending, elements_and_events};
-use profile::{NORMAL_SHARE, Point, profile};
+use profile::{CURVE_SHARE, Point, profile};
 
 /// The largest distance between two points of the velocity profile (mm, or degrees where only
 /// rotations move).
 pub const GRID_SPACING: f64 = 0.5;
+/// The largest angle of a curve between two points of the velocity profile (rad): 11.25°, so
+/// that the direction of the curve's acceleration turns little between them (the part of it a
+/// world axis takes is within 0.5 % of its largest between two points).
+pub const ARC_STEP: f64 = std::f64::consts::PI / 16.0;
 
 /// A planned program.
 #[derive(Clone, Debug)]
 pub struct Plan {
+    /// Where the tool stands before its first move (and throughout, without moves).
+    start: Pose,
     elements: Vec<Element>,
     points: Vec<Point>,
     /// Its duration (s), dwells included.
@@ -54,6 +64,11 @@ pub struct Plan {
     pub feed_time_s: f64,
     /// How long they would take at their programmed feeds: Σ length ÷ feed (s).
     pub programmed_feed_time_s: f64,
+    /// How long the tool dwells (G4) in all (s): the duration less this is the motion's.
+    pub dwell_s: f64,
+    /// The memory planning held besides the plan, at its most (bytes): the bounds of every
+    /// coordinate at every point of the profile, given back when the profile was done.
+    pub planning_bytes: u64,
 }
 
 /// A point of the plan at a time.
@@ -71,6 +86,8 @@ pub struct Sample {
     pub speed_max: f64,
     /// The tangential acceleration bound there (mm/s²).
     pub accel: f64,
+    /// The planned speed's rate of change there (mm/s²).
+    pub planned_accel: f64,
     /// A rapid (G0) executes.
     pub rapid: bool,
 }
@@ -89,13 +106,35 @@ pub fn plan_watched(
 ) -> Result<Plan, PlanError> {
     let (elements, initial_dwell, pending) = elements_and_events(program);
     let (mut points, length_mm) = profile::grid(&elements);
-    profile::caps(&mut points, &elements, frame, limits, &mut Watched::new(watch))?;
-    profile::holds(&mut points, &elements, initial_dwell);
+    let mut watched = Watched::new(watch);
+    let mut bounds = profile::caps(&mut points, &elements, frame, limits, &mut watched)?;
+    profile::interior_caps(&mut points, &mut bounds);
+    profile::stops_and_holds(&mut points, &elements, initial_dwell);
     // The profile as programmed, and at the highest feed override (the executor walks the
     // first and may go as fast as the second where the override asks).
-    profile(&mut points, |p| (p.cap, p.bend), |p| &mut p.v);
-    profile(&mut points, |p| (p.cap_fast, p.bend_fast), |p| &mut p.v_fast);
-    let duration_s = profile::times(&mut points);
+    profile(&mut points, &bounds, |p| p.cap, |p| &mut p.v);
+    // Finer where it needs to be, and planned again.
+    let mut allowance = profile::allowance(points.len());
+    for _ in 0..profile::REFINEMENTS {
+        let Some((finer, finer_bounds)) =
+            profile::refine(&points, &bounds, &elements, frame, &mut allowance, &mut watched)?
+        else {
+            break;
+        };
+        (points, bounds) = (finer, finer_bounds);
+        profile::interior_caps(&mut points, &mut bounds);
+        profile(&mut points, &bounds, |p| p.cap, |p| &mut p.v);
+    }
+    profile(&mut points, &bounds, |p| p.cap_fast, |p| &mut p.v_fast);
+    // A program without moves still dwells.
+    let duration_s = if points.is_empty() {
+        initial_dwell
+    } else {
+        profile::times(&mut points, &bounds)
+    };
+    // The bounds served the profile; the plan keeps its points.
+    let planning_bytes = bounds.heap_bytes();
+    drop(bounds);
     let limited = limited_blocks(&points, &elements);
     let events = place_events(&pending, &elements, &points);
     // The feed moves' time as planned (each interval belongs to the element of its start) and
@@ -110,7 +149,11 @@ pub fn plan_watched(
         .filter(|e| e.feed.is_finite())
         .map(|e| e.segment.length() / e.feed)
         .sum();
+    let dwell_s = initial_dwell + elements.iter().map(|e| e.dwell_after_s).sum::<f64>();
     Ok(Plan {
+        start: program.start,
+        planning_bytes,
+        dwell_s,
         duration_s,
         length_mm,
         elements,
@@ -226,12 +269,13 @@ impl Plan {
         let points = &self.points;
         let Some(last) = points.last() else {
             return Sample {
-                pose: [0.0; 6],
+                pose: self.start,
                 line: 0,
                 s: 0.0,
                 speed: 0.0,
                 speed_max: 0.0,
                 accel: f64::INFINITY,
+                planned_accel: 0.0,
                 rapid: false,
             };
         };
@@ -259,25 +303,24 @@ impl Plan {
                 speed: 0.0,
                 speed_max: 0.0,
                 accel: p.accel,
+                planned_accel: 0.0,
                 rapid: !self.elements[element].feed.is_finite(),
             };
         }
         let q = &points[i + 1];
         let ds = q.s - p.s;
         let dt = q.t - (p.t + p.hold);
-        let tau = (t - p.t - p.hold).clamp(0.0, dt);
-        // Constant acceleration over the interval.
-        let a = if dt > 0.0 { (q.v - p.v) / dt } else { 0.0 };
-        let travelled = (p.v * tau + 0.5 * a * tau * tau).clamp(0.0, ds);
+        // max and min, not clamp: a number that is not one must not panic on the cyclic side.
+        let tau = (t - p.t - p.hold).max(0.0).min(dt);
+        let (travelled, speed, planned_accel) = p.travel(q, dt, tau);
         // Within the interval's element (the last interval of an element ends at its u = 1).
         let u = (p.u + travelled / e.segment.length()).min(1.0);
         let element = p.element as usize;
-        let speed = p.v + a * tau;
         // The bound at this speed; where a mixed bound of several joints leaves less, the share
         // a curve leaves at its cap.
         let (rest, bend) = (p.accel.min(q.accel), p.bend.max(q.bend));
-        // The fast profile over the same interval: constant acceleration too, so its speed
-        // squared is linear in the distance.
+        // The fast profile over the same interval: its speed squared taken as linear in the
+        // distance.
         let share = if ds > 0.0 { travelled / ds } else { 0.0 };
         let fast = (p.v_fast * p.v_fast + (q.v_fast * q.v_fast - p.v_fast * p.v_fast) * share)
             .max(0.0)
@@ -288,7 +331,8 @@ impl Plan {
             s: p.s + travelled,
             speed,
             speed_max: fast.max(speed),
-            accel: (rest - bend * speed * speed).max((1.0 - NORMAL_SHARE) * rest),
+            accel: (rest - bend * speed * speed).max((1.0 - CURVE_SHARE) * rest),
+            planned_accel,
             rapid: !e.feed.is_finite(),
         }
     }
