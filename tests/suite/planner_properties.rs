@@ -30,7 +30,7 @@ use pkm_plc::compose::{Setup, machines, nc_job};
 use pkm_plc::runtime::config;
 
 /// Programs a machine in `cargo test`.
-const CASES: u32 = 400;
+const CASES: u32 = 600;
 /// Instants each plan's speeds and accelerations are probed at (the long run takes 10 000).
 const PROBES: usize = 2000;
 
