@@ -7,7 +7,7 @@
 //!   most [`PER_PLACE`] lines per [`INTERVAL`]; the places of pkm-plc together at most
 //!   [`OURS`], those of the libraries together at most [`LIBRARIES`] (a library's chatter cannot
 //!   push out the PLC's own lines); what is held back is counted and said in one summary line per
-//!   interval. The machine's state changes (`pkm_plc::run`) always pass: their rate is the
+//!   interval. The machine's state changes ([`STATE_LOG_TARGET`]) always pass: their rate is the
 //!   automaton's, not a peer's.
 //! - [`Limited`], for a line about a peer: at most one per source address per interval, the rest
 //!   counted into the summary of the next.
@@ -20,6 +20,8 @@ use std::time::{Duration, Instant};
 use tracing::callsite::Identifier;
 use tracing::{Event, Subscriber, info, warn};
 use tracing_subscriber::layer::{Context, Layer};
+
+use super::run::STATE_LOG_TARGET;
 
 /// The window of every bound of the log.
 pub const INTERVAL: Duration = Duration::from_secs(10);
@@ -35,9 +37,12 @@ const OUR_TARGETS: &str = "pkm_plc";
 /// The most source addresses a [`Limited`] names per interval; more are counted together.
 const SOURCES_NAMED: usize = 32;
 
-/// The targets whose lines always pass: the machine's state changes, and the budget's own
-/// summaries.
-const ALWAYS: [&str; 2] = ["pkm_plc::run", "pkm_plc::log_limit"];
+/// The target of the budget's own summaries.
+const SUMMARY_TARGET: &str = "pkm_plc::log_limit";
+/// The targets whose lines always pass, each exactly (a prefix would let a whole module tree
+/// through: `pkm_plc::run` once let every `pkm_plc::runtime::…` line pass): the machine's state
+/// changes, and the budget's own summaries.
+const ALWAYS: [&str; 2] = [STATE_LOG_TARGET, SUMMARY_TARGET];
 
 /// The log's budget (see the module's documentation). Shared between the layer that applies it
 /// and the thread that says what it held back.
@@ -72,7 +77,7 @@ impl LogBudget {
     /// Whether a line of the place `callsite` (`target`, `line`) is logged at `now`; one held
     /// back is counted.
     pub fn admit(&self, callsite: Identifier, target: &str, line: Option<u32>, now: Instant) -> bool {
-        if ALWAYS.iter().any(|t| target.starts_with(t)) {
+        if ALWAYS.contains(&target) {
             return true;
         }
         let mut b = self.state.lock().unwrap_or_else(|p| p.into_inner());
@@ -138,7 +143,7 @@ impl LogBudget {
                     let total: u64 = held.iter().map(|(_, n)| n).sum();
                     let places: Vec<String> = held.iter().take(5).map(|(p, n)| format!("{n} at {p}")).collect();
                     warn!(
-                        target: "pkm_plc::log_limit",
+                        target: SUMMARY_TARGET,
                         "log: {total} lines held back in the last {} s (per {} s at most {PER_PLACE} a place, {OURS} of pkm-plc's and {LIBRARIES} of the libraries'): {}{}",
                         INTERVAL.as_secs(),
                         INTERVAL.as_secs(),
@@ -292,11 +297,26 @@ mod tests {
         assert_eq!(admitted, PER_PLACE as usize);
         // Another place still has its share, and the state changes always pass.
         assert!(budget.admit(id(THERE), "pkm_plc::hmi::server", Some(7), t0));
-        assert!((0..100).all(|_| budget.admit(id(THERE), "pkm_plc::run", Some(55), t0)));
+        assert!((0..100).all(|_| budget.admit(id(THERE), STATE_LOG_TARGET, Some(55), t0)));
         assert_eq!(budget.held_back(), [("opcua_server::comms:42".to_string(), 990)]);
         assert!(budget.held_back().is_empty(), "said once");
         // The next interval: a share again.
         assert!(budget.admit(id(HERE), "opcua_server::comms", Some(42), t0 + INTERVAL));
+    }
+
+    /// Only the state changes' own target passes always: the rest of the runtime (the cyclic
+    /// thread's warnings, a bus's complaints) and anything named like it keeps the budget.
+    #[test]
+    fn only_the_state_changes_pass_always_not_their_neighbours() {
+        assert_eq!(STATE_LOG_TARGET, "pkm_plc::runtime::run");
+        let t0 = Instant::now();
+        for neighbour in ["pkm_plc::runtime::plc", "pkm_plc::runtime::run::more", "pkm_plc::run"] {
+            let budget = LogBudget::new();
+            let admitted = (0..100)
+                .filter(|_| budget.admit(id(HERE), neighbour, Some(1), t0))
+                .count();
+            assert_eq!(admitted, PER_PLACE as usize, "{neighbour}");
+        }
     }
 
     #[test]

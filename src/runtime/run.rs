@@ -39,6 +39,10 @@ impl Clock for VirtualClock {
     }
 }
 
+/// The log target of the machine's state changes and notes ([`StateLog`]): the log's budget
+/// always lets them pass (`log_limit`), their rate being the automaton's, not a peer's.
+pub const STATE_LOG_TARGET: &str = module_path!();
+
 /// Logs the main program's state changes (with the error reason) and its notes to the operator
 /// (a refused program start, what INIT waits for), at the time they happen. Only a change
 /// formats anything, so it costs nothing in steady operation.
