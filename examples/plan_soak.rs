@@ -135,7 +135,11 @@ fn main() {
                     let mut key = [0u8; 32];
                     key[..8].copy_from_slice(&seed.to_le_bytes());
                     key[8..16].copy_from_slice(&(thread as u64).to_le_bytes());
-                    key[16..24].copy_from_slice(&(name.len() as u64 * 7919 + name.as_bytes()[0] as u64).to_le_bytes());
+                    // Every byte of the machine's name (ox-x and ox-o once drew the same programs).
+                    let salt = name.bytes().fold(0xcbf2_9ce4_8422_2325u64, |h, b| {
+                        (h ^ u64::from(b)).wrapping_mul(0x100_0000_01b3)
+                    });
+                    key[16..24].copy_from_slice(&salt.to_le_bytes());
                     let mut runner = TestRunner::new_with_rng(
                         Config {
                             cases,

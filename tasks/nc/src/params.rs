@@ -39,9 +39,13 @@ pub fn parse(text: &str) -> Result<WorkOffsets, NcError> {
         if let Some(before) = last.filter(|&before| index <= before) {
             return Err(err(
                 first,
-                format!(
-                    "#{index} after #{before}: the numbers must increase from line to line, as LinuxCNC reads them"
-                ),
+                if index == before {
+                    format!("#{index} twice: each number once, increasing from line to line, as LinuxCNC reads them")
+                } else {
+                    format!(
+                        "#{index} after #{before}: the numbers must increase from line to line, as LinuxCNC reads them"
+                    )
+                },
             ));
         }
         last = Some(index);
@@ -178,7 +182,7 @@ mod tests {
             ),
             (
                 "5221 1\n\n5221 2\n",
-                "3:1: #5221 after #5221: the numbers must increase from line to line, as LinuxCNC reads them",
+                "3:1: #5221 twice: each number once, increasing from line to line, as LinuxCNC reads them",
             ),
         ] {
             assert_eq!(parse(text).map_err(|e| e.to_string()), Err(why.to_string()), "{text}");
