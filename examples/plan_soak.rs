@@ -14,15 +14,15 @@ mod optimal;
 mod plan_check;
 #[path = "shared/random_programs.rs"]
 mod random_programs;
+#[path = "shared/shipped.rs"]
+mod shipped;
 
 use std::sync::Mutex;
 use std::sync::atomic::{AtomicU64, Ordering};
 
 use proptest::test_runner::{Config, RngAlgorithm, TestCaseError, TestRng, TestRunner};
 
-use pkm_plc::compose::Setup;
-use pkm_plc::compose::{machines, nc_job};
-use pkm_plc::runtime::config;
+use pkm_plc::compose::{Setup, nc_job};
 
 /// How often (programs planned on a machine) a long run says how far it is.
 const PROGRESS_EVERY: u64 = 10_000;
@@ -41,18 +41,10 @@ struct Counts {
 }
 
 fn setup_of(machine: &str) -> Setup {
-    let Some(m) = machines::find(machine) else {
-        eprintln!("plan_soak: no machine {machine}");
+    shipped::setup(machine).unwrap_or_else(|e| {
+        eprintln!("plan_soak: {e}");
         std::process::exit(2);
-    };
-    let file = m.configuration();
-    config::parse(file.text, file.name)
-        .map_err(|e| e.to_string())
-        .and_then(|loaded| Setup::new(loaded).map_err(|e| e.to_string()))
-        .unwrap_or_else(|e| {
-            eprintln!("plan_soak: {e}");
-            std::process::exit(2);
-        })
+    })
 }
 
 /// One program on `setup`'s machine: Ok with nothing to say, Ok after counting a skip, or the

@@ -19,13 +19,13 @@
 
 #[path = "shared/bench_programs.rs"]
 mod bench_programs;
+#[path = "shared/shipped.rs"]
+mod shipped;
 
 use std::path::Path;
 
 use pkm_kinematics::MAX_DOF;
-use pkm_plc::compose::Setup;
-use pkm_plc::compose::{machines, nc_job};
-use pkm_plc::runtime::config;
+use pkm_plc::compose::nc_job;
 
 /// LinuxCNC 2.9's motion of each program on the O-X glide's slider limits (20 mm/s,
 /// 100 mm/s² per world axis), measured by `--measure`: its time (s, dwells excluded), and the
@@ -103,18 +103,10 @@ fn measure(prepared: &nc_job::Prepared, text: &str, speed: f64, accel: f64, dwel
 
 fn main() {
     let measuring = std::env::args().any(|a| a == "--measure");
-    let Some(machine) = machines::find("ox-x") else {
-        eprintln!("planner_vs_linuxcnc: no machine ox-x in this build");
+    let setup = shipped::setup("ox-x").unwrap_or_else(|e| {
+        eprintln!("planner_vs_linuxcnc: {e}");
         std::process::exit(2);
-    };
-    let file = machine.configuration();
-    let setup = config::parse(file.text, file.name)
-        .map_err(|e| e.to_string())
-        .and_then(|loaded| Setup::new(loaded).map_err(|e| e.to_string()))
-        .unwrap_or_else(|e| {
-            eprintln!("planner_vs_linuxcnc: {e}");
-            std::process::exit(2);
-        });
+    });
     println!(
         "{:<24} {:>9} {:>9} {:>7}   {:>9} {:>10}  keeps the limits",
         "program (ox-x)", "ours s", "LinuxCNC", "ratio", "slider v", "slider a"

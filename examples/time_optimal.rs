@@ -25,14 +25,14 @@ mod bench_programs;
 mod export_path;
 #[path = "shared/optimal.rs"]
 mod optimal;
+#[path = "shared/shipped.rs"]
+mod shipped;
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use pkm_nc::plan::Plan;
-use pkm_plc::compose::Setup;
-use pkm_plc::compose::{machines, nc_job};
-use pkm_plc::runtime::config;
+use pkm_plc::compose::nc_job;
 
 /// Our motion's time per program line (s): the plan sampled every half millisecond, each step
 /// in which the tool moves counted to the line it runs.
@@ -88,18 +88,10 @@ fn main() {
         venv.exists().then_some(venv)
     });
     let programs = bench_programs::programs();
-    let Some(m) = machines::find(machine) else {
-        eprintln!("time_optimal: no machine {machine}");
+    let setup = shipped::setup(machine).unwrap_or_else(|e| {
+        eprintln!("time_optimal: {e}");
         std::process::exit(2);
-    };
-    let file = m.configuration();
-    let setup = config::parse(file.text, file.name)
-        .map_err(|e| e.to_string())
-        .and_then(|loaded| Setup::new(loaded).map_err(|e| e.to_string()))
-        .unwrap_or_else(|e| {
-            eprintln!("time_optimal: {e}");
-            std::process::exit(2);
-        });
+    });
     let out_dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("target/time-optimal");
     if let Err(e) = std::fs::create_dir_all(&out_dir) {
         eprintln!("time_optimal: {}: {e}", out_dir.display());

@@ -22,12 +22,13 @@ mod optimal;
 mod plan_check;
 #[path = "../../examples/shared/random_programs.rs"]
 mod random_programs;
+#[path = "../../examples/shared/shipped.rs"]
+mod shipped;
 
 use proptest::prelude::*;
 use proptest::test_runner::{Config, FileFailurePersistence, RngSeed};
 
-use pkm_plc::compose::{Setup, machines, nc_job};
-use pkm_plc::runtime::config;
+use pkm_plc::compose::{Setup, nc_job};
 
 /// Programs a machine in `cargo test`.
 const CASES: u32 = 600;
@@ -35,10 +36,7 @@ const CASES: u32 = 600;
 const PROBES: usize = 2000;
 
 fn setup_of(machine: &str) -> Setup {
-    let m = machines::find(machine).unwrap_or_else(|| panic!("no machine {machine}"));
-    let file = m.configuration();
-    let loaded = config::parse(file.text, file.name).unwrap_or_else(|e| panic!("{e}"));
-    Setup::new(loaded).unwrap_or_else(|e| panic!("{e}"))
+    shipped::setup(machine).unwrap_or_else(|e| panic!("{e}"))
 }
 
 /// `text` prepared on `setup`'s machine as shipped and checked: Ok where it plans and keeps
