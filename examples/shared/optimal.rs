@@ -10,7 +10,10 @@
 //! largest controllable speed at each sample from the end backwards, then the greedy fastest
 //! speed forwards. Between two samples the speed squared changes in proportion to the distance;
 //! where the speed changes by more than 2 % from one sample to the next (a ramp from rest or
-//! from a slow corner) the grid is refined there and the motion found again, until it does not.
+//! from a slow corner), or the speed is at a cap that changes by more than 2 % (a joint whose
+//! rate along the path changes fast), the grid is refined there and the motion found again,
+//! until it does not: the time converges as the grid gets finer (a coarse grid can be off
+//! either way, by a per cent where a cap curves between two samples).
 //!
 //! With every limit loosened by a share (0.5 %, say) it is a lower bound of the time any motion
 //! along the path takes that keeps the limits to within that share: a planner's time must not
@@ -87,7 +90,7 @@ impl Path<'_> {
         let e = &self.elements[k];
         let len = e.segment.length();
         let value = |u: f64| -> Result<[f64; 6 + MAX_DOF], String> {
-            let pose = e.segment.at(u);
+            let pose = e.segment.at_extended(u);
             let mut y = [0.0; 6 + MAX_DOF];
             y[..6].copy_from_slice(&pose);
             self.frame
@@ -95,28 +98,30 @@ impl Path<'_> {
                 .map_err(|err| format!("line {}: the path leaves the workspace: {err}", e.line))?;
             Ok(y)
         };
-        // The derivatives from the kinematics a step either side within the element (a step of
-        // the grid, at most a 64th of the element and a thousandth of a radian of a curve):
-        // central inside, one-sided at the element's ends (the element is not extended past
-        // them).
+        // The derivatives of the element's own line or curve, from the kinematics a step either
+        // side, continued past the element's ends where the point lies near one (a line goes on
+        // as the same line, an arc on its circle, a blend's turn as the same polynomial): a step
+        // of the grid, at most a thousandth of a radian of a curve. Not shorter for a short
+        // element: the second difference's rounding grows as 1/h², and on a millionth of a
+        // millimetre of line left between two blends it made the hexapod's strut accelerations
+        // noise. One-sided within the element where the mechanism has no pose past its end.
         let sweep = e.segment.sweep();
-        let h = self.spacing.min(len / 64.0).min(if sweep > 0.0 {
+        let h = self.spacing.min(if sweep > 0.0 {
             0.001 * len / sweep
         } else {
             f64::INFINITY
         });
-        let du = h / len;
         let y = value(u)?;
         let mut d = [(0.0, 0.0); 6 + MAX_DOF];
-        if u - du >= 0.0 && u + du <= 1.0 {
-            let (a, b) = (value(u - du)?, value(u + du)?);
+        if let (Ok(a), Ok(b)) = (value(u - h / len), value(u + h / len)) {
             for c in 0..6 + n {
                 d[c] = ((b[c] - a[c]) / (2.0 * h), (b[c] - 2.0 * y[c] + a[c]) / (h * h));
             }
         } else {
-            // Both to the second order in the step: the curvature of a blend's rotations
-            // changes fast, and the three-point second difference is only to the first.
-            let sign = if u - du < 0.0 { 1.0 } else { -1.0 };
+            // Both to the second order in the step.
+            let h = h.min(len / 8.0);
+            let du = h / len;
+            let sign = if u < 0.5 { 1.0 } else { -1.0 };
             let (a, b, z) = (
                 value(u + sign * du)?,
                 value(u + sign * 2.0 * du)?,
@@ -301,7 +306,9 @@ pub fn optimal(
             samples[i].stop = (k == 0 && i == 0) || (last && elements[k].stop_after);
         }
         x = path.solve(&samples, 1.0);
-        // Where the speed changes fast between two samples of an element, samples between them.
+        let caps: Vec<f64> = samples.iter().map(|p| path.constraints(p, 1.0).0.sqrt()).collect();
+        // Where the speed changes fast between two samples of an element, or the speed is at
+        // a cap that changes fast between them, samples between them.
         for i in 0..count.saturating_sub(1) {
             let (p, q) = (&samples[i], &samples[i + 1]);
             let len = elements[p.element].segment.length();
@@ -309,8 +316,14 @@ pub fn optimal(
                 continue;
             }
             let (lo, hi) = (x[i].min(x[i + 1]).sqrt(), x[i].max(x[i + 1]).sqrt());
-            if lo > 0.0 && hi > SMOOTH * lo {
-                let parts = ((hi / lo).ln() / SMOOTH.ln()).ceil().min(64.0) as usize;
+            let mut ratio = if lo > 0.0 { hi / lo } else { 1.0 };
+            let (c0, c1) = (caps[i], caps[i + 1]);
+            let capped = x[i].sqrt() >= c0 / SMOOTH || x[i + 1].sqrt() >= c1 / SMOOTH;
+            if capped && c0.min(c1) > 0.0 && c0.max(c1).is_finite() {
+                ratio = ratio.max(c0.max(c1) / c0.min(c1));
+            }
+            if ratio > SMOOTH {
+                let parts = (ratio.ln() / SMOOTH.ln()).ceil().min(64.0) as usize;
                 wanted.extend((1..parts).map(|j| (p.element, p.u + (q.u - p.u) * j as f64 / parts as f64)));
             }
         }

@@ -151,6 +151,38 @@ const FOUND_BY_THE_LONG_RUN: &[(&str, &str)] = &[
          G1 X-1.6311 Y0.0000 Z-0.2608 A0.0000 B0.0000 C0.6579\n\
          G1 X-1.6301 Y0.0000 Z-0.2608 A0.0000 B0.0000 C0.6579\nM2\n",
     ),
+    // A turn that ends where a long blend starts: lowering both ends' caps alike where a joint's
+    // cap curves between them slowed it to 1.0115 × the optimum.
+    (
+        "hexapod",
+        "G21 G90 G17 G64\nG1 F8267.7\nG1 X-0.552 Y0.833 Z0.000 A1.694 B1.754 C-0.455\n\
+         G1 X-1.034 Y1.561 Z0.000 A1.694 B1.754 C-0.455\nM2\n",
+    ),
+    // A 0.26° turn on a 0.14 mm move after a 1.8 mm line: the reference's grid too coarse
+    // where a joint's cap changes fast (the plan 0.7 % below its lower bound).
+    (
+        "hexapod",
+        "G21 G90 G17 G64\nG1 F1.0\nF1027.4\nG1 X-1.839 Y0.000 Z0.000 A0.000 B0.000 C0.000\n\
+         G1 X-1.758 Y0.089 Z0.074 A-0.144 B-0.143 C0.263\nM2\n",
+    ),
+    // Micrometre moves while the platform is turned (the same, 0.54 %).
+    (
+        "hexapod",
+        "G21 G90 G17 G64\nG1 F155.7\nG1 X0.011 Y0.000 Z0.003 A-0.022 B0.000 C0.006\n\
+         G1 X0.001 Y0.000 Z0.000 A-0.022 B0.000 C0.006\nM2\n",
+    ),
+    // A turn of C on a short move, then a reversal that holds it: hairpin blends of nanometres,
+    // whose derivatives a reference that measured over 10 µm got wrong (1.035 × and 1.017 ×).
+    (
+        "hexapod",
+        "G21 G90 G17 G64\nG1 F1081.1\nG1 X0.001 Y0.000 Z0.006 A0.000 B0.000 C0.012\n\
+         G1 X-0.004 Y0.000 Z-0.021 A0.000 B0.000 C0.012\nM2\n",
+    ),
+    (
+        "hexapod",
+        "G21 G90 G17 G61\nG1 F178.0\nG64\nG1 X-0.013 Y0.013 Z0.012 A0.000 B0.000 C-0.008\n\
+         G1 X0.187 Y-0.187 Z-0.172 A0.000 B0.000 C-0.008\nM2\n",
+    ),
 ];
 
 #[test]

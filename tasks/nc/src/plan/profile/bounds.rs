@@ -184,18 +184,23 @@ pub(super) fn settle(p: &mut Point, here: &Place, end: Option<&Place>, feed_befo
 
 /// Where between two points a coordinate's rate along the path is looked at (fractions of the
 /// interval), besides where it is highest.
-const INSIDE: [f64; 3] = [0.25, 0.5, 0.75];
+const INSIDE: [f64; 7] = [0.125, 0.25, 0.375, 0.5, 0.625, 0.75, 0.875];
 
 /// How much lower than its ends' caps a coordinate's speed cap must be between two points
 /// (squared, as a share) before it lowers them: the margin below every limit covers less.
 const SAG: f64 = 0.001;
 
-/// The share of the interval's speed caps (squared; `c0` and `c1` at its ends) a coordinate
+/// The shares of the interval's speed caps (squared; `c0` and `c1` at its ends) a coordinate
 /// with the speed limit `speed` leaves between two points `ds` apart where its derivatives are
 /// `d0` and `d1`: its rate q′ between them is the cubic through both ends with the slopes q″
 /// there, and a speed squared that changes in proportion to the distance from one end's cap to
-/// the other's must stay below (speed / |q′|)² all along (1 where it does).
-fn sag(d0: Derivs, d1: Derivs, ds: f64, speed: f64, c0: f64, c1: f64) -> f64 {
+/// the other's must stay below its cap (speed / |q′|)² all along ((1, 1) where it does).
+///
+/// Of the ways to lower them — one end alone, the other alone, or both by the same share — the
+/// one that keeps the lower end's cap highest: where a joint slows down along the path (its
+/// cap rising, in a curve that the straight line cuts), the lower end keeps its cap, and the
+/// tool is not slowed where it is slowest already.
+fn sag(d0: Derivs, d1: Derivs, ds: f64, speed: f64, c0: f64, c1: f64) -> (f64, f64) {
     let (a, b) = (f64::from(d0[0]), f64::from(d1[0]));
     let (m0, m1) = (ds * f64::from(d0[1]), ds * f64::from(d1[1]));
     let c2 = 3.0 * (b - a) - 2.0 * m0 - m1;
@@ -214,24 +219,46 @@ fn sag(d0: Derivs, d1: Derivs, ds: f64, speed: f64, c0: f64, c1: f64) -> f64 {
             [Some((-qb + r) / (2.0 * qa)), Some((-qb - r) / (2.0 * qa))]
         }
     };
-    let mut least = 1.0f64;
+    // The coordinate's cap (squared) at every place looked at.
+    let mut caps = [(0.0, f64::INFINITY); INSIDE.len() + 2];
+    let mut count = 0;
     for t in INSIDE
         .into_iter()
         .chain(roots.into_iter().flatten())
         .filter(|t| *t > 0.0 && *t < 1.0)
     {
         let rate = h(t).abs();
-        let line = (1.0 - t) * c0 + t * c1;
-        if rate > 0.0 && line > 0.0 {
-            least = least.min((speed / rate).powi(2) / line);
+        if rate > 0.0 {
+            caps[count] = (t, (speed / rate).powi(2));
+            count += 1;
         }
     }
-    if least < 1.0 - SAG { least } else { 1.0 }
+    let caps = &caps[..count];
+    let least = caps
+        .iter()
+        .map(|&(t, f)| f / ((1.0 - t) * c0 + t * c1))
+        .fold(1.0f64, f64::min);
+    if least >= 1.0 - SAG {
+        return (1.0, 1.0);
+    }
+    // Both by the same share; the end at t = 1 alone; the end at t = 0 alone.
+    let mut best = (least, least);
+    let end_alone = caps.iter().map(|&(t, f)| (f - (1.0 - t) * c0) / t).fold(c1, f64::min);
+    let start_alone = caps.iter().map(|&(t, f)| (f - t * c1) / (1.0 - t)).fold(c0, f64::min);
+    // The slower end's cap is what the tool's time depends on most: the way that keeps it
+    // highest, and of two that keep it alike, the one that keeps more of the other.
+    let worth = |(k0, k1): (f64, f64)| ((k0 * c0).min(k1 * c1), k0 * c0 + k1 * c1);
+    for (k0, k1) in [(1.0, end_alone / c1), (start_alone / c0, 1.0)] {
+        if k0 >= 0.0 && k1 >= 0.0 && worth((k0, k1)) > worth(best) {
+            best = (k0, k1);
+        }
+    }
+    best
 }
 
 /// The speed caps between the points: where a coordinate's speed cap sags between two points
 /// below the straight line of its ends' (squared; its rate q′ along the path bulges, or curves),
-/// both ends' caps are lowered by as much, so that the speed between them, which changes in
+/// the ends' caps are lowered ([`sag`]), so that the speed between them, which changes in
 /// proportion to the distance in the speed squared, stays below it.
 pub(in super::super) fn interior_caps(points: &mut [Point], bounds: &mut Bounds) {
     let m = bounds.width;
@@ -240,12 +267,14 @@ pub(in super::super) fn interior_caps(points: &mut [Point], bounds: &mut Bounds)
         if ds <= 0.0 {
             continue;
         }
-        // The interval's caps at its ends, lowered alike by the coordinate that sags most.
+        // The interval's caps at its ends.
         let (c0, c1) = bounds.interval_caps(points, i);
         if !(c0.is_finite() && c1.is_finite()) {
             continue;
         }
-        let (mut keep, mut why) = (1.0f64, Limit::Feed);
+        // Each end lowered as far as the coordinate that needs it most there wants (lowering
+        // an end further keeps every other coordinate's line below its cap too).
+        let (mut keep, mut why) = ([1.0f64; 2], [Limit::Feed; 2]);
         {
             let (start, end) = bounds.interval(points, i);
             for k in 0..m {
@@ -254,16 +283,17 @@ pub(in super::super) fn interior_caps(points: &mut [Point], bounds: &mut Bounds)
                     continue;
                 }
                 let kept = sag(start[k], end[k], ds, speed, c0 * c0, c1 * c1);
-                if kept < keep {
-                    (keep, why) = (kept, bounds.coordinates.why(k, true));
+                for (end, kept) in [kept.0, kept.1].into_iter().enumerate() {
+                    if kept < keep[end] {
+                        (keep[end], why[end]) = (kept, bounds.coordinates.why(k, true));
+                    }
                 }
             }
         }
-        if keep >= 1.0 {
+        if keep == [1.0, 1.0] {
             continue;
         }
-        let (cap0, cap1) = (c0 * keep.sqrt(), c1 * keep.sqrt());
-        let (why0, why1) = (why, why);
+        let (cap0, cap1) = (c0 * keep[0].sqrt(), c1 * keep[1].sqrt());
         bounds.own_caps[i] = bounds.own_caps[i].min(cap0);
         if points[i + 1].element == points[i].element {
             bounds.own_caps[i + 1] = bounds.own_caps[i + 1].min(cap1);
@@ -271,7 +301,7 @@ pub(in super::super) fn interior_caps(points: &mut [Point], bounds: &mut Bounds)
             let e = points[i].element as usize;
             bounds.end_caps[e] = bounds.end_caps[e].min(cap1);
         }
-        for (p, cap, why) in [(i, cap0, why0), (i + 1, cap1, why1)] {
+        for (p, cap, why) in [(i, cap0, why[0]), (i + 1, cap1, why[1])] {
             let p = &mut points[p];
             if cap < p.cap {
                 p.cap = cap;

@@ -11,7 +11,7 @@ use crate::interp::block::Pose;
 use crate::path::Segment;
 
 /// How far a point's derivatives are measured either side of it (mm, or degrees where only
-/// rotations move), at most: shorter on short moves and tight curves.
+/// rotations move), at most: shorter on tight curves.
 const DERIVATIVE_STEP: f64 = 0.01;
 /// Below this a coordinate does not move along the path (its units per mm of path).
 const STILL: f64 = 1e-12;
@@ -101,9 +101,12 @@ fn derivatives(
     frame: &MachineFrame,
 ) -> Result<[[f64; 2]; MAX_COORDINATES], String> {
     let n = frame.dof();
-    // A hair: at most DERIVATIVE_STEP, a sixteenth of the move, a twentieth of a radian of a
-    // curve (the difference of a curve's cosine over ±h is exact to h²/12).
-    let h = DERIVATIVE_STEP.min(len / 16.0).min(if segment.sweep() > 0.0 {
+    // A hair: at most DERIVATIVE_STEP and a twentieth of a radian of a curve (the difference of
+    // a curve's cosine over ±h is exact to h²/12). Not shorter for a short element: the line or
+    // curve is continued past its ends (a line as the same line, an arc on its circle, a blend's
+    // turn as the same polynomial), and the second difference's rounding grows as 1/h² — over a
+    // sixteenth of a millionth of a millimetre of line left between two blends it was noise.
+    let h = DERIVATIVE_STEP.min(if segment.sweep() > 0.0 {
         0.05 * len / segment.sweep()
     } else {
         f64::INFINITY
