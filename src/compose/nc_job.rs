@@ -378,7 +378,12 @@ fn prepare_unguarded(
         // cannot follow, or that fails its check, as an unreachable one (1).
         let refused = |e: pkm_nc::plan::PlanError| fail(if watch.stopped() { 2 } else { 1 }, format!("{name}: {e}"));
         let plan = plan_watched(&program, &frame, &limits, watch).map_err(refused)?;
-        Some(verify(plan, &frame, &limits, fast_cycle_s(setup), watch).map_err(refused)?)
+        let plan = verify(plan, &frame, &limits, fast_cycle_s(setup), watch).map_err(refused)?;
+        let bound_s = nc.max_duration_s();
+        if plan.duration_s > bound_s {
+            return Err(fail(2, too_long(&name, &plan, bound_s)));
+        }
+        Some(plan)
     } else {
         None
     };
@@ -394,6 +399,37 @@ fn prepare_unguarded(
         report,
         plan: planned,
     })
+}
+
+/// Why program `name`, planned to take longer than `bound_s`, is refused: its planned time
+/// (and how much of it is dwells), the bound, and the line whose move takes longest.
+fn too_long(name: &str, plan: &pkm_nc::plan::Plan, bound_s: f64) -> String {
+    let dwells = if plan.dwell_s > 0.0 {
+        format!(" ({} of it dwells)", clock(plan.dwell_s))
+    } else {
+        String::new()
+    };
+    let longest = plan
+        .longest_move()
+        .map(|(line, t)| format!("; the longest move is line {line}'s, {}", clock(t)))
+        .unwrap_or_default();
+    format!(
+        "{name}: planned to run {}{dwells}, longer than the {} a program may (nc.max_duration_h){longest}. A feed or a dwell mistyped is the usual cause (F is per minute, G4 P in seconds); else split the program or raise the bound",
+        clock(plan.duration_s),
+        clock(bound_s),
+    )
+}
+
+/// A duration as a machinist reads it: `55 h 12 min`, `12 h`, `3 min 20 s`, `4.5 s`.
+fn clock(seconds: f64) -> String {
+    let whole = seconds.round() as u64;
+    let (h, min, s) = (whole / 3600, whole / 60 % 60, whole % 60);
+    match (h, min) {
+        (0, 0) => format!("{seconds:.1} s"),
+        (0, _) => format!("{min} min {s} s"),
+        (_, 0) => format!("{h} h"),
+        _ => format!("{h} h {min} min"),
+    }
 }
 
 /// The run's programs: the one to run (`run --program`), and those the operator may load

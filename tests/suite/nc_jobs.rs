@@ -190,6 +190,18 @@ fn a_job_that_cannot_run_is_refused_with_its_line_and_nothing_is_stored() {
         refused("G0 X900")
     );
     assert_eq!(refused("  \n"), "MDI: no line to run");
+    // 55 hours as planned: three dwells of 66 000 s (G4 P is in seconds; 66 000 ms was meant).
+    assert_eq!(
+        refused("G1 X1 F60\nG4 P66000\nG4 P66000\nG4 P66000\nG1 X0 F120"),
+        "MDI: planned to run 55 h (55 h of it dwells), longer than the 12 h a program \
+         may (nc.max_duration_h); the longest move is line 1's, 1.0 s. A feed or a dwell \
+         mistyped is the usual cause (F is per minute, G4 P in seconds); else split the program \
+         or raise the bound"
+    );
+    // Within the bound it plans (a dwell of 11 hours).
+    screen_job::plan(&setup, &library, &spec("G1 X1 F60\nG4 P39600"))
+        .map(|_| ())
+        .unwrap_or_else(|e| panic!("{}", e.message));
     let from = ScreenJobSpec {
         kind: ScreenJobKind::FromLine { program: 1, line: 3 },
         start: [0.0; 6],
@@ -200,6 +212,54 @@ fn a_job_that_cannot_run_is_refused_with_its_line_and_nothing_is_stored() {
         .expect_err("no program 1");
     assert_eq!(e.message, "no program 1 to run from a line: the run has 0");
     assert_eq!(library.screen.made(), 0);
+}
+
+/// `nc.max_duration_h` bounds what a program may take as planned: at 0.5 h a 40-minute feed is
+/// refused, with the line whose move takes longest; a bound out of its range is a refusal too.
+#[test]
+fn a_program_planned_longer_than_nc_max_duration_h_is_refused() {
+    let setup = Setup::new(machine_config("ox-x", |c| {
+        c["nc"]["max_duration_h"] = serde_json::json!(0.5)
+    }))
+    .expect("ox-x");
+    let library = pkm_plc::compose::nc_job::library(None, Vec::new(), true).expect("a screen's library");
+    let spec = ScreenJobSpec {
+        kind: ScreenJobKind::Mdi {
+            text: "G1 X2 F60\nG1 X0 F0.05\n".into(),
+        },
+        start: [0.0; 6],
+        offsets: None,
+    };
+    let e = screen_job::plan(&setup, &library, &spec)
+        .map(|_| ())
+        .expect_err("refused");
+    assert_eq!(
+        e.message,
+        "MDI:2:7: the feed F must be at least 0.1 units/min (slower, a millimetre takes hours), got 0.05"
+    );
+    let spec = ScreenJobSpec {
+        kind: ScreenJobKind::Mdi {
+            text: "G1 X4 F60\nG1 X0 F0.1\n".into(),
+        },
+        ..spec
+    };
+    let e = screen_job::plan(&setup, &library, &spec)
+        .map(|_| ())
+        .expect_err("refused");
+    assert_eq!(
+        e.message,
+        "MDI: planned to run 40 min 4 s, longer than the 30 min 0 s a program may (nc.max_duration_h); \
+         the longest move is line 2's, 40 min 0 s. A feed or a dwell mistyped is the usual cause (F is \
+         per minute, G4 P in seconds); else split the program or raise the bound"
+    );
+    let setup = Setup::new(machine_config("ox-x", |c| {
+        c["nc"]["max_duration_h"] = serde_json::json!(0.0)
+    }))
+    .expect("ox-x");
+    let e = screen_job::plan(&setup, &library, &spec)
+        .map(|_| ())
+        .expect_err("refused");
+    assert!(e.message.contains("nc.max_duration_h"), "{}", e.message);
 }
 
 /// An O-X run built with a screen from `setup` (its 3 coordinates), its library, and the desk

@@ -110,7 +110,15 @@ pub struct NcConfig {
     /// the screen, a program at start, `nc check`.
     #[serde(default)]
     pub max_planning_s: Option<f64>,
+    /// The longest a program may run as planned, its motion and dwells (hours, 12 by
+    /// default): a program planned to take longer is refused with its planned time and the
+    /// line that takes longest (a feed or a dwell mistyped, as a rule).
+    #[serde(default)]
+    pub max_duration_h: Option<f64>,
 }
+
+/// How long a program may run as planned unless `nc.max_duration_h` says otherwise (hours).
+pub const DEFAULT_MAX_DURATION_H: f64 = 12.0;
 
 /// How long a program's preparation may take unless `nc.max_planning_s` says otherwise (s).
 pub const DEFAULT_MAX_PLANNING_S: f64 = 30.0;
@@ -138,6 +146,15 @@ impl NcConfig {
                 .filter(|s| ranges::NC_MAX_PLANNING_S.contains(*s))
                 .unwrap_or(DEFAULT_MAX_PLANNING_S),
         )
+    }
+
+    /// How long a program may run as planned (`max_duration_h`, else
+    /// [`DEFAULT_MAX_DURATION_H`]), in seconds.
+    pub fn max_duration_s(&self) -> f64 {
+        self.max_duration_h
+            .filter(|h| ranges::NC_MAX_DURATION_H.contains(*h))
+            .unwrap_or(DEFAULT_MAX_DURATION_H)
+            * 3600.0
     }
 
     /// The share of the accelerations a program's plan uses (`accel_share`, 1 without it).
@@ -221,6 +238,9 @@ impl NcConfig {
         }
         if let Some(s) = self.max_planning_s {
             ranges::check_into(&mut problems, "nc.max_planning_s", s, &ranges::NC_MAX_PLANNING_S);
+        }
+        if let Some(h) = self.max_duration_h {
+            ranges::check_into(&mut problems, "nc.max_duration_h", h, &ranges::NC_MAX_DURATION_H);
         }
         problems
     }

@@ -150,6 +150,8 @@ pub const NC_MAX_PLANNING_S: Range = Range::new(
     "s",
     "a job the operator waits for, which nothing else may hold up for longer",
 );
+/// The longest one NC program may run as planned (`nc.max_duration_h`, hours).
+pub const NC_MAX_DURATION_H: Range = Range::new(0.01, 1000.0, "h", "");
 /// The share of the joints' and axes' accelerations an NC program's plan uses.
 pub const ACCEL_SHARE: Range = Range::new(0.05, 1.0, "", "a fraction of each acceleration");
 /// A distance a search backs off or approaches from (mm).

@@ -253,6 +253,33 @@ impl Plan {
         points.get(at).map(|p| (p.s, p.t))
     }
 
+    /// The program line whose motion takes longest as planned (dwells left out), and how long
+    /// (s); `None` for a plan without motion.
+    pub fn longest_move(&self) -> Option<(usize, f64)> {
+        let mut longest: Option<(usize, f64)> = None;
+        let mut current: Option<(usize, f64)> = None;
+        for w in self.points.windows(2) {
+            let line = self.elements[w[0].element as usize].line;
+            let dt = w[1].t - (w[0].t + w[0].hold);
+            match &mut current {
+                Some((l, t)) if *l == line => *t += dt,
+                _ => {
+                    if let Some(done) = current.take()
+                        && longest.is_none_or(|(_, t)| done.1 > t)
+                    {
+                        longest = Some(done);
+                    }
+                    current = Some((line, dt));
+                }
+            }
+        }
+        match (longest, current) {
+            (Some(l), Some(c)) if c.1 > l.1 => Some(c),
+            (None, c) => c,
+            (l, _) => l,
+        }
+    }
+
     /// The path's elements.
     pub fn elements(&self) -> &[Element] {
         &self.elements
