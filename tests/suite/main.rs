@@ -12,6 +12,7 @@ mod cli;
 mod config_errors;
 mod config_ranges;
 mod hmi;
+mod io_sim_station;
 mod joint_machines;
 mod joint_machines_soak;
 mod joystick;

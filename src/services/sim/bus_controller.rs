@@ -5,7 +5,8 @@
 //! the watchdog expires.
 //!
 //! The watchdog behaves as the bus controller's: it runs from the first telegram that feeds it,
-//! while its mode is not "off" and its threshold is not 0; in mode 0xC1 any telegram resets it, in mode 0xC2 only writes do. When it
+//! while its mode is not "off" and its threshold is not 0; in mode 0xC1 any telegram of the
+//! client that controls the outputs resets it, in mode 0xC2 only its writes do. When it
 //! expires, every output goes to zero, error bit 5 is set, and process-data writes are ignored
 //! until a client writes 0xC1 to register 0x1044.
 
@@ -132,10 +133,14 @@ impl BusControllerSim {
         };
     }
 
-    /// A telegram arrived; `write`: it writes. Feeds the watchdog as its mode says (an expired
-    /// one only by its reset register).
-    pub fn telegram(&mut self, write: bool) {
+    /// A telegram arrived; `write`: it writes; `controlling`: it comes from the client that
+    /// controls the outputs (or from any while none does). Counted; a controlling one feeds the
+    /// watchdog as its mode says (an expired one only by its reset register).
+    pub fn telegram(&mut self, write: bool, controlling: bool) {
         self.telegrams = self.telegrams.wrapping_add(1);
+        if !controlling {
+            return;
+        }
         let feeds = match self.mode {
             WATCHDOG_ANY_ACCESS => true,
             WATCHDOG_WRITES => write,
@@ -264,7 +269,11 @@ impl BusControllerSim {
         if !(MAC..0x1200).contains(&address) && address < MODULE_TABLE {
             return None;
         }
-        for (a, v) in (address..).zip(values) {
+        for (i, v) in values.iter().enumerate() {
+            // Past 0xFFFF there is no register (and no u16 to count it in).
+            let Ok(a) = u16::try_from(usize::from(address) + i) else {
+                return Some(Err(ExceptionCode::IllegalDataAddress));
+            };
             match a {
                 WATCHDOG_THRESHOLD => self.threshold_ms = *v,
                 WATCHDOG_MODE if [WATCHDOG_OFF, WATCHDOG_ANY_ACCESS, WATCHDOG_WRITES].contains(v) => self.mode = *v,

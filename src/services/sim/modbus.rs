@@ -422,14 +422,19 @@ impl Station {
                 | Request::WriteMultipleRegisters(..)
                 | Request::ReadWriteMultipleRegisters(..)
         );
-        if let Some(bc) = &mut self.bc {
-            // The X20BC0087 has no packed image to exchange in one transaction.
-            if matches!(request, Request::ReadWriteMultipleRegisters(..)) {
-                return Err(ExceptionCode::IllegalFunction);
-            }
-            bc.telegram(write);
+        // The X20BC0087 has no packed image to exchange in one transaction.
+        if self.bc.is_some() && matches!(request, Request::ReadWriteMultipleRegisters(..)) {
+            return Err(ExceptionCode::IllegalFunction);
         }
-        if write && !self.written(client) {
+        let refused = write && !self.written(client);
+        if let Some(bc) = &mut self.bc {
+            // Every telegram counts; only the controlling client's feeds the watchdog (or any
+            // client's while no one controls the outputs): a write refused with exception 6 was
+            // not carried out, and another client — a monitor that polls, a second controller
+            // held off — must not keep the outputs alive after the controller is gone.
+            bc.telegram(write, !refused && self.owner.is_none_or(|owner| owner == client));
+        }
+        if refused {
             return Err(ExceptionCode::ServerDeviceBusy);
         }
         Ok(match request {
