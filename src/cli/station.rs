@@ -12,7 +12,7 @@ use super::args::{StationArgs, StationOp};
 use pkm_plc::services::io::catalogue;
 use pkm_plc::services::io::map::DEFAULT_WATCHDOG_MS;
 use pkm_plc::services::io::x20bc0087::client::{Identity, Registers};
-use pkm_plc::services::io::x20bc0087::{ModuleRecord, show_index, type_name};
+use pkm_plc::services::io::x20bc0087::{ModuleRecord, NO_DATA, show_index, type_name};
 
 /// The Modbus TCP port a bus controller listens on unless set otherwise.
 pub const DEFAULT_PORT: u16 = 502;
@@ -195,6 +195,61 @@ impl Scan {
         out
     }
 
+    /// Where the station's answers contradict each other — its module count and its module
+    /// table, a module's data beyond the byte counts the station reports, analog data at an odd
+    /// byte, two modules of one serial number — one line each: a faulty or lying station, whose
+    /// table is no ground for a map.
+    pub fn doubts(&self) -> Vec<String> {
+        let mut doubts = Vec::new();
+        let id = &self.identity;
+        if usize::from(id.modules) != self.modules.len() {
+            doubts.push(format!(
+                "the station says it holds {} modules (register 0x1100), its module table lists {}",
+                id.modules,
+                self.modules.len()
+            ));
+        }
+        let [ai, ao, di, dout] = id.process;
+        let kinds = [
+            ("analog input", ai.1, true),
+            ("analog output", ao.1, true),
+            ("digital input", di.1, false),
+            ("digital output", dout.1, false),
+        ];
+        for (i, m) in self.modules.iter().enumerate() {
+            let indexes = [m.analog_in, m.analog_out, m.digital_in, m.digital_out];
+            for (&index, &(what, bytes, analog)) in indexes.iter().zip(&kinds) {
+                if index == NO_DATA {
+                    continue;
+                }
+                if index >= bytes {
+                    doubts.push(format!(
+                        "slot {}: its {what} data at byte {index} lies beyond the {bytes} bytes of {what}s the station reports",
+                        i + 1
+                    ));
+                }
+                if analog && index % 2 != 0 {
+                    doubts.push(format!(
+                        "slot {}: its {what} data at byte {index}, which is odd: registers are two bytes each",
+                        i + 1
+                    ));
+                }
+            }
+            if let Some(j) = self.modules[..i]
+                .iter()
+                .position(|o| o.serial == m.serial && m.serial != 0)
+            {
+                doubts.push(format!(
+                    "slots {} and {} report the same serial number, {}",
+                    j + 1,
+                    i + 1,
+                    m.serial
+                ));
+            }
+        }
+        doubts
+    }
+
     /// An I/O map skeleton for what the station holds: the station, its watchdog, and each
     /// module in its slot with its ID pinned; a module of an ID the catalogue does not know gets
     /// a type to be written by hand (the map is refused until it is). No bindings.
@@ -256,7 +311,19 @@ pub fn command(args: StationArgs) -> Result<(), Failure> {
     let address = parse_address(&address).map_err(|e| Failure::usage(e.to_string()))?;
     let scan = scan(address, Duration::from_millis(timeout_ms)).map_err(|e| Failure::run(e.to_string()))?;
     print!("{}", scan.report());
+    let doubts = scan.doubts();
+    for doubt in &doubts {
+        eprintln!("warning: station {address}: {doubt}");
+    }
     if let Some(path) = write_map {
+        if !doubts.is_empty() {
+            return Err(Failure::run(format!(
+                "{}: not written: the station's answers contradict each other ({}), so its module table is no ground for \
+                 a map; check the station (its power, its X2X link, its firmware) and scan again",
+                path.display(),
+                doubts.join("; ")
+            )));
+        }
         self::write_map(&path, &scan.map_skeleton()).map_err(Failure::run)?;
         println!(
             "I/O map skeleton for {} modules written to {}: add the bindings, name any module of an unknown ID",

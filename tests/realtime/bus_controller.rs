@@ -365,3 +365,181 @@ fn a_cycle_that_stops_handing_outputs_over_stops_feeding_the_station_watchdog() 
     assert!(bus.fault(), "the fault stands while the cycle hands no outputs over");
     bus.write_safe(&image);
 }
+
+/// A station that answers as an X20BC0087 from a module table it is given, and counts the
+/// write requests it gets (their function codes): a bus controller that lies, served on
+/// loopback by a thread of the test.
+struct LyingStation {
+    address: std::net::SocketAddr,
+    writes: std::sync::Arc<std::sync::Mutex<Vec<u8>>>,
+}
+
+impl LyingStation {
+    fn start(table: Vec<pkm_plc::services::io::x20bc0087::ModuleRecord>) -> LyingStation {
+        use pkm_plc::services::io::x20bc0087::MODULE_TABLE;
+        use std::io::{Read, Write};
+        let listener = std::net::TcpListener::bind("127.0.0.1:0").expect("bind");
+        let address = listener.local_addr().expect("address");
+        let writes = std::sync::Arc::new(std::sync::Mutex::new(Vec::new()));
+        let seen = writes.clone();
+        let words: Vec<u16> = table.iter().flat_map(|r| r.to_words()).collect();
+        std::thread::spawn(move || {
+            for stream in listener.incoming() {
+                let Ok(mut stream) = stream else { return };
+                let (words, seen) = (words.clone(), seen.clone());
+                std::thread::spawn(move || {
+                    let mut head = [0u8; 7];
+                    while stream.read_exact(&mut head).is_ok() {
+                        let len = usize::from(u16::from_be_bytes([head[4], head[5]]));
+                        let mut pdu = vec![0u8; len.saturating_sub(1)];
+                        if stream.read_exact(&mut pdu).is_err() || pdu.is_empty() {
+                            return;
+                        }
+                        let field = |i: usize| u16::from_be_bytes([pdu[i], pdu[i + 1]]);
+                        let reply: Vec<u8> = match pdu[0] {
+                            // Reads: the module table where it lies, zero elsewhere.
+                            3 | 4 => {
+                                let (start, count) = (field(1), field(3));
+                                let mut r = vec![pdu[0], (count * 2) as u8];
+                                for a in start..start.saturating_add(count) {
+                                    let w = a
+                                        .checked_sub(MODULE_TABLE)
+                                        .and_then(|i| words.get(usize::from(i)))
+                                        .copied()
+                                        .unwrap_or(0);
+                                    r.extend(w.to_be_bytes());
+                                }
+                                r
+                            }
+                            1 | 2 => {
+                                let count = field(3);
+                                let mut r = vec![pdu[0], count.div_ceil(8) as u8];
+                                r.resize(2 + usize::from(count.div_ceil(8)), 0);
+                                r
+                            }
+                            // Writes: counted, and answered as carried out.
+                            5 | 6 | 15 | 16 => {
+                                seen.lock().unwrap_or_else(|p| p.into_inner()).push(pdu[0]);
+                                pdu[..5].to_vec()
+                            }
+                            f => vec![f | 0x80, 1],
+                        };
+                        let mut frame = head[..4].to_vec();
+                        frame.extend(((reply.len() + 1) as u16).to_be_bytes());
+                        frame.push(head[6]);
+                        frame.extend(reply);
+                        if stream.write_all(&frame).is_err() {
+                            return;
+                        }
+                    }
+                });
+            }
+        });
+        LyingStation { address, writes }
+    }
+
+    fn writes(&self) -> Vec<u8> {
+        self.writes.lock().unwrap_or_else(|p| p.into_inner()).clone()
+    }
+}
+
+/// A station whose table puts a counter's word at an odd byte index (a register split in two)
+/// is refused before anything is written to it — its watchdog's setting and reset are writes,
+/// and used to come before this refusal, whose message says nothing was written.
+#[test]
+fn run_refuses_a_station_whose_analog_data_lies_at_an_odd_byte_before_writing_anything() {
+    use pkm_plc::services::io::registers::RegisterMap;
+    use pkm_plc::services::io::x20bc0087::expected_modules;
+    let dir = tempfile::tempdir().expect("tempdir");
+    let config = common::write_realtime_config(dir.path());
+    let loaded = common::loaded(&common::read_json(&config));
+    let map = common::io_map(&loaded);
+    let registers = RegisterMap::of(&map);
+    let mut table: Vec<_> = expected_modules(&map, &registers).iter().map(|m| m.record()).collect();
+    // The right counter's word at byte 3: it would straddle registers 1 and 2.
+    table[3].analog_in = 3;
+    let station = LyingStation::start(table);
+    let o = common::pkm_command()
+        .args([
+            "run",
+            "--bus",
+            &format!("tcp:{}", station.address),
+            "--duration",
+            "5",
+            "--joystick",
+            "none",
+        ])
+        .args(["--config", config.to_str().expect("utf-8")])
+        .stdout(Stdio::null())
+        .output()
+        .expect("run");
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(
+        err.ends_with(&format!(
+            "error: the X20BC0087 at tcp:{} assigns data the soft-PLC cannot address, so nothing is written to it: slot 4: \
+             the station puts the module's analog data at byte index 3, which is odd: registers are two bytes each\n",
+            station.address
+        )),
+        "{err}"
+    );
+    assert_eq!(
+        station.writes(),
+        Vec::<u8>::new(),
+        "write requests (function codes) the refused station got"
+    );
+}
+
+/// A station whose module table lists 253 modules where its own count says none, all of one
+/// serial number: `station scan` reports what it read, warns of each contradiction, and writes
+/// no map from it (it used to write a 253-module map without a word).
+#[test]
+fn station_scan_writes_no_map_from_a_station_that_contradicts_itself() {
+    use pkm_plc::services::io::x20bc0087::{MAX_MODULES, ModuleRecord, NO_DATA};
+    let record = ModuleRecord {
+        status: 1,
+        id: 0x1B95,
+        serial: 7,
+        analog_in: NO_DATA,
+        analog_out: NO_DATA,
+        digital_in: 0,
+        digital_out: NO_DATA,
+        configured_id: 0x1B95,
+        function_model: 254,
+        ..ModuleRecord::default()
+    };
+    let station = LyingStation::start(vec![record; usize::from(MAX_MODULES)]);
+    let dir = tempfile::tempdir().expect("tempdir");
+    let map = dir.path().join("scanned.json");
+    let o = common::pkm(&[
+        "station",
+        "scan",
+        &format!("tcp:{}", station.address),
+        "--write-map",
+        map.to_str().expect("utf-8"),
+    ]);
+    let err = common::stderr(&o);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(
+        common::stdout(&o).contains(" 253  0x1B95  X20DI9371"),
+        "the report lists what was read"
+    );
+    let address = station.address;
+    for line in [
+        format!(
+            "warning: station {address}: the station says it holds 0 modules (register 0x1100), its module table lists 253\n"
+        ),
+        format!(
+            "warning: station {address}: slot 1: its digital input data at byte 0 lies beyond the 0 bytes of digital inputs the station reports\n"
+        ),
+        format!("warning: station {address}: slots 1 and 2 report the same serial number, 7\n"),
+    ] {
+        assert!(err.contains(&line), "{line:?} in {err}");
+    }
+    assert!(
+        err.contains("scanned.json: not written: the station's answers contradict each other ("),
+        "{err}"
+    );
+    assert!(!map.exists(), "no map is written");
+    assert_eq!(station.writes(), Vec::<u8>::new(), "a scan only reads");
+}

@@ -435,6 +435,14 @@ impl Link {
                 tracing::warn!("modbus {}: {note}", self.name);
             }
         }
+        // Every refusal comes before the first write (the watchdog's setting and reset are
+        // writes): a refused station has had nothing written to it, as its message says.
+        let rebased = rebase(&bc.registers, &table).map_err(|m| {
+            NotReady::Refused(format!(
+                "the X20BC0087 at {} assigns data the soft-PLC cannot address, so nothing is written to it: {m}",
+                self.name
+            ))
+        })?;
         if let Err(why) = registers
             .configure_watchdog(bc.watchdog_ms)
             .await
@@ -451,12 +459,6 @@ impl Link {
                 .await
                 .map_err(|e| NotReady::Failed(e.into()))?;
         }
-        let rebased = rebase(&bc.registers, &table).map_err(|m| {
-            NotReady::Refused(format!(
-                "the X20BC0087 at {} assigns data the soft-PLC cannot address, so nothing is written to it: {m}",
-                self.name
-            ))
-        })?;
         let watchdog_ms = bc.watchdog_ms;
         self.exchange.rebase(&rebased);
         if first {

@@ -417,6 +417,15 @@ pub fn rebase(registers: &RegisterMap, reported: &[ModuleRecord]) -> Result<Regi
         let (Some((ours, _)), false) = (ours, theirs == NO_DATA) else {
             continue;
         };
+        // Analog data lies in registers of two bytes: an odd byte index splits one (a broken or
+        // hostile table), and halving it would put every channel a byte off.
+        if matches!(e.table, Table::InputRegister | Table::HoldingRegister) && theirs % 2 != 0 {
+            slots.push(format!(
+                "slot {}: the station puts the module's analog data at byte index {theirs}, which is odd: registers are two bytes each",
+                p + 1
+            ));
+            continue;
+        }
         // The channel's place within its module's data, then where the station puts that data.
         let moved = match e.table {
             Table::DiscreteInput | Table::Coil => (u32::from(e.address) - u32::from(ours) * 8) + u32::from(theirs) * 8,
@@ -635,6 +644,16 @@ mod tests {
             m.slots,
             ["slot 5: the station puts the module's data at byte index 65520, beyond what Modbus can address"]
         );
+        reported[4].digital_in = 2;
+        reported[3].analog_in = 3;
+        let m = rebase(&registers, &reported).expect_err("an odd analog index");
+        assert_eq!(
+            m.slots,
+            [
+                "slot 4: the station puts the module's analog data at byte index 3, which is odd: registers are two bytes each"
+            ]
+        );
+        reported[3].analog_in = 4;
         reported[4].digital_in = 300;
         let m = rebase(&registers, &reported).expect_err("beyond one request");
         assert_eq!(
