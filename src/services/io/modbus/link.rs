@@ -90,14 +90,27 @@ pub(super) struct Shared {
     pub epoch: Instant,
     /// The counters.
     pub stats: Arc<LinkStats>,
-    /// Why the last bus fault was declared (empty before the first): set where it is declared,
-    /// read by the runtime to complete the application's "bus fault" reason.
+    /// Why the current (or last) fault episode began (empty before the first): its first
+    /// cause, kept while the episode lasts, read by the runtime to complete the application's
+    /// "bus fault" reason. A station that vanishes is named there, not what failed after it.
     pub cause: Mutex<String>,
+    /// Whether the current episode's cause is written: later causes do not replace it. Cleared
+    /// once the link works and the inputs are fresh again (the next fault is a new episode).
+    pub latched: AtomicBool,
+    /// Whether the inputs are stale now (a fault while it lasts, logged once per episode).
+    pub stale: AtomicBool,
+    /// The first failed exchange's cause since the last one that succeeded.
+    pub first_failure: Mutex<Option<String>>,
     /// Why the station was refused at the first connection (the loop then ended without writing).
     pub refused: Mutex<Option<String>>,
     /// When the cycle last handed outputs over, in ns since `epoch`; [`NO_IMAGE`] before.
     pub outputs_at_ns: AtomicU64,
 }
+
+/// Joins an episode's first cause and the link's fault declared after it.
+const THEN: &str = "; then: ";
+/// Joins stale inputs and the exchanges' first failure, where they fail.
+pub(super) const FAILING_SINCE: &str = ": the exchanges fail since: ";
 
 /// `image_at_ns` before the first complete input image.
 pub(super) const NO_IMAGE: u64 = u64::MAX;
@@ -111,18 +124,62 @@ impl Shared {
             epoch: Instant::now(),
             stats: Arc::new(LinkStats::default()),
             cause: Mutex::new(String::new()),
+            latched: AtomicBool::new(false),
+            stale: AtomicBool::new(false),
+            first_failure: Mutex::new(None),
             refused: Mutex::new(None),
             outputs_at_ns: AtomicU64::new(NO_IMAGE),
         }
     }
 
     /// Declares a bus fault because of `cause` (logged as a warning with the link's `name` once
-    /// per episode: when the fault was not set already).
+    /// per episode: when the fault was not set already). The episode's cause is the first:
+    /// where the inputs went stale first before any exchange had failed, this one is added.
     pub(super) fn declare_fault(&self, name: &str, cause: String) {
         if !self.fault.swap(true, Ordering::Relaxed) {
             tracing::warn!("modbus {name}: bus fault: {cause}");
+            if !self.latch(&cause) {
+                // Added only where the first cause does not name the failing exchanges yet.
+                let mut kept = self.cause.lock().unwrap_or_else(|p| p.into_inner());
+                if !kept.contains(THEN) && !kept.contains(FAILING_SINCE) {
+                    kept.push_str(THEN);
+                    kept.push_str(&cause);
+                }
+            }
         }
-        *self.cause.lock().unwrap_or_else(|p| p.into_inner()) = cause;
+    }
+
+    /// Writes `cause` as the episode's, unless one is written already (false then).
+    pub(super) fn latch(&self, cause: &str) -> bool {
+        if self.latched.swap(true, Ordering::AcqRel) {
+            return false;
+        }
+        let mut kept = self.cause.lock().unwrap_or_else(|p| p.into_inner());
+        kept.clear();
+        kept.push_str(cause);
+        true
+    }
+
+    /// Ends the fault episode where the link works and the inputs are fresh.
+    pub(super) fn episode_over(&self) {
+        if !self.fault.load(Ordering::Acquire) && !self.stale.load(Ordering::Acquire) {
+            self.latched.store(false, Ordering::Release);
+        }
+    }
+
+    /// An exchange failed with `cause`: kept if it is the first since the last that succeeded.
+    pub(super) fn exchange_failed(&self, cause: &str) {
+        let mut first = self.first_failure.lock().unwrap_or_else(|p| p.into_inner());
+        if first.is_none() {
+            *first = Some(cause.to_string());
+        }
+    }
+
+    /// An exchange succeeded: the next failure is a first again.
+    pub(super) fn exchange_succeeded(&self) {
+        if let Ok(mut first) = self.first_failure.try_lock() {
+            *first = None;
+        }
     }
 
     /// Nanoseconds since `epoch`.
@@ -291,7 +348,7 @@ impl Link {
                 }
                 Err(NotReady::Refused(why)) if !ready_once => {
                     // Said once, by the run that ends on it; nothing was written to the station.
-                    *shared.cause.lock().unwrap_or_else(|p| p.into_inner()) = why.clone();
+                    shared.latch(&why);
                     *shared.refused.lock().unwrap_or_else(|p| p.into_inner()) = Some(why);
                     shared.fault.store(true, Ordering::Relaxed);
                     return;
@@ -321,6 +378,9 @@ impl Link {
                         shared.image_at_ns.store(shared.now_ns(), Ordering::Release);
                         let took = started.elapsed().as_nanos() as u64;
                         shared.stats.succeeded(took);
+                        if failures > 0 {
+                            shared.exchange_succeeded();
+                        }
                         failures = 0;
                         if let Some(median) = slowness.took(took, self.max_exchange) {
                             if slowness.began() {
@@ -357,6 +417,7 @@ impl Link {
                                 self.name
                             );
                         }
+                        shared.episode_over();
                     }
                     Err(f) => {
                         if self.after_failure(&mut failures, &mut backoff, &f, false).await {
@@ -521,11 +582,26 @@ impl Link {
 
     fn failed(&self, failures: &mut u32, last: &Failed) {
         *failures += 1;
-        if *failures > self.max_failures {
-            self.shared.declare_fault(
-                &self.name,
-                format!("{failures} failed exchanges in a row, the last: {}", last.cause),
-            );
+        self.shared.exchange_failed(&last.cause);
+        if *failures > self.max_failures && !self.shared.fault.load(Ordering::Relaxed) {
+            // The first failure names what happened (a station that vanished); the last, what
+            // the link meets now.
+            let first = self
+                .shared
+                .first_failure
+                .lock()
+                .unwrap_or_else(|p| p.into_inner())
+                .clone();
+            let cause = match first {
+                Some(first) if first != last.cause => {
+                    format!(
+                        "{failures} failed exchanges in a row, the first: {first}, the last: {}",
+                        last.cause
+                    )
+                }
+                _ => format!("{failures} failed exchanges in a row, the last: {}", last.cause),
+            };
+            self.shared.declare_fault(&self.name, cause);
         }
     }
 }

@@ -21,7 +21,7 @@ mod link;
 mod stats;
 
 use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::Ordering;
 use std::thread::JoinHandle;
 use std::time::Duration;
 
@@ -174,8 +174,6 @@ pub struct ModbusBus {
     output_vars: Vec<VarIndex>,
     output_values: Vec<Value>,
     shared: Arc<Shared>,
-    /// Whether the inputs are stale now (a fault while it lasts, logged once per episode).
-    stale: AtomicBool,
     thread: Option<JoinHandle<()>>,
 }
 
@@ -232,7 +230,6 @@ impl ModbusBus {
             output_vars: Vec::new(),
             output_values: Vec::new(),
             shared: Arc::new(Shared::new()),
-            stale: AtomicBool::new(false),
             thread: None,
         })
     }
@@ -277,18 +274,25 @@ impl ModbusBus {
         }
         let age = Duration::from_nanos(self.shared.now_ns().saturating_sub(image_at));
         let stale = age > self.options.max_input_age;
-        if stale && !self.stale.swap(true, Ordering::Relaxed) {
+        if stale && !self.shared.stale.swap(true, Ordering::AcqRel) {
             // Once per episode: formatting a fault's cause is the only allocation here.
             self.shared.stats.stale.fetch_add(1, Ordering::Relaxed);
-            let cause = format!(
+            let mut cause = format!(
                 "the newest input image is {} ms old (limit {} ms, --max-input-age-ms)",
                 age.as_millis(),
                 self.options.max_input_age.as_millis()
             );
+            // The exchanges' first failure, where they fail: why the inputs stopped.
+            if let Ok(first) = self.shared.first_failure.try_lock()
+                && let Some(first) = first.as_deref()
+            {
+                cause.push_str(link::FAILING_SINCE);
+                cause.push_str(first);
+            }
             tracing::warn!("modbus {}: bus fault: {cause}", self.name);
-            *self.shared.cause.lock().unwrap_or_else(|p| p.into_inner()) = cause;
-        } else if !stale {
-            self.stale.store(false, Ordering::Relaxed);
+            self.shared.latch(&cause);
+        } else if !stale && self.shared.stale.swap(false, Ordering::AcqRel) {
+            self.shared.episode_over();
         }
         stale
     }
