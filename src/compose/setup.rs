@@ -31,6 +31,9 @@ pub struct Setup {
     pub persistent: Option<pkm_nc::params::WorkOffsets>,
     /// The parameter file touch-offs are written to (`None`: they last for the run).
     pub param_file: Option<std::path::PathBuf>,
+    /// The parameter file's numbers as it was read (value texts as written): a touch-off's
+    /// rewrite keeps those it does not write (LinuxCNC's G92, G59.1 … G59.3, U V W, …).
+    pub param_entries: Vec<(usize, String)>,
 }
 
 /// A tool table as a run reads it: its file, its text (a trace carries it, so that a replay
@@ -78,6 +81,7 @@ impl Setup {
             tools: None,
             persistent: None,
             param_file: None,
+            param_entries: Vec::new(),
         })
     }
 
@@ -100,10 +104,19 @@ impl Setup {
             return Ok(self);
         };
         let name = file.display().to_string();
+        // A touch-off replaces the file (a new one renamed over it): over a symbolic link that
+        // would put a file in the link's place and leave its target as it was.
+        if std::fs::symlink_metadata(&file).is_ok_and(|m| m.file_type().is_symlink()) {
+            return Err(super::Failure::usage(format!(
+                "{name}: is a symbolic link: a touch-off rewrites the parameter file, and would replace the link \
+                 with a file of its own; name the file itself"
+            )));
+        }
         match crate::runtime::files::read_text(&file, crate::runtime::files::MAX_TEXT_BYTES) {
             Ok(text) => {
                 let values = pkm_nc::params::parse(&text).map_err(|e| super::Failure::usage(format!("{name}:{e}")))?;
                 self.persistent = Some(values);
+                self.param_entries = pkm_nc::params::entries(&text);
             }
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
             Err(e) => {
@@ -130,18 +143,16 @@ impl Setup {
     }
 
     /// What keeps a touch-off's work offsets for a machine of `n` coordinates: writes the
-    /// parameter file (a new file beside it, then renamed over it, so that a crash leaves the
-    /// old one or the new one, never half of one); `None` without a parameter file.
+    /// parameter file so that a crash or a power cut leaves the old one or the new one, whole
+    /// ([`crate::runtime::files::replace_durably`]), with every number of the file as it was
+    /// read that this interpreter does not write; `None` without a parameter file.
     pub fn keeper(&self, n: usize) -> Option<crate::services::hmi::jobs::Keep> {
         let path = self.param_file.clone()?;
-        Some(Box::new(move |offsets: &pkm_nc::params::WorkOffsets| {
-            let text = pkm_nc::params::format(offsets, n);
-            let name = path.display();
-            let mut temporary = path.clone().into_os_string();
-            temporary.push(".new");
-            std::fs::write(&temporary, text)
-                .and_then(|()| std::fs::rename(&temporary, &path))
-                .map_err(|e| format!("{name}: cannot write the parameter file: {e}"))
+        let kept = self.param_entries.clone();
+        Some(std::sync::Arc::new(move |offsets: &pkm_nc::params::WorkOffsets| {
+            let text = pkm_nc::params::format_keeping(offsets, n, &kept);
+            crate::runtime::files::replace_durably(&path, &text)
+                .map_err(|e| format!("{}: cannot write the parameter file: {e}", path.display()))
         }))
     }
 

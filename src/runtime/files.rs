@@ -47,6 +47,32 @@ pub fn open_regular(path: &Path) -> io::Result<File> {
     }
 }
 
+/// Replaces the file `path` with `text` so that a crash or a power cut leaves the old file or
+/// the new one, whole: the text goes to `PATH.new`, which is flushed to the disk, then renamed
+/// over `path`, and the directory is flushed too (the rename is on the disk only then).
+pub fn replace_durably(path: &Path, text: &str) -> io::Result<()> {
+    use std::io::Write;
+    let mut temporary = path.as_os_str().to_owned();
+    temporary.push(".new");
+    let temporary = std::path::PathBuf::from(temporary);
+    {
+        let mut file = OpenOptions::new()
+            .write(true)
+            .create(true)
+            .truncate(true)
+            .mode(0o644)
+            .open(&temporary)?;
+        file.write_all(text.as_bytes())?;
+        file.sync_all()?;
+    }
+    std::fs::rename(&temporary, path)?;
+    let directory = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    };
+    File::open(directory)?.sync_all()
+}
+
 /// The contents of the regular file `path` (a leading byte order mark removed), refused if it
 /// holds more than `limit` bytes.
 pub fn read_text(path: &Path, limit: u64) -> io::Result<String> {

@@ -93,7 +93,7 @@ fn nc_check_reads_the_programs_tools_from_the_tool_table() {
     std::fs::write(&table, "T1 P1 Z30\nT2 Zx\n").expect("write");
     let o = pkm(&["nc", "check", &file, "--machine", "ox-x", "--tool-table", &table]);
     assert_eq!(o.status.code(), Some(2));
-    assert_eq!(stderr(&o), format!("error: {table}:2:4: Z needs a number, got 'x'\n"));
+    assert_eq!(stderr(&o), format!("error: {table}:2:4: Z needs a number\n"));
     // The configuration's `nc.tool_table`, relative to the configuration's directory.
     std::fs::write(dir.path().join("tool.tbl"), "T1 P1 Z30\n").expect("write");
     let config = ox_x_with_nc(dir.path(), serde_json::json!({"tool_table": "tool.tbl"}));

@@ -327,26 +327,28 @@ fn a_touch_off_moves_the_work_origin_keeps_it_in_the_parameter_file_and_jobs_fol
         .unwrap_or_else(|e| panic!("{}", e.message));
     assert_eq!(setup.persistent, None, "no file yet: the configuration's offsets");
     let (plc, library, desk) = screen_desk(setup);
+    let runtime = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .expect("a runtime");
     desk.observe("INIT", plc.global_image());
     assert_eq!(
-        desk.touch_off(0, 0, 5.0).map(|_| ()),
+        runtime.block_on(desk.touch_off(0, 0, 5.0)).map(|_| ()),
         Err("a touch-off is made in READY: the machine is INIT".to_string())
     );
     desk.observe("READY", plc.global_image());
     // The tool stands at the reference pose (0, 0, 0): X reads 5 there when G54's origin is at −5.
-    let t = desk.touch_off(0, 0, 5.0).expect("a touch-off");
+    let t = runtime.block_on(desk.touch_off(0, 0, 5.0)).expect("a touch-off");
     assert_eq!((t.was, t.now), (0.0, -5.0));
-    let t = desk.touch_off(1, 2, -2.5).expect("G55 Z");
+    let t = runtime.block_on(desk.touch_off(1, 2, -2.5)).expect("G55 Z");
     assert_eq!(t.now, 2.5);
     assert!(desk.offsets_changed());
     let text = std::fs::read_to_string(&var).expect("the parameter file");
     assert!(text.contains("5221\t-5.000000\n"), "{text}");
     assert!(text.contains("5243\t2.500000\n"), "{text}");
+    // Replaced whole: nothing left beside it.
+    assert!(!dir.path().join("ox-x.var.new").exists());
     // A job planned now: G1 X10 in G54 goes to machine X 5.
-    let runtime = tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()
-        .expect("a runtime");
     let made = runtime
         .block_on(desk.make(ScreenJobKind::Mdi {
             text: "G1 X10 F300".into(),
@@ -420,5 +422,86 @@ fn the_mdi_that_took_the_plc_down_runs_to_its_end() {
     assert!(
         (x + 4.204).abs() < 0.01 && (y - 2.846).abs() < 0.01,
         "the MDI lines ended at ({x}, {y})"
+    );
+}
+
+/// A touch-off rewrites the parameter file with what it keeps and every number of the file it
+/// does not: LinuxCNC's G92 offset, G59.3, U and the a b c of G54 on the 3-axis O-X glide
+/// (before, the rewrite deleted them).
+#[test]
+fn a_touch_off_keeps_the_numbers_of_the_parameter_file_it_does_not_use() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let var = dir.path().join("ox-x.var");
+    let linuxcnc = "5161 1.5\n5167 9\n5210 1\n5211 3.25\n5212 -1\n5220 2\n5221 4\n5224 30\n5227 8\n5381 6\n";
+    std::fs::write(&var, linuxcnc).expect("write");
+    let setup = Setup::new(machine_config("ox-x", |_| {}))
+        .expect("ox-x")
+        .with_param_file(Some(&var))
+        .unwrap_or_else(|e| panic!("{}", e.message));
+    let (plc, _library, desk) = screen_desk(setup);
+    desk.observe("READY", plc.global_image());
+    let runtime = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .expect("a runtime");
+    runtime.block_on(desk.touch_off(0, 1, 2.0)).expect("G54 Y");
+    let text = std::fs::read_to_string(&var).expect("the parameter file");
+    for kept in [
+        "5167\t9\n",
+        "5210\t1\n",
+        "5211\t3.25\n",
+        "5212\t-1\n",
+        "5220\t2\n",
+        "5224\t30\n",
+        "5227\t8\n",
+        "5381\t6\n",
+    ] {
+        assert!(text.contains(kept), "{kept:?} kept in {text}");
+    }
+    assert!(text.contains("5161\t1.500000\n5162\t0.000000\n"), "{text}");
+    assert!(
+        text.contains("5221\t4.000000\n5222\t-2.000000\n5223\t0.000000\n5224\t30\n"),
+        "{text}"
+    );
+    // LinuxCNC reads it: each number once, in increasing order.
+    let numbers: Vec<usize> = text
+        .lines()
+        .map(|l| l.split('\t').next().and_then(|n| n.parse().ok()).expect("a number"))
+        .collect();
+    assert!(numbers.windows(2).all(|w| w[0] < w[1]), "{numbers:?}");
+}
+
+/// `--var-file` naming a symbolic link is refused (a touch-off would put a file in the link's
+/// place); a file that is not a parameter file is refused with where, not what it holds (before:
+/// its first field quoted — a line of /etc/shadow when run as root).
+#[test]
+fn a_parameter_file_is_named_itself_and_a_foreign_one_is_not_echoed() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let foreign = dir.path().join("shadow");
+    std::fs::write(&foreign, "root:$6$salt$secrethash:19000:0:99999:7:::\n").expect("write");
+    let refused = |path: &std::path::Path| {
+        Setup::new(machine_config("ox-x", |_| {}))
+            .expect("ox-x")
+            .with_param_file(Some(path))
+            .map(|_| ())
+            .expect_err("refused")
+            .message
+    };
+    assert_eq!(
+        refused(&foreign),
+        format!(
+            "{}:1:1: not a parameter's number (a whole number, 5221 say)",
+            foreign.display()
+        )
+    );
+    let link = dir.path().join("ox-x.var");
+    std::os::unix::fs::symlink(&foreign, &link).expect("a symbolic link");
+    assert_eq!(
+        refused(&link),
+        format!(
+            "{}: is a symbolic link: a touch-off rewrites the parameter file, and would replace the link with a file \
+             of its own; name the file itself",
+            link.display()
+        )
     );
 }

@@ -68,12 +68,15 @@ pub struct JobDesk {
     /// Keeps the offsets across runs (writes the parameter file), if the run has a place for
     /// them; says why not.
     keep: Option<Keep>,
+    /// Held by a touch-off from start to end: one at a time, each from the offsets the one
+    /// before kept.
+    touching: tokio::sync::Mutex<()>,
     /// The loaded program's number in the newest frame.
     loaded: Mutex<i16>,
 }
 
 /// What keeps the work offsets across runs: writes them, or says why it could not.
-pub type Keep = Box<dyn Fn(&WorkOffsets) -> Result<(), String> + Send + Sync>;
+pub type Keep = Arc<dyn Fn(&WorkOffsets) -> Result<(), String> + Send + Sync>;
 
 /// A touch-off made: the coordinate system's origin in the axis before and after.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -126,6 +129,7 @@ impl JobDesk {
             offsets: Mutex::new(offsets),
             planned_with: offsets,
             keep,
+            touching: tokio::sync::Mutex::new(()),
             loaded: Mutex::new(0),
         }
     }
@@ -155,8 +159,11 @@ impl JobDesk {
     /// Touches off: work coordinate system `system` (0: G54 … 5: G59) is moved in axis `axis`
     /// (0: x … 5: c) so that where the tool stands reads `value`, as G10 L20 would, and the
     /// offsets are kept (the parameter file). In READY only; refused, and nothing changed,
-    /// when they cannot be kept.
-    pub fn touch_off(&self, system: usize, axis: usize, value: f64) -> Result<TouchOff, String> {
+    /// when they cannot be kept. The file is written (and flushed to the disk) on a blocking
+    /// thread with no lock held but the touch-offs' own: the screen's and OPC UA's thread, and
+    /// whoever reads the offsets, go on meanwhile.
+    pub async fn touch_off(&self, system: usize, axis: usize, value: f64) -> Result<TouchOff, String> {
+        let _one = self.touching.lock().await;
         let Some(here) = *self.here.lock().unwrap_or_else(|p| p.into_inner()) else {
             let state = self.state.lock().unwrap_or_else(|p| p.into_inner()).clone();
             return Err(format!("a touch-off is made in READY: the machine is {state}"));
@@ -167,15 +174,16 @@ impl JobDesk {
         if !value.is_finite() || value.abs() > 1e5 {
             return Err(format!("a touch-off's value is a number within ±100 000, got {value}"));
         }
-        let mut offsets = self.offsets.lock().unwrap_or_else(|p| p.into_inner());
-        let mut changed = *offsets;
+        let mut changed = self.offsets();
         let was = changed.origins[system][axis];
         let now = here[axis] - value;
         changed.origins[system][axis] = now;
-        if let Some(keep) = &self.keep {
-            keep(&changed)?;
+        if let Some(keep) = self.keep.clone() {
+            tokio::task::spawn_blocking(move || keep(&changed))
+                .await
+                .map_err(|e| format!("the parameter file's writer failed: {e}"))??;
         }
-        *offsets = changed;
+        *self.offsets.lock().unwrap_or_else(|p| p.into_inner()) = changed;
         Ok(TouchOff { was, now })
     }
 

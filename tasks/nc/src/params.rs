@@ -32,10 +32,12 @@ pub fn parse(text: &str) -> Result<WorkOffsets, NcError> {
         };
         let second = fields.next();
         let err = |field: (usize, &str), message: String| NcError::new(number, field.0, message);
+        // A problem says where the file is wrong, not what it holds there: a file named by
+        // mistake (or by a symbolic link to one that is not a parameter file) is not echoed.
         let index: usize = first
             .1
             .parse()
-            .map_err(|_| err(first, format!("'{}' is not a parameter's number", first.1)))?;
+            .map_err(|_| err(first, "not a parameter's number (a whole number, 5221 say)".to_string()))?;
         if let Some(before) = last.filter(|&before| index <= before) {
             return Err(err(
                 first,
@@ -53,7 +55,7 @@ pub fn parse(text: &str) -> Result<WorkOffsets, NcError> {
         if let Some(extra) = fields.next() {
             return Err(err(
                 extra,
-                format!("one number and one value a line; '{}' is more", extra.1),
+                "one number and one value a line; a third field here".to_string(),
             ));
         }
         let value: f64 = value_field
@@ -61,12 +63,7 @@ pub fn parse(text: &str) -> Result<WorkOffsets, NcError> {
             .parse()
             .ok()
             .filter(|v: &f64| v.is_finite() && v.abs() <= 1e6)
-            .ok_or_else(|| {
-                err(
-                    value_field,
-                    format!("#{index}: '{}' is not a number within ±10⁶", value_field.1),
-                )
-            })?;
+            .ok_or_else(|| err(value_field, format!("#{index}: its value is not a number within ±10⁶")))?;
         set(&mut p, index, value).map_err(|why| err(first, why))?;
     }
     Ok(p)
@@ -103,17 +100,47 @@ fn set(p: &mut WorkOffsets, index: usize, value: f64) -> Result<(), String> {
 /// The file's text of `p` for a machine of `axes` coordinates (x y z a b c, the first `axes`):
 /// LinuxCNC's format, sorted by number.
 pub fn format(p: &WorkOffsets, axes: usize) -> String {
-    let mut out = String::new();
+    format_keeping(p, axes, &[])
+}
+
+/// The numbers of a parameter file that parsed, each with its value as the file wrote it, in
+/// the file's order (increasing): what a rewrite keeps of the numbers it does not write.
+pub fn entries(text: &str) -> Vec<(usize, String)> {
+    text.lines()
+        .filter_map(|line| {
+            let fields = fields_of(line);
+            let (number, value) = (fields.first()?.1.parse().ok()?, fields.get(1)?.1);
+            Some((number, value.to_string()))
+        })
+        .collect()
+}
+
+/// [`format`], keeping every number of `kept` (a file's [`entries`]) that it does not write with
+/// the value as it was: LinuxCNC's G92 offset, G59.1 … G59.3, U V W, and a b c on a machine of
+/// three coordinates are not this interpreter's, and a touch-off must not delete them.
+pub fn format_keeping(p: &WorkOffsets, axes: usize, kept: &[(usize, String)]) -> String {
     let n = axes.min(6);
+    let mut lines: Vec<(usize, String)> = Vec::new();
     for (k, home) in p.homes.iter().enumerate() {
         for (c, v) in home.iter().enumerate().take(n) {
-            out.push_str(&format!("{}\t{v:.6}\n", [5161, 5181][k] + c));
+            lines.push(([5161, 5181][k] + c, format!("{v:.6}")));
         }
     }
     for (system, origin) in p.origins.iter().enumerate() {
         for (c, v) in origin.iter().enumerate().take(n) {
-            out.push_str(&format!("{}\t{v:.6}\n", G54 + 20 * system + c));
+            lines.push((G54 + 20 * system + c, format!("{v:.6}")));
         }
+    }
+    let ours = lines.len();
+    for (number, value) in kept {
+        if !lines[..ours].iter().any(|(n, _)| n == number) {
+            lines.push((*number, value.clone()));
+        }
+    }
+    lines.sort_by_key(|(n, _)| *n);
+    let mut out = String::new();
+    for (number, value) in lines {
+        out.push_str(&format!("{number}\t{value}\n"));
     }
     out
 }
@@ -164,12 +191,43 @@ mod tests {
     }
 
     #[test]
+    fn a_rewrite_keeps_linuxcncs_numbers_it_does_not_write() {
+        // G92 (5210 … 5219), G54's a b c on a machine of three coordinates, U, G59.3.
+        let file = "5161 1\n5167 9\n5210 1\n5211 3.5\n5221 4\n5224 30\n5227 8\n5381 6\n";
+        let mut p = parse(file).expect("read");
+        p.origins[0][0] = -12.0;
+        let text = format_keeping(&p, 3, &entries(file));
+        for kept in [
+            "5167\t9\n",
+            "5210\t1\n",
+            "5211\t3.5\n",
+            "5224\t30\n",
+            "5227\t8\n",
+            "5381\t6\n",
+        ] {
+            assert!(text.contains(kept), "{kept:?} in {text}");
+        }
+        assert!(text.contains("5221\t-12.000000\n"), "{text}");
+        assert!(text.contains("5161\t1.000000\n"), "{text}");
+        // Read back as LinuxCNC reads it: in increasing order, each number once.
+        assert_eq!(parse(&text).map(|q| q.origins[0][0]), Ok(-12.0));
+    }
+
+    #[test]
     fn problems_name_their_line_and_column() {
         for (text, why) in [
-            ("5221 1\nfive 2\n", "2:1: 'five' is not a parameter's number"),
+            (
+                "5221 1\nfive 2\n",
+                "2:1: not a parameter's number (a whole number, 5221 say)",
+            ),
             ("5221\n", "1:1: #5221 has no value"),
-            ("5221 x\n", "1:6: #5221: 'x' is not a number within ±10⁶"),
-            ("5221 1 2\n", "1:8: one number and one value a line; '2' is more"),
+            ("5221 x\n", "1:6: #5221: its value is not a number within ±10⁶"),
+            ("5221 1 2\n", "1:8: one number and one value a line; a third field here"),
+            // The first line of /etc/shadow: where, not what.
+            (
+                "root:$6$salt$hash:19000:0:99999:7:::\n",
+                "1:1: not a parameter's number (a whole number, 5221 say)",
+            ),
             (
                 "5230 90\n",
                 "1:1: #5230 rotates a coordinate system by 90°: rotation (G10 R) is not supported",

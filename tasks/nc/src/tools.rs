@@ -148,7 +148,7 @@ fn parse_line(words: &str, comment: &str, line: usize) -> Result<Tool, NcError> 
             .parse()
             .ok()
             .filter(|v: &f64| v.is_finite())
-            .ok_or_else(|| err(format!("{letter} needs a number, got '{text}'")))?;
+            .ok_or_else(|| err(format!("{letter} needs a number")))?;
         let whole = |what: &str, max: u32| -> Result<u32, NcError> {
             if value.fract() == 0.0 && value >= 0.0 && value <= f64::from(max) {
                 Ok(value as u32)
@@ -236,7 +236,7 @@ mod tests {
                 "1:1: T0 is no tool (the empty spindle): it has no line in the table",
             ),
             ("T1 Z1 Z2\n", "1:7: Z twice on one line"),
-            ("T1 Zabc\n", "1:4: Z needs a number, got 'abc'"),
+            ("T1 Zabc\n", "1:4: Z needs a number"),
             (
                 "T1.5\n",
                 "1:1: T (the tool's number) is a whole number 0 … 99999, got 1.5",

@@ -89,7 +89,7 @@ impl Shared {
             return refused(format!("no axis {axis:?}: this machine's are {}", self.axes.join(" ")));
         };
         let name = format!("G{}", 53 + system);
-        let t = match desk.touch_off(system - 1, c, value) {
+        let t = match desk.touch_off(system - 1, c, value).await {
             Ok(t) => t,
             Err(why) => {
                 info!("screen {peer}: touch-off {name} {axis} = {value} refused: {why}");
