@@ -597,6 +597,8 @@ impl Plc {
     }
 
     fn run_class(&mut self, ci: usize, clock: &mut dyn Clock) {
+        let in_error = self.app_status().is_some_and(|s| s.state == "ERROR");
+        self.bus.observe_error(in_error);
         let class = &mut self.classes[ci];
         let release = class.next_release;
         let start = clock.now_ns();

@@ -142,6 +142,9 @@ pub struct HmiBus {
     acknowledgement_waits: bool,
     /// How long STOP must have been released before an acknowledgement presses it (ns).
     acknowledgement_gap_ns: u64,
+    /// Whether the machine is in ERROR now ([`Bus::observe_error`]): an acknowledgement presses
+    /// STOP only then.
+    in_error: bool,
 }
 
 impl HmiBus {
@@ -159,6 +162,7 @@ impl HmiBus {
             acknowledged: 0,
             acknowledgement_waits: false,
             acknowledgement_gap_ns: stop_lockout_ns.max(PRESS_NS),
+            in_error: false,
         };
         let sink = CommandSink {
             commands: Arc::new(Mutex::new((input, Commands::default()))),
@@ -221,14 +225,20 @@ impl Bus for HmiBus {
             return;
         }
         let c = *self.output.read();
+        // An acknowledgement presses STOP only while the machine is in ERROR, as the PLC's own
+        // latest cycle left it: the screen and OPC UA judge by frames a cycle or more old, and
+        // an acknowledgement sent after the one that ended this error (a double click, the
+        // screen and a client at once) is dropped here, never a STOP press in REBOOT or INIT.
         if c.acknowledgements != self.acknowledged {
             self.acknowledged = c.acknowledgements;
-            self.acknowledgement_waits = true;
+            self.acknowledgement_waits = self.in_error;
         }
         let stop = press::STOP;
         if self.acknowledgement_waits && t_ns >= self.until[stop].saturating_add(self.acknowledgement_gap_ns) {
             self.acknowledgement_waits = false;
-            self.until[stop] = t_ns + PRESS_NS;
+            if self.in_error {
+                self.until[stop] = t_ns + PRESS_NS;
+            }
         }
         for k in 0..PRESSES {
             if c.presses[k] != self.seen[k] {
@@ -271,6 +281,11 @@ impl Bus for HmiBus {
         self.inner.write_fault_cause(out)
     }
 
+    fn observe_error(&mut self, in_error: bool) {
+        self.in_error = in_error;
+        self.inner.observe_error(in_error);
+    }
+
     fn fault(&self) -> bool {
         self.inner.fault()
     }
@@ -287,6 +302,11 @@ mod tests {
     /// HMI_STOP as the bus writes it at each of `times_ms`, with `edits` applied to the
     /// commands just before the time they are paired with.
     fn stop_at(edits: &[Edit], times_ms: &[u64]) -> Vec<bool> {
+        stop_at_in(edits, times_ms, |_| true)
+    }
+
+    /// [`stop_at`], the machine in ERROR at the times `in_error` says.
+    fn stop_at_in(edits: &[Edit], times_ms: &[u64], in_error: fn(u64) -> bool) -> Vec<bool> {
         let (mut bus, sink) = HmiBus::new(Box::new(NoBus), 0, 500_000_000);
         let mut table = VarTable::new();
         bus.declare(&mut table);
@@ -300,6 +320,7 @@ mod tests {
                         sink.update(edit);
                     }
                 }
+                bus.observe_error(in_error(t));
                 bus.read_inputs(0, t * 1_000_000, &mut image);
                 image[stop] == Value::Bool(true)
             })
@@ -327,6 +348,27 @@ mod tests {
             ),
             [true, true, true, false, false, true, true, false, false],
             "STOP 1000 … 1100 ms, released for the 500 ms lockout, then the acknowledgement's press"
+        );
+    }
+
+    /// The acknowledgement's press at 1600 ms ends the error (REBOOT from then on); a second
+    /// acknowledgement, sent at 1650 ms on a frame that still showed ERROR, is dropped: no STOP
+    /// press in REBOOT or INIT. An acknowledgement outside ERROR presses nothing either.
+    #[test]
+    fn an_acknowledgement_after_the_error_ended_presses_nothing() {
+        let press: fn(&mut Commands) = |c| c.presses[press::STOP] += 1;
+        let acknowledge: fn(&mut Commands) = |c| c.acknowledgements += 1;
+        assert_eq!(
+            stop_at_in(
+                &[(1000, press), (1010, acknowledge), (1650, acknowledge)],
+                &[1000, 1010, 1100, 1600, 1650, 1700, 2200, 2250, 2300, 3000],
+                |t| t < 1610
+            ),
+            [true, true, false, true, true, false, false, false, false, false],
+        );
+        assert_eq!(
+            stop_at_in(&[(1000, acknowledge)], &[1000, 1500, 1600, 2000], |_| false),
+            [false; 4]
         );
     }
 }

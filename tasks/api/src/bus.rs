@@ -22,6 +22,10 @@ pub trait Bus: Send {
     fn start(&mut self) -> Result<(), String> {
         Ok(())
     }
+    /// Called before every cycle's [`Bus::read_inputs`] with whether the main program is in its
+    /// error state now (as its latest cycle left it): a bus that turns an operator's
+    /// acknowledgement into a STOP press does so only then. A bus that wraps another passes it on.
+    fn observe_error(&mut self, _in_error: bool) {}
     /// Called at the start of a cycle of task class `class` (nominal time `t_ns`), before its
     /// inputs are latched: updates the global image with the bus inputs that class latches.
     fn read_inputs(&mut self, class: usize, t_ns: u64, image: &mut [Value]);

@@ -206,6 +206,10 @@ impl Bus for JoystickBus {
         self.inner.write_fault_cause(out)
     }
 
+    fn observe_error(&mut self, in_error: bool) {
+        self.inner.observe_error(in_error);
+    }
+
     fn fault(&self) -> bool {
         self.inner.fault()
     }
