@@ -374,6 +374,16 @@ impl Machinery {
         })
     }
 
+    /// The nodes [`Machinery::changes`] writes.
+    pub fn nodes(&self) -> impl Iterator<Item = &NodeId> {
+        self.item_state.iter().chain(&self.operation_mode)
+    }
+
+    /// Forgets what was published: the next frame writes every state again.
+    pub fn forget(&mut self) {
+        self.last = None;
+    }
+
     /// The changes of the state machines' `CurrentState` (its text, `Id` and `Number`) that
     /// `frame` brings, as `value` stamps them.
     pub fn changes(&mut self, frame: &Frame, value: impl Fn(Variant) -> DataValue) -> Vec<(NodeId, DataValue)> {

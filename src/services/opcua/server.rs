@@ -200,11 +200,18 @@ pub fn start(
     let (pump_manager, pump_handle) = (Arc::clone(&manager), handle.clone());
     let mut frames = feed;
     tokio::spawn(async move {
+        let mut publisher = Publisher {
+            manager: pump_manager,
+            handle: pump_handle,
+            space,
+            kept,
+        };
+        let mut supervisor = Supervisor::default();
         while let Some(frame) = frames.next().await {
-            if pump_handle.token().is_cancelled() {
+            if publisher.handle.token().is_cancelled() {
                 break;
             }
-            publish(&pump_manager, &pump_handle, &mut space, &kept, &frame);
+            supervisor.frame(Instant::now(), &mut publisher, &frame);
         }
     });
     tokio::spawn(async move {
@@ -221,6 +228,97 @@ pub fn start(
         ),
     );
     Ok(url)
+}
+
+/// What publishes a frame's values, and marks them all bad when it cannot.
+trait Publish {
+    /// Publishes `frame` (it may panic: a fault of the server).
+    fn publish(&mut self, frame: &crate::runtime::frame::Frame);
+    /// Marks every value bad (a publication failed).
+    fn mark_bad(&mut self);
+}
+
+/// The server's publisher: the address space's values from each frame.
+struct Publisher {
+    manager: Arc<PlcNodeManager>,
+    handle: ServerHandle,
+    space: Space,
+    kept: Kept,
+}
+
+impl Publish for Publisher {
+    fn publish(&mut self, frame: &crate::runtime::frame::Frame) {
+        publish(&self.manager, &self.handle, &mut self.space, &self.kept, frame);
+    }
+
+    /// Every value BadInternalError, and what was published forgotten: the next frame that
+    /// publishes writes every value again, good.
+    fn mark_bad(&mut self) {
+        self.space.forget();
+        let now = opcua::types::DateTime::now();
+        let bad = DataValue {
+            value: None,
+            status: Some(opcua::types::StatusCode::BadInternalError),
+            source_timestamp: Some(now),
+            source_picoseconds: None,
+            server_timestamp: Some(now),
+            server_picoseconds: None,
+        };
+        let nodes = self.space.value_nodes();
+        if let Err(e) = self.manager.set_values(
+            self.handle.subscriptions(),
+            nodes.iter().map(|id| (id, None, bad.clone())),
+        ) {
+            warn!("OPC UA: the values could not be marked bad: {e}");
+        }
+    }
+}
+
+/// The first pause before a failed publication is tried again, and the longest.
+const RETRY_FIRST: Duration = Duration::from_secs(1);
+const RETRY_MAX: Duration = Duration::from_secs(60);
+
+/// Supervises the publication of every frame. A publication that panics is caught — the task
+/// that publishes goes on (before, it ended, and every value stayed frozen with status Good) —,
+/// every value is marked bad and the fault logged once; while it keeps failing it is tried
+/// again after a pause that doubles from [`RETRY_FIRST`] to [`RETRY_MAX`] (each try's panic
+/// message goes to the log); once a frame is published again the values are good.
+#[derive(Debug, Default)]
+struct Supervisor {
+    /// While publications fail: when to try again, and the pause before that.
+    failing: Option<(Instant, Duration)>,
+}
+
+impl Supervisor {
+    /// `frame`, arrived at `now`, through `publisher`.
+    fn frame(&mut self, now: Instant, publisher: &mut impl Publish, frame: &crate::runtime::frame::Frame) {
+        if self.failing.is_some_and(|(retry_at, _)| now < retry_at) {
+            return;
+        }
+        let tried = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| publisher.publish(frame)));
+        match tried {
+            Ok(()) => {
+                if self.failing.take().is_some() {
+                    tracing::info!("OPC UA: frames are published again: the values are good");
+                }
+            }
+            Err(panic) => {
+                let pause = match self.failing {
+                    None => {
+                        publisher.mark_bad();
+                        tracing::error!(
+                            "OPC UA: publishing a frame failed (a fault of the server: please report it): {}; every \
+                             value is BadInternalError until a frame is published again",
+                            crate::runtime::service_mode::panic_message(panic.as_ref())
+                        );
+                        RETRY_FIRST
+                    }
+                    Some((_, pause)) => (pause * 2).min(RETRY_MAX),
+                };
+                self.failing = Some((now + pause, pause));
+            }
+        }
+    }
 }
 
 /// Raises and clears `JobRefused` as the screen's jobs are refused and made (their `news`),
@@ -352,5 +450,75 @@ fn publish(
         ids.iter().zip(values).map(|(id, v)| (id, None, v)),
     ) {
         warn!("OPC UA: a frame's values could not be written: {e}");
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::runtime::frame::Frame;
+    use crate::runtime::snapshot::Snapshot;
+
+    /// Publishes by writing down each frame's number; panics on the frames of `broken`.
+    #[derive(Default)]
+    struct Recorder {
+        broken: std::ops::Range<u64>,
+        published: Vec<u64>,
+        marked_bad: usize,
+    }
+
+    impl Publish for Recorder {
+        fn publish(&mut self, frame: &Frame) {
+            if self.broken.contains(&frame.seq) {
+                panic!("frame {} cannot be published", frame.seq);
+            }
+            self.published.push(frame.seq);
+        }
+
+        fn mark_bad(&mut self) {
+            self.marked_bad += 1;
+        }
+    }
+
+    fn frame(seq: u64) -> Frame {
+        Frame {
+            seq,
+            status: Snapshot::default(),
+            image: Vec::new(),
+            bus_fault: false,
+            published_unix_us: 0,
+        }
+    }
+
+    /// Frames every 50 ms; those of seconds 1 … 4 panic. The values are marked bad once, at the
+    /// first; tries come after 1 s, then 2 s; the first frame that publishes again is the
+    /// first tried after the fault ended; the publishing never stops.
+    #[test]
+    fn a_publication_that_panics_marks_the_values_bad_once_and_publishing_goes_on() {
+        let mut recorder = Recorder {
+            broken: 20..80,
+            ..Recorder::default()
+        };
+        let mut supervisor = Supervisor::default();
+        let start = Instant::now();
+        for seq in 1..=200 {
+            supervisor.frame(start + Duration::from_millis(50 * seq), &mut recorder, &frame(seq));
+        }
+        assert_eq!(recorder.marked_bad, 1);
+        // Tried at frame 20 (failed), 40 (1 s on: failed), 80 (2 s on: published again).
+        let tried_again: Vec<u64> = recorder
+            .published
+            .iter()
+            .copied()
+            .filter(|&s| s >= 20)
+            .take(2)
+            .collect();
+        assert_eq!(tried_again, [80, 81]);
+        assert_eq!(
+            recorder.published.len(),
+            19 + (200 - 79),
+            "every frame before and after"
+        );
+        assert!(supervisor.failing.is_none());
     }
 }

@@ -298,6 +298,32 @@ impl Space {
     /// they changed, the classes' figures. Status values seen for the first time get their node
     /// (in `space`).
     pub fn changes(&mut self, space: &mut AddressSpace, frame: &Frame) -> Vec<(NodeId, DataValue)> {
+        self.changes_of(space, frame)
+    }
+
+    /// Every node a frame's [`Space::changes`] write: the process image, the state, the task
+    /// classes' figures, the main program's shown values and the Machinery states.
+    pub fn value_nodes(&self) -> Vec<NodeId> {
+        let mut nodes: Vec<NodeId> = self.vars.iter().chain(&self.state).cloned().collect();
+        nodes.extend(self.classes.iter().flatten().cloned());
+        nodes.extend(self.status.values().cloned());
+        if let Some(machinery) = &self.machinery {
+            nodes.extend(machinery.nodes().cloned());
+        }
+        nodes
+    }
+
+    /// Forgets what was published: the next frame writes every value again (after values
+    /// were marked bad, or a publication stopped halfway).
+    pub fn forget(&mut self) {
+        self.last.fill(None);
+        self.last_state = None;
+        if let Some(machinery) = &mut self.machinery {
+            machinery.forget();
+        }
+    }
+
+    fn changes_of(&mut self, space: &mut AddressSpace, frame: &Frame) -> Vec<(NodeId, DataValue)> {
         // A frame not yet published (the first, before the cycle ran) carries no time: its values
         // are the ones known now (1970-01-01 before, for every value unchanged since the start).
         let at = match frame.published_unix_us {
