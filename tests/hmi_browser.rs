@@ -1202,7 +1202,8 @@ async fn the_screen_asks_for_the_tool_of_a_manual_tool_change_and_shows_the_prog
     plc.stop();
     let log = plc.log();
     assert!(log.contains("screen 127.0.0.1:"), "{log}");
-    assert!(log.contains("tool change confirmed"), "{log}");
+    assert!(log.contains("tool change 1 confirmed: tool 1 in the spindle"), "{log}");
+    assert!(log.contains("tool change 2 confirmed: tool 1 in the spindle"), "{log}");
     assert!(log.contains("NC line 1 (MSG): clamp the part"), "{log}");
     assert!(
         log.contains("NC line 4 (DEBUG): tool 1.000000 in, Z offset 30.000000"),

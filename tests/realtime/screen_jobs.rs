@@ -181,3 +181,104 @@ async fn jobs_that_nest_or_plan_for_long_never_take_the_plc_down_or_hold_it_up()
     assert_eq!(written["main"]["state"], "READY", "{written}");
     assert!(!plc.log().contains("panicked"), "{}", plc.log());
 }
+
+/// Waits for a frame whose note contains `note`.
+async fn until_note(ws: &mut Ws, note: &str, within: Duration) {
+    let start = Instant::now();
+    loop {
+        let m = next_within(ws, within.saturating_sub(start.elapsed()))
+            .await
+            .unwrap_or_else(|| panic!("no frame noting {note:?} within {within:?}"));
+        if m["type"] == "frame" && m["note"].as_str().is_some_and(|n| n.contains(note)) {
+            return;
+        }
+    }
+}
+
+/// The screen's refusal of the tool change confirmation `{tool, change}`, or `None` when it was
+/// taken (no reply within a second).
+async fn confirm_tool(ws: &mut Ws, tool: i32, change: i32) -> Option<String> {
+    send(
+        ws,
+        serde_json::json!({"cmd": "tool_changed", "tool": tool, "change": change}),
+    )
+    .await;
+    let start = Instant::now();
+    while start.elapsed() < Duration::from_secs(1) {
+        let m = next_within(ws, Duration::from_secs(1).saturating_sub(start.elapsed())).await?;
+        if m["type"] == "refused" {
+            return Some(m["why"].as_str().expect("why").to_string());
+        }
+    }
+    None
+}
+
+/// A confirmation names the tool and the change it answers: one for another change — the
+/// first change's, arriving again while the second waits (a late second click, which confirmed
+/// the next change before) — is refused, logged, and confirms nothing.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_tool_change_confirmation_answers_its_own_change_only() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let config = common::ox_config(dir.path(), true, |_| {});
+    let table = dir.path().join("tool.tbl");
+    std::fs::write(&table, "T1 P1 Z10 ;6 mm end mill\nT2 P2 Z20 ;3 mm drill\n").expect("the table");
+    let program = dir.path().join("tools.ngc");
+    std::fs::write(&program, "T1 M6\nG1 X1 F600\nT2 M6\nG0 X0\nM2\n").expect("the program");
+    let mut command = common::pkm_command();
+    command
+        .args(["run", "--config", config.to_str().expect("utf-8")])
+        .args(["--hmi", "127.0.0.1:0", "--joystick", "none"])
+        .args(["--program", program.to_str().expect("utf-8")])
+        .args(["--tool-table", table.to_str().expect("utf-8")])
+        .env("RUST_LOG", "info");
+    let (mut plc, url) = common::Logged::start(command, "operator screen at ", Duration::from_secs(30));
+    let ws_url = url.replacen("http://", "ws://", 1) + "ws";
+    let (mut ws, _) = tokio_tungstenite::connect_async(ws_url.as_str())
+        .await
+        .expect("connects");
+    assert_eq!(next(&mut ws, Duration::from_secs(10)).await["type"], "hello");
+    // Before any change waits, a confirmation is refused as such.
+    assert_eq!(
+        confirm_tool(&mut ws, 1, 1).await.as_deref(),
+        Some("the confirmation of tool 1 (change 1) is refused: no tool change waits")
+    );
+    let change = "tool change (M6)";
+    until_note(&mut ws, change, Duration::from_secs(120)).await;
+    assert_eq!(
+        confirm_tool(&mut ws, 2, 1).await.as_deref(),
+        Some("the confirmation of tool 2 (change 1) is refused: change 1 waits, for tool 1")
+    );
+    assert_eq!(confirm_tool(&mut ws, 1, 1).await, None, "the right one is taken");
+    // The first change's confirmation again — taken while the first change still showed, then
+    // refused as none waits — until the second change waits: refused, and a second later the
+    // second change still waits.
+    let second = "the confirmation of tool 1 (change 1) is refused: change 2 waits, for tool 2";
+    let start = Instant::now();
+    loop {
+        let why = confirm_tool(&mut ws, 1, 1).await;
+        if why.as_deref() == Some(second) {
+            break;
+        }
+        assert!(
+            why.as_deref().is_none_or(|w| w.ends_with("no tool change waits")),
+            "{why:?}"
+        );
+        assert!(start.elapsed() < Duration::from_secs(30), "no second change");
+        tokio::time::sleep(Duration::from_millis(500)).await;
+    }
+    tokio::time::sleep(Duration::from_secs(1)).await;
+    assert_eq!(
+        confirm_tool(&mut ws, 1, 1).await.as_deref(),
+        Some("the confirmation of tool 1 (change 1) is refused: change 2 waits, for tool 2")
+    );
+    assert_eq!(confirm_tool(&mut ws, 2, 2).await, None);
+    until_state(&mut ws, "READY", Duration::from_secs(60)).await;
+    plc.terminate();
+    let log = plc.log();
+    assert!(log.contains("tool change 1 confirmed: tool 1 in the spindle"), "{log}");
+    assert!(log.contains("tool change 2 confirmed: tool 2 in the spindle"), "{log}");
+    assert!(
+        log.contains("the confirmation of tool 1 (change 1) is refused: change 2 waits, for tool 2"),
+        "logged: {log}"
+    );
+}

@@ -347,7 +347,6 @@ fn the_screen_loads_another_program_outside_auto_and_the_run_replays_with_it() {
 #[test]
 fn a_manual_tool_change_waits_for_the_screen_and_the_run_replays() {
     use pkm_api::trajectory::vars as nc;
-    use pkm_plc::services::hmi::commands::press;
     let dir = tempfile::tempdir().expect("a temporary directory");
     let table = dir.path().join("tool.tbl");
     std::fs::write(&table, "T1 P1 Z10 D6 ;6 mm end mill\nT2 P2 Z20 D3 ;3 mm drill\n").expect("the table");
@@ -387,6 +386,7 @@ fn a_manual_tool_change_waits_for_the_screen_and_the_run_replays() {
     // (state, a change waits, the tool asked, the tool in the spindle), as they change.
     let mut log: Vec<(i16, bool, i32, i32)> = Vec::new();
     let mut changes = Vec::new();
+    let mut still_waiting = false;
     transitions(&mut plc, 30_000, |plc, t| {
         let entry = (
             get(plc, nc::NC_STATE),
@@ -400,11 +400,21 @@ fn a_manual_tool_change_waits_for_the_screen_and_the_run_replays() {
             }
             log.push(entry);
         }
-        // The operator confirms each change a few seconds after it was asked for.
-        if t == 16_000 || t == 22_000 {
-            sink.update(|c| c.presses[press::TOOL_CHANGED] += 1);
+        // The operator confirms each change a few seconds after it was asked for, naming it;
+        // a confirmation of the first change repeated while the second waits (a late second
+        // click) confirms nothing.
+        match t {
+            16_000 => sink.update(|c| c.tool_confirm = 1),
+            19_000 => sink.update(|c| c.tool_confirm = 1),
+            21_900 => still_waiting = get(plc, nc::TOOL_CHANGE) && get(plc, nc::TOOL_CHANGE_NUMBER) == 2,
+            22_000 => sink.update(|c| c.tool_confirm = 2),
+            _ => {}
         }
     });
+    assert!(
+        still_waiting,
+        "the second change waits for its own confirmation: {log:?}"
+    );
     assert_eq!(changes.len(), 2, "{log:?}");
     assert_eq!(changes[0].1, 1, "tool 1 first: {log:?}");
     assert_eq!(changes[1].1, 2, "then tool 2: {log:?}");

@@ -6,7 +6,8 @@
 use std::sync::{Arc, Mutex};
 
 use pkm_api::hmi::{
-    HMI_AXES, HMI_JOG, HMI_JOG_AXIS, HMI_NC, HMI_NC_PROGRAM, HMI_STOP, HMI_TOOL_CHANGED, JOG_AXIS_RANGE,
+    HMI_AXES, HMI_JOG, HMI_JOG_AXIS, HMI_NC, HMI_NC_PROGRAM, HMI_STOP, HMI_TOOL_CHANGED, HMI_TOOL_CONFIRM,
+    JOG_AXIS_RANGE,
 };
 use pkm_api::trajectory::{OVERRIDE_DEFAULT, vars};
 
@@ -46,6 +47,8 @@ pub struct Commands {
     pub spindle_override: i16,
     /// Single block.
     pub single_block: bool,
+    /// The tool change the screen confirmed last (its `TOOL_CHANGE_NUMBER`; 0: none).
+    pub tool_confirm: i32,
 }
 
 impl Default for Commands {
@@ -54,6 +57,7 @@ impl Default for Commands {
         Commands {
             presses: [0; PRESSES],
             acknowledgements: 0,
+            tool_confirm: 0,
             jog: [0.0; 2],
             jog_axis: 0,
             program: 0,
@@ -83,7 +87,9 @@ pub mod press {
     pub const AXES: usize = 1;
     /// Program start, hold, resume.
     pub const NC: [usize; 3] = [2, 3, 4];
-    /// The confirmation of a manual tool change.
+    /// The old, unnamed confirmation of a manual tool change (`HMI_TOOL_CHANGED`): pressed by
+    /// nothing now, its variable declared so that older traces keep their shape; the screen
+    /// confirms by [`super::Commands::tool_confirm`], which names the change.
     pub const TOOL_CHANGED: usize = 5;
 }
 
@@ -134,6 +140,8 @@ pub struct HmiBus {
     /// confirmation and the spindle override (declared last, so that the earlier ones keep their
     /// order in traces).
     vars: [VarIndex; 8 + PRESSES],
+    /// `HMI_TOOL_CONFIRM`, declared after them all.
+    tool_confirm: VarIndex,
     seen: [u64; PRESSES],
     /// Until when each press holds its variable on (ns of the schedule).
     until: [u64; PRESSES],
@@ -157,6 +165,7 @@ impl HmiBus {
             class,
             output,
             vars: [0; 8 + PRESSES],
+            tool_confirm: 0,
             seen: [0; PRESSES],
             until: [0; PRESSES],
             acknowledged: 0,
@@ -213,6 +222,7 @@ impl Bus for HmiBus {
                 Value::Int(OVERRIDE_DEFAULT),
             ),
         ];
+        self.tool_confirm = table.declare_writer(HMI_TOOL_CONFIRM.name(), VarType::Dint, writer(), Value::Dint(0));
     }
 
     fn start(&mut self) -> Result<(), String> {
@@ -258,6 +268,7 @@ impl Bus for HmiBus {
         image[usize::from(self.vars[10])] = Value::Int(clamp(c.rapid_override, &RAPID_OVERRIDE_RANGE));
         image[usize::from(self.vars[11])] = Value::Bool(c.single_block);
         image[usize::from(self.vars[13])] = Value::Int(clamp(c.spindle_override, &SPINDLE_OVERRIDE_RANGE));
+        image[usize::from(self.tool_confirm)] = Value::Dint(c.tool_confirm);
     }
 
     fn write_outputs(&mut self, class: usize, t_ns: u64, image: &[Value]) {

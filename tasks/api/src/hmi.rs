@@ -31,9 +31,13 @@ pub const HMI_NC: [Var<bool>; 3] = [
     Var::new("HMI_NC_HOLD"),
     Var::new("HMI_NC_RESUME"),
 ];
-/// The screen's confirmation of a manual tool change (a press), in addition to the panel's
-/// `TOOL_CHANGED`.
+/// The screen's confirmation of a manual tool change as a press, named by nothing: no longer
+/// pressed (a late press confirmed the next change) and read by no program; declared so that
+/// traces recorded before keep their shape. [`HMI_TOOL_CONFIRM`] replaced it.
 pub const HMI_TOOL_CHANGED: Var<bool> = Var::new("HMI_TOOL_CHANGED");
+/// The tool change the screen confirmed last: its `TOOL_CHANGE_NUMBER` (0: none). A level: the
+/// change of that number is confirmed while it waits, and no other.
+pub const HMI_TOOL_CONFIRM: Var<i32> = Var::new("HMI_TOOL_CONFIRM");
 /// The program the screen asks to load: its (1-based) number in the run's
 /// [`NcLibrary`](crate::library::NcLibrary); 0 asks for nothing. Taken by the main program
 /// outside AUTO (a level: the last choice stands).

@@ -53,15 +53,19 @@ pub mod vars {
     pub const COOLANT_MIST: Var<bool> = Var::new("COOLANT_MIST");
     /// Flood coolant on (M8, until M9).
     pub const COOLANT_FLOOD: Var<bool> = Var::new("COOLANT_FLOOD");
-    /// A manual tool change (M6) waits for the operator: the program stands until
-    /// `TOOL_CHANGED` (or the screen's `HMI_TOOL_CHANGED`) rises.
+    /// A manual tool change (M6) waits for the operator: the program stands until it is
+    /// confirmed (`TOOL_CHANGED` rises, or the screen's `HMI_TOOL_CONFIRM` names the change).
     pub const TOOL_CHANGE: Var<bool> = Var::new("TOOL_CHANGE");
     /// The tool the change asks for (0: empty the spindle); the last one asked when no change
     /// waits.
     pub const TOOL_PREP_NUMBER: Var<i32> = Var::new("TOOL_PREP_NUMBER");
     /// The operator's confirmation that the tool asked for is in the spindle (a press: its
-    /// rising edge confirms). Optional: the screen's `HMI_TOOL_CHANGED` does the same.
+    /// rising edge, while a change waits, confirms that change). Optional; the screen confirms
+    /// by `HMI_TOOL_CONFIRM`, which names the change.
     pub const TOOL_CHANGED: Var<bool> = Var::new("TOOL_CHANGED");
+    /// Which tool change of the run waits, or came last: the PLC's tool changes are counted
+    /// from 1 since it started (0: none yet). A confirmation names it.
+    pub const TOOL_CHANGE_NUMBER: Var<i32> = Var::new("TOOL_CHANGE_NUMBER");
     /// The tool in the spindle as the last confirmed change put it there (0: none, or not
     /// known since the PLC started).
     pub const TOOL_NUMBER: Var<i32> = Var::new("TOOL_NUMBER");

@@ -432,10 +432,12 @@ function showProgress(m, value) {
 
 // The manual tool change (the program stands until confirmed), the tool in the spindle, and
 // the program's last message (MSG).
+let toolAsked = { tool: null, change: null };
 function showTools(m) {
   const value = (name) => (name in index ? m.image[index[name]] : null);
   const asked = value("TOOL_PREP_NUMBER");
   const waits = value("TOOL_CHANGE") === true;
+  toolAsked = { tool: asked, change: value("TOOL_CHANGE_NUMBER") };
   $("tool-change").hidden = !waits;
   if (waits) {
     const name = tools[asked] ? ` (${tools[asked]})` : "";
@@ -671,7 +673,9 @@ $("nc-load").addEventListener("click", () => { $("access").textContent = ""; sen
 $("nc-start").addEventListener("click", () => send({ cmd: "program", what: "start" }));
 $("nc-hold").addEventListener("click", () => send({ cmd: "program", what: "hold" }));
 $("nc-resume").addEventListener("click", () => send({ cmd: "program", what: "resume" }));
-$("tool-changed").addEventListener("click", () => send({ cmd: "tool_changed" }));
+// The confirmation names the tool and the change it answers: a late second click cannot
+// confirm the next change.
+$("tool-changed").addEventListener("click", () => send({ cmd: "tool_changed", tool: toolAsked.tool, change: toolAsked.change }));
 $("touch-off").addEventListener("click", () => {
   send({ cmd: "touch_off", system: Number($("touch-system").value), axis: $("touch-axis").value, value: Number($("touch-value").value) });
 });

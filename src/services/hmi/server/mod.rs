@@ -13,7 +13,7 @@
 
 use std::net::{IpAddr, SocketAddr};
 use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicI64, AtomicU64, AtomicUsize, Ordering};
 use std::time::{Duration, Instant};
 
 use axum::Router;
@@ -93,6 +93,10 @@ pub struct Shared {
     in_error: AtomicBool,
     /// A manual tool change waits for its confirmation (the last frame's `TOOL_CHANGE`).
     tool_change: AtomicBool,
+    /// The change that waits or came last, as the last frame has it: (its
+    /// `TOOL_CHANGE_NUMBER`, the tool `TOOL_PREP_NUMBER` asks for), packed in one word so that
+    /// a confirmation is checked against one frame's pair.
+    tool_asked: AtomicI64,
     /// The machine's pose coordinates (`x`, `y`, …), which a touch-off names.
     axes: Vec<String>,
     /// The alarm and message history.
@@ -154,10 +158,12 @@ pub fn router(info: HmiInfo, mut frames: FrameFeed, sink: CommandSink, options: 
         "jobs": info.jobs.is_some(),
         "tools": info.tools.iter().map(|(n, comment)| json!([n, comment])).collect::<Vec<_>>(),
     });
-    let tool_change_at = info
-        .variables
-        .iter()
-        .position(|(n, _)| n == pkm_api::trajectory::vars::TOOL_CHANGE.name());
+    let at = |var: &str| info.variables.iter().position(|(n, _)| n == var);
+    let tool_change_at = at(pkm_api::trajectory::vars::TOOL_CHANGE.name());
+    let tool_asked_at = (
+        at(pkm_api::trajectory::vars::TOOL_CHANGE_NUMBER.name()),
+        at(pkm_api::trajectory::vars::TOOL_PREP_NUMBER.name()),
+    );
     let mut messages = crate::runtime::messages::MessageWatch::of_names(&info.variables, info.library.as_ref());
     let (tx, _) = broadcast::channel::<Arc<str>>(16);
     let shared = Arc::new(Shared {
@@ -171,6 +177,7 @@ pub fn router(info: HmiInfo, mut frames: FrameFeed, sink: CommandSink, options: 
         running: AtomicBool::new(false),
         in_error: AtomicBool::new(false),
         tool_change: AtomicBool::new(false),
+        tool_asked: AtomicI64::new(0),
         axes: info.axes.clone(),
         alarms: super::alarms::Alarms::default(),
         programs,
@@ -213,6 +220,12 @@ pub fn router(info: HmiInfo, mut frames: FrameFeed, sink: CommandSink, options: 
                 pump.in_error.store(frame.status.state == "ERROR", Ordering::Relaxed);
                 let waits = tool_change_at.and_then(|i| frame.image.get(i)) == Some(&crate::image::Value::Bool(true));
                 pump.tool_change.store(waits, Ordering::Relaxed);
+                let word = |at: Option<usize>| match at.and_then(|i| frame.image.get(i)) {
+                    Some(crate::image::Value::Dint(v)) => *v,
+                    _ => 0,
+                };
+                let (change, tool) = (word(tool_asked_at.0), word(tool_asked_at.1));
+                pump.tool_asked.store(pack(change, tool), Ordering::Relaxed);
                 // The newest message (MSG) the run reached, with when: the page shows it, the
                 // history keeps it.
                 let mut reached = None;
@@ -440,8 +453,10 @@ enum Command {
     },
     /// Single block on or off.
     SingleBlock { on: bool },
-    /// The tool the manual tool change asks for is in the spindle: the program goes on.
-    ToolChanged {},
+    /// The tool the manual tool change asks for is in the spindle: the program goes on. It
+    /// names the tool and the change (`TOOL_CHANGE_NUMBER`) it confirms: one that does not
+    /// match the change that waits is refused (a late second click confirmed the next change).
+    ToolChanged { tool: i32, change: i32 },
     /// An incremental jog: axis `axis` moved by `mm` (at most [`MAX_STEP_MM`] either way) at
     /// rapid speed, as the MDI line `G91 G0 X…` (planned, checked, traced as one); from READY.
     Step { axis: String, mm: f64 },
@@ -876,12 +891,25 @@ impl Shared {
                 info!("screen {peer}: single block {}", if on { "on" } else { "off" });
                 self.sink.update(|c| c.single_block = on);
             }
-            Command::ToolChanged {} => {
-                if !self.tool_change.load(Ordering::Relaxed) {
-                    return Err("no tool change waits for a confirmation".into());
+            Command::ToolChanged { tool, change } => {
+                let (waiting, asked) = unpack(self.tool_asked.load(Ordering::Relaxed));
+                let refused = if !self.tool_change.load(Ordering::Relaxed) {
+                    Some(format!(
+                        "the confirmation of tool {tool} (change {change}) is refused: no tool change waits"
+                    ))
+                } else if (tool, change) != (asked, waiting) {
+                    Some(format!(
+                        "the confirmation of tool {tool} (change {change}) is refused: change {waiting} waits, for tool {asked}"
+                    ))
+                } else {
+                    None
+                };
+                if let Some(why) = refused {
+                    info!("screen {peer}: {why}");
+                    return Err(why);
                 }
-                info!("screen {peer}: tool change confirmed");
-                self.sink.update(|c| c.presses[press::TOOL_CHANGED] += 1);
+                info!("screen {peer}: tool change {change} confirmed: tool {tool} in the spindle");
+                self.sink.update(|c| c.tool_confirm = change);
             }
             Command::Acknowledge {} => {
                 if !self.in_error.load(Ordering::Relaxed) {
@@ -972,6 +1000,16 @@ impl Shared {
 
 fn finite(v: f64) -> f64 {
     if v.is_finite() { v } else { 0.0 }
+}
+
+/// A tool change's number and tool in one word (for one atomic load).
+fn pack(change: i32, tool: i32) -> i64 {
+    (i64::from(change) << 32) | i64::from(tool as u32)
+}
+
+/// The change's number and tool of [`pack`].
+fn unpack(word: i64) -> (i32, i32) {
+    ((word >> 32) as i32, word as u32 as i32)
 }
 
 #[cfg(test)]

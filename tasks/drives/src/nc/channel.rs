@@ -73,7 +73,14 @@ pub struct NcChannel {
     recent: [[f64; 3]; FEED_WINDOW],
     recent_filled: usize,
     /// The tool-change confirmations: the panel's and the screen's.
-    tool_changed: [Input<bool>; 2],
+    /// The panel's confirmation (`TOOL_CHANGED`) and the screen's confirmed change number.
+    tool_changed: Input<bool>,
+    screen_confirm: Input<i32>,
+    /// The PLC's tool changes so far (the one that waits is the last), and whether one waited
+    /// last cycle.
+    changes: u32,
+    waited: bool,
+    change_number: Output<i32>,
     tool_change: Output<bool>,
     tool_prep: Output<i32>,
     tool_number: Output<i32>,
@@ -128,7 +135,11 @@ impl NcChannel {
             distance_to_go: decl.write(vars::NC_DISTANCE_TO_GO, 0.0),
             recent: [[0.0; 3]; FEED_WINDOW],
             recent_filled: 0,
-            tool_changed: [vars::TOOL_CHANGED, pkm_api::hmi::HMI_TOOL_CHANGED].map(|v| decl.read_optional(v)),
+            tool_changed: decl.read_optional(vars::TOOL_CHANGED),
+            screen_confirm: decl.read_optional(pkm_api::hmi::HMI_TOOL_CONFIRM),
+            changes: 0,
+            waited: false,
+            change_number: decl.write(vars::TOOL_CHANGE_NUMBER, 0),
             tool_change: decl.write(vars::TOOL_CHANGE, false),
             tool_prep: decl.write(vars::TOOL_PREP_NUMBER, 0),
             tool_number: decl.write(vars::TOOL_NUMBER, 0),
@@ -201,10 +212,28 @@ impl NcChannel {
         d / (dt * FEED_WINDOW as f64)
     }
 
+    /// Whether the tool change that waits is confirmed now (a level; the executor takes its
+    /// rising edge): by the panel's `TOOL_CHANGED` rising while it waits, or by the screen
+    /// naming this change's number. A screen's confirmation of another change (one that came
+    /// late, after the change it meant) confirms nothing.
+    fn confirms(&self, ctx: &Cycle<'_>) -> bool {
+        let panel = ctx.get(self.tool_changed);
+        let waits = self.executor.tool_asked().is_some();
+        let screen = waits && self.changes > 0 && i64::from(ctx.get(self.screen_confirm)) == i64::from(self.changes);
+        panel || screen
+    }
+
     /// The tool change's and the messages' outputs after a step; `reached`: the messages the
     /// run had reached before it.
     fn tool_outputs(&mut self, ctx: &mut Cycle<'_>, reached: u32) {
         let asked = self.executor.tool_asked();
+        // A change that begins gets the next number of the PLC's run (never reused: a
+        // confirmation of an earlier one cannot confirm it).
+        if asked.is_some() && !self.waited {
+            self.changes = self.changes.saturating_add(1);
+            ctx.set(self.change_number, i32::try_from(self.changes).unwrap_or(i32::MAX));
+        }
+        self.waited = asked.is_some();
         ctx.set(self.tool_change, asked.is_some());
         if let Some(tool) = asked {
             ctx.set(self.tool_prep, i32::try_from(tool).unwrap_or(i32::MAX));
@@ -251,7 +280,7 @@ impl NcChannel {
             Command::Off
         };
         let operator = Operator {
-            tool_changed: self.tool_changed.iter().any(|i| ctx.get(*i)),
+            tool_changed: self.confirms(ctx),
             ..Operator::from_percent(
                 ctx.get(self.feed_override),
                 ctx.get(self.rapid_override),

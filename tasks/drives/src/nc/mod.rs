@@ -109,8 +109,8 @@ pub struct Operator {
     pub rapid: f64,
     /// Stand at the end of every line.
     pub single_block: bool,
-    /// The operator's confirmation of a manual tool change (a level; its rising edge
-    /// confirms).
+    /// The operator's confirmation of the manual tool change that waits (a level; its rising
+    /// edge confirms): the channel raises it only for a confirmation of that change.
     pub tool_changed: bool,
 }
 
