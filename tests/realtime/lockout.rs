@@ -195,6 +195,69 @@ async fn a_request_head_trickled_a_byte_a_second_is_closed_at_its_time() {
     );
 }
 
+/// Slowloris from two addresses, 15 sockets each, each re-opened as the server closes it: the
+/// operator with the token still gets in (before, such a load kept the token holder out for a
+/// whole minute: every place was a trickled head, and the attackers' re-opened sockets took
+/// each place freed). A new connection takes the place of the oldest whose head is still coming.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn slowloris_from_two_addresses_never_keeps_the_operator_out() {
+    let served = serve(60, &[]);
+    let screen = served.screen;
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let mut attackers = Vec::new();
+    for from in [[127, 0, 0, 2], [127, 0, 0, 3]] {
+        for _ in 0..15 {
+            let stop = stop.clone();
+            attackers.push(tokio::spawn(async move {
+                while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+                    let Ok(mut s) = connect_from(from, screen).await else {
+                        tokio::time::sleep(Duration::from_millis(20)).await;
+                        continue;
+                    };
+                    // A head a byte at a time, until the server closes the socket.
+                    let _ = s.write_all(b"GET / HTTP/1.1\r\nHost: 127.0.0.1\r\n").await;
+                    while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+                        if s.write_all(b"X").await.is_err() || closed_within(&mut s, Duration::from_millis(500)).await {
+                            break;
+                        }
+                    }
+                }
+            }));
+        }
+    }
+    // The attack holds every place it can.
+    tokio::time::sleep(Duration::from_secs(3)).await;
+    let start = Instant::now();
+    let got_in = tokio::time::timeout(Duration::from_secs(30), async {
+        loop {
+            match screen_client([127, 0, 0, 1], screen, Some(TOKEN)).await {
+                Ok((ws, hello)) => return (ws, hello),
+                Err(_) => tokio::time::sleep(Duration::from_millis(100)).await,
+            }
+        }
+    })
+    .await;
+    let took = start.elapsed();
+    stop.store(true, std::sync::atomic::Ordering::Relaxed);
+    for a in attackers {
+        a.abort();
+    }
+    let (_ws, hello) = got_in.unwrap_or_else(|_| panic!("the operator is locked out: {}", served.run.log()));
+    eprintln!(
+        "lockout: the operator got in under slowloris after {:.2} s",
+        took.as_secs_f64()
+    );
+    assert_eq!(hello["commands"], true);
+    assert!(
+        served
+            .run
+            .log()
+            .contains("that was not a WebSocket closed to make room for "),
+        "{}",
+        served.run.log()
+    );
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn wrong_tokens_are_answered_ever_later_and_the_right_one_at_once() {
     let served = serve(60, &[]);

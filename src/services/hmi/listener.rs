@@ -1,9 +1,13 @@
 //! The screen's listening socket with bounds on the connections it holds:
 //!
-//! - at most a set number at once, and one source address at most half of them: a connection
-//!   beyond either is closed as it is accepted (counted, and logged at most once per source and
-//!   interval), so that one host that opens many connections cannot lock the operator out, nor
-//!   exhaust file descriptors;
+//! - at most a set number at once, and one source address at most half of them. A connection
+//!   beyond either takes the place of the oldest connection that is not a WebSocket and whose
+//!   request head is still coming (a slow or stalled client: of its own source where that
+//!   source's share is full), else of the oldest plain HTTP connection; only where every place
+//!   is a WebSocket is it closed as it is accepted (counted, and logged at most once per source
+//!   and interval). So hosts that open many connections, from however many addresses, neither
+//!   lock the operator out nor exhaust file descriptors, and a WebSocket — the operator's — is
+//!   never evicted;
 //! - a connection's first request head (its request line and headers) must be complete within
 //!   [`HEAD_TIMEOUT`] of its opening, and every later one within that time of its first byte: a
 //!   client that trickles a header a byte a second is closed, whatever it trickles. Once a
@@ -30,6 +34,33 @@ use crate::runtime::log_limit::Limited;
 /// its first byte.
 pub const HEAD_TIMEOUT: Duration = Duration::from_secs(10);
 
+/// How long a new connection waits for the place of the connection it evicted to be given
+/// back (the evicted one is closed by its own task).
+const EVICTION_WAIT: Duration = Duration::from_millis(500);
+
+/// What the listener and a connection share: whether it is a WebSocket, whether its request head
+/// is still coming, and its eviction.
+#[derive(Debug, Default)]
+struct Shared {
+    upgraded: std::sync::atomic::AtomicBool,
+    in_head: std::sync::atomic::AtomicBool,
+    evicted: std::sync::atomic::AtomicBool,
+    /// The task reading it, woken to see its eviction.
+    waker: Mutex<Option<std::task::Waker>>,
+}
+
+impl Shared {
+    fn evict(&self) {
+        self.evicted.store(true, std::sync::atomic::Ordering::Release);
+        if let Some(w) = self.waker.lock().unwrap_or_else(|p| p.into_inner()).take() {
+            w.wake();
+        }
+    }
+}
+
+/// The connections held, oldest first: (number, source, what they share).
+type Registry = Arc<Mutex<Vec<(u64, IpAddr, Arc<Shared>)>>>;
+
 /// The listener: at most `bound` connections at once, a source at most half of them.
 pub struct Bounded {
     inner: TcpListener,
@@ -37,7 +68,10 @@ pub struct Bounded {
     bound: usize,
     per_source: usize,
     sources: Arc<Mutex<HashMap<IpAddr, usize>>>,
+    held: Registry,
+    next: u64,
     refused: Limited,
+    evicted: Limited,
 }
 
 impl Bounded {
@@ -50,8 +84,79 @@ impl Bounded {
             bound,
             per_source: (bound / 2).max(2).min(bound),
             sources: Arc::new(Mutex::new(HashMap::new())),
+            held: Arc::new(Mutex::new(Vec::new())),
+            next: 0,
             refused: Limited::new("operator screen: connections closed at once"),
+            evicted: Limited::new("operator screen: connections evicted"),
         }
+    }
+
+    /// Evicts the connection whose place a new one from `ip` takes (see the module's notes):
+    /// of `ip`'s own where its share is full (`own`), else of anyone's. Returns whom, or `None`
+    /// where every candidate place is a WebSocket.
+    fn evict_for(&self, ip: IpAddr, own: bool) -> Option<IpAddr> {
+        use std::sync::atomic::Ordering::Acquire;
+        let held = self.held.lock().unwrap_or_else(|p| p.into_inner());
+        let candidates = || {
+            held.iter()
+                .filter(|(_, from, c)| (!own || *from == ip) && !c.upgraded.load(Acquire) && !c.evicted.load(Acquire))
+        };
+        let victim = candidates()
+            .find(|(_, _, c)| c.in_head.load(Acquire))
+            .or_else(|| candidates().next())?;
+        victim.2.evict();
+        Some(victim.1)
+    }
+
+    /// Places for a connection from `ip`: free ones, else those of a connection it evicts
+    /// (waiting at most [`EVICTION_WAIT`] for them); `Err` with why where there are none.
+    async fn places(&mut self, peer: SocketAddr) -> Result<(OwnedSemaphorePermit, SourcePlace), String> {
+        let ip = peer.ip();
+        let deadline = tokio::time::Instant::now() + EVICTION_WAIT;
+        let mut evicted = false;
+        loop {
+            let source = self.take_source(ip);
+            let permit = match &source {
+                Some(_) => Arc::clone(&self.permits).try_acquire_owned().ok(),
+                None => None,
+            };
+            if let (Some(source), Some(permit)) = (source, permit) {
+                return Ok((permit, source));
+            }
+            if !evicted {
+                let own = self.held_by(ip) >= self.per_source;
+                let Some(victim) = self.evict_for(ip, own) else {
+                    return Err(if own {
+                        format!(
+                            "{} connections from {ip} are open already (a source's share of the {}), all WebSockets",
+                            self.per_source, self.bound
+                        )
+                    } else {
+                        format!("already {} connections (the bound), all WebSockets", self.bound)
+                    });
+                };
+                self.evicted.warn(victim, || {
+                    format!(
+                        "operator screen: a connection from {victim} that was not a WebSocket closed to make room for {peer}"
+                    )
+                });
+                evicted = true;
+            }
+            if tokio::time::Instant::now() >= deadline {
+                return Err("the connection evicted for it did not give its place back in time".into());
+            }
+            tokio::time::sleep(Duration::from_millis(5)).await;
+        }
+    }
+
+    /// How many connections `ip` holds.
+    fn held_by(&self, ip: IpAddr) -> usize {
+        self.sources
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .get(&ip)
+            .copied()
+            .unwrap_or(0)
     }
 
     /// Takes a place for `ip` under its share, if it has one left.
@@ -118,33 +223,32 @@ impl Listener for Bounded {
                     continue;
                 }
             };
-            let Some(source) = self.take_source(peer.ip()) else {
-                let share = self.per_source;
-                self.refused.warn(peer.ip(), || {
-                    format!(
-                        "operator screen: connection from {peer} closed: {share} connections from {} are open already (a source's share of the {})",
-                        peer.ip(),
-                        self.bound
-                    )
-                });
-                continue;
-            };
-            match Arc::clone(&self.permits).try_acquire_owned() {
-                Ok(permit) => {
+            match self.places(peer).await {
+                Ok((permit, source)) => {
                     let _ = stream.set_nodelay(true);
+                    self.next += 1;
+                    let shared = Arc::new(Shared::default());
+                    shared.in_head.store(true, std::sync::atomic::Ordering::Release);
+                    self.held.lock().unwrap_or_else(|p| p.into_inner()).push((
+                        self.next,
+                        peer.ip(),
+                        Arc::clone(&shared),
+                    ));
                     let held = Held {
                         stream,
                         _places: (permit, source),
                         head: Head::new(),
+                        shared,
+                        _registration: Registration {
+                            id: self.next,
+                            held: Arc::clone(&self.held),
+                        },
                     };
                     return (held, peer);
                 }
-                Err(_) => {
-                    let bound = self.bound;
+                Err(why) => {
                     self.refused.warn(peer.ip(), || {
-                        format!(
-                            "operator screen: connection from {peer} closed: already {bound} connections (the bound)"
-                        )
+                        format!("operator screen: connection from {peer} closed: {why}")
                     });
                 }
             }
@@ -215,6 +319,35 @@ pub struct Held {
     stream: TcpStream,
     _places: (OwnedSemaphorePermit, SourcePlace),
     head: Head,
+    shared: Arc<Shared>,
+    _registration: Registration,
+}
+
+/// A connection's entry in the listener's registry, removed when it is dropped.
+struct Registration {
+    id: u64,
+    held: Registry,
+}
+
+impl Drop for Registration {
+    fn drop(&mut self) {
+        self.held
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .retain(|(id, _, _)| *id != self.id);
+    }
+}
+
+impl Held {
+    /// Tells the listener where the connection stands (a WebSocket, a head coming); whether it
+    /// was evicted (then registers the waker that its eviction wakes).
+    fn evicted(&mut self, cx: &mut Context<'_>) -> bool {
+        use std::sync::atomic::Ordering::{Acquire, Release};
+        self.shared.upgraded.store(self.head.upgraded, Release);
+        self.shared.in_head.store(self.head.deadline.is_some(), Release);
+        *self.shared.waker.lock().unwrap_or_else(|p| p.into_inner()) = Some(cx.waker().clone());
+        self.shared.evicted.load(Acquire)
+    }
 }
 
 impl AsyncRead for Held {
@@ -224,6 +357,12 @@ impl AsyncRead for Held {
             return Poll::Ready(Err(std::io::Error::new(
                 std::io::ErrorKind::TimedOut,
                 "the request's head was not complete within its time",
+            )));
+        }
+        if this.evicted(cx) {
+            return Poll::Ready(Err(std::io::Error::new(
+                std::io::ErrorKind::ConnectionAborted,
+                "closed to make room for another connection",
             )));
         }
         let before = buf.filled().len();
@@ -239,6 +378,10 @@ impl AsyncWrite for Held {
     fn poll_write(self: Pin<&mut Self>, cx: &mut Context<'_>, buf: &[u8]) -> Poll<std::io::Result<usize>> {
         let this = self.get_mut();
         this.head.wrote(buf);
+        // A WebSocket from its 101 on: never a candidate for eviction.
+        this.shared
+            .upgraded
+            .store(this.head.upgraded, std::sync::atomic::Ordering::Release);
         Pin::new(&mut this.stream).poll_write(cx, buf)
     }
 
@@ -258,6 +401,9 @@ impl AsyncWrite for Held {
         let this = self.get_mut();
         if let Some(first) = bufs.iter().find(|b| !b.is_empty()) {
             this.head.wrote(first);
+            this.shared
+                .upgraded
+                .store(this.head.upgraded, std::sync::atomic::Ordering::Release);
         }
         Pin::new(&mut this.stream).poll_write_vectored(cx, bufs)
     }
