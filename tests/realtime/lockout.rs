@@ -263,11 +263,14 @@ async fn wrong_tokens_are_answered_ever_later_and_the_right_one_at_once() {
     let served = serve(60, &[]);
     // Five guesses from one host, one after the other: 0.3 + 0.6 + 1.2 + 2.4 + 4.8 s of waits.
     let start = Instant::now();
+    let mut fifth = Duration::ZERO;
     for k in 0..5 {
+        let guess = Instant::now();
         let (_, hello) = screen_client([127, 0, 0, 2], served.screen, Some(&format!("guess-{k}")))
             .await
             .expect("a guess watches");
         assert_eq!(hello["commands"], false);
+        fifth = guess.elapsed();
     }
     let guessing = start.elapsed();
     eprintln!("lockout: five wrong tokens took {:.1} s", guessing.as_secs_f64());
@@ -278,7 +281,13 @@ async fn wrong_tokens_are_answered_ever_later_and_the_right_one_at_once() {
         .await
         .expect("the operator");
     assert_eq!(hello["commands"], true);
-    assert!(start.elapsed() < Duration::from_secs(5), "{:?}", start.elapsed());
+    let right = start.elapsed();
+    // "No wait", judged in the same run against what the fifth wrong guess waited (4.8 s by the
+    // rule): a wall-clock bound would fail falsely on a busy machine.
+    assert!(
+        right * 2 < fifth,
+        "the right token took {right:?}, the fifth wrong one {fifth:?}"
+    );
     // One line per source per 10 s: the five guesses span two intervals at most.
     let log = served.run.log();
     let lines = log.matches("a wrong token: watching only").count();
@@ -295,12 +304,11 @@ async fn silent_opc_ua_connections_are_closed_at_the_hello_timeout_and_one_host_
     for _ in 0..20 {
         silent.push(connect_from([127, 0, 0, 2], served.opcua).await.expect("connects"));
     }
-    let mut closed_at_once = 0;
-    for s in &mut silent {
-        if closed_within(s, Duration::from_millis(500)).await {
-            closed_at_once += 1;
-        }
-    }
+    // All looked at together, for a second: the 13 beyond the share are closed as they are
+    // accepted, the 7 held only at the hello timeout 4 s later (looked at one after another,
+    // a busy machine could reach that timeout before the last of them).
+    let closed = futures::future::join_all(silent.iter_mut().map(|s| closed_within(s, Duration::from_secs(1)))).await;
+    let closed_at_once = closed.iter().filter(|c| **c).count();
     assert_eq!(closed_at_once, 13, "{}", served.run.log());
     // Another client is answered meanwhile.
     assert!(acknowledged([127, 0, 0, 1], served.opcua).await, "{}", served.run.log());

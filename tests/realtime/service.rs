@@ -60,8 +60,18 @@ fn the_service_manager_hears_ready_then_watchdog_then_stopping() {
     let start = Instant::now();
     let (socket, mut run) = run_notifying(dir.path(), &config, &[]);
     let got = receive(&socket, start, Duration::from_secs(60), |got| {
-        got.iter().filter(|(_, m)| m == "WATCHDOG=1").count() >= 3
+        got.iter().filter(|(_, m)| m == "WATCHDOG=1").count() >= 6
     });
+    // The pings come at least as often as the manager's WATCHDOG_USEC (400 ms) asks: the PLC
+    // sends one every half of it. Judged by their mean interval (one late read of this test's
+    // own thread on a busy machine moves a single interval, not five).
+    let pings: Vec<Duration> = got.iter().filter(|(_, m)| m == "WATCHDOG=1").map(|(t, _)| *t).collect();
+    assert!(pings.len() >= 6, "six WATCHDOG=1 within 60 s: {got:?}");
+    let mean = (pings[5] - pings[0]) / 5;
+    assert!(
+        mean <= Duration::from_micros(400_000),
+        "WATCHDOG=1 every {mean:?} on average: the manager, at WATCHDOG_USEC=400000, would kill the service"
+    );
     let messages: Vec<&str> = got.iter().map(|(_, m)| m.as_str()).collect();
     let ready = messages
         .iter()
