@@ -71,8 +71,8 @@ fn the_soft_plc_runs_against_a_pymodbus_server() {
         .spawn()
         .expect("server.py");
     let mut lines = BufReader::new(server.stdout.take().expect("stdout")).lines();
+    // "ready": the server accepts connections.
     assert_eq!(lines.next().and_then(Result::ok).as_deref(), Some("ready"));
-    std::thread::sleep(std::time::Duration::from_millis(500));
     // The server serves the generic station's layout.
     let dir = tempfile::tempdir().expect("tempdir");
     let config = common::write_config(dir.path(), "trijoint.json", &common::busy_machine_config());

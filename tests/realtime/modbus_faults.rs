@@ -7,7 +7,7 @@ use crate::common;
 
 use std::io::{Read, Write};
 use std::net::{TcpListener, TcpStream};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use common::stderr;
 
@@ -179,8 +179,13 @@ fn the_link_comes_back_when_the_station_returns_but_error_stays_until_acknowledg
     let (command, summary) = common::bus_fault_run(&format!("127.0.0.1:{port}"), "6", dir.path());
     let mut run = common::start_with_link_up(command);
     drop(first); // the station disappears...
-    std::thread::sleep(Duration::from_millis(1500));
-    let second = start(port).0; // ...and comes back on the same port
+    // ...the link says so (a bus fault: its failures past the bound)...
+    let gone = Instant::now();
+    while !run.log().contains("failed exchanges in a row") {
+        assert!(gone.elapsed() < Duration::from_secs(30), "no bus fault: {}", run.log());
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let second = start(port).0; // ...and it comes back on the same port
     assert!(run.wait().success(), "{}", run.log());
     drop(second);
     let (s, log) = (common::read_json(&summary), run.log());
