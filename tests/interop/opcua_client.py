@@ -40,6 +40,11 @@
         Opens N anonymous sessions, each on a connection of its own, and drops the connections
         without closing the sessions (as a client that crashed, or an attacker, leaves them):
         JSON with how many sessions were opened and the status of those refused.
+    opcua_client.py hold URL N SECONDS FROM
+        Opens N anonymous sessions, each on a connection of its own from the local address FROM
+        (127.0.0.2, say), prints "held K" once they are open, and keeps them for SECONDS, reading
+        the server's time every second on each (as a dashboard does): JSON with how many were
+        opened and how many the server closed meanwhile, with the status it said.
     opcua_client.py guess URL USER COUNT PARALLEL
         Tries COUNT wrong passwords for USER, PARALLEL at a time, each on a connection of its
         own: JSON with how many were refused and how long they took in all (s).
@@ -307,6 +312,48 @@ async def endpoints(url):
         tokens = sorted(t.TokenType.name for t in e.UserIdentityTokens)
         out.append([e.SecurityPolicyUri.split("#")[-1], e.SecurityMode.name, tokens, e.EndpointUrl])
     print(json.dumps(out))
+
+
+def connect_from(address):
+    """Every connection this process opens from now on comes from the local `address`."""
+    loop = asyncio.get_running_loop()
+    original = loop.create_connection
+
+    async def create_connection(*args, **kwargs):
+        kwargs.setdefault("local_addr", (address, 0))
+        return await original(*args, **kwargs)
+
+    loop.create_connection = create_connection
+
+
+async def hold(url, n, seconds, address):
+    connect_from(address)
+    clients = []
+    for _ in range(n):
+        client = Client(url, timeout=10)
+        try:
+            await client.connect()
+            clients.append(client)
+        except Exception:  # noqa: BLE001 - a refusal is counted, whatever its kind
+            pass
+    print(f"held {len(clients)}", flush=True)
+    closed = {}
+    end = time.time() + seconds
+    alive = list(clients)
+    while time.time() < end and alive:
+        await asyncio.sleep(1)
+        for client in list(alive):
+            try:
+                await client.nodes.server.read_attribute(ua.AttributeIds.BrowseName)
+            except Exception as e:  # noqa: BLE001 - what the server said, whatever its kind
+                alive.remove(client)
+                closed[type(e).__name__] = closed.get(type(e).__name__, 0) + 1
+    for client in alive:
+        try:
+            await client.disconnect()
+        except Exception:  # noqa: BLE001
+            pass
+    print(json.dumps({"opened": len(clients), "closed": closed}))
 
 
 async def abandon(url, n):
@@ -586,6 +633,9 @@ def main():
         return
     if cmd == "abandon":
         asyncio.run(abandon(rest[0], int(rest[1])))
+        return
+    if cmd == "hold":
+        asyncio.run(hold(rest[0], int(rest[1]), float(rest[2]), rest[3]))
         return
     if cmd == "guess":
         asyncio.run(guess(rest[0], rest[1], int(rest[2]), int(rest[3])))

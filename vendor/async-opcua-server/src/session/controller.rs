@@ -194,7 +194,18 @@ impl SessionController {
     }
 
     async fn run(mut self, mut command: tokio::sync::mpsc::Receiver<ControllerCommand>) {
+        // pkm-plc: a session of this connection closed to make room for another closes the
+        // connection too (it held its place at the port's gate before).
+        let evictions = trace_read_lock!(self.session_manager).evictions();
         loop {
+            let evicted = evictions.notify.notified();
+            if !self.transport.is_closing() && evictions.take(self.channel.secure_channel_id()) {
+                warn!("Connection closed: its session was closed to make room for a new session");
+                self.fatal_error(
+                    StatusCode::BadSessionClosed,
+                    "the session was closed to make room for a new session (the most sessions were open)",
+                );
+            }
             let resp_fut = if self.pending_messages.is_empty() {
                 Either::Left(futures::future::pending::<Option<Result<Response, String>>>())
             } else {
@@ -202,6 +213,7 @@ impl SessionController {
             };
 
             tokio::select! {
+                _ = evicted => {}
                 _ = tokio::time::sleep_until(self.deadline.into()) => {
                     warn!("Connection timed out, closing");
                     self.fatal_error(StatusCode::BadTimeout, "Connection timeout");

@@ -30,11 +30,39 @@ pub(super) fn next_session_id() -> (NodeId, u32) {
     (NodeId::new(1, session_id), session_id)
 }
 
+/// pkm-plc: the secure channels whose session was closed to make room for another, each
+/// closed by the connection that carries it (its controller takes its id from here); so an
+/// evicted session no longer holds its TCP connection, nor its place at the port's gate.
+#[derive(Default)]
+pub(crate) struct Evictions {
+    /// Wakes every connection to look whether it is one of them.
+    pub(crate) notify: Notify,
+    channels: parking_lot::Mutex<std::collections::HashSet<u32>>,
+}
+
+impl Evictions {
+    /// Whether the channel `id` is to be closed (then taken off the list).
+    pub(crate) fn take(&self, id: u32) -> bool {
+        self.channels.lock().remove(&id)
+    }
+
+    fn add(&self, id: u32) {
+        self.channels.lock().insert(id);
+        self.notify.notify_waiters();
+    }
+}
+
+/// pkm-plc: how long a session that is not activated yet is spared eviction: the time a client
+/// takes from CreateSession to ActivateSession (a user's session, before it is activated,
+/// looks like an anonymous one).
+const ACTIVATION_GRACE: Duration = Duration::from_secs(2);
+
 /// Manages all sessions on the server.
 pub struct SessionManager {
     sessions: HashMap<NodeId, Arc<RwLock<Session>>>,
     info: Arc<ServerInfo>,
     notify: Arc<Notify>,
+    evictions: Arc<Evictions>,
 }
 
 impl SessionManager {
@@ -43,7 +71,13 @@ impl SessionManager {
             sessions: Default::default(),
             info,
             notify,
+            evictions: Default::default(),
         }
+    }
+
+    /// pkm-plc: the channels to close, for the connections' controllers.
+    pub(crate) fn evictions(&self) -> Arc<Evictions> {
+        Arc::clone(&self.evictions)
     }
 
     /// Get a session by its authentication token.
@@ -76,9 +110,13 @@ impl SessionManager {
                 return Err(StatusCode::BadTooManySessions);
             };
             tracing::warn!(
-                "Session {victim} closed to make room for a new session: the most sessions are open and it was the one longest idle of those that are not a user's"
+                "Session {victim} closed to make room for a new session: the most sessions are open and it was the one longest idle of those that are not a user's; its connection is closed with it"
             );
+            let channel = self.sessions.get(&victim).map(|s| s.read().secure_channel_id());
             self.expire_session(&victim);
+            if let Some(channel) = channel {
+                self.evictions.add(channel);
+            }
         }
 
         // TODO: Auditing and diagnostics.
@@ -233,7 +271,9 @@ impl SessionManager {
             .filter_map(|(id, s)| {
                 let s = s.read();
                 let not_a_users = s.user_token().is_none_or(|t| t.is_anonymous());
-                not_a_users.then(|| (id.clone(), s.last_request()))
+                // One created a moment ago and not activated yet may be a user's on its way in.
+                let arriving = !s.is_activated() && s.last_request().elapsed() < ACTIVATION_GRACE;
+                (not_a_users && !arriving).then(|| (id.clone(), s.last_request()))
             })
             .min_by_key(|(_, at)| *at)
             .map(|(id, _)| id)
