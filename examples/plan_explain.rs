@@ -46,7 +46,7 @@ fn explain() -> Result<(), String> {
             e.line,
             e.segment.length(),
             if e.segment.is_arc() {
-                format!(", a curve of {:.5} rad", e.segment.sweep())
+                format!(", a curve of {:.3e} rad", e.segment.sweep())
             } else {
                 String::new()
             },

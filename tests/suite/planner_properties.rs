@@ -183,6 +183,15 @@ const FOUND_BY_THE_LONG_RUN: &[(&str, &str)] = &[
         "G21 G90 G17 G61\nG1 F178.0\nG64\nG1 X-0.013 Y0.013 Z0.012 A0.000 B0.000 C-0.008\n\
          G1 X0.187 Y-0.187 Z-0.172 A0.000 B0.000 C-0.008\nM2\n",
     ),
+    // A G2 of R-0.005 mm between two lines: the blend into the second line is a biarc whose
+    // second arc hardly turns (5e-7 rad on a radius of 20 m); its centre, found along a normal
+    // of 3 nm, was off by micrometres and the circle missed its end: a step of the tool of 5 µm
+    // (joint 1 at 1.32 × its acceleration, sampled every millisecond).
+    (
+        "trijoint",
+        "G21 G90 G17 G64\nG1 F317.6\nG1 X-0.500462 Y4.999126\nG1 X-1.575112 Y3.281489\n\
+         G2 X-1.583332 Y3.285298 R-0.004857\nG1 X-0.893190 Y4.388368\nM2\n",
+    ),
 ];
 
 #[test]

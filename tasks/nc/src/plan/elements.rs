@@ -300,12 +300,23 @@ fn blend_corners(elements: Vec<Element>) -> Vec<Element> {
         let u_raw: [f64; 3] = std::array::from_fn(|c| a_end[c] - center[c]);
         let un = dot3(u_raw, u_raw).sqrt();
         let u = u_raw.map(|x| x / un);
-        current.segment = Segment::new(a_from, a_end, crate::interp::block::Path::Line);
         // The lines' own rates, found before the first was cut short: what is left of it may
         // be too short to say.
         let rates = (r1, r2);
+        let segment = Segment::blend(a_end, b_start, center, u, d1, radius, theta, rates);
+        if misses_its_ends(&segment) {
+            // A turn so slight that the blend's centre, found along a bisector of length
+            // 2 sin(θ/2), is off by micrometres: taken as straight, the tool going on through
+            // the corner (as below STRAIGHT).
+            current.stop_after = !rates_continue;
+            out.push(current);
+            current = next;
+            trimmed_start = 0.0;
+            continue;
+        }
+        current.segment = Segment::new(a_from, a_end, crate::interp::block::Path::Line);
         let blend = Element {
-            segment: Segment::blend(a_end, b_start, center, u, d1, radius, theta, rates),
+            segment,
             line: next.line,
             column: next.column,
             feed: current.feed.min(next.feed),
@@ -452,8 +463,30 @@ fn arc_from(from: Pose, t0: [f64; 3], to: Pose) -> Option<(Segment, [f64; 3])> {
         sweep += std::f64::consts::TAU;
     }
     let end: [f64; 3] = std::array::from_fn(|k| -sweep.sin() * u[k] + sweep.cos() * t0[k]);
-    Some((
-        Segment::blend(from, to, center, u, t0, radius, sweep, ([0.0; 3], [0.0; 3])),
-        end,
-    ))
+    let arc = Segment::blend(from, to, center, u, t0, radius, sweep, ([0.0; 3], [0.0; 3]));
+    if misses_its_ends(&arc) {
+        // An arc that hardly turns, on a radius of kilometres: its centre, found along a normal
+        // of a few nanometres, is off by micrometres, and the circle misses `to` by as much — a
+        // step in the tool's path where the next element starts. The line there turns by less
+        // than a ten-thousandth of a radian from the tangent.
+        return (along > 0.0).then(|| {
+            (
+                Segment::new(from, to, crate::interp::block::Path::Line),
+                c.map(|x| x / cn),
+            )
+        });
+    }
+    Some((arc, end))
 }
+
+/// Whether a blend's circle, as its formula gives it, misses its own ends by more than
+/// [`ENDS_MISSED_MM`]: a centre found along a very short normal or bisector (an arc that hardly
+/// turns) is off by micrometres, and the tool would step where the element meets the next.
+fn misses_its_ends(arc: &Segment) -> bool {
+    let (start, end) = (arc.at_extended(0.0), arc.at_extended(1.0));
+    let off = |p: &Pose, q: &Pose| distance3(p, q);
+    off(&start, arc.from()) > ENDS_MISSED_MM || off(&end, arc.to()) > ENDS_MISSED_MM
+}
+
+/// How far a blend's circle may miss its ends (mm): below what any drive resolves.
+const ENDS_MISSED_MM: f64 = 1e-9;

@@ -101,13 +101,14 @@ fn derivatives(
     frame: &MachineFrame,
 ) -> Result<[[f64; 2]; MAX_COORDINATES], String> {
     let n = frame.dof();
-    // A hair: at most DERIVATIVE_STEP and a twentieth of a radian of a curve (the difference of
-    // a curve's cosine over ±h is exact to h²/12). Not shorter for a short element: the line or
-    // curve is continued past its ends (a line as the same line, an arc on its circle, a blend's
-    // turn as the same polynomial), and the second difference's rounding grows as 1/h² — over a
-    // sixteenth of a millionth of a millimetre of line left between two blends it was noise.
-    let h = DERIVATIVE_STEP.min(if segment.sweep() > 0.0 {
-        0.05 * len / segment.sweep()
+    // A hair: at most DERIVATIVE_STEP; on a curve a twentieth of a radian (the difference of a
+    // curve's cosine over ±h is exact to h²/12) and a sixteenth of the curve (a blend's turn or
+    // an arc that hardly turns is continued past its ends only a little). Not shorter for a
+    // short line: it is continued past its ends as the same line, and the second difference's
+    // rounding grows as 1/h² — over a sixteenth of a millionth of a millimetre of line left
+    // between two blends it was noise.
+    let h = DERIVATIVE_STEP.min(if segment.is_arc() {
+        (0.05 * len / segment.sweep()).min(len / 16.0)
     } else {
         f64::INFINITY
     });
