@@ -426,6 +426,25 @@ fn users(dir: &std::path::Path) -> String {
     users.to_str().expect("utf-8").to_string()
 }
 
+/// The operator logs in at `url` with the users file's password and calls Stop, waiting for
+/// ERROR: the client's steps.
+fn operator_stops(python: &std::path::Path, url: &str) -> serde_json::Value {
+    opcua_client(
+        python,
+        &[
+            "call",
+            url,
+            "trijoint",
+            "--user",
+            "operator",
+            "--password",
+            "a-long-passphrase",
+            "Stop",
+            "wait=ERROR",
+        ],
+    )
+}
+
 #[test]
 fn anonymous_sessions_give_way_to_a_user_who_commands() {
     let Some(python) = python("lockout::anonymous_sessions_give_way_to_a_user_who_commands") else {
@@ -438,20 +457,7 @@ fn anonymous_sessions_give_way_to_a_user_who_commands() {
     let abandoned = opcua_client(&python, &["abandon", &url, "12"]);
     assert_eq!(abandoned["opened"], 12, "{abandoned}");
     // The operator logs in and stops the machine.
-    let out = opcua_client(
-        &python,
-        &[
-            "call",
-            &url,
-            "trijoint",
-            "--user",
-            "operator",
-            "--password",
-            "a-long-passphrase",
-            "Stop",
-            "wait=ERROR",
-        ],
-    );
+    let out = operator_stops(&python, &url);
     assert_eq!(out["steps"][0]["status"], "Good", "{out}\n{}", served.run.log());
     assert_eq!(out["steps"][1]["state"], "ERROR", "{out}");
 }
@@ -489,20 +495,7 @@ fn a_user_gets_in_past_anonymous_sessions_held_from_several_addresses() {
         assert!(line.starts_with("held "), "{line}");
         holders.push((child, out, line));
     }
-    let out = opcua_client(
-        &python,
-        &[
-            "call",
-            &url,
-            "trijoint",
-            "--user",
-            "operator",
-            "--password",
-            "a-long-passphrase",
-            "Stop",
-            "wait=ERROR",
-        ],
-    );
+    let out = operator_stops(&python, &url);
     let held: Vec<String> = holders.iter().map(|(_, _, l)| l.trim().to_string()).collect();
     for (mut child, _, _) in holders {
         let _ = child.kill();

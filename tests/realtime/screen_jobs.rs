@@ -79,6 +79,18 @@ async fn send(ws: &mut Ws, command: serde_json::Value) {
         .expect("the command is sent");
 }
 
+/// Starts the run `command` (with `--hmi`) and connects to its screen: the run, and the
+/// WebSocket once the screen said hello.
+async fn start_with_screen(command: std::process::Command) -> (common::Logged, Ws) {
+    let (plc, url) = common::Logged::start(command, "operator screen at ", Duration::from_secs(30));
+    let ws_url = url.replacen("http://", "ws://", 1) + "ws";
+    let (mut ws, _) = tokio_tungstenite::connect_async(ws_url.as_str())
+        .await
+        .expect("connects");
+    assert_eq!(next(&mut ws, Duration::from_secs(10)).await["type"], "hello");
+    (plc, ws)
+}
+
 /// Sends MDI `text`; the screen says it plans it.
 async fn mdi(ws: &mut Ws, text: &str) {
     send(ws, serde_json::json!({"cmd": "mdi", "text": text})).await;
@@ -106,12 +118,7 @@ async fn jobs_that_nest_or_plan_for_long_never_take_the_plc_down_or_hold_it_up()
         .args(["--hmi", "127.0.0.1:0", "--joystick", "none"])
         .args(["--summary", summary.to_str().expect("utf-8")])
         .env("RUST_LOG", "info");
-    let (mut plc, url) = common::Logged::start(command, "operator screen at ", Duration::from_secs(30));
-    let ws_url = url.replacen("http://", "ws://", 1) + "ws";
-    let (mut ws, _) = tokio_tungstenite::connect_async(ws_url.as_str())
-        .await
-        .expect("connects");
-    assert_eq!(next(&mut ws, Duration::from_secs(10)).await["type"], "hello");
+    let (mut plc, mut ws) = start_with_screen(command).await;
     until_state(&mut ws, "READY", Duration::from_secs(60)).await;
     // Outside ERROR an acknowledgement would be a STOP: refused.
     send(&mut ws, serde_json::json!({"cmd": "acknowledge"})).await;
@@ -231,12 +238,7 @@ async fn a_tool_change_confirmation_answers_its_own_change_only() {
         .args(["--program", program.to_str().expect("utf-8")])
         .args(["--tool-table", table.to_str().expect("utf-8")])
         .env("RUST_LOG", "info");
-    let (mut plc, url) = common::Logged::start(command, "operator screen at ", Duration::from_secs(30));
-    let ws_url = url.replacen("http://", "ws://", 1) + "ws";
-    let (mut ws, _) = tokio_tungstenite::connect_async(ws_url.as_str())
-        .await
-        .expect("connects");
-    assert_eq!(next(&mut ws, Duration::from_secs(10)).await["type"], "hello");
+    let (mut plc, mut ws) = start_with_screen(command).await;
     // Before any change waits, a confirmation is refused as such.
     assert_eq!(
         confirm_tool(&mut ws, 1, 1).await.as_deref(),
