@@ -43,6 +43,7 @@ fn only_the_controlling_clients_telegrams_feed_the_x20bc0087_watchdog() {
         station.watch();
         std::thread::sleep(Duration::from_millis(2));
     }
+    station.watch();
     assert!(
         expired(&mut station, 2),
         "200 ms after the PLC's last telegram, with another client's every 2 ms, the watchdog of 50 ms has not expired"
