@@ -170,8 +170,9 @@ impl Path<'_> {
     }
 
     /// The fastest speed squared at every sample with every limit times `grow`: backwards the
-    /// largest controllable one, then forwards as fast as the limits allow within it.
-    fn solve(&self, samples: &[Sample], grow: f64) -> Vec<f64> {
+    /// largest controllable one, then forwards as fast as the limits allow within it; and each
+    /// sample's speed cap (squared), which the refinement looks at.
+    fn solve(&self, samples: &[Sample], grow: f64) -> (Vec<f64>, Vec<f64>) {
         let count = samples.len();
         let constraints: Vec<(f64, Vec<(f64, f64)>)> = samples.iter().map(|p| self.constraints(p, grow)).collect();
         let upper = |i: usize, x: f64| {
@@ -214,7 +215,7 @@ impl Path<'_> {
             };
             x[i + 1] = reach.min(top[i + 1]).max(0.0);
         }
-        x
+        (x, constraints.into_iter().map(|(cap, _)| cap).collect())
     }
 
     /// The time along `samples` at the speeds squared `x`, whole and per program line.
@@ -305,8 +306,8 @@ pub fn optimal(
             );
             samples[i].stop = (k == 0 && i == 0) || (last && elements[k].stop_after);
         }
-        x = path.solve(&samples, 1.0);
-        let caps: Vec<f64> = samples.iter().map(|p| path.constraints(p, 1.0).0.sqrt()).collect();
+        let caps;
+        (x, caps) = path.solve(&samples, 1.0);
         // Where the speed changes fast between two samples of an element, or the speed is at
         // a cap that changes fast between them, samples between them.
         for i in 0..count.saturating_sub(1) {
@@ -317,7 +318,7 @@ pub fn optimal(
             }
             let (lo, hi) = (x[i].min(x[i + 1]).sqrt(), x[i].max(x[i + 1]).sqrt());
             let mut ratio = if lo > 0.0 { hi / lo } else { 1.0 };
-            let (c0, c1) = (caps[i], caps[i + 1]);
+            let (c0, c1) = (caps[i].sqrt(), caps[i + 1].sqrt());
             let capped = x[i].sqrt() >= c0 / SMOOTH || x[i + 1].sqrt() >= c1 / SMOOTH;
             if capped && c0.min(c1) > 0.0 && c0.max(c1).is_finite() {
                 ratio = ratio.max(c0.max(c1) / c0.min(c1));
@@ -332,7 +333,7 @@ pub fn optimal(
         }
     }
     let (time_s, per_line) = path.time(&samples, &x)?;
-    let (lower_bound_s, _) = path.time(&samples, &path.solve(&samples, 1.0 + relax))?;
+    let (lower_bound_s, _) = path.time(&samples, &path.solve(&samples, 1.0 + relax).0)?;
     Ok(Optimal {
         time_s,
         lower_bound_s,
