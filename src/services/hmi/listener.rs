@@ -345,7 +345,11 @@ impl Held {
         use std::sync::atomic::Ordering::{Acquire, Release};
         self.shared.upgraded.store(self.head.upgraded, Release);
         self.shared.in_head.store(self.head.deadline.is_some(), Release);
-        *self.shared.waker.lock().unwrap_or_else(|p| p.into_inner()) = Some(cx.waker().clone());
+        let mut waker = self.shared.waker.lock().unwrap_or_else(|p| p.into_inner());
+        if !waker.as_ref().is_some_and(|w| w.will_wake(cx.waker())) {
+            *waker = Some(cx.waker().clone());
+        }
+        drop(waker);
         self.shared.evicted.load(Acquire)
     }
 }
