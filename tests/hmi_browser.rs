@@ -148,17 +148,31 @@ async fn until(page: &Page, within: Duration, what: &str, check: impl AsyncFn(&P
     }
 }
 
-/// The centre of the element `selector`, scrolled into view.
+/// The centre of the element `selector`, scrolled into view, once the page's layout has settled:
+/// a part that appears above it when the server's answer comes (a program's path after a load)
+/// moves it, and a hand would press where it is then, not where it was.
 async fn centre(page: &Page, selector: &str) -> (f64, f64) {
-    let r: Vec<f64> = page
-        .evaluate(format!(
-            "(() => {{ const e = document.querySelector({selector:?}); e.scrollIntoView({{block: 'center'}}); const r = e.getBoundingClientRect(); return [r.x + r.width / 2, r.y + r.height / 2]; }})()"
-        ))
-        .await
-        .ok()
-        .and_then(|r| serde_json::from_value(r).ok())
-        .unwrap_or_else(|| panic!("{selector}: no such element to click"));
-    (r[0], r[1])
+    let read = async || -> (f64, f64) {
+        let r: Vec<f64> = page
+            .evaluate(format!(
+                "(() => {{ const e = document.querySelector({selector:?}); e.scrollIntoView({{block: 'center'}}); const r = e.getBoundingClientRect(); return [r.x + r.width / 2, r.y + r.height / 2]; }})()"
+            ))
+            .await
+            .ok()
+            .and_then(|r| serde_json::from_value(r).ok())
+            .unwrap_or_else(|| panic!("{selector}: no such element to click"));
+        (r[0], r[1])
+    };
+    let mut at = read().await;
+    let start = Instant::now();
+    loop {
+        tokio::time::sleep(Duration::from_millis(150)).await;
+        let now = read().await;
+        if now == at || start.elapsed() > Duration::from_secs(5) {
+            return now;
+        }
+        at = now;
+    }
 }
 
 /// Presses (or releases) the mouse's left button at `at`, as a hand on the page would.
@@ -231,6 +245,11 @@ async fn the_page_shows_referencing_jogs_while_held_stops_and_acknowledges() {
         text(p, "document.getElementById('program-text').textContent")
             .await
             .contains("O-X GLIDE")
+    })
+    .await;
+    // And its path drawn (above the jog buttons: they move down when it shows).
+    until(&page, Duration::from_secs(5), "its path shown", async |p| {
+        text(p, "String(!document.getElementById('path-box').hidden)").await == "true"
     })
     .await;
     // Hold +x: the tool moves while held.
