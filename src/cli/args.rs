@@ -40,7 +40,7 @@ pub enum Command {
     /// Serve the I/O map's modules as a Modbus TCP or RTU slave, backed by the simulated machine.
     IoSim(IoSimArgs),
     /// Measure the Modbus RTU exchange at a baud rate over an emulated RS-485 line (driver and
-    /// io-sim in this process, joined by pseudo-terminals paced at the baud rate).
+    /// io-sim in this process, joined by socket pairs paced at the baud rate).
     LinkBench(LinkBenchArgs),
     /// The real station: `station scan tcp:HOST[:PORT]` lists an X20BC0087's identity,
     /// network settings, modules, watchdog and error bits (read-only).
@@ -119,6 +119,16 @@ pub struct IoSimArgs {
     /// A Modbus TCP client that sends no request for this long is disconnected (seconds).
     #[arg(long, value_name = "S", default_value_t = 60, value_parser = clap::value_parser!(u64).range(1..))]
     pub idle_timeout_s: u64,
+    /// SCHED_FIFO priority of the thread that answers requests (and advances the plant to each
+    /// request's time), as a station's own processor is never starved by the PC's other work;
+    /// below the PLC's cyclic thread (80). 0, or where the process may not (no root or
+    /// CAP_SYS_NICE): normal scheduling.
+    #[arg(long, value_name = "N", default_value_t = 70, value_parser = clap::value_parser!(u8).range(0..=99))]
+    pub realtime_priority: u8,
+    /// When it stops, write what the simulated machine truly did to FILE (JSON): each joint's
+    /// position and the steps its stepper lost, to hold against what the PLC believes.
+    #[arg(long, value_name = "FILE")]
+    pub summary: Option<PathBuf>,
 }
 
 #[derive(Args, Debug)]

@@ -6,7 +6,7 @@ use std::time::Duration;
 use tracing::{info, warn};
 
 use super::args::IoSimArgs;
-use super::{Failure, load_setup};
+use super::{Failure, OutputFile, load_setup};
 
 pub fn run(args: IoSimArgs) -> Result<(), Failure> {
     use std::io::Write;
@@ -36,27 +36,40 @@ pub fn run(args: IoSimArgs) -> Result<(), Failure> {
         Some(w) => format!("output watchdog {} ms", w.as_millis()),
         None => "output watchdog OFF".to_string(),
     };
-    let runtime = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
+    let summary = args.summary.as_deref().map(OutputFile::create).transpose()?;
+    // One thread answers every client and advances the plant: at real-time priority where the
+    // process may, so that a busy PC delays a request no more than a real station would.
+    let priority = match args.realtime_priority {
+        0 => "normal scheduling".to_string(),
+        p => match pkm_plc::runtime::timing::set_realtime_priority(p) {
+            Ok(()) => format!("SCHED_FIFO priority {p}"),
+            Err(e) => format!("normal scheduling (SCHED_FIFO priority {p} refused: {e})"),
+        },
+    };
+    let runtime = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()
         .map_err(|e| Failure::run(format!("cannot start the tokio runtime: {e}")))?;
-    runtime.block_on(async move {
+    let report = runtime.block_on(async move {
         let mut signals = pkm_plc::runtime::signals::Terminating::register();
-        let stopped = |name: &str| {
+        let stop = async move {
+            let name = signals.recv().await;
             info!("io-sim: {name}: stopping");
-            Ok(())
         };
         if let Some((path, baud)) = &args.serial {
             let stream = tokio_serial::SerialStream::open(&tokio_serial::new(path.as_str(), *baud))
                 .map_err(|e| Failure::run(format!("io-sim: cannot open {path}: {e}")))?;
-            info!("io-sim: {} on {path} at {baud} baud as Modbus RTU, {watchdog}; Ctrl-C stops", setup.origin());
-            return tokio::select! {
-                served = pkm_plc::services::sim::server::serve_rtu(stream, station, options) => served.map_err(|e| Failure::run(format!("io-sim: {e}"))),
-                name = signals.recv() => stopped(&name),
-            };
+            info!(
+                "io-sim: {} on {path} at {baud} baud as Modbus RTU, {watchdog}, {priority}; Ctrl-C stops",
+                setup.origin()
+            );
+            return pkm_plc::services::sim::server::serve_rtu(stream, station, options, stop)
+                .await
+                .map_err(|e| Failure::run(format!("io-sim: {e}")));
         }
-        let tcp = args.tcp.ok_or_else(|| Failure::usage("io-sim needs --tcp or --serial"))?;
+        let tcp = args
+            .tcp
+            .ok_or_else(|| Failure::usage("io-sim needs --tcp or --serial"))?;
         let listener = tokio::net::TcpListener::bind(tcp)
             .await
             .map_err(|e| Failure::run(format!("io-sim: cannot listen on {tcp}: {e}")))?;
@@ -73,14 +86,22 @@ pub fn run(args: IoSimArgs) -> Result<(), Failure> {
         }
         info!(
             "io-sim: {} on {address} as Modbus TCP, {kind}: {coils} coils, {discrete} discrete inputs, {input} input \
-             registers, {holding} holding registers; {watchdog}, at most {} clients; Ctrl-C stops",
-            setup.origin(), options.max_connections
+             registers, {holding} holding registers; {watchdog}, at most {} clients, {priority}; Ctrl-C stops",
+            setup.origin(),
+            options.max_connections
         );
-        tokio::select! {
-            served = pkm_plc::services::sim::server::serve_tcp(listener, station, options) => {
-                served.map_err(|e| Failure::run(format!("io-sim: {e}")))
-            }
-            name = signals.recv() => stopped(&name),
-        }
-    })
+        pkm_plc::services::sim::server::serve_tcp(listener, station, options, stop)
+            .await
+            .map_err(|e| Failure::run(format!("io-sim: {e}")))
+    })?;
+    for line in report.lines() {
+        info!("io-sim: {line}");
+    }
+    if let Some(file) = summary {
+        let json = serde_json::to_string_pretty(&report).map_err(|e| Failure::run(e.to_string()))?;
+        let path = file.path.clone();
+        file.write(&json)?;
+        info!("io-sim: summary written to {}", path.display());
+    }
+    Ok(())
 }

@@ -73,7 +73,7 @@ pub enum LinkBenchError {
     /// The configuration names no I/O map.
     #[error("{0}: the configuration names no I/O map")]
     NoIoMap(String),
-    /// A pseudo-terminal, thread or runtime could not be created.
+    /// A socket pair, thread or runtime could not be created.
     #[error("cannot set up the emulated line: {0}")]
     Setup(String),
 }
@@ -117,7 +117,7 @@ fn measure(
         priority: 79,
         ..Default::default()
     };
-    let mut bus = ModbusBus::new(map, Transport::Port(Some(plc_end)), bus_options).map_err(|e| setup(&e))?;
+    let mut bus = ModbusBus::new(map, Transport::Stream(Some(plc_end)), bus_options).map_err(|e| setup(&e))?;
     let mut table = VarTable::new();
     pkm_plc::runtime::bus::Bus::declare(&mut bus, &mut table);
     pkm_plc::runtime::bus::Bus::start(&mut bus).map_err(|e| setup(&e))?;

@@ -278,22 +278,20 @@ fn a_link_slower_than_the_regulators_were_tuned_for_is_a_bus_fault_that_says_so(
     assert!(slow.ends_with(", 1 slow"), "{slow}");
 }
 
-/// A station on a pseudo-terminal that answers every request with `reply(request)`, for
-/// `answers` requests, then closes its end (the port vanishes).
-fn rtu_station(answers: usize, reply: fn(&[u8]) -> Vec<u8>) -> serialport::TTYPort {
-    use serialport::SerialPort as _;
-    let (mut station, plc_end) = pkm_plc::services::io::line::pty_pair().expect("a pseudo-terminal pair");
-    station.set_timeout(Duration::from_secs(5)).expect("timeout");
+/// A station at the far end of a serial line (a socket pair, as the emulated line's ends are)
+/// that answers every request with `reply(request)`, for `answers` requests, then closes its
+/// end (the line vanishes; its last answer can still be read).
+fn rtu_station(answers: usize, reply: fn(&[u8]) -> Vec<u8>) -> std::os::unix::net::UnixStream {
+    let (mut station, plc_end) = std::os::unix::net::UnixStream::pair().expect("a socket pair");
+    station.set_read_timeout(Some(Duration::from_secs(5))).expect("timeout");
     std::thread::spawn(move || {
         let mut buf = [0u8; 256];
         for _ in 0..answers {
             let Ok(n) = station.read(&mut buf) else { return };
-            if station.write_all(&reply(&buf[..n])).is_err() {
+            if n == 0 || station.write_all(&reply(&buf[..n])).is_err() {
                 return;
             }
         }
-        // Closing a pty's master end hangs the other end up at once, unread bytes and all.
-        std::thread::sleep(Duration::from_millis(300));
     });
     plc_end
 }
@@ -302,7 +300,7 @@ fn rtu_station(answers: usize, reply: fn(&[u8]) -> Vec<u8>) -> serialport::TTYPo
 /// Its requests wait a second for their answer (100 ms by default): the station's thread answers
 /// at once, but on a busy machine it may be scheduled late, and these tests count what the
 /// answers are, not how fast they come.
-fn driver_against(port: serialport::TTYPort) -> pkm_plc::services::io::modbus::ModbusBus {
+fn driver_against(port: std::os::unix::net::UnixStream) -> pkm_plc::services::io::modbus::ModbusBus {
     use pkm_plc::runtime::bus::Bus as _;
     let map = common::io_map(&common::loaded(&common::repo_config()));
     let options = pkm_plc::services::io::modbus::ModbusOptions {
@@ -311,7 +309,7 @@ fn driver_against(port: serialport::TTYPort) -> pkm_plc::services::io::modbus::M
     };
     let mut bus = pkm_plc::services::io::modbus::ModbusBus::new(
         map,
-        pkm_plc::services::io::modbus::Transport::Port(Some(port)),
+        pkm_plc::services::io::modbus::Transport::Stream(Some(port)),
         options,
     )
     .expect("the image fits");
@@ -354,7 +352,7 @@ fn rtu_corrupt_frames_and_a_vanished_port_are_counted_bus_faults() {
     );
 
     // A station that answers correctly once, then its port vanishes: the driver cannot reopen
-    // a pty it was handed, so every reconnection fails — counted, a bus fault, no hang.
+    // a line it was handed, so every reconnection fails — counted, a bus fault, no hang.
     let good = |_: &[u8]| common::rtu_frame(&[0x17, 8, 0, 0, 0, 0, 0x59, 0xF8, 0x59, 0xF8]);
     let bus = driver_against(rtu_station(1, good));
     assert!(!bus.fault(), "the first image arrived");

@@ -85,3 +85,59 @@ fn a_write_at_register_0xffff_is_refused_as_an_illegal_address() {
         Err(ExceptionCode::IllegalDataAddress)
     );
 }
+
+/// A pn101 stepper told to run at once far beyond its pull-in speed falls out of step: the
+/// station's report (what `io-sim` logs and writes with `--summary` when it stops) counts the
+/// steps the module emitted that the motor did not make, and says where each carriage stands.
+#[test]
+fn the_stations_report_counts_the_steps_a_stepper_lost() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let config = common::machine_test_config(dir.path(), "pn101");
+    let loaded = pkm_plc::runtime::config::load(Some(&config)).expect("pn101");
+    let setup = pkm_plc::compose::Setup::new(loaded).expect("pn101");
+    let bus = setup.sim_bus(None).expect("the simulated machine");
+    let map = bus.io_map().clone();
+    let mut station = Station::new(bus);
+    // The register of the channel a variable is bound to.
+    let address = |station: &Station, variable: &str| {
+        let b = map
+            .bindings
+            .iter()
+            .find(|b| b.variable == variable)
+            .unwrap_or_else(|| panic!("{variable} in the map"));
+        station
+            .registers()
+            .entries
+            .iter()
+            .find(|e| (e.module, e.channel) == (b.module, b.channel))
+            .map(|e| e.address)
+            .unwrap_or_else(|| panic!("{variable} in the register map"))
+    };
+    let at_rest = station.report();
+    assert_eq!(at_rest.joints.len(), 3);
+    assert!(
+        at_rest
+            .joints
+            .iter()
+            .all(|j| j.stepper && j.lost_steps == 0.0 && j.stalls == 0)
+    );
+    let (enable, speed) = (address(&station, "JOINT1_ENABLE"), address(&station, "JOINT1_SPEED"));
+    station
+        .handle(Request::WriteSingleCoil(enable, true), 1)
+        .expect("enable");
+    // 10 000 steps/s from rest: far beyond the pull-in speed of 2 mm/s.
+    station
+        .handle(Request::WriteSingleRegister(speed, 10_000), 1)
+        .expect("speed");
+    std::thread::sleep(Duration::from_millis(100));
+    let report = station.report();
+    let joint = report.joints[0];
+    assert_eq!(joint.stalls, 1, "{report:?}");
+    // The module emitted 10 000 steps/s for at least 0.1 s; the motor made none of them.
+    assert!(joint.lost_steps >= 1000.0, "{report:?}");
+    assert_eq!(joint.position_mm, at_rest.joints[0].position_mm, "{report:?}");
+    assert!(report.joints[1..].iter().all(|j| j.lost_steps == 0.0), "{report:?}");
+    let line = &report.lines()[0];
+    assert!(line.starts_with("joint 1 at "), "{line}");
+    assert!(line.ends_with("steps lost in 1 stalls"), "{line}");
+}

@@ -1,23 +1,30 @@
-//! An emulated RS-485 line: two serial ports (ends of pseudo-terminal pairs) joined the way a
-//! half-duplex line at a given baud rate joins a Modbus RTU master and slave. A pty moves bytes
+//! An emulated RS-485 line: two byte streams (ends of socket pairs) joined the way a half-duplex
+//! line at a given baud rate joins a Modbus RTU master and slave. A socket moves bytes
 //! instantly; this relay passes each frame on only when the line would have finished carrying it,
 //! and a frame that turns the line around waits for the silent interval that ends the frame
 //! before it (the slave cannot see a request's end any sooner; the master must keep the line
 //! silent as long before its next request). That is what makes an exchange time measured here the
 //! time the exchange would take on a real line, save the adapters' own latency.
 //!
+//! Socket pairs rather than pseudo-terminals: a pty hands its bytes to the reader through the
+//! kernel's tty layer, in a worker thread at normal priority, which a busy machine starved for
+//! tens of milliseconds however high the line's own threads ran; a socket delivers in the
+//! writer's own call. (`io-sim --serial` still takes a device path: [`pty_pair`] gives tests one.)
+//!
 //! A frame is recognised by the line changing direction, which is exact for Modbus (request,
 //! response, request, ...); several frames in one direction are carried back to back.
 
 use std::io::{self, Read, Write};
+use std::os::unix::net::UnixStream;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use serialport::{SerialPort as _, TTYPort};
+use serialport::TTYPort;
 
-/// A pseudo-terminal pair (its master, its slave) whose descriptors no child process inherits.
+/// A pseudo-terminal pair (its master, its slave) whose descriptors no child process inherits:
+/// for tests of a program that opens a serial device by its path (`io-sim --serial`).
 ///
 /// `serialport`'s `TTYPort::pair` opens both ends without close-on-exec, so a process spawned
 /// meanwhile by any thread (a test beside this one, a helper) kept the master open: closing it
@@ -75,15 +82,15 @@ pub struct PacedLine {
 }
 
 impl PacedLine {
-    /// Joins `a` and `b` (each the relay's end of a pty pair) through a line with `timing`.
-    pub fn start(a: TTYPort, b: TTYPort, timing: LineTiming) -> io::Result<PacedLine> {
+    /// Joins `a` and `b` (each the relay's end of a socket pair) through a line with `timing`.
+    pub fn start(a: UnixStream, b: UnixStream, timing: LineTiming) -> io::Result<PacedLine> {
         let stop = Arc::new(AtomicBool::new(false));
         let state = Arc::new(Mutex::new(LineState {
             free_at: Instant::now(),
             last_sender: 0,
         }));
         let mut threads = Vec::new();
-        for (sender, from, to) in [(0, a.try_clone_native()?, b.try_clone_native()?), (1, b, a)] {
+        for (sender, from, to) in [(0, a.try_clone()?, b.try_clone()?), (1, b, a)] {
             let stop = Arc::clone(&stop);
             let state = Arc::clone(&state);
             let thread = std::thread::Builder::new()
@@ -110,15 +117,16 @@ impl Drop for PacedLine {
 /// One direction: read what `sender` sends, pass it on when the line has carried it.
 fn carry(
     sender: usize,
-    mut from: TTYPort,
-    mut to: TTYPort,
+    mut from: UnixStream,
+    mut to: UnixStream,
     timing: LineTiming,
     state: &Mutex<LineState>,
     stop: &AtomicBool,
 ) {
     // Sleeps here must be precise to well under a character time.
     let _ = crate::runtime::timing::minimize_timer_slack();
-    if from.set_timeout(Duration::from_millis(20)).is_err() {
+    // Reads wake up now and then to see whether the line is to stop.
+    if from.set_read_timeout(Some(Duration::from_millis(20))).is_err() {
         return;
     }
     let mut buf = [0u8; 512];
@@ -126,7 +134,8 @@ fn carry(
         let n = match from.read(&mut buf) {
             Ok(0) => return,
             Ok(n) => n,
-            Err(e) if e.kind() == io::ErrorKind::TimedOut => continue,
+            Err(e) if matches!(e.kind(), io::ErrorKind::WouldBlock | io::ErrorKind::TimedOut) => continue,
+            Err(e) if e.kind() == io::ErrorKind::Interrupted => continue,
             Err(_) => return,
         };
         let received = Instant::now();
@@ -187,11 +196,11 @@ mod tests {
 
     #[test]
     fn a_frame_arrives_when_the_line_has_carried_it() {
-        let (mut master, relay_a) = pty_pair().expect("pty");
-        let (relay_b, mut slave) = pty_pair().expect("pty");
+        let (mut master, relay_a) = UnixStream::pair().expect("socket pair");
+        let (relay_b, mut slave) = UnixStream::pair().expect("socket pair");
         // 1200 baud: 9.17 ms a character, so 10 characters take 92 ms.
         let _line = PacedLine::start(relay_a, relay_b, LineTiming::modbus_rtu(1200)).expect("line");
-        slave.set_timeout(Duration::from_secs(2)).expect("timeout");
+        slave.set_read_timeout(Some(Duration::from_secs(2))).expect("timeout");
         let sent = Instant::now();
         master.write_all(b"0123456789").expect("write");
         let mut got = [0u8; 10];

@@ -52,6 +52,36 @@ pub struct Station {
     image_size: [u16; 4],
 }
 
+/// What the simulated machine truly did while the station served it: what `io-sim --summary`
+/// writes when it stops, and what tests hold the PLC's view against.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct StationReport {
+    /// Seconds since the station started.
+    pub t_s: f64,
+    /// Each joint, in the PLC's joint order.
+    pub joints: Vec<pkm_api::machine::JointTruth>,
+    /// Time steps in which the mechanism jammed.
+    pub jams: u64,
+}
+
+impl StationReport {
+    /// One line per joint for the log: where it stands and, for a stepper, the steps it lost.
+    pub fn lines(&self) -> Vec<String> {
+        self.joints
+            .iter()
+            .enumerate()
+            .map(|(j, truth)| {
+                let lost = if truth.stepper {
+                    format!(", {} steps lost in {} stalls", truth.lost_steps, truth.stalls)
+                } else {
+                    String::new()
+                };
+                format!("joint {} at {:.4} mm{lost}", j + 1, truth.position_mm)
+            })
+            .collect()
+    }
+}
+
 /// A client of the station: a TCP connection's number, or [`SERIAL_LINE`].
 pub type ClientId = u64;
 
@@ -236,6 +266,19 @@ impl Station {
     /// The register map served.
     pub fn registers(&self) -> &RegisterMap {
         &self.registers
+    }
+
+    /// The machine as it truly is now (the plant advanced to the present): its joints'
+    /// positions and the steps its steppers lost, for the report a station gives when it stops.
+    pub fn report(&mut self) -> StationReport {
+        let t_ns = self.started.elapsed().as_nanos() as u64;
+        self.bus.refresh(t_ns);
+        let plant = self.bus.plant();
+        StationReport {
+            t_s: t_ns as f64 * 1e-9,
+            joints: plant.joints(),
+            jams: plant.jams(),
+        }
     }
 
     /// The channel at `address` of `table` and the word of it there; `None` for an address

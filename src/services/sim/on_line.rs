@@ -1,6 +1,8 @@
 //! A station served as Modbus RTU behind an emulated serial line, on a thread of its own.
 
-use super::modbus::Station;
+use std::os::unix::net::UnixStream;
+
+use super::modbus::{Station, StationReport};
 use super::server::{ServerOptions, serve_rtu};
 
 /// A station served as Modbus RTU at the far end of an emulated serial line
@@ -9,19 +11,20 @@ use super::server::{ServerOptions, serve_rtu};
 pub struct StationOnLine {
     line: Option<crate::services::io::line::PacedLine>,
     stop: Option<tokio::sync::oneshot::Sender<()>>,
-    thread: Option<std::thread::JoinHandle<()>>,
+    thread: Option<std::thread::JoinHandle<Option<StationReport>>>,
 }
 
 impl StationOnLine {
     /// Serves `station` behind a line with `timing` and the server's `options`; returns it with
-    /// the driver's end of the line (to be handed to `Transport::Port`).
+    /// the driver's end of the line (to be handed to `Transport::Stream`).
     pub fn start(
         station: Station,
         timing: crate::services::io::line::LineTiming,
         options: ServerOptions,
-    ) -> std::io::Result<(StationOnLine, serialport::TTYPort)> {
-        let (station_end, line_a) = crate::services::io::line::pty_pair()?;
-        let (line_b, driver_end) = crate::services::io::line::pty_pair()?;
+    ) -> std::io::Result<(StationOnLine, UnixStream)> {
+        let (station_end, line_a) = UnixStream::pair()?;
+        let (line_b, driver_end) = UnixStream::pair()?;
+        station_end.set_nonblocking(true)?;
         // Built here, so that a failure is an error of the caller's rather than a silent thread.
         let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
         let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
@@ -31,15 +34,18 @@ impl StationOnLine {
                 crate::services::io::line::hardware_priority();
                 runtime.block_on(async move {
                     // Registered with the reactor here, in the station's runtime.
-                    let Ok(stream) = tokio_serial::SerialStream::try_from(station_end) else {
-                        tracing::error!("station on line: cannot use the pseudo-terminal");
-                        return;
+                    let stream = match tokio::net::UnixStream::from_std(station_end) {
+                        Ok(stream) => stream,
+                        Err(e) => {
+                            tracing::error!("station on line: cannot use its end of the line: {e}");
+                            return None;
+                        }
                     };
-                    tokio::select! {
-                        _ = serve_rtu(stream, station, options) => {}
-                        _ = stopped => {}
-                    }
-                });
+                    let stop = async {
+                        let _ = stopped.await;
+                    };
+                    serve_rtu(stream, station, options, stop).await.ok()
+                })
             })?;
         let line = crate::services::io::line::PacedLine::start(line_a, line_b, timing)?;
         let served = StationOnLine {
@@ -49,16 +55,25 @@ impl StationOnLine {
         };
         Ok((served, driver_end))
     }
+
+    /// Stops the line and the station; returns what the machine did ([`StationReport`]), if
+    /// the station was still serving.
+    pub fn stop(mut self) -> Option<StationReport> {
+        self.shut_down()
+    }
+
+    fn shut_down(&mut self) -> Option<StationReport> {
+        if let Some(stop) = self.stop.take() {
+            let _ = stop.send(());
+        }
+        let report = self.thread.take().and_then(|t| t.join().ok()).flatten();
+        drop(self.line.take());
+        report
+    }
 }
 
 impl Drop for StationOnLine {
     fn drop(&mut self) {
-        drop(self.line.take());
-        if let Some(stop) = self.stop.take() {
-            let _ = stop.send(());
-        }
-        if let Some(thread) = self.thread.take() {
-            let _ = thread.join();
-        }
+        self.shut_down();
     }
 }

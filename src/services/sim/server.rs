@@ -28,7 +28,7 @@ use std::time::{Duration, Instant};
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 use tokio::net::TcpListener;
 
-use super::modbus::{ClientId, SERIAL_LINE, Station};
+use super::modbus::{ClientId, SERIAL_LINE, Station, StationReport};
 use super::pdu::{MAX_PDU, PduLen, crc16, decode_request, encode_response, request_len};
 
 /// A started frame must be complete within this time (TCP: the PDU after its header).
@@ -36,7 +36,7 @@ pub const FRAME_TIMEOUT: Duration = Duration::from_secs(1);
 
 /// Bytes of an RTU frame separated by a silence longer than this start over: the incomplete
 /// frame before the silence is discarded. The specification's 3.5 character times are 0.3 ms
-/// at 115 200 baud; a pseudo-terminal and a scheduler on a busy machine need far more.
+/// at 115 200 baud; an emulated line and a scheduler on a busy machine need far more.
 pub const RTU_GAP: Duration = Duration::from_millis(50);
 
 /// How often repeated problems are reported.
@@ -185,8 +185,14 @@ fn shared(mut station: Station, options: &ServerOptions) -> (Arc<Shared>, Durati
     (shared, period)
 }
 
-/// Serves `station` as Modbus TCP on `listener` until the future is dropped.
-pub async fn serve_tcp(listener: TcpListener, station: Station, options: ServerOptions) -> std::io::Result<()> {
+/// Serves `station` as Modbus TCP on `listener` until `stop` completes; then reports what the
+/// machine did ([`Station::report`]).
+pub async fn serve_tcp(
+    listener: TcpListener,
+    station: Station,
+    options: ServerOptions,
+    stop: impl Future<Output = ()>,
+) -> std::io::Result<StationReport> {
     let (shared, period) = shared(station, &options);
     let active = Arc::new(AtomicUsize::new(0));
     // Connections are numbered from 1 (0 is a serial line's master).
@@ -224,9 +230,11 @@ pub async fn serve_tcp(listener: TcpListener, station: Station, options: ServerO
         }
     };
     tokio::select! {
-        () = accept => Ok(()),
-        () = shared.supervise(period) => Ok(()),
+        () = accept => {}
+        () = shared.supervise(period) => {}
+        () = stop => {}
     }
+    Ok(lock(&shared.station).report())
 }
 
 /// Serves one TCP client until it leaves or misbehaves; `Err` says how it misbehaved.
@@ -285,18 +293,22 @@ async fn serve_connection<S: AsyncRead + AsyncWrite + Unpin>(
     }
 }
 
-/// Serves `station` as Modbus RTU on a serial stream until the stream ends or the future is
-/// dropped. Requests to any unit are answered; broadcasts (unit 0) are carried out unanswered.
+/// Serves `station` as Modbus RTU on a serial stream until the stream ends or `stop`
+/// completes; then reports what the machine did ([`Station::report`]). Requests to any unit
+/// are answered; broadcasts (unit 0) are carried out unanswered.
 pub async fn serve_rtu<S: AsyncRead + AsyncWrite + Unpin>(
     serial: S,
     station: Station,
     options: ServerOptions,
-) -> std::io::Result<()> {
+    stop: impl Future<Output = ()>,
+) -> std::io::Result<StationReport> {
     let (shared, period) = shared(station, &options);
     tokio::select! {
-        result = rtu_loop(serial, &shared) => result,
-        () = shared.supervise(period) => Ok(()),
+        result = rtu_loop(serial, &shared) => result?,
+        () = shared.supervise(period) => {}
+        () = stop => {}
     }
+    Ok(lock(&shared.station).report())
 }
 
 async fn rtu_loop<S: AsyncRead + AsyncWrite + Unpin>(mut serial: S, shared: &Shared) -> std::io::Result<()> {

@@ -252,6 +252,20 @@ pub enum Action {
     JoystickConnected(bool),
 }
 
+/// One joint of a simulated machine as it truly is, whatever its controller believes.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct JointTruth {
+    /// The joint's true position (mm), in the joint coordinates of the machine's kinematics.
+    pub position_mm: f64,
+    /// Whether a stepper drives it (open loop: it can lose steps); otherwise a DC motor whose
+    /// encoder sees every movement.
+    pub stepper: bool,
+    /// Steps the stepper module emitted that the motor did not make (0 for a DC motor).
+    pub lost_steps: f64,
+    /// How often the stepper fell out of step (0 for a DC motor).
+    pub stalls: u64,
+}
+
 /// The physics behind a machine's signals. Time advances in fixed steps, so a run depends only on
 /// its inputs: no clock, no randomness.
 pub trait Plant: Send + Any {
@@ -287,6 +301,12 @@ pub trait Plant: Send + Any {
     }
     /// Applies a scenario action.
     fn apply(&mut self, action: Action);
+    /// What each joint truly did (by joint, in the PLC's joint order): for a simulated
+    /// station's report and the tests that hold the PLC's view against the machine's.
+    fn joints(&self) -> Vec<JointTruth>;
+    /// How many time steps the mechanism jammed (the drives pushed against a linkage that
+    /// could not follow).
+    fn jams(&self) -> u64;
     /// The plant as `Any`, for tests and displays that know its type.
     fn as_any(&self) -> &dyn Any;
     /// The plant as mutable `Any`, for tests that act on the machine by hand.

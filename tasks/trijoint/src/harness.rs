@@ -351,4 +351,19 @@ impl pkm_api::machine::Plant for Plant {
     fn as_any_mut(&mut self) -> &mut dyn std::any::Any {
         self
     }
+
+    fn joints(&self) -> Vec<pkm_api::machine::JointTruth> {
+        (0..DRIVES.len())
+            .map(|d| pkm_api::machine::JointTruth {
+                position_mm: self.position_mm(d),
+                stepper: false,
+                lost_steps: 0.0,
+                stalls: 0,
+            })
+            .collect()
+    }
+
+    fn jams(&self) -> u64 {
+        Plant::jams(self)
+    }
 }

@@ -36,18 +36,19 @@ pub enum Transport {
         /// Baud rate.
         baud: u32,
     },
-    /// Modbus RTU on a serial port that is already open (one end of a pty pair, say); it cannot
-    /// be reopened after the link is lost.
-    Port(Option<serialport::TTYPort>),
+    /// Modbus RTU over a byte stream that is already open: one end of a socket pair whose other
+    /// end an emulated serial line ([`crate::services::io::line`]) or a test's station holds. It
+    /// cannot be reopened after the link is lost.
+    Stream(Option<std::os::unix::net::UnixStream>),
 }
 
 impl Transport {
-    /// The bus's name in logs and summaries: `tcp:ADDR`, `serial:PATH@BAUD`, `serial:port`.
+    /// The bus's name in logs and summaries: `tcp:ADDR`, `serial:PATH@BAUD`, `serial:stream`.
     pub(super) fn describe(&self) -> String {
         match self {
             Transport::Tcp(a) => format!("tcp:{a}"),
             Transport::Serial { path, baud } => format!("serial:{path}@{baud}"),
-            Transport::Port(_) => "serial:port".into(),
+            Transport::Stream(_) => "serial:stream".into(),
         }
     }
 
@@ -61,12 +62,17 @@ impl Transport {
                 return Ok(tcp::attach(RxCounter::new(stream, Arc::clone(received))));
             }
             Transport::Serial { path, baud } => SerialStream::open(&tokio_serial::new(path.as_str(), *baud))?,
-            Transport::Port(p) => {
-                let port = p
+            Transport::Stream(s) => {
+                let stream = s
                     .take()
-                    .ok_or_else(|| std::io::Error::other("the serial port was lost and cannot be reopened"))?;
+                    .ok_or_else(|| std::io::Error::other("the line's stream was lost and cannot be reopened"))?;
+                stream.set_nonblocking(true)?;
                 // Registered with the reactor here, in the exchange loop's runtime.
-                SerialStream::try_from(port).map_err(std::io::Error::other)?
+                let stream = tokio::net::UnixStream::from_std(stream)?;
+                return Ok(rtu::attach_slave(
+                    RxCounter::new(stream, Arc::clone(received)),
+                    Slave(1),
+                ));
             }
         };
         Ok(rtu::attach_slave(

@@ -185,7 +185,7 @@ impl ModbusBus {
     pub fn new(map: IoMap, transport: Transport, mut options: ModbusOptions) -> Result<Self, ModbusSetupError> {
         let station = match transport {
             Transport::Tcp(_) => map.station,
-            Transport::Serial { .. } | Transport::Port(_) => {
+            Transport::Serial { .. } | Transport::Stream(_) => {
                 if map.station == StationKind::X20bc0087 {
                     tracing::info!(
                         "modbus: {}'s station is an X20BC0087, a Modbus TCP bus controller; on a serial line the \
@@ -206,7 +206,7 @@ impl ModbusBus {
         if options.exchange == ExchangeMode::Auto {
             options.exchange = match transport {
                 Transport::Tcp(_) => ExchangeMode::Tables,
-                Transport::Serial { .. } | Transport::Port(_) => ExchangeMode::Image,
+                Transport::Serial { .. } | Transport::Stream(_) => ExchangeMode::Image,
             };
         }
         let layout = ImageLayout::of(RegisterMap::laid_out(&map, station).sizes());

@@ -531,6 +531,21 @@ impl pkm_api::machine::Plant for Plant {
     fn as_any_mut(&mut self) -> &mut dyn std::any::Any {
         self
     }
+
+    fn joints(&self) -> Vec<pkm_api::machine::JointTruth> {
+        (0..self.joints.len())
+            .map(|j| pkm_api::machine::JointTruth {
+                position_mm: self.position_mm(j),
+                stepper: matches!(self.joints[j].drive, Drive::Stepper { .. }),
+                lost_steps: self.lost_steps(j),
+                stalls: self.stalls(j),
+            })
+            .collect()
+    }
+
+    fn jams(&self) -> u64 {
+        self.jams
+    }
 }
 
 impl Plant {
