@@ -112,6 +112,10 @@ pub struct Plc {
     machine: Option<String>,
     /// Set when a cyclic program panicked: programs no longer run, outputs stay safe.
     service: Option<ServiceMode>,
+    /// Whether the application was in ERROR at its last cycle, as the bus is told before each
+    /// class's exchange ([`Bus::observe_error`]): looked up when the class that reports the
+    /// application's state has run (or a panic put the PLC in ERROR), not on every cycle.
+    in_error: bool,
 }
 
 /// A read-only view of one task class, for summaries and status lines.
@@ -251,6 +255,7 @@ impl Plc {
             bus_started: false,
             machine: config.machine.clone(),
             service: None,
+            in_error: false,
         })
     }
 
@@ -597,8 +602,7 @@ impl Plc {
     }
 
     fn run_class(&mut self, ci: usize, clock: &mut dyn Clock) {
-        let in_error = self.app_status().is_some_and(|s| s.state == "ERROR");
-        self.bus.observe_error(in_error);
+        self.bus.observe_error(self.in_error);
         let class = &mut self.classes[ci];
         let release = class.next_release;
         let start = clock.now_ns();
@@ -610,6 +614,15 @@ impl Plc {
         }
         let cycle = class.stats.cycles;
         let violation = self.execute(ci, release, clock, None);
+        // The state is the status program's (or service mode's): it changes only when they run.
+        if self.service.is_some()
+            || self.classes[ci]
+                .programs
+                .iter()
+                .any(|slot| slot.program.status().is_some())
+        {
+            self.in_error = self.app_status().is_some_and(|s| s.state == "ERROR");
+        }
         self.publish(ci);
         self.bus.write_outputs(ci, release, &self.global);
         self.record(ci, release, cycle, violation);
