@@ -1029,3 +1029,29 @@ pub fn check_positions(what: &str, trace: &Path, station: &serde_json::Value) ->
          joints within {worst_truth:.4} mm of the PLC's last reading, no step lost"
     )
 }
+
+/// One Modbus TCP request PDU (to unit 1) on a raw connection; returns the response PDU.
+pub fn modbus_transact(s: &mut std::net::TcpStream, transaction: u16, pdu: &[u8]) -> Vec<u8> {
+    use std::io::{Read, Write};
+    let mut frame = transaction.to_be_bytes().to_vec();
+    frame.extend([0, 0]);
+    frame.extend(((pdu.len() + 1) as u16).to_be_bytes());
+    frame.push(1);
+    frame.extend(pdu);
+    s.write_all(&frame).expect("send");
+    let mut header = [0u8; 7];
+    s.read_exact(&mut header).expect("response header");
+    assert_eq!(header[..2], transaction.to_be_bytes(), "transaction identifier echoed");
+    let len = usize::from(u16::from_be_bytes([header[4], header[5]])) - 1;
+    let mut response = vec![0u8; len];
+    s.read_exact(&mut response).expect("response PDU");
+    response
+}
+
+/// A raw Modbus TCP connection to `address`, its reads waiting at most 10 s.
+pub fn modbus_connect(address: std::net::SocketAddr) -> std::net::TcpStream {
+    let s = std::net::TcpStream::connect(address).expect("connect");
+    s.set_read_timeout(Some(std::time::Duration::from_secs(10)))
+        .expect("timeout");
+    s
+}

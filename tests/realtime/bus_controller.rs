@@ -210,9 +210,11 @@ fn station_scan_lists_io_sims_x20bc0087_and_writes_a_map_skeleton() {
 }
 
 /// A PLC stopped mid-run (SIGSTOP: its cycle and its link frozen, as a hung process is) no longer
-/// writes; the station's watchdog, which the PLC set to 100 ms, zeroes the outputs. When the PLC
-/// goes on, it sees the station's "watchdog expired", goes to ERROR saying so, and resets the
-/// watchdog only after that: the machine stays in ERROR until acknowledged.
+/// writes; the station's watchdog, which the PLC set to 300 ms, zeroes the outputs — though
+/// another client writes to the station every 20 ms meanwhile: refused (exception 6, the PLC
+/// still holds the outputs), its writes do not feed the watchdog. When the PLC goes on, it sees
+/// the station's "watchdog expired", goes to ERROR saying so, and resets the watchdog only after
+/// that: the machine stays in ERROR until acknowledged.
 #[test]
 fn a_frozen_plc_lets_the_station_watchdog_stop_the_drives_and_says_so_when_it_wakes() {
     let dir = tempfile::tempdir().expect("tempdir");
@@ -254,13 +256,45 @@ fn a_frozen_plc_lets_the_station_watchdog_stop_the_drives_and_says_so_when_it_wa
             .count()
     };
     let before = expiries();
+    // Another client writes an unused coil (DigitalOutput12) every 20 ms from before the PLC
+    // freezes until the watchdog has expired; its answers are kept.
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let mut s = common::modbus_connect(address);
+    let other = {
+        let stop = std::sync::Arc::clone(&stop);
+        std::thread::spawn(move || {
+            let mut answers = Vec::new();
+            while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+                answers.push(common::modbus_transact(
+                    &mut s,
+                    answers.len() as u16,
+                    &[0x05, 0, 11, 0xFF, 0],
+                ));
+                std::thread::sleep(Duration::from_millis(20));
+            }
+            // Closed here: had its last write come after the expiry and taken the free outputs,
+            // they are free again for the PLC.
+            answers
+        })
+    };
     signal("-STOP");
     // The station's watchdog acts within its 300 ms; waited for in its log.
     let deadline = Instant::now() + Duration::from_secs(20);
     while expiries() == before {
-        assert!(Instant::now() < deadline, "the station's watchdog never expired");
+        assert!(
+            Instant::now() < deadline,
+            "the station's watchdog never expired (another client writing every 20 ms)"
+        );
         std::thread::sleep(Duration::from_millis(20));
     }
+    stop.store(true, std::sync::atomic::Ordering::Relaxed);
+    let answers = other.join().expect("the other client");
+    // It wrote while the PLC was frozen (300 ms at least: 15 writes), and was refused while
+    // the PLC held the outputs; a write that came after the expiry, when they were free, may
+    // have been carried out.
+    let refused = answers.iter().take_while(|a| a.as_slice() == [0x85, 0x06]).count();
+    assert!(refused >= 5, "{answers:?}");
+    assert!(answers[refused..].iter().all(|a| a[0] == 0x05), "{answers:?}");
     signal("-CONT");
     run.wait_for(0, "the X20BC0087's watchdog reset", Duration::from_secs(30))
         .unwrap_or_else(|| panic!("the PLC never reset the station's watchdog:\n{}", run.log()));

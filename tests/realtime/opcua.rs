@@ -494,12 +494,6 @@ fn conditions_are_raised_acknowledged_and_cleared_as_the_plc_sees_them() {
         "300",
         "--bus",
         &format!("tcp:{address}"),
-        // A busy machine's loopback link may be slower than the drives are tuned for: this test
-        // is about the conditions, not the link's speed (the vanished station is its bus fault).
-        "--max-input-age-ms",
-        "500",
-        "--max-exchange-ms",
-        "50",
         "--opcua-users",
         &path("users.json"),
         "--trace",

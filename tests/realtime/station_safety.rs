@@ -24,28 +24,7 @@ fn io_sim(args: &[&str], log: &std::path::Path) -> (IoSim, SocketAddr) {
     )
 }
 
-/// One Modbus TCP request PDU on a raw connection; returns the response PDU.
-fn transact(s: &mut TcpStream, transaction: u16, pdu: &[u8]) -> Vec<u8> {
-    let mut frame = transaction.to_be_bytes().to_vec();
-    frame.extend([0, 0]);
-    frame.extend(((pdu.len() + 1) as u16).to_be_bytes());
-    frame.push(1);
-    frame.extend(pdu);
-    s.write_all(&frame).expect("send");
-    let mut header = [0u8; 7];
-    s.read_exact(&mut header).expect("response header");
-    assert_eq!(header[..2], transaction.to_be_bytes(), "transaction identifier echoed");
-    let len = usize::from(u16::from_be_bytes([header[4], header[5]])) - 1;
-    let mut response = vec![0u8; len];
-    s.read_exact(&mut response).expect("response PDU");
-    response
-}
-
-fn connect(address: SocketAddr) -> TcpStream {
-    let s = TcpStream::connect(address).expect("connect");
-    s.set_read_timeout(Some(Duration::from_secs(10))).expect("timeout");
-    s
-}
+use common::{modbus_connect as connect, modbus_transact as transact};
 
 /// The station's holding registers 0..3 (PWM period, PWM left, PWM right) through the image
 /// read-back, on a raw connection; reads never feed the watchdog.
@@ -179,22 +158,10 @@ fn the_output_watchdog_zeroes_the_outputs_when_writes_stop() {
     assert_eq!(outputs(&mut s)[0], 50);
 }
 
-/// Starts the soft-PLC against the station at `address` (real time), output to `log`. These
-/// tests are about stopping, not about the link's timing: the bounds on the exchange time and
-/// the inputs' age are loose enough for a busy machine (at their defaults a slow exchange is a
-/// bus fault, and a PLC in ERROR never drives the motors these tests wait for).
+/// Starts the soft-PLC against the station at `address` (real time), output to `log`, the
+/// link's bounds as shipped.
 fn plc_against(address: SocketAddr, log: &std::path::Path) -> common::KillOnDrop {
-    run_logging(
-        &[
-            "--bus",
-            &format!("tcp:{address}"),
-            "--max-input-age-ms",
-            "500",
-            "--max-exchange-ms",
-            "50",
-        ],
-        log,
-    )
+    run_logging(&["--bus", &format!("tcp:{address}")], log)
 }
 
 /// Starts `pkm-plc run` with `args` on the generic station's configuration (unless `args` give
