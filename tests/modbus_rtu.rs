@@ -169,11 +169,8 @@ fn machine_over_rtu(machine: &str, dir: &std::path::Path) -> String {
     // reference pose (where a program starts); AUTO, then READY at its end; the machine stands
     // still (its positions are checked there); a jog held for a second; its MOTION, then READY,
     // and it stands still again. The snapshot is refreshed ten times a second, and the
-    // program's AUTO and the jog's MOTION last longer. Still: the values the main program shows
-    // (the tool's pose, the joints) have not changed by more than 2 µm over the last
-    // half second (the TRIJOINT's regulators ring for about a second after a jog over a line
-    // whose exchange takes 7 ms), or ten seconds have passed (the check then says where it
-    // stands).
+    // program's AUTO and the jog's MOTION last longer. Still: as `common::Stillness` judges, or
+    // after ten seconds (the check then says where it stands).
     #[derive(Debug)]
     enum Step {
         Referencing,
@@ -183,17 +180,9 @@ fn machine_over_rtu(machine: &str, dir: &std::path::Path) -> String {
         Jogged { moved: bool },
         Stood(std::time::Instant),
     }
-    let mut shown: std::collections::VecDeque<Vec<f64>> = Default::default();
-    let mut shown_at = u64::MAX;
-    let still = |shown: &std::collections::VecDeque<Vec<f64>>, since: std::time::Instant| {
-        let steady = shown.len() == 6
-            && (0..shown[0].len()).all(|k| {
-                let (lo, hi) = shown.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| {
-                    (lo.min(v[k]), hi.max(v[k]))
-                });
-                hi - lo <= 0.002
-            });
-        steady || since.elapsed() > std::time::Duration::from_secs(10)
+    let mut stillness = common::Stillness::default();
+    let still = |stillness: &common::Stillness, since: std::time::Instant| {
+        stillness.still() || since.elapsed() > std::time::Duration::from_secs(10)
     };
     let mut step = Step::Referencing;
     let mut seen: Vec<String> = Vec::new();
@@ -202,13 +191,7 @@ fn machine_over_rtu(machine: &str, dir: &std::path::Path) -> String {
     while !run.is_finished() {
         let (state, note) = {
             let s = snapshot.lock().unwrap_or_else(|p| p.into_inner());
-            if s.t_ns != shown_at {
-                shown_at = s.t_ns;
-                shown.push_back(s.values.iter().map(|(_, v)| *v).collect());
-                if shown.len() > 6 {
-                    shown.pop_front();
-                }
-            }
+            stillness.saw(s.t_ns as f64 * 1e-9, s.values.iter().map(|(_, v)| *v).collect());
             (s.state.clone(), s.note.clone())
         };
         if seen.last() != Some(&state) {
@@ -224,7 +207,7 @@ fn machine_over_rtu(machine: &str, dir: &std::path::Path) -> String {
                 Step::Running { moved: false }
             }
             Step::Running { moved: true } if ready => Step::Standing(std::time::Instant::now()),
-            Step::Standing(at) if still(&shown, at) => {
+            Step::Standing(at) if still(&stillness, at) => {
                 screen.update(|c| c.jog = [1.0, 0.0]);
                 Step::Jogging(std::time::Instant::now())
             }
@@ -236,7 +219,7 @@ fn machine_over_rtu(machine: &str, dir: &std::path::Path) -> String {
                 Step::Jogged { moved: !ready }
             }
             Step::Jogged { moved: true } if ready => Step::Stood(std::time::Instant::now()),
-            Step::Stood(at) if still(&shown, at) => {
+            Step::Stood(at) if still(&stillness, at) => {
                 run.stop();
                 break;
             }

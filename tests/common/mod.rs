@@ -293,6 +293,82 @@ pub fn screen_jog(url: &str, x: f64, y: f64, hold: std::time::Duration) {
     });
 }
 
+/// Whether a machine stands still, from the values its main program shows (the tool's pose, the
+/// joints) as they come: still once they have stayed within 2 µm of each other for half a
+/// second. A DC drive's regulator rings for a while after a jog or a program stops (the
+/// TRIJOINT's about 1.5 s over an RTU line whose exchange takes 7 ms), and positions are
+/// checked only once it stands.
+#[derive(Default)]
+pub struct Stillness {
+    /// The values seen, with their time (s), over the last half second and the one before it.
+    seen: std::collections::VecDeque<(f64, Vec<f64>)>,
+}
+
+impl Stillness {
+    /// The values shown at `t_s`; returns whether the machine stands still now.
+    pub fn saw(&mut self, t_s: f64, values: Vec<f64>) -> bool {
+        if self.seen.back().is_some_and(|(t, _)| *t >= t_s) {
+            return self.still();
+        }
+        self.seen.push_back((t_s, values));
+        while self.seen.len() > 2 && self.seen[1].0 <= t_s - 0.5 {
+            self.seen.pop_front();
+        }
+        self.still()
+    }
+
+    /// Whether the values seen have stayed within 2 µm of each other for half a second.
+    pub fn still(&self) -> bool {
+        let (Some((first, v0)), Some((last, _))) = (self.seen.front(), self.seen.back()) else {
+            return false;
+        };
+        last - first >= 0.5
+            && (0..v0.len()).all(|k| {
+                let (lo, hi) = self
+                    .seen
+                    .iter()
+                    .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), (_, v)| {
+                        (lo.min(v[k]), hi.max(v[k]))
+                    });
+                hi - lo <= 0.002
+            })
+    }
+}
+
+/// Watches the screen at `url` (`http://…/`) until the machine stands still ([`Stillness`]),
+/// at most `limit`; returns whether it does.
+pub fn screen_until_still(url: &str, limit: std::time::Duration) -> bool {
+    use futures::StreamExt;
+    let mut still = false;
+    on_screen(url, async |socket| {
+        let mut stillness = Stillness::default();
+        let start = std::time::Instant::now();
+        while start.elapsed() < limit {
+            let next = tokio::time::timeout(limit.saturating_sub(start.elapsed()), socket.next()).await;
+            let Ok(Some(Ok(tokio_tungstenite::tungstenite::Message::Text(text)))) = next else {
+                continue;
+            };
+            let Ok(frame) = serde_json::from_str::<serde_json::Value>(&text) else {
+                continue;
+            };
+            if frame["type"] != "frame" {
+                continue;
+            }
+            let values: Vec<f64> = frame["values"]
+                .as_array()
+                .into_iter()
+                .flatten()
+                .filter_map(|nv| nv[1].as_f64())
+                .collect();
+            if stillness.saw(frame["t_s"].as_f64().unwrap_or(0.0), values) {
+                still = true;
+                return;
+            }
+        }
+    });
+    still
+}
+
 /// Sends one command (`{"cmd": …}`) to the screen at `url` (`http://…/`), as the page does.
 pub fn screen_command(url: &str, command: serde_json::Value) {
     use futures::SinkExt;
@@ -943,11 +1019,10 @@ fn joints_in(record: &serde_json::Value) -> usize {
     (1..).take_while(|&k| joint_at(record, k).is_some()).count()
 }
 
-/// The farthest the station's counter may stand from the commanded position half a second
-/// after a program's end (mm): the steppers stand within a step or two, but the DC drives' PI
-/// regulators take the last hundredth back slowly against their motors' friction (the
-/// hexapod's stood 0.0097 mm off over an RTU line).
-pub const AT_REST_MM: f64 = 0.02;
+/// The farthest the station's counter may stand from the commanded position once the machine
+/// stands still after a program (mm): the steppers stand within a step, the DC drives' PI
+/// regulators within a few counts (measured: at most 0.0025 mm over TCP and RTU).
+pub const AT_REST_MM: f64 = 0.01;
 
 /// The farthest a joint may truly stand from where the PLC reads it (mm): the reference
 /// position is latched at the slow approach's speed (0.5 mm/s on the joint machines) from a
@@ -955,7 +1030,7 @@ pub const AT_REST_MM: f64 = 0.02;
 pub const REFERENCED_MM: f64 = 0.01;
 
 /// What `what`'s run did, from its trace and the station's report (`io-sim --summary`, or the
-/// in-process station's, as JSON): at the end of its program, once the machine stood (the
+/// in-process station's, as JSON): at the end of its program, once the machine stood still (the
 /// last fast cycle before the next motion), the station's counters stand within
 /// [`AT_REST_MM`] of the commanded positions; at the end of the run each joint truly is where
 /// the PLC read it last (within [`REFERENCED_MM`]), and no stepper lost a step. Returns a line

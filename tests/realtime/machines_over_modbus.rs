@@ -24,6 +24,10 @@ const READY_WITHIN: Duration = Duration::from_secs(150);
 /// The longest a shipped program may take (the O-X glide's, 66.8 s planned, is the longest).
 const PROGRAM_WITHIN: Duration = Duration::from_secs(150);
 
+/// The longest a machine may take to stand still after a program or a jog (its regulators
+/// settle within about 1.5 s).
+const STILL_WITHIN: Duration = Duration::from_secs(10);
+
 /// Sessions at once, over this module's tests: each is a PLC and a station, debug builds, beside
 /// the other real-time tests; ten at once on two cores delayed the links' images by tens of
 /// milliseconds and the screen's presses with them.
@@ -69,14 +73,19 @@ fn session(machine: &str, exchange: &str, dir: &Path) {
     common::screen_command(&url, serde_json::json!({"cmd": "program", "what": "start"}));
     let started = run.wait_for_state(ready, "AUTO", Duration::from_secs(20));
     let ended = run.wait_for_state(started, "READY", PROGRAM_WITHIN);
-    // The machine stands a moment at the program's end (where its positions are checked),
-    // as an operator looks before jogging.
-    std::thread::sleep(Duration::from_millis(500));
+    // The machine stands still at the program's end (where its positions are checked).
+    assert!(
+        common::screen_until_still(&url, STILL_WITHIN),
+        "{what}: still moving {STILL_WITHIN:?} after the program's end"
+    );
     common::screen_jog(&url, 1.0, 0.0, Duration::from_millis(1500));
     let moved = run.wait_for_state(ended, "MOTION", Duration::from_secs(10));
     run.wait_for_state(moved, "READY", Duration::from_secs(20));
-    // And stands after the jog, its regulators at rest, before the PLC stops.
-    std::thread::sleep(Duration::from_millis(500));
+    // And stands still after the jog, its regulators at rest, before the PLC stops.
+    assert!(
+        common::screen_until_still(&url, STILL_WITHIN),
+        "{what}: still moving {STILL_WITHIN:?} after the jog"
+    );
     assert!(run.terminate().success(), "{what}: {}", run.log());
     assert!(sim.stop().success(), "{what}: io-sim failed");
     let summary = common::read_json(&s);
