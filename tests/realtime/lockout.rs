@@ -426,23 +426,25 @@ fn users(dir: &std::path::Path) -> String {
     users.to_str().expect("utf-8").to_string()
 }
 
-/// The operator logs in at `url` with the users file's password and calls Stop, waiting for
-/// ERROR: the client's steps.
+/// The operator logs in at `url` with the users file's password and runs the client's `steps`
+/// (`Stop`, `wait=ERROR`, …): the client's answer.
+fn operator_calls(python: &std::path::Path, url: &str, steps: &[&str]) -> serde_json::Value {
+    let mut args = vec![
+        "call",
+        url,
+        "trijoint",
+        "--user",
+        "operator",
+        "--password",
+        "a-long-passphrase",
+    ];
+    args.extend_from_slice(steps);
+    opcua_client(python, &args)
+}
+
+/// The operator logs in at `url` and calls Stop, waiting for ERROR: the client's steps.
 fn operator_stops(python: &std::path::Path, url: &str) -> serde_json::Value {
-    opcua_client(
-        python,
-        &[
-            "call",
-            url,
-            "trijoint",
-            "--user",
-            "operator",
-            "--password",
-            "a-long-passphrase",
-            "Stop",
-            "wait=ERROR",
-        ],
-    )
+    operator_calls(python, url, &["Stop", "wait=ERROR"])
 }
 
 #[test]
@@ -529,19 +531,7 @@ fn wrong_passwords_are_answered_ever_later_and_the_right_one_at_once() {
     eprintln!("lockout: ten wrong passwords, five at a time, took {seconds:.1} s");
     // Without the back-off they took 0.6 s (0.3 s each).
     assert!(seconds >= 10.0, "{guessed}");
-    let out = opcua_client(
-        &python,
-        &[
-            "call",
-            &url,
-            "trijoint",
-            "--user",
-            "operator",
-            "--password",
-            "a-long-passphrase",
-            "Stop",
-        ],
-    );
+    let out = operator_calls(&python, &url, &["Stop"]);
     assert_eq!(out["steps"][0]["status"], "Good", "{out}");
     // The login itself, measured by the client (its interpreter's start is not the server's
     // doing): the back-off after ten refusals is 10 s.
