@@ -972,51 +972,20 @@ impl Drop for Logged {
     }
 }
 
-/// A trace's records after its header, each a JSON object (`task`, `in`, `out`, `state`),
-/// with its values complete: a record holds only the values that changed since its task's
-/// previous one, so each is completed from those before it.
-fn trace_records(trace: &Path) -> Vec<serde_json::Value> {
-    let text = std::fs::read_to_string(trace).unwrap_or_else(|e| panic!("{}: {e}", trace.display()));
-    let mut now: std::collections::HashMap<String, serde_json::Value> = Default::default();
-    text.lines()
-        .skip(1)
-        .map(|l| {
-            let mut r: serde_json::Value =
-                serde_json::from_str(l).unwrap_or_else(|e| panic!("{}: {e}: {l}", trace.display()));
-            let task = r["task"].as_str().unwrap_or("").to_string();
-            let full = now
-                .entry(task)
-                .or_insert_with(|| serde_json::json!({"in": {}, "out": {}}));
-            for side in ["in", "out"] {
-                if let (Some(changed), Some(all)) = (r[side].as_object(), full[side].as_object_mut()) {
-                    for (k, v) in changed {
-                        all.insert(k.clone(), v.clone());
-                    }
-                }
-            }
-            r["in"] = full["in"].clone();
-            r["out"] = full["out"].clone();
-            r
+/// Each joint's variables in a trace, by index into its variables: the position the PLC reads
+/// from the station's counter (`JOINTk_POSITION`, a fast output) and the commanded position the
+/// main task hands the fast one (`JOINTk_SETPOINT`; the TRIJOINT's `setpoint_left_mm`,
+/// `setpoint_right_mm`).
+fn joint_variables(variables: &[(String, pkm_plc::image::VarType)]) -> Vec<(usize, usize)> {
+    let index = |name: &str| variables.iter().position(|(n, _)| n == name);
+    (1..)
+        .map_while(|k: usize| {
+            let position = index(&format!("JOINT{k}_POSITION"))?;
+            let commanded = index(&format!("JOINT{k}_SETPOINT"))
+                .or_else(|| index(["setpoint_left_mm", "setpoint_right_mm"].get(k - 1)?))?;
+            Some((position, commanded))
         })
         .collect()
-}
-
-/// Joint `k`'s (from 1) position as the PLC reads it from the station's counter (a fast
-/// output) and its commanded position (the set-point the main task hands the fast one), by
-/// their names in a fast record: `JOINTk_POSITION` and `JOINTk_SETPOINT`, the TRIJOINT's
-/// `setpoint_left_mm` and `setpoint_right_mm`.
-fn joint_at(record: &serde_json::Value, k: usize) -> Option<(f64, f64)> {
-    let position = record["out"][format!("JOINT{k}_POSITION")].as_f64()?;
-    let commanded = match record["in"][format!("JOINT{k}_SETPOINT")].as_f64() {
-        Some(c) => c,
-        None => record["in"][["setpoint_left_mm", "setpoint_right_mm"].get(k - 1)?].as_f64()?,
-    };
-    Some((position, commanded))
-}
-
-/// Joints a fast record shows.
-fn joints_in(record: &serde_json::Value) -> usize {
-    (1..).take_while(|&k| joint_at(record, k).is_some()).count()
 }
 
 /// The farthest the station's counter may stand from the commanded position once the machine
@@ -1036,36 +1005,54 @@ pub const REFERENCED_MM: f64 = 0.01;
 /// the PLC read it last (within [`REFERENCED_MM`]), and no stepper lost a step. Returns a line
 /// for the log.
 pub fn check_positions(what: &str, trace: &Path, station: &serde_json::Value) -> String {
-    let records = trace_records(trace);
-    let state = |r: &serde_json::Value| r["state"].as_str().unwrap_or("").to_string();
-    let main = |r: &&serde_json::Value| r["task"] == "main";
-    let fast = |r: &&serde_json::Value| r["task"] == "fast";
-    // The program's end: the first main cycle in READY after AUTO; the machine stands until
-    // the next main cycle in MOTION (the jog).
-    let auto = records
-        .iter()
-        .position(|r| main(&r) && state(r) == "AUTO")
-        .unwrap_or_else(|| panic!("{what}: no AUTO in the trace"));
-    let ended = auto
-        + records[auto..]
-            .iter()
-            .position(|r| main(&r) && state(r) == "READY")
-            .unwrap_or_else(|| panic!("{what}: the program does not end in the trace"));
-    let next_motion = ended
-        + records[ended..]
-            .iter()
-            .position(|r| main(&r) && state(r) != "READY")
-            .unwrap_or(records.len() - ended);
-    let stood = records[ended..next_motion]
-        .iter()
-        .rev()
-        .find(fast)
-        .unwrap_or_else(|| panic!("{what}: no fast cycle after the program"));
-    let n = joints_in(stood);
-    assert!(n > 0, "{what}: no joint in {stood}");
+    use pkm_plc::services::trace::read::TraceReader;
+    let mut reader = TraceReader::open(trace).unwrap_or_else(|e| panic!("{what}: {e}"));
+    let joints = joint_variables(reader.variables());
+    let n = joints.len();
+    assert!(n > 0, "{what}: no joint in the trace");
+    let class = |name: &str| reader.header().task_classes.iter().position(|c| c.name == name);
+    let (fast, main) = (
+        class("fast").expect("a fast class"),
+        class("main").expect("a main class"),
+    );
+    // Each class's values as its cycles saw them: a record holds only what changed.
+    let mut values = vec![vec![f64::NAN; reader.variables().len()]; reader.header().task_classes.len()];
+    // The joints (read, commanded) at a fast cycle.
+    let at = |values: &[f64]| -> Vec<(f64, f64)> { joints.iter().map(|&(p, c)| (values[p], values[c])).collect() };
+    // The program's end: the first main cycle in READY after AUTO; the machine stands until the
+    // next main cycle in another state (the jog). Its last fast cycle before that is `stood`.
+    #[derive(PartialEq)]
+    enum Phase {
+        BeforeAuto,
+        Auto,
+        Ended,
+        Moved,
+    }
+    let (mut phase, mut stood, mut last) = (Phase::BeforeAuto, None, None);
+    while let Some(r) = reader.next_record().unwrap_or_else(|e| panic!("{what}: {e}")) {
+        for (k, v) in r.inputs.iter().chain(&r.outputs) {
+            if let Value::Real(x) = v {
+                values[r.class][*k] = *x;
+            }
+        }
+        if r.class == fast {
+            last = Some(at(&values[fast]));
+            if phase == Phase::Ended {
+                stood = last.clone();
+            }
+        }
+        if let (true, Some(state)) = (r.class == main, r.state.as_deref()) {
+            phase = match (phase, state) {
+                (Phase::BeforeAuto, "AUTO") => Phase::Auto,
+                (Phase::Auto, "READY") => Phase::Ended,
+                (Phase::Ended, s) if s != "READY" => Phase::Moved,
+                (p, _) => p,
+            };
+        }
+    }
+    let stood = stood.unwrap_or_else(|| panic!("{what}: no program's end in the trace"));
     let mut worst_end: f64 = 0.0;
-    for k in 1..=n {
-        let (position, commanded) = joint_at(stood, k).expect("a joint");
+    for (k, (position, commanded)) in (1..).zip(&stood) {
         assert!(
             (position - commanded).abs() <= AT_REST_MM,
             "{what}: at the program's end joint {k} stands at {position} mm, commanded {commanded} mm"
@@ -1073,16 +1060,12 @@ pub fn check_positions(what: &str, trace: &Path, station: &serde_json::Value) ->
         worst_end = worst_end.max((position - commanded).abs());
     }
     // The run's end: the PLC's last reading against the machine's truth.
-    let last = records
-        .iter()
-        .rev()
-        .find(fast)
-        .unwrap_or_else(|| panic!("{what}: no fast cycle"));
+    let last = last.unwrap_or_else(|| panic!("{what}: no fast cycle"));
     let truth = station["joints"]
         .as_array()
         .unwrap_or_else(|| panic!("{what}: no joints in the station's report {station}"));
     assert_eq!(truth.len(), n, "{what}: joints in the station's report {station}");
-    let read: Vec<f64> = (1..=n).map(|k| joint_at(last, k).expect("a joint").0).collect();
+    let read: Vec<f64> = last.iter().map(|&(read, _)| read).collect();
     let real: Vec<f64> = truth
         .iter()
         .map(|j| j["position_mm"].as_f64().expect("position_mm"))
