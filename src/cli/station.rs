@@ -12,7 +12,7 @@ use super::args::{StationArgs, StationOp};
 use pkm_plc::services::io::catalogue;
 use pkm_plc::services::io::map::DEFAULT_WATCHDOG_MS;
 use pkm_plc::services::io::x20bc0087::client::{Identity, Registers};
-use pkm_plc::services::io::x20bc0087::{ModuleRecord, NO_DATA, show_index, type_name};
+use pkm_plc::services::io::x20bc0087::{ModuleRecord, NO_DATA, SIMULATED_UNPINNED_ID, show_index, type_name};
 
 /// The Modbus TCP port a bus controller listens on unless set otherwise.
 pub const DEFAULT_PORT: u16 = 502;
@@ -262,6 +262,11 @@ impl Scan {
                 let slot = i + 1;
                 let (name, ty) = match catalogue::by_hardware_id(m.id) {
                     Some(t) => (format!("{}_{slot}", &t.name[3..]), t.name.to_string()),
+                    // io-sim's stand-in for an unpinned ID: no ID to pin, the type to write.
+                    None if m.id == SIMULATED_UNPINNED_ID => {
+                        let ty = "unknown: io-sim's map does not pin this module's ID; write its type";
+                        return serde_json::json!({"name": format!("SLOT{slot}"), "type": ty, "slot": slot});
+                    }
                     None => (
                         format!("SLOT{slot}"),
                         format!(

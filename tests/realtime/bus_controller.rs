@@ -150,7 +150,8 @@ fn station_scan_lists_io_sims_x20bc0087_and_writes_a_map_skeleton() {
     for row in [
         "   1  0x1B95  X20DI9371                       1  0x1B95      254       none       none          0        none\n",
         "   2  0x1B9A  X20DO9322                       2  0x1B9A      254       none       none       none           0\n",
-        "   5  0x0000  unknown ID 0x0000               5  -           254       none          0          2           4\n",
+        // io-sim's map does not pin the ID: it reports 0xFFFF, which nobody takes for a module's.
+        "   5  0xFFFF  no ID (io-sim)                  5  -           254       none          0          2           4\n",
     ] {
         assert!(out.contains(row), "{row:?} in {out}");
     }
@@ -162,7 +163,11 @@ fn station_scan_lists_io_sims_x20bc0087_and_writes_a_map_skeleton() {
         skeleton["modules"][0],
         serde_json::json!({"name": "DI9371_1", "type": "X20DI9371", "slot": 1, "id": "0x1B95"})
     );
-    assert_eq!(skeleton["modules"][4]["id"], "0x0000");
+    // No ID to pin from io-sim's stand-in; a map that pins it is refused.
+    assert_eq!(skeleton["modules"][4].get("id"), None, "{skeleton}");
+    let mut pinned = skeleton.clone();
+    pinned["modules"][4]["type"] = "X20MM2436".into();
+    pinned["modules"][4]["id"] = "0xFFFF".into();
     let classes = ["fast".to_string(), "main".to_string()];
     let text = std::fs::read_to_string(&map).expect("map");
     let refused =
@@ -170,7 +175,16 @@ fn station_scan_lists_io_sims_x20bc0087_and_writes_a_map_skeleton() {
     assert!(
         refused
             .to_string()
-            .contains("at modules[2].type: unknown module type \"unknown ID 0x0000: write its type"),
+            .contains("at modules[2].type: unknown module type \"unknown: io-sim's map does not pin this module's ID; write its type\""),
+        "{refused}"
+    );
+    let refused = pkm_plc::services::io::map::IoMap::parse(&pinned.to_string(), "scanned.json", &classes)
+        .expect_err("io-sim's stand-in pinned");
+    assert!(
+        refused.to_string().contains(
+            "at modules[4].id: 0xFFFF is what io-sim reports for a module whose ID its map does not pin, no module's \
+             own: pin the ID the real station reports (`pkm-plc station scan`), or none"
+        ),
         "{refused}"
     );
     // Written by hand, it loads, and lays the data out where the station has it.

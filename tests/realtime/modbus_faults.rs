@@ -7,6 +7,8 @@ use crate::common;
 
 use std::io::{Read, Write};
 use std::net::{TcpListener, TcpStream};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::{Duration, Instant};
 
 use common::stderr;
@@ -87,13 +89,16 @@ fn serve_badly(mut s: TcpStream, how: Misbehaviour) {
     }
 }
 
-/// Runs the PLC against the station on `port` for `seconds`; the summary, the log and the exit
-/// code (1 when no exchange ever succeeded: the bus never came up).
-fn run_against(port: u16, seconds: &str) -> (serde_json::Value, String, Option<i32>) {
+/// Runs the PLC against the station on `port` for `seconds`, its exchange's requests sent as
+/// `requests` says (the I/O map's option); the summary, the log and the exit code (1 when no
+/// exchange ever succeeded: the bus never came up).
+fn run_against(port: u16, seconds: &str, requests: &str) -> (serde_json::Value, String, Option<i32>) {
     let dir = tempfile::tempdir().expect("tempdir");
     let (mut command, summary) = common::bus_fault_run(&format!("127.0.0.1:{port}"), seconds, dir.path());
     // The bad stations imitate a generic one: the standard exchange's requests from address 0.
-    common::on_generic_station(&dir.path().join("busy-machine-config.json"));
+    let config = dir.path().join("busy-machine-config.json");
+    common::on_generic_station(&config);
+    common::edit_io_map(&config, |map| map["requests"] = requests.into());
     let o = command.output().expect("run");
     let s = common::read_json(&summary);
     (s, stderr(&o), o.status.code())
@@ -101,17 +106,22 @@ fn run_against(port: u16, seconds: &str) -> (serde_json::Value, String, Option<i
 
 #[test]
 fn garbage_slow_and_exceptional_stations_are_bus_faults() {
-    for (how, name) in [
-        (Misbehaviour::Garbage, "garbage"),
-        (Misbehaviour::Slow, "slow"),
-        (Misbehaviour::Exception, "exception"),
+    // The exchange's four requests sent together (the default), and one after another where
+    // the cause reads otherwise.
+    for (how, name, requests) in [
+        (Misbehaviour::Garbage, "garbage", "pipelined"),
+        (Misbehaviour::Garbage, "garbage", "sequential"),
+        (Misbehaviour::Slow, "slow", "pipelined"),
+        (Misbehaviour::Slow, "slow", "sequential"),
+        (Misbehaviour::Exception, "exception", "pipelined"),
         // Regression: a short response was read as "the rest are false".
-        (Misbehaviour::Short, "short"),
+        (Misbehaviour::Short, "short", "pipelined"),
         // Regression: late answers never made a bus fault.
-        (Misbehaviour::Late, "late"),
+        (Misbehaviour::Late, "late", "pipelined"),
     ] {
         let port = bad_station(how);
-        let (s, log, code) = run_against(port, "2");
+        let (s, log, code) = run_against(port, "2", requests);
+        let sequential = requests == "sequential";
         assert_eq!(s["main"]["state"], "ERROR", "{name}: {s}");
         // A station that never answered right: the bus never came up, the run failed.
         let came_up = matches!(how, Misbehaviour::Late);
@@ -122,14 +132,22 @@ fn garbage_slow_and_exceptional_stations_are_bus_faults() {
         // The reason names the link and why it failed.
         let reason = s["main"]["error_reason"].as_str().unwrap_or_default();
         let cause = match how {
-            Misbehaviour::Garbage => {
+            Misbehaviour::Garbage if sequential => {
                 "failed exchanges in a row, the last: a response to read discrete inputs 0 … 17 that could not be decoded: "
+            }
+            Misbehaviour::Garbage => {
+                "failed exchanges in a row, the last: a response to read discrete inputs 0 … 17 and the 3 requests sent with it \
+                 that could not be decoded: not a Modbus TCP header: [de, ad, be, ef, 00, 01, 02]"
             }
             Misbehaviour::Short => {
                 "failed exchanges in a row, the last: a response to read discrete inputs 0 … 17 with 8 values, not the 18 asked for (another register map?)"
             }
-            Misbehaviour::Slow => {
+            Misbehaviour::Slow if sequential => {
                 "failed exchanges in a row, the last: no response to read discrete inputs 0 … 17 within 100 ms"
+            }
+            Misbehaviour::Slow => {
+                "failed exchanges in a row, the last: no response to read discrete inputs 0 … 17 and the 3 requests sent \
+                 with it within 100 ms"
             }
             Misbehaviour::Exception => {
                 "failed exchanges in a row, the last: exception 4 (Server device failure) to read discrete inputs 0 … 17"
@@ -138,7 +156,7 @@ fn garbage_slow_and_exceptional_stations_are_bus_faults() {
         };
         assert!(
             reason.starts_with(&format!("bus fault: tcp:127.0.0.1:{port}: ")) && reason.contains(cause),
-            "{name}: {reason}"
+            "{name} ({requests}): {reason}"
         );
         let logged = match how {
             Misbehaviour::Late => "the newest input image is",
@@ -214,13 +232,18 @@ fn the_link_comes_back_when_the_station_returns_but_error_stays_until_acknowledg
     );
 }
 
-/// A proxy in front of `upstream` that holds every response `delay` before passing it on (a
-/// slow link: each exchange's four requests take 4 × `delay`). Returns its port.
-fn delaying_proxy(upstream: std::net::SocketAddr, delay: Duration) -> u16 {
+/// A proxy in front of `upstream` that passes one request at a time on and holds every
+/// response `delay` before passing it back (a slow link: an exchange's four requests take
+/// 4 × `delay`). Returns its port, and the most requests a client had sent it at once: the
+/// one being answered and those already waiting behind it.
+fn delaying_proxy(upstream: std::net::SocketAddr, delay: Duration) -> (u16, Arc<AtomicUsize>) {
     let listener = TcpListener::bind("127.0.0.1:0").expect("bind");
     let port = listener.local_addr().expect("address").port();
+    let most = Arc::new(AtomicUsize::new(0));
+    let most_seen = Arc::clone(&most);
     std::thread::spawn(move || {
         for client in listener.incoming().flatten() {
+            let most = Arc::clone(&most_seen);
             std::thread::spawn(move || {
                 let mut client = client;
                 let Ok(mut station) = TcpStream::connect(upstream) else {
@@ -235,6 +258,9 @@ fn delaying_proxy(upstream: std::net::SocketAddr, delay: Duration) -> u16 {
                     Some([header.to_vec(), pdu].concat())
                 };
                 while let Some(request) = frame(&mut client) {
+                    // Before this request is answered: how many more the client has sent.
+                    let waiting = frames_waiting(&client);
+                    most.fetch_max(1 + waiting, Ordering::Relaxed);
                     let Some(response) = station.write_all(&request).ok().and_then(|()| frame(&mut station)) else {
                         return;
                     };
@@ -246,7 +272,52 @@ fn delaying_proxy(upstream: std::net::SocketAddr, delay: Duration) -> u16 {
             });
         }
     });
-    port
+    (port, most)
+}
+
+/// The complete Modbus TCP frames received on `stream` and not read yet.
+fn frames_waiting(stream: &TcpStream) -> usize {
+    let mut bytes = [0u8; 4096];
+    let peeked = stream
+        .set_nonblocking(true)
+        .and_then(|()| stream.peek(&mut bytes))
+        .unwrap_or(0);
+    stream.set_nonblocking(false).expect("blocking again");
+    let (mut at, mut frames) = (0, 0);
+    while at + 7 <= peeked {
+        at += 6 + usize::from(u16::from_be_bytes([bytes[at + 4], bytes[at + 5]]));
+        if at <= peeked {
+            frames += 1;
+        }
+    }
+    frames
+}
+
+/// Pipelining: an exchange's four requests reach the station before its first answer, one
+/// round trip for all four. With `"requests": "sequential"` in the I/O map each waits for the
+/// answer before it. Both drive the X20BC0087 (its module table, watchdog and error bits read
+/// on the same connection) without a fault.
+#[test]
+fn an_exchange_sends_its_requests_together_unless_the_map_says_one_after_another() {
+    let (_sim, address) = common::start_io_sim("127.0.0.1:0", &[]);
+    for (requests, together) in [("pipelined", 4), ("sequential", 1)] {
+        let (port, most) = delaying_proxy(address, Duration::from_micros(500));
+        let dir = tempfile::tempdir().expect("tempdir");
+        let (mut command, summary) = common::bus_fault_run(&format!("127.0.0.1:{port}"), "2", dir.path());
+        let config = dir.path().join("busy-machine-config.json");
+        common::edit_io_map(&config, |map| map["requests"] = requests.into());
+        let o = command.output().expect("run");
+        let log = stderr(&o);
+        assert_eq!(o.status.code(), Some(0), "{requests}: {log}");
+        let s = common::read_json(&summary);
+        assert_ne!(s["main"]["state"], "ERROR", "{requests}: {s}");
+        assert!(!log.contains("bus fault"), "{requests}: {log}");
+        assert_eq!(
+            most.load(Ordering::Relaxed),
+            together,
+            "{requests}: requests in flight at once"
+        );
+    }
 }
 
 /// Regression: with 8 ms added to every response (33 ms exchanges, inputs never
@@ -257,8 +328,8 @@ fn delaying_proxy(upstream: std::net::SocketAddr, delay: Duration) -> u16 {
 fn a_link_slower_than_the_regulators_were_tuned_for_is_a_bus_fault_that_says_so() {
     // A generic station, as `run_against` runs the PLC on.
     let (_sim, address) = common::start_io_sim("127.0.0.1:0", &["--config", common::generic_busy_config()]);
-    let port = delaying_proxy(address, Duration::from_millis(8));
-    let (s, log, code) = run_against(port, "3");
+    let (port, _) = delaying_proxy(address, Duration::from_millis(8));
+    let (s, log, code) = run_against(port, "3", "pipelined");
     assert_eq!(code, Some(0), "exchanges succeeded, slowly: {log}");
     assert_eq!(s["main"]["state"], "ERROR", "{s}");
     let reason = s["main"]["error_reason"].as_str().unwrap_or_default();

@@ -141,3 +141,79 @@ fn the_stations_report_counts_the_steps_a_stepper_lost() {
     assert!(line.starts_with("joint 1 at "), "{line}");
     assert!(line.ends_with("steps lost in 1 stalls"), "{line}");
 }
+
+/// A Modbus TCP frame: `id`, unit 0xFF, `pdu`.
+fn frame(id: u16, pdu: &[u8]) -> Vec<u8> {
+    let mut f = id.to_be_bytes().to_vec();
+    f.extend([0, 0]);
+    f.extend((pdu.len() as u16 + 1).to_be_bytes());
+    f.push(0xFF);
+    f.extend(pdu);
+    f
+}
+
+/// Pipelined requests: a client that sends several requests before any answer (as the
+/// soft-PLC's exchange does) gets every answer, in order, each under its own transaction id —
+/// also when a request's bytes are split over two writes, and a malformed one among them is
+/// answered with an exception without losing the ones around it.
+#[test]
+fn io_sims_tcp_station_answers_pipelined_requests_in_order() {
+    use tokio::io::{AsyncReadExt as _, AsyncWriteExt as _};
+    let runtime = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .expect("runtime");
+    runtime.block_on(async {
+        let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.expect("bind");
+        let address = listener.local_addr().expect("address");
+        let server = pkm_plc::services::sim::server::serve_tcp(
+            listener,
+            station(),
+            pkm_plc::services::sim::server::ServerOptions::default(),
+            std::future::pending(),
+        );
+        let client = async {
+            let mut s = tokio::net::TcpStream::connect(address).await.expect("connect");
+            // Three reads in one write: inputs (12 of the DI's), the counters, the module table's
+            // first status word; then a request of an unknown function, then a write split in two.
+            let mut together = frame(7, &[0x02, 0, 0, 0, 12]);
+            together.extend(frame(8, &[0x04, 0, 0, 0, 2]));
+            together.extend(frame(9, &[0x03, 0xA0, 0x00, 0, 1]));
+            together.extend(frame(10, &[0x2B, 0x0E, 0x01, 0x00]));
+            let write = frame(11, &[0x05, 0, 0, 0, 0]);
+            together.extend(&write[..9]);
+            s.write_all(&together).await.expect("send");
+            tokio::time::sleep(Duration::from_millis(20)).await;
+            s.write_all(&write[9..]).await.expect("the rest");
+            let mut got = Vec::new();
+            let mut buf = [0u8; 512];
+            let expected_len = [9 + 2, 9 + 4, 9 + 2, 9, 12].iter().sum::<usize>();
+            while got.len() < expected_len {
+                let n = tokio::time::timeout(Duration::from_secs(5), s.read(&mut buf))
+                    .await
+                    .expect("answers in time")
+                    .expect("read");
+                assert!(n > 0, "the station closed the connection: {got:02x?}");
+                got.extend(&buf[..n]);
+            }
+            got
+        };
+        let got = tokio::select! {
+            got = client => got,
+            _ = server => panic!("the server ended"),
+        };
+        // The answers' transaction ids and function codes, frame by frame.
+        let mut at = 0;
+        let mut answers = Vec::new();
+        while at + 7 <= got.len() {
+            let len = usize::from(u16::from_be_bytes([got[at + 4], got[at + 5]]));
+            answers.push((u16::from_be_bytes([got[at], got[at + 1]]), got[at + 7]));
+            at += 6 + len;
+        }
+        assert_eq!(at, got.len(), "whole frames: {got:02x?}");
+        assert_eq!(
+            answers,
+            [(7, 0x02), (8, 0x04), (9, 0x03), (10, 0x2B | 0x80), (11, 0x05)]
+        );
+    });
+}

@@ -10,6 +10,7 @@ use pkm_api::machine::EmbeddedFile;
 
 use crate::image::{Problem, Reader, Value, VarIndex, VarTable, VarType, Writer};
 use crate::runtime::config::{self, ConfigError, LoadedConfig};
+use crate::services::io::x20bc0087::SIMULATED_UNPINNED_ID;
 
 /// The file as written.
 #[derive(Clone, Debug, Deserialize)]
@@ -22,6 +23,10 @@ pub struct IoMapFile {
     /// without a write for this long the bus controller sets every output to zero.
     #[serde(default)]
     pub watchdog_ms: Option<u16>,
+    /// How the requests of one exchange go over Modbus TCP: together (the default) or one
+    /// after another.
+    #[serde(default)]
+    pub requests: Requests,
     /// The modules of the station.
     pub modules: Vec<ModuleEntry>,
     /// The channel bindings.
@@ -99,6 +104,30 @@ impl StationKind {
         match self {
             StationKind::Generic => "generic",
             StationKind::X20bc0087 => "X20BC0087",
+        }
+    }
+}
+
+/// How the requests of one Modbus TCP exchange go on the wire. A serial line carries one
+/// request at a time whatever this says.
+#[derive(Clone, Copy, Debug, Default, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum Requests {
+    /// Every request of the exchange sent at once, each answer matched to its request by the
+    /// MBAP transaction identifier: about one round trip for the exchange, not one per request.
+    #[default]
+    Pipelined,
+    /// Each request after the previous one's answer, for a station that does not take
+    /// pipelined requests (it answers only the first, or closes the connection).
+    Sequential,
+}
+
+impl Requests {
+    /// The name as the I/O map writes it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Requests::Pipelined => "pipelined",
+            Requests::Sequential => "sequential",
         }
     }
 }
@@ -187,6 +216,8 @@ pub struct IoMap {
     pub station: StationKind,
     /// An X20BC0087's watchdog threshold (ms).
     pub watchdog_ms: u16,
+    /// How an exchange's requests go over Modbus TCP.
+    pub requests: Requests,
     /// The modules.
     pub modules: Vec<Module>,
     /// The bindings.
@@ -209,6 +240,7 @@ impl IoMap {
                 origin: origin.to_string(),
                 station: file.station,
                 watchdog_ms: file.watchdog_ms.unwrap_or(DEFAULT_WATCHDOG_MS),
+                requests: file.requests,
                 modules,
                 bindings,
             })
@@ -365,6 +397,16 @@ fn parse_modules(file: &IoMapFile, push: &mut impl FnMut(String, String)) -> Vec
             slots.insert(m.slot, i);
         }
         let given = match m.id.as_ref().map(IdText::value) {
+            Some(Ok(SIMULATED_UNPINNED_ID)) => {
+                push(
+                    format!("{at}.id"),
+                    format!(
+                        "{SIMULATED_UNPINNED_ID:#06X} is what io-sim reports for a module whose ID its map does not pin, \
+                         no module's own: pin the ID the real station reports (`pkm-plc station scan`), or none"
+                    ),
+                );
+                None
+            }
             Some(Ok(id)) => Some(id),
             Some(Err(message)) => {
                 push(format!("{at}.id"), message);

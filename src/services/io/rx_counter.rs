@@ -22,6 +22,11 @@ impl<S> RxCounter<S> {
     pub fn new(inner: S, received: Arc<AtomicU64>) -> Self {
         RxCounter { inner, received }
     }
+
+    /// The stream inside.
+    pub fn get_ref(&self) -> &S {
+        &self.inner
+    }
 }
 
 impl<S: AsyncRead + Unpin> AsyncRead for RxCounter<S> {

@@ -238,59 +238,90 @@ pub async fn serve_tcp(
 }
 
 /// Serves one TCP client until it leaves or misbehaves; `Err` says how it misbehaved.
+/// Requests a client sends together (pipelined, told apart by their transaction ids) are
+/// answered in order, and the answers to all that arrived together go back in one write.
 async fn serve_connection<S: AsyncRead + AsyncWrite + Unpin>(
     mut stream: S,
     client: ClientId,
     shared: &Shared,
     options: &ServerOptions,
 ) -> Result<(), (&'static str, String)> {
-    let mut header = [0u8; 7];
-    let mut pdu = [0u8; MAX_PDU];
+    // Received bytes not yet answered: less than one frame between reads, since every
+    // complete frame is answered before the next read.
+    let mut rx: Vec<u8> = Vec::with_capacity(RX_CHUNK + 7 + MAX_PDU);
+    let mut chunk = [0u8; RX_CHUNK];
     let mut out = Vec::with_capacity(7 + MAX_PDU);
+    // When the first byte of an incomplete frame arrived.
+    let mut frame_started: Option<tokio::time::Instant> = None;
     let io = |e: std::io::Error| ("connection error", e.to_string());
     loop {
-        // The first byte may take the idle time; the rest of the frame must follow promptly.
-        match tokio::time::timeout(options.idle_timeout, stream.read(&mut header[..1])).await {
-            Err(_) => {
-                return Err((
-                    "idle client disconnected",
-                    format!("no request for {:?}", options.idle_timeout),
-                ));
-            }
-            Ok(Ok(0)) => return Ok(()),
-            Ok(Ok(_)) => {}
-            Ok(Err(e)) if e.kind() == ErrorKind::ConnectionReset => return Ok(()),
-            Ok(Err(e)) => return Err(io(e)),
-        }
-        let rest = async {
-            stream.read_exact(&mut header[1..]).await?;
-            let len = usize::from(u16::from_be_bytes([header[4], header[5]]));
-            if header[2..4] != [0, 0] || !(2..=MAX_PDU + 1).contains(&len) {
-                return Ok(None);
-            }
-            stream.read_exact(&mut pdu[..len - 1]).await.map(|_| Some(len - 1))
-        };
-        let len = match tokio::time::timeout(FRAME_TIMEOUT, rest).await {
-            Err(_) => return Err(("incomplete frame", format!("not completed within {FRAME_TIMEOUT:?}"))),
-            Ok(Err(e)) if e.kind() == ErrorKind::UnexpectedEof => {
-                return Err(("incomplete frame", "closed mid-frame".into()));
-            }
-            Ok(Err(e)) => return Err(io(e)),
-            // Not Modbus TCP (a protocol identifier other than 0, an impossible length): the
-            // stream cannot be resynchronised, so the connection ends.
-            Ok(Ok(None)) => return Err(("not a Modbus TCP header", format!("{header:02x?}"))),
-            Ok(Ok(Some(len))) => len,
-        };
         out.clear();
-        out.extend_from_slice(&header);
-        shared.answer(&pdu[..len], client, &mut out);
-        let response_len = (out.len() - 6) as u16;
-        out[4..6].copy_from_slice(&response_len.to_be_bytes());
-        match tokio::time::timeout(FRAME_TIMEOUT, stream.write_all(&out)).await {
-            Err(_) => return Err(("client not reading", "response not taken within 1 s".into())),
-            Ok(result) => result.map_err(io)?,
+        let mut used = 0;
+        while let Some(len) = complete_frame(&rx[used..])? {
+            let frame = &rx[used..used + len];
+            let at = out.len();
+            out.extend_from_slice(&frame[..7]);
+            shared.answer(&frame[7..], client, &mut out);
+            let response_len = (out.len() - at - 6) as u16;
+            out[at + 4..at + 6].copy_from_slice(&response_len.to_be_bytes());
+            used += len;
+        }
+        rx.drain(..used);
+        // What is left is the start of a frame that came with the last read, or nothing.
+        if rx.is_empty() {
+            frame_started = None;
+        } else if used > 0 {
+            frame_started = Some(tokio::time::Instant::now());
+        }
+        if !out.is_empty() {
+            match tokio::time::timeout(FRAME_TIMEOUT, stream.write_all(&out)).await {
+                Err(_) => return Err(("client not reading", "response not taken within 1 s".into())),
+                Ok(result) => result.map_err(io)?,
+            }
+        }
+        // The first byte may take the idle time; the rest of a frame must follow promptly.
+        let read = stream.read(&mut chunk);
+        let n = match frame_started {
+            None => match tokio::time::timeout(options.idle_timeout, read).await {
+                Err(_) => {
+                    return Err((
+                        "idle client disconnected",
+                        format!("no request for {:?}", options.idle_timeout),
+                    ));
+                }
+                Ok(n) => n,
+            },
+            Some(t0) => match tokio::time::timeout_at(t0 + FRAME_TIMEOUT, read).await {
+                Err(_) => return Err(("incomplete frame", format!("not completed within {FRAME_TIMEOUT:?}"))),
+                Ok(n) => n,
+            },
+        };
+        match n {
+            Ok(0) if rx.is_empty() => return Ok(()),
+            Ok(0) => return Err(("incomplete frame", "closed mid-frame".into())),
+            Ok(n) => {
+                frame_started.get_or_insert_with(tokio::time::Instant::now);
+                rx.extend_from_slice(&chunk[..n]);
+            }
+            Err(e) if e.kind() == ErrorKind::ConnectionReset => return Ok(()),
+            Err(e) => return Err(io(e)),
         }
     }
+}
+
+/// Bytes read from a TCP client at a time.
+const RX_CHUNK: usize = 4096;
+
+/// The length of the Modbus TCP frame at the start of `rx` when it is all there; `None` while
+/// it is incomplete. Bytes that are not Modbus TCP (a protocol identifier other than 0, an
+/// impossible length) end the connection: the stream cannot be resynchronised after them.
+fn complete_frame(rx: &[u8]) -> Result<Option<usize>, (&'static str, String)> {
+    let Some(header) = rx.get(..7) else { return Ok(None) };
+    let len = usize::from(u16::from_be_bytes([header[4], header[5]]));
+    if header[2..4] != [0, 0] || !(2..=MAX_PDU + 1).contains(&len) {
+        return Err(("not a Modbus TCP header", format!("{header:02x?}")));
+    }
+    Ok((rx.len() >= 6 + len).then_some(6 + len))
 }
 
 /// Serves `station` as Modbus RTU on a serial stream until the stream ends or `stop`

@@ -1,18 +1,24 @@
 //! One exchange with the station: every input read, every output written, in one of the two
 //! [`ExchangeMode`]s, with each request's outcome sorted into what the link counts ([`Failure`]).
-//! Also what an exchange costs on the wire ([`WireLoad`]).
+//! Also what an exchange costs on the wire ([`WireLoad`]), and the open link it runs on
+//! ([`Connection`]).
 
+use std::borrow::Cow;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Duration;
 
-use tokio_modbus::client::{self, Client as _, Writer as _};
+use tokio::net::TcpStream;
+use tokio_modbus::client::{self, Client};
 use tokio_modbus::{Request, Response};
 
 use super::ExchangeMode;
+use super::mbap::{Answer, Pipelined};
 use crate::image::{Value, VarIndex, VarType};
+use crate::services::io::map::Requests;
 use crate::services::io::registers::{
     INPUT_IMAGE, ImageLayout, OUTPUT_IMAGE, RegisterMap, Table, decode, encode, pack_bits, packed_bit,
 };
+use crate::services::io::rx_counter::RxCounter;
 use crate::services::io::x20bc0087::ExpectedModule;
 
 /// A binding as the driver sees it: where its channel lives and which variable it is.
@@ -69,10 +75,31 @@ impl Failure {
     }
 }
 
+/// An open link to the station.
+pub(super) enum Connection {
+    /// tokio-modbus's client, one request at a time: a serial line, or Modbus TCP with
+    /// `"requests": "sequential"` in the I/O map.
+    Sequential(client::Context),
+    /// Modbus TCP with the requests of an exchange sent together.
+    Pipelined(Pipelined<RxCounter<TcpStream>>),
+}
+
+impl Connection {
+    /// The link as a client that sends one request and waits for its answer.
+    pub fn client(&mut self) -> &mut dyn Client {
+        match self {
+            Connection::Sequential(c) => c,
+            Connection::Pipelined(p) => p,
+        }
+    }
+}
+
 /// What is exchanged and how: the input and output slots, the table sizes, the mode (never
 /// `Auto`) and the timeout of each request.
 pub(super) struct Exchange {
     pub mode: ExchangeMode,
+    /// How the requests go over Modbus TCP (on a serial line, one at a time whatever it says).
+    pub requests: Requests,
     pub timeout: Duration,
     pub inputs: Vec<Slot>,
     pub outputs: Vec<Slot>,
@@ -101,14 +128,15 @@ impl Exchange {
     /// is left to act. `received` counts the bytes received on the link.
     pub async fn run(
         &self,
-        ctx: &mut client::Context,
+        link: &mut Connection,
         received: &AtomicU64,
         in_values: &mut [Value],
         out_values: Option<&[Value]>,
     ) -> Result<(), Failed> {
-        match self.mode {
-            ExchangeMode::Image => self.image(ctx, received, in_values, out_values).await,
-            ExchangeMode::Tables | ExchangeMode::Auto => self.tables(ctx, received, in_values, out_values).await,
+        match (self.mode, link) {
+            (ExchangeMode::Image, link) => self.image(link.client(), received, in_values, out_values).await,
+            (_, Connection::Pipelined(p)) => self.pipelined(p, in_values, out_values).await,
+            (_, Connection::Sequential(ctx)) => self.tables(ctx, received, in_values, out_values).await,
         }
     }
 
@@ -126,7 +154,7 @@ impl Exchange {
     /// The packed process image in one read/write-multiple-registers transaction.
     async fn image(
         &self,
-        ctx: &mut client::Context,
+        ctx: &mut dyn Client,
         received: &AtomicU64,
         in_values: &mut [Value],
         out_values: Option<&[Value]>,
@@ -159,6 +187,81 @@ impl Exchange {
             .words()?;
         let (bits, regs) = image.split_at(usize::from(layout.input_bits));
         Ok(self.decode_inputs(in_values, |a| packed_bit(bits, a), regs)?)
+    }
+
+    /// The four standard tables' requests sent together ([`Pipelined::call_all`]); each answer
+    /// may take one request timeout after the one before.
+    async fn pipelined(
+        &self,
+        link: &mut Pipelined<RxCounter<TcpStream>>,
+        in_values: &mut [Value],
+        out_values: Option<&[Value]>,
+    ) -> Result<(), Failed> {
+        let [coils, discrete, input_regs, holding] = self.sizes;
+        let outputs = out_values.map(|v| self.output_tables(v));
+        // The requests in the order of the sequential exchange, each with its name.
+        let mut requests: Vec<(Request<'_>, String)> = Vec::with_capacity(4);
+        if discrete > 0 {
+            requests.push((
+                Request::ReadDiscreteInputs(0, discrete),
+                span("read discrete inputs", discrete),
+            ));
+        }
+        if input_regs > 0 {
+            requests.push((
+                Request::ReadInputRegisters(0, input_regs),
+                span("read input registers", input_regs),
+            ));
+        }
+        if let Some((coil_bits, words)) = &outputs {
+            if coils > 0 {
+                let request = Request::WriteMultipleCoils(0, Cow::Borrowed(&coil_bits[..]));
+                requests.push((request, span("write coils", coils)));
+            }
+            if holding > 0 {
+                let base = self.holding_base;
+                let what = format!("write holding registers {base} … {}", base + holding - 1);
+                requests.push((Request::WriteMultipleRegisters(base, Cow::Borrowed(&words[..])), what));
+            }
+        }
+        if requests.is_empty() {
+            return Ok(());
+        }
+        let (sent, names): (Vec<Request<'_>>, Vec<String>) = requests.into_iter().unzip();
+        let mut answers: Vec<Option<Answer>> = vec![None; sent.len()];
+        let outcome = link.call_all(&sent, &mut answers, Some(self.timeout)).await;
+        // The requests still without an answer, for a failure's cause: the first by name.
+        let unanswered = || {
+            let mut open = names.iter().zip(&answers).filter(|(_, a)| a.is_none()).map(|(n, _)| n);
+            let first = open.next().map_or("the exchange", String::as_str);
+            match open.count() {
+                0 => first.to_string(),
+                1 => format!("{first} and the request sent with it"),
+                more => format!("{first} and the {more} requests sent with it"),
+            }
+        };
+        match outcome {
+            Err(e) if e.kind() == std::io::ErrorKind::TimedOut => {
+                return Err(timed_out(self.timeout, link.partial_response(), &unanswered()));
+            }
+            Err(e) => return Err(transport_failure(&unanswered(), e)),
+            Ok(()) => {}
+        }
+        let mut bits = Vec::new();
+        let mut regs = Vec::new();
+        for ((request, what), answer) in sent.iter().zip(&names).zip(answers) {
+            // `call_all` returned Ok: every request has its answer.
+            let Some(answer) = answer else {
+                unreachable!("an answer missing after call_all")
+            };
+            let response = answer.map_err(|code| exception(code, what))?;
+            match request {
+                Request::ReadDiscreteInputs(_, n) => bits = checked_read(response, *n, what)?.bits()?,
+                Request::ReadInputRegisters(_, n) => regs = checked_read(response, *n, what)?.words()?,
+                _ => check_echo(request, &response, what)?,
+            }
+        }
+        Ok(self.decode_inputs(in_values, |a| bits[a], &regs)?)
     }
 
     /// The four standard tables, one request each.
@@ -202,12 +305,26 @@ impl Exchange {
         let (coil_bits, words) = self.output_tables(out_values);
         if coils > 0 {
             let what = span("write coils", coils);
-            within(t, received, &what, ctx.write_multiple_coils(0, &coil_bits)).await?;
+            write_checked(
+                t,
+                received,
+                &what,
+                ctx,
+                Request::WriteMultipleCoils(0, Cow::Owned(coil_bits)),
+            )
+            .await?;
         }
         if holding > 0 {
             let base = self.holding_base;
             let what = format!("write holding registers {base} … {}", base + holding - 1);
-            within(t, received, &what, ctx.write_multiple_registers(base, &words)).await?;
+            write_checked(
+                t,
+                received,
+                &what,
+                ctx,
+                Request::WriteMultipleRegisters(base, Cow::Owned(words)),
+            )
+            .await?;
         }
         Ok(())
     }
@@ -281,13 +398,52 @@ impl Read {
 async fn read_exactly(
     t: Duration,
     received: &AtomicU64,
-    ctx: &mut client::Context,
+    ctx: &mut dyn Client,
     request: Request<'_>,
     quantity: u16,
     what: &str,
 ) -> Result<Read, Failed> {
-    let n = usize::from(quantity);
     let response = within(t, received, what, ctx.call(request)).await?;
+    checked_read(response, quantity, what)
+}
+
+/// A write request under a timeout, its response checked to echo the request.
+async fn write_checked(
+    t: Duration,
+    received: &AtomicU64,
+    what: &str,
+    ctx: &mut dyn Client,
+    request: Request<'_>,
+) -> Result<(), Failed> {
+    let response = within(t, received, what, ctx.call(request.clone())).await?;
+    check_echo(&request, &response, what)
+}
+
+/// Whether the response to a write request echoes its address and quantity, as the
+/// specification has it.
+fn check_echo(request: &Request<'_>, response: &Response, what: &str) -> Result<(), Failed> {
+    let echoed = match (request, response) {
+        (Request::WriteMultipleCoils(a, bits), Response::WriteMultipleCoils(b, n)) => {
+            a == b && bits.len() == usize::from(*n)
+        }
+        (Request::WriteMultipleRegisters(a, words), Response::WriteMultipleRegisters(b, n)) => {
+            a == b && words.len() == usize::from(*n)
+        }
+        _ => false,
+    };
+    if echoed {
+        Ok(())
+    } else {
+        Err(Failed {
+            kind: Failure::Corrupt,
+            cause: format!("a response to {what} that does not echo it: {response:?}"),
+        })
+    }
+}
+
+/// The response to a read for `quantity` bits or words, its length checked.
+fn checked_read(response: Response, quantity: u16, what: &str) -> Result<Read, Failed> {
+    let n = usize::from(quantity);
     let got = match &response {
         Response::ReadCoils(b) | Response::ReadDiscreteInputs(b) => b.len(),
         Response::ReadInputRegisters(w)
@@ -325,30 +481,55 @@ async fn within<T>(
     f: impl std::future::Future<Output = Result<Result<T, tokio_modbus::ExceptionCode>, tokio_modbus::Error>>,
 ) -> Result<T, Failed> {
     let before = received.load(Ordering::Relaxed);
-    let failed = |kind: Failure, cause: String| Err(Failed { kind, cause });
     match tokio::time::timeout(t, f).await {
+        Err(_) => Err(timed_out(t, received.load(Ordering::Relaxed) != before, what)),
+        Ok(Err(tokio_modbus::Error::Transport(e))) => Err(transport_failure(what, e)),
+        Ok(Err(e)) => Err(Failed {
+            kind: Failure::Disconnected,
+            cause: format!("{what}: {e}"),
+        }),
+        Ok(Ok(Err(code))) => Err(exception(code, what)),
+        Ok(Ok(Ok(v))) => Ok(v),
+    }
+}
+
+/// No answer to `what` within `t`; `bytes_came`: bytes arrived meanwhile.
+fn timed_out(t: Duration, bytes_came: bool, what: &str) -> Failed {
+    match bytes_came {
         // The RTU decoder drops bytes with a bad CRC and waits on: bytes but no frame.
-        Err(_) if received.load(Ordering::Relaxed) != before => failed(
-            Failure::Corrupt,
-            format!(
+        true => Failed {
+            kind: Failure::Corrupt,
+            cause: format!(
                 "bytes but no valid response to {what} within {} ms (a bad CRC, another speed?)",
                 t.as_millis()
             ),
-        ),
-        Err(_) => failed(
-            Failure::Timeout,
-            format!("no response to {what} within {} ms", t.as_millis()),
-        ),
-        Ok(Err(tokio_modbus::Error::Transport(e))) if e.kind() == std::io::ErrorKind::InvalidData => failed(
-            Failure::Corrupt,
-            format!("a response to {what} that could not be decoded: {e}"),
-        ),
-        Ok(Err(e)) => failed(Failure::Disconnected, format!("{what}: {e}")),
-        Ok(Ok(Err(code))) => failed(
-            Failure::Exception,
-            format!("exception {} ({code}) to {what}", u8::from(code)),
-        ),
-        Ok(Ok(Ok(v))) => Ok(v),
+        },
+        false => Failed {
+            kind: Failure::Timeout,
+            cause: format!("no response to {what} within {} ms", t.as_millis()),
+        },
+    }
+}
+
+/// The link's error `e` while waiting for `what`: undecodable bytes, or a lost connection.
+fn transport_failure(what: &str, e: std::io::Error) -> Failed {
+    match e.kind() {
+        std::io::ErrorKind::InvalidData => Failed {
+            kind: Failure::Corrupt,
+            cause: format!("a response to {what} that could not be decoded: {e}"),
+        },
+        _ => Failed {
+            kind: Failure::Disconnected,
+            cause: format!("{what}: {e}"),
+        },
+    }
+}
+
+/// The station's exception `code` to `what`.
+fn exception(code: tokio_modbus::ExceptionCode, what: &str) -> Failed {
+    Failed {
+        kind: Failure::Exception,
+        cause: format!("exception {} ({code}) to {what}", u8::from(code)),
     }
 }
 

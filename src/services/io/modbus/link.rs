@@ -9,13 +9,15 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use tokio_modbus::Slave;
-use tokio_modbus::client::{self, rtu, tcp};
+use tokio_modbus::client::{Client, rtu, tcp};
 use tokio_serial::SerialStream;
 
-use super::exchange::{Exchange, Failed, Failure};
+use super::exchange::{Connection, Exchange, Failed, Failure};
+use super::mbap::Pipelined;
 use super::stats::LinkStats;
 use crate::image::Value;
 use crate::runtime::bus::{MailboxReader, MailboxWriter};
+use crate::services::io::map::Requests;
 use crate::services::io::rx_counter::RxCounter;
 use crate::services::io::x20bc0087::client::{Registers, RequestError, RequestFailure};
 use crate::services::io::x20bc0087::{ErrorBits, compare, rebase};
@@ -52,14 +54,19 @@ impl Transport {
         }
     }
 
-    /// Connects; every byte received on the link is added to `received`.
-    async fn connect(&mut self, received: &Arc<AtomicU64>) -> std::io::Result<client::Context> {
+    /// Connects; every byte received on the link is added to `received`. Over TCP, `requests`
+    /// says whether an exchange's requests go together; a serial line carries one at a time.
+    async fn connect(&mut self, received: &Arc<AtomicU64>, requests: Requests) -> std::io::Result<Connection> {
         let serial = match self {
             Transport::Tcp(a) => {
                 let stream = tokio::net::TcpStream::connect(*a).await?;
-                // Requests are small and each waits for its response: send at once.
+                // Requests are small and the exchange waits for their answers: send at once.
                 stream.set_nodelay(true)?;
-                return Ok(tcp::attach(RxCounter::new(stream, Arc::clone(received))));
+                let stream = RxCounter::new(stream, Arc::clone(received));
+                return Ok(match requests {
+                    Requests::Pipelined => Connection::Pipelined(Pipelined::new(stream, Slave::tcp_device())),
+                    Requests::Sequential => Connection::Sequential(tcp::attach(stream)),
+                });
             }
             Transport::Serial { path, baud } => SerialStream::open(&tokio_serial::new(path.as_str(), *baud))?,
             Transport::Stream(s) => {
@@ -69,16 +76,16 @@ impl Transport {
                 stream.set_nonblocking(true)?;
                 // Registered with the reactor here, in the exchange loop's runtime.
                 let stream = tokio::net::UnixStream::from_std(stream)?;
-                return Ok(rtu::attach_slave(
+                return Ok(Connection::Sequential(rtu::attach_slave(
                     RxCounter::new(stream, Arc::clone(received)),
                     Slave(1),
-                ));
+                )));
             }
         };
-        Ok(rtu::attach_slave(
+        Ok(Connection::Sequential(rtu::attach_slave(
             RxCounter::new(serial, Arc::clone(received)),
             Slave(1),
-        ))
+        )))
     }
 }
 
@@ -317,9 +324,13 @@ impl Link {
         // Whether the outputs are written (false while the cycle publishes none).
         let mut writing = true;
         while !shared.stop.load(Ordering::Relaxed) {
-            let connected = tokio::time::timeout(self.exchange.timeout, self.transport.connect(&received)).await;
-            let mut ctx = match connected {
-                Ok(Ok(ctx)) => ctx,
+            let connected = tokio::time::timeout(
+                self.exchange.timeout,
+                self.transport.connect(&received, self.exchange.requests),
+            )
+            .await;
+            let mut link = match connected {
+                Ok(Ok(link)) => link,
                 other => {
                     let cause = match other {
                         Ok(Err(e)) => format!("cannot connect: {e}"),
@@ -333,7 +344,7 @@ impl Link {
                     continue;
                 }
             };
-            match self.make_ready(&mut ctx, !ready_once).await {
+            match self.make_ready(link.client(), !ready_once).await {
                 Ok(None) => ready_once = true,
                 Ok(Some(faults)) => {
                     ready_once = true;
@@ -375,7 +386,7 @@ impl Link {
                 let started = Instant::now();
                 match self
                     .exchange
-                    .run(&mut ctx, &received, &mut in_values, writing.then_some(&out_values[..]))
+                    .run(&mut link, &received, &mut in_values, writing.then_some(&out_values[..]))
                     .await
                 {
                     Ok(()) => {
@@ -404,7 +415,7 @@ impl Link {
                         }
                         exchanges += 1;
                         if self.exchange.bus_controller.is_some() && exchanges.is_multiple_of(STATUS_EVERY) {
-                            match self.station_status(&mut ctx, &mut expired_since, writing).await {
+                            match self.station_status(link.client(), &mut expired_since, writing).await {
                                 Ok(fault) => station_fault = fault,
                                 Err(f) => {
                                     if self.after_failure(&mut failures, &mut backoff, &f, false).await {
@@ -485,7 +496,7 @@ impl Link {
     /// connection the watchdog is reset (an expiry then is a former controller's, and this run's
     /// outputs start safe); on a later one, a station that reports faults — its watchdog expired
     /// while the link was away — keeps them, returned (`Some`) for the link to raise.
-    async fn make_ready(&mut self, ctx: &mut client::Context, first: bool) -> Result<Option<ErrorBits>, NotReady> {
+    async fn make_ready(&mut self, ctx: &mut dyn Client, first: bool) -> Result<Option<ErrorBits>, NotReady> {
         let Some(bc) = &self.exchange.bus_controller else {
             return Ok(None);
         };
@@ -545,7 +556,7 @@ impl Link {
     /// written (`writing`).
     async fn station_status(
         &self,
-        ctx: &mut client::Context,
+        ctx: &mut dyn Client,
         expired_since: &mut Option<Instant>,
         writing: bool,
     ) -> Result<bool, Failed> {

@@ -18,6 +18,7 @@
 
 mod exchange;
 mod link;
+mod mbap;
 mod stats;
 
 use std::sync::Arc;
@@ -349,6 +350,7 @@ impl Bus for ModbusBus {
             transport,
             exchange: Exchange {
                 mode: self.options.exchange,
+                requests: self.map.requests,
                 timeout: self.options.timeout,
                 inputs,
                 outputs,

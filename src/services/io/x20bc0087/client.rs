@@ -4,7 +4,8 @@
 
 use std::time::Duration;
 
-use tokio_modbus::client::{Context, Reader as _, Writer as _};
+use tokio_modbus::client::Client;
+use tokio_modbus::{Request, Response};
 
 use super::{
     CLIENTS, ERRORS, ErrorBits, GATEWAY, IP_CURRENT, IP_FLASH, MAC, MAX_MODULES, MODULE_TABLE, ModuleRecord, NODE,
@@ -43,13 +44,13 @@ pub struct RequestError {
 
 /// The bus controller's registers over an open connection, each request under `timeout`.
 pub struct Registers<'a> {
-    ctx: &'a mut Context,
+    ctx: &'a mut dyn Client,
     timeout: Duration,
 }
 
 impl<'a> Registers<'a> {
     /// Requests on `ctx`, each waited for at most `timeout`.
-    pub fn new(ctx: &'a mut Context, timeout: Duration) -> Self {
+    pub fn new(ctx: &'a mut dyn Client, timeout: Duration) -> Self {
         Registers { ctx, timeout }
     }
 
@@ -59,21 +60,44 @@ impl<'a> Registers<'a> {
             "read holding registers {address:#06X} … {:#06X}",
             address + count.saturating_sub(1)
         );
-        let words = call(self.timeout, &what, self.ctx.read_holding_registers(address, count)).await?;
-        if words.len() != usize::from(count) {
-            return Err(RequestError {
+        let response = call(
+            self.timeout,
+            &what,
+            self.ctx.call(Request::ReadHoldingRegisters(address, count)),
+        )
+        .await?;
+        match response {
+            Response::ReadHoldingRegisters(words) if words.len() == usize::from(count) => Ok(words),
+            Response::ReadHoldingRegisters(words) => Err(RequestError {
                 kind: RequestFailure::Corrupt,
                 what,
                 cause: format!("{} registers in the response, not {count}", words.len()),
-            });
+            }),
+            other => Err(RequestError {
+                kind: RequestFailure::Corrupt,
+                what,
+                cause: format!("another response: {other:?}"),
+            }),
         }
-        Ok(words)
     }
 
     /// Writes one holding register.
     pub async fn write(&mut self, address: u16, value: u16) -> Result<(), RequestError> {
         let what = format!("write holding register {address:#06X} = {value:#06X}");
-        call(self.timeout, &what, self.ctx.write_single_register(address, value)).await
+        let response = call(
+            self.timeout,
+            &what,
+            self.ctx.call(Request::WriteSingleRegister(address, value)),
+        )
+        .await?;
+        match response {
+            Response::WriteSingleRegister(a, v) if (a, v) == (address, value) => Ok(()),
+            other => Err(RequestError {
+                kind: RequestFailure::Corrupt,
+                what,
+                cause: format!("a response that does not echo the request: {other:?}"),
+            }),
+        }
     }
 
     /// The module table up to its first empty slot (at most [`MAX_MODULES`] modules), read

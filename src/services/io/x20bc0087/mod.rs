@@ -26,6 +26,11 @@ pub const MAX_MODULES: u16 = 253;
 pub const FUNCTION_MODEL_BUS_CONTROLLER: u16 = 254;
 /// A data index that means "no data of this kind".
 pub const NO_DATA: u16 = 0xFFFF;
+/// The hardware ID io-sim's X20BC0087 reports for a module whose ID its I/O map does not pin.
+/// Not 0: a practice run against io-sim must not teach a lab to pin a made-up ID. 0xFFFF is
+/// B&R's "none" (as in the data indexes), no module's ID code, and an I/O map refuses to pin
+/// it, so a map copied from a practice scan is refused until the real ID is written.
+pub const SIMULATED_UNPINNED_ID: u16 = 0xFFFF;
 
 /// MAC address (3 registers).
 pub const MAC: u16 = 0x1000;
@@ -219,10 +224,12 @@ impl ModuleRecord {
     }
 }
 
-/// A module type's name from its hardware ID: the catalogue's, or "unknown ID 0x…".
+/// A module type's name from its hardware ID: the catalogue's, or "unknown ID 0x…" (io-sim's
+/// stand-in for an unpinned ID: "no ID (io-sim)").
 pub fn type_name(id: u16) -> String {
     match catalogue::by_hardware_id(id) {
         Some(t) => t.name.to_string(),
+        None if id == SIMULATED_UNPINNED_ID => "no ID (io-sim)".to_string(),
         None => format!("unknown ID {id:#06X}"),
     }
 }
@@ -249,9 +256,9 @@ pub struct ExpectedModule {
 
 impl ExpectedModule {
     /// The record a bus controller holding exactly this module reports (serial 0, firmware 0;
-    /// an unpinned ID as 0).
+    /// an unpinned ID as [`SIMULATED_UNPINNED_ID`], with no configured ID).
     pub fn record(&self) -> ModuleRecord {
-        let id = self.id.unwrap_or(0);
+        let id = self.id.unwrap_or(SIMULATED_UNPINNED_ID);
         ModuleRecord {
             status: 1,
             id,
@@ -260,7 +267,8 @@ impl ExpectedModule {
             analog_out: index_of(self.data.analog_out),
             digital_in: index_of(self.data.digital_in),
             digital_out: index_of(self.data.digital_out),
-            configured_id: id,
+            // No stored configuration names a module the map leaves open.
+            configured_id: self.id.unwrap_or(0),
             function_model: FUNCTION_MODEL_BUS_CONTROLLER,
             config: (0, 0),
             firmware: 0,
@@ -338,6 +346,12 @@ pub fn compare(expected: &[ExpectedModule], reported: &[ModuleRecord]) -> Result
                     slots.push(format!("{what}, {}", reports()));
                     continue;
                 }
+                _ if got.id == SIMULATED_UNPINNED_ID => notes.push(format!(
+                    "slot {}: {} (module \"{}\"): the station reports ID {SIMULATED_UNPINNED_ID:#06X}, io-sim's stand-in \
+                     for an ID its map does not pin, no module's own; the real station reports the module's ID \
+                     (`pkm-plc station scan`): pin that one",
+                    want.slot, want.type_name, want.name
+                )),
                 _ => notes.push(format!(
                     "slot {}: {} (module \"{}\") is taken to be the module of ID {:#06X} the station reports there: \
                      pin it in the I/O map (\"id\": \"{:#06X}\") so that another module is refused",
@@ -559,11 +573,16 @@ mod tests {
                 "slot 2: the I/O map expects X20DO9322 (ID 0x1B9A, module \"DO\"), the station reports X20DI9371 (ID 0x1B95)",
             ]
         );
+        // io-sim's station: the three unpinned IDs reported as its stand-in, each note saying
+        // that it is no ID to pin.
         let same: Vec<ModuleRecord> = expected.iter().map(ExpectedModule::record).collect();
+        assert_eq!(same[2].id, SIMULATED_UNPINNED_ID);
+        let notes = compare(&expected, &same).expect("io-sim's own station");
+        assert_eq!(notes.len(), 3, "three IDs not pinned: notes");
         assert_eq!(
-            compare(&expected, &same).map(|notes| notes.len()),
-            Ok(3),
-            "three IDs not pinned: notes"
+            notes[0],
+            "slot 3: X20DC1196 (module \"DC_LEFT\"): the station reports ID 0xFFFF, io-sim's stand-in for an ID its map \
+             does not pin, no module's own; the real station reports the module's ID (`pkm-plc station scan`): pin that one"
         );
     }
 
