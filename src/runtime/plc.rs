@@ -87,7 +87,14 @@ struct Class {
     inputs: Vec<VarIndex>,
     /// Variables published to the global image after each cycle.
     outputs: Vec<VarIndex>,
+    /// `inputs` and `outputs` as runs of consecutive variables, copied a run at a time
+    /// (element by element, latching and publishing took a fifth of a simulated hour).
+    input_runs: Vec<std::ops::Range<usize>>,
+    output_runs: Vec<std::ops::Range<usize>>,
     programs: Vec<Slot>,
+    /// Whether one of its programs reports the application's state ([`Program::status`]),
+    /// asked once when the class is built: a program reports a state on every call or never.
+    reports_status: bool,
     next_release: u64,
     stats: ClassStats,
     violation_logged: bool,
@@ -116,6 +123,9 @@ pub struct Plc {
     /// class's exchange ([`Bus::observe_error`]): looked up when the class that reports the
     /// application's state has run (or a panic put the PLC in ERROR), not on every cycle.
     in_error: bool,
+    /// Counts the cycles after which the application's state may have changed
+    /// ([`Plc::status_seq`]).
+    status_seq: u64,
 }
 
 /// A read-only view of one task class, for summaries and status lines.
@@ -199,7 +209,9 @@ impl Plc {
                     seen_violation: 0,
                 });
             }
+            let reports_status = programs.iter().any(|slot| slot.program.status().is_some());
             classes.push(Class {
+                reports_status,
                 name: tc.name.clone(),
                 period_ns: u64::from(tc.cycle_us.max(1)) * 1000,
                 tolerance_ns: u64::from(tc.tolerance_us) * 1000,
@@ -207,6 +219,8 @@ impl Plc {
                 image: Vec::new(),
                 inputs: Vec::new(),
                 outputs: Vec::new(),
+                input_runs: Vec::new(),
+                output_runs: Vec::new(),
                 programs,
                 next_release: 0,
                 stats: ClassStats::default(),
@@ -239,6 +253,8 @@ impl Plc {
                     class.inputs.push(index);
                 }
             }
+            class.input_runs = runs(&class.inputs);
+            class.output_runs = runs(&class.outputs);
         }
         let mut order: Vec<usize> = (0..classes.len()).collect();
         order.sort_by_key(|&c| (config.task_classes[c].priority, c));
@@ -256,6 +272,7 @@ impl Plc {
             machine: config.machine.clone(),
             service: None,
             in_error: false,
+            status_seq: 0,
         })
     }
 
@@ -351,8 +368,18 @@ impl Plc {
         }
         self.order
             .iter()
+            .filter(|&&c| self.classes[c].reports_status)
             .flat_map(|&c| self.classes[c].programs.iter())
             .find_map(|slot| slot.program.status())
+    }
+
+    /// A number that changes whenever the application's state ([`Plc::app_status`]) may have
+    /// changed: after each cycle of the class that reports it, and in service mode after every
+    /// cycle. An observer that saw the state at one number need not look again until it
+    /// changes (the state, its note and reason are the status program's, and change only when
+    /// it runs).
+    pub fn status_seq(&self) -> u64 {
+        self.status_seq
     }
 
     /// The cycle time (ns) of the task class whose program reports [`Plc::app_status`]: the
@@ -360,12 +387,7 @@ impl Plc {
     pub fn app_period_ns(&self) -> Option<u64> {
         self.order
             .iter()
-            .find(|&&c| {
-                self.classes[c]
-                    .programs
-                    .iter()
-                    .any(|slot| slot.program.status().is_some())
-            })
+            .find(|&&c| self.classes[c].reports_status)
             .map(|&c| self.classes[c].period_ns)
     }
 
@@ -407,9 +429,7 @@ impl Plc {
         for ci in self.order.clone() {
             let class = &mut self.classes[ci];
             self.bus.read_inputs(ci, start_ns, &mut self.global);
-            for &i in &class.inputs {
-                class.image[usize::from(i)] = self.global[usize::from(i)];
-            }
+            copy_runs(&class.input_runs, &self.global, &mut class.image);
             let serving = self.service.is_some();
             for slot in &mut class.programs {
                 if self.service.is_some() {
@@ -431,9 +451,7 @@ impl Plc {
                 self.enter_service_mode();
             }
             let class = &mut self.classes[ci];
-            for &o in &class.outputs {
-                self.global[usize::from(o)] = class.image[usize::from(o)];
-            }
+            copy_runs(&class.output_runs, &class.image, &mut self.global);
             self.bus.write_outputs(ci, start_ns, &self.global);
             class.next_release = start_ns;
         }
@@ -534,9 +552,7 @@ impl Plc {
     /// Publishes class `ci`'s outputs to the global image.
     fn publish(&mut self, ci: usize) {
         let class = &self.classes[ci];
-        for &o in &class.outputs {
-            self.global[usize::from(o)] = class.image[usize::from(o)];
-        }
+        copy_runs(&class.output_runs, &class.image, &mut self.global);
     }
 
     /// Hands the cycle just run to the recorder, if there is one.
@@ -609,19 +625,13 @@ impl Plc {
         self.bus.read_inputs(ci, release, &mut self.global);
         // The bus's fault status is an input like any other: latched below by the classes that read it.
         self.global[usize::from(self.bus_fault)] = Value::Bool(self.bus.fault());
-        for &i in &class.inputs {
-            class.image[usize::from(i)] = self.global[usize::from(i)];
-        }
+        copy_runs(&class.input_runs, &self.global, &mut class.image);
         let cycle = class.stats.cycles;
         let violation = self.execute(ci, release, clock, None);
         // The state is the status program's (or service mode's): it changes only when they run.
-        if self.service.is_some()
-            || self.classes[ci]
-                .programs
-                .iter()
-                .any(|slot| slot.program.status().is_some())
-        {
+        if self.service.is_some() || self.classes[ci].reports_status {
             self.in_error = self.app_status().is_some_and(|s| s.state == "ERROR");
+            self.status_seq += 1;
         }
         self.publish(ci);
         self.bus.write_outputs(ci, release, &self.global);
@@ -678,5 +688,25 @@ impl Plc {
             }
         }
         self.bus.write_safe(&self.global);
+    }
+}
+
+/// The ascending variable indexes `vars` as runs of consecutive indexes.
+fn runs(vars: &[VarIndex]) -> Vec<std::ops::Range<usize>> {
+    let mut runs: Vec<std::ops::Range<usize>> = Vec::new();
+    for &v in vars {
+        let v = usize::from(v);
+        match runs.last_mut() {
+            Some(last) if last.end == v => last.end = v + 1,
+            _ => runs.push(v..v + 1),
+        }
+    }
+    runs
+}
+
+/// Copies the variables of `runs` from `from` to `to` (images of one table: same length).
+fn copy_runs(runs: &[std::ops::Range<usize>], from: &[Value], to: &mut [Value]) {
+    for r in runs {
+        to[r.clone()].copy_from_slice(&from[r.clone()]);
     }
 }

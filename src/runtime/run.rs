@@ -50,10 +50,18 @@ pub const STATE_LOG_TARGET: &str = module_path!();
 struct StateLog {
     last: String,
     note: String,
+    /// [`Plc::status_seq`] when the state was last looked at: until it changes, the state has
+    /// not (comparing the state's texts after every pass took a tenth of a simulated hour).
+    seen: Option<u64>,
 }
 
 impl StateLog {
     fn observe(&mut self, plc: &Plc, t_ns: u64) {
+        let seq = plc.status_seq();
+        if self.seen == Some(seq) {
+            return;
+        }
+        self.seen = Some(seq);
         let Some(status) = plc.app_status() else { return };
         if status.state != self.last {
             match plc.error_reason() {

@@ -10,7 +10,6 @@ use pkm_api::machine::EmbeddedFile;
 
 use crate::image::{Problem, Reader, Value, VarIndex, VarTable, VarType, Writer};
 use crate::runtime::config::{self, ConfigError, LoadedConfig};
-use crate::services::io::x20bc0087::SIMULATED_UNPINNED_ID;
 
 /// The file as written.
 #[derive(Clone, Debug, Deserialize)]
@@ -78,6 +77,12 @@ impl IdText {
         }
     }
 }
+
+/// The hardware ID io-sim's X20BC0087 reports for a module whose ID its I/O map does not pin.
+/// Not 0: a practice run against io-sim must not teach a lab to pin a made-up ID. 0xFFFF is
+/// B&R's "none" (as in the data indexes), no module's ID code, and an I/O map refuses to pin
+/// it, so a map copied from a practice scan is refused until the real ID is written.
+pub const SIMULATED_UNPINNED_ID: u16 = 0xFFFF;
 
 /// An X20BC0087's watchdog threshold when the map gives none (ms): ten 10 ms cycles.
 pub const DEFAULT_WATCHDOG_MS: u16 = 100;

@@ -46,6 +46,10 @@ struct ClassExchange {
     unwired: Vec<(usize, usize, VarIndex)>,
     /// Per output binding: the (module, channel) and the variable.
     outputs: Vec<(usize, usize, VarIndex)>,
+    /// The output signals the class's bindings drive, in the plant's signal order, and the
+    /// (module, channel) of each: what its cycle's outputs change in the plant.
+    output_signals: Vec<usize>,
+    output_channels: Vec<(usize, usize)>,
 }
 
 /// The simulated bus.
@@ -179,7 +183,7 @@ impl SimBus {
             Some(c) => c..c + 1,
             None => 0..self.classes.len(),
         };
-        for c in classes {
+        for c in classes.clone() {
             let Some(exchange) = self.classes.get(c) else {
                 continue;
             };
@@ -187,7 +191,18 @@ impl SimBus {
                 self.channels[m][ch] = image[usize::from(var)];
             }
         }
-        self.channels_to_plant();
+        match class.and_then(|c| self.classes.get(c)) {
+            // A class's cycle changes only its own outputs: only those go to the plant (the
+            // others' are what the plant has already; writing them again changed nothing, and
+            // took a tenth of the hexapod's simulated hour).
+            Some(exchange) => {
+                for (&signal, &(m, c)) in exchange.output_signals.iter().zip(&exchange.output_channels) {
+                    self.signal_values[signal] = self.channels[m][c];
+                }
+                self.plant.write_from(&exchange.output_signals, &self.signal_values);
+            }
+            None => self.channels_to_plant(),
+        }
     }
 
     /// Applies the output channels to the plant.
@@ -226,6 +241,18 @@ impl Bus for SimBus {
         for exchange in &mut self.classes {
             // The plant's batch read in its signal order.
             exchange.signals.sort_unstable();
+            // The plant's output signals this class's bindings drive, in signal order.
+            let mut driven: Vec<(usize, (usize, usize))> = exchange
+                .outputs
+                .iter()
+                .filter_map(|&(m, ch, _)| {
+                    let k = self.outputs.channels.iter().position(|c| *c == (m, ch))?;
+                    Some((self.outputs.signals[k], (m, ch)))
+                })
+                .collect();
+            driven.sort_unstable();
+            driven.dedup();
+            (exchange.output_signals, exchange.output_channels) = driven.into_iter().unzip();
         }
     }
 

@@ -142,7 +142,9 @@ pub trait Program: Send {
     fn init(&mut self, _ctx: &mut Cycle<'_>) {}
     /// The cyclic part.
     fn cycle(&mut self, ctx: &mut Cycle<'_>);
-    /// The program's state, if it is the kind of program that has one (the main program).
+    /// The program's state, if it is the kind of program that has one (the main program). A
+    /// program reports a state on every call, from its construction on, or never: the runtime
+    /// asks once, when it builds the task class, which programs report one.
     fn status(&self) -> Option<AppStatus<'_>> {
         None
     }

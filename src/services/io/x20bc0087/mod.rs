@@ -26,11 +26,8 @@ pub const MAX_MODULES: u16 = 253;
 pub const FUNCTION_MODEL_BUS_CONTROLLER: u16 = 254;
 /// A data index that means "no data of this kind".
 pub const NO_DATA: u16 = 0xFFFF;
-/// The hardware ID io-sim's X20BC0087 reports for a module whose ID its I/O map does not pin.
-/// Not 0: a practice run against io-sim must not teach a lab to pin a made-up ID. 0xFFFF is
-/// B&R's "none" (as in the data indexes), no module's ID code, and an I/O map refuses to pin
-/// it, so a map copied from a practice scan is refused until the real ID is written.
-pub const SIMULATED_UNPINNED_ID: u16 = 0xFFFF;
+/// The hardware ID io-sim reports for a module whose ID its I/O map does not pin (0xFFFF).
+pub use crate::services::io::map::SIMULATED_UNPINNED_ID;
 
 /// MAC address (3 registers).
 pub const MAC: u16 = 0x1000;

@@ -120,6 +120,38 @@ impl Stepper {
         self.moved_step_us = (self.moved_step_us + steps).clamp(min, max);
     }
 
+    /// `n` steps of `dt` at once, the same as `n` calls of [`Stepper::step`] to the last bit:
+    /// between two writes the commanded rate is constant, so the first step settles whether
+    /// the motor is out of step, the step counts grow by whole numbers (their clamp at a hard
+    /// stop is the same once as step by step, the steps all going one way), and only the
+    /// followed rate is moved step by step, until it has caught up.
+    pub fn steps(&mut self, dt: f64, n: u64, travel: [f64; 2], jammed: bool) {
+        if n == 0 {
+            return;
+        }
+        self.step(dt, travel, jammed);
+        let rest = n - 1;
+        let rate = self.rate();
+        let reach = self.p.pull_out_accel_mm_s2 * self.p.steps_per_mm * dt;
+        for _ in 0..rest {
+            if self.followed == rate {
+                break;
+            }
+            self.followed += (rate - self.followed).clamp(-reach, reach);
+        }
+        if rate == 0.0 || rest == 0 {
+            return;
+        }
+        // `step` cached `dt` in whole µs.
+        let steps = rate as i64 * self.dt.1 * rest as i64;
+        self.emitted_step_us += steps;
+        if self.stalled || jammed {
+            return;
+        }
+        let [min, max] = travel.map(|mm| ((mm - self.start_mm) * self.p.steps_per_mm * 1e6).round() as i64);
+        self.moved_step_us = (self.moved_step_us + steps).clamp(min, max);
+    }
+
     /// The commanded rate in effect (steps/s): zero while disabled.
     fn rate(&self) -> f64 {
         if self.enabled { self.commanded } else { 0.0 }
@@ -332,5 +364,34 @@ mod tests {
         assert!(s.emitted() > 32_768.0);
         assert_eq!(s.counter(), wrap(s.emitted().floor() as i64));
         assert!(s.counter() < 0);
+    }
+
+    /// The stepper's state, every field, for comparing two motors bit for bit.
+    fn state(s: &Stepper) -> String {
+        format!("{s:?}")
+    }
+
+    proptest::proptest! {
+        /// `steps(n)` is `n` calls of `step`, to the last bit, whatever the commands before
+        /// (ramps within and beyond the pull-out limits, stalls, disabling), the hard stops and
+        /// a dead drive: the plant takes a cycle's steps at once only because of this.
+        #[test]
+        fn n_steps_at_once_are_n_single_steps(
+            commands in proptest::collection::vec((proptest::bool::weighted(0.9), -5000i16..5000, 1u64..25), 1..40),
+            start in -4.0f64..300.0,
+            dead in proptest::bool::weighted(0.1),
+        ) {
+            let mut one = Stepper::new(PN101, start);
+            let mut many = one.clone();
+            for (enable, rate, n) in commands {
+                one.command(enable, rate);
+                many.command(enable, rate);
+                for _ in 0..n {
+                    one.step(0.001, TRAVEL, dead);
+                }
+                many.steps(0.001, n, TRAVEL, dead);
+                proptest::prop_assert_eq!(state(&one), state(&many));
+            }
+        }
     }
 }

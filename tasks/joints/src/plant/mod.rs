@@ -100,8 +100,6 @@ pub struct Plant {
     /// The joints where the mechanism was last found to assemble.
     checked: [f64; MAX_DOF],
     jams: u64,
-    /// Every joint is DC-driven: a run of steps may be taken as one span ([`Plant::span`]).
-    all_dc: bool,
 }
 
 /// The linkage is checked (by the forward kinematics) once a joint has moved this far from where
@@ -196,7 +194,6 @@ impl Plant {
                 _ => Reader::Wire,
             })
             .collect();
-        let all_dc = joints.iter().all(|j| matches!(j.drive, Drive::Dc { .. }));
         Plant {
             stuck: vec![None; signals.len()],
             signals,
@@ -211,14 +208,13 @@ impl Plant {
             pose,
             checked,
             jams: 0,
-            all_dc,
         }
     }
 
-    /// Advances the plant by `n` steps of `dt_s`: in one span where every joint is DC-driven
-    /// and the span is clear of hard stops and jams, else step by step.
+    /// Advances the plant by `n` steps of `dt_s`: in one span where the span is clear of hard
+    /// stops for the DC joints and of jams, else step by step.
     pub fn steps(&mut self, dt_s: f64, n: u64) {
-        if n > 1 && self.all_dc && self.span(dt_s, n) {
+        if n > 1 && self.span(dt_s, n) {
             return;
         }
         for _ in 0..n {
@@ -226,43 +222,58 @@ impl Plant {
         }
     }
 
-    /// The DC joints' `n` steps as one span ([`DcAxis::span`]), taken only if no carriage may
-    /// reach a hard stop within it and the mechanism assembles at its end; `false` (nothing
-    /// changed) otherwise. The linkage is checked where the span ends, as [`Plant::step`]
-    /// checks it where a step ends once the joints are [`JAM_CHECK_MM`] from the last check: a
-    /// span is a cycle's few steps (4 µm at 40 mm/s), and one the mechanism refuses is stepped,
-    /// so a jam still halts the joints at the step that meets it.
+    /// The joints' `n` steps as one span — a DC joint's by [`DcAxis::span`], a stepper's by
+    /// [`Stepper::steps`], which is its `n` steps to the last bit — taken only if no DC carriage
+    /// may reach a hard stop within it and the mechanism assembles at its end; `false`
+    /// (nothing changed) otherwise. The linkage is checked where the span ends, as
+    /// [`Plant::step`] checks it where a step ends once the joints are [`JAM_CHECK_MM`] from
+    /// the last check: a span is a cycle's few steps (tenths of a millimetre at most), and
+    /// one the mechanism refuses is stepped, so a jam still halts the joints at the step
+    /// that meets it.
     fn span(&mut self, dt_s: f64, n: u64) -> bool {
         let mut ends = [SpanEnd {
             position_mm: 0.0,
             velocity_mm_s: 0.0,
         }; MAX_DOF];
+        let mut stepped: [Option<Stepper>; MAX_DOF] = Default::default();
         let mut next = [0.0; MAX_DOF];
         let mut moved = false;
         for (j, joint) in self.joints.iter_mut().enumerate() {
-            let Drive::Dc {
-                axis,
-                pwm,
-                bridge_error,
-                ..
-            } = &mut joint.drive
-            else {
-                return false;
+            next[j] = match &mut joint.drive {
+                Drive::Dc {
+                    axis,
+                    pwm,
+                    bridge_error,
+                    ..
+                } => {
+                    let duty = dc_duty(self.pwm_period[j / 2], *pwm, *bridge_error, joint.dead);
+                    let Some(end) = axis.span(duty, dt_s, n) else {
+                        return false;
+                    };
+                    ends[j] = end;
+                    end.position_mm
+                }
+                Drive::Stepper { motor, .. } => {
+                    let mut m = motor.clone();
+                    m.steps(dt_s, n, joint.p.hard_stops_mm, joint.dead);
+                    let at = m.position_mm();
+                    stepped[j] = Some(m);
+                    at
+                }
             };
-            let duty = dc_duty(self.pwm_period[j / 2], *pwm, *bridge_error, joint.dead);
-            let Some(end) = axis.span(duty, dt_s, n) else {
-                return false;
-            };
-            moved |= end.position_mm != axis.position_mm();
-            next[j] = end.position_mm;
-            ends[j] = end;
+            moved |= next[j] != joint.position_mm();
         }
         if !self.linkage_allows(&next, moved) {
             return false;
         }
-        for (joint, end) in self.joints.iter_mut().zip(ends) {
-            if let Drive::Dc { axis, .. } = &mut joint.drive {
-                axis.commit_span(end);
+        for ((joint, end), m) in self.joints.iter_mut().zip(ends).zip(&mut stepped) {
+            match &mut joint.drive {
+                Drive::Dc { axis, .. } => axis.commit_span(end),
+                Drive::Stepper { motor, .. } => {
+                    if let Some(m) = m.take() {
+                        *motor = m;
+                    }
+                }
             }
         }
         true
