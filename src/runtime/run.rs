@@ -211,6 +211,7 @@ pub fn start_realtime_with(
     let thread = std::thread::Builder::new()
         .name("plc-cyclic".into())
         .spawn(move || {
+            timing::prefault_stack();
             let realtime_priority = options.realtime_priority > 0 && {
                 match timing::set_realtime_priority(options.realtime_priority) {
                     Ok(()) => {

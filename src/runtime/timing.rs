@@ -276,6 +276,14 @@ pub enum LockMemoryError {
 
 /// Locks the process's current and future memory, so page faults cannot delay a cycle — but only
 /// where that is safe: with CAP_IPC_LOCK, or under a locked-memory limit of at least 512 MiB.
+///
+/// Pages are locked as they are first touched (`MCL_ONFAULT`, Linux 4.4; before it, all at
+/// once): what the process uses stays resident and cannot be paged out, what it never touches
+/// — most of its 38 MB binary (the OPC UA server's and the screen's code, the NodeSets), the
+/// capacity of buffers not yet filled — is neither read nor counted. Locking every page at once
+/// made a run 62 MB resident, 31 MB of it the binary's own file. The cycle's pages are touched
+/// by its init part and first cycles, and its stack by [`prefault_stack`], so after them it
+/// never waits on a page fault.
 pub fn lock_memory() -> Result<(), LockMemoryError> {
     use nix::sys::mman::{MlockAllFlags, mlockall};
     use nix::sys::resource::{Resource, getrlimit};
@@ -285,7 +293,25 @@ pub fn lock_memory() -> Result<(), LockMemoryError> {
             return Err(LockMemoryError::LimitTooSmall { limit_kib: soft / 1024 });
         }
     }
-    mlockall(MlockAllFlags::MCL_CURRENT | MlockAllFlags::MCL_FUTURE).map_err(|e| LockMemoryError::Os(e.into()))
+    let all = MlockAllFlags::MCL_CURRENT | MlockAllFlags::MCL_FUTURE;
+    match mlockall(all | MlockAllFlags::from_bits_retain(libc::MCL_ONFAULT)) {
+        Ok(()) => Ok(()),
+        // A kernel before 4.4 knows no MCL_ONFAULT: every page at once, then.
+        Err(nix::errno::Errno::EINVAL) => mlockall(all).map_err(|e| LockMemoryError::Os(e.into())),
+        Err(e) => Err(LockMemoryError::Os(e.into())),
+    }
+}
+
+/// How much of the cyclic thread's stack [`prefault_stack`] touches: far more than a cycle
+/// uses (its programs keep their state on the heap).
+const STACK_PREFAULT: usize = 256 * 1024;
+
+/// Touches [`STACK_PREFAULT`] bytes of the calling thread's stack, so that with memory locked on
+/// fault ([`lock_memory`]) the cycle's deepest calls find their stack pages resident.
+#[inline(never)]
+pub fn prefault_stack() {
+    let mut pages = [0u8; STACK_PREFAULT];
+    std::hint::black_box(&mut pages);
 }
 
 /// Whether the process has CAP_IPC_LOCK (bit 14 of the effective capability set), which lifts the

@@ -202,16 +202,18 @@ pub fn router(info: HmiInfo, mut frames: FrameFeed, sink: CommandSink, options: 
     ];
     let nc_state_at = at(pkm_api::trajectory::vars::NC_STATE.name());
     tokio::spawn(async move {
-        // A held jog whose client went quiet is looked at between frames too.
+        // A held jog whose client went quiet is looked at between frames too — only while a
+        // jog is held: ticking all the time woke the process 200 times a second for nothing.
         let mut tick = tokio::time::interval(STALE_JOG_POLL);
         tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
         loop {
+            let jogging = pump.jog_held();
             let newer = tokio::select! {
                 frame = frames.next() => match frame {
                     Some(frame) => Some(frame),
                     None => break,
                 },
-                _ = tick.tick() => None,
+                _ = tick.tick(), if jogging => None,
             };
             // Taken even with nobody listening, so that a client gets the newest next; written
             // out only for listeners.
@@ -985,6 +987,11 @@ impl Shared {
     }
 
     /// Stops a jog that its client stopped refreshing.
+    /// Whether a client holds a jog now.
+    fn jog_held(&self) -> bool {
+        self.jog_owner.lock().unwrap_or_else(|p| p.into_inner()).is_some()
+    }
+
     fn release_stale_jog(&self) {
         let mut owner = self.jog_owner.lock().unwrap_or_else(|p| p.into_inner());
         if owner.is_some_and(|(_, at)| at.elapsed() > JOG_TIMEOUT) {
