@@ -100,6 +100,10 @@ pub(super) struct Exchange {
     pub mode: ExchangeMode,
     /// How the requests go over Modbus TCP (on a serial line, one at a time whatever it says).
     pub requests: Requests,
+    /// Set when requests sent together were answered only in part before the timeout: the
+    /// station keeps only the first of pipelined requests (pymodbus's server does). The link
+    /// then goes on with one request at a time ([`Exchange::pipelining_refused`]).
+    pub refused_pipelining: std::cell::Cell<bool>,
     pub timeout: Duration,
     pub inputs: Vec<Slot>,
     pub outputs: Vec<Slot>,
@@ -138,6 +142,12 @@ impl Exchange {
             (_, Connection::Pipelined(p)) => self.pipelined(p, in_values, out_values).await,
             (_, Connection::Sequential(ctx)) => self.tables(ctx, received, in_values, out_values).await,
         }
+    }
+
+    /// Whether the last exchange found the station answering only part of the requests sent
+    /// together (cleared by asking).
+    pub fn pipelining_refused(&self) -> bool {
+        self.refused_pipelining.take()
     }
 
     /// Moves every slot to where `registers` (the map's layout with a station's own data
@@ -242,6 +252,12 @@ impl Exchange {
         };
         match outcome {
             Err(e) if e.kind() == std::io::ErrorKind::TimedOut => {
+                // Some answered, the others never: the station does not keep requests that
+                // arrive while it answers one.
+                let answered = answers.iter().filter(|a| a.is_some()).count();
+                if answered > 0 && answered < answers.len() {
+                    self.refused_pipelining.set(true);
+                }
                 return Err(timed_out(self.timeout, link.partial_response(), &unanswered()));
             }
             Err(e) => return Err(transport_failure(&unanswered(), e)),

@@ -437,6 +437,16 @@ impl Link {
                         shared.episode_over();
                     }
                     Err(f) => {
+                        if self.exchange.pipelining_refused() && self.exchange.requests == Requests::Pipelined {
+                            // Sequential from the next connection on (a timeout reconnects).
+                            tracing::warn!(
+                                "modbus {}: the station answered only part of the requests sent together (it keeps \
+                                 one request at a time): from now on each waits for the answer before it; write \
+                                 \"requests\": \"sequential\" into the I/O map to start that way",
+                                self.name
+                            );
+                            self.exchange.requests = Requests::Sequential;
+                        }
                         if self.after_failure(&mut failures, &mut backoff, &f, false).await {
                             break;
                         }

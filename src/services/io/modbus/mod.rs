@@ -351,6 +351,7 @@ impl Bus for ModbusBus {
             exchange: Exchange {
                 mode: self.options.exchange,
                 requests: self.map.requests,
+                refused_pipelining: std::cell::Cell::new(false),
                 timeout: self.options.timeout,
                 inputs,
                 outputs,
