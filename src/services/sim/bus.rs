@@ -68,6 +68,8 @@ pub struct SimBus {
     outputs: Wired,
     /// Every signal's value as last exchanged, indexed by signal (allocated once).
     signal_values: Vec<Value>,
+    /// The output signals a class's cycle changed (reused: no allocation in the cycle).
+    changed: Vec<usize>,
     scenario: Scenario,
     next_event: usize,
     time_ns: u64,
@@ -84,7 +86,7 @@ impl SimBus {
             .collect();
         let inputs = Wired::of(&wiring, plant.as_ref(), Direction::Input);
         let outputs = Wired::of(&wiring, plant.as_ref(), Direction::Output);
-        let signal_values = plant.signals().iter().map(|s| Value::zero(s.ty)).collect();
+        let signal_values: Vec<Value> = plant.signals().iter().map(|s| Value::zero(s.ty)).collect();
         SimBus {
             map,
             channels,
@@ -92,6 +94,7 @@ impl SimBus {
             inputs,
             classes: Vec::new(),
             outputs,
+            changed: Vec::with_capacity(signal_values.len()),
             signal_values,
             scenario,
             next_event: 0,
@@ -195,11 +198,20 @@ impl SimBus {
             // A class's cycle changes only its own outputs: only those go to the plant (the
             // others' are what the plant has already; writing them again changed nothing, and
             // took a tenth of the hexapod's simulated hour).
+            // And of those only what changed: the plant holds the rest already (every output
+            // reaches it through `signal_values`, which start at the plant's zero outputs).
             Some(exchange) => {
+                self.changed.clear();
                 for (&signal, &(m, c)) in exchange.output_signals.iter().zip(&exchange.output_channels) {
-                    self.signal_values[signal] = self.channels[m][c];
+                    let value = self.channels[m][c];
+                    if self.signal_values[signal] != value {
+                        self.signal_values[signal] = value;
+                        self.changed.push(signal);
+                    }
                 }
-                self.plant.write_from(&exchange.output_signals, &self.signal_values);
+                if !self.changed.is_empty() {
+                    self.plant.write_from(&self.changed, &self.signal_values);
+                }
             }
             None => self.channels_to_plant(),
         }
