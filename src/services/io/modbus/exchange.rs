@@ -199,18 +199,13 @@ impl Exchange {
         Ok(self.decode_inputs(in_values, |a| packed_bit(bits, a), regs)?)
     }
 
-    /// The four standard tables' requests sent together ([`Pipelined::call_all`]); each answer
-    /// may take one request timeout after the one before.
-    async fn pipelined(
-        &self,
-        link: &mut Pipelined<RxCounter<TcpStream>>,
-        in_values: &mut [Value],
-        out_values: Option<&[Value]>,
-    ) -> Result<(), Failed> {
+    /// The exchange's requests on the standard tables, in the order they go — read discrete
+    /// inputs, read input registers, then, with `outputs` (the coils and holding registers of
+    /// [`Exchange::output_tables`]), write coils and write holding registers — each with its
+    /// name for a failure's cause. Tables without entries get no request.
+    fn table_requests<'a>(&self, outputs: Option<&'a (Vec<bool>, Vec<u16>)>) -> Vec<(Request<'a>, String)> {
         let [coils, discrete, input_regs, holding] = self.sizes;
-        let outputs = out_values.map(|v| self.output_tables(v));
-        // The requests in the order of the sequential exchange, each with its name.
-        let mut requests: Vec<(Request<'_>, String)> = Vec::with_capacity(4);
+        let mut requests = Vec::with_capacity(4);
         if discrete > 0 {
             requests.push((
                 Request::ReadDiscreteInputs(0, discrete),
@@ -223,7 +218,7 @@ impl Exchange {
                 span("read input registers", input_regs),
             ));
         }
-        if let Some((coil_bits, words)) = &outputs {
+        if let Some((coil_bits, words)) = outputs {
             if coils > 0 {
                 let request = Request::WriteMultipleCoils(0, Cow::Borrowed(&coil_bits[..]));
                 requests.push((request, span("write coils", coils)));
@@ -234,6 +229,19 @@ impl Exchange {
                 requests.push((Request::WriteMultipleRegisters(base, Cow::Borrowed(&words[..])), what));
             }
         }
+        requests
+    }
+
+    /// The four standard tables' requests sent together ([`Pipelined::call_all`]); each answer
+    /// may take one request timeout after the one before.
+    async fn pipelined(
+        &self,
+        link: &mut Pipelined<RxCounter<TcpStream>>,
+        in_values: &mut [Value],
+        out_values: Option<&[Value]>,
+    ) -> Result<(), Failed> {
+        let outputs = out_values.map(|v| self.output_tables(v));
+        let requests = self.table_requests(outputs.as_ref());
         if requests.is_empty() {
             return Ok(());
         }
@@ -263,86 +271,32 @@ impl Exchange {
             Err(e) => return Err(transport_failure(&unanswered(), e)),
             Ok(()) => {}
         }
-        let mut bits = Vec::new();
-        let mut regs = Vec::new();
+        let mut reads = TableReads::default();
         for ((request, what), answer) in sent.iter().zip(&names).zip(answers) {
             // `call_all` returned Ok: every request has its answer.
             let Some(answer) = answer else {
                 unreachable!("an answer missing after call_all")
             };
-            let response = answer.map_err(|code| exception(code, what))?;
-            match request {
-                Request::ReadDiscreteInputs(_, n) => bits = checked_read(response, *n, what)?.bits()?,
-                Request::ReadInputRegisters(_, n) => regs = checked_read(response, *n, what)?.words()?,
-                _ => check_echo(request, &response, what)?,
-            }
+            reads.take(request, what, answer.map_err(|code| exception(code, what))?)?;
         }
-        Ok(self.decode_inputs(in_values, |a| bits[a], &regs)?)
+        Ok(self.decode_inputs(in_values, |a| reads.bits[a], &reads.regs)?)
     }
 
-    /// The four standard tables, one request each.
+    /// The four standard tables, one request each, each after the answer to the one before.
     async fn tables(
         &self,
-        ctx: &mut client::Context,
+        ctx: &mut dyn Client,
         received: &AtomicU64,
         in_values: &mut [Value],
         out_values: Option<&[Value]>,
     ) -> Result<(), Failed> {
-        let t = self.timeout;
-        let [coils, discrete, input_regs, holding] = self.sizes;
-        let bits = match discrete {
-            0 => Vec::new(),
-            n => read_exactly(
-                t,
-                received,
-                ctx,
-                Request::ReadDiscreteInputs(0, n),
-                n,
-                &span("read discrete inputs", n),
-            )
-            .await?
-            .bits()?,
-        };
-        let regs = match input_regs {
-            0 => Vec::new(),
-            n => read_exactly(
-                t,
-                received,
-                ctx,
-                Request::ReadInputRegisters(0, n),
-                n,
-                &span("read input registers", n),
-            )
-            .await?
-            .words()?,
-        };
-        self.decode_inputs(in_values, |a| bits[a], &regs)?;
-        let Some(out_values) = out_values else { return Ok(()) };
-        let (coil_bits, words) = self.output_tables(out_values);
-        if coils > 0 {
-            let what = span("write coils", coils);
-            write_checked(
-                t,
-                received,
-                &what,
-                ctx,
-                Request::WriteMultipleCoils(0, Cow::Owned(coil_bits)),
-            )
-            .await?;
+        let outputs = out_values.map(|v| self.output_tables(v));
+        let mut reads = TableReads::default();
+        for (request, what) in self.table_requests(outputs.as_ref()) {
+            let response = within(self.timeout, received, &what, ctx.call(request.clone())).await?;
+            reads.take(&request, &what, response)?;
         }
-        if holding > 0 {
-            let base = self.holding_base;
-            let what = format!("write holding registers {base} … {}", base + holding - 1);
-            write_checked(
-                t,
-                received,
-                &what,
-                ctx,
-                Request::WriteMultipleRegisters(base, Cow::Owned(words)),
-            )
-            .await?;
-        }
-        Ok(())
+        Ok(self.decode_inputs(in_values, |a| reads.bits[a], &reads.regs)?)
     }
 
     /// The input values from the discrete inputs (by address) and the input registers.
@@ -375,6 +329,28 @@ impl Exchange {
             }
         }
         (coil_bits, words)
+    }
+}
+
+/// What the reads of a standard-tables exchange brought.
+#[derive(Default)]
+struct TableReads {
+    /// The discrete inputs.
+    bits: Vec<bool>,
+    /// The input registers.
+    regs: Vec<u16>,
+}
+
+impl TableReads {
+    /// Takes the station's `response` to `request` (named `what`): a read's bits or words,
+    /// their number checked; a write's echo checked.
+    fn take(&mut self, request: &Request<'_>, what: &str, response: Response) -> Result<(), Failed> {
+        match request {
+            Request::ReadDiscreteInputs(_, n) => self.bits = checked_read(response, *n, what)?.bits()?,
+            Request::ReadInputRegisters(_, n) => self.regs = checked_read(response, *n, what)?.words()?,
+            _ => check_echo(request, &response, what)?,
+        }
+        Ok(())
     }
 }
 
@@ -421,18 +397,6 @@ async fn read_exactly(
 ) -> Result<Read, Failed> {
     let response = within(t, received, what, ctx.call(request)).await?;
     checked_read(response, quantity, what)
-}
-
-/// A write request under a timeout, its response checked to echo the request.
-async fn write_checked(
-    t: Duration,
-    received: &AtomicU64,
-    what: &str,
-    ctx: &mut dyn Client,
-    request: Request<'_>,
-) -> Result<(), Failed> {
-    let response = within(t, received, what, ctx.call(request.clone())).await?;
-    check_echo(&request, &response, what)
 }
 
 /// Whether the response to a write request echoes its address and quantity, as the

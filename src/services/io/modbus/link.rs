@@ -437,7 +437,7 @@ impl Link {
                         shared.episode_over();
                     }
                     Err(f) => {
-                        if self.exchange.pipelining_refused() && self.exchange.requests == Requests::Pipelined {
+                        if self.exchange.pipelining_refused() {
                             // Sequential from the next connection on (a timeout reconnects).
                             tracing::warn!(
                                 "modbus {}: the station answered only part of the requests sent together (it keeps \
