@@ -100,8 +100,7 @@ impl Stepper {
             self.stalled = false;
             self.followed = rate;
         }
-        let reach = self.p.pull_out_accel_mm_s2 * self.p.steps_per_mm * dt;
-        self.followed += (rate - self.followed).clamp(-reach, reach);
+        self.follow(rate, dt);
         if rate == 0.0 {
             return;
         }
@@ -116,7 +115,7 @@ impl Stepper {
         }
         // Counted from power-on, as the emitted steps are, so a motor that never lost a step has
         // made exactly the steps emitted.
-        let [min, max] = travel.map(|mm| ((mm - self.start_mm) * self.p.steps_per_mm * 1e6).round() as i64);
+        let [min, max] = self.travel_step_us(travel);
         self.moved_step_us = (self.moved_step_us + steps).clamp(min, max);
     }
 
@@ -132,12 +131,11 @@ impl Stepper {
         self.step(dt, travel, jammed);
         let rest = n - 1;
         let rate = self.rate();
-        let reach = self.p.pull_out_accel_mm_s2 * self.p.steps_per_mm * dt;
         for _ in 0..rest {
             if self.followed == rate {
                 break;
             }
-            self.followed += (rate - self.followed).clamp(-reach, reach);
+            self.follow(rate, dt);
         }
         if rate == 0.0 || rest == 0 {
             return;
@@ -148,8 +146,19 @@ impl Stepper {
         if self.stalled || jammed {
             return;
         }
-        let [min, max] = travel.map(|mm| ((mm - self.start_mm) * self.p.steps_per_mm * 1e6).round() as i64);
+        let [min, max] = self.travel_step_us(travel);
         self.moved_step_us = (self.moved_step_us + steps).clamp(min, max);
+    }
+
+    /// The rotor's rate moved towards `rate` for `dt`, at most at the pull-out acceleration.
+    fn follow(&mut self, rate: f64, dt: f64) {
+        let reach = self.p.pull_out_accel_mm_s2 * self.p.steps_per_mm * dt;
+        self.followed += (rate - self.followed).clamp(-reach, reach);
+    }
+
+    /// The hard stops `travel` (mm) as the step counts that reach them from power-on (steps·µs).
+    fn travel_step_us(&self, travel: [f64; 2]) -> [i64; 2] {
+        travel.map(|mm| ((mm - self.start_mm) * self.p.steps_per_mm * 1e6).round() as i64)
     }
 
     /// The commanded rate in effect (steps/s): zero while disabled.
@@ -167,7 +176,7 @@ impl Stepper {
     /// The carriage turned by hand by `mm` (the motor unpowered): it moves, the module counts
     /// nothing.
     pub fn turn_by_hand(&mut self, mm: f64, travel: [f64; 2]) {
-        let [min, max] = travel.map(|t| ((t - self.start_mm) * self.p.steps_per_mm * 1e6).round() as i64);
+        let [min, max] = self.travel_step_us(travel);
         let by = (mm * self.p.steps_per_mm * 1e6).round() as i64;
         self.moved_step_us = (self.moved_step_us + by).clamp(min, max);
     }
