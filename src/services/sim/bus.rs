@@ -186,7 +186,7 @@ impl SimBus {
             Some(c) => c..c + 1,
             None => 0..self.classes.len(),
         };
-        for c in classes.clone() {
+        for c in classes {
             let Some(exchange) = self.classes.get(c) else {
                 continue;
             };
@@ -195,11 +195,10 @@ impl SimBus {
             }
         }
         match class.and_then(|c| self.classes.get(c)) {
-            // A class's cycle changes only its own outputs: only those go to the plant (the
-            // others' are what the plant has already; writing them again changed nothing, and
-            // took a tenth of the hexapod's simulated hour).
-            // And of those only what changed: the plant holds the rest already (every output
-            // reaches it through `signal_values`, which start at the plant's zero outputs).
+            // A class's cycle changes only its own outputs, and of those only what changed goes
+            // to the plant: it holds the rest already (every output reaches it through
+            // `signal_values`, which start at the plant's zero outputs). Writing every output
+            // after every cycle took a tenth of the hexapod's simulated hour.
             Some(exchange) => {
                 self.changed.clear();
                 for (&signal, &(m, c)) in exchange.output_signals.iter().zip(&exchange.output_channels) {

@@ -986,12 +986,12 @@ impl Shared {
         }
     }
 
-    /// Stops a jog that its client stopped refreshing.
     /// Whether a client holds a jog now.
     fn jog_held(&self) -> bool {
         self.jog_owner.lock().unwrap_or_else(|p| p.into_inner()).is_some()
     }
 
+    /// Stops a jog that its client stopped refreshing.
     fn release_stale_jog(&self) {
         let mut owner = self.jog_owner.lock().unwrap_or_else(|p| p.into_inner());
         if owner.is_some_and(|(_, at)| at.elapsed() > JOG_TIMEOUT) {
