@@ -972,6 +972,17 @@ async fn the_screen_sets_the_overrides_steps_a_program_line_by_line_runs_mdi_and
         watched(p, "NC_SINGLE_BLOCK").await == "true"
     })
     .await;
+    // From here the page counts the server's frames it takes and the animation frames it asks
+    // the browser for: one drawing per frame, however much moved (each drawing costs a
+    // software-rendering browser a few ms).
+    page.evaluate(
+        "(() => { window.framesTaken = 0; window.animationFrames = 0; \
+         const take0 = take; take = (m) => { window.framesTaken++; take0(m); }; \
+         const raf = window.requestAnimationFrame.bind(window); \
+         window.requestAnimationFrame = (f) => { window.animationFrames++; return raf(f); }; })()",
+    )
+    .await
+    .expect("the counters");
     click(&page, "#nc-start").await;
     let note = async |p: &Page| text(p, "document.getElementById('note').textContent").await;
     let stands = "single block: the line is done; NC_RESUME runs the next";
@@ -1000,6 +1011,16 @@ async fn the_screen_sets_the_overrides_steps_a_program_line_by_line_runs_mdi_and
         async |p| state(p).await == "READY" && watched(p, "NC_COMPLETED").await == "true",
     )
     .await;
+    let counted = page
+        .evaluate("[window.framesTaken, window.animationFrames]")
+        .await
+        .expect("the counts");
+    let (taken, drawn) = (counted[0].as_u64().unwrap_or(0), counted[1].as_u64().unwrap_or(0));
+    assert!(taken >= 10, "frames taken while the program ran: {taken}");
+    assert!(
+        drawn <= taken,
+        "{drawn} animation frames asked for {taken} frames taken"
+    );
     // MDI: two lines typed, run from where the tool stands (the program's end, the origin).
     page.evaluate("document.getElementById('mdi-text').value = 'G1 X3 Y2 F600\\nG1 X3.5'")
         .await

@@ -4,17 +4,20 @@
 // refreshed for 60 ms).
 //
 // What the page costs the browser is kept small (the page and the PLC often share one PC): it
-// asks the server for DISPLAY_HZ frames a second (each carries the tool's recent points, so the
-// cut path misses none) and draws each at the next animation frame; text is written only where
-// it changed, the process image's table only while it is in view (else once a second), the task
-// classes' table once a second, and the drawings only where something they show moved.
+// asks the server for a few frames a second (each carries the tool's recent points, so the cut
+// path misses none) and draws each in the animation frame it arrives for, one frame of the
+// browser per frame of the server; text is written only where it changed, the process image's
+// table only while it is in view (else once a second), the task classes' table once a second,
+// and the drawings only where a pixel would change.
 "use strict";
 
 const $ = (id) => document.getElementById(id);
-// How often the page is drawn (Hz): each drawing costs a software-rendering browser about
-// 30 ms of CPU and each message a few, so at 20 Hz (the PLC's frames) a page took 45 % of a core.
-const DISPLAY_HZ = 4;
-const token = new URLSearchParams(location.search).get("token");
+const query = new URLSearchParams(location.search);
+// How often the page is drawn (Hz): every frame a software-rendering browser composes costs it
+// a few ms of CPU however little changed, so the page asks for 4 frames a second. A browser with
+// a GPU can ask for more with `?hz=` (1 … 20).
+const DISPLAY_HZ = Number(query.get("hz")) || 4;
+const token = query.get("token");
 let ws = null;
 let variables = [];
 // May this page command (it has the token, or none is needed)?
@@ -65,6 +68,8 @@ let drawPending = false;
 let pathDrawn = false;
 let cutMoved = false;
 let cutDrawn = 0;
+// The pixel coordinates of the tool's layer as last drawn (null: to be drawn).
+let toolDrawn = null;
 // The update latency: from the cycle's publication to this page (ms), the last 2000 frames.
 window.latency = [];
 let latencyAt = 0;
@@ -120,6 +125,8 @@ function connect() {
 function hello(m) {
   index = {};
   shown.clear();
+  classRows = "";
+  droCells = null;
   m.variables.forEach(([n], i) => { index[n] = i; });
   programs = m.programs || [];
   jobs = !!m.jobs;
@@ -181,7 +188,11 @@ function hello(m) {
   enableControls(commands);
   // The token has done its work (the server keeps it in an HttpOnly cookie for this page's
   // reconnections): it leaves the address bar and the history.
-  if (token && commands && history.replaceState) history.replaceState(null, "", location.pathname);
+  if (token && commands && history.replaceState) {
+    const kept = new URLSearchParams(location.search);
+    kept.delete("token");
+    history.replaceState(null, "", location.pathname + (kept.size ? `?${kept}` : ""));
+  }
   const watch = $("watch");
   watch.innerHTML = "<tr><th>variable</th><th>type</th><th>value</th></tr>" +
     variables.map(([n, t], i) => `<tr data-name="${n.toLowerCase()}"><td>${n}</td><td>${t}</td><td class="num" id="v-${i}"></td></tr>`).join("");
@@ -346,12 +357,7 @@ function frame(m) {
   showPositions(m, value);
   if (now - classesAt > 1000) {
     classesAt = now;
-    $("classes").innerHTML = "<tr><th>class</th><th>cycles</th><th>late mean / max µs</th><th>exec mean / max µs</th><th>overruns</th></tr>" +
-      m.classes.map((c) => `<tr><td>${c.name}</td><td class="num">${c.cycles}</td><td class="num">${num(c.late_mean_us, 1)} / ${num(c.late_max_us, 1)}</td><td class="num">${num(c.exec_mean_us, 1)} / ${num(c.exec_max_us, 1)}</td><td class="num">${c.overruns}</td></tr>`).join("") +
-      `<tr><td>bus</td><td colspan="4">${m.bus_fault ? "FAULT" : "ok"}</td></tr>` +
-      ("JOYSTICK_CONNECTED" in index
-        ? `<tr><td>joystick</td><td colspan="4">${m.image[index.JOYSTICK_CONNECTED] ? "connected" : "not connected"}</td></tr>`
-        : "");
+    showClasses(m);
   }
   // Every frame while in view, once a second out of it (a search of the page finds it current).
   if (watchVisible || now - watchAt > 1000) {
@@ -375,8 +381,13 @@ function frame(m) {
   $("mechanism-box").classList.toggle("dimmed", error);
   $("mechanism-note").hidden = !error;
   put($("mechanism-note"), error ? "ERROR: the last pose drawn before it. Press Acknowledge, then reference the machine." : "");
-  if (m.links && JSON.stringify(m.links) !== JSON.stringify(links)) { links = m.links; redraw(); }
-  if (cutMoved) { cutMoved = false; redraw(); }
+  // Drawn in this animation frame, not the next: each frame the browser composes costs a
+  // software-rendering one a few ms whatever changed in it.
+  const moved = m.links && !sameLinks(m.links, links);
+  if (moved) links = m.links;
+  if (cutMoved || (moved && view3d.on)) drawPath();
+  if (moved) drawMechanism();
+  cutMoved = false;
   const line = value("NC_LINE") || 0;
   if (line !== lastLine) {
     followLine(line);
@@ -393,24 +404,57 @@ function frame(m) {
   }
 }
 
+// The task classes' table, the bus and the joystick: its rows made when the classes change,
+// then only the cells that changed written (a table made anew is laid out anew).
+let classRows = "";
+function showClasses(m) {
+  const rows = m.classes.map((c) => c.name).join(" ") + ("JOYSTICK_CONNECTED" in index ? " joystick" : "");
+  const table = $("classes");
+  if (rows !== classRows) {
+    classRows = rows;
+    for (const cell of table.querySelectorAll("td[id]")) shown.delete(cell);
+    table.innerHTML = "<tr><th>class</th><th>cycles</th><th>late mean / max µs</th><th>exec mean / max µs</th><th>overruns</th></tr>" +
+      m.classes.map((c, k) => `<tr><td>${escape(c.name)}</td><td class="num" id="class-${k}-0"></td><td class="num" id="class-${k}-1"></td><td class="num" id="class-${k}-2"></td><td class="num" id="class-${k}-3"></td></tr>`).join("") +
+      `<tr><td>bus</td><td colspan="4" id="class-bus"></td></tr>` +
+      ("JOYSTICK_CONNECTED" in index ? `<tr><td>joystick</td><td colspan="4" id="class-joystick"></td></tr>` : "");
+  }
+  m.classes.forEach((c, k) => {
+    put($(`class-${k}-0`), String(c.cycles));
+    put($(`class-${k}-1`), `${num(c.late_mean_us, 1)} / ${num(c.late_max_us, 1)}`);
+    put($(`class-${k}-2`), `${num(c.exec_mean_us, 1)} / ${num(c.exec_max_us, 1)}`);
+    put($(`class-${k}-3`), String(c.overruns));
+  });
+  put($("class-bus"), m.bus_fault ? "FAULT" : "ok");
+  if ("JOYSTICK_CONNECTED" in index) put($("class-joystick"), m.image[index.JOYSTICK_CONNECTED] ? "connected" : "not connected");
+}
+
 // The DRO: machine positions as the main program shows them (the forward kinematics of the
 // measured joints), work positions against the G54 origin, the joints with their referenced
-// mark; before referencing every position is marked as not trustworthy.
+// mark; before referencing every position is marked as not trustworthy. Its cells are looked
+// up once per hello, not in every frame.
+let droCells = null;
 function showPositions(m, value) {
   const values = new Map(m.values);
   const referenced = !("referenced" in index) || value("referenced") === true;
   document.body.classList.toggle("untrusted", !referenced);
   $("untrusted-note").hidden = referenced;
+  if (!droCells) {
+    droCells = {
+      machine: axes.map((a) => document.querySelector(`#dro td[data-value="${a}"]`)),
+      work: axes.map((a) => $("work-" + a)),
+      joints: [...document.querySelectorAll("#joints [data-value]")],
+      homed: [...document.querySelectorAll("#joints [data-value]")].map((_, k) => $(`homed-${k + 1}`)),
+    };
+  }
   axes.forEach((a, c) => {
     const machine = values.get(a);
-    const cell = document.querySelector(`#dro td[data-value="${a}"]`);
-    put(cell, num(machine, 3));
+    put(droCells.machine[c], num(machine, 3));
     const work = machine === undefined || machine === null ? null : machine - (origins ? origins[0][c] : 0);
-    put($("work-" + a), num(work, 3));
+    put(droCells.work[c], num(work, 3));
   });
-  document.querySelectorAll("#joints [data-value]").forEach((cell, k) => {
+  droCells.joints.forEach((cell, k) => {
     put(cell, num(values.get(`q${k + 1}`), 3));
-    put($(`homed-${k + 1}`), referenced ? "✓" : "○");
+    put(droCells.homed[k], referenced ? "✓" : "○");
   });
 }
 
@@ -486,6 +530,19 @@ function takeCut(trail) {
   }
 }
 
+// Whether two sets of the mechanism's links are the same (each a pair of 3-D points).
+function sameLinks(a, b) {
+  if (!b || a.length !== b.length) return false;
+  for (let i = 0; i < a.length; i++) {
+    for (let e = 0; e < 2; e++) {
+      const p = a[i][e], q = b[i][e];
+      if (p.length !== q.length) return false;
+      for (let c = 0; c < p.length; c++) if (p[c] !== q[c]) return false;
+    }
+  }
+  return true;
+}
+
 // Draws what moved at the next animation frame (once, however many frames came); `all`: the
 // path's layers from scratch (another program, cut path or view).
 function redraw(all = false) {
@@ -529,29 +586,45 @@ function drawPath() {
   if (!pathDrawn) {
     pathDrawn = true;
     cutDrawn = 0;
+    toolDrawn = null;
     drawProgrammed(canvas.getContext("2d"), px);
     $("path-cut").getContext("2d").clearRect(0, 0, canvas.width, canvas.height);
   }
   if (cutDrawn > cut.length) {
     cutDrawn = 0;
+    toolDrawn = null;
     $("path-cut").getContext("2d").clearRect(0, 0, canvas.width, canvas.height);
   }
   const c = $("path-cut").getContext("2d");
-  if (cut.length - cutDrawn > 0) {
+  // New points less than half a pixel from the last one drawn wait for more (drawing them
+  // changes no pixel, yet the browser composes the canvas again).
+  const newest = cut.length ? px(cut[cut.length - 1]) : null;
+  const drawnTo = cutDrawn ? px(cut[cutDrawn - 1]) : null;
+  if (cut.length > cutDrawn && (!drawnTo || Math.hypot(newest[0] - drawnTo[0], newest[1] - drawnTo[1]) >= 0.5)) {
     c.strokeStyle = "#06c"; c.lineWidth = 1.5; c.beginPath();
     const from = Math.max(0, cutDrawn - 1);
     for (let i = from; i < cut.length; i++) { const [x, y] = px(cut[i]); if (i === from) c.moveTo(x, y); else c.lineTo(x, y); }
     c.stroke();
     cutDrawn = cut.length;
   }
+  // The tool (and the mechanism in 3-D), drawn again only where a pixel would change.
+  const tool = (newest ? newest : []).concat(view3d.on && links ? links.flatMap(([a, b]) => [...px(a), ...px(b)]) : []);
+  if (samePixels(tool, toolDrawn)) return;
+  toolDrawn = tool;
   const g = $("path-tool").getContext("2d");
   g.clearRect(0, 0, canvas.width, canvas.height);
   if (view3d.on && links) {
     g.strokeStyle = "#333"; g.lineWidth = 2;
     for (const [a, b] of links) { const [x0, y0] = px(a), [x1, y1] = px(b); g.beginPath(); g.moveTo(x0, y0); g.lineTo(x1, y1); g.stroke(); }
   }
-  const at = cut[cut.length - 1];
-  if (at) { const [x, y] = px(at); g.fillStyle = "#c00"; g.beginPath(); g.arc(x, y, 4, 0, 2 * Math.PI); g.fill(); }
+  if (newest) { const [x, y] = newest; g.fillStyle = "#c00"; g.beginPath(); g.arc(x, y, 4, 0, 2 * Math.PI); g.fill(); }
+}
+
+// Whether two drawings' pixel coordinates (flat lists) differ by less than a third of a pixel.
+function samePixels(a, b) {
+  if (!b || a.length !== b.length) return false;
+  for (let i = 0; i < a.length; i++) if (Math.abs(a[i] - b[i]) >= 1 / 3) return false;
+  return true;
 }
 
 function drawProgrammed(g, px) {
@@ -609,6 +682,10 @@ function drawView(id, view, links) {
   const span = Math.max(extent[1] - extent[0], extent[3] - extent[2], 1e-3) * 1.1;
   const [cx, cy] = [(extent[0] + extent[1]) / 2, (extent[2] + extent[3]) / 2];
   const px = (p) => [(p[0] - cx) / span * canvas.width + canvas.width / 2, canvas.height / 2 - (p[1] - cy) / span * canvas.height];
+  // Drawn again only where a pixel would change.
+  const drawing = flat.flatMap(([a, b]) => [...px(a), ...px(b)]);
+  if (samePixels(drawing, view.drawn)) return;
+  view.drawn = drawing;
   g.clearRect(0, 0, canvas.width, canvas.height);
   g.strokeStyle = "#333";
   g.lineWidth = 3;
