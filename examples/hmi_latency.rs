@@ -8,7 +8,12 @@
 //! `--program PROGRAM`, which then runs: the screen draws its cut path as it goes). It also
 //! measures what the pages cost the browsers: the CPU time of every Chromium process of each
 //! browser (its profile's), as a share of one core, from SETTLE seconds (5 by default; 20 lets
-//! the O-X glide reference first) after the pages opened.
+//! the O-X glide reference first) after the pages opened, in all and per kind of Chromium
+//! process (renderer, GPU process: its software compositor).
+//!
+//! Environment: `PKM_PLC` another build of pkm-plc to measure (two builds side by side, one run
+//! each); `HMI_LATENCY_HZ` the page's drawing rate (`?hz=`); `HMI_LATENCY_CHROME_ARGS` more
+//! Chromium switches.
 
 use std::io::BufRead;
 use std::process::{Command, Stdio};
@@ -45,7 +50,9 @@ async fn main() {
     let dir = std::env::temp_dir().join(format!("hmi-latency-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap_or_else(|e| fail(format!("{}: {e}", dir.display())));
     let summary = dir.join("summary.json");
-    let mut plc = Command::new("target/release/pkm-plc")
+    // PKM_PLC: another build to measure (two builds side by side, each in its own run).
+    let binary = std::env::var("PKM_PLC").unwrap_or_else(|_| "target/release/pkm-plc".into());
+    let mut plc = Command::new(&binary)
         .args([
             "run",
             "--machine",
@@ -64,7 +71,7 @@ async fn main() {
         .stderr(Stdio::piped())
         .stdout(Stdio::null())
         .spawn()
-        .unwrap_or_else(|e| fail(format!("target/release/pkm-plc: {e} (cargo build --release first)")));
+        .unwrap_or_else(|e| fail(format!("{binary}: {e} (cargo build --release first)")));
     let stderr = plc.stderr.take().unwrap_or_else(|| fail("no stderr".into()));
     let (tx, rx) = std::sync::mpsc::channel();
     std::thread::spawn(move || {
@@ -77,13 +84,23 @@ async fn main() {
     let url = rx
         .recv_timeout(Duration::from_secs(30))
         .unwrap_or_else(|_| fail("the screen's address was not logged".into()));
+    // HMI_LATENCY_HZ: the page's drawing rate in every state (`?hz=`), not the shipped one.
+    let url = match std::env::var("HMI_LATENCY_HZ") {
+        Ok(hz) => format!("{url}{}hz={hz}", if url.contains('?') { '&' } else { '?' }),
+        Err(_) => url,
+    };
     let chromium = cdp::chromium();
     let mut open = Vec::new();
     for i in 0..browsers {
         let Some(chromium) = chromium.as_deref() else {
             fail("no chromium on the PATH (apt-get install chromium)".into())
         };
-        let browser = Browser::launch(chromium, &dir.join(format!("profile-{i}")), &[])
+        // HMI_LATENCY_CHROME_ARGS: more switches for Chromium, `name=value` each (a trace of
+        // where its time goes: `trace-startup=cc,viz,blink trace-startup-duration=45
+        // trace-startup-file=/tmp/trace.json trace-startup-format=json`).
+        let extra = std::env::var("HMI_LATENCY_CHROME_ARGS").unwrap_or_default();
+        let extra: Vec<(&str, &str)> = extra.split_whitespace().filter_map(|a| a.split_once('=')).collect();
+        let browser = Browser::launch(chromium, &dir.join(format!("profile-{i}")), &extra)
             .await
             .unwrap_or_else(|e| fail(format!("Chromium: {e}")));
         let page = browser
@@ -100,8 +117,13 @@ async fn main() {
         .collect();
     let (cpu_from, wall_from) = (browsers_cpu_s(&profiles), std::time::Instant::now());
     tokio::time::sleep(Duration::from_secs(seconds)).await;
-    let cpu = browsers_cpu_s(&profiles) - cpu_from;
+    let cpu_to = browsers_cpu_s(&profiles);
     let wall = wall_from.elapsed().as_secs_f64();
+    let by_kind: Vec<(String, f64)> = cpu_to
+        .iter()
+        .map(|(kind, s)| (kind.clone(), s - cpu_from.get(kind).copied().unwrap_or(0.0)))
+        .collect();
+    let cpu: f64 = by_kind.iter().map(|(_, s)| s).sum();
     let mut all: Vec<f64> = Vec::new();
     for (_, page) in &open {
         let latency: Vec<f64> = page
@@ -138,6 +160,11 @@ async fn main() {
             cpu / wall / browsers as f64 * 100.0,
             cpu
         );
+        let parts: Vec<String> = by_kind
+            .iter()
+            .map(|(kind, s)| format!("{kind} {:.1} %", s / wall / browsers as f64 * 100.0))
+            .collect();
+        println!("  by process: {}", parts.join(", "));
     }
     if !all.is_empty() {
         all.sort_by(f64::total_cmp);
@@ -154,12 +181,13 @@ async fn main() {
 
 /// The CPU time (user and system, s) of every process whose command line names one of
 /// `profiles` (a Chromium's browser, renderer, GPU and utility processes all carry its profile
-/// directory).
-fn browsers_cpu_s(profiles: &[String]) -> f64 {
+/// directory), per kind of process (its `--type`: renderer, gpu-process, utility; the
+/// browser's own has none).
+fn browsers_cpu_s(profiles: &[String]) -> std::collections::BTreeMap<String, f64> {
     let ticks_per_s = 100.0; // USER_HZ on Linux
-    let mut total = 0u64;
+    let mut total = std::collections::BTreeMap::new();
     let Ok(entries) = std::fs::read_dir("/proc") else {
-        return 0.0;
+        return total;
     };
     for entry in entries.flatten() {
         let path = entry.path();
@@ -179,7 +207,13 @@ fn browsers_cpu_s(profiles: &[String]) -> f64 {
         };
         let fields: Vec<&str> = after.split_whitespace().collect();
         let get = |k: usize| fields.get(k).and_then(|f| f.parse::<u64>().ok()).unwrap_or(0);
-        total += get(11) + get(12);
+        // Chromium rewrites its children's command lines into one space-separated string.
+        let kind = cmdline
+            .split(['\0', ' '])
+            .find_map(|a| a.strip_prefix("--type="))
+            .unwrap_or("browser")
+            .to_string();
+        *total.entry(kind).or_insert(0.0) += (get(11) + get(12)) as f64 / ticks_per_s;
     }
-    total as f64 / ticks_per_s
+    total
 }
