@@ -1190,6 +1190,25 @@ async fn the_screen_asks_for_the_tool_of_a_manual_tool_change_and_shows_the_prog
     )
     .await;
     assert!(asked(&page).await.is_empty(), "the prompt is gone");
+    // A finished program leaves nothing to go and no line to follow.
+    until(&page, Duration::from_secs(10), "READY after the program", async |p| {
+        state(p).await == "READY"
+    })
+    .await;
+    for id in ["dtg", "progress-line"] {
+        assert_eq!(
+            text(&page, &format!("document.getElementById('{id}').textContent")).await,
+            "–",
+            "{id} after the program"
+        );
+    }
+    // A value that rounds to zero has no sign.
+    assert_eq!(
+        page.evaluate("[num(-0.0004, 3), num(-0.0006, 3), num(-0.4, 0), num(0, 3)]")
+            .await
+            .expect("numbers"),
+        serde_json::json!(["0.000", "-0.001", "0", "0.000"])
+    );
     assert_eq!(
         text(&page, "document.getElementById('tool-in').textContent").await,
         "tool 1 (6 mm end mill) in the spindle"
@@ -1238,6 +1257,24 @@ async fn the_screen_asks_for_the_tool_of_a_manual_tool_change_and_shows_the_prog
         async |p| state(p).await == "READY" && (x(p).await + 5.0).abs() < 0.01,
     )
     .await;
+    // ERROR ends what the page said before: the program's message and the touch-off's answer
+    // give way to the reason and what to do.
+    click(&page, "#stop").await;
+    until(&page, Duration::from_secs(10), "ERROR after STOP", async |p| {
+        state(p).await == "ERROR"
+    })
+    .await;
+    assert_eq!(
+        text(&page, "String(document.getElementById('message').hidden)").await,
+        "true"
+    );
+    assert_eq!(said(&page).await, "");
+    assert!(
+        !text(&page, "document.getElementById('note').textContent")
+            .await
+            .is_empty(),
+        "what to do in ERROR"
+    );
     browser.close().await;
     plc.stop();
     let log = plc.log();

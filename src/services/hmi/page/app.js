@@ -322,8 +322,12 @@ function escape(s) {
   return s.replace(/[&<>]/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;" })[c]);
 }
 
+// A number with `digits` decimals; "–" for none; never "-0.000" (a value that rounds to zero
+// has no sign).
 function num(v, digits) {
-  return v === null || v === undefined || Number.isNaN(v) ? "–" : Number(v).toFixed(digits);
+  if (v === null || v === undefined || Number.isNaN(v)) return "–";
+  const text = Number(v).toFixed(digits);
+  return /^-0(\.0*)?$/.test(text) ? text.slice(1) : text;
 }
 
 // A frame as it comes: its latency and the tool's points; drawn at the next animation frame
@@ -352,7 +356,8 @@ function frame(m) {
   put(state, m.state || "—");
   state.className = "state " + (m.state || "");
   put($("reason"), m.reason);
-  put($("note"), m.note);
+  put($("note"), m.note || (m.state === "ERROR" ? "Press Acknowledge (STOP released) to leave ERROR." : ""));
+  if (m.state !== lastState) changedState(lastState, m);
   document.body.dataset.state = m.state;
   showPositions(m, value);
   if (now - classesAt > 1000) {
@@ -458,19 +463,33 @@ function showPositions(m, value) {
   });
 }
 
-// Feed, spindle, the distance to go and the program's progress.
+// What the page said for a state that has passed: the program's message belongs to its run (a
+// new run, a stop or an ERROR ends it), and what a command answered (a touch-off, a job) makes
+// way for the ERROR's reason and what to do.
+let lastState = null;
+function changedState(was, m) {
+  lastState = m.state;
+  const runEnds = was === "AUTO" && !(m.state === "READY" && m.image[index.NC_COMPLETED] === true);
+  // Hidden; the last one shown stays known, so that only a newer message shows again.
+  if (m.state === "AUTO" || m.state === "ERROR" || runEnds) $("message").hidden = true;
+  if (m.state === "ERROR") $("access").textContent = "";
+}
+
+// Feed, spindle, the distance to go and the program's progress (these two only while a program
+// runs: a finished or stopped one leaves nothing to go).
 function showProgress(m, value) {
   const feed = value("NC_FEED"), measured = value("NC_FEED_MEASURED");
   put($("feed-line"), feed === null ? "–" : `${num(feed, 0)} commanded, ${num(measured, 0)} measured mm/min`);
-  put($("dtg"), value("NC_DISTANCE_TO_GO") === null ? "–" : `${num(value("NC_DISTANCE_TO_GO"), 3)} mm`);
+  const runs = m.state === "AUTO";
+  put($("dtg"), !runs || value("NC_DISTANCE_TO_GO") === null ? "–" : `${num(value("NC_DISTANCE_TO_GO"), 3)} mm`);
   const on = value("SPINDLE_ON"), rpm = value("SPINDLE_RPM");
   put($("spindle-line"), on === null ? "–" : on ? `${value("SPINDLE_REVERSE") ? "CCW" : "CW"} ${num(rpm, 0)} rpm` : "off");
   const program = programs[shownProgram - 1];
   const line = value("NC_LINE"), total = textWindow.total;
   const elapsed = value("NC_RUN_S"), at = value("NC_TIME_S");
-  let progress = line ? `line ${line} of ${total}` : "–";
-  if (elapsed !== null && line) progress += `, ${num(elapsed, 1)} s`;
-  if (program && program.planned_s && at !== null && line) progress += `, ${num(Math.max(0, program.planned_s - at), 1)} s to go`;
+  let progress = runs && line ? `line ${line} of ${total}` : "–";
+  if (runs && elapsed !== null && line) progress += `, ${num(elapsed, 1)} s`;
+  if (runs && program && program.planned_s && at !== null && line) progress += `, ${num(Math.max(0, program.planned_s - at), 1)} s to go`;
   put($("progress-line"), progress);
 }
 
