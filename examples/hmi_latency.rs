@@ -90,16 +90,16 @@ async fn main() {
         Err(_) => url,
     };
     let chromium = cdp::chromium();
+    // HMI_LATENCY_CHROME_ARGS: more switches for Chromium, `name=value` each (a trace of where
+    // its time goes: `trace-startup=cc,viz,blink trace-startup-duration=45
+    // trace-startup-file=/tmp/trace.json trace-startup-format=json`).
+    let extra = std::env::var("HMI_LATENCY_CHROME_ARGS").unwrap_or_default();
+    let extra: Vec<(&str, &str)> = extra.split_whitespace().filter_map(|a| a.split_once('=')).collect();
     let mut open = Vec::new();
     for i in 0..browsers {
         let Some(chromium) = chromium.as_deref() else {
             fail("no chromium on the PATH (apt-get install chromium)".into())
         };
-        // HMI_LATENCY_CHROME_ARGS: more switches for Chromium, `name=value` each (a trace of
-        // where its time goes: `trace-startup=cc,viz,blink trace-startup-duration=45
-        // trace-startup-file=/tmp/trace.json trace-startup-format=json`).
-        let extra = std::env::var("HMI_LATENCY_CHROME_ARGS").unwrap_or_default();
-        let extra: Vec<(&str, &str)> = extra.split_whitespace().filter_map(|a| a.split_once('=')).collect();
         let browser = Browser::launch(chromium, &dir.join(format!("profile-{i}")), &extra)
             .await
             .unwrap_or_else(|e| fail(format!("Chromium: {e}")));

@@ -444,11 +444,12 @@ function showPositions(m, value) {
   document.body.classList.toggle("untrusted", !referenced);
   $("untrusted-note").hidden = referenced;
   if (!droCells) {
+    const joints = [...document.querySelectorAll("#joints [data-value]")];
     droCells = {
       machine: axes.map((a) => document.querySelector(`#dro td[data-value="${a}"]`)),
       work: axes.map((a) => $("work-" + a)),
-      joints: [...document.querySelectorAll("#joints [data-value]")],
-      homed: [...document.querySelectorAll("#joints [data-value]")].map((_, k) => $(`homed-${k + 1}`)),
+      joints,
+      homed: joints.map((_, k) => $(`homed-${k + 1}`)),
     };
   }
   axes.forEach((a, c) => {
