@@ -82,8 +82,9 @@ fn the_joystick_drives_m_a_disconnect_stops_it_and_a_reconnect_drives_again() {
     let mut run = Run::start(plc);
     run.advance(READY_MS, |_, _| {});
     assert_eq!(state(&run.plc), "READY");
-    // Until the joystick has published, the simulated machine's own (connected, centred) stays.
-    assert_eq!(var(&run.plc, vars::JOYSTICK_CONNECTED), Value::Bool(true));
+    // Until the joystick has published, the simulated machine's own stays: none (not
+    // connected) without a scenario that uses one.
+    assert_eq!(var(&run.plc, vars::JOYSTICK_CONNECTED), Value::Bool(false));
 
     // Full deflection to the right: MOTION, M moves in +x only.
     let start = m(&run.plc);
@@ -352,4 +353,28 @@ fn a_capture_file_plays_on_the_simulated_clock_in_virtual_time() {
         "error: --joystick /dev/null: a character device: only a regular file can be read here (in virtual time \
          --joystick plays a capture file; a device or FIFO needs real time)\n"
     );
+}
+
+/// The simulated machine has a joystick only where its scenario uses one: without, its
+/// `Connected` is off (the screen then says "not connected", not "connected" for a joystick
+/// nobody plugged in); a scenario that moves it has it plugged in from the start.
+#[test]
+fn the_simulated_machine_has_a_joystick_only_where_its_scenario_uses_one() {
+    let loaded = common::loaded(&common::repo_config());
+    let setup = pkm_plc::compose::Setup::new(loaded.clone()).expect("known machine");
+    let dir = tempfile::tempdir().expect("tempdir");
+    let scenario = dir.path().join("stick.json");
+    std::fs::write(&scenario, r#"{"events": [{"at_ms": 50000, "joystick": [0.5, 0.0]}]}"#).expect("scenario");
+    for (file, connected) in [(None, false), (Some(scenario.as_path()), true)] {
+        let sim = setup.sim_bus(file).expect("sim");
+        let plc = Plc::build(
+            &loaded.config,
+            &pkm_plc::compose::machines::all_programs(),
+            Box::new(sim),
+        )
+        .expect("valid");
+        let mut run = Run::start(plc);
+        run.advance(1_000, |_, _| {});
+        assert_eq!(get(&run.plc, vars::JOYSTICK_CONNECTED), connected, "scenario {file:?}");
+    }
 }

@@ -9,7 +9,7 @@ use crate::runtime::bus::Bus;
 use crate::services::io::catalogue::Direction;
 use crate::services::io::map::IoMap;
 
-use pkm_api::machine::Plant;
+use pkm_api::machine::{Action, Plant};
 
 use super::ResolvedWiring;
 use super::scenario::Scenario;
@@ -77,8 +77,18 @@ pub struct SimBus {
 }
 
 impl SimBus {
-    /// A simulated bus over `map`, wired by `wiring`, integrating every `step_ns`.
-    pub fn new(map: IoMap, plant: Box<dyn Plant>, wiring: ResolvedWiring, scenario: Scenario, step_ns: u64) -> Self {
+    /// A simulated bus over `map`, wired by `wiring`, integrating every `step_ns`. Its joystick
+    /// is plugged in only where `scenario` uses one ([`Scenario::uses_joystick`]).
+    pub fn new(
+        map: IoMap,
+        mut plant: Box<dyn Plant>,
+        wiring: ResolvedWiring,
+        scenario: Scenario,
+        step_ns: u64,
+    ) -> Self {
+        if !scenario.uses_joystick() {
+            plant.apply(Action::JoystickConnected(false));
+        }
         let channels = map
             .modules
             .iter()

@@ -139,6 +139,15 @@ impl Scenario {
     pub fn last_event_s(&self) -> f64 {
         self.events.last().map_or(0.0, |(t, _)| *t as f64 / 1e9)
     }
+
+    /// Whether an event moves, plugs or unplugs the joystick: the simulated machine has a
+    /// joystick (plugged in at the start) only for such a scenario, so that a run without one
+    /// says "not connected" as the lab's machine with none plugged in would.
+    pub fn uses_joystick(&self) -> bool {
+        self.events
+            .iter()
+            .any(|(_, a)| matches!(a, Action::Joystick(..) | Action::JoystickConnected(_)))
+    }
 }
 
 /// The plant signal that the variable `name` is bound to through the I/O map and the wiring.
