@@ -106,6 +106,11 @@ fn start_plc(config: &std::path::Path, seconds: u32, more: &[&str]) -> Plc {
     Plc { run, url }
 }
 
+/// Where the page's boxes are: the place and size (px) of each shown section that begins within
+/// the first 800 px (what a 1280 × 800 screen shows; those further down are laid out only once
+/// scrolled to, `content-visibility: auto`), in the page's order.
+const LAYOUT: &str = "Array.from(document.querySelectorAll('main > section')).filter(s => !s.hidden && s.getBoundingClientRect().top < 800).map(s => { const r = s.getBoundingClientRect(); return `${s.id || s.querySelector('h2')?.textContent}: ${Math.round(r.left)},${Math.round(r.top)} ${Math.round(r.width)}x${Math.round(r.height)}`; }).join('; ')";
+
 /// A text of the page: the value of a JavaScript expression.
 async fn text(page: &Page, expression: &str) -> String {
     match page.evaluate(expression).await {
@@ -224,10 +229,19 @@ async fn the_page_shows_referencing_jogs_while_held_stops_and_acknowledges() {
         state(p).await == "INIT"
     })
     .await;
+    // Nothing on the screen moves when the state changes: every box keeps its place and size
+    // from INIT (with the mechanism and the program's path drawn) to READY.
+    until(&page, Duration::from_secs(10), "the program's path drawn in INIT", async |p| {
+        text(p, "String(!document.getElementById('path-box').hidden && !document.getElementById('mechanism-box').hidden && document.getElementById('mechanism-note').textContent.startsWith('Not referenced'))").await == "true"
+    })
+    .await;
+    let in_init = text(&page, LAYOUT).await;
+    assert_eq!(state(&page).await, "INIT", "the layout taken in INIT");
     until(&page, Duration::from_secs(60), "READY shown", async |p| {
         state(p).await == "READY"
     })
     .await;
+    assert_eq!(text(&page, LAYOUT).await, in_init, "the boxes moved from INIT to READY");
     // The programs of programs/ that fit the O-X glide are offered, the first loaded: load the
     // second (the text) in its place.
     let file = async |p: &Page| text(p, "document.getElementById('program-file').textContent").await;
@@ -1165,8 +1179,11 @@ async fn the_screen_asks_for_the_tool_of_a_manual_tool_change_and_shows_the_prog
     .await;
     assert_eq!(
         asked(&page).await,
-        "Tool change: put tool 1 (6 mm end mill) in the spindle, then confirm."
+        "Tool change: put tool 1 (6 mm end mill) in the spindle, then press Tool changed."
     );
+    // The PLC's note names its signals (TOOL_PREP_NUMBER, TOOL_CHANGED): the prompt says it in
+    // the operator's words instead.
+    assert_eq!(text(&page, "document.getElementById('note').textContent").await, "");
     assert_eq!(state(&page).await, "AUTO");
     assert!(
         text(&page, "document.getElementById('message').textContent")
@@ -1360,6 +1377,37 @@ async fn the_screen_shows_a_dro_steps_the_jog_keeps_an_alarm_history_and_dims_th
         (work(&page, "x").await - 1.0).abs() < 0.005,
         "the work position follows"
     );
+    // The step was a job of its own (an MDI line): the program it replaced is loaded again
+    // once it is done, not left as "MDI".
+    let file = async |p: &Page| text(p, "document.getElementById('program-file').textContent").await;
+    until(
+        &page,
+        Duration::from_secs(10),
+        "the program loaded again after the step",
+        async |p| file(p).await.ends_with("square.ngc") && watched(p, "NC_PROGRAM").await == "1",
+    )
+    .await;
+    // A touch-off without a parameter file says that it lasts until the PLC stops only.
+    page.evaluate("document.getElementById('touch-value').value = '1'")
+        .await
+        .expect("the value typed");
+    click(&page, "#touch-off").await;
+    let said = async |p: &Page| text(p, "document.getElementById('access').textContent").await;
+    until(&page, Duration::from_secs(30), "the touch-off", async |p| {
+        said(p).await.contains("planned again and loaded")
+    })
+    .await;
+    let answer = said(&page).await;
+    assert!(
+        answer.starts_with("G54 X = 1: origin 0.000 → ")
+            && answer.contains(" mm, kept until the PLC stops only: no parameter file (--var-file, nc.var_file); "),
+        "{answer}"
+    );
+    assert!(
+        plc.log().contains(", kept until the PLC stops only: no parameter file"),
+        "{}",
+        plc.log()
+    );
     // The 3-D view of the program's path: switched on, it draws.
     until(&page, Duration::from_secs(10), "the path box", async |p| {
         text(p, "String(!document.getElementById('path-box').hidden)").await == "true"
@@ -1406,6 +1454,24 @@ async fn the_screen_shows_a_dro_steps_the_jog_keeps_an_alarm_history_and_dims_th
         Duration::from_secs(10),
         "the acknowledgement in the history",
         async |p| history(p).await.contains("acknowledged"),
+    )
+    .await;
+    // Acknowledged, the machine is not referenced: the mechanism stays dimmed and says why
+    // (it showed the last referenced pose as trusted before).
+    until(
+        &page,
+        Duration::from_secs(5),
+        "the mechanism dimmed while not referenced",
+        async |p| {
+            text(
+                p,
+                "String(document.getElementById('mechanism-box').classList.contains('dimmed'))",
+            )
+            .await
+                == "true"
+                && text(p, "document.getElementById('mechanism-note').textContent").await
+                    == "Not referenced: the last pose drawn before; drawn again once the machine is referenced."
+        },
     )
     .await;
     let h = history(&page).await;

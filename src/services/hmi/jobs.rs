@@ -78,6 +78,16 @@ pub struct JobDesk {
 /// What keeps the work offsets across runs: writes them, or says why it could not.
 pub type Keep = Arc<dyn Fn(&WorkOffsets) -> Result<(), String> + Send + Sync>;
 
+/// What was loaded before a step of the jog replaced it ([`JobDesk::loaded_for_return`]).
+#[derive(Clone, Debug, PartialEq)]
+pub enum Loaded {
+    /// A program of the run (from 1).
+    Program(i16),
+    /// A screen job, made again to load it (a run from a line: from where the step left the
+    /// tool).
+    Job(ScreenJobKind),
+}
+
 /// A touch-off made: the coordinate system's origin in the axis before and after.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct TouchOff {
@@ -139,6 +149,11 @@ impl JobDesk {
         *self.offsets.lock().unwrap_or_else(|p| p.into_inner())
     }
 
+    /// Whether a touch-off's offsets outlive the run (a parameter file keeps them).
+    pub fn keeps_offsets(&self) -> bool {
+        self.keep.is_some()
+    }
+
     /// Whether a touch-off has changed the work offsets since the run's programs were planned:
     /// they are then planned again (as a run from their first line) before they are loaded.
     pub fn offsets_changed(&self) -> bool {
@@ -148,12 +163,31 @@ impl JobDesk {
     /// The run's program (from 1) the loaded one runs: itself, or the program a run from a line
     /// runs; `None` for MDI lines or nothing loaded.
     pub fn loaded_program(&self) -> Option<i16> {
-        let k = *self.loaded.lock().unwrap_or_else(|p| p.into_inner());
+        let k = self.loaded_number();
         match self.library.screen_spec(k).map(|s| &s.kind) {
             Some(ScreenJobKind::FromLine { program, .. }) => Some(*program),
             Some(ScreenJobKind::Mdi { .. }) => None,
             None => (k >= 1 && usize::try_from(k).is_ok_and(|k| k <= self.library.jobs.len())).then_some(k),
         }
+    }
+
+    /// What is loaded now, so that it can be loaded again after a step of the jog (an MDI job
+    /// of its own): a program of the run, or the kind of the screen job (a run from a line);
+    /// `None` for MDI lines or nothing loaded.
+    pub fn loaded_for_return(&self) -> Option<Loaded> {
+        let k = self.loaded_number();
+        match self.library.screen_spec(k).map(|s| &s.kind) {
+            Some(kind @ ScreenJobKind::FromLine { .. }) => Some(Loaded::Job(kind.clone())),
+            Some(ScreenJobKind::Mdi { .. }) => None,
+            None => {
+                (k >= 1 && usize::try_from(k).is_ok_and(|k| k <= self.library.jobs.len())).then_some(Loaded::Program(k))
+            }
+        }
+    }
+
+    /// The loaded program's number (`NC_PROGRAM`) in the newest frame.
+    pub fn loaded_number(&self) -> i16 {
+        *self.loaded.lock().unwrap_or_else(|p| p.into_inner())
     }
 
     /// Touches off: work coordinate system `system` (0: G54 … 5: G59) is moved in axis `axis`

@@ -19,6 +19,9 @@ pub struct Mechanism {
     /// The image indices of the measured joint positions.
     joints: Vec<usize>,
     links: Vec<[[f64; 3]; 2]>,
+    /// The links in the middle of every joint's range: the screen lays its views out by them
+    /// before the machine is referenced (and drawn).
+    sample: Vec<[[f64; 3]; 2]>,
 }
 
 impl Mechanism {
@@ -42,8 +45,14 @@ impl Mechanism {
         Some(Mechanism {
             kinematics,
             joints,
+            sample: links.clone(),
             links,
         })
+    }
+
+    /// The links in the middle of every joint's range (not a pose the machine is in).
+    pub fn sample(&self) -> &[[[f64; 3]; 2]] {
+        &self.sample
     }
 
     /// The links at the joints of `image`, if they have a pose.

@@ -134,6 +134,7 @@ function hello(m) {
   (m.tools || []).forEach(([n, comment]) => { tools[n] = comment; });
   axes = m.axes || [];
   origins = m.origins || null;
+  layOutMechanism(m.mechanism_sample || null);
   cutAsked = false;
   trailSeq = 0;
   $("mdi-box").hidden = !jobs;
@@ -251,6 +252,8 @@ function job(m) {
 function touchedOff(m) {
   planning(false);
   let said = `${m.system} ${m.axis.toUpperCase()} = ${m.value}: origin ${m.was.toFixed(3)} → ${m.now.toFixed(3)} mm`;
+  // Without a parameter file the next start would lose it without a word.
+  if (m.kept === false) said += ", kept until the PLC stops only: no parameter file (--var-file, nc.var_file)";
   if (m.job && m.job.type === "job") {
     programs[m.job.program - 1] = { file: m.job.file, lines: m.job.lines, planned_s: m.job.planned_s };
     said += `; ${m.job.file} planned again and loaded`;
@@ -356,7 +359,10 @@ function frame(m) {
   put(state, m.state || "—");
   state.className = "state " + (m.state || "");
   put($("reason"), m.reason);
-  put($("note"), m.note || (m.state === "ERROR" ? "Press Acknowledge (STOP released) to leave ERROR." : ""));
+  // At a tool change the prompt below says which tool and what to do (the PLC's note names its
+  // signals, for the log and OPC UA clients).
+  const toolWaits = "TOOL_CHANGE" in index && m.image[index.TOOL_CHANGE] === true;
+  put($("note"), toolWaits ? "" : m.note || (m.state === "ERROR" ? "Press Acknowledge (STOP released) to leave ERROR." : ""));
   if (m.state !== lastState) changedState(lastState, m);
   document.body.dataset.state = m.state;
   showPositions(m, value);
@@ -381,11 +387,16 @@ function frame(m) {
     cutAsked = true;
     send({ cmd: "cut" });
   }
-  // The mechanism in ERROR: its last pose, dimmed, and what to do next.
+  // The mechanism in ERROR, and until the machine is referenced again (after an acknowledged
+  // fault as at power-on; the server sends no pose meanwhile): the last pose drawn, dimmed, and
+  // what to do next.
   const error = m.state === "ERROR";
-  $("mechanism-box").classList.toggle("dimmed", error);
-  $("mechanism-note").hidden = !error;
-  put($("mechanism-note"), error ? "ERROR: the last pose drawn before it. Press Acknowledge, then reference the machine." : "");
+  const unreferenced = "referenced" in index && m.image[index.referenced] !== true;
+  $("mechanism-box").classList.toggle("dimmed", error || unreferenced);
+  put($("mechanism-note"), error
+    ? "ERROR: the last pose drawn before it. Press Acknowledge, then reference the machine."
+    : !unreferenced ? "" : links ? "Not referenced: the last pose drawn before; drawn again once the machine is referenced."
+    : "Not referenced: the mechanism is drawn once the machine is referenced.");
   // Drawn in this animation frame, not the next: each frame the browser composes costs a
   // software-rendering one a few ms whatever changed in it.
   const moved = m.links && !sameLinks(m.links, links);
@@ -442,7 +453,8 @@ function showPositions(m, value) {
   const values = new Map(m.values);
   const referenced = !("referenced" in index) || value("referenced") === true;
   document.body.classList.toggle("untrusted", !referenced);
-  $("untrusted-note").hidden = referenced;
+  // Its line kept when hidden: the DRO does not move when the machine is referenced.
+  $("untrusted-note").style.visibility = referenced ? "hidden" : "";
   if (!droCells) {
     const joints = [...document.querySelectorAll("#joints [data-value]")];
     droCells = {
@@ -506,8 +518,8 @@ function showTools(m) {
   if (waits) {
     const name = tools[asked] ? ` (${tools[asked]})` : "";
     put($("tool-ask"), asked === 0
-      ? "Tool change: take the tool out of the spindle, then confirm."
-      : `Tool change: put tool ${asked}${name} in the spindle, then confirm.`);
+      ? "Tool change: take the tool out of the spindle, then press Tool changed."
+      : `Tool change: put tool ${asked}${name} in the spindle, then press Tool changed.`);
   }
   const inSpindle = value("TOOL_NUMBER");
   put($("tool-in"), inSpindle ? `tool ${inSpindle}${tools[inSpindle] ? " (" + tools[inSpindle] + ")" : ""} in the spindle` : "");
@@ -670,20 +682,26 @@ function drawProgrammed(g, px) {
   g.setLineDash([]);
 }
 
+// The mechanism's box laid out by `sample` (its links in some pose; none: no drawing): the
+// two largest extents (of x y z) make the first view; a third that matters, a second. Done at
+// the hello, before any pose comes, so that the box is in place from the start.
+function layOutMechanism(sample) {
+  views = null;
+  $("mechanism-box").hidden = !sample;
+  if (!sample) return;
+  const points = sample.flat();
+  const size = [0, 1, 2].map((c) => { const [lo, hi] = extentOf(points, c); return hi - lo; });
+  const order = [0, 1, 2].sort((a, b) => size[b] - size[a] || a - b);
+  views = [[order[0], order[1]].sort()];
+  if (size[order[2]] > 0.1 * size[order[0]]) views.push([order[0], order[2]].sort());
+  views = views.map((axes) => ({ axes, extent: null }));
+  $("mechanism2").hidden = views.length < 2;
+  $("views").textContent = views.map((v) => v.axes.map((c) => "xyz"[c]).join("–")).join(", ");
+}
+
 function drawMechanism() {
   if (!links) return;
-  $("mechanism-box").hidden = false;
-  if (!views) {
-    // The two largest extents (of x y z) make the first view; a third that matters, a second.
-    const points = links.flat();
-    const size = [0, 1, 2].map((c) => { const [lo, hi] = extentOf(points, c); return hi - lo; });
-    const order = [0, 1, 2].sort((a, b) => size[b] - size[a] || a - b);
-    views = [[order[0], order[1]].sort()];
-    if (size[order[2]] > 0.1 * size[order[0]]) views.push([order[0], order[2]].sort());
-    views = views.map((axes) => ({ axes, extent: null }));
-    $("mechanism2").hidden = views.length < 2;
-    $("views").textContent = views.map((v) => v.axes.map((c) => "xyz"[c]).join("–")).join(", ");
-  }
+  if (!views) layOutMechanism(links);
   views.forEach((view, i) => drawView(i === 0 ? "mechanism" : "mechanism2", view, links));
 }
 

@@ -10,8 +10,23 @@ use serde_json::{Value as Json, json};
 use tracing::info;
 
 use super::super::commands::press;
-use super::super::jobs::JobDesk;
+use super::super::jobs::{JobDesk, Loaded};
 use super::{Command, MAX_STEP_MM, Shared};
+
+/// Said of a touch-off that no parameter file keeps: the next start would lose it silently.
+const NOT_KEPT: &str = ", kept until the PLC stops only: no parameter file (--var-file, nc.var_file)";
+
+/// A step of the jog that replaced a loaded program, to load that again once it has run.
+pub(super) struct StepReturn {
+    /// The step's job (its `NC_PROGRAM` number).
+    job: i16,
+    /// What it replaced.
+    before: Loaded,
+    /// Whether it has run (AUTO seen with it loaded).
+    ran: bool,
+    /// Who asked for the step (the log names them).
+    peer: SocketAddr,
+}
 
 impl Shared {
     /// Makes a screen job (MDI, a program from a line) and has it loaded and started; the
@@ -41,7 +56,20 @@ impl Shared {
                 }
                 let text = format!("G91 G0 {}{mm}", self.axes[c].to_uppercase());
                 info!("screen {peer}: step {text}");
-                pkm_api::screen_jobs::ScreenJobKind::Mdi { text }
+                // The step is a job of its own: what it replaces is loaded again once it is done.
+                let before = desk.loaded_for_return();
+                let reply = self
+                    .make_and_load(peer, desk, pkm_api::screen_jobs::ScreenJobKind::Mdi { text }, true)
+                    .await;
+                if let (Some(before), Some(job)) = (before, reply["program"].as_i64()) {
+                    *self.step_return.lock().unwrap_or_else(|p| p.into_inner()) = Some(StepReturn {
+                        job: job as i16,
+                        before,
+                        ran: false,
+                        peer,
+                    });
+                }
+                return reply;
             }
             Command::TouchOff { axis, value, system } => return self.touch_off(peer, desk, &axis, value, system).await,
             Command::Load { program } => {
@@ -56,6 +84,45 @@ impl Shared {
             _ => return json!({"type": "refused", "why": "not a job"}),
         };
         self.make_and_load(peer, desk, kind, true).await
+    }
+
+    /// Takes a frame's state: once the step of the jog that replaced a program has run (AUTO,
+    /// then no longer), what it replaced is loaded again (a job made again where it was one:
+    /// planned on a task of its own).
+    pub(super) fn step_watch(self: &Arc<Self>, state: &str) {
+        let Some(desk) = &self.jobs else { return };
+        let done = {
+            let mut pending = self.step_return.lock().unwrap_or_else(|p| p.into_inner());
+            match pending.as_mut() {
+                Some(r) if state == "AUTO" && desk.loaded_number() == r.job => {
+                    r.ran = true;
+                    None
+                }
+                Some(r) if r.ran && state != "AUTO" => pending.take(),
+                _ => None,
+            }
+        };
+        let Some(StepReturn { before, peer, .. }) = done else {
+            return;
+        };
+        let shared = Arc::clone(self);
+        tokio::spawn(async move {
+            let Some(desk) = &shared.jobs else { return };
+            match before {
+                Loaded::Program(k) if !desk.offsets_changed() => {
+                    info!("screen {peer}: the step done, program {k} loaded again");
+                    shared.sink.update(|c| c.program = k);
+                }
+                // Planned again with the touched-off offsets, as a Load does.
+                Loaded::Program(k) => {
+                    let kind = pkm_api::screen_jobs::ScreenJobKind::FromLine { program: k, line: 1 };
+                    shared.make_and_load(peer, desk, kind, false).await;
+                }
+                Loaded::Job(kind) => {
+                    shared.make_and_load(peer, desk, kind, false).await;
+                }
+            }
+        });
     }
 
     /// Whether program `program` may be loaded now: one of the run's, and no program runs.
@@ -96,19 +163,20 @@ impl Shared {
                 return refused(why);
             }
         };
+        let kept = desk.keeps_offsets();
         info!(
-            "screen {peer}: touch-off {name} {} = {value:.4}: its origin {:.4} → {:.4} mm",
+            "screen {peer}: touch-off {name} {} = {value:.4}: its origin {:.4} → {:.4} mm{}",
             axis.to_uppercase(),
             t.was,
-            t.now
+            t.now,
+            if kept { "" } else { NOT_KEPT }
         );
         // Every page's DRO shows the new origin.
         if self.frames.receiver_count() > 0 {
             let origins = json!({"type": "origins", "origins": desk.offsets().origins}).to_string();
             let _ = self.frames.send(Arc::from(origins.as_str()));
         }
-        let mut reply =
-            json!({"type": "touch_off", "system": name, "axis": axis, "value": value, "was": t.was, "now": t.now});
+        let mut reply = json!({"type": "touch_off", "system": name, "axis": axis, "value": value, "was": t.was, "now": t.now, "kept": kept});
         if let Some(k) = desk.loaded_program() {
             let kind = pkm_api::screen_jobs::ScreenJobKind::FromLine { program: k, line: 1 };
             reply["job"] = self.make_and_load(peer, desk, kind, false).await;

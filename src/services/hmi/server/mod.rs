@@ -114,6 +114,8 @@ pub struct Shared {
     watch_log: Limited,
     /// The backplot's cut path, if the run has programs.
     cut: Option<std::sync::Mutex<CutPath>>,
+    /// The step of the jog under way, with the program it replaced.
+    step_return: std::sync::Mutex<Option<job_commands::StepReturn>>,
 }
 
 /// What the screen is told once, at connection: the machine and its variables.
@@ -157,6 +159,10 @@ pub fn router(info: HmiInfo, mut frames: FrameFeed, sink: CommandSink, options: 
         "joints": info.joints,
         "jobs": info.jobs.is_some(),
         "tools": info.tools.iter().map(|(n, comment)| json!([n, comment])).collect::<Vec<_>>(),
+        // Where the kinematics draws the mechanism, its links in the middle of the joints'
+        // ranges: the page lays the drawing's box out by them from the start, so that nothing
+        // moves when the first pose comes (once referenced).
+        "mechanism_sample": info.mechanism.as_ref().map(|m| m.sample()),
     });
     let at = |var: &str| info.variables.iter().position(|(n, _)| n == var);
     let tool_change_at = at(pkm_api::trajectory::vars::TOOL_CHANGE.name());
@@ -187,6 +193,7 @@ pub fn router(info: HmiInfo, mut frames: FrameFeed, sink: CommandSink, options: 
         guess_log: Limited::new("screen: wrong tokens"),
         watch_log: Limited::new("screen: watchers connected or disconnected"),
         cut: CutPath::of(&info.variables).map(std::sync::Mutex::new),
+        step_return: std::sync::Mutex::new(None),
     });
     let pump = Arc::clone(&shared);
     let mut mechanism = info.mechanism;
@@ -267,6 +274,7 @@ pub fn router(info: HmiInfo, mut frames: FrameFeed, sink: CommandSink, options: 
                 if let Some(desk) = &pump.jobs {
                     // A replaced job's plan is freed on a thread of its own, not waited for.
                     drop(desk.observe(&frame.status.state, &frame.image));
+                    pump.step_watch(&frame.status.state);
                 }
                 if let Some(cut) = &pump.cut {
                     cut.lock().unwrap_or_else(|p| p.into_inner()).observe(&frame.image);
