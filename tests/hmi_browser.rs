@@ -1423,6 +1423,47 @@ async fn the_screen_shows_a_dro_steps_the_jog_keeps_an_alarm_history_and_dims_th
         let shots = std::path::PathBuf::from(shots);
         page.screenshot(&shots.join("hmi-dro.png")).await.expect("a screenshot");
     }
+    let history = async |p: &Page| {
+        text(
+            p,
+            "Array.from(document.querySelectorAll('#alarms tr.alarm')).map(r => r.textContent).join(' | ')",
+        )
+        .await
+    };
+    // Reference: from READY the machine references again (REBOOT, INIT, READY), not an error;
+    // refused while it references, with why.
+    click(&page, "#reference").await;
+    until(&page, Duration::from_secs(5), "referencing again", async |p| {
+        state(p).await == "INIT"
+    })
+    .await;
+    assert_eq!(
+        untrusted(&page).await,
+        "true",
+        "the positions are not trusted while it references"
+    );
+    click(&page, "#reference").await;
+    until(
+        &page,
+        Duration::from_secs(5),
+        "the second Reference refused",
+        async |p| {
+            said(p)
+                .await
+                .starts_with("the machine references again from READY only")
+        },
+    )
+    .await;
+    until(&page, Duration::from_secs(60), "READY again", async |p| {
+        state(p).await == "READY" && untrusted(p).await == "false"
+    })
+    .await;
+    assert!(plc.log().contains("reference again"), "{}", plc.log());
+    assert!(
+        !history(&page).await.contains("error"),
+        "referencing again is no error: {}",
+        history(&page).await
+    );
     // STOP: ERROR in the history; the mechanism stays, dimmed, with what to do next.
     click(&page, "#stop").await;
     until(&page, Duration::from_secs(5), "ERROR shown", async |p| {
@@ -1442,13 +1483,6 @@ async fn the_screen_shows_a_dro_steps_the_jog_keeps_an_alarm_history_and_dims_th
             .expect("a screenshot");
     }
     click(&page, "#ack").await;
-    let history = async |p: &Page| {
-        text(
-            p,
-            "Array.from(document.querySelectorAll('#alarms tr.alarm')).map(r => r.textContent).join(' | ')",
-        )
-        .await
-    };
     until(
         &page,
         Duration::from_secs(10),

@@ -518,3 +518,43 @@ fn the_dro_gets_the_feed_the_distance_to_go_and_the_spindle_at_its_override() {
         "the distance to go only falls"
     );
 }
+
+/// The screen's Reference in READY references the machine again (REBOOT, INIT, READY: no
+/// error); pressed in INIT it changes nothing. The TRIJOINT's program and the joint machines'
+/// (the hexapod) take it alike.
+#[test]
+fn the_screens_reference_references_again_from_ready_only() {
+    use pkm_plc::services::hmi::commands::press;
+    // (machine, first READY, the press in READY, the press while it references, the end) in ms.
+    for (machine, ready_ms, again_ms, in_init_ms, end_ms) in [
+        ("trijoint", 42_650, 45_000, 47_000, 100_000),
+        ("hexapod", 7_650, 9_000, 10_000, 20_000),
+    ] {
+        // The TRIJOINT's configuration is the repository's own.
+        let loaded = if machine == "trijoint" {
+            common::loaded(&common::repo_config())
+        } else {
+            machine_config(machine, |_| {})
+        };
+        let (mut plc, sink) = with_screen(loaded, None);
+        let seen = transitions(&mut plc, end_ms, |_, t| {
+            if t == again_ms || t == in_init_ms {
+                sink.update(|c| c.presses[press::REFERENCE] += 1);
+            }
+        });
+        let names: Vec<&str> = seen.iter().map(|(_, s, _)| s.as_str()).collect();
+        assert_eq!(
+            names,
+            ["REBOOT", "INIT", "READY", "REBOOT", "INIT", "READY"],
+            "{machine}: {seen:?}"
+        );
+        assert!(
+            seen.iter().all(|(_, _, reason)| reason.is_none()),
+            "{machine}: {seen:?}"
+        );
+        assert!(seen[2].0 <= ready_ms, "{machine}: READY first at {} ms", seen[2].0);
+        // Taken within a main cycle (the press lasts 100 ms).
+        assert!(seen[3].0 - again_ms <= 50, "{machine}: {seen:?}");
+        assert!(get(&plc, vars::REFERENCED), "{machine}: referenced again");
+    }
+}

@@ -6,8 +6,8 @@
 use std::sync::{Arc, Mutex};
 
 use pkm_api::hmi::{
-    HMI_AXES, HMI_JOG, HMI_JOG_AXIS, HMI_NC, HMI_NC_PROGRAM, HMI_STOP, HMI_TOOL_CHANGED, HMI_TOOL_CONFIRM,
-    JOG_AXIS_RANGE,
+    HMI_AXES, HMI_JOG, HMI_JOG_AXIS, HMI_NC, HMI_NC_PROGRAM, HMI_REFERENCE, HMI_STOP, HMI_TOOL_CHANGED,
+    HMI_TOOL_CONFIRM, JOG_AXIS_RANGE,
 };
 use pkm_api::trajectory::{OVERRIDE_DEFAULT, vars};
 
@@ -23,8 +23,8 @@ pub const PRESS_NS: u64 = 100_000_000;
 /// the jog's deflection, the program's overrides and single block.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Commands {
-    /// Presses of STOP, the axis button, the program's start, hold and resume, and the tool
-    /// change's confirmation. A press while the previous one of its button is still held merges
+    /// Presses of STOP, the axis button, the program's start, hold and resume, the tool
+    /// change's old confirmation and Reference. A press while the previous one of its button is still held merges
     /// with it (a double click is one press).
     pub presses: [u64; PRESSES],
     /// Acknowledgements of an error: each is a STOP press that starts only once STOP has been
@@ -77,7 +77,7 @@ pub const RAPID_OVERRIDE_RANGE: std::ops::RangeInclusive<i16> = 0..=100;
 pub const SPINDLE_OVERRIDE_RANGE: std::ops::RangeInclusive<i16> = 0..=150;
 
 /// How many buttons the screen presses.
-pub const PRESSES: usize = 6;
+pub const PRESSES: usize = 7;
 
 /// Which of [`Commands::presses`] is which.
 pub mod press {
@@ -91,6 +91,8 @@ pub mod press {
     /// nothing now, its variable declared so that older traces keep their shape; the screen
     /// confirms by [`super::Commands::tool_confirm`], which names the change.
     pub const TOOL_CHANGED: usize = 5;
+    /// Reference again (`HMI_REFERENCE`; taken in READY).
+    pub const REFERENCE: usize = 6;
 }
 
 /// The servers' end: any connection may command (they share it, and the commands as last
@@ -139,9 +141,11 @@ pub struct HmiBus {
     /// the program to load, the feed and rapid overrides, single block, then the tool change's
     /// confirmation and the spindle override (declared last, so that the earlier ones keep their
     /// order in traces).
-    vars: [VarIndex; 8 + PRESSES],
+    vars: [VarIndex; 14],
     /// `HMI_TOOL_CONFIRM`, declared after them all.
     tool_confirm: VarIndex,
+    /// Each press's variable, in [`press`] order (`HMI_REFERENCE` declared last of all).
+    press_vars: [VarIndex; PRESSES],
     seen: [u64; PRESSES],
     /// Until when each press holds its variable on (ns of the schedule).
     until: [u64; PRESSES],
@@ -164,8 +168,9 @@ impl HmiBus {
             inner,
             class,
             output,
-            vars: [0; 8 + PRESSES],
+            vars: [0; 14],
             tool_confirm: 0,
+            press_vars: [0; PRESSES],
             seen: [0; PRESSES],
             until: [0; PRESSES],
             acknowledged: 0,
@@ -223,6 +228,9 @@ impl Bus for HmiBus {
             ),
         ];
         self.tool_confirm = table.declare_writer(HMI_TOOL_CONFIRM.name(), VarType::Dint, writer(), Value::Dint(0));
+        let reference = table.declare_writer(HMI_REFERENCE.name(), VarType::Bool, writer(), Value::Bool(false));
+        let v = self.vars;
+        self.press_vars = [v[0], v[1], v[2], v[3], v[4], v[12], reference];
     }
 
     fn start(&mut self) -> Result<(), String> {
@@ -255,8 +263,7 @@ impl Bus for HmiBus {
                 self.seen[k] = c.presses[k];
                 self.until[k] = t_ns + PRESS_NS;
             }
-            let var = if k < 5 { self.vars[k] } else { self.vars[12] };
-            image[usize::from(var)] = Value::Bool(t_ns < self.until[k]);
+            image[usize::from(self.press_vars[k])] = Value::Bool(t_ns < self.until[k]);
         }
         for (i, v) in c.jog.iter().enumerate() {
             image[usize::from(self.vars[5 + i])] = Value::Real(v.clamp(-1.0, 1.0));

@@ -31,6 +31,10 @@ pub const HMI_NC: [Var<bool>; 3] = [
     Var::new("HMI_NC_HOLD"),
     Var::new("HMI_NC_RESUME"),
 ];
+/// The screen's Reference (a press): in READY the machine references again — REBOOT for a
+/// cycle (drives off, the acknowledge pulse), then INIT, as after an acknowledged error; ignored
+/// in every other state.
+pub const HMI_REFERENCE: Var<bool> = Var::new("HMI_REFERENCE");
 /// The screen's confirmation of a manual tool change as a press, named by nothing: no longer
 /// pressed (a late press confirmed the next change) and read by no program; declared so that
 /// traces recorded before keep their shape. [`HMI_TOOL_CONFIRM`] replaced it.

@@ -143,16 +143,21 @@ pub enum Event<R> {
     Stop,
     /// A supervision fault, with its reason.
     Fault(R),
-    /// A cycle without either.
+    /// The operator asks to reference the machine again (the screen's Reference): taken in
+    /// READY (→ REBOOT → INIT, as after an acknowledged error), ignored elsewhere.
+    Reference,
+    /// A cycle without any of these.
     Tick,
 }
 
 /// The event of a cycle: an accepted STOP press first; outside INIT, READY and MOTION nothing
 /// else; else the first supervision fault `faults` finds (the machine's checks, in its order),
+/// else the operator's request to reference again (`reference`: its press, the rising edge),
 /// else a tick.
 pub fn event<R>(
     stop: &mut StopButton,
     pressed: bool,
+    reference: bool,
     now_s: f64,
     state: MainState,
     faults: impl FnOnce() -> Option<R>,
@@ -163,7 +168,11 @@ pub fn event<R>(
     if !state.operating() {
         return Event::Tick;
     }
-    faults().map_or(Event::Tick, Event::Fault)
+    match faults() {
+        Some(reason) => Event::Fault(reason),
+        None if reference => Event::Reference,
+        None => Event::Tick,
+    }
 }
 
 /// What a machine does in each state of the shared automaton, which decides when.
@@ -256,7 +265,7 @@ impl<A: Application> Automaton<A> {
         match event {
             Event::Stop => Transition(State::error(A::STOP)),
             Event::Fault(reason) => Transition(State::error(*reason)),
-            Event::Tick => Handled,
+            Event::Reference | Event::Tick => Handled,
         }
     }
 
@@ -280,6 +289,10 @@ impl<A: Application> Automaton<A> {
 
     #[state(superstate = "operating", entry_action = "enter_ready")]
     fn ready(&mut self, io: &mut A::Io, event: &Event<A::Reason>) -> Outcome<State<A>> {
+        // Standing still: the machine may reference again (drives off for REBOOT's cycle).
+        if *event == Event::Reference {
+            return Transition(State::reboot());
+        }
         if *event != Event::Tick {
             return Super;
         }
@@ -542,20 +555,83 @@ mod tests {
     }
 
     #[test]
-    fn the_event_is_stop_first_and_faults_only_while_operating() {
+    fn a_reference_request_references_again_from_ready_only_and_gives_way_to_stop_and_faults() {
         let mut stop = StopButton::new(0.5);
-        assert_eq!(event(&mut stop, true, 0.0, MainState::Ready, || Some(3)), Event::Stop);
-        assert_eq!(event(&mut stop, true, 0.05, MainState::Error, || Some(3)), Event::Tick);
         assert_eq!(
-            event(&mut stop, false, 0.1, MainState::Ready, || Some(3)),
+            event(&mut stop, true, true, 0.0, MainState::Ready, || Some(3)),
+            Event::Stop
+        );
+        assert_eq!(
+            event(&mut stop, false, true, 0.1, MainState::Ready, || Some(3)),
             Event::Fault(3)
         );
         assert_eq!(
-            event::<u8>(&mut stop, false, 0.15, MainState::Ready, || None),
+            event::<u8>(&mut stop, false, true, 0.2, MainState::Ready, || None),
+            Event::Reference
+        );
+        assert_eq!(
+            event::<u8>(&mut stop, false, true, 0.3, MainState::Error, || None),
             Event::Tick
         );
-        assert_eq!(event(&mut stop, false, 0.2, MainState::Error, || Some(3)), Event::Tick);
-        assert_eq!(event(&mut stop, false, 0.2, MainState::Reboot, || Some(3)), Event::Tick);
+        // READY: REBOOT (one cycle, the acknowledge pulse), then INIT references again.
+        let mut io = Clock::default();
+        let mut m = Automaton::new(Probe::default()).state_machine();
+        m.handle_with_context(&Event::Tick, &mut io);
+        step(&mut m, &mut io, Event::Tick);
+        // SAFETY: the probe's answers are not part of the automaton's invariants.
+        unsafe { m.inner_mut().app.referenced = true };
+        assert_eq!(step(&mut m, &mut io, Event::Tick), MainState::Ready);
+        assert_eq!(step(&mut m, &mut io, Event::Reference), MainState::Reboot);
+        assert_eq!(m.inner().reason, None, "not an error");
+        assert_eq!(step(&mut m, &mut io, Event::Tick), MainState::Init);
+        // Elsewhere it changes nothing: in MOTION, in AUTO, in INIT.
+        for (state, set) in [(MainState::Motion, (false, true)), (MainState::Auto, (true, false))] {
+            assert_eq!(step(&mut m, &mut io, Event::Tick), MainState::Ready);
+            unsafe {
+                m.inner_mut().app.program = set.0;
+                m.inner_mut().app.commanded = set.1;
+            };
+            assert_eq!(step(&mut m, &mut io, Event::Tick), state);
+            assert_eq!(step(&mut m, &mut io, Event::Reference), state);
+            unsafe {
+                m.inner_mut().app.program = false;
+                m.inner_mut().app.commanded = false;
+            };
+        }
+        unsafe { m.inner_mut().app.referenced = false };
+        assert_eq!(step(&mut m, &mut io, Event::Tick), MainState::Ready);
+        assert_eq!(step(&mut m, &mut io, Event::Reference), MainState::Reboot);
+        assert_eq!(step(&mut m, &mut io, Event::Tick), MainState::Init);
+        assert_eq!(step(&mut m, &mut io, Event::Reference), MainState::Init);
+    }
+
+    #[test]
+    fn the_event_is_stop_first_and_faults_only_while_operating() {
+        let mut stop = StopButton::new(0.5);
+        assert_eq!(
+            event(&mut stop, true, false, 0.0, MainState::Ready, || Some(3)),
+            Event::Stop
+        );
+        assert_eq!(
+            event(&mut stop, true, false, 0.05, MainState::Error, || Some(3)),
+            Event::Tick
+        );
+        assert_eq!(
+            event(&mut stop, false, false, 0.1, MainState::Ready, || Some(3)),
+            Event::Fault(3)
+        );
+        assert_eq!(
+            event::<u8>(&mut stop, false, false, 0.15, MainState::Ready, || None),
+            Event::Tick
+        );
+        assert_eq!(
+            event(&mut stop, false, false, 0.2, MainState::Error, || Some(3)),
+            Event::Tick
+        );
+        assert_eq!(
+            event(&mut stop, false, false, 0.2, MainState::Reboot, || Some(3)),
+            Event::Tick
+        );
     }
 
     #[test]

@@ -783,6 +783,7 @@ window.addEventListener("blur", stopJog);
 
 $("stop").addEventListener("click", () => send({ cmd: "stop" }));
 $("ack").addEventListener("click", () => send({ cmd: "acknowledge" }));
+$("reference").addEventListener("click", () => send({ cmd: "reference" }));
 $("axes").addEventListener("click", () => send({ cmd: "axes" }));
 $("nc-load").addEventListener("click", () => { $("access").textContent = ""; send({ cmd: "load", program: Number($("program-choice").value) }); });
 $("nc-start").addEventListener("click", () => send({ cmd: "program", what: "start" }));

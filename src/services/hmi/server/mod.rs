@@ -91,6 +91,8 @@ pub struct Shared {
     running: AtomicBool,
     /// The machine is in ERROR (the last frame's state): there is an error to acknowledge.
     in_error: AtomicBool,
+    /// The machine is READY (the last frame's state): it may reference again.
+    ready: AtomicBool,
     /// A manual tool change waits for its confirmation (the last frame's `TOOL_CHANGE`).
     tool_change: AtomicBool,
     /// The change that waits or came last, as the last frame has it: (its
@@ -182,6 +184,7 @@ pub fn router(info: HmiInfo, mut frames: FrameFeed, sink: CommandSink, options: 
         jog_owner: std::sync::Mutex::new(None),
         running: AtomicBool::new(false),
         in_error: AtomicBool::new(false),
+        ready: AtomicBool::new(false),
         tool_change: AtomicBool::new(false),
         tool_asked: AtomicI64::new(0),
         axes: info.axes.clone(),
@@ -227,6 +230,7 @@ pub fn router(info: HmiInfo, mut frames: FrameFeed, sink: CommandSink, options: 
             if let Some(frame) = &newer {
                 pump.running.store(frame.status.state == "AUTO", Ordering::Relaxed);
                 pump.in_error.store(frame.status.state == "ERROR", Ordering::Relaxed);
+                pump.ready.store(frame.status.state == "READY", Ordering::Relaxed);
                 let waits = tool_change_at.and_then(|i| frame.image.get(i)) == Some(&crate::image::Value::Bool(true));
                 pump.tool_change.store(waits, Ordering::Relaxed);
                 let word = |at: Option<usize>| match at.and_then(|i| frame.image.get(i)) {
@@ -440,6 +444,8 @@ enum Command {
     Acknowledge {},
     /// The axis button.
     Axes {},
+    /// Reference the machine again: from READY only (refused elsewhere, with why).
+    Reference {},
     /// The jog's deflection (0, 0: released), on the stick's pair of axes (`axis` 0 or left out),
     /// on the `axis`-th pose coordinate alone, or (`axis` −k) on the k-th joint alone.
     Jog {
@@ -944,6 +950,13 @@ impl Shared {
             Command::Axes {} => {
                 info!("screen {peer}: axis button");
                 self.sink.update(|c| c.presses[press::AXES] += 1);
+            }
+            Command::Reference {} => {
+                if !self.ready.load(Ordering::Relaxed) {
+                    return Err("the machine references again from READY only: end the jog or the program first (after an error, Acknowledge references it)".into());
+                }
+                info!("screen {peer}: reference again");
+                self.sink.update(|c| c.presses[press::REFERENCE] += 1);
             }
             Command::Program { what } => {
                 let k = match what.as_str() {

@@ -66,6 +66,8 @@ struct HmiVars {
     jog_axis: Input<i16>,
     axes: Input<bool>,
     nc: [Input<bool>; 3],
+    /// Reference again (a press, taken in READY).
+    reference: Input<bool>,
 }
 
 impl HmiVars {
@@ -75,6 +77,7 @@ impl HmiVars {
             jog_axis: decl.read_optional(hmi::HMI_JOG_AXIS),
             axes: decl.read_optional(hmi::HMI_AXES),
             nc: hmi::HMI_NC.map(|v| decl.read_optional(v)),
+            reference: decl.read_optional(hmi::HMI_REFERENCE),
         }
     }
 }
@@ -122,6 +125,8 @@ pub struct MainProgram {
     n: usize,
     stop: StopButton,
     axes_was_pressed: bool,
+    /// The screen's Reference as the last cycle saw it (a press is its rising edge).
+    reference_was_pressed: bool,
     texts: ReasonTexts,
     /// The tool pose from the last cycle (machine frame), the Newton start of the next.
     tool: [f64; MAX_DOF],
@@ -443,6 +448,7 @@ impl MainProgram {
             n,
             stop,
             axes_was_pressed: false,
+            reference_was_pressed: false,
             texts,
             tool: [0.0; MAX_DOF],
             shown: [("", f64::NAN); SHOWN],
@@ -522,7 +528,10 @@ impl MainProgram {
         let state = automaton.state;
         let app = &automaton.app;
         let pressed = v.stop.pressed(ctx);
-        automaton_event(&mut self.stop, pressed, self.io.now_s, state, || {
+        let asked = ctx.get(v.hmi.reference);
+        let reference = asked && !self.reference_was_pressed;
+        self.reference_was_pressed = asked;
+        automaton_event(&mut self.stop, pressed, reference, self.io.now_s, state, || {
             if ctx.violation().is_some() {
                 return Some(Reason::CycleTimeViolation);
             }

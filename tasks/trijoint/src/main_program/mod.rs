@@ -62,6 +62,8 @@ struct Vars {
     hmi_jog: [Input<f64>; 2],
     hmi_jog_axis: Input<i16>,
     hmi_nc: [Input<bool>; 3],
+    /// The screen's Reference (a press, taken in READY).
+    hmi_reference: Input<bool>,
 }
 
 /// The variables of program execution, declared when a program is loaded.
@@ -90,6 +92,8 @@ pub struct MainProgram {
     shown_len: usize,
     /// The reason with the program line executing when ERROR was entered from AUTO.
     line_reason: nc::LineReason,
+    /// The screen's Reference as the last cycle saw it (a press is its rising edge).
+    reference_was_pressed: bool,
 }
 
 impl MainProgram {
@@ -151,6 +155,7 @@ impl MainProgram {
             hmi_jog: pkm_api::hmi::HMI_JOG.map(|v| decl.read_optional(v)),
             hmi_jog_axis: decl.read_optional(pkm_api::hmi::HMI_JOG_AXIS),
             hmi_nc: pkm_api::hmi::HMI_NC.map(|v| decl.read_optional(v)),
+            hmi_reference: decl.read_optional(pkm_api::hmi::HMI_REFERENCE),
         };
         let lockout_s = p.stop_lockout_ms as f64 * 1e-3;
         let display = Trijoint::new(&TrijointParams {
@@ -178,6 +183,7 @@ impl MainProgram {
             shown: [("", f64::NAN); 7],
             shown_len: 0,
             line_reason: nc::LineReason::default(),
+            reference_was_pressed: false,
         })
     }
 
@@ -232,7 +238,10 @@ impl MainProgram {
         let state = self.machine.inner().state;
         let searches = &self.machine.inner().app.searches;
         let pressed = v.stop.pressed(ctx);
-        automaton_event(&mut self.stop, pressed, io.now_s, state, || {
+        let asked = ctx.get(v.hmi_reference);
+        let reference = asked && !self.reference_was_pressed;
+        self.reference_was_pressed = asked;
+        automaton_event(&mut self.stop, pressed, reference, io.now_s, state, || {
             if ctx.violation().is_some() {
                 return Some(Reason::CycleTimeViolation);
             }
