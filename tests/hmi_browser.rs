@@ -1108,6 +1108,41 @@ async fn the_screen_sets_the_overrides_steps_a_program_line_by_line_runs_mdi_and
         text(p, "String(cut.length > 20 && Math.hypot(...cut[cut.length - 1].slice(0, 2)) < 0.05 && Math.hypot(cut[0][0] - 3.5, cut[0][1] - 2) < 0.1)").await == "true"
     })
     .await;
+    // The DRO follows the program's coordinates while it runs: G55 (its origin at x 3, set by
+    // the program) during the dwell, the tool at x 8 reading 5; G54 again once it has ended.
+    // (On the page in front: a page behind another draws nothing.)
+    late.evaluate("document.getElementById('mdi-text').value = 'G10 L2 P2 X3\\nG55 G0 X5\\nG4 P3'")
+        .await
+        .expect("typed");
+    click(&late, "#nc-mdi").await;
+    // The work system shown, and the work x less the machine x (the offset the DRO takes off).
+    let dro = async |p: &Page| {
+        let system = text(p, "document.getElementById('dro-system').textContent").await;
+        let work: f64 = text(p, "document.getElementById('work-x').textContent")
+            .await
+            .parse()
+            .unwrap_or(f64::NAN);
+        (system, work, work - x(p).await)
+    };
+    until(&late, Duration::from_secs(30), "G55 on the DRO", async |p| {
+        let (system, work, off) = dro(p).await;
+        system == "G55" && (work - 5.0).abs() < 0.01 && (off + 3.0).abs() < 0.002
+    })
+    .await;
+    until(
+        &late,
+        Duration::from_secs(30),
+        "G54 again after the program",
+        async |p| {
+            let (system, work, off) = dro(p).await;
+            state(p).await == "READY"
+                && watched(p, "NC_COMPLETED").await == "true"
+                && system == "G54"
+                && (work - 8.0).abs() < 0.01
+                && off.abs() < 0.002
+        },
+    )
+    .await;
     browser.close().await;
     // The overrides and single block are inputs like the panel's: in the trace, and replayed.
     plc.stop();

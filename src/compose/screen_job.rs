@@ -125,7 +125,8 @@ impl Standing for StandingPose {
 
 /// The blocks of `program` from the first one, in the order they run, of line `line` or a
 /// later line on, after a rapid straight from `start` to where that block's motion begins; the
-/// spindle as the blocks before left it is switched on there, once the tool has arrived.
+/// spindle as the blocks before left it is switched on there, once the tool has arrived, and the
+/// program coordinates they left are in force from the start.
 /// Dwells and pauses before the line do not run.
 pub fn from_line(program: Program, line: usize, start: [f64; 6]) -> Result<Program, NcFailure> {
     let Program { blocks, messages, .. } = program;
@@ -155,7 +156,18 @@ pub fn from_line(program: Program, line: usize, start: [f64; 6]) -> Result<Progr
         Action::Spindle { direction, speed_rpm } => Some((direction, speed_rpm)),
         _ => None,
     });
-    let mut run = Vec::with_capacity(blocks.len() - at + 2);
+    // The program coordinates the blocks before left in force, for the DRO from the start.
+    let frame = blocks[..at]
+        .iter()
+        .rev()
+        .find(|b| matches!(b.action, Action::WorkOffset { .. }))
+        .map(|b| Block {
+            line: first_line,
+            column: 1,
+            action: b.action,
+        });
+    let mut run = Vec::with_capacity(blocks.len() - at + 3);
+    run.extend(frame);
     if (0..6).any(|c| (target[c] - start[c]).abs() > 1e-9) {
         run.push(Block {
             line: first_line,
@@ -302,6 +314,20 @@ mod tests {
             }
         ));
         assert_eq!(p.blocks[2].action, Action::Dwell(1.0));
+    }
+
+    #[test]
+    fn a_run_from_a_line_starts_in_the_program_coordinates_the_lines_before_left() {
+        let frame = |system, x| Action::WorkOffset {
+            system,
+            offset: [x, 0.0, 0.0, 0.0, 0.0, 0.0],
+        };
+        let mut p = program();
+        p.blocks.insert(0, block(1, frame(1, 0.0)));
+        p.blocks.insert(2, block(2, frame(2, 100.0)));
+        let run = from_line(p, 4, at(5.0, 0.0)).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(run.blocks[0].action, frame(2, 100.0));
+        assert_eq!(run.blocks[0].line, 4, "shown from the line it runs from");
     }
 
     #[test]

@@ -12,7 +12,7 @@ fn check_accepts_the_default_configuration() {
     assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
     assert_eq!(
         String::from_utf8_lossy(&o.stdout),
-        "config.json: valid (3 task classes: fast (10 ms), main (50 ms), spare (100 ms); 70 process-image variables; I/O map: io-map/trijoint.json)\n"
+        "config.json: valid (3 task classes: fast (10 ms), main (50 ms), spare (100 ms); 71 process-image variables; I/O map: io-map/trijoint.json)\n"
     );
 }
 
@@ -612,7 +612,7 @@ fn machine_names_a_machines_configuration_file_or_its_built_in_copy() {
         .expect("runs");
     assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
     assert!(
-        stdout(&o).starts_with("<built-in machines/hexapod.json>: valid (2 task classes: fast (10 ms), main (50 ms); 134 process-image variables; I/O map: ../io-map/hexapod.json)"),
+        stdout(&o).starts_with("<built-in machines/hexapod.json>: valid (2 task classes: fast (10 ms), main (50 ms); 135 process-image variables; I/O map: ../io-map/hexapod.json)"),
         "{}",
         stdout(&o)
     );

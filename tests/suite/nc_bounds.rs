@@ -101,7 +101,7 @@ fn a_few_bytes_that_make_millions_of_moves_or_metres_are_refused_at_the_line_tha
         (
             Some(2),
             format!(
-                "error: {moves}:3:1: the program makes more than 1000000 moves and other actions (the bound: nc.max_moves): split it, or loop over fewer"
+                "error: {moves}:4:1: the program makes more than 1000000 moves and other actions (the bound: nc.max_moves): split it, or loop over fewer"
             )
         )
     );
@@ -115,7 +115,7 @@ fn a_few_bytes_that_make_millions_of_moves_or_metres_are_refused_at_the_line_tha
     assert_eq!(code, Some(2));
     assert!(
         error.starts_with(&format!(
-            "error: {turns}:3:1: the program's plan would take more than 2048 MiB (the bound: nc.max_plan_mib): 217 actions so far, and a velocity profile of "
+            "error: {turns}:3:1: the program's plan would take more than 2048 MiB (the bound: nc.max_plan_mib): 218 actions so far, and a velocity profile of "
         )),
         "{error}"
     );
@@ -151,7 +151,7 @@ fn the_bounds_are_the_configurations_and_checked_with_their_path() {
     );
     let (code, error) = check(&moves, &["--config", config_arg]);
     assert_eq!(code, Some(2));
-    assert!(error.ends_with("3:1: the program makes more than 1000 moves and other actions (the bound: nc.max_moves): split it, or loop over fewer"), "{error}");
+    assert!(error.ends_with("4:1: the program makes more than 1000 moves and other actions (the bound: nc.max_moves): split it, or loop over fewer"), "{error}");
     // Out of their ranges: refused by `check` with their path.
     config["nc"]["max_moves"] = 10.into();
     config["nc"]["max_plan_mib"] = 0.into();

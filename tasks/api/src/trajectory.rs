@@ -43,6 +43,22 @@ pub mod vars {
         Var::new("NC_TOOL_B"),
         Var::new("NC_TOOL_C"),
     ];
+    /// The work coordinate system the running program has in force: 1 … 6 for G54 … G59; 0
+    /// while no program runs (the screen's DRO then shows G54 as the parameter file and the
+    /// touch-offs have it).
+    pub const NC_WORK_SYSTEM: Var<i16> = Var::new("NC_WORK_SYSTEM");
+    /// The running program's offset of program coordinates from machine coordinates, per pose
+    /// coordinate (mm, degrees): its work system's origin, G92's (or G52's) offset and the
+    /// tool's length offset (G43) together, so that the machine position less it is the position
+    /// in the program's own coordinates. 0 while no program runs.
+    pub const NC_WORK_OFFSET: [Var<f64>; 6] = [
+        Var::new("NC_WORK_OFFSET_X"),
+        Var::new("NC_WORK_OFFSET_Y"),
+        Var::new("NC_WORK_OFFSET_Z"),
+        Var::new("NC_WORK_OFFSET_A"),
+        Var::new("NC_WORK_OFFSET_B"),
+        Var::new("NC_WORK_OFFSET_C"),
+    ];
     /// The spindle turns (M3 or M4).
     pub const SPINDLE_ON: Var<bool> = Var::new("SPINDLE_ON");
     /// The spindle turns counter-clockwise (M4).
@@ -190,6 +206,16 @@ pub enum TrajectoryEventKind {
     Message {
         /// Its index.
         index: u32,
+    },
+    /// The program coordinates from here on: the work coordinate system in force (1 … 6 for
+    /// G54 … G59) and the offset of program coordinates from machine coordinates (its origin,
+    /// G92's or G52's offset and the tool's length offset, per pose coordinate). At the
+    /// program's first line and wherever one of them changes; the tool does not stop for it.
+    WorkOffset {
+        /// 1 … 6: G54 … G59.
+        system: u8,
+        /// Machine coordinates less this are program coordinates (mm, degrees).
+        offset: [f64; MAX_AXES],
     },
     /// M3 (1), M4 (−1), M5 (0) with the programmed speed (rpm).
     Spindle {

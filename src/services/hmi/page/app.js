@@ -464,10 +464,15 @@ function showPositions(m, value) {
       homed: joints.map((_, k) => $(`homed-${k + 1}`)),
     };
   }
+  // The work position in the running program's coordinates (its work system, G92 and tool
+  // offsets: NC_WORK_*), else against G54 as the parameter file and the touch-offs have it.
+  const system = value("NC_WORK_SYSTEM") || 0;
+  put($("dro-system"), system > 0 ? `G${53 + system}` : "G54");
   axes.forEach((a, c) => {
     const machine = values.get(a);
     put(droCells.machine[c], num(machine, 3));
-    const work = machine === undefined || machine === null ? null : machine - (origins ? origins[0][c] : 0);
+    const offset = system > 0 ? value(`NC_WORK_OFFSET_${a.toUpperCase()}`) || 0 : origins ? origins[0][c] : 0;
+    const work = machine === undefined || machine === null ? null : machine - offset;
     put(droCells.work[c], num(work, 3));
   });
   droCells.joints.forEach((cell, k) => {

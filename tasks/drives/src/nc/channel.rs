@@ -96,6 +96,9 @@ pub struct NcChannel {
     spindle_rpm: Output<f64>,
     coolant_mist: Output<bool>,
     coolant_flood: Output<bool>,
+    /// The running program's coordinates (`NC_WORK_SYSTEM`, `NC_WORK_OFFSET_*`).
+    work_system: Output<i16>,
+    work_offset: Vec<Output<f64>>,
     contour: Output<f64>,
     contour_max: Output<f64>,
     contour_rms: Output<f64>,
@@ -161,6 +164,11 @@ impl NcChannel {
             spindle_rpm: decl.write(vars::SPINDLE_RPM, 0.0),
             coolant_mist: decl.write(vars::COOLANT_MIST, false),
             coolant_flood: decl.write(vars::COOLANT_FLOOD, false),
+            work_system: decl.write(vars::NC_WORK_SYSTEM, 0),
+            work_offset: vars::NC_WORK_OFFSET[..coordinates.min(MAX_AXES)]
+                .iter()
+                .map(|v| decl.write(*v, 0.0))
+                .collect(),
             contour: decl.write(vars::NC_CONTOUR_ERROR, 0.0),
             contour_max: decl.write(vars::NC_CONTOUR_MAX, 0.0),
             contour_rms: decl.write(vars::NC_CONTOUR_RMS, 0.0),
@@ -321,6 +329,13 @@ impl NcChannel {
         let flows = auto && !interlock;
         ctx.set(self.coolant_mist, flows && mist);
         ctx.set(self.coolant_flood, flows && flood);
+        // The program's coordinates while it runs (the DRO's work position); none outside.
+        let running = auto && !matches!(state, RunState::Idle | RunState::Done);
+        let (system, offset) = self.executor.work();
+        ctx.set(self.work_system, if running { i16::from(system) } else { 0 });
+        for (out, value) in self.work_offset.iter().zip(offset) {
+            ctx.set(*out, if running { *value } else { 0.0 });
+        }
         if !auto || state == RunState::Idle {
             ctx.set(self.feed_measured, 0.0);
             return None;

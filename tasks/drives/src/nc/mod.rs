@@ -173,6 +173,8 @@ pub struct Executor {
     tool_changed_was: bool,
     /// How many of the program's messages this run has reached.
     messages: u32,
+    /// The program coordinates the run has reached (system 1 … 6, offset); system 0 before.
+    work: (u8, [f64; MAX_AXES]),
     /// A sampled pose had no joints: standing at the last one that had.
     fault: bool,
     current: TrajectorySample,
@@ -209,6 +211,7 @@ impl Executor {
             tool_confirmed: None,
             tool_changed_was: false,
             messages: 0,
+            work: (0, [0.0; MAX_AXES]),
             fault: false,
             current,
             current_t: 0.0,
@@ -288,6 +291,12 @@ impl Executor {
             .block_end((s - 1e-9).max(0.0))
             .map_or(self.trajectory.length_mm(), |(end, _)| end);
         (end - s).max(0.0)
+    }
+
+    /// The program coordinates the run has reached: the work system (1 … 6 for G54 … G59; 0
+    /// before the first) and the offset of program coordinates from machine coordinates.
+    pub fn work(&self) -> (u8, &[f64; MAX_AXES]) {
+        (self.work.0, &self.work.1)
     }
 
     /// How many of the program's messages this run has reached: the last one reached is
@@ -401,6 +410,7 @@ impl Executor {
                 self.cursor = 0;
                 self.next_event = 0;
                 self.messages = 0;
+                self.work = (0, [0.0; MAX_AXES]);
             }
             (Command::Run, RunState::Holding | RunState::Held) => {
                 self.state = RunState::Running;
@@ -438,6 +448,10 @@ impl Executor {
                 }
                 TrajectoryEventKind::Message { index } => {
                     self.messages = index.saturating_add(1);
+                    self.next_event += 1;
+                }
+                TrajectoryEventKind::WorkOffset { system, offset } => {
+                    self.work = (system, offset);
                     self.next_event += 1;
                 }
                 TrajectoryEventKind::Pause => {

@@ -143,6 +143,16 @@ pub enum Action {
     },
     /// A message comment: the `index`-th of the program's [`Program::messages`].
     Message(u32),
+    /// The program coordinates from here on (at the first block that does something, and
+    /// wherever they change): the work coordinate system in force (1 … 6 for G54 … G59) and the
+    /// offset of program coordinates from machine coordinates — its origin, G92's or G52's
+    /// offset and the tool's length offset. Shown on the operator's DRO; moves nothing.
+    WorkOffset {
+        /// 1 … 6: G54 … G59.
+        system: u8,
+        /// Machine coordinates less this are program coordinates.
+        offset: [f64; 6],
+    },
     /// M2/M30: the end of the program.
     End,
 }

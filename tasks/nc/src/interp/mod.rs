@@ -51,6 +51,8 @@ pub fn read_bounded(text: &str, machine: &Machine<'_>, bounds: &Bounds, watch: &
     // A '%' before any other line opens the program, and the next closes it; without it the
     // program ends at M2 or M30. What follows the end is never read (LinuxCNC ignores it).
     let (mut seen, mut opened) = (false, false);
+    // The program coordinates as the last WorkOffset action gave them.
+    let mut shown_frame: Option<(u8, [f64; 6])> = None;
     loop {
         match flow.next(&state)? {
             Event::Percent(number) => {
@@ -74,6 +76,21 @@ pub fn read_bounded(text: &str, machine: &Machine<'_>, bounds: &Bounds, watch: &
             Event::Block(block) => {
                 let before = blocks.len();
                 state.block(&block, &mut blocks)?;
+                // The program coordinates, where they are new: before the block's motion,
+                // which runs in them.
+                let frame = state.frame();
+                if shown_frame != Some(frame) {
+                    shown_frame = Some(frame);
+                    let (system, offset) = frame;
+                    blocks.insert(
+                        before,
+                        Block {
+                            line: block.line,
+                            column: 1,
+                            action: Action::WorkOffset { system, offset },
+                        },
+                    );
+                }
                 let column = made_by(&block);
                 for made in &mut blocks[before..] {
                     made.column = column;

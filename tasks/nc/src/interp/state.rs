@@ -197,6 +197,15 @@ impl<'a> State<'a> {
         }
     }
 
+    /// The program coordinates in force: the work coordinate system (1 … 6: G54 … G59) and the
+    /// offset of program coordinates from machine coordinates (its origin, G92's and the tool's
+    /// length offset): a position is the program's coordinates plus it.
+    pub(super) fn frame(&self) -> (u8, Pose) {
+        let work = self.work[self.system];
+        let offset = std::array::from_fn(|c| work[c] + self.g92[c] + self.tool_offset[c]);
+        (self.system as u8 + 1, offset)
+    }
+
     /// mm per program length unit.
     pub(super) fn unit(&self) -> f64 {
         if self.inches { 25.4 } else { 1.0 }

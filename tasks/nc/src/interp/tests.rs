@@ -24,9 +24,20 @@ fn ended(text: &str) -> String {
 }
 
 fn run(text: &str) -> Vec<Block> {
-    read(&ended(text), &machine(&XYZ))
-        .unwrap_or_else(|e| panic!("{e}"))
-        .blocks
+    without_frames(
+        read(&ended(text), &machine(&XYZ))
+            .unwrap_or_else(|e| panic!("{e}"))
+            .blocks,
+    )
+}
+
+/// `blocks` without their program coordinates (`Action::WorkOffset`, tested on their own):
+/// what moves, switches and waits.
+fn without_frames(blocks: Vec<Block>) -> Vec<Block> {
+    blocks
+        .into_iter()
+        .filter(|b| !matches!(b.action, Action::WorkOffset { .. }))
+        .collect()
 }
 
 fn refused(text: &str) -> String {
@@ -671,7 +682,77 @@ fn with_tools(text: &str) -> Result<Program, NcError> {
     let tools = crate::tools::ToolTable::parse(TOOLS).expect("a table");
     let mut m = machine(&XYZ);
     m.tools = Some(&tools);
-    read(&ended(text), &m)
+    read(&ended(text), &m).map(|p| Program {
+        blocks: without_frames(p.blocks),
+        ..p
+    })
+}
+
+/// The program coordinates `text` reads in, each where it comes: (line, system, offset x y z),
+/// with the tool table and G55 at x 100 (G54 at 0).
+fn frames(text: &str) -> Vec<(usize, u8, [f64; 3])> {
+    let tools = crate::tools::ToolTable::parse(TOOLS).expect("a table");
+    let mut m = machine(&XYZ);
+    m.tools = Some(&tools);
+    m.work_offsets[1][0] = 100.0;
+    let p = read(&ended(text), &m).unwrap_or_else(|e| panic!("{e}"));
+    p.blocks
+        .iter()
+        .filter_map(|b| match b.action {
+            Action::WorkOffset { system, offset } => Some((b.line, system, [offset[0], offset[1], offset[2]])),
+            _ => None,
+        })
+        .collect()
+}
+
+#[test]
+fn the_program_coordinates_come_first_and_wherever_the_system_g92_or_the_tool_offset_changes() {
+    // G54 from the first line; G55 (x 100); G92 makes x read 5 where the tool is (x 110 in
+    // machine coordinates: offset 105); G43 adds tool 2's offsets (TOOLS: X 0.5, Z 30.5); G92.1 and G49
+    // take theirs away; M2's line changes nothing.
+    let f = frames(
+        "G0 X1
+G55
+G0 X10
+G92 X5
+T2 M6
+G43
+G0 Z1
+G92.1
+G49
+G54",
+    );
+    assert_eq!(
+        f,
+        [
+            (1, 1, [0.0, 0.0, 0.0]),
+            (2, 2, [100.0, 0.0, 0.0]),
+            (4, 2, [105.0, 0.0, 0.0]),
+            (6, 2, [105.5, 0.0, 30.5]),
+            (8, 2, [100.5, 0.0, 30.5]),
+            (9, 2, [100.0, 0.0, 0.0]),
+            (10, 1, [0.0, 0.0, 0.0]),
+        ]
+    );
+    // Before the block's own move, which runs in them.
+    let tools = crate::tools::ToolTable::parse(TOOLS).expect("a table");
+    let mut m = machine(&XYZ);
+    m.tools = Some(&tools);
+    let p = read(
+        &ended(
+            "G0 X1
+G55 G0 X2",
+        ),
+        &m,
+    )
+    .expect("read");
+    let kinds: Vec<(usize, bool)> = p
+        .blocks
+        .iter()
+        .filter(|b| !matches!(b.action, Action::End))
+        .map(|b| (b.line, matches!(b.action, Action::WorkOffset { .. })))
+        .collect();
+    assert_eq!(kinds, [(1, true), (1, false), (2, true), (2, false)]);
 }
 
 #[test]

@@ -152,6 +152,14 @@ pub(super) fn elements_and_events(program: &Program) -> (Vec<Element>, f64, Vec<
                     dwelt_s: dwelt,
                 });
             }
+            Action::WorkOffset { system, offset } => {
+                // Nor for new program coordinates: the DRO takes them as the tool passes.
+                events.push(Pending {
+                    line: block.line,
+                    kind: TrajectoryEventKind::WorkOffset { system, offset },
+                    dwelt_s: dwelt,
+                });
+            }
             Action::Pause { .. }
             | Action::Spindle { .. }
             | Action::Coolant { .. }
