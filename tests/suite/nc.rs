@@ -890,3 +890,89 @@ fn a_parameter_file_is_read_as_linuxcnc_reads_it() {
     let said = rs274_output(rs274, program, Some(&file(25.4, &swapped)));
     assert!(said.contains("Parameter file out of order"), "{said}");
 }
+
+/// The program coordinates the DRO shows while a program runs (our interpreter's
+/// `Action::WorkOffset`) are LinuxCNC's: at every move, the work system in force and the offset
+/// of program coordinates from machine coordinates agree with what `rs274` sets before that move
+/// (`SET_G5X_OFFSET`, `SET_G92_OFFSET` and `USE_TOOL_LENGTH_OFFSET`, summed), through G54 … G59,
+/// G10 L2 and L20, G92 and its variants, G52, G43, G43.1 and G49.
+#[test]
+fn the_program_coordinates_shown_at_every_move_are_linuxcncs() {
+    let Some(rs274) = rs274_or_skip("nc::the_program_coordinates_shown_at_every_move_are_linuxcncs") else {
+        return;
+    };
+    let programs = [
+        "G10 L2 P2 X5 Y1\nG0 X1\nG55\nG0 X1\nG10 L20 P2 X0\nG0 X1\nG10 L2 P0 Z3\nG0 X0\nG54\nG0 X0\nG0 X3\nG10 L20 P1 X1\nG0 X0\nM2\n",
+        "G0 X3\nG92 X5\nG0 X0 Y1\nG92.2\nG0 X1\nG92.3\nG0 X2\nG92.1\nG0 X3\nG52 X5 Y-1\nG0 X0 Y0\nG92 X2\nG0 X1\nG52 X0 Y0\nG0 X1\nM2\n",
+        "G21 G90\nT1 M6\nG43 H1\nG0 X1 Y1 Z5\nG1 Z-1 F100\nG49 G0 Z2\nT2 M6 M3 S1000\nG43\nG0 Z0\nG43.1 X1 Z2\nG0 Z0\nG43.1 Z3\nG0 Z1\nG49\nG0 Z0\nM2\n",
+        "G43 H1\nG0 Z1\nG92 Z0\nG0 Z-1\nG10 L20 P1 Z5\nG0 Z0\nG92.1\nG0 Z10\nG56 G0 X1\nG10 L2 P3 X-2 Y4\nG0 Y1\nG59 G0 X2\nM2\n",
+    ];
+    for text in programs {
+        let ours = our_frames(text);
+        let theirs = linuxcnc_frames(&rs274_output(rs274, text, None));
+        let agree = ours.len() == theirs.len()
+            && ours
+                .iter()
+                .zip(&theirs)
+                .all(|(a, b)| a.0 == b.0 && a.1.iter().zip(&b.1).all(|(x, y)| (x - y).abs() <= 0.003));
+        assert!(agree, "{text}\nours: {ours:?}\nLinuxCNC: {theirs:?}");
+        assert!(ours.len() > 1, "{text}: the program coordinates change: {ours:?}");
+    }
+}
+
+/// The program coordinates in force at each of our moves (that goes somewhere), each change once:
+/// (work system 1 … 6, offset x y z).
+fn our_frames(text: &str) -> Vec<(u8, [f64; 3])> {
+    use pkm_nc::interp::Action;
+    let program = our_program(text).unwrap_or_else(|e| panic!("{e}"));
+    let mut frame = None;
+    let mut frames: Vec<(u8, [f64; 3])> = Vec::new();
+    for b in &program.blocks {
+        match b.action {
+            Action::WorkOffset { system, offset } => frame = Some((system, rounded([offset[0], offset[1], offset[2]]))),
+            Action::Move { from, to, .. } if rounded([from[0], from[1], from[2]]) != rounded([to[0], to[1], to[2]]) => {
+                let now = frame.expect("program coordinates before the first move");
+                if frames.last() != Some(&now) {
+                    frames.push(now);
+                }
+            }
+            _ => {}
+        }
+    }
+    frames
+}
+
+/// The program coordinates `rs274` has set before each move it prints, each change once.
+fn linuxcnc_frames(stdout: &str) -> Vec<(u8, [f64; 3])> {
+    let (mut system, mut g5x, mut g92, mut tool) = (1u8, [0.0; 3], [0.0; 3], [0.0; 3]);
+    let mut unit = 1.0;
+    let mut frames: Vec<(u8, [f64; 3])> = Vec::new();
+    for line in stdout.lines() {
+        let Some((call, args)) = line.split_once('(') else {
+            continue;
+        };
+        let call = call.rsplit(' ').next().unwrap_or("");
+        let n: Vec<f64> = args
+            .trim_end_matches(')')
+            .split([',', ' '])
+            .filter_map(|x| x.trim().parse::<f64>().ok())
+            .collect();
+        match call {
+            "USE_LENGTH_UNITS" => unit = if args.contains("INCHES") { 25.4 } else { 1.0 },
+            "SET_G5X_OFFSET" if n.len() >= 4 => {
+                system = n[0] as u8;
+                g5x = [n[1] * unit, n[2] * unit, n[3] * unit];
+            }
+            "SET_G92_OFFSET" if n.len() >= 3 => g92 = [n[0] * unit, n[1] * unit, n[2] * unit],
+            "USE_TOOL_LENGTH_OFFSET" if n.len() >= 3 => tool = [n[0] * unit, n[1] * unit, n[2] * unit],
+            "STRAIGHT_TRAVERSE" | "STRAIGHT_FEED" | "ARC_FEED" => {
+                let now = (system, rounded(std::array::from_fn(|c| g5x[c] + g92[c] + tool[c])));
+                if frames.last() != Some(&now) {
+                    frames.push(now);
+                }
+            }
+            _ => {}
+        }
+    }
+    frames
+}
