@@ -788,6 +788,10 @@ fn linuxcncs_example_programs_give_its_moves() {
         "g881",
         "g882",
         "skeleton",
+        // Polar coordinates: lines, a spiral of G91 steps, bolt circles of canned cycles.
+        "polar",
+        "spiral",
+        "hole-circle",
     ] {
         assert!(read.iter().any(|r| r == name), "{name} was not read: {read:?}");
     }
@@ -975,4 +979,72 @@ fn linuxcnc_frames(stdout: &str) -> Vec<(u8, [f64; 3])> {
         }
     }
     frames
+}
+
+/// Polar coordinates (`@` the distance, `^` the angle around the program's origin) give the moves
+/// LinuxCNC 2.9's `rs274` gives: in G90 both, or either alone (the other as the tool's position
+/// has it); in G91 a distance that lengthens the tool's own, an angle that turns it on; around
+/// the origin G92 moved; a feed's and an arc's end; in inches. Both refuse the same programs,
+/// ours saying why at the word.
+#[test]
+fn polar_coordinates_give_linuxcncs_moves_and_refusals() {
+    let Some(rs274) = rs274_or_skip("nc::polar_coordinates_give_linuxcncs_moves_and_refusals") else {
+        return;
+    };
+    for text in [
+        "G0 X3 Y4\nG1 F100 @10\n^90\nG91 @-5\n^-45\nG90 G92 X0 Y0\nG0 @2 ^180\nG92.1\nG0 X5 Y0\nG3 @5 ^90 I-5 J0\nG20 G0 @1 ^30\nM2\n",
+        "G0 @5 ^30 Z2\nG1 F200 ^120\nG91 ^120 Z-1\n^120\n@2.5\nG90 G2 @7.5 ^-90 R7.5\nM2\n",
+        "G10 L2 P2 X10 Y-5\nG55 G0 @4 ^45\nG54 G0 @4 ^45\nM2\n",
+        // The plane in force before the block counts, as in LinuxCNC: this moves in XY.
+        "G18 G0 @5 ^30\nG0 X0 Z1\nM2\n",
+    ] {
+        let (o, l) = (ours(text), linuxcnc(rs274, text));
+        assert!(agree(&o, &l), "{text}\nours: {o:?}\nLinuxCNC: {l:?}");
+        assert!(o.len() >= 2, "{text}: {o:?}");
+    }
+    for (text, why) in [
+        (
+            "G1 F100 X1 @5 ^30\nM2\n",
+            "1:9: X and polar coordinates (@, ^) in one block: the end is one or the other",
+        ),
+        (
+            "G1 F100 @5 Y1\nM2\n",
+            "1:12: Y and polar coordinates (@, ^) in one block: the end is one or the other",
+        ),
+        (
+            "G18 G0 X1\nG0 @5 ^30\nM2\n",
+            "2:4: polar coordinates (@, ^) are taken in the XY plane only (G17)",
+        ),
+        (
+            "G53 G0 @5 ^30\nM2\n",
+            "1:8: polar coordinates (@, ^) cannot go with G53 (machine coordinates)",
+        ),
+        (
+            "G0 @5\nM2\n",
+            "1:4: a distance (@) alone needs an angle (^) where the tool stands at the program's origin",
+        ),
+        (
+            "G91 G1 F100 @5\nM2\n",
+            "1:13: an incremental polar move (G91 @) has no direction at the program's origin: move off it, or use G90",
+        ),
+        (
+            "G91 G0 ^30\nM2\n",
+            "1:8: an incremental polar move (G91 ^) turns nothing at the program's origin: move off it, or use G90",
+        ),
+        (
+            "G0 Z1\nG91 G81 R0 Z-1 ^60 L6 F10\nM2\n",
+            "2:16: G81: an incremental polar step (G91 @, ^) has no direction at the program's origin: move off it, or use G90",
+        ),
+        (
+            "G0 X1\nG92 @1\nM2\n",
+            "2:5: polar coordinates (@, ^) give a move's end (G0, G1, G2, G3), not G92's values",
+        ),
+    ] {
+        let ours = our_program(text).map(|_| ()).map_err(|e| e.to_string());
+        assert_eq!(ours, Err(why.to_string()), "{text}");
+        assert!(
+            !rs274_output(rs274, text, None).contains("PROGRAM_END"),
+            "rs274 read {text:?}"
+        );
+    }
 }

@@ -46,6 +46,7 @@ impl State<'_> {
         first: &Word,
         get: &dyn Fn(char) -> Option<&'w Word>,
         axis_words: &[(usize, &Word)],
+        polar: [Option<&Word>; 2],
         m: &[(u16, &Word)],
         out: &mut Vec<Block>,
     ) -> Result<(), NcError> {
@@ -65,6 +66,12 @@ impl State<'_> {
         let mut p = self.program_position();
         let initial = *self.cycle_initial.get_or_insert(p[n]);
         let given = |c: usize| axis_words.iter().find(|(k, _)| *k == c).map(|(_, w)| w.value);
+        // Polar coordinates (G17 only, checked with the block): the distance (@, in program
+        // units as the cycle's other words) and the angle (^, radians here) around the
+        // program's origin.
+        let [distance_word, angle_word] = polar;
+        let distance = distance_word.map(|w| w.value);
+        let angle = angle_word.map(|w| w.value.to_radians());
         let (mut aa, mut bb, step, r, bottom);
         if self.incremental {
             step = [given(a0).unwrap_or(0.0), given(a1).unwrap_or(0.0)];
@@ -75,7 +82,33 @@ impl State<'_> {
             step = [0.0, 0.0];
             (r, bottom) = (r_given, bottom_given);
             (aa, bb) = (given(a0).unwrap_or(p[a0]), given(a1).unwrap_or(p[a1]));
+            if distance.is_some() || angle.is_some() {
+                // Either alone keeps the other as the tool's position has it.
+                let radius = distance.unwrap_or_else(|| p[a1].hypot(p[a0]));
+                let theta = angle.unwrap_or_else(|| p[a1].atan2(p[a0]));
+                (aa, bb) = (radius * theta.cos(), radius * theta.sin());
+            }
         }
+        // In G91 each repeat lengthens the position's distance from the origin by @ and turns
+        // it by ^ (a bolt circle: `G91 G81 ^60 L6`), as LinuxCNC does.
+        let polar_step = |aa: f64, bb: f64| -> Result<(f64, f64), NcError> {
+            let (mut aa, mut bb) = (aa, bb);
+            for (word, lengthen, turn) in [(distance_word, distance, None), (angle_word, None, angle)] {
+                let Some(word) = word else { continue };
+                if aa == 0.0 && bb == 0.0 {
+                    return Err(at(
+                        word,
+                        format!(
+                            "{name}: an incremental polar step (G91 @, ^) has no direction at the program's origin: move off it, or use G90"
+                        ),
+                    ));
+                }
+                let radius = bb.hypot(aa) + lengthen.unwrap_or(0.0);
+                let theta = bb.atan2(aa) + turn.unwrap_or(0.0);
+                (aa, bb) = (radius * theta.cos(), radius * theta.sin());
+            }
+            Ok((aa, bb))
+        };
         if r < bottom {
             return Err(at(
                 get('R').unwrap_or(first),
@@ -118,6 +151,9 @@ impl State<'_> {
         for turn in 0..repeats {
             if let Some(e) = full(out) {
                 return Err(e);
+            }
+            if self.incremental {
+                (aa, bb) = polar_step(aa, bb)?;
             }
             aa += step[0];
             bb += step[1];

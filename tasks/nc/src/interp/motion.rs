@@ -26,7 +26,9 @@ impl State<'_> {
     /// The motion the block makes, if any: its motion code, or with axis words alone the mode
     /// in force (G80 in the block makes none).
     pub(super) fn motion_now(&self, words: &Words<'_>) -> Option<u16> {
-        let has_axis_word = super::block::AXES.iter().any(|a| words.get(*a).is_some());
+        // Polar coordinates (@, ^) are axis words as X and Y are.
+        let has_axis_word =
+            super::block::AXES.iter().any(|a| words.get(*a).is_some()) || words.polar().iter().any(Option::is_some);
         // G28, G30, G52 and G92 take the block's axis words: the motion mode makes no move.
         if words.uses_axis_words() {
             return words.motion_word().map(|(c, _)| c);
@@ -48,6 +50,7 @@ impl State<'_> {
         let cycle_now = self.motion_now(words).is_some_and(super::words::is_cycle);
         let axis_words = words.axis_words();
         let machine_coords = words.has_g(530);
+        let polar = words.polar();
         if words.has_g(800) {
             // G80 (canned cycle cancel) sets no motion mode; CAM programs write it in their
             // preamble.
@@ -70,14 +73,25 @@ impl State<'_> {
             }
             let first = axis_words.first().map_or(words.first, |(_, w)| *w);
             let code = self.motion.unwrap_or_default();
-            return self.cycle(line, code, previous_motion, first, &get, &axis_words, &words.m, out);
+            return self.cycle(
+                line,
+                code,
+                previous_motion,
+                first,
+                &get,
+                &axis_words,
+                polar,
+                &words.m,
+                out,
+            );
         }
         // An arc without axis words but with its centre is a full circle where the tool stands.
         let full_circle = matches!(motion_word, Some((20 | 30, _))) && axis_words.is_empty() && {
             let [o0, o1] = self.plane.offsets();
             get(o0).is_some() || get(o1).is_some()
         };
-        let moves = !words.uses_axis_words() && (!axis_words.is_empty() || full_circle);
+        let moves =
+            !words.uses_axis_words() && (!axis_words.is_empty() || polar.iter().any(Option::is_some) || full_circle);
         if let Some(w) = words.g_word(530) {
             if !matches!(self.motion, Some(0 | 10)) || !moves {
                 return Err(at(w, "G53 goes with a G0 or G1 move in this block".into()));
@@ -100,16 +114,18 @@ impl State<'_> {
         }
         if moves {
             self.cycle_initial = None;
+            let first = axis_words.first().map(|(_, w)| *w).or(polar[0]).or(polar[1]);
             let Some(mode) = self.motion else {
                 return Err(at(
-                    axis_words[0].1,
+                    first.unwrap_or(words.first),
                     "an axis word needs a motion mode: G0, G1, G2 or G3 first".into(),
                 ));
             };
-            let to = self.target(&axis_words, machine_coords);
-            let first = axis_words
-                .first()
-                .map_or_else(|| motion_word.map(|(_, w)| w).unwrap_or(words.first), |(_, w)| *w);
+            let mut to = self.target(&axis_words, machine_coords);
+            if polar.iter().any(Option::is_some) {
+                to = self.polar_target(line, polar, to)?;
+            }
+            let first = first.unwrap_or_else(|| motion_word.map(|(_, w)| w).unwrap_or(words.first));
             let path = match mode {
                 0 | 10 => Path::Line,
                 _ => self.arc(line, first, mode == 20, &to, &get)?,
@@ -139,6 +155,103 @@ impl State<'_> {
     }
 
     /// The arc from the current position to `to`, by its centre (I J K) or radius (R).
+    /// Refuses polar coordinates (@, ^) where LinuxCNC does — on a machine without X and Y, in
+    /// another plane than G17, beside X or Y, with G53 — and where we do not take them: with a
+    /// code that takes the block's axis words (G10, G28, G92, …). Called
+    /// before the block changes the plane: LinuxCNC checks the plane in force before it (a
+    /// `G18 G0 @5 ^30` moves in XY).
+    pub(super) fn check_polar(&self, words: &Words<'_>) -> Result<(), NcError> {
+        let [distance, angle] = words.polar();
+        let Some(p) = distance.or(angle) else {
+            return Ok(());
+        };
+        let machine_coords = words.has_g(530);
+        let at = |w: &Word, message: &str| Err(NcError::new(words.line, w.column, message.to_string()));
+        let has = |axis: &str| self.machine.axes.iter().any(|a| a.eq_ignore_ascii_case(axis));
+        if !(has("x") && has("y")) {
+            return at(p, "polar coordinates (@, ^) need a machine with X and Y axes");
+        }
+        if self.plane != Plane::Xy {
+            return at(p, "polar coordinates (@, ^) are taken in the XY plane only (G17)");
+        }
+        for letter in ['X', 'Y'] {
+            if let Some(w) = words.get(letter) {
+                return at(
+                    w,
+                    &format!("{letter} and polar coordinates (@, ^) in one block: the end is one or the other"),
+                );
+            }
+        }
+        if machine_coords {
+            return at(p, "polar coordinates (@, ^) cannot go with G53 (machine coordinates)");
+        }
+        if let Some(code) = words.axis_word_taker() {
+            return at(
+                p,
+                &format!(
+                    "polar coordinates (@, ^) give a move's end (G0, G1, G2, G3), not {}'s values",
+                    super::words::format_code('G', code)
+                ),
+            );
+        }
+        Ok(())
+    }
+
+    /// The end of a move written in polar coordinates, as LinuxCNC takes them: the distance (@)
+    /// and the angle (^, degrees counter-clockwise from +X) around the program's origin. In G90
+    /// they give the end; either alone keeps the other as the tool's position has it. In G91
+    /// the distance lengthens the tool's own, the angle turns it on. X and Y of `to` are
+    /// replaced; the other axes stay as `to` has them.
+    fn polar_target(&self, line: usize, polar: [Option<&Word>; 2], mut to: Pose) -> Result<Pose, NcError> {
+        let offset = self.offset();
+        let (mut x, mut y) = (self.position[0] - offset[0], self.position[1] - offset[1]);
+        let indeterminate = |w: &Word, message: &str| Err(NcError::new(line, w.column, message.to_string()));
+        let [distance, angle] = polar;
+        let distance_mm = distance.map(|w| w.value * self.scale(0));
+        let angle_rad = angle.map(|w| w.value.to_radians());
+        if self.incremental {
+            if let (Some(w), Some(d)) = (distance, distance_mm) {
+                if x == 0.0 && y == 0.0 {
+                    return indeterminate(
+                        w,
+                        "an incremental polar move (G91 @) has no direction at the program's origin: move off it, or use G90",
+                    );
+                }
+                let (r, t) = (x.hypot(y) + d, y.atan2(x));
+                (x, y) = (r * t.cos(), r * t.sin());
+            }
+            if let (Some(w), Some(a)) = (angle, angle_rad) {
+                if x == 0.0 && y == 0.0 {
+                    return indeterminate(
+                        w,
+                        "an incremental polar move (G91 ^) turns nothing at the program's origin: move off it, or use G90",
+                    );
+                }
+                let (r, t) = (x.hypot(y), y.atan2(x) + a);
+                (x, y) = (r * t.cos(), r * t.sin());
+            }
+        } else {
+            let r = match (distance, distance_mm) {
+                (_, Some(d)) => d,
+                _ => x.hypot(y),
+            };
+            let t = match (angle_rad, distance) {
+                (Some(a), _) => a,
+                (None, Some(w)) if x == 0.0 && y == 0.0 => {
+                    return indeterminate(
+                        w,
+                        "a distance (@) alone needs an angle (^) where the tool stands at the program's origin",
+                    );
+                }
+                _ => y.atan2(x),
+            };
+            (x, y) = (r * t.cos(), r * t.sin());
+        }
+        to[0] = x + offset[0];
+        to[1] = y + offset[1];
+        Ok(to)
+    }
+
     pub(super) fn arc<'w>(
         &self,
         line: usize,

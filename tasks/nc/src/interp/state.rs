@@ -201,9 +201,7 @@ impl<'a> State<'a> {
     /// offset of program coordinates from machine coordinates (its origin, G92's and the tool's
     /// length offset): a position is the program's coordinates plus it.
     pub(super) fn frame(&self) -> (u8, Pose) {
-        let work = self.work[self.system];
-        let offset = std::array::from_fn(|c| work[c] + self.g92[c] + self.tool_offset[c]);
-        (self.system as u8 + 1, offset)
+        (self.system as u8 + 1, self.offset())
     }
 
     /// mm per program length unit.
@@ -233,6 +231,7 @@ impl<'a> State<'a> {
         self.spindle(&words, out);
         self.coolant(&words, out);
         words.check_owners(self.motion_now(&words))?;
+        self.check_polar(&words)?;
         self.dwell(&words, out)?;
         self.modes(&words)?;
         self.tool_length(&words)?;

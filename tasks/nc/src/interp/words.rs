@@ -18,6 +18,8 @@ pub(super) struct Words<'b> {
     pub m: Vec<(u16, &'b Word)>,
     /// The word of each letter A … Z that carries a value.
     values: [Option<&'b Word>; 26],
+    /// The polar coordinates' words: the distance (@) and the angle (^).
+    polar: [Option<&'b Word>; 2],
     /// The block's first word (where an error about the whole block points).
     pub first: &'b Word,
 }
@@ -31,6 +33,7 @@ impl<'b> Words<'b> {
         let mut g: Vec<(u16, &Word)> = Vec::new();
         let mut m: Vec<(u16, &Word)> = Vec::new();
         let mut values: [Option<&Word>; 26] = [None; 26];
+        let mut polar: [Option<&Word>; 2] = [None; 2];
         for (i, w) in block.words.iter().enumerate() {
             match w.letter {
                 'G' | 'M' => {
@@ -93,6 +96,13 @@ impl<'b> Words<'b> {
                     }
                     *slot = Some(w);
                 }
+                '@' | '^' => {
+                    let slot = &mut polar[usize::from(w.letter == '^')];
+                    if slot.is_some() {
+                        return Err(at(w, format!("{} twice in one block", w.letter)));
+                    }
+                    *slot = Some(w);
+                }
                 'D' => {
                     return Err(at(
                         w,
@@ -111,8 +121,15 @@ impl<'b> Words<'b> {
             g,
             m,
             values,
+            polar,
             first: &block.words[0],
         })
+    }
+
+    /// The polar coordinates' words: the distance (@) and the angle (^), where the block has
+    /// them.
+    pub fn polar(&self) -> [Option<&'b Word>; 2] {
+        self.polar
     }
 
     /// The word of value letter `letter`, if the block has it.

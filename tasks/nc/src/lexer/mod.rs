@@ -464,7 +464,8 @@ impl Cursor<'_> {
                     ));
                 }
                 '#' => assignments.push(self.assignment()?),
-                c if c.is_ascii_alphabetic() => {
+                // Polar coordinates' distance (@) and angle (^) are words as letters are.
+                c if c.is_ascii_alphabetic() || c == '@' || c == '^' => {
                     self.at += 1;
                     let letter = c.to_ascii_uppercase();
                     let value = self.value(Some((letter, ch.column)))?;
@@ -484,16 +485,6 @@ impl Cursor<'_> {
                     return Err(self.error(
                         ch.column,
                         "'/' only starts a line (block delete); a division is written in brackets: [1/2]",
-                    ));
-                }
-                '@' | '^' => {
-                    return Err(self.error(
-                        ch.column,
-                        format!(
-                            "polar coordinates ({} as {}) are not supported: write X and Y",
-                            ch.c,
-                            if ch.c == '@' { "the distance" } else { "the angle" }
-                        ),
                     ));
                 }
                 _ => return Err(self.error(ch.column, format!("unexpected character '{}'", ch.written))),
@@ -1182,10 +1173,7 @@ mod tests {
                 "1:6: '/' only starts a line (block delete); a division is written in brackets: [1/2]",
             ),
             ("G1 X1 !", "1:7: unexpected character '!'"),
-            (
-                "G1 @5 ^30",
-                "1:4: polar coordinates (@ as the distance) are not supported: write X and Y",
-            ),
+            ("G1 @", "1:4: @ needs a number"),
             ("G1 X-", "1:4: X needs a number"),
             ("G1 X[1+2", "1:5: the expression is not closed: ']' is missing"),
             (
