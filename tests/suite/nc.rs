@@ -418,9 +418,13 @@ fn ours(text: &str) -> Vec<Canonical> {
 fn ours_with(text: &str, offsets: &pkm_nc::params::WorkOffsets) -> Vec<Canonical> {
     use pkm_nc::interp::{Action, Path};
     let program = our_program_with(text, offsets).unwrap_or_else(|e| panic!("{e}"));
+    // A spline's pieces are left out, as `rs274` prints a spline apart (`NURBS_FEED`, no moves).
+    let lines: Vec<&str> = text.lines().collect();
+    let spline_line = |line: usize| lines.get(line.wrapping_sub(1)).is_some_and(|l| is_spline_line(l));
     program
         .blocks
         .iter()
+        .filter(|b| !spline_line(b.line))
         .filter_map(|b| match b.action {
             // Moves that go nowhere are left out, as on LinuxCNC's side.
             Action::Move {
@@ -447,6 +451,19 @@ fn ours_with(text: &str, offsets: &pkm_nc::params::WorkOffsets) -> Vec<Canonical
             _ => None,
         })
         .collect()
+}
+
+/// Whether a program line holds G5 or G5.1 (not G53, G54, …; in any case, with leading zeros).
+fn is_spline_line(line: &str) -> bool {
+    let upper = line.to_uppercase();
+    let code = upper.split('(').next().unwrap_or("").replace(' ', "");
+    code.match_indices('G').any(|(at, _)| {
+        let rest = code[at + 1..].trim_start_matches('0');
+        rest.starts_with('5')
+            && !rest[1..].starts_with(|c: char| c.is_ascii_digit())
+            && !rest[1..].starts_with(".2")
+            && !rest[1..].starts_with(".3")
+    })
 }
 
 /// LinuxCNC's moves of `text`, from its `rs274` (canonical calls); moves that go nowhere (the
@@ -792,6 +809,8 @@ fn linuxcncs_example_programs_give_its_moves() {
         "polar",
         "spiral",
         "hole-circle",
+        // Cubic splines (G5) in loops: 13 000 pieces, the moves between them rs274's.
+        "systems",
     ] {
         assert!(read.iter().any(|r| r == name), "{name} was not read: {read:?}");
     }
@@ -1047,4 +1066,124 @@ fn polar_coordinates_give_linuxcncs_moves_and_refusals() {
             "rs274 read {text:?}"
         );
     }
+}
+
+/// G5 (cubic) and G5.1 (quadratic) splines read as LinuxCNC 2.9's `rs274` reads them: one spline
+/// of the same order where it makes a `NURBS_FEED` (4 control points, or 3), the moves around
+/// them the same — in G91 too, where a move after a spline starts at the spline's end — and the
+/// same programs refused (without P Q, with one of I J, outside G17, with Z, without a feed).
+/// G5.2 (NURBS) is refused with its reason. The pieces' closeness to the curve is the
+/// interpreter's own test (`interp::spline`).
+#[test]
+fn splines_are_linuxcncs_and_nurbs_are_refused_with_why() {
+    let Some(rs274) = rs274_or_skip("nc::splines_are_linuxcncs_and_nurbs_are_refused_with_why") else {
+        return;
+    };
+    for text in [
+        "G0 X0 Y0\nG1 F100\nG5 I0 J3 P0 Q-3 X1 Y1\nG5 P0 Q-3 X2 Y2\nG1 X3\nG5.1 X5 Y1 I1 J-2\nG1 Y0\nM2\n",
+        "G91 G1 X1 F200\nG5 I1 J1 P-1 Q1 X4 Y0\nG1 X1\nG5.1 I1 J1 X2 Y0\nG1 Y1\nG90 G1 X0 Y0\nM2\n",
+        "G20 G1 X0.5 F10\nG5 I0.2 J0.5 P0 Q-0.3 X1 Y1\nG1 X2\nM2\n",
+    ] {
+        let orders: Vec<&str> = text
+            .lines()
+            .filter_map(|l| {
+                if l.contains("G5.1") {
+                    Some("3")
+                } else if l.contains("G5") {
+                    Some("4")
+                } else {
+                    None
+                }
+            })
+            .collect();
+        let output = rs274_output(rs274, text, None);
+        let theirs: Vec<&str> = output
+            .lines()
+            .filter_map(|l| l.split_once("NURBS_FEED(").map(|(_, rest)| &rest[..1]))
+            .collect();
+        assert_eq!(theirs, orders, "{text}: rs274's splines");
+        // Our moves but the splines' pieces, against rs274's (which prints splines apart).
+        let spline_lines: Vec<usize> = text
+            .lines()
+            .enumerate()
+            .filter(|(_, l)| l.contains("G5"))
+            .map(|(k, _)| k + 1)
+            .collect();
+        let program = our_program(text).unwrap_or_else(|e| panic!("{e}"));
+        let mut pieces = 0;
+        let mut ours = Vec::new();
+        for b in &program.blocks {
+            let pkm_nc::interp::Action::Move {
+                from,
+                to,
+                path,
+                feed_mm_min,
+                ..
+            } = b.action
+            else {
+                continue;
+            };
+            if spline_lines.contains(&b.line) {
+                pieces += 1;
+                assert!(feed_mm_min.is_some(), "a spline feeds");
+                continue;
+            }
+            if rounded([from[0], from[1], from[2]]) == rounded([to[0], to[1], to[2]]) {
+                continue;
+            }
+            ours.push(Canonical {
+                kind: if feed_mm_min.is_some() { "feed" } else { "rapid" },
+                end: rounded([to[0], to[1], to[2]]),
+                arc: match path {
+                    pkm_nc::interp::Path::Arc { center, clockwise, .. } => Some(([center[0], center[1]], clockwise)),
+                    pkm_nc::interp::Path::Line => None,
+                },
+                feed: feed_mm_min,
+            });
+        }
+        assert!(pieces >= 8 * orders.len(), "{text}: {pieces} pieces");
+        let l = canonical_moves(&output);
+        assert!(agree(&ours, &l), "{text}\nours: {ours:?}\nLinuxCNC: {l:?}");
+    }
+    for (text, why) in [
+        (
+            "G1 F100\nG5 I0 J1 X1 Y1\nM2\n",
+            "2:1: G5: P and Q are both needed (the second control point's offset from the end)",
+        ),
+        (
+            "G1 F100\nG5 I0 P0 Q-1 X1 Y1\nM2\n",
+            "2:4: G5: I and J both, or neither (then the last G5's P and Q, reversed)",
+        ),
+        (
+            "G1 F100\nG5.1 X1 Y1 I0.5\nM2\n",
+            "2:12: G5.1: I and J are both needed (the control point's offset from the start)",
+        ),
+        (
+            "G18 G1 F100\nG5 I0 J1 P0 Q-1 X1\nM2\n",
+            "2:1: G5: splines are taken in the XY plane only (G17)",
+        ),
+        (
+            "G1 F100\nG5 I0 J1 P0 Q-1 X1 Y1 Z1\nM2\n",
+            "2:23: G5: a spline moves in X and Y only, not in Z",
+        ),
+        (
+            "G0 X1\nG5 I0 J1 P0 Q-1 X2 Y1\nM2\n",
+            "2:17: no feed rate: an F word is needed before the first G5 or G5.1",
+        ),
+        (
+            "G1 F100\nG5 I0 J1 P0 Q-1\nM2\n",
+            "2:1: a spline (G5, G5.1) needs its end: X, Y",
+        ),
+    ] {
+        let ours = our_program(text).map(|_| ()).map_err(|e| e.to_string());
+        assert_eq!(ours, Err(why.to_string()), "{text}");
+        assert!(
+            !rs274_output(rs274, text, None).contains("PROGRAM_END"),
+            "rs274 read {text:?}"
+        );
+    }
+    assert_eq!(
+        our_program("G1 F100\nG5.2 X0 Y1 P1 L3\nM2\n").map(|_| ()).map_err(|e| e.to_string()),
+        Err("2:1: G5.2 is not supported (NURBS blocks: a CAM program can write them as cubic splines (G5) or as lines and arcs)".to_string())
+    );
 }

@@ -20,6 +20,7 @@ mod cycles;
 mod modes;
 mod motion;
 mod offsets;
+mod spline;
 mod state;
 mod tool;
 mod words;

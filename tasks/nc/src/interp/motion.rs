@@ -102,6 +102,12 @@ impl State<'_> {
         }
         // G0 or G1 alone sets the motion mode for the lines that follow (LinuxCNC's meaning);
         // an arc alone needs its centre.
+        if let Some((50 | 51, w)) = motion_word
+            && !moves
+            && !words.uses_axis_words()
+        {
+            return Err(at(w, "a spline (G5, G5.1) needs its end: X, Y".into()));
+        }
         if let Some((20 | 30, w)) = motion_word
             && !moves
             && !words.uses_axis_words()
@@ -126,6 +132,11 @@ impl State<'_> {
                 to = self.polar_target(line, polar, to)?;
             }
             let first = first.unwrap_or_else(|| motion_word.map(|(_, w)| w).unwrap_or(words.first));
+            if matches!(mode, 50 | 51) {
+                self.spline(line, words, mode == 50, to, first, out)?;
+                stops(line, &words.m, out);
+                return Ok(());
+            }
             let path = match mode {
                 0 | 10 => Path::Line,
                 _ => self.arc(line, first, mode == 20, &to, &get)?,

@@ -60,6 +60,9 @@ pub(super) struct State<'a> {
     pub(super) messages: Vec<NcMessage>,
     /// The coolant: mist (M7), flood (M8); M9 turns both off.
     pub(super) coolant: (bool, bool),
+    /// G5's first control point when a G5 gives no I J: the last G5's P Q reversed (program
+    /// units; 0 before any), as LinuxCNC keeps it.
+    pub(super) spline_ij: [f64; 2],
     pub(super) blend: Blend,
     /// G90.1: an arc's I J K are absolute program coordinates (G91.1, the default: offsets from
     /// its start).
@@ -186,6 +189,7 @@ impl<'a> State<'a> {
             tool_offset: [0.0; 6],
             messages: Vec::new(),
             coolant: (false, false),
+            spline_ij: [0.0; 2],
             arc_absolute: false,
             retract_to_r: true,
             cycle: Cycle::default(),

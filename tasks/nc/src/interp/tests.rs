@@ -250,7 +250,7 @@ fn what_the_subset_lacks_is_refused_with_line_column_and_reason() {
         ),
         (
             "G1 X1 Q0.1 F100",
-            "1:7: Q belongs to G64 (merging lines within it), G73, G83 (the peck depth), M61 (the tool) or G10 L1 (a lathe tool's orientation)",
+            "1:7: Q belongs to G64 (merging lines within it), G73, G83 (the peck depth), G5 (a control point), M61 (the tool) or G10 L1 (a lathe tool's orientation)",
         ),
         (
             "G64 P0.1 Q-1",
@@ -269,9 +269,12 @@ fn what_the_subset_lacks_is_refused_with_line_column_and_reason() {
         ("G4 P-1", "1:4: the dwell P must be zero or positive seconds, got -1"),
         (
             "G1 X1 P2 F1",
-            "1:7: P belongs to G4 (dwell), G10 (the coordinate system), G64 (tolerance), an arc (turns) or G82, G89 (dwell)",
+            "1:7: P belongs to G4 (dwell), G10 (the coordinate system), G64 (tolerance), an arc (turns), G5 (a control point) or G82, G89 (dwell)",
         ),
-        ("G1 X1 I2 F1", "1:7: I belongs to an arc (G2, G3)"),
+        (
+            "G1 X1 I2 F1",
+            "1:7: I belongs to an arc (G2, G3) or a spline (G5, G5.1)",
+        ),
         ("G2 X1 F1", "1:4: an arc needs its centre (I J) or its radius (R)"),
         (
             "G2 X1 Y1 I1 R1 F1",

@@ -170,7 +170,7 @@ impl<'b> Words<'b> {
     pub fn motion_word(&self) -> Option<(u16, &'b Word)> {
         self.g
             .iter()
-            .find(|(c, _)| matches!(c, 0 | 10 | 20 | 30) || is_cycle(*c))
+            .find(|(c, _)| matches!(c, 0 | 10 | 20 | 30 | 50 | 51) || is_cycle(*c))
             .map(|(c, w)| (*c, *w))
     }
 
@@ -208,22 +208,28 @@ impl<'b> Words<'b> {
         let line = self.line;
         let at = |w: &Word, message: String| NcError::new(line, w.column, message);
         let arc_now = matches!(motion, Some(20 | 30));
+        // A spline's I J (G5, G5.1) and P Q (G5) are its control points' offsets.
+        let spline_now = matches!(motion, Some(50 | 51));
         let cycle_now = motion.is_some_and(is_cycle);
         if let Some(w) = self.get('P')
-            && !(self.has_g(40) || self.has_g(100) || self.has_g(640) || arc_now || matches!(motion, Some(820 | 890)))
+            && !(self.has_g(40)
+                || self.has_g(100)
+                || self.has_g(640)
+                || arc_now
+                || matches!(motion, Some(50 | 820 | 890)))
         {
             return Err(at(
                 w,
-                "P belongs to G4 (dwell), G10 (the coordinate system), G64 (tolerance), an arc (turns) or G82, G89 (dwell)"
+                "P belongs to G4 (dwell), G10 (the coordinate system), G64 (tolerance), an arc (turns), G5 (a control point) or G82, G89 (dwell)"
                     .into(),
             ));
         }
         if let Some(w) = self.get('Q')
-            && !(self.has_g(640) || self.has_g(100) || self.has_m(610) || matches!(motion, Some(730 | 830)))
+            && !(self.has_g(640) || self.has_g(100) || self.has_m(610) || matches!(motion, Some(50 | 730 | 830)))
         {
             return Err(at(
                 w,
-                "Q belongs to G64 (merging lines within it), G73, G83 (the peck depth), M61 (the tool) or G10 L1 (a lathe tool's orientation)".into(),
+                "Q belongs to G64 (merging lines within it), G73, G83 (the peck depth), G5 (a control point), M61 (the tool) or G10 L1 (a lathe tool's orientation)".into(),
             ));
         }
         if let Some(w) = self.get('H')
@@ -233,9 +239,12 @@ impl<'b> Words<'b> {
         }
         for letter in ['I', 'J', 'K'] {
             if let Some(w) = self.get(letter)
-                && !arc_now
+                && !(arc_now || (spline_now && letter != 'K'))
             {
-                return Err(at(w, format!("{letter} belongs to an arc (G2, G3)")));
+                return Err(at(
+                    w,
+                    format!("{letter} belongs to an arc (G2, G3) or a spline (G5, G5.1)"),
+                ));
             }
         }
         // With G10, R (a rotation) is refused there, with its reason.
@@ -262,7 +271,7 @@ impl<'b> Words<'b> {
 /// The modal groups of the supported G codes (RS274NGC's numbering), for the one-per-group rule.
 pub(super) fn g_group(code: u16) -> Option<u8> {
     match code {
-        0 | 10 | 20 | 30 | 800 => Some(1),
+        0 | 10 | 20 | 30 | 50 | 51 | 800 => Some(1),
         c if is_cycle(c) => Some(1),
         40 => Some(0),
         170 | 180 | 190 => Some(2),
@@ -303,7 +312,8 @@ pub(super) fn is_cycle(code: u16) -> bool {
 pub(super) fn g_refusal(code: u16) -> String {
     let name = format_code('G', code);
     let why = match code {
-        50..=52 | 70 | 80 => "lathe and spline modes",
+        52 | 53 => "NURBS blocks: a CAM program can write them as cubic splines (G5) or as lines and arcs",
+        70 | 80 => "lathe diameter and radius modes",
         500 | 510 => "scaling",
         110 => "G11 (retraction)",
         282..=299 | 302..=309 => "G28 and G30 variants other than G28.1, G30.1",
