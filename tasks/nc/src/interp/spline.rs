@@ -326,6 +326,33 @@ mod tests {
         close_to_curve(&[[0.0, 0.0], [50.0, 0.0], [50.0, 50.0], [0.0, 50.0]], 0.05);
     }
 
+    proptest::proptest! {
+        /// Whatever the control points (a few microns to a metre apart, coinciding, in a line),
+        /// every piece is finite, arcs end on their circles, and the pieces end at the curve's end.
+        #[test]
+        fn any_spline_is_whole_and_finite(
+            coords in proptest::collection::vec(-1000.0f64..1000.0, 8),
+            scale in proptest::sample::select(vec![1e-3, 1.0, 1e3]),
+            cubic in proptest::bool::ANY,
+        ) {
+            let n = if cubic { 4 } else { 3 };
+            let points: Vec<[f64; 2]> = (0..n).map(|k| [coords[2 * k] * scale / 1000.0, coords[2 * k + 1] * scale / 1000.0]).collect();
+            let mut from = points[0];
+            for piece in pieces(&points) {
+                let (Piece::Line { end } | Piece::Arc { end, .. }) = piece;
+                proptest::prop_assert!(end[0].is_finite() && end[1].is_finite(), "{piece:?}");
+                if let Piece::Arc { center, .. } = piece {
+                    proptest::prop_assert!(center[0].is_finite() && center[1].is_finite(), "{piece:?}");
+                    let (r0, r1) = ((from[0] - center[0]).hypot(from[1] - center[1]), (end[0] - center[0]).hypot(end[1] - center[1]));
+                    proptest::prop_assert!((r0 - r1).abs() <= 1e-9 * r0.max(1.0), "{piece:?} from {from:?}");
+                }
+                from = end;
+            }
+            let last = points[n - 1];
+            proptest::prop_assert!((from[0] - last[0]).hypot(from[1] - last[1]) <= 1e-9 * scale.max(1.0));
+        }
+    }
+
     #[test]
     fn a_straight_spline_is_lines_and_never_a_number_that_is_not() {
         for piece in pieces(&[[0.0, 0.0], [1.0, 0.0], [2.0, 0.0], [3.0, 0.0]]) {
