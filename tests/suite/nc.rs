@@ -1187,3 +1187,143 @@ fn splines_are_linuxcncs_and_nurbs_are_refused_with_why() {
         Err("2:1: G5.2 is not supported (NURBS blocks: a CAM program can write them as cubic splines (G5) or as lines and arcs)".to_string())
     );
 }
+
+/// M62 … M68 read as LinuxCNC 2.9's `rs274` reads them: each output in its place among the
+/// moves — with the next move (`SET_MOTION_OUTPUT_BIT`, `…_VALUE`: M62, M63, M67) or at once
+/// (`SET_AUX_OUTPUT_BIT`, `…_VALUE`: M64, M65, M68), before the move of its own line — and the
+/// same programs refused (no P, no P or E for M66, two of them in a block, a wait without a
+/// timeout, an analog input waited on). Stricter than `rs274` where it takes what LinuxCNC's
+/// configuration would refuse: outputs beyond P3 and E1, a P that is not whole, L beyond 4, M67
+/// without Q.
+#[test]
+fn motion_synchronised_and_immediate_io_is_linuxcncs() {
+    let Some(rs274) = rs274_or_skip("nc::motion_synchronised_and_immediate_io_is_linuxcncs") else {
+        return;
+    };
+    let text = "G1 F100 X1\nM62 P0\nM64 P1\nG1 X2 M63 P0\nM65 P1\nM67 E0 Q2.5\nM68 E1 Q-1\nG1 X3\nM66 P2 L3 Q5\nM66 P1 L0\nG1 X0 M62 P3\nM63 P3\nM2\n";
+    // (what, index, value) of each output, and "move" with its x.
+    let theirs: Vec<(String, u8, f64)> = rs274_output(rs274, text, None)
+        .lines()
+        .filter_map(|l| {
+            let (call, args) = l.split_once('(')?;
+            let call = call.rsplit(' ').next()?;
+            let n: Vec<f64> = args
+                .trim_end_matches(')')
+                .split(',')
+                .filter_map(|x| x.trim().parse().ok())
+                .collect();
+            let what = match call {
+                "SET_MOTION_OUTPUT_BIT" => ("M62", n[0] as u8, 1.0),
+                "CLEAR_MOTION_OUTPUT_BIT" => ("M63", n[0] as u8, 0.0),
+                "SET_AUX_OUTPUT_BIT" => ("M64", n[0] as u8, 1.0),
+                "CLEAR_AUX_OUTPUT_BIT" => ("M65", n[0] as u8, 0.0),
+                "SET_MOTION_OUTPUT_VALUE" => ("M67", n[0] as u8, n[1]),
+                "SET_AUX_OUTPUT_VALUE" => ("M68", n[0] as u8, n[1]),
+                "STRAIGHT_FEED" | "STRAIGHT_TRAVERSE" => ("move", 0, n[0]),
+                _ => return None,
+            };
+            Some((what.0.to_string(), what.1, what.2))
+        })
+        .collect();
+    use pkm_nc::interp::{Action, Output};
+    let ours: Vec<(String, u8, f64)> = our_program(text)
+        .unwrap_or_else(|e| panic!("{e}"))
+        .blocks
+        .iter()
+        .filter_map(|b| match b.action {
+            Action::Output {
+                output: Output::Digital { index, on },
+                synced,
+            } => Some((
+                match (synced, on) {
+                    (true, true) => "M62",
+                    (true, false) => "M63",
+                    (false, true) => "M64",
+                    (false, false) => "M65",
+                }
+                .to_string(),
+                index,
+                if on { 1.0 } else { 0.0 },
+            )),
+            Action::Output {
+                output: Output::Analog { index, value },
+                synced,
+            } => Some((if synced { "M67" } else { "M68" }.to_string(), index, value)),
+            Action::Move { to, .. } => Some(("move".to_string(), 0, to[0])),
+            _ => None,
+        })
+        .collect();
+    // rs274 writes a zero-length feed for G1 alone; both have the same moves otherwise.
+    let theirs: Vec<_> = theirs
+        .into_iter()
+        .filter(|(w, _, x)| !(w == "move" && *x == 0.0))
+        .collect();
+    let ours: Vec<_> = ours
+        .into_iter()
+        .filter(|(w, _, x)| !(w == "move" && *x == 0.0))
+        .collect();
+    assert_eq!(ours, theirs, "{text}");
+    assert_eq!(ours.iter().filter(|(w, ..)| w != "move").count(), 8, "{ours:?}");
+    for (text, why) in [
+        (
+            "M62\nM2\n",
+            "1:1: M62 needs P: the digital output (0 … 3, NC_DOUT_0 … NC_DOUT_3)",
+        ),
+        (
+            "M66 L3 Q1\nM2\n",
+            "1:1: M66 needs P: the digital input (0 … 3, NC_DIN_0 … NC_DIN_3)",
+        ),
+        (
+            "M62 P0 M63 P1\nM2\n",
+            "1:8: M62 and M63 are in one modal group: a block holds one of them",
+        ),
+        (
+            "M66 P1 L1\nM2\n",
+            "1:1: M66 L1 … L4 needs Q: the longest wait in seconds, more than 0 (then the program goes on)",
+        ),
+        (
+            "M66 P0 L3 Q-1\nM2\n",
+            "1:11: M66 L1 … L4 needs Q: the longest wait in seconds, more than 0 (then the program goes on)",
+        ),
+        (
+            "M66 E0 L1 Q2\nM2\n",
+            "1:5: M66 E waits on no analog input (L1 … L4 are for digital inputs, P), as in LinuxCNC",
+        ),
+    ] {
+        let ours = our_program(text).map(|_| ()).map_err(|e| e.to_string());
+        assert_eq!(ours, Err(why.to_string()), "{text}");
+        assert!(
+            !rs274_output(rs274, text, None).contains("PROGRAM_END"),
+            "rs274 read {text:?}"
+        );
+    }
+    for (text, why) in [
+        (
+            "M62 P4\nM2\n",
+            "1:5: M62 P4: the digital outputs are P0 … P3 (NC_DOUT_0 … NC_DOUT_3)",
+        ),
+        (
+            "M64 P1.5\nM2\n",
+            "1:5: M64 P1.5: the digital outputs are P0 … P3 (NC_DOUT_0 … NC_DOUT_3)",
+        ),
+        ("M67 E0\nM2\n", "1:1: M67 needs Q: the output's value"),
+        (
+            "M68 E2 Q1\nM2\n",
+            "1:5: M68 E2: the analog outputs are E0 … E1 (NC_AOUT_0 … NC_AOUT_1)",
+        ),
+        (
+            "M66 P0 L5 Q1\nM2\n",
+            "1:8: M66 L is the wait's mode: 0 (none), 1 (the input rises), 2 (falls), 3 (is on), 4 (is off)",
+        ),
+        (
+            "#1 = #5399\nM2\n",
+            "1:6: #5399 is the input M66 read: known only as the program runs, and this interpreter reads the whole program before it runs (M66 waits here, its value cannot steer the program)",
+        ),
+    ] {
+        assert_eq!(
+            our_program(text).map(|_| ()).map_err(|e| e.to_string()),
+            Err(why.to_string()),
+            "{text}"
+        );
+    }
+}

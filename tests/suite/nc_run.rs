@@ -424,3 +424,120 @@ fn the_hexapod_in_auto_shows_the_line_its_six_pose_coordinates_and_all_six_joint
         "nothing cut"
     );
 }
+
+/// M62 … M68 on the O-X glide in virtual time: the digital output M62 sets comes on with the
+/// next move's start and M63's goes off with the one after; M68's analog output and M64's digital
+/// one are set with the tool standing; M66 waits for an input nothing drives for its 0.5 s
+/// timeout, then the program goes on; all are off at the end and in ERROR — a STOP while an
+/// output is on takes it off in that cycle. The run replays identically from its trace.
+#[test]
+fn program_outputs_follow_the_moves_m66_waits_and_every_safe_state_is_off() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let program = write_program(
+        dir.path(),
+        "G1 F600 X5\nM62 P0\nM68 E0 Q2.5\nG1 X10\nM66 P1 L3 Q0.5\nM63 P0\nG1 X0\nM64 P2\nG4 P1\nM2\n",
+    );
+    // Per 10 ms cycle: (t, line, NC_STATE, DOUT_0, DOUT_2, AOUT_0, x commanded).
+    let observe = |events: &str, until_ms: u64| {
+        let mut plc = build("ox-x", &program, events);
+        let mut seen = Vec::new();
+        let seen_states = transitions(&mut plc, until_ms, |plc, t| {
+            seen.push((
+                t,
+                get(plc, vars::NC_LINE),
+                get(plc, vars::NC_STATE),
+                get(plc, vars::NC_DOUT[0]),
+                get(plc, vars::NC_DOUT[2]),
+                get(plc, vars::NC_AOUT[0]),
+                get(plc, vars::NC_POSE[0]),
+            ));
+        });
+        (seen, seen_states)
+    };
+    let (seen, states) = observe("[]", 40_000);
+    let names: Vec<&str> = states.iter().map(|(_, s, _)| s.as_str()).collect();
+    assert_eq!(names, ["REBOOT", "INIT", "READY", "AUTO", "READY"], "{states:?}");
+    // DOUT_0: on with line 4's move (M62 on line 2), off with line 7's (M63 on line 6, which
+    // moves nothing): on while lines 4 and 5 execute (the M66 included), never on 1 or 7.
+    let mut on_lines: Vec<i32> = seen.iter().filter(|s| s.3).map(|s| s.1).collect();
+    on_lines.dedup();
+    assert_eq!(on_lines, [4, 5], "NC_DOUT_0");
+    let first_on = seen.iter().find(|s| s.3).expect("DOUT_0 on");
+    assert!(
+        first_on.6 > 5.0 - 1e-6 && first_on.6 < 5.2,
+        "on as line 4 starts from X5: {first_on:?}"
+    );
+    // AOUT_0 from line 3 (the tool standing at X5, for less than a cycle: the 10 ms cycles see
+    // it as line 4 starts) to the end of the run: never while line 1 moves.
+    assert!(
+        seen.iter().filter(|s| s.1 == 1).all(|s| s.5 == 0.0),
+        "AOUT_0 not before M68"
+    );
+    let aout_at = seen.iter().find(|s| s.5 == 2.5).expect("AOUT_0 set");
+    assert!(aout_at.6 > 5.0 - 1e-6 && aout_at.6 < 5.2, "set at X5: {aout_at:?}");
+    // M66 L3 on NC_DIN_1, which nothing drives: it waits its 0.5 s (code 8), then goes on.
+    let waiting: Vec<u64> = seen.iter().filter(|s| s.2 == 8).map(|s| s.0).collect();
+    let waited_ms = waiting.last().expect("waited") - waiting[0];
+    assert!((400..=550).contains(&waited_ms), "{waited_ms} ms at the M66");
+    // DOUT_2: from M64 (line 8, the tool standing at X0 after line 7's move) through the
+    // second's dwell (the line shown stays 7's, whose end the dwell stands at); off at the end
+    // with everything else.
+    let dout2: Vec<_> = seen.iter().filter(|s| s.4).collect();
+    assert!(
+        dout2.iter().all(|s| s.6.abs() < 1e-6),
+        "on standing at X0 only: {dout2:?}"
+    );
+    assert!(
+        (98..=106).contains(&dout2.len()),
+        "on for the dwell's second: {} cycles of 10 ms",
+        dout2.len()
+    );
+    let last = seen.last().expect("cycles");
+    assert_eq!(
+        (last.3, last.4, last.5),
+        (false, false, 0.0),
+        "all off after the program: {last:?}"
+    );
+    // STOP while DOUT_0 is on: ERROR, and the output off from then on.
+    let stop = first_on.0 + 200;
+    let (seen, states) = observe(
+        &format!(
+            r#"[{{"at_ms": {stop}, "input": "BUTTON_STOP", "value": true}}, {{"at_ms": {}, "input": "BUTTON_STOP", "value": false}}]"#,
+            stop + 200
+        ),
+        stop + 1_000,
+    );
+    let error_at = states.iter().find(|(_, s, _)| s == "ERROR").expect("ERROR").0;
+    assert!(seen.iter().any(|s| s.0 < error_at && s.3), "on before the STOP");
+    assert!(
+        seen.iter()
+            .filter(|s| s.0 >= error_at)
+            .all(|s| !s.3 && !s.4 && s.5 == 0.0),
+        "off in ERROR"
+    );
+    // Traced and replayed: the outputs are in the trace and the replay reproduces them.
+    let trace = dir.path().join("io.jsonl");
+    let o = pkm(&[
+        "run",
+        "--machine",
+        "ox-x",
+        "--virtual",
+        "--duration",
+        "40",
+        "--program",
+        program.to_str().expect("utf-8"),
+        "--trace",
+        trace.to_str().expect("utf-8"),
+    ]);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    let text = std::fs::read_to_string(&trace).expect("the trace");
+    for recorded in [
+        r#""NC_DOUT_0":true"#,
+        r#""NC_DOUT_2":true"#,
+        r#""NC_AOUT_0":2.5"#,
+        r#""NC_STATE":8"#,
+    ] {
+        assert!(text.contains(recorded), "{recorded} in the trace");
+    }
+    common::assert_replays_identically(&trace, &["--machine", "ox-x"]);
+}

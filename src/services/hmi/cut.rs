@@ -15,8 +15,8 @@ pub const MAX_POINTS: usize = 4000;
 const MIN_STEP_MM: f64 = 0.005;
 
 /// The executor's states in which the tool cuts (running, holding, held, paused, standing after
-/// a line): `pkm_drives::nc::RunState` codes.
-const CUTTING: [i16; 5] = [1, 2, 3, 4, 6];
+/// a line, waiting at an M66): `pkm_drives::nc::RunState` codes.
+const CUTTING: [i16; 6] = [1, 2, 3, 4, 6, 8];
 
 /// The cut path of the loaded program's current (or last) run.
 pub struct CutPath {

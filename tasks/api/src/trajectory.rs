@@ -59,6 +59,24 @@ pub mod vars {
         Var::new("NC_WORK_OFFSET_B"),
         Var::new("NC_WORK_OFFSET_C"),
     ];
+    /// The program's digital outputs (M62 … M65; LinuxCNC's `motion.digital-out-NN`): on only
+    /// while the program runs and the drives may move, off in every other state and at the end.
+    pub const NC_DOUT: [Var<bool>; 4] = [
+        Var::new("NC_DOUT_0"),
+        Var::new("NC_DOUT_1"),
+        Var::new("NC_DOUT_2"),
+        Var::new("NC_DOUT_3"),
+    ];
+    /// The program's analog outputs (M67, M68), as `NC_DOUT` (0 outside a run).
+    pub const NC_AOUT: [Var<f64>; 2] = [Var::new("NC_AOUT_0"), Var::new("NC_AOUT_1")];
+    /// The program's digital inputs, which M66 waits on (an I/O map binds them; false where
+    /// nothing writes them).
+    pub const NC_DIN: [Var<bool>; 4] = [
+        Var::new("NC_DIN_0"),
+        Var::new("NC_DIN_1"),
+        Var::new("NC_DIN_2"),
+        Var::new("NC_DIN_3"),
+    ];
     /// The spindle turns (M3 or M4).
     pub const SPINDLE_ON: Var<bool> = Var::new("SPINDLE_ON");
     /// The spindle turns counter-clockwise (M4).
@@ -216,6 +234,32 @@ pub enum TrajectoryEventKind {
         system: u8,
         /// Machine coordinates less this are program coordinates (mm, degrees).
         offset: [f64; MAX_AXES],
+    },
+    /// M62 … M65: digital output `index` (`NC_DOUT_n`) on or off — with the next move's start
+    /// (M62, M63) or standing (M64, M65).
+    DigitalOutput {
+        /// 0 … 3.
+        index: u8,
+        /// On.
+        on: bool,
+    },
+    /// M67, M68: analog output `index` (`NC_AOUT_n`) set to `value`.
+    AnalogOutput {
+        /// 0 … 1.
+        index: u8,
+        /// The value.
+        value: f64,
+    },
+    /// M66: the tool stands until digital input `index` (`NC_DIN_n`) is as `mode` says
+    /// (LinuxCNC's L: 0 no wait, 1 rises, 2 falls, 3 on, 4 off), at most `timeout_s`; then the
+    /// program goes on.
+    WaitInput {
+        /// 0 … 3.
+        index: u8,
+        /// LinuxCNC's L.
+        mode: u8,
+        /// The longest wait (s).
+        timeout_s: f64,
     },
     /// M3 (1), M4 (−1), M5 (0) with the programmed speed (rpm).
     Spindle {

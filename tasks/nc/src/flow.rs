@@ -132,6 +132,9 @@ impl Parameters for Scope<'_, '_> {
         if index <= MAX_USER_PARAMETER {
             return Ok(self.flow.numbered[index]);
         }
+        if index == 5399 {
+            return Err("#5399 is the input M66 read: known only as the program runs, and this interpreter reads the whole program before it runs (M66 waits here, its value cannot steer the program)".to_string());
+        }
         self.system.numbered(index).ok_or_else(|| {
             format!(
                 "#{index} is part of LinuxCNC's machine state that this interpreter does not keep (it keeps #5161-#5166, #5181-#5186, #5210-#5216, #5220, #5221-#5326, #5400-#5406 once known, #5420-#5425)"

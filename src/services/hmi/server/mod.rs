@@ -261,7 +261,7 @@ pub fn router(info: HmiInfo, mut frames: FrameFeed, sink: CommandSink, options: 
                 };
                 let running = matches!(
                     nc_state_at.and_then(|i| frame.image.get(i)),
-                    Some(crate::image::Value::Int(1 | 2 | 3 | 4 | 6 | 7))
+                    Some(crate::image::Value::Int(1 | 2 | 3 | 4 | 6 | 7 | 8))
                 );
                 if running && tool_at[0].is_some() {
                     if trail.len() == TRAIL {

@@ -96,6 +96,10 @@ pub struct NcChannel {
     spindle_rpm: Output<f64>,
     coolant_mist: Output<bool>,
     coolant_flood: Output<bool>,
+    /// The program's inputs and outputs (M62 … M68).
+    digital_in: [Input<bool>; super::DIGITAL_INPUTS],
+    digital_out: [Output<bool>; super::DIGITAL_OUTPUTS],
+    analog_out: [Output<f64>; super::ANALOG_OUTPUTS],
     /// The running program's coordinates (`NC_WORK_SYSTEM`, `NC_WORK_OFFSET_*`).
     work_system: Output<i16>,
     work_offset: Vec<Output<f64>>,
@@ -164,6 +168,9 @@ impl NcChannel {
             spindle_rpm: decl.write(vars::SPINDLE_RPM, 0.0),
             coolant_mist: decl.write(vars::COOLANT_MIST, false),
             coolant_flood: decl.write(vars::COOLANT_FLOOD, false),
+            digital_in: vars::NC_DIN.map(|v| decl.read_optional(v)),
+            digital_out: vars::NC_DOUT.map(|v| decl.write(v, false)),
+            analog_out: vars::NC_AOUT.map(|v| decl.write(v, 0.0)),
             work_system: decl.write(vars::NC_WORK_SYSTEM, 0),
             work_offset: vars::NC_WORK_OFFSET[..coordinates.min(MAX_AXES)]
                 .iter()
@@ -289,6 +296,7 @@ impl NcChannel {
         };
         let operator = Operator {
             tool_changed: self.confirms(ctx),
+            inputs: self.digital_in.map(|i| ctx.get(i)),
             ..Operator::from_percent(
                 ctx.get(self.feed_override),
                 ctx.get(self.rapid_override),
@@ -329,6 +337,15 @@ impl NcChannel {
         let flows = auto && !interlock;
         ctx.set(self.coolant_mist, flows && mist);
         ctx.set(self.coolant_flood, flows && flood);
+        // The program's outputs: as it set them while it runs and the drives may move, off in
+        // every other state (ERROR, STOP, the interlock, the end).
+        let (digital, analog) = self.executor.outputs();
+        for (out, on) in self.digital_out.iter().zip(digital) {
+            ctx.set(*out, flows && *on);
+        }
+        for (out, value) in self.analog_out.iter().zip(analog) {
+            ctx.set(*out, if flows { *value } else { 0.0 });
+        }
         // The program's coordinates while it runs (the DRO's work position); none outside.
         let running = auto && !matches!(state, RunState::Idle | RunState::Done);
         let (system, offset) = self.executor.work();

@@ -59,6 +59,8 @@ pub mod notes {
     pub const NOT_AT_START: &str = "program not started: the tool is not at the program's start, the reference pose (STOP, acknowledge and reference to return there)";
     /// Standing at the end of a line in single block.
     pub const BLOCK_DONE: &str = "single block: the line is done; NC_RESUME runs the next";
+    /// Standing at an M66.
+    pub const WAITING: &str = "M66: the program waits for its input (NC_DIN_n, as its line says), at most its timeout";
     /// Standing at a manual tool change.
     pub const TOOL_CHANGE: &str =
         "tool change (M6): put the tool TOOL_PREP_NUMBER names in the spindle, then confirm (TOOL_CHANGED)";
@@ -185,6 +187,7 @@ impl ProgramControl {
             }
             Some(RunState::Paused) => "M0: the program stands; NC_RESUME goes on",
             Some(RunState::ToolChange) => notes::TOOL_CHANGE,
+            Some(RunState::Waiting) => notes::WAITING,
             Some(RunState::BlockDone) => notes::BLOCK_DONE,
             Some(RunState::Done) => "program done",
             _ => "running the program",

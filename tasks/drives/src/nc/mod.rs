@@ -65,11 +65,14 @@ pub enum RunState {
     /// Standing at an M6 until the operator confirms the tool change (`TOOL_CHANGED`); a hold
     /// or resume does not leave it.
     ToolChange = 7,
+    /// Standing at an M66 until its input is as it asks, or its timeout has passed; a hold or
+    /// resume does not leave it.
+    Waiting = 8,
 }
 
 impl RunState {
     /// Every state, in code order.
-    pub const ALL: [RunState; 8] = [
+    pub const ALL: [RunState; 9] = [
         RunState::Idle,
         RunState::Running,
         RunState::Holding,
@@ -78,6 +81,7 @@ impl RunState {
         RunState::Done,
         RunState::BlockDone,
         RunState::ToolChange,
+        RunState::Waiting,
     ];
 
     /// The state with this code.
@@ -96,6 +100,7 @@ impl RunState {
             RunState::Done => "done",
             RunState::BlockDone => "single block: line done",
             RunState::ToolChange => "tool change (M6)",
+            RunState::Waiting => "waiting for an input (M66)",
         }
     }
 }
@@ -112,6 +117,31 @@ pub struct Operator {
     /// The operator's confirmation of the manual tool change that waits (a level; its rising
     /// edge confirms): the channel raises it only for a confirmation of that change.
     pub tool_changed: bool,
+    /// The program's digital inputs (`NC_DIN_0` …), which M66 waits on.
+    pub inputs: [bool; DIGITAL_INPUTS],
+}
+
+/// How many digital inputs (`NC_DIN_n`) and outputs (`NC_DOUT_n`) and analog outputs
+/// (`NC_AOUT_n`) programs have (M62 … M68).
+pub const DIGITAL_INPUTS: usize = 4;
+/// See [`DIGITAL_INPUTS`].
+pub const DIGITAL_OUTPUTS: usize = 4;
+/// See [`DIGITAL_INPUTS`].
+pub const ANALOG_OUTPUTS: usize = 2;
+
+/// An M66 the executor stands at.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Wait {
+    /// The input.
+    index: usize,
+    /// LinuxCNC's L: 0 no wait, 1 rises, 2 falls, 3 on, 4 off.
+    mode: u8,
+    /// The longest wait (s).
+    timeout_s: f64,
+    /// How long it has waited (s).
+    waited_s: f64,
+    /// The input's level last cycle (a rise or a fall is counted from the wait's start).
+    was: Option<bool>,
 }
 
 impl Default for Operator {
@@ -122,6 +152,7 @@ impl Default for Operator {
             rapid: 1.0,
             single_block: false,
             tool_changed: false,
+            inputs: [false; DIGITAL_INPUTS],
         }
     }
 }
@@ -135,6 +166,7 @@ impl Operator {
             rapid: (f64::from(rapid) / 100.0).clamp(0.0, 1.0),
             single_block,
             tool_changed: false,
+            inputs: [false; DIGITAL_INPUTS],
         }
     }
 }
@@ -175,6 +207,14 @@ pub struct Executor {
     messages: u32,
     /// The program coordinates the run has reached (system 1 … 6, offset); system 0 before.
     work: (u8, [f64; MAX_AXES]),
+    /// The program's digital outputs as M62 … M65 set them (off at each run's start).
+    digital: [bool; DIGITAL_OUTPUTS],
+    /// The program's analog outputs as M67, M68 set them (0 at each run's start).
+    analog: [f64; ANALOG_OUTPUTS],
+    /// The M66 it stands at.
+    wait: Option<Wait>,
+    /// How many of this run's M66 gave up at their timeout.
+    timeouts: u32,
     /// A sampled pose had no joints: standing at the last one that had.
     fault: bool,
     current: TrajectorySample,
@@ -212,6 +252,10 @@ impl Executor {
             tool_changed_was: false,
             messages: 0,
             work: (0, [0.0; MAX_AXES]),
+            digital: [false; DIGITAL_OUTPUTS],
+            analog: [0.0; ANALOG_OUTPUTS],
+            wait: None,
+            timeouts: 0,
             fault: false,
             current,
             current_t: 0.0,
@@ -324,6 +368,9 @@ impl Executor {
             self.next_event += 1;
             self.tool_confirmed = Some(self.tool_asked);
         }
+        if self.state == RunState::Waiting {
+            self.wait_for(&operator.inputs, dt);
+        }
         self.take(command);
         self.velocities = [0.0; MAX_AXES];
         if frozen || self.fault {
@@ -361,7 +408,7 @@ impl Executor {
         } else {
             self.line = self.current.line;
         }
-        if matches!(self.state, RunState::Paused | RunState::ToolChange) {
+        if matches!(self.state, RunState::Paused | RunState::ToolChange | RunState::Waiting) {
             return;
         }
         if moving && self.t >= duration && self.next_event >= self.trajectory.events().len() {
@@ -399,6 +446,9 @@ impl Executor {
                 self.spindle = 0;
                 self.rpm = 0.0;
                 self.coolant = (false, false);
+                self.digital = [false; DIGITAL_OUTPUTS];
+                self.analog = [0.0; ANALOG_OUTPUTS];
+                self.wait = None;
             }
             (Command::Run, RunState::Idle) => {
                 self.state = RunState::Running;
@@ -411,6 +461,10 @@ impl Executor {
                 self.next_event = 0;
                 self.messages = 0;
                 self.work = (0, [0.0; MAX_AXES]);
+                self.digital = [false; DIGITAL_OUTPUTS];
+                self.analog = [0.0; ANALOG_OUTPUTS];
+                self.wait = None;
+                self.timeouts = 0;
             }
             (Command::Run, RunState::Holding | RunState::Held) => {
                 self.state = RunState::Running;
@@ -427,6 +481,46 @@ impl Executor {
             (Command::Hold, RunState::Paused | RunState::BlockDone) => self.state = RunState::Held,
             _ => {}
         }
+    }
+
+    /// Standing at an M66: on once its input is as it asks (a rise or a fall seen since the
+    /// wait began, or the level), or once its timeout has passed (counted: the program goes on,
+    /// as LinuxCNC's does).
+    fn wait_for(&mut self, inputs: &[bool; DIGITAL_INPUTS], dt: f64) {
+        let Some(wait) = &mut self.wait else {
+            return;
+        };
+        let level = inputs.get(wait.index).copied().unwrap_or(false);
+        let was = wait.was.replace(level);
+        let met = match wait.mode {
+            1 => was == Some(false) && level,
+            2 => was == Some(true) && !level,
+            3 => level,
+            4 => !level,
+            _ => true,
+        };
+        let timed_out = !met && wait.waited_s >= wait.timeout_s;
+        wait.waited_s += dt;
+        if met || timed_out {
+            if timed_out {
+                self.timeouts += 1;
+            }
+            self.wait = None;
+            self.state = RunState::Running;
+            self.at_pause = false;
+            self.next_event += 1;
+        }
+    }
+
+    /// The program's digital outputs (M62 … M65) and analog outputs (M67, M68) as the run has
+    /// set them.
+    pub fn outputs(&self) -> (&[bool; DIGITAL_OUTPUTS], &[f64; ANALOG_OUTPUTS]) {
+        (&self.digital, &self.analog)
+    }
+
+    /// How many of this run's M66 gave up at their timeout.
+    pub fn wait_timeouts(&self) -> u32 {
+        self.timeouts
     }
 
     /// The events where the tool stands happen, in order, up to a pause (the tool is at rest at
@@ -453,6 +547,32 @@ impl Executor {
                 TrajectoryEventKind::WorkOffset { system, offset } => {
                     self.work = (system, offset);
                     self.next_event += 1;
+                }
+                TrajectoryEventKind::DigitalOutput { index, on } => {
+                    if let Some(out) = self.digital.get_mut(usize::from(index)) {
+                        *out = on;
+                    }
+                    self.next_event += 1;
+                }
+                TrajectoryEventKind::AnalogOutput { index, value } => {
+                    if let Some(out) = self.analog.get_mut(usize::from(index)) {
+                        *out = value;
+                    }
+                    self.next_event += 1;
+                }
+                TrajectoryEventKind::WaitInput { index, mode, timeout_s } => {
+                    self.line = e.line;
+                    self.at_pause = true;
+                    self.wait = Some(Wait {
+                        index: usize::from(index),
+                        mode,
+                        timeout_s,
+                        waited_s: 0.0,
+                        was: None,
+                    });
+                    self.state = RunState::Waiting;
+                    self.rate = 0.0;
+                    break;
                 }
                 TrajectoryEventKind::Pause => {
                     self.line = e.line;
@@ -587,7 +707,9 @@ impl Executor {
             .find(|e| {
                 matches!(
                     e.kind,
-                    TrajectoryEventKind::Pause | TrajectoryEventKind::ToolChange { .. }
+                    TrajectoryEventKind::Pause
+                        | TrajectoryEventKind::ToolChange { .. }
+                        | TrajectoryEventKind::WaitInput { .. }
                 )
             })
         {
@@ -1087,6 +1209,99 @@ mod tests {
                 proptest::prop_assert!((down + a_dt).abs() <= 1e-6 * (1.0 + a_dt), "down only {down} of {a_dt}");
             }
         }
+    }
+
+    /// [`TwoMoves`] with, between the moves, digital output 1 on with the second move's start,
+    /// analog output 0 to 2.5, and an M66 on input 2 in `mode` (LinuxCNC's L) for at most 0.5 s.
+    fn with_io(mode: u8) -> Executor {
+        let mut t = TwoMoves::new(false);
+        let at = |kind| TrajectoryEvent {
+            t: MOVE_S,
+            line: 3,
+            kind,
+        };
+        t.events
+            .insert(1, at(TrajectoryEventKind::AnalogOutput { index: 0, value: 2.5 }));
+        t.events.insert(
+            2,
+            at(TrajectoryEventKind::WaitInput {
+                index: 2,
+                mode,
+                timeout_s: 0.5,
+            }),
+        );
+        t.events
+            .insert(3, at(TrajectoryEventKind::DigitalOutput { index: 1, on: true }));
+        Executor::new(Arc::new(t))
+    }
+
+    /// Steps with input 2 at `input(cycle)` until the second move begins or 300 cycles: the
+    /// cycles it stood waiting at the M66, and the outputs when it stood there first.
+    /// The program's outputs: digital, analog.
+    type Outputs = ([bool; DIGITAL_OUTPUTS], [f64; ANALOG_OUTPUTS]);
+
+    fn stand_at_m66(e: &mut Executor, input: impl Fn(usize) -> bool) -> (usize, Option<Outputs>) {
+        let (mut waited, mut seen) = (0, None);
+        for cycle in 0..300 {
+            let mut operator = Operator::default();
+            operator.inputs[2] = input(cycle);
+            e.step(Command::Run, operator, DT, false);
+            if e.state() == RunState::Waiting {
+                waited += 1;
+                let (d, a) = e.outputs();
+                seen.get_or_insert((*d, *a));
+            }
+            if e.sample().joints[0] > 10.5 {
+                break;
+            }
+        }
+        (waited, seen)
+    }
+
+    #[test]
+    fn m66_waits_for_its_input_or_its_timeout_and_outputs_follow_the_program() {
+        // L3 (on), the input never on: it gives up after its 0.5 s timeout (50 cycles) and the
+        // program goes on. The analog output is set before the wait, the digital one only with
+        // the next move.
+        let mut e = with_io(3);
+        let (waited, seen) = stand_at_m66(&mut e, |_| false);
+        assert!((50..=52).contains(&waited), "{waited} cycles");
+        assert_eq!(seen, Some(([false; 4], [2.5, 0.0])));
+        assert_eq!(e.wait_timeouts(), 1);
+        assert_eq!(e.outputs().0, &[false, true, false, false], "M62 with the second move");
+        // On from the start of the wait: no wait beyond its cycle.
+        let mut e = with_io(3);
+        let (waited, _) = stand_at_m66(&mut e, |_| true);
+        assert!(waited <= 1, "{waited}");
+        assert_eq!(e.wait_timeouts(), 0);
+        // L1 (rises): an input already on does not count; its rise 20 cycles later does.
+        let mut e = with_io(1);
+        let (waited, _) = stand_at_m66(&mut e, |_| true);
+        assert!(
+            (50..=52).contains(&waited),
+            "an input on all along never rises: {waited}"
+        );
+        let mut e = with_io(1);
+        let (mut waited, mut started) = (0, None::<usize>);
+        for cycle in 0..300 {
+            let mut operator = Operator::default();
+            if e.state() == RunState::Waiting {
+                started.get_or_insert(cycle);
+            }
+            operator.inputs[2] = started.is_some_and(|s| cycle >= s + 20);
+            e.step(Command::Run, operator, DT, false);
+            if e.state() == RunState::Waiting {
+                waited += 1;
+            }
+            if e.sample().joints[0] > 10.5 {
+                break;
+            }
+        }
+        assert!((20..=22).contains(&waited), "{waited}");
+        assert_eq!(e.wait_timeouts(), 0);
+        // Off: the outputs are off again (the channel keeps them off outside a run too).
+        e.step(Command::Off, Operator::default(), DT, false);
+        assert_eq!(e.outputs(), (&[false; 4], &[0.0; 2]));
     }
 
     #[test]

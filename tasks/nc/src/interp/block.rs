@@ -98,6 +98,48 @@ pub enum Spindle {
     Off,
 }
 
+/// How many digital outputs (`NC_DOUT_0` …), digital inputs (`NC_DIN_0` …) and analog outputs
+/// (`NC_AOUT_0` …) programs have: LinuxCNC's defaults (`num_dio` 4, `num_aio` … 2 used here).
+pub const DIGITAL_OUTPUTS: u8 = 4;
+/// See [`DIGITAL_OUTPUTS`].
+pub const DIGITAL_INPUTS: u8 = 4;
+/// See [`DIGITAL_OUTPUTS`].
+pub const ANALOG_OUTPUTS: u8 = 2;
+
+/// An output a program sets.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Output {
+    /// Digital output `index` on or off (M62/M64 on, M63/M65 off).
+    Digital {
+        /// 0 … 3.
+        index: u8,
+        /// On.
+        on: bool,
+    },
+    /// Analog output `index` to `value` (M67, M68).
+    Analog {
+        /// 0 … 1.
+        index: u8,
+        /// The value.
+        value: f64,
+    },
+}
+
+/// What M66 waits for (its L word, LinuxCNC's codes).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum WaitMode {
+    /// L0: no wait (LinuxCNC reads the input into #5399; the tool stands for it).
+    Immediate,
+    /// L1: the input rises.
+    Rise,
+    /// L2: the input falls.
+    Fall,
+    /// L3: the input is on.
+    High,
+    /// L4: the input is off.
+    Low,
+}
+
 /// What a block does.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Action {
@@ -143,6 +185,25 @@ pub enum Action {
     },
     /// A message comment: the `index`-th of the program's [`Program::messages`].
     Message(u32),
+    /// M62 … M65, M67, M68: an output of the program (`NC_DOUT_n`, `NC_AOUT_n`) set — with the
+    /// start of the next move (`synced`, M62, M63, M67), or at once, the tool standing (M64,
+    /// M65, M68).
+    Output {
+        /// Which output and to what.
+        output: Output,
+        /// With the next move's start (no stop), or standing.
+        synced: bool,
+    },
+    /// M66: stand until digital input `input` (`NC_DIN_n`) is as `mode` says, at most
+    /// `timeout_s` (then the program goes on, as LinuxCNC's does).
+    Wait {
+        /// The input (0 … 3).
+        input: u8,
+        /// What to wait for.
+        mode: WaitMode,
+        /// The longest wait (s; ignored for [`WaitMode::Immediate`]).
+        timeout_s: f64,
+    },
     /// The program coordinates from here on (at the first block that does something, and
     /// wherever they change): the work coordinate system in force (1 … 6 for G54 … G59) and the
     /// offset of program coordinates from machine coordinates — its origin, G92's or G52's

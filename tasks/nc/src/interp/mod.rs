@@ -17,6 +17,7 @@
 
 pub mod block;
 mod cycles;
+mod io;
 mod modes;
 mod motion;
 mod offsets;
@@ -26,7 +27,8 @@ mod tool;
 mod words;
 
 pub use block::{
-    AXES, Action, Blend, Block, MAX_DWELL_S, MAX_SPINDLE_RPM, MIN_FEED, Machine, Path, Plane, Pose, Program, Spindle,
+    ANALOG_OUTPUTS, AXES, Action, Blend, Block, DIGITAL_INPUTS, DIGITAL_OUTPUTS, MAX_DWELL_S, MAX_SPINDLE_RPM,
+    MIN_FEED, Machine, Output, Path, Plane, Pose, Program, Spindle, WaitMode,
 };
 
 use crate::NcError;

@@ -219,7 +219,7 @@ impl<'a> State<'a> {
     }
 
     /// Converts one block, in LinuxCNC's order of execution: its message, feed, speed, tool
-    /// selection and change, spindle, coolant, dwell, plane, units, tool offsets, work offsets,
+    /// selection and change, spindle, coolant, the program's inputs and outputs, dwell, plane, units, tool offsets, work offsets,
     /// path control, distance mode, G10, G92, going home, motion, stop. Each group's
     /// conversion is in the file that names it.
     pub(super) fn block(&mut self, block: &lexer::Block, out: &mut Vec<Block>) -> Result<(), NcError> {
@@ -235,6 +235,7 @@ impl<'a> State<'a> {
         self.spindle(&words, out);
         self.coolant(&words, out);
         words.check_owners(self.motion_now(&words))?;
+        self.io(&words, out)?;
         self.check_polar(&words)?;
         self.dwell(&words, out)?;
         self.modes(&words)?;

@@ -250,7 +250,7 @@ fn what_the_subset_lacks_is_refused_with_line_column_and_reason() {
         ),
         (
             "G1 X1 Q0.1 F100",
-            "1:7: Q belongs to G64 (merging lines within it), G73, G83 (the peck depth), G5 (a control point), M61 (the tool) or G10 L1 (a lathe tool's orientation)",
+            "1:7: Q belongs to G64 (merging lines within it), G73, G83 (the peck depth), G5 (a control point), M61 (the tool), M66 (a timeout), M67, M68 (a value) or G10 L1 (a lathe tool's orientation)",
         ),
         (
             "G64 P0.1 Q-1",
@@ -269,7 +269,7 @@ fn what_the_subset_lacks_is_refused_with_line_column_and_reason() {
         ("G4 P-1", "1:4: the dwell P must be zero or positive seconds, got -1"),
         (
             "G1 X1 P2 F1",
-            "1:7: P belongs to G4 (dwell), G10 (the coordinate system), G64 (tolerance), an arc (turns), G5 (a control point) or G82, G89 (dwell)",
+            "1:7: P belongs to G4 (dwell), G10 (the coordinate system), G64 (tolerance), an arc (turns), G5 (a control point), G82, G89 (dwell) or M62 … M66 (a digital input or output)",
         ),
         (
             "G1 X1 I2 F1",
@@ -312,7 +312,10 @@ fn what_the_subset_lacks_is_refused_with_line_column_and_reason() {
             "1:1: G92 needs at least one axis word: the program coordinates the tool is at",
         ),
         ("G0 X1 N5", "1:7: a line number (N) comes first in its block"),
-        ("G0 X1 E2", "1:7: E (extruders) is not supported"),
+        (
+            "G0 X1 E2",
+            "1:7: E belongs to M66 (an analog input), M67, M68 (an analog output); extruders are not supported",
+        ),
         ("S-5", "1:1: the spindle speed S must be zero or positive, got -5"),
         ("G1.25 X1", "1:1: G1.25 is not a code"),
         // Absurd values, refused where they are written.
@@ -507,7 +510,7 @@ fn canned_cycles_make_linuxcncs_moves() {
         ),
         (
             "G1 X1 L2 F10",
-            "1:7: L belongs to a canned cycle (its repeats) or G10 (L2, L20)",
+            "1:7: L belongs to a canned cycle (its repeats), G10 (L2, L20) or M66 (the wait's mode)",
         ),
         (
             "G1 X1 R2 F10",

@@ -89,7 +89,8 @@ impl<'b> Words<'b> {
                         return Err(at(w, "a line number (N) comes first in its block".into()));
                     }
                 }
-                'X' | 'Y' | 'Z' | 'A' | 'B' | 'C' | 'I' | 'J' | 'K' | 'R' | 'F' | 'S' | 'P' | 'Q' | 'L' | 'T' | 'H' => {
+                'X' | 'Y' | 'Z' | 'A' | 'B' | 'C' | 'E' | 'I' | 'J' | 'K' | 'R' | 'F' | 'S' | 'P' | 'Q' | 'L' | 'T'
+                | 'H' => {
                     let slot = &mut values[(w.letter as u8 - b'A') as usize];
                     if slot.is_some() {
                         return Err(at(w, format!("{} twice in one block", w.letter)));
@@ -109,7 +110,6 @@ impl<'b> Words<'b> {
                         "D (cutter compensation's tool) is not supported: cutter compensation (G41, G42) is refused, see docs/nc.md".into(),
                     ));
                 }
-                'E' => return Err(at(w, "E (extruders) is not supported".into())),
                 'U' | 'V' | 'W' => {
                     return Err(at(w, format!("{}: axes U V W are not supported", w.letter)));
                 }
@@ -211,25 +211,42 @@ impl<'b> Words<'b> {
         // A spline's I J (G5, G5.1) and P Q (G5) are its control points' offsets.
         let spline_now = matches!(motion, Some(50 | 51));
         let cycle_now = motion.is_some_and(is_cycle);
+        // The program's inputs and outputs: P the digital one (M62 … M66), E the analog one
+        // (M66 … M68), Q the value (M67, M68) or the timeout (M66), L the wait's mode (M66).
+        let digital_io = [620, 630, 640, 650, 660].iter().any(|c| self.has_m(*c));
+        let analog_io = [660, 670, 680].iter().any(|c| self.has_m(*c));
         if let Some(w) = self.get('P')
             && !(self.has_g(40)
                 || self.has_g(100)
                 || self.has_g(640)
                 || arc_now
+                || digital_io
                 || matches!(motion, Some(50 | 820 | 890)))
         {
             return Err(at(
                 w,
-                "P belongs to G4 (dwell), G10 (the coordinate system), G64 (tolerance), an arc (turns), G5 (a control point) or G82, G89 (dwell)"
+                "P belongs to G4 (dwell), G10 (the coordinate system), G64 (tolerance), an arc (turns), G5 (a control point), G82, G89 (dwell) or M62 … M66 (a digital input or output)"
                     .into(),
             ));
         }
         if let Some(w) = self.get('Q')
-            && !(self.has_g(640) || self.has_g(100) || self.has_m(610) || matches!(motion, Some(50 | 730 | 830)))
+            && !(self.has_g(640)
+                || self.has_g(100)
+                || self.has_m(610)
+                || analog_io
+                || matches!(motion, Some(50 | 730 | 830)))
         {
             return Err(at(
                 w,
-                "Q belongs to G64 (merging lines within it), G73, G83 (the peck depth), G5 (a control point), M61 (the tool) or G10 L1 (a lathe tool's orientation)".into(),
+                "Q belongs to G64 (merging lines within it), G73, G83 (the peck depth), G5 (a control point), M61 (the tool), M66 (a timeout), M67, M68 (a value) or G10 L1 (a lathe tool's orientation)".into(),
+            ));
+        }
+        if let Some(w) = self.get('E')
+            && !analog_io
+        {
+            return Err(at(
+                w,
+                "E belongs to M66 (an analog input), M67, M68 (an analog output); extruders are not supported".into(),
             ));
         }
         if let Some(w) = self.get('H')
@@ -257,11 +274,11 @@ impl<'b> Words<'b> {
             ));
         }
         if let Some(w) = self.get('L')
-            && !(cycle_now || self.has_g(100))
+            && !(cycle_now || self.has_g(100) || self.has_m(660))
         {
             return Err(at(
                 w,
-                "L belongs to a canned cycle (its repeats) or G10 (L2, L20)".into(),
+                "L belongs to a canned cycle (its repeats), G10 (L2, L20) or M66 (the wait's mode)".into(),
             ));
         }
         Ok(())
@@ -299,6 +316,8 @@ fn m_group(code: u16) -> Option<u8> {
         30 | 40 | 50 => Some(7),
         60 | 610 => Some(6),
         70 | 80 | 90 => Some(8),
+        // The program's inputs and outputs (LinuxCNC's group 5): one a block.
+        620 | 630 | 640 | 650 | 660 | 670 | 680 => Some(5),
         _ => None,
     }
 }

@@ -4,7 +4,7 @@
 
 use pkm_api::trajectory::TrajectoryEventKind;
 
-use crate::interp::block::{Action, Blend, Path, Pose, Program, Spindle};
+use crate::interp::block::{Action, Blend, Output, Path, Pose, Program, Spindle, WaitMode};
 use crate::path::Segment;
 
 /// Consecutive lines turning by less than this (rad) are one straight path: at 1 m/s the
@@ -152,6 +152,14 @@ pub(super) fn elements_and_events(program: &Program) -> (Vec<Element>, f64, Vec<
                     dwelt_s: dwelt,
                 });
             }
+            Action::Output { output, synced: true } => {
+                // M62, M63, M67: with the next move's start, the tool not stopping for it.
+                events.push(Pending {
+                    line: block.line,
+                    kind: output_event(output),
+                    dwelt_s: dwelt,
+                });
+            }
             Action::WorkOffset { system, offset } => {
                 // Nor for new program coordinates: the DRO takes them as the tool passes.
                 events.push(Pending {
@@ -161,6 +169,8 @@ pub(super) fn elements_and_events(program: &Program) -> (Vec<Element>, f64, Vec<
                 });
             }
             Action::Pause { .. }
+            | Action::Output { synced: false, .. }
+            | Action::Wait { .. }
             | Action::Spindle { .. }
             | Action::Coolant { .. }
             | Action::ToolChange { .. }
@@ -182,6 +192,20 @@ pub(super) fn elements_and_events(program: &Program) -> (Vec<Element>, f64, Vec<
                     // LinuxCNC's is by default.
                     Action::Pause { .. } => Some(TrajectoryEventKind::Pause),
                     Action::ToolChange { tool } => Some(TrajectoryEventKind::ToolChange { tool }),
+                    // M64, M65, M68 and M66 with the tool standing, as LinuxCNC's (they end a
+                    // blend).
+                    Action::Output { output, .. } => Some(output_event(output)),
+                    Action::Wait { input, mode, timeout_s } => Some(TrajectoryEventKind::WaitInput {
+                        index: input,
+                        mode: match mode {
+                            WaitMode::Immediate => 0,
+                            WaitMode::Rise => 1,
+                            WaitMode::Fall => 2,
+                            WaitMode::High => 3,
+                            WaitMode::Low => 4,
+                        },
+                        timeout_s,
+                    }),
                     _ => None,
                 };
                 if let Some(kind) = kind {
@@ -498,3 +522,11 @@ fn misses_its_ends(arc: &Segment) -> bool {
 
 /// How far a blend's circle may miss its ends (mm): below what any drive resolves.
 const ENDS_MISSED_MM: f64 = 1e-9;
+
+/// The event of an output a program sets.
+fn output_event(output: Output) -> TrajectoryEventKind {
+    match output {
+        Output::Digital { index, on } => TrajectoryEventKind::DigitalOutput { index, on },
+        Output::Analog { index, value } => TrajectoryEventKind::AnalogOutput { index, value },
+    }
+}
