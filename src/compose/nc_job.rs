@@ -522,7 +522,12 @@ pub fn programs(
         }
     }
     Ok(Programs {
-        library: library(first, offered, screen && setup.machine.is_some()),
+        library: library(
+            first,
+            offered,
+            screen && setup.machine.is_some(),
+            setup.loaded.config.nc.laser,
+        ),
         refused,
     })
 }
@@ -590,10 +595,15 @@ fn program_files(dir: &Path, entries: std::fs::ReadDir) -> Vec<std::path::PathBu
 
 /// The library of `first` (run by itself at the first READY) and `offered` (loaded from the
 /// screen), if there is any program or the run has a `screen` (which makes jobs into it).
-pub fn library(first: Option<NcJob>, offered: Vec<NcJob>, screen: bool) -> Option<NcLibrary> {
+pub fn library(
+    first: Option<NcJob>,
+    offered: Vec<NcJob>,
+    screen: bool,
+    laser: Option<crate::runtime::config::LaserConfig>,
+) -> Option<NcLibrary> {
     let autostart = first.is_some();
     let jobs: Vec<NcJob> = first.into_iter().chain(offered).collect();
-    (screen || !jobs.is_empty()).then(|| NcLibrary::new(jobs, autostart))
+    (screen || !jobs.is_empty()).then(|| NcLibrary::new(jobs, autostart).with_laser(laser.map(|l| l.s_max)))
 }
 
 fn same_file(a: &Path, b: &Path) -> bool {

@@ -282,7 +282,12 @@ fn plc_of(trace: &Path, header: &Header, setup: &Setup) -> Result<(Plc, Option<N
     let first = header.program.as_ref().map(plan).transpose()?;
     let offered = header.library.iter().map(plan).collect::<Result<Vec<_>, _>>()?;
     let screen = header.variables.contains_key(pkm_api::hmi::HMI_STOP.name());
-    let library = crate::compose::nc_job::library(first, offered, screen && setup.machine.is_some());
+    let library = crate::compose::nc_job::library(
+        first,
+        offered,
+        screen && setup.machine.is_some(),
+        setup.loaded.config.nc.laser,
+    );
     // The bus only declares the I/O map's variables (and the operator screen's, if the run had
     // one): replayed cycles never call it.
     let mut bus = setup.declaring_bus()?;

@@ -168,7 +168,7 @@ fn mdi_lines_and_a_run_from_a_line_start_where_the_tool_stands_and_replay_identi
 #[test]
 fn a_job_that_cannot_run_is_refused_with_its_line_and_nothing_is_stored() {
     let setup = Setup::new(machine_config("ox-x", |_| {})).expect("ox-x");
-    let library = pkm_plc::compose::nc_job::library(None, Vec::new(), true).expect("a screen's library");
+    let library = pkm_plc::compose::nc_job::library(None, Vec::new(), true, None).expect("a screen's library");
     let spec = |text: &str| ScreenJobSpec {
         kind: ScreenJobKind::Mdi { text: text.into() },
         start: [0.0; 6],
@@ -222,7 +222,7 @@ fn a_program_planned_longer_than_nc_max_duration_h_is_refused() {
         c["nc"]["max_duration_h"] = serde_json::json!(0.5)
     }))
     .expect("ox-x");
-    let library = pkm_plc::compose::nc_job::library(None, Vec::new(), true).expect("a screen's library");
+    let library = pkm_plc::compose::nc_job::library(None, Vec::new(), true, None).expect("a screen's library");
     let spec = ScreenJobSpec {
         kind: ScreenJobKind::Mdi {
             text: "G1 X2 F60\nG1 X0 F0.05\n".into(),

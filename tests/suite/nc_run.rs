@@ -541,3 +541,94 @@ fn program_outputs_follow_the_moves_m66_waits_and_every_safe_state_is_off() {
     }
     common::assert_replays_identically(&trace, &["--machine", "ox-x"]);
 }
+
+/// Laser mode (`nc.laser`) on the O-X glide engraving a square with M4 in virtual time: the
+/// beam's power is S over `s_max` times the tool's speed over the programmed feed at every cycle
+/// — so it dips through every corner, where the tool slows — and zero through every rapid, after
+/// M5 and at the end; with M3 it is constant while the tool feeds. The run replays identically.
+#[test]
+fn laser_power_follows_the_speed_through_corners_and_is_off_through_rapids() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut config = common::read_json(&common::root().join("machines/ox-x.json"));
+    config["io_map"] = common::root().join("io-map/ox-x.json").to_str().expect("utf-8").into();
+    config["nc"]["laser"] = serde_json::json!({"s_max": 1000});
+    let config_path = common::write_config(dir.path(), "ox-x-laser.json", &config);
+    let program = write_program(
+        dir.path(),
+        "G21 G90 G64 P0.05\nG0 X2 Y2\nM4 S800\nG1 X10 F1200\nY10\nX2\nY2\nG0 X0 Y0\nM3 S500\nG1 X5 F600\nM5\nG0 X0\nM2\n",
+    );
+    let loaded = pkm_plc::runtime::config::load(Some(&config_path)).unwrap_or_else(|e| panic!("{e}"));
+    let setup = Setup::new(loaded).expect("a known machine");
+    let options = Options {
+        program: Some(program.clone()),
+        ..Options::default()
+    };
+    let mut plc = compose::build(setup, options).unwrap_or_else(|e| panic!("{e}")).plc;
+    // Per 10 ms cycle: (line, power, commanded feed mm/min).
+    let mut seen = Vec::new();
+    let states = transitions(&mut plc, 40_000, |plc, _| {
+        seen.push((
+            get(plc, vars::NC_LINE),
+            get(plc, vars::LASER_POWER),
+            get(plc, vars::NC_FEED),
+        ));
+    });
+    let names: Vec<&str> = states.iter().map(|(_, s, _)| s.as_str()).collect();
+    assert_eq!(names, ["REBOOT", "INIT", "READY", "AUTO", "READY"], "{states:?}");
+    // M4 on lines 4 … 7 at F1200: power = 0.8 × speed / 1200 mm/min, every cycle.
+    let square: Vec<_> = seen.iter().filter(|s| (4..=7).contains(&s.0)).collect();
+    assert!(square.len() > 100, "{} cycles on the square", square.len());
+    for (line, power, feed) in &square {
+        let expected = 0.8 * (feed / 1200.0).clamp(0.0, 1.0);
+        assert!(
+            (power - expected).abs() < 1e-9,
+            "line {line}: power {power}, speed {feed} mm/min"
+        );
+    }
+    // Through the corners the tool slows and the beam with it; on the straights it is full
+    // (within the executor's last step to the programmed feed).
+    let full = square.iter().filter(|s| s.1 > 0.79).count();
+    let dipped = square.iter().filter(|s| s.1 < 0.6 && s.1 > 0.0).count();
+    assert!(
+        full > 50 && dipped >= 3,
+        "{full} cycles at full power, {dipped} through corners"
+    );
+    // Rapids (lines 2, 8, 12): off; M3 on line 10: constant 0.5 while it feeds; M5: off.
+    for (line, power, _) in &seen {
+        match line {
+            2 | 8 | 12 => assert_eq!(*power, 0.0, "a rapid on line {line}"),
+            10 => assert!(
+                *power == 0.5 || *power == 0.0,
+                "M3's constant power on line 10: {power}"
+            ),
+            _ => {}
+        }
+    }
+    assert!(
+        seen.iter().filter(|s| s.0 == 10).filter(|s| s.1 == 0.5).count() > 30,
+        "M3 on line 10"
+    );
+    assert_eq!(seen.last().map(|s| s.1), Some(0.0), "off at the end");
+    // Traced and replayed.
+    let trace = dir.path().join("laser.jsonl");
+    let config_arg = config_path.to_str().expect("utf-8");
+    let o = pkm(&[
+        "run",
+        "--config",
+        config_arg,
+        "--virtual",
+        "--duration",
+        "40",
+        "--program",
+        program.to_str().expect("utf-8"),
+        "--trace",
+        trace.to_str().expect("utf-8"),
+    ]);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    assert!(
+        std::fs::read_to_string(&trace)
+            .expect("the trace")
+            .contains(r#""LASER_POWER":0.5"#)
+    );
+    common::assert_replays_identically(&trace, &["--config", config_arg]);
+}

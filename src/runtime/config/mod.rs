@@ -115,6 +115,20 @@ pub struct NcConfig {
     /// line that takes longest (a feed or a dwell mistyped, as a rule).
     #[serde(default)]
     pub max_duration_h: Option<f64>,
+    /// Laser mode: the spindle words drive a laser's beam (`LASER_POWER`) instead of a spindle.
+    #[serde(default)]
+    pub laser: Option<LaserConfig>,
+}
+
+/// Laser mode (`nc.laser`), as grbl's: `S` is the beam's power, 0 … `s_max`; M3 keeps it
+/// constant, M4 scales it with the tool's speed along the path over the programmed feed, so
+/// that corners and ramps do not burn; off during rapids, with M5, in every state but AUTO and at
+/// once on STOP.
+#[derive(Clone, Copy, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct LaserConfig {
+    /// The S word of full power (`LASER_POWER` 1).
+    pub s_max: f64,
 }
 
 /// How long a program may run as planned unless `nc.max_duration_h` says otherwise (hours).
@@ -241,6 +255,9 @@ impl NcConfig {
         }
         if let Some(h) = self.max_duration_h {
             ranges::check_into(&mut problems, "nc.max_duration_h", h, &ranges::NC_MAX_DURATION_H);
+        }
+        if let Some(laser) = self.laser {
+            ranges::check_into(&mut problems, "nc.laser.s_max", laser.s_max, &ranges::LASER_S_MAX);
         }
         problems
     }

@@ -42,6 +42,8 @@ pub struct NcLibrary {
     pub autostart: bool,
     /// The screen's jobs, numbered after `jobs`.
     pub screen: Arc<ScreenJobs>,
+    /// Laser mode: the S word of the beam's full power (`nc.laser.s_max`); `None`: a spindle.
+    pub laser_s_max: Option<f64>,
 }
 
 impl NcLibrary {
@@ -52,7 +54,14 @@ impl NcLibrary {
             jobs: jobs.into(),
             autostart,
             screen: Arc::new(ScreenJobs::new()),
+            laser_s_max: None,
         }
+    }
+
+    /// The library in laser mode, full power at S = `s_max` (`None`: a spindle).
+    pub fn with_laser(mut self, s_max: Option<f64>) -> NcLibrary {
+        self.laser_s_max = s_max;
+        self
     }
 
     /// The program of the (1-based) number `k` as `vars::NC_PROGRAM` holds it: one of `jobs`,

@@ -134,6 +134,8 @@ pub const SLOW_SPEED_MM_S: Range = Range::new(0.001, 100.0, "mm/s", "");
 pub const ANGULAR_SPEED_DEG_S: Range = Range::new(0.01, 360.0, "degrees/s", "");
 /// An acceleration or deceleration (mm/s², degrees/s²).
 pub const ACCEL_MM_S2: Range = Range::new(0.1, 100_000.0, "mm/s²", "");
+/// The S word of a laser's full power (`nc.laser.s_max`): grbl's `$30` is 1000.
+pub const LASER_S_MAX: Range = Range::new(1.0, 1_000_000.0, "", "the S value of the beam's full power");
 /// The most moves and other actions one NC program may make (`nc.max_moves`).
 pub const NC_MAX_MOVES: Range = Range::new(
     1000.0,

@@ -77,6 +77,10 @@ pub mod vars {
         Var::new("NC_DIN_2"),
         Var::new("NC_DIN_3"),
     ];
+    /// Laser mode's beam power (0 … 1 of full power; declared only in laser mode, `nc.laser`):
+    /// the S word over `s_max`, constant with M3, times the speed over the programmed feed with
+    /// M4; 0 during rapids, with M5, in a hold or pause, outside AUTO and on STOP.
+    pub const LASER_POWER: Var<f64> = Var::new("LASER_POWER");
     /// The spindle turns (M3 or M4).
     pub const SPINDLE_ON: Var<bool> = Var::new("SPINDLE_ON");
     /// The spindle turns counter-clockwise (M4).
@@ -199,6 +203,10 @@ pub struct TrajectorySample {
     pub planned_accel: f64,
     /// A rapid (G0) executes: no programmed feed, no contour to keep.
     pub rapid: bool,
+    /// The programmed feed of the move executing (mm/s, as the program's F, before the feed
+    /// override; 0 for a rapid and where none executes): laser mode's M4 scales the beam with the
+    /// speed over it.
+    pub feed: f64,
 }
 
 /// What happens at an instant of a program besides motion (the tool is at rest there).

@@ -77,6 +77,7 @@ impl Trajectory for PlannedProgram {
             accel: s.accel,
             planned_accel: s.planned_accel,
             rapid: s.rapid,
+            feed: s.feed,
         }
     }
 

@@ -96,6 +96,8 @@ pub struct NcChannel {
     spindle_rpm: Output<f64>,
     coolant_mist: Output<bool>,
     coolant_flood: Output<bool>,
+    /// Laser mode: the S word of full power and the beam's power (`LASER_POWER`, 0 … 1).
+    laser: Option<(f64, Output<f64>)>,
     /// The program's inputs and outputs (M62 … M68).
     digital_in: [Input<bool>; super::DIGITAL_INPUTS],
     digital_out: [Output<bool>; super::DIGITAL_OUTPUTS],
@@ -168,6 +170,9 @@ impl NcChannel {
             spindle_rpm: decl.write(vars::SPINDLE_RPM, 0.0),
             coolant_mist: decl.write(vars::COOLANT_MIST, false),
             coolant_flood: decl.write(vars::COOLANT_FLOOD, false),
+            laser: library
+                .laser_s_max
+                .map(|s_max| (s_max, decl.write(vars::LASER_POWER, 0.0))),
             digital_in: vars::NC_DIN.map(|v| decl.read_optional(v)),
             digital_out: vars::NC_DOUT.map(|v| decl.write(v, false)),
             analog_out: vars::NC_AOUT.map(|v| decl.write(v, 0.0)),
@@ -337,6 +342,9 @@ impl NcChannel {
         let flows = auto && !interlock;
         ctx.set(self.coolant_mist, flows && mist);
         ctx.set(self.coolant_flood, flows && flood);
+        if let Some((s_max, out)) = self.laser {
+            ctx.set(out, laser_power(&self.executor, s_max, flows));
+        }
         // The program's outputs: as it set them while it runs and the drives may move, off in
         // every other state (ERROR, STOP, the interlock, the end).
         let (digital, analog) = self.executor.outputs();
@@ -391,4 +399,25 @@ impl NcChannel {
         }
         Some((sample.joints, *self.executor.velocities()))
     }
+}
+
+/// The laser's power now (0 … 1 of full power at S = `s_max`), grbl's laser mode: M3 the
+/// programmed S constant, M4 that times the tool's speed along the path over the programmed
+/// feed (corners and ramps, where the tool is slower, get less); 0 during rapids, with M5, in a
+/// feed hold or a pause, and wherever `flows` is not (outside AUTO, STOP, the interlock).
+fn laser_power(executor: &Executor, s_max: f64, flows: bool) -> f64 {
+    let (direction, rpm) = executor.spindle();
+    let sample = executor.sample();
+    let cutting = matches!(executor.state(), RunState::Running | RunState::Holding);
+    if !flows || direction == 0 || !cutting || sample.rapid {
+        return 0.0;
+    }
+    let power = (rpm / s_max).clamp(0.0, 1.0);
+    if direction > 0 {
+        return power;
+    }
+    if sample.feed <= 0.0 {
+        return 0.0;
+    }
+    power * (executor.commanded_speed() / sample.feed).clamp(0.0, 1.0)
 }

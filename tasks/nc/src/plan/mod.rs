@@ -90,6 +90,8 @@ pub struct Sample {
     pub planned_accel: f64,
     /// A rapid (G0) executes.
     pub rapid: bool,
+    /// The programmed feed of the move executing (mm/s; 0 for a rapid).
+    pub feed: f64,
 }
 
 /// Plans `program` on the machine `frame` within `limits`.
@@ -304,6 +306,7 @@ impl Plan {
                 accel: f64::INFINITY,
                 planned_accel: 0.0,
                 rapid: false,
+                feed: 0.0,
             };
         };
         if *cursor >= points.len() || points[*cursor].t > t {
@@ -332,6 +335,7 @@ impl Plan {
                 accel: p.accel,
                 planned_accel: 0.0,
                 rapid: !self.elements[element].feed.is_finite(),
+                feed: programmed(self.elements[element].feed),
             };
         }
         let q = &points[i + 1];
@@ -361,8 +365,14 @@ impl Plan {
             accel: (rest - bend * speed * speed).max((1.0 - CURVE_SHARE) * rest),
             planned_accel,
             rapid: !e.feed.is_finite(),
+            feed: programmed(e.feed),
         }
     }
+}
+
+/// An element's programmed feed as a sample gives it: 0 for a rapid (whose is infinite).
+fn programmed(feed: f64) -> f64 {
+    if feed.is_finite() { feed } else { 0.0 }
 }
 
 #[cfg(test)]
