@@ -612,7 +612,7 @@ fn machine_names_a_machines_configuration_file_or_its_built_in_copy() {
         .expect("runs");
     assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
     assert!(
-        stdout(&o).starts_with("<built-in machines/hexapod.json>: valid (2 task classes: fast (10 ms), main (50 ms); 135 process-image variables; I/O map: ../io-map/hexapod.json)"),
+        stdout(&o).starts_with("<built-in machines/hexapod.json>: valid (2 task classes: fast (10 ms), main (50 ms); 136 process-image variables; I/O map: ../io-map/hexapod.json)"),
         "{}",
         stdout(&o)
     );

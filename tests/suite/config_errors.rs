@@ -608,7 +608,7 @@ fn a_joint_machine_configuration_is_checked_as_a_whole_with_paths() {
   at task_classes[1].programs[0].params.world_limits: one [min, max] per pose coordinate (x, y, z); got 1
   at task_classes[1].programs[0].params.jog.axis_pairs[0]: \"q\" is not a world axis of pn101; its axes are x, y, z
   at plant.joints[1].motor: this machine's drives are \"stepper\" motors (its I/O map and drive program say so)
-  at plant.wiring.joint9_speed: the machine has no signal \"joint9_speed\"; its signals are stop_button, button_left, button_right, button_up, button_down, button_axes, button_override, limit_neg, limit_pos, reference, program_start, program_hold, program_resume, joint1_enable, joint1_speed, joint1_counter, joint2_enable, joint2_speed, joint2_counter, joint3_enable, joint3_speed, joint3_counter, joystick_x, joystick_y, joystick_connected
+  at plant.wiring.joint9_speed: the machine has no signal \"joint9_speed\"; its signals are stop_button, button_left, button_right, button_up, button_down, button_axes, button_override, limit_neg, limit_pos, reference, program_start, program_hold, program_resume, tool_changed, joint1_enable, joint1_speed, joint1_counter, joint2_enable, joint2_speed, joint2_counter, joint3_enable, joint3_speed, joint3_counter, joystick_x, joystick_y, joystick_connected
 "
         )
     );

@@ -632,3 +632,68 @@ fn laser_power_follows_the_speed_through_corners_and_is_off_through_rapids() {
     );
     common::assert_replays_identically(&trace, &["--config", config_arg]);
 }
+
+/// A manual tool change confirmed in virtual time by a scenario (the panel's tool-changed
+/// button every shipped joint machine's I/O map binds to `TOOL_CHANGED`): the program stands at
+/// `T2 M6` until the scenario puts tool 2 in, then runs to its end with tool 2 in the spindle;
+/// the run replays identically. The TRIJOINT, whose station has no free input, refuses such a
+/// scenario and says why.
+#[test]
+fn a_scenario_confirms_a_tool_change_in_virtual_time_and_the_run_replays() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let program = write_program(dir.path(), "T2 M6\nG1 F600 X5\nG0 X0\nM2\n");
+    let table = dir.path().join("tool.tbl");
+    std::fs::write(&table, "T2 P2 Z10 D3 ;3 mm drill\n").expect("the tool table");
+    let scenario = dir.path().join("change.json");
+    std::fs::write(&scenario, r#"{"events": [{"at_ms": 20000, "tool_changed": 2}]}"#).expect("the scenario");
+    let summary = dir.path().join("summary.json");
+    let trace = dir.path().join("change.jsonl");
+    let o = pkm(&[
+        "run",
+        "--machine",
+        "ox-x",
+        "--virtual",
+        "--duration",
+        "30",
+        "--program",
+        program.to_str().expect("utf-8"),
+        "--tool-table",
+        table.to_str().expect("utf-8"),
+        "--scenario",
+        scenario.to_str().expect("utf-8"),
+        "--summary",
+        summary.to_str().expect("utf-8"),
+        "--trace",
+        trace.to_str().expect("utf-8"),
+    ]);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    let s = common::read_json(&summary);
+    assert_eq!(s["program"]["completed"], true, "{s}");
+    // It stood at the change until the press at 20 s: the run took about 20 s less READY's
+    // 11.65 s plus its moves.
+    let run_s = s["program"]["duration_s"].as_f64().expect("a number");
+    assert!(run_s > 8.0, "stood at the tool change: ran {run_s} s");
+    let text = std::fs::read_to_string(&trace).expect("the trace");
+    for recorded in [r#""TOOL_CHANGE":true"#, r#""TOOL_CHANGED":true"#, r#""TOOL_NUMBER":2"#] {
+        assert!(text.contains(recorded), "{recorded} in the trace");
+    }
+    common::assert_replays_identically(&trace, &["--machine", "ox-x"]);
+    // The TRIJOINT's panel has no such button.
+    let o = pkm(&[
+        "run",
+        "--config",
+        &repo("config.json"),
+        "--virtual",
+        "--duration",
+        "1",
+        "--scenario",
+        scenario.to_str().expect("utf-8"),
+    ]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("change.json: at events[0].tool_changed: ")
+            && stderr(&o).contains("io-map/trijoint.json binds no panel button of the machine to TOOL_CHANGED: this machine's simulated panel has no tool-changed button"),
+        "{}",
+        stderr(&o)
+    );
+}

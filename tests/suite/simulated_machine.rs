@@ -311,7 +311,7 @@ fn scenario_errors_name_the_event() {
     );
     let e = bad(r#"{"at_ms": 5, "joystick": [0.5, 0.5], "input": "BUTTON_STOP", "value": true}"#);
     assert!(
-        e.contains("at events[0]: an event has exactly one of \"input\", \"joystick\", \"fault\" or \"program\""),
+        e.contains("at events[0]: an event has exactly one of \"input\", \"joystick\", \"fault\", \"program\" or \"tool_changed\""),
         "{e}"
     );
     // A field the event's kind does not take is a mistake, not ignored.

@@ -12,7 +12,9 @@
 //! ```
 //!
 //! A `program` event (`start`, `hold`, `resume`) presses the panel's program button bound to
-//! `NC_START`, `NC_HOLD` or `NC_RESUME` for [`PROGRAM_PRESS_MS`].
+//! `NC_START`, `NC_HOLD` or `NC_RESUME` for [`PROGRAM_PRESS_MS`]; a `tool_changed` event
+//! (`{"at_ms": 9000, "tool_changed": 2}`: tool 2 put in the spindle) presses the one bound to
+//! `TOOL_CHANGED` as long.
 //!
 //! Inputs and switches are named by the process-image variable they are bound to in the I/O map;
 //! drives by the names the machine's plant gives them. The file format is the runtime's; what an
@@ -59,6 +61,10 @@ struct EventEntry {
     counts: Option<i64>,
     #[serde(default)]
     program: Option<ProgramCommand>,
+    /// A manual tool change done: the tool put in the spindle, then the panel's tool-changed
+    /// button (`TOOL_CHANGED`) pressed.
+    #[serde(default)]
+    tool_changed: Option<u32>,
 }
 
 /// A program event: which program button is pressed.
@@ -179,7 +185,8 @@ impl Scenario {
             let kinds = usize::from(e.input.is_some())
                 + usize::from(e.joystick.is_some())
                 + usize::from(e.fault.is_some())
-                + usize::from(e.program.is_some());
+                + usize::from(e.program.is_some())
+                + usize::from(e.tool_changed.is_some());
             if kinds != 1 {
                 problems.push(Problem {
                     at: at.clone(),
@@ -219,6 +226,24 @@ impl Scenario {
                     }
                     Err(message) => problems.push(Problem {
                         at: format!("{at}.program"),
+                        message,
+                    }),
+                }
+                continue;
+            }
+            if e.tool_changed.is_some() {
+                // The panel's button cannot say which tool is in (as on the machine): the PLC takes
+                // the one its change asked for; the tool named is the scenario's account.
+                match panel_button("TOOL_CHANGED", "no tool-changed button", map, wiring, plant) {
+                    Ok(signal) => {
+                        events.push((t_ns, Action::Press { signal, pressed: true }));
+                        events.push((
+                            t_ns.saturating_add(PROGRAM_PRESS_MS * 1_000_000),
+                            Action::Press { signal, pressed: false },
+                        ));
+                    }
+                    Err(message) => problems.push(Problem {
+                        at: format!("{at}.tool_changed"),
                         message,
                     }),
                 }
@@ -270,6 +295,8 @@ fn stray_fields(e: &EventEntry) -> Vec<(&'static str, String)> {
         ("a joystick event".into(), &[])
     } else if e.program.is_some() {
         ("a program event".into(), &[])
+    } else if e.tool_changed.is_some() {
+        ("a tool change event".into(), &[])
     } else {
         let takes: &[&str] = match e.fault {
             Some(FaultKind::SwitchStuck) => &["switch", "value"],
@@ -309,7 +336,8 @@ fn stray_fields(e: &EventEntry) -> Vec<(&'static str, String)> {
 }
 
 /// What every event must have exactly one of.
-const ONE_KIND: &str = "an event has exactly one of \"input\", \"joystick\", \"fault\" or \"program\"";
+const ONE_KIND: &str =
+    "an event has exactly one of \"input\", \"joystick\", \"fault\", \"program\" or \"tool_changed\"";
 
 /// The plant's button bound to `command`'s variable.
 fn program_button(
@@ -318,11 +346,22 @@ fn program_button(
     wiring: &ResolvedWiring,
     plant: &dyn Plant,
 ) -> Result<usize, String> {
-    let name = command.variable();
+    panel_button(command.variable(), "no program buttons", map, wiring, plant)
+}
+
+/// The plant's panel button the I/O map binds to the input variable `name`; else why not (the
+/// panel has `lacking`).
+fn panel_button(
+    name: &str,
+    lacking: &str,
+    map: &IoMap,
+    wiring: &ResolvedWiring,
+    plant: &dyn Plant,
+) -> Result<usize, String> {
     match signal_of(name, map, wiring) {
         Some(signal) if plant.signals()[signal].role == Role::Button => Ok(signal),
         _ => Err(format!(
-            "{} binds no panel button of the machine to {name}: this machine's simulated panel has no program buttons",
+            "{} binds no panel button of the machine to {name}: this machine's simulated panel has {lacking}",
             map.origin
         )),
     }

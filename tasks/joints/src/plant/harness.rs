@@ -41,7 +41,7 @@ pub enum Wire {
 
 /// The panel's buttons' signal keys: STOP, the four directions, the axis button, the override;
 /// then the program buttons (start, feed hold, resume), wired after the switches.
-pub const PANEL: [&str; 10] = [
+pub const PANEL: [&str; 11] = [
     "stop_button",
     "button_left",
     "button_right",
@@ -52,6 +52,8 @@ pub const PANEL: [&str; 10] = [
     "program_start",
     "program_hold",
     "program_resume",
+    // The manual tool change's confirmation (`TOOL_CHANGED`): the tool asked for is in.
+    "tool_changed",
 ];
 
 /// How many of [`PANEL`]'s buttons come before the switches (the original panel's).
