@@ -343,7 +343,10 @@ impl NcChannel {
         ctx.set(self.coolant_mist, flows && mist);
         ctx.set(self.coolant_flood, flows && flood);
         if let Some((s_max, out)) = self.laser {
-            ctx.set(out, laser_power(&self.executor, s_max, flows));
+            ctx.set(
+                out,
+                (laser_power(&self.executor, s_max, flows) * spindle_override).min(1.0),
+            );
         }
         // The program's outputs: as it set them while it runs and the drives may move, off in
         // every other state (ERROR, STOP, the interlock, the end).
@@ -401,7 +404,8 @@ impl NcChannel {
     }
 }
 
-/// The laser's power now (0 … 1 of full power at S = `s_max`), grbl's laser mode: M3 the
+/// The laser's power now (0 … 1 of full power at S = `s_max`, before the spindle override,
+/// which scales it as grbl's does), grbl's laser mode: M3 the
 /// programmed S constant, M4 that times the tool's speed along the path over the programmed
 /// feed (corners and ramps, where the tool is slower, get less); 0 during rapids, with M5, in a
 /// feed hold or a pause, and wherever `flows` is not (outside AUTO, STOP, the interlock).
