@@ -1433,6 +1433,7 @@ async fn the_screen_shows_a_dro_steps_the_jog_keeps_an_alarm_history_and_dims_th
     })
     .await;
     let answer = said(&page).await;
+    assert!(!answer.contains("-0.000"), "no signed zero: {answer}");
     assert!(
         answer.starts_with("G54 X = 1: origin 0.000 → ")
             && answer.contains(" mm, kept until the PLC stops only: no parameter file (--var-file, nc.var_file); "),

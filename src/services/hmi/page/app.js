@@ -251,7 +251,7 @@ function job(m) {
 // A touch-off made: the system's origin before and after; the loaded program planned again.
 function touchedOff(m) {
   planning(false);
-  let said = `${m.system} ${m.axis.toUpperCase()} = ${m.value}: origin ${m.was.toFixed(3)} → ${m.now.toFixed(3)} mm`;
+  let said = `${m.system} ${m.axis.toUpperCase()} = ${m.value}: origin ${num(m.was, 3)} → ${num(m.now, 3)} mm`;
   // Without a parameter file the next start would lose it without a word.
   if (m.kept === false) said += ", kept until the PLC stops only: no parameter file (--var-file, nc.var_file)";
   if (m.job && m.job.type === "job") {
@@ -374,7 +374,7 @@ function frame(m) {
   if (watchVisible || now - watchAt > 1000) {
     watchAt = now;
     m.image.forEach((v, i) => {
-      put(document.getElementById("v-" + i), typeof v === "number" && !Number.isInteger(v) ? v.toFixed(4) : String(v));
+      put(document.getElementById("v-" + i), typeof v === "number" && !Number.isInteger(v) ? num(v, 4) : String(v));
     });
   }
   showOverrides(m);
