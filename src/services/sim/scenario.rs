@@ -215,8 +215,19 @@ impl Scenario {
                 });
                 continue;
             };
-            if let Some(command) = e.program {
-                match program_button(command, map, wiring, plant) {
+            // A program button, or the tool-changed button (the tool put in first: the button
+            // cannot say which, as on the machine; the PLC takes the one its change asked for,
+            // and the tool named is the scenario's account): pressed for PROGRAM_PRESS_MS.
+            let button = match (e.program, e.tool_changed) {
+                (Some(command), _) => Some((program_button(command, map, wiring, plant), "program")),
+                (None, Some(_)) => Some((
+                    panel_button("TOOL_CHANGED", "no tool-changed button", map, wiring, plant),
+                    "tool_changed",
+                )),
+                (None, None) => None,
+            };
+            if let Some((button, field)) = button {
+                match button {
                     Ok(signal) => {
                         events.push((t_ns, Action::Press { signal, pressed: true }));
                         events.push((
@@ -225,25 +236,7 @@ impl Scenario {
                         ));
                     }
                     Err(message) => problems.push(Problem {
-                        at: format!("{at}.program"),
-                        message,
-                    }),
-                }
-                continue;
-            }
-            if e.tool_changed.is_some() {
-                // The panel's button cannot say which tool is in (as on the machine): the PLC takes
-                // the one its change asked for; the tool named is the scenario's account.
-                match panel_button("TOOL_CHANGED", "no tool-changed button", map, wiring, plant) {
-                    Ok(signal) => {
-                        events.push((t_ns, Action::Press { signal, pressed: true }));
-                        events.push((
-                            t_ns.saturating_add(PROGRAM_PRESS_MS * 1_000_000),
-                            Action::Press { signal, pressed: false },
-                        ));
-                    }
-                    Err(message) => problems.push(Problem {
-                        at: format!("{at}.tool_changed"),
+                        at: format!("{at}.{field}"),
                         message,
                     }),
                 }
