@@ -163,11 +163,9 @@ impl JobDesk {
     /// The run's program (from 1) the loaded one runs: itself, or the program a run from a line
     /// runs; `None` for MDI lines or nothing loaded.
     pub fn loaded_program(&self) -> Option<i16> {
-        let k = self.loaded_number();
-        match self.library.screen_spec(k).map(|s| &s.kind) {
-            Some(ScreenJobKind::FromLine { program, .. }) => Some(*program),
-            Some(ScreenJobKind::Mdi { .. }) => None,
-            None => (k >= 1 && usize::try_from(k).is_ok_and(|k| k <= self.library.jobs.len())).then_some(k),
+        match self.loaded_for_return()? {
+            Loaded::Program(k) | Loaded::Job(ScreenJobKind::FromLine { program: k, .. }) => Some(k),
+            Loaded::Job(ScreenJobKind::Mdi { .. }) => None,
         }
     }
 

@@ -165,6 +165,15 @@ pub mod vars {
     pub const NC_FAULT: Var<bool> = Var::new("NC_FAULT");
 }
 
+/// How many digital outputs (`vars::NC_DOUT`), digital inputs (`vars::NC_DIN`) and analog
+/// outputs (`vars::NC_AOUT`) programs have (M62 … M68): LinuxCNC's default four digital ones,
+/// and two analog outputs.
+pub const DIGITAL_OUTPUTS: usize = vars::NC_DOUT.len();
+/// See [`DIGITAL_OUTPUTS`].
+pub const DIGITAL_INPUTS: usize = vars::NC_DIN.len();
+/// See [`DIGITAL_OUTPUTS`].
+pub const ANALOG_OUTPUTS: usize = vars::NC_AOUT.len();
+
 /// The most joints or pose coordinates a trajectory has (x y z a b c).
 pub const MAX_AXES: usize = 6;
 

@@ -121,13 +121,7 @@ pub struct Operator {
     pub inputs: [bool; DIGITAL_INPUTS],
 }
 
-/// How many digital inputs (`NC_DIN_n`) and outputs (`NC_DOUT_n`) and analog outputs
-/// (`NC_AOUT_n`) programs have (M62 … M68).
-pub const DIGITAL_INPUTS: usize = 4;
-/// See [`DIGITAL_INPUTS`].
-pub const DIGITAL_OUTPUTS: usize = 4;
-/// See [`DIGITAL_INPUTS`].
-pub const ANALOG_OUTPUTS: usize = 2;
+pub use pkm_api::trajectory::{ANALOG_OUTPUTS, DIGITAL_INPUTS, DIGITAL_OUTPUTS};
 
 /// An M66 the executor stands at.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -99,12 +99,12 @@ pub enum Spindle {
 }
 
 /// How many digital outputs (`NC_DOUT_0` …), digital inputs (`NC_DIN_0` …) and analog outputs
-/// (`NC_AOUT_0` …) programs have: LinuxCNC's defaults (`num_dio` 4, `num_aio` … 2 used here).
-pub const DIGITAL_OUTPUTS: u8 = 4;
+/// (`NC_AOUT_0` …) programs have, as the process image declares them.
+pub const DIGITAL_OUTPUTS: u8 = pkm_api::trajectory::DIGITAL_OUTPUTS as u8;
 /// See [`DIGITAL_OUTPUTS`].
-pub const DIGITAL_INPUTS: u8 = 4;
+pub const DIGITAL_INPUTS: u8 = pkm_api::trajectory::DIGITAL_INPUTS as u8;
 /// See [`DIGITAL_OUTPUTS`].
-pub const ANALOG_OUTPUTS: u8 = 2;
+pub const ANALOG_OUTPUTS: u8 = pkm_api::trajectory::ANALOG_OUTPUTS as u8;
 
 /// An output a program sets.
 #[derive(Clone, Copy, Debug, PartialEq)]
