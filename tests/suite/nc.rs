@@ -357,7 +357,7 @@ struct Canonical {
 }
 
 /// The tool table both interpreters read the comparison programs with (mm).
-const TOOL_TABLE: &str = "T1 P1 Z50 D6 ;6 mm end mill\nT2 P2 X0.5 Z30.5 D3 ;3 mm drill\nT5 P5 Z-2 D10\n";
+const TOOL_TABLE: &str = "T1 P1 Z50 D6 ;6 mm end mill\nT2 P2 X0.5 Z30.5 D3 ;3 mm drill\nT3 P3 Z32.3342 D5.1054\nT4 P4 Z12.9794 D3.175 ;1/8 in end mill\nT5 P5 Z-2 D10\nT6 P6 Z10 D1.5875\nT7 P7 Z5 D0.8\nT15 P15 Z20 D4.2\n";
 
 /// [`TOOL_TABLE`] for `rs274`, which reads a tool table in inches (its machine units): every
 /// offset divided by 25.4.
@@ -811,6 +811,14 @@ fn linuxcncs_example_programs_give_its_moves() {
         "hole-circle",
         // Cubic splines (G5) in loops: 13 000 pieces, the moves between them rs274's.
         "systems",
+        // Cutter compensation: contours with G41 and G42, the tool from the spindle or D,
+        // entry and exit moves, a mounting plate of 300 lines with an oversize tool.
+        "comp",
+        "comp-g1",
+        "comp311",
+        "comp311_2",
+        "gmoccapy_2_tools_with_cutter_radius_compensation",
+        "mmount",
     ] {
         assert!(read.iter().any(|r| r == name), "{name} was not read: {read:?}");
     }
@@ -1064,6 +1072,207 @@ fn polar_coordinates_give_linuxcncs_moves_and_refusals() {
         assert!(
             !rs274_output(rs274, text, None).contains("PROGRAM_END"),
             "rs274 read {text:?}"
+        );
+    }
+}
+
+/// Compensated contours (G41, G42, G41.1, G42.1): the part's contour in the program, the tool's
+/// centre one radius beside it. Each gives the path LinuxCNC 2.9's `rs274` gives — every move,
+/// every corner arc, every shortened move in a concave corner, in the order it makes them: entry
+/// moves (lines and arcs), convex and concave corners between lines and arcs both ways, rapids,
+/// moves along the tool's axis between compensated moves, a helix, the exit after G40 and a
+/// second compensation, G91, inches, the ZX plane (G18), a diameter given (G41.1, a negative one
+/// on the other side), the tool from the table (`D`) or in the spindle.
+const COMPENSATED_CONTOURS: [&str; 16] = [
+    "G0 X-10 Y-10\nG41 D1\nG1 X0 Y0\nG1 X20\nG3 X30 Y10 R10\nG1 Y30\nG1 X0\nG1 Y0\nG40\nG0 X-10 Y-10\n",
+    "G0 X-10 Y-10\nG42 D1\nG1 X0 Y0\nG1 X20\nG3 X30 Y10 R10\nG1 Y30\nG1 X0\nG1 Y0\nG40\nG0 X-10 Y-10\n",
+    "G0 X-10 Y-10\nG41 D1\nG1 X0 Y0\nG1 X20\nG1 Y10\nG1 X5\nG1 Y5\nG1 X-3\nG40\nG0 X-10\n",
+    "G0 X-10 Y-10\nG41 D1\nG1 X0 Y0\nG1 X20\nG1 X21 Y-1\nG1 X30 Y-1\nG40\nG0 Y-10\n",
+    "G0 X0 Y-20\nG41 D1\nG1 X0 Y-10\nG3 X10 Y0 R10\nG1 X10 Y10\nG1 X0 Y10\nG1 X0 Y-10\nG40\nG0 X0 Y-20\n",
+    "G0 X-5 Y-20\nG42 D1\nG1 X0 Y-10\nG2 X-10 Y0 R10\nG2 X0 Y10 R10\nG3 X10 Y20 R10\nG1 X30\nG2 X40 Y10 I0 J-10\nG1 Y-10\nG40\nG0 X50 Y-20\n",
+    "G18 G0 X-10 Z-10\nG41 D1\nG1 X0 Z0\nG1 Z20\nG2 X10 Z30 R10\nG1 X30\nG1 Z0\nG40\nG0 X40 Z-10\n",
+    "G0 X-10 Y-10\nG41.1 D8\nG1 X0 Y0\nX20\nY10\nX0\nY0\nG40\nG0 X-10 Y-10\nG42.1 D-4\nG1 X0 Y0\nX20\nY10\nX0\nY0\nG40 G0 X-10 Y-10\n",
+    "G20 G0 X-1 Y-1\nG41 D1\nG1 X0 Y0\nX2\nG3 X2.5 Y0.5 R0.5\nG1 Y2\nX0\nY0\nG40\nG0 X-1 Y-1\n",
+    "G0 X-10 Y-10\nG91 G41 D1\nG1 X10 Y10\nX20\nY10\nX-20\nY-10\nG40 G0 X-10 Y-10\n",
+    "G0 X-10 Y-10 Z5\nG41 D1\nG1 X0 Y0\nG1 Z-1\nG1 X20\nG1 Z1\nG1 Z-1\nG1 Y10\nG1 Z2\nG1 X5\nG40\nG0 X-10\n",
+    "G0 X-10 Y-10\nG41 D1\nG0 X0 Y0\nG0 X20\nG0 Y10\nG1 X0\nG0 Y0\nG40\nG0 X-10 Y-10\n",
+    "G0 X0 Y-10\nG41 D1\nG3 X10 Y0 I0 J10\nG3 X0 Y10 I-10 J0\nG1 X-10\nG40\nG0 X-20 Y0\nG0 X0 Y-30\nG42 D1\nG2 X-20 Y0 R25\nG1 Y10\nG40\nG0 X-30\n",
+    "G0 X-10 Y-10 Z0\nG41 D1\nG1 X0 Y0 F100\nG3 X20 Y0 I10 J0 Z-2\nG1 Y10\nG40\nG0 X-10\nG0 X-10 Y-10\nG41 D1\nG1 X0 Y0\nX20\nG40\nG1 X30 Y-10\nG41 D5\nG1 X40 Y0\nX60\nY20\nG40\nG0 X70\n",
+    "G0 X-20 Y0\nT2 M6\nG41\nG1 X-10 Y0\nG3 X10 Y0 R10\nG3 X30 Y0 R10\nG2 X50 Y0 R10\nG1 Y-20\nG40\nG0 X60\n",
+    "G0 X30 Y-20\nG42 D1\nG1 X30 Y0\nG3 X-30 Y0 R30\nG1 Y-20\nX30\nG40\nG0 Y-30\n",
+];
+
+#[test]
+fn cutter_compensation_gives_linuxcncs_path_and_refusals() {
+    let Some(rs274) = rs274_or_skip("nc::cutter_compensation_gives_linuxcncs_path_and_refusals") else {
+        return;
+    };
+    for contour in COMPENSATED_CONTOURS {
+        let text = format!("G21 F100\n{contour}M2\n");
+        let (o, l) = (ours(&text), linuxcnc(rs274, &text));
+        assert!(agree(&o, &l), "{text}\nours: {o:?}\nLinuxCNC: {l:?}");
+        // The compensated path is not the programmed one.
+        let plain = ours(
+            &["G41.1 D8", "G42.1 D-4", "G41 D1", "G42 D1", "G41 D5", "G41\n"]
+                .iter()
+                .fold(text.clone(), |t, g| t.replace(g, "\n")),
+        );
+        assert!(o.iter().zip(&plain).any(|(a, b)| a.end != b.end), "{text}");
+    }
+    // Each refused where LinuxCNC refuses it (its message beside ours).
+    for (text, ours_why, theirs) in [
+        (
+            "G41 D1\nG1 Z-1\n",
+            "2:4: the entry move of cutter compensation must be longer than the tool's radius (3.000 mm): it is 0.000 mm long in the plane",
+            "Length of cutter compensation entry move is not greater than the tool radius",
+        ),
+        (
+            "G41 D1\nG3 X2 Y0 R1\n",
+            "2:4: the entry arc of cutter compensation must end farther from where it starts than the tool's radius (3.000 mm)",
+            "Radius of cutter compensation entry arc is not greater than the tool radius",
+        ),
+        (
+            "G41 D1\nG1 X10\nX20\nX20 Y1\nX40\n",
+            "5:1: the tool (radius 3.000 mm) cannot reach this concave corner without gouging: the move before it is too short",
+            "Straight feed in concave corner cannot be reached by the tool without gouging",
+        ),
+        (
+            "G41 D1\nG1 X10\nG3 X12 Y2 R2\n",
+            "3:4: the tool (radius 3.000 mm) does not fit inside this arc (radius 2.000 mm): cutter compensation needs a smaller tool or a larger arc",
+            "Tool radius not less than arc radius with comp",
+        ),
+        (
+            "G41 D1\nG1 X10\nG40\nG2 X20 R5\n",
+            "4:1: the move after G40 (cutter compensation off) must be a straight one (G0, G1), as in LinuxCNC: an arc would start off its circle",
+            "The move just after exiting cutter compensation mode must be straight, not an arc",
+        ),
+        (
+            "G41 D1\nG1 X10\nG0 X#5420\n",
+            "3:5: #5420-#5428 (where the tool is) cannot be read while cutter compensation (G41, G42) is on, as in LinuxCNC: where a compensated move ends is known only with the move after it",
+            "Cannot read current position with cutter radius compensation on",
+        ),
+        (
+            "G1 X1 D1\n",
+            "1:7: D belongs to G41, G42 (the tool whose diameter cutter compensation takes) or G41.1, G42.1 (the diameter)",
+            "",
+        ),
+        (
+            "G41 D8\n",
+            "1:5: G41 D8: tool 8 is not in the tool table",
+            "Requested tool 8 not found in the tool table",
+        ),
+        (
+            "G41 D1.5\n",
+            "1:5: G41's D is the number of a tool of the table, a whole number from 0: got 1.5 (G41.1, G42.1 take a diameter)",
+            "G41 requires D word to be a whole number",
+        ),
+        (
+            "G41.1\n",
+            "1:1: G41.1 needs D: the tool's diameter",
+            "G41.1 with no D word",
+        ),
+        (
+            "G41\n",
+            "1:1: G41 without a tool number compensates for the tool in the spindle, and this program has not put one there (T… M6, or M61 Q…): write G41 D…",
+            "",
+        ),
+        (
+            "G19\nG41 D1\n",
+            "2:1: cutter compensation works in the XY (G17) and ZX (G18) planes, not in G19 (as LinuxCNC's)",
+            "Cutter radius compensation allowed only in XY, XZ planes",
+        ),
+        (
+            "G41 D1\nG42 D1\n",
+            "2:1: cutter compensation is on already: G40 before G42",
+            "Cannot turn cutter radius comp on when on",
+        ),
+        (
+            "G41 D1\nG55\n",
+            "2:1: the coordinate system cannot change while cutter compensation (G41, G42) is on: end it with G40 first",
+            "Cannot change coordinate systems with cutter radius compensation on",
+        ),
+        (
+            "G41 D1\nG64 P0.1\n",
+            "2:1: path control (G61, G64) cannot change while cutter compensation (G41, G42) is on: end it with G40 first",
+            "Cannot change control mode with cutter radius compensation on",
+        ),
+        (
+            "G41 D1\nG92 X0\n",
+            "2:1: G92 cannot change the offsets while cutter compensation (G41, G42) is on: end it with G40 first",
+            "Cannot change axis offsets with cutter radius comp",
+        ),
+        (
+            "G41 D1\nG18\n",
+            "2:1: the plane cannot change while cutter compensation (G41, G42) is on: end it with G40 first",
+            "Cannot change planes with cutter radius compensation on",
+        ),
+        (
+            "G41 D1\nG28\n",
+            "2:1: G28 cannot go home while cutter compensation (G41, G42) is on: end it with G40 first",
+            "Cannot use g28 or g30 with cutter radius comp",
+        ),
+        (
+            "G41 D1\nG28.1\n",
+            "2:1: G28.1 cannot store a position while cutter compensation (G41, G42) is on: end it with G40 first",
+            "Cannot set reference point with cutter compensation in effect",
+        ),
+        (
+            "G41 D1\nG81 X1 Y1 Z-1 R1\n",
+            "2:1: canned cycles cannot run while cutter compensation (G41, G42) is on: end it with G40 first",
+            "Cannot use canned cycles with cutter compensation on",
+        ),
+        (
+            "G41 D1\nG0 X20\nG5 X30 Y10 I1 J1 P1 Q1\n",
+            "3:1: a spline (G5, G5.1) cannot be compensated (a CAM post can write its contour as lines and arcs) while cutter compensation (G41, G42) is on: end it with G40 first",
+            "Cannot convert spline with cutter radius compensation",
+        ),
+        (
+            "G41 D1\nM62 P1\n",
+            "2:1: the program's outputs and inputs (M62 … M68) cannot be used while cutter compensation (G41, G42) is on: end it with G40 first",
+            "Cannot set motion output with cutter radius compensation on",
+        ),
+        (
+            "G41 D1\nG0 X20\nG53 G0 X30\n",
+            "3:1: G53 (machine coordinates) cannot go with cutter compensation (G41, G42): end it with G40 first",
+            "Cannot use g53 with cutter radius comp",
+        ),
+        (
+            "G41 D1\nG98\n",
+            "2:1: the canned cycles' retract (G98, G99) cannot change while cutter compensation (G41, G42) is on: end it with G40 first",
+            "Cannot change retract mode with cutter radius compensation on",
+        ),
+        (
+            "G41 D1\nG10 L2 P1 X1\n",
+            "2:1: G10 cannot change the coordinate system in force while cutter compensation (G41, G42) is on: end it with G40 first",
+            "Cannot change the active coordinate system with cutter radius compensation on",
+        ),
+        (
+            "G41 D1\nG43 H1\n",
+            "2:1: the tool length offset (G43, G43.1, G49) cannot change while cutter compensation (G41, G42) is on: end it with G40 first",
+            "Cannot change tool offset with cutter radius compensation on",
+        ),
+        (
+            "G41 D1\nT2 M6\n",
+            "2:4: the tool cannot change (M6) while cutter compensation (G41, G42) is on: end it with G40 first",
+            "Cannot change tools with cutter radius compensation on",
+        ),
+    ] {
+        let text = format!("G21 F100\n{text}M2\n");
+        let ours = our_program(&text).map(|_| ()).map_err(|e| e.to_string());
+        // Our lines count from the program's first line, the G21 F100 the test adds.
+        let (at, why) = ours_why.split_once(':').expect("line:column: why");
+        let expected = format!("{}:{why}", at.parse::<usize>().expect("a line") + 1);
+        assert_eq!(ours, Err(expected), "{text}");
+        let said = rs274_output(rs274, &text, None);
+        if theirs.is_empty() {
+            // LinuxCNC reads a D alone, and G41 with no tool in the spindle as a tool of
+            // diameter 0; we refuse them with why (the spindle's tool, known only as the
+            // program runs, could differ).
+            continue;
+        }
+        assert!(
+            !said.contains("PROGRAM_END") && said.contains(theirs),
+            "rs274 read {text:?}: {said}"
         );
     }
 }

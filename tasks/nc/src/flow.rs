@@ -23,6 +23,10 @@ use crate::watch::{Unwatched, Watch, Watched};
 pub trait System {
     /// The value of system parameter `#index` (from 5001), `None` for one it does not keep.
     fn numbered(&self, index: usize) -> Option<f64>;
+    /// Why system parameter `#index` cannot be read now, where it cannot.
+    fn refusal(&self, _index: usize) -> Option<&'static str> {
+        None
+    }
     /// The value of the predefined named parameter `#<name>` (`_x`, `_feed`, …), `None` if
     /// there is none of that name.
     fn named(&self, name: &str) -> Option<f64>;
@@ -134,6 +138,9 @@ impl Parameters for Scope<'_, '_> {
         }
         if index == 5399 {
             return Err("#5399 is the input M66 read: known only as the program runs, and this interpreter reads the whole program before it runs (M66 waits here, its value cannot steer the program)".to_string());
+        }
+        if let Some(why) = self.system.refusal(index) {
+            return Err(why.to_string());
         }
         self.system.numbered(index).ok_or_else(|| {
             format!(

@@ -29,6 +29,9 @@ pub struct Tool {
     pub offsets: Pose,
     /// Its diameter (mm; 0 when not given).
     pub diameter: f64,
+    /// A lathe tool's orientation (`Q`, 1 … 9; 0 for a mill's tool): cutter compensation takes
+    /// only tools of orientation 0 or 9, whose centre is the point it controls.
+    pub orientation: u8,
     /// The comment after `;` (trimmed; empty when none).
     pub comment: String,
 }
@@ -91,6 +94,7 @@ impl ToolTable {
                     pocket: number,
                     offsets: [0.0; 6],
                     diameter: 0.0,
+                    orientation: 0,
                     comment: String::new(),
                 });
                 self.tools.len() - 1
@@ -116,6 +120,7 @@ fn parse_line(words: &str, comment: &str, line: usize) -> Result<Tool, NcError> 
         pocket: 0,
         offsets: [0.0; 6],
         diameter: 0.0,
+        orientation: 0,
         comment: comment.to_string(),
     };
     let (mut number, mut pocket) = (None, None);
@@ -177,9 +182,15 @@ fn parse_line(words: &str, comment: &str, line: usize) -> Result<Tool, NcError> 
                 }
                 tool.diameter = value;
             }
-            // A lathe tool's front and back angles and orientation: read as LinuxCNC reads them,
-            // unused by a mill.
-            'I' | 'J' | 'Q' => {}
+            'Q' => {
+                if !(value.fract() == 0.0 && (0.0..=9.0).contains(&value)) {
+                    return Err(err(format!("the orientation Q is a whole number 0 … 9, got {value}")));
+                }
+                tool.orientation = value as u8;
+            }
+            // A lathe tool's front and back angles: read as LinuxCNC reads them, unused by a
+            // mill.
+            'I' | 'J' => {}
             'U' | 'V' | 'W' => {
                 return Err(err(format!("{letter}: offsets of axes U V W are not supported")));
             }

@@ -16,6 +16,9 @@ impl State<'_> {
     pub(super) fn io(&self, words: &Words<'_>, out: &mut Vec<Block>) -> Result<(), NcError> {
         let line = words.line;
         for (code, m) in &words.m {
+            if matches!(code, 620..=680) {
+                self.refuse_while_compensating(line, m, "the program's outputs and inputs (M62 … M68) cannot be used")?;
+            }
             let action = match code {
                 620 | 630 | 640 | 650 => {
                     let index = number(

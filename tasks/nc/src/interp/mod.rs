@@ -16,6 +16,7 @@
 //! are [`crate::flow`]'s.
 
 pub mod block;
+mod comp;
 mod cycles;
 mod io;
 mod modes;
@@ -93,6 +94,7 @@ pub fn read_bounded(text: &str, machine: &Machine<'_>, bounds: &Bounds, watch: &
                             action: Action::WorkOffset { system, offset },
                         },
                     );
+                    state.inserted_action(before);
                 }
                 let column = made_by(&block);
                 for made in &mut blocks[before..] {

@@ -161,14 +161,39 @@ impl State<'_> {
                 self.feed_mm_min = Some(w.value * self.unit());
             }
         }
-        for (code, _) in &words.g {
+        for (code, w) in &words.g {
+            let plane = match code {
+                170 => Plane::Xy,
+                180 => Plane::Zx,
+                190 => Plane::Yz,
+                _ => continue,
+            };
+            if plane != self.plane {
+                self.refuse_while_compensating(line, w, "the plane cannot change")?;
+            }
+            self.plane = plane;
+        }
+        if words.has_g(200) {
+            self.inches = true;
+        }
+        if words.has_g(210) {
+            self.inches = false;
+        }
+        // Cutter compensation: after the plane and the units, before the offsets and the
+        // modes it fixes while on (LinuxCNC's order).
+        self.compensation(words)?;
+        for (code, w) in &words.g {
+            if (540..=590).contains(code) && code.is_multiple_of(10) {
+                self.refuse_while_compensating(line, w, "the coordinate system cannot change")?;
+                self.system = usize::from(code / 10 - 54);
+            }
+        }
+        for (code, w) in &words.g {
             match code {
-                170 => self.plane = Plane::Xy,
-                180 => self.plane = Plane::Zx,
-                190 => self.plane = Plane::Yz,
-                200 => self.inches = true,
-                210 => self.inches = false,
-                540..=590 if code.is_multiple_of(10) => self.system = usize::from(code / 10 - 54),
+                610 | 611 | 640 => self.refuse_while_compensating(line, w, "path control (G61, G64) cannot change")?,
+                980 | 990 => {
+                    self.refuse_while_compensating(line, w, "the canned cycles' retract (G98, G99) cannot change")?
+                }
                 _ => {}
             }
         }

@@ -15,8 +15,8 @@ use super::words::{Words, count};
 const RADIUS_TOLERANCE_MM: f64 = 0.00005 * 25.4;
 /// How far the radius at an arc's end may differ from the radius at its start (mm; LinuxCNC's
 /// `CENTER_ARC_RADIUS_TOLERANCE_MM`, 2 · 0.01 · √2), or in inch programs (inches) …
-const SPIRAL_TOLERANCE_MM: f64 = 2.0 * 0.01 * std::f64::consts::SQRT_2;
-const SPIRAL_TOLERANCE_INCH: f64 = 2.0 * 0.001 * std::f64::consts::SQRT_2;
+pub(super) const SPIRAL_TOLERANCE_MM: f64 = 2.0 * 0.01 * std::f64::consts::SQRT_2;
+pub(super) const SPIRAL_TOLERANCE_INCH: f64 = 2.0 * 0.001 * std::f64::consts::SQRT_2;
 /// … or, up to a hundred times that, this share of the radius (LinuxCNC's
 /// `SPIRAL_RELATIVE_TOLERANCE`). Within them the arc is traced as a spiral from the start's
 /// radius to the end's, as LinuxCNC traces it.
@@ -68,6 +68,8 @@ impl State<'_> {
             self.motion = Some(code);
         }
         if cycle_now {
+            let code_word = motion_word.map_or(words.first, |(_, w)| w);
+            self.refuse_while_compensating(line, code_word, "canned cycles cannot run")?;
             if let Some(w) = words.g_word(530) {
                 return Err(at(w, "G53 goes with a G0 or G1 move in this block".into()));
             }
@@ -98,6 +100,13 @@ impl State<'_> {
             }
             if self.incremental {
                 return Err(at(w, "G53 needs absolute distances (G90)".into()));
+            }
+            if self.offsetting() {
+                return Err(at(
+                    w,
+                    "G53 (machine coordinates) cannot go with cutter compensation (G41, G42): end it with G40 first"
+                        .into(),
+                ));
             }
         }
         // G0 or G1 alone sets the motion mode for the lines that follow (LinuxCNC's meaning);
@@ -132,22 +141,63 @@ impl State<'_> {
                 to = self.polar_target(line, polar, to)?;
             }
             let first = first.unwrap_or_else(|| motion_word.map(|(_, w)| w).unwrap_or(words.first));
+            let code_word = motion_word.map_or(first, |(_, w)| w);
+            if matches!(mode, 50 | 51) {
+                self.refuse_while_compensating(
+                    line,
+                    code_word,
+                    "a spline (G5, G5.1) cannot be compensated (a CAM post can write its contour as lines and arcs)",
+                )?;
+            }
+            if matches!(mode, 20 | 30 | 50 | 51) && self.arc_after_comp {
+                return Err(at(
+                    code_word,
+                    "the move after G40 (cutter compensation off) must be a straight one (G0, G1), as in LinuxCNC: an arc would start off its circle".into(),
+                ));
+            }
+            self.arc_after_comp = false;
             if matches!(mode, 50 | 51) {
                 self.spline(line, words, mode == 50, to, first, out)?;
                 stops(line, &words.m, out);
                 return Ok(());
             }
+            // While cutter compensation offsets the moves, the programmed path runs from the
+            // programmed point, and the feed is the programmed move's (as LinuxCNC's).
+            let from = self.base();
             let path = match mode {
                 0 | 10 => Path::Line,
-                _ => self.arc(line, first, mode == 20, &to, &get)?,
+                _ => self.arc(line, first, mode == 20, &from, &to, &get)?,
             };
             let feed = match mode {
                 0 => None,
                 _ => {
-                    let length = crate::path::Segment::new(self.position, to, path).length();
+                    let length = crate::path::Segment::new(from, to, path).length();
                     Some(self.feed_of(length, first, line, "G1, G2 or G3")?)
                 }
             };
+            if self.offsetting() {
+                let arc = match path {
+                    Path::Arc {
+                        center,
+                        clockwise,
+                        extra_turns,
+                        ..
+                    } => {
+                        let turns = i32::try_from(extra_turns + 1).unwrap_or(i32::MAX);
+                        Some((center, if clockwise { -turns } else { turns }))
+                    }
+                    Path::Line => None,
+                };
+                let programmed = super::comp::Programmed {
+                    to,
+                    arc,
+                    rapid: mode == 0,
+                    feed,
+                };
+                self.compensated_move(line, first, &programmed, out)?;
+                stops(line, &words.m, out);
+                return Ok(());
+            }
             out.push(Block {
                 line,
                 column: 1,
@@ -215,7 +265,8 @@ impl State<'_> {
     /// replaced; the other axes stay as `to` has them.
     fn polar_target(&self, line: usize, polar: [Option<&Word>; 2], mut to: Pose) -> Result<Pose, NcError> {
         let offset = self.offset();
-        let (mut x, mut y) = (self.position[0] - offset[0], self.position[1] - offset[1]);
+        let base = self.base();
+        let (mut x, mut y) = (base[0] - offset[0], base[1] - offset[1]);
         let indeterminate = |w: &Word, message: &str| Err(NcError::new(line, w.column, message.to_string()));
         let [distance, angle] = polar;
         let distance_mm = distance.map(|w| w.value * self.scale(0));
@@ -268,12 +319,13 @@ impl State<'_> {
         line: usize,
         first: &Word,
         clockwise: bool,
+        from: &Pose,
         to: &Pose,
         get: &dyn Fn(char) -> Option<&'w Word>,
     ) -> Result<Path, NcError> {
         let at = |w: &Word, message: String| NcError::new(line, w.column, message);
         let [a0, a1, _] = self.plane.axes();
-        let (s, e) = ([self.position[a0], self.position[a1]], [to[a0], to[a1]]);
+        let (s, e) = ([from[a0], from[a1]], [to[a0], to[a1]]);
         let turns = count(get('P'), 1000).map_err(|p| {
             at(
                 p,

@@ -45,6 +45,13 @@ impl State<'_> {
                 ));
             }
         }
+        if let Some((code, w)) = words.g.iter().find(|(c, _)| matches!(c, 520 | 920..=923)) {
+            self.refuse_while_compensating(
+                line,
+                w,
+                &format!("{} cannot change the offsets", format_code('G', *code)),
+            )?;
+        }
         if words.has_g(920) {
             // The tool's position reads as the given values from now on.
             let work = self.work[self.system];
@@ -118,6 +125,9 @@ impl State<'_> {
         if let Some(r) = words.get('R') {
             return Err(at(r, "R (a coordinate system's rotation) is not supported".into()));
         }
+        if system == self.system {
+            self.refuse_while_compensating(line, g10, "G10 cannot change the coordinate system in force")?;
+        }
         for (c, w) in words.axis_words() {
             let v = w.value * self.scale(c);
             self.work[system][c] = if l.value == 2.0 {
@@ -136,6 +146,14 @@ impl State<'_> {
         let line = words.line;
         let at = |w: &Word, message: String| NcError::new(line, w.column, message);
         let axis_words = words.axis_words();
+        if let Some((code, w)) = words.g.iter().find(|(c, _)| matches!(c, 280 | 281 | 300 | 301)) {
+            let what = if code % 10 == 0 {
+                "cannot go home"
+            } else {
+                "cannot store a position"
+            };
+            self.refuse_while_compensating(line, w, &format!("{} {what}", format_code('G', *code)))?;
+        }
         for (k, code) in [281u16, 301].into_iter().enumerate() {
             if words.has_g(code) {
                 if let Some((_, a)) = axis_words.first() {
@@ -173,13 +191,15 @@ impl State<'_> {
     /// in program coordinates; the other axes stay.
     pub(super) fn target(&self, axis_words: &[(usize, &Word)], machine_coords: bool) -> Pose {
         let offset = self.offset();
-        let mut to = self.position;
+        // While cutter compensation offsets the moves, from the programmed point.
+        let base = self.base();
+        let mut to = base;
         for (c, w) in axis_words {
             let v = w.value * self.scale(*c);
             to[*c] = if machine_coords {
                 v
             } else if self.incremental {
-                self.position[*c] + v
+                base[*c] + v
             } else {
                 v + offset[*c]
             };

@@ -11,7 +11,8 @@ use pkm_api::trajectory::NcMessage;
 
 use crate::tools::ToolTable;
 
-use super::block::{AXES, Blend, Block, Machine, Plane, Pose};
+use super::block::{AXES, Action, Blend, Block, Machine, Plane, Pose};
+use super::comp::Compensation;
 use super::words::Words;
 
 /// The modal state.
@@ -75,6 +76,14 @@ pub(super) struct State<'a> {
     /// The height (normal coordinate, program units) where the present series of canned
     /// cycles started; `None` after any other motion.
     pub(super) cycle_initial: Option<f64>,
+    /// Cutter compensation while it is on (G41, G42).
+    pub(super) comp: Option<Compensation>,
+    /// Where the tool stands after G40 ended compensation, off the programmed point the
+    /// interpreter reads from: the next move starts there.
+    pub(super) comp_exit: Option<Pose>,
+    /// After G40, until a straight move: an arc would start off its programmed circle
+    /// (LinuxCNC refuses it too).
+    pub(super) arc_after_comp: bool,
 }
 
 /// How F is read.
@@ -100,6 +109,12 @@ pub(super) struct Cycle {
 
 /// The state as LinuxCNC's system parameters give it, in program units.
 impl flow::System for State<'_> {
+    fn refusal(&self, index: usize) -> Option<&'static str> {
+        (self.compensating() && (5420..=5428).contains(&index)).then_some(
+            "#5420-#5428 (where the tool is) cannot be read while cutter compensation (G41, G42) is on, as in LinuxCNC: where a compensated move ends is known only with the move after it",
+        )
+    }
+
     fn numbered(&self, index: usize) -> Option<f64> {
         let position = self.program_position();
         match index {
@@ -127,7 +142,8 @@ impl flow::System for State<'_> {
                     .map_or([0.0; 6], |t| self.on_machine(t.offsets));
                 Some(table[index - 5401] / self.scale(index - 5401))
             }
-            // The tool's position in the coordinate system in force.
+            // The tool's position in the coordinate system in force (refused while cutter
+            // compensation is on: [`flow::System::refusal`]).
             5420..=5425 => Some(position[index - 5420]),
             _ => None,
         }
@@ -194,6 +210,9 @@ impl<'a> State<'a> {
             retract_to_r: true,
             cycle: Cycle::default(),
             cycle_initial: None,
+            comp: None,
+            comp_exit: None,
+            arc_after_comp: false,
             blend: Blend::Within {
                 tolerance: None,
                 merge: None,
@@ -218,11 +237,29 @@ impl<'a> State<'a> {
         if c < 3 { self.unit() } else { 1.0 }
     }
 
-    /// Converts one block, in LinuxCNC's order of execution: its message, feed, speed, tool
-    /// selection and change, spindle, coolant, the program's inputs and outputs, dwell, plane, units, tool offsets, work offsets,
-    /// path control, distance mode, G10, G92, going home, motion, stop. Each group's
-    /// conversion is in the file that names it.
+    /// Converts one block (see [`State::convert`]); the first move after G40 starts where the
+    /// compensated tool stood.
     pub(super) fn block(&mut self, block: &lexer::Block, out: &mut Vec<Block>) -> Result<(), NcError> {
+        let before = out.len();
+        self.convert(block, out)?;
+        if let Some(exit) = self.comp_exit {
+            let first_move = out[before..].iter_mut().find_map(|b| match &mut b.action {
+                Action::Move { from, .. } => Some(from),
+                _ => None,
+            });
+            if let Some(from) = first_move {
+                *from = exit;
+                self.comp_exit = None;
+            }
+        }
+        Ok(())
+    }
+
+    /// Converts one block, in LinuxCNC's order of execution: its message, feed, speed, tool
+    /// selection and change, spindle, coolant, the program's inputs and outputs, dwell, plane,
+    /// units, cutter compensation, tool offsets, work offsets, path control, distance mode, G10,
+    /// G92, going home, motion, stop. Each group's conversion is in the file that names it.
+    fn convert(&mut self, block: &lexer::Block, out: &mut Vec<Block>) -> Result<(), NcError> {
         self.message(block, out);
         if block.words.is_empty() {
             return Ok(());

@@ -183,10 +183,6 @@ fn rotations_on_the_hexapod_only() {
 #[test]
 fn what_the_subset_lacks_is_refused_with_line_column_and_reason() {
     for (text, message) in [
-        (
-            "G41 X1",
-            "1:1: G41 is not supported (cutter compensation: the program's path is the tool's centre; see docs/nc.md)",
-        ),
         ("G43.2 H1", "1:1: G43.2 is not supported (adding tool offsets)"),
         ("G96 S100", "1:1: G96 is not supported (spindle speed modes)"),
         (
@@ -842,7 +838,7 @@ fn tool_words_are_refused_with_why() {
         ("M61 Q4", "1:5: Q4: tool 4 is not in the tool table"),
         (
             "G1 X1 D1 F100",
-            "1:7: D (cutter compensation's tool) is not supported: cutter compensation (G41, G42) is refused, see docs/nc.md",
+            "1:7: D belongs to G41, G42 (the tool whose diameter cutter compensation takes) or G41.1, G42.1 (the diameter)",
         ),
         (
             "G10 L11 P1 Z1",

@@ -45,6 +45,7 @@ impl State<'_> {
         for (code, w) in &words.m {
             match code {
                 60 => {
+                    self.refuse_while_compensating(line, w, "the tool cannot change (M6)")?;
                     let tool = self.selected.ok_or_else(|| {
                         at(
                             w,
@@ -107,6 +108,9 @@ impl State<'_> {
     pub(super) fn tool_length(&mut self, words: &Words<'_>) -> Result<(), NcError> {
         let line = words.line;
         let at = |w: &Word, message: String| NcError::new(line, w.column, message);
+        if let Some((_, w)) = words.g.iter().find(|(c, _)| matches!(c, 430 | 431 | 490)) {
+            self.refuse_while_compensating(line, w, "the tool length offset (G43, G43.1, G49) cannot change")?;
+        }
         if let Some(g43) = words.g_word(430) {
             let number = match words.get('H') {
                 Some(h) => self.tool_number(line, h, "H")?,
@@ -184,6 +188,16 @@ impl State<'_> {
             Some(r) => Some(2.0 * r.value * self.unit()),
             None => None,
         };
+        let orientation = match words.get('Q') {
+            Some(q) if !(q.value.fract() == 0.0 && (0.0..=9.0).contains(&q.value)) => {
+                return Err(at(
+                    q,
+                    format!("Q is a lathe tool's orientation, a whole number 0 … 9; got {}", q.value),
+                ));
+            }
+            Some(q) => Some(q.value as u8),
+            None => None,
+        };
         let values: Vec<(usize, f64)> = words
             .axis_words()
             .into_iter()
@@ -210,6 +224,9 @@ impl State<'_> {
         }
         if let Some(d) = diameter {
             entry.diameter = d;
+        }
+        if let Some(q) = orientation {
+            entry.orientation = q;
         }
         Ok(())
     }

@@ -89,8 +89,8 @@ impl<'b> Words<'b> {
                         return Err(at(w, "a line number (N) comes first in its block".into()));
                     }
                 }
-                'X' | 'Y' | 'Z' | 'A' | 'B' | 'C' | 'E' | 'I' | 'J' | 'K' | 'R' | 'F' | 'S' | 'P' | 'Q' | 'L' | 'T'
-                | 'H' => {
+                'X' | 'Y' | 'Z' | 'A' | 'B' | 'C' | 'D' | 'E' | 'I' | 'J' | 'K' | 'R' | 'F' | 'S' | 'P' | 'Q' | 'L'
+                | 'T' | 'H' => {
                     let slot = &mut values[(w.letter as u8 - b'A') as usize];
                     if slot.is_some() {
                         return Err(at(w, format!("{} twice in one block", w.letter)));
@@ -103,12 +103,6 @@ impl<'b> Words<'b> {
                         return Err(at(w, format!("{} twice in one block", w.letter)));
                     }
                     *slot = Some(w);
-                }
-                'D' => {
-                    return Err(at(
-                        w,
-                        "D (cutter compensation's tool) is not supported: cutter compensation (G41, G42) is refused, see docs/nc.md".into(),
-                    ));
                 }
                 'U' | 'V' | 'W' => {
                     return Err(at(w, format!("{}: axes U V W are not supported", w.letter)));
@@ -249,6 +243,14 @@ impl<'b> Words<'b> {
                 "E belongs to M66 (an analog input), M67, M68 (an analog output); extruders are not supported".into(),
             ));
         }
+        if let Some(w) = self.get('D')
+            && ![410, 411, 420, 421].iter().any(|c| self.has_g(*c))
+        {
+            return Err(at(
+                w,
+                "D belongs to G41, G42 (the tool whose diameter cutter compensation takes) or G41.1, G42.1 (the diameter)".into(),
+            ));
+        }
         if let Some(w) = self.get('H')
             && !self.has_g(430)
         {
@@ -301,7 +303,7 @@ pub(super) fn g_group(code: u16) -> Option<u8> {
         900 | 910 => Some(3),
         901 | 911 => Some(4),
         930 | 940 | 950 => Some(5),
-        400 => Some(7),
+        400 | 410 | 411 | 420 | 421 => Some(7),
         430 | 431 | 490 => Some(8),
         980 | 990 => Some(10),
         _ => None,
@@ -338,7 +340,6 @@ pub(super) fn g_refusal(code: u16) -> String {
         282..=299 | 302..=309 => "G28 and G30 variants other than G28.1, G30.1",
         330 | 331 | 760 => "threading",
         382..=385 => "probing",
-        410..=429 => "cutter compensation: the program's path is the tool's centre; see docs/nc.md",
         432 => "adding tool offsets",
         430..=499 => "tool length compensation other than G43, G43.1, G49",
         730..=899 => "canned cycles other than G73, G81, G82, G83, G85, G89",
