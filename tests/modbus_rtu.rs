@@ -75,6 +75,7 @@ fn the_application_runs_over_modbus_rtu_on_an_emulated_line() {
         lock_memory: false,
         spin_ns: 0,
         duration_ns: Some(RUN_BOUND_S * 1_000_000_000),
+        pace: None,
     };
     let started = std::time::Instant::now();
     let run = run::start_realtime(plc, options).expect("real-time run");
@@ -162,6 +163,7 @@ fn machine_over_rtu(machine: &str, dir: &std::path::Path) -> String {
         lock_memory: false,
         spin_ns: 0,
         duration_ns: Some(MACHINE_RUN_BOUND_S * 1_000_000_000),
+        pace: None,
     };
     let run = run::start_realtime(plc, options).expect("real-time run");
     let snapshot = run.snapshot();

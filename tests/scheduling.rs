@@ -672,6 +672,7 @@ fn rt_options(source: TimeSourceKind, duration_ms: u64) -> RealTimeOptions {
         lock_memory: false,
         spin_ns: 0,
         duration_ns: Some(duration_ms * 1_000_000),
+        pace: None,
     }
 }
 

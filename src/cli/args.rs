@@ -215,9 +215,16 @@ pub struct ConfigArg {
 pub struct RunArgs {
     #[command(flatten)]
     pub config: ConfigArg,
-    /// Run in virtual time: as fast as the CPU allows, deterministic. Needs --duration.
-    #[arg(long = "virtual", requires = "duration")]
+    /// Run in virtual time: as fast as the CPU allows, deterministic. Needs --duration, or
+    /// --pace.
+    #[arg(long = "virtual")]
     pub virtual_time: bool,
+    /// With --virtual: a simulation paced at X times real time (1 … 50), served with the
+    /// operator's screen and OPC UA as a real-time run is, until stopped (or --duration of
+    /// simulated time) — to watch a program on the simulated machine and see its limits before
+    /// it runs on the real one. The cycles stay in virtual time: deterministic, never late.
+    #[arg(long, value_name = "X", requires = "virtual_time", value_parser = parse_pace)]
+    pub pace: Option<f64>,
     /// Stop after this many seconds (of simulated time with --virtual).
     #[arg(long, value_name = "SECONDS", value_parser = parse_seconds)]
     pub duration: Option<f64>,
@@ -392,6 +399,16 @@ pub fn parse_seconds(s: &str) -> Result<f64, String> {
         Ok(v)
     } else {
         Err(format!("must be more than 0 and at most 10000000 seconds, got {s}"))
+    }
+}
+
+/// A simulation's pace: 1 … 50 times real time.
+pub fn parse_pace(s: &str) -> Result<f64, String> {
+    let v: f64 = s.parse().map_err(|_| format!("\"{s}\" is not a number"))?;
+    if v.is_finite() && (1.0..=50.0).contains(&v) {
+        Ok(v)
+    } else {
+        Err(format!("a simulation runs at 1 … 50 times real time, got {s}"))
     }
 }
 

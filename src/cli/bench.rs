@@ -110,6 +110,7 @@ pub fn run(options: &BenchOptions, mut progress: impl FnMut(&str)) -> Result<Vec
                     lock_memory: false,
                     spin_ns: u64::from(spin_us) * 1000,
                     duration_ns: Some((options.seconds * 1e9) as u64),
+                    pace: None,
                 },
             )?;
             let outcome = run.join()?;

@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use pkm_plc::services::opcua::{self, OpcUaOptions};
 
-/// The OPC UA server a run asks for: `None` in virtual time or with `--opcua none`; the next
+/// The OPC UA server a run asks for: `None` in unpaced virtual time (`unserved`) or with `--opcua none`; the next
 /// ports tried when the default one is taken.
 pub fn options(
     url: Option<&str>,
@@ -19,7 +19,7 @@ pub fn options(
                 (Some(_), _) | (_, Some(_)) => Err(format!(
                     "--opcua-users and --opcua-pki configure the OPC UA server, which {}",
                     if virtual_time {
-                        "a --virtual run does not serve"
+                        "a --virtual run as fast as it goes does not serve"
                     } else {
                         "is off (--opcua none, or PKM_PLC_OPCUA=none in the environment)"
                     }
@@ -27,7 +27,11 @@ pub fn options(
                 (None, None) => Ok(None),
             };
         }
-        (Some(_), true) => return Err("--opcua serves OPC UA in real time only; a --virtual run has none".into()),
+        (Some(_), true) => {
+            return Err(
+                "--opcua serves OPC UA in real time or in a paced simulation (--virtual --pace X); a --virtual run as fast as it goes has none".into(),
+            );
+        }
         (Some(url), false) => (url, 0),
         (None, false) => (opcua::DEFAULT_URL, DEFAULT_NEXT_PORTS),
     };

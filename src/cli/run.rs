@@ -17,13 +17,23 @@ use pkm_plc::services::io::hid::JoystickSpec;
 
 /// Runs the PLC as `args` ask, then logs its summary (and writes it with `--summary`).
 pub fn run(args: RunArgs) -> Result<(), Failure> {
+    if args.virtual_time && args.pace.is_none() && args.duration.is_none() {
+        return Err(Failure::usage(
+            "--virtual needs --duration (the simulated seconds it runs), or --pace X (a simulation paced at X times real time, with the screen, until stopped)",
+        ));
+    }
+    if args.pace.is_some() && !matches!(args.bus, pkm_plc::compose::BusChoice::Sim) {
+        return Err(Failure::usage(
+            "--pace simulates the machine: it runs on --bus sim only (a real station would see its cycles paced, not timed)",
+        ));
+    }
     let screen = screen_options(&args)?;
     let opcua = super::opcua::options(
         args.opcua.as_deref(),
         args.opcua_users.as_ref(),
         args.opcua_pki.as_ref(),
         args.opcua_max_sessions,
-        args.virtual_time,
+        unserved(&args),
     )
     .map_err(Failure::usage)?;
     // Programs are loaded, and commands come, from the screen or over OPC UA.
@@ -58,6 +68,7 @@ pub fn run(args: RunArgs) -> Result<(), Failure> {
     let summary_file = args.summary.as_deref().map(OutputFile::create).transpose()?;
     let request = RunRequest {
         virtual_time: args.virtual_time,
+        pace: args.pace,
         duration_s: args.duration,
         time_source: args.time_source.map(TimeSourceKind::from),
         screen,
@@ -84,12 +95,19 @@ pub fn run(args: RunArgs) -> Result<(), Failure> {
 /// The environment variable whose address the screen is served at when `--hmi` is not given.
 const HMI_ENV: &str = "PKM_PLC_HMI";
 
-/// The screen `args` ask for: `None` in virtual time or with `--hmi none`.
+/// Whether the run serves nothing: virtual time as fast as it goes (a paced simulation is
+/// served as a real-time run is).
+fn unserved(args: &RunArgs) -> bool {
+    args.virtual_time && args.pace.is_none()
+}
+
+/// The screen `args` ask for: `None` in unpaced virtual time or with `--hmi none`.
 fn screen_options(args: &RunArgs) -> Result<Option<pkm_plc::services::hmi::HmiOptions>, Failure> {
+    let unserved = unserved(args);
     // The environment's address stands in for --hmi in real time (a virtual run serves none,
     // whatever the environment says).
     let hmi = match (args.hmi, std::env::var(HMI_ENV)) {
-        (None, Ok(text)) if !args.virtual_time => {
+        (None, Ok(text)) if !unserved => {
             Some(parse_hmi(&text).map_err(|e| Failure::usage(format!("{HMI_ENV}={text}: {e}")))?)
         }
         (hmi, _) => hmi,
@@ -99,11 +117,11 @@ fn screen_options(args: &RunArgs) -> Result<Option<pkm_plc::services::hmi::HmiOp
     } else {
         0
     };
-    let addr = match (hmi, args.virtual_time) {
+    let addr = match (hmi, unserved) {
         (Some(HmiAddr::Off), _) | (None, true) => return Ok(None),
         (Some(HmiAddr::At(_)), true) => {
             return Err(Failure::usage(
-                "--hmi serves the screen in real time only; a --virtual run has none",
+                "--hmi serves the screen in real time or in a paced simulation (--virtual --pace X); a --virtual run as fast as it goes has none",
             ));
         }
         (Some(HmiAddr::At(a)), false) => a,
@@ -141,7 +159,7 @@ fn program_library(args: &RunArgs, screen: bool) -> Result<Option<PathBuf>, Fail
     match &args.programs {
         Some(dir) if dir.as_os_str() == "none" => Ok(None),
         Some(dir) if !screen => Err(Failure::usage(format!(
-            "--programs {}: programs are loaded from the operator's screen or over OPC UA, which are served in real time only (and not with both --hmi none and --opcua none)",
+            "--programs {}: programs are loaded from the operator's screen or over OPC UA, which are served in real time or in a paced simulation only (and not with both --hmi none and --opcua none)",
             dir.display()
         ))),
         Some(dir) => Ok(Some(dir.clone())),

@@ -20,8 +20,13 @@ use crate::runtime::summary::Summary;
 /// What a run is asked for beyond its build.
 #[derive(Debug, Default)]
 pub struct RunRequest {
-    /// Virtual time: as fast as the CPU allows, for `duration_s` of simulated time.
+    /// Virtual time: as fast as the CPU allows, for `duration_s` of simulated time — or, with
+    /// `pace`, paced.
     pub virtual_time: bool,
+    /// A simulation paced at this many times real time (with `virtual_time`): served as a
+    /// real-time run is (the screen, OPC UA, the status line), until a signal or `duration_s`
+    /// of simulated time.
+    pub pace: Option<f64>,
     /// How long it runs (s; of simulated time in virtual time); `None`: until a signal.
     pub duration_s: Option<f64>,
     /// The time source in place of the configuration's.
@@ -92,22 +97,45 @@ pub fn run(built: Built, request: RunRequest) -> Result<Ran, Failure> {
         warn!("running the runtime's built-in self-test programs, not a machine's application");
     }
     let duration_s = duration(request.duration_s, scenario);
-    if request.virtual_time {
-        let duration = duration_s.ok_or_else(|| Failure::usage("--virtual needs --duration"))?;
+    let pace = request.pace.filter(|_| request.virtual_time);
+    if request.virtual_time && pace.is_none() {
+        let duration = duration_s.ok_or_else(|| {
+            Failure::usage(
+                "--virtual needs --duration (or --pace X: a simulation paced at X times real time runs until stopped)",
+            )
+        })?;
         return Ok(run_virtual(plc, &loaded.origin, library.as_ref(), duration));
     }
     let timing = &loaded.config.timing;
-    let options = RealTimeOptions {
-        source: request.time_source.unwrap_or(timing.source),
-        realtime_priority: timing.realtime_priority,
-        lock_memory: timing.lock_memory,
-        spin_ns: u64::from(timing.spin_us) * 1000,
-        duration_ns: duration_s.map(|d| (d * 1e9) as u64),
+    let options = match pace {
+        // A simulation: no real-time priority, no locked memory (the cycles are never late in
+        // virtual time), waits on the plain sleep.
+        Some(_) => RealTimeOptions {
+            source: TimeSourceKind::Nanosleep,
+            realtime_priority: 0,
+            lock_memory: false,
+            spin_ns: 0,
+            duration_ns: duration_s.map(|d| (d * 1e9) as u64),
+            pace,
+        },
+        None => RealTimeOptions {
+            source: request.time_source.unwrap_or(timing.source),
+            realtime_priority: timing.realtime_priority,
+            lock_memory: timing.lock_memory,
+            spin_ns: u64::from(timing.spin_us) * 1000,
+            duration_ns: duration_s.map(|d| (d * 1e9) as u64),
+            pace: None,
+        },
     };
-    info!(
-        "real time, time source {}; Ctrl-C stops",
-        options.source.resolve().name()
-    );
+    match pace {
+        Some(pace) => info!(
+            "simulation: virtual time paced at {pace}x real time (the machine is simulated; nothing moves); Ctrl-C stops"
+        ),
+        None => info!(
+            "real time, time source {}; Ctrl-C stops",
+            options.source.resolve().name()
+        ),
+    }
     let probe = match joystick {
         Some(j) => {
             let super::Joystick {
@@ -138,7 +166,7 @@ pub fn run(built: Built, request: RunRequest) -> Result<Ran, Failure> {
     };
     let screen = match (request.screen, hmi) {
         (Some(options), Some(sink)) => Some(Screen {
-            info: screen_info(&plc, &setup, library.as_ref(), refused),
+            info: screen_info(&plc, &setup, library.as_ref(), refused, pace),
             options,
             sink,
         }),
@@ -155,7 +183,8 @@ pub fn run(built: Built, request: RunRequest) -> Result<Ran, Failure> {
         }
     }
     let failure = finish_trace(&mut outcome.plc).and_then(|()| bus_came_up(&outcome.plc));
-    let mut summary = Summary::collect(&outcome.plc, "real-time", &loaded.origin, outcome.elapsed_ns)
+    let mode = if pace.is_some() { "paced" } else { "real-time" };
+    let mut summary = Summary::collect(&outcome.plc, mode, &loaded.origin, outcome.elapsed_ns)
         .with_program(&outcome.plc, library.as_ref());
     summary.time_source = Some(outcome.source.name());
     summary.realtime_priority = Some(outcome.realtime_priority);
@@ -228,9 +257,11 @@ fn screen_info(
     setup: &Setup,
     library: Option<&pkm_api::library::NcLibrary>,
     refused: Vec<(String, String)>,
+    pace: Option<f64>,
 ) -> crate::services::hmi::server::HmiInfo {
     let motion = setup.machine.and_then(|m| m.motion(&setup.loaded.json).ok());
     crate::services::hmi::server::HmiInfo {
+        simulation: pace,
         machine: setup.machine.map_or("runtime".to_string(), |m| m.name().to_string()),
         config: setup.origin().to_string(),
         variables: plc
@@ -396,7 +427,7 @@ fn run_realtime(
         )?;
     }
     let run = run::start_realtime_with(plc, options, publisher).map_err(|e| Failure::run(e.to_string()))?;
-    let outcome = runtime.block_on(supervise(run, signals));
+    let outcome = runtime.block_on(supervise(run, signals, options.pace));
     // The run is over (its outputs are safe): the runtime is left without waiting for what it
     // still does — a screen job being planned on its blocking pool would hold its drop until
     // the plan ended, and the summary and the exit with it.
@@ -409,13 +440,14 @@ fn run_realtime(
     })
 }
 
-/// Watches a real-time run from the tokio runtime until it ends: a terminating signal stops it
+/// Watches a real-time run (or a paced simulation, `pace`) from the tokio runtime until it ends: a terminating signal stops it
 /// safely; the status line is drawn, the first complete round of cycles is logged (scripts and
 /// tests wait for that line), and a service manager is told the run's state and fed its
 /// watchdog while the cycles run.
 async fn supervise(
     run: run::RealTimeRun,
     mut signals: crate::runtime::signals::Terminating,
+    pace: Option<f64>,
 ) -> Result<run::RealTimeOutcome, run::RunError> {
     let stop = run.stop_flag();
     let snapshot = run.snapshot();
@@ -454,7 +486,10 @@ async fn supervise(
                 };
                 if !ready && cycled {
                     ready = true;
-                    info!("running in real time; Ctrl-C, SIGTERM or SIGHUP stops it safely");
+                    match pace {
+                        Some(pace) => info!("running the simulation at {pace}x real time; Ctrl-C, SIGTERM or SIGHUP stops it safely"),
+                        None => info!("running in real time; Ctrl-C, SIGTERM or SIGHUP stops it safely"),
+                    }
                 }
                 if let Some(n) = &mut notifier {
                     n.tick(running, heartbeat.load(std::sync::atomic::Ordering::Relaxed), &state);

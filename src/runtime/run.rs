@@ -121,6 +121,42 @@ pub fn run_virtual_observed(plc: &mut Plc, duration_ns: u64, observe: &mut dyn F
     }
 }
 
+/// A paced simulation's schedule: simulated time `t` is due at `anchor_wall + (t − anchor_t) /
+/// pace` on the wall clock. A machine that cannot keep up (a pass more than a second late) is
+/// said once, and the schedule is anchored again where it is: the simulation goes on at its
+/// pace from there rather than racing to catch up.
+#[derive(Default)]
+struct Behind {
+    /// The wall-clock time (ns, monotonic) and the simulated time it is anchored at; `None`:
+    /// at the run's epoch and 0.
+    anchor: Option<(u64, u64)>,
+    said: bool,
+}
+
+impl Behind {
+    /// When the pass at simulated time `t` is due (ns, monotonic).
+    fn due(&self, epoch_ns: u64, t: u64, pace: f64) -> u64 {
+        let (wall, t0) = self.anchor.unwrap_or((epoch_ns, 0));
+        wall + (t.saturating_sub(t0) as f64 / pace) as u64
+    }
+
+    /// Takes the pass at simulated time `t`, due at `due` and started at `now` (ns, monotonic).
+    fn check(&mut self, now: u64, due: u64, t: u64) {
+        let late_ns = now.saturating_sub(due);
+        if late_ns > 1_000_000_000 {
+            if !self.said {
+                self.said = true;
+                warn!(
+                    "the simulation fell {:.1} s behind its pace at t={:.1} s: this computer cannot simulate the machine that fast (a lower --pace keeps up); it goes on at its pace from here",
+                    late_ns as f64 / 1e9,
+                    t as f64 / 1e9
+                );
+            }
+            self.anchor = Some((now, t));
+        }
+    }
+}
+
 /// How a real-time run is set up.
 #[derive(Clone, Copy, Debug)]
 pub struct RealTimeOptions {
@@ -132,8 +168,14 @@ pub struct RealTimeOptions {
     pub lock_memory: bool,
     /// Busy-wait the last `spin_ns` before each release (0: none).
     pub spin_ns: u64,
-    /// Stop after this much time (ns); `None` runs until [`RealTimeRun::stop`].
+    /// Stop after this much time (ns; simulated time when paced); `None` runs until
+    /// [`RealTimeRun::stop`].
     pub duration_ns: Option<u64>,
+    /// A simulation paced at this many times real time (1 … 50): the cycles run in virtual
+    /// time — each at its release exactly, as `--virtual` runs them, deterministic and never
+    /// late — and the thread waits between them so that simulated time passes this much faster
+    /// than the wall clock. `None`: real time.
+    pub pace: Option<f64>,
 }
 
 /// Why a real-time run failed.
@@ -246,22 +288,37 @@ pub fn start_realtime_with(
             plc.start_bus().map_err(RunError::StationRefused)?;
             // The schedule starts 2 ms from now, so the init parts finish before the first release.
             let mut clock = MonotonicClock::with_epoch(timing::monotonic_ns() + 2_000_000);
-            plc.init(0, &mut clock);
+            // Paced, the cycles read the simulated clock; the wall clock only paces them.
+            let mut simulated = options.pace.map(|_| VirtualClock::default());
+            match &mut simulated {
+                Some(virtual_clock) => plc.init(0, virtual_clock),
+                None => plc.init(0, &mut clock),
+            }
             let mut next_snapshot = SNAPSHOT_EVERY_NS;
             let mut log = StateLog::default();
+            let mut behind = Behind::default();
             let end_ns = options.duration_ns.unwrap_or(u64::MAX);
             loop {
                 let t = plc.next_release();
                 if stop_t.load(Ordering::Relaxed) || t >= end_ns {
                     break;
                 }
-                waiter
-                    .wait_until(clock.epoch_ns() + t)
-                    .map_err(|error| RunError::Timer {
-                        source_name: source.name(),
-                        error,
-                    })?;
-                plc.run_due(&mut clock, end_ns);
+                let due = match options.pace {
+                    Some(pace) => behind.due(clock.epoch_ns(), t, pace),
+                    None => clock.epoch_ns() + t,
+                };
+                waiter.wait_until(due).map_err(|error| RunError::Timer {
+                    source_name: source.name(),
+                    error,
+                })?;
+                match &mut simulated {
+                    Some(virtual_clock) => {
+                        behind.check(timing::monotonic_ns(), due, t);
+                        virtual_clock.advance_to(t);
+                        plc.run_due(virtual_clock, end_ns);
+                    }
+                    None => plc.run_due(&mut clock, end_ns),
+                }
                 beat_t.store(t, Ordering::Relaxed);
                 log.observe(&plc, t);
                 if let Some(screen) = &mut screen {
@@ -275,7 +332,16 @@ pub fn start_realtime_with(
                     }
                 }
             }
-            let elapsed_ns = clock.now_ns();
+            let wall_ns = clock.now_ns();
+            let elapsed_ns = simulated.as_mut().map_or(wall_ns, |c| c.now_ns());
+            if let Some(pace) = options.pace {
+                info!(
+                    "simulation paced at {pace}x real time: {:.3} s simulated in {:.3} s ({:.1}x)",
+                    elapsed_ns as f64 / 1e9,
+                    wall_ns as f64 / 1e9,
+                    elapsed_ns as f64 / wall_ns.max(1) as f64
+                );
+            }
             plc.shutdown();
             if let Ok(mut s) = snap_t.lock() {
                 s.update(&plc, elapsed_ns);

@@ -29,7 +29,9 @@ mod machines_over_modbus;
 mod modbus_faults;
 mod opcua;
 mod screen_jobs;
+mod screen_ws;
 mod service;
+mod simulation;
 mod station_safety;
 mod trace_cuts;
 

@@ -91,12 +91,32 @@ fn a_missing_configuration_file_is_a_clear_error() {
 }
 
 #[test]
-fn virtual_needs_a_duration() {
+fn virtual_needs_a_duration_or_a_pace() {
     let o = pkm(&["run", "--virtual"]);
     assert_eq!(o.status.code(), Some(2));
-    assert!(stderr(&o).contains("--duration <SECONDS>"), "{}", stderr(&o));
+    assert_eq!(
+        stderr(&o).trim_end(),
+        "error: --virtual needs --duration (the simulated seconds it runs), or --pace X (a simulation paced at X times real time, with the screen, until stopped)"
+    );
     let o = pkm(&["run", "--virtual", "--duration", "-3"]);
     assert_eq!(o.status.code(), Some(2));
+    // A pace is 1 … 50 times real time, of a virtual run, on the simulated machine.
+    let o = pkm(&["run", "--virtual", "--pace", "60"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(
+        stderr(&o).contains("a simulation runs at 1 … 50 times real time, got 60"),
+        "{}",
+        stderr(&o)
+    );
+    let o = pkm(&["run", "--pace", "10", "--duration", "1"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(stderr(&o).contains("--virtual"), "{}", stderr(&o));
+    let o = pkm(&["run", "--virtual", "--pace", "10", "--bus", "none"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert_eq!(
+        stderr(&o).trim_end(),
+        "error: --pace simulates the machine: it runs on --bus sim only (a real station would see its cycles paced, not timed)"
+    );
 }
 
 #[test]
@@ -634,7 +654,7 @@ fn programs_to_load_need_the_screen_and_a_directory_that_can_be_listed() {
     assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
     assert!(
         stderr(&o).contains(
-            "--programs programs: programs are loaded from the operator's screen or over OPC UA, which are served in real time only (and not with both --hmi none and --opcua none)"
+            "--programs programs: programs are loaded from the operator's screen or over OPC UA, which are served in real time or in a paced simulation only (and not with both --hmi none and --opcua none)"
         ),
         "{}",
         stderr(&o)

@@ -180,6 +180,10 @@ function hello(m) {
   $("touch-off-box").hidden = !m.jobs || !axes.length;
   $("view3d-switch").hidden = axes.length < 3;
   $("machine").textContent = m.machine;
+  // A paced simulation says so, always in view: a student checks a program on it before the
+  // machine runs it.
+  $("simulation").hidden = !m.simulation;
+  $("simulation").textContent = m.simulation ? `simulation at ${m.simulation}× real time` : "";
   $("config").textContent = m.config;
   variables = m.variables;
   commands = m.commands;

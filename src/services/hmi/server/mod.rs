@@ -144,6 +144,9 @@ pub struct HmiInfo {
     pub tools: Vec<(u32, String)>,
     /// The run's programs, whose messages (MSG) the screen shows as the run reaches them.
     pub library: Option<pkm_api::library::NcLibrary>,
+    /// A simulation paced at this many times real time (`run --virtual --pace`): the screen
+    /// says so; `None`: the machine itself.
+    pub simulation: Option<f64>,
 }
 
 /// Builds the router and the task that pushes frames.
@@ -160,6 +163,7 @@ pub fn router(info: HmiInfo, mut frames: FrameFeed, sink: CommandSink, options: 
         "axes": info.axes,
         "joints": info.joints,
         "jobs": info.jobs.is_some(),
+        "simulation": info.simulation,
         "tools": info.tools.iter().map(|(n, comment)| json!([n, comment])).collect::<Vec<_>>(),
         // Where the kinematics draws the mechanism, its links in the middle of the joints'
         // ranges: the page lays the drawing's box out by them from the start, so that nothing

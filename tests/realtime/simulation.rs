@@ -1,0 +1,87 @@
+//! The simulation mode: `run --virtual --pace X` serves the operator's screen as a real-time run
+//! does, while the cycles run in virtual time paced at X times real time — a student loads a
+//! program on the screen, starts it and watches it run on the simulated machine; the run is
+//! traced and replays identically, as every virtual run does.
+
+use std::time::{Duration, Instant};
+
+use crate::common;
+use crate::screen_ws::{Ws, next_within, send, start_with_screen};
+
+/// The next frame in `state` (its simulated time `t_s` included); panics after `within`.
+async fn frame_in(ws: &mut Ws, state: &str, within: Duration) -> serde_json::Value {
+    let start = Instant::now();
+    let mut last = serde_json::Value::Null;
+    loop {
+        let left = within.saturating_sub(start.elapsed());
+        let m = next_within(ws, left).await.unwrap_or_else(|| {
+            panic!(
+                "not {state} within {within:?}; the last frame's state {}, reason {}, note {}",
+                last["state"], last["reason"], last["note"]
+            )
+        });
+        if m["type"] == "frame" {
+            if m["state"] == state {
+                return m;
+            }
+            last = m;
+        }
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_paced_simulation_serves_the_screen_runs_a_program_and_replays() {
+    let dir = tempfile::tempdir().expect("a temporary directory");
+    let programs = dir.path().join("programs");
+    std::fs::create_dir(&programs).expect("the directory");
+    std::fs::copy(
+        common::root().join("programs/ox-x-target.ngc"),
+        programs.join("ox-x-target.ngc"),
+    )
+    .expect("copied");
+    let (trace, summary) = (dir.path().join("sim.jsonl"), dir.path().join("summary.json"));
+    let mut command = common::pkm_command();
+    command.args([
+        "run",
+        "--machine",
+        "ox-x",
+        "--virtual",
+        "--pace",
+        "20",
+        "--hmi",
+        "127.0.0.1:0",
+    ]);
+    command.args(["--opcua", "none", "--programs"]).arg(&programs);
+    command.arg("--trace").arg(&trace).arg("--summary").arg(&summary);
+    let started = Instant::now();
+    let (mut plc, mut ws) = start_with_screen(command).await;
+    // The screen is told it shows a simulation (it says so in its header).
+    let hello = plc.log();
+    assert!(
+        hello.contains("simulation: virtual time paced at 20x real time"),
+        "{hello}"
+    );
+    let ready = frame_in(&mut ws, "READY", Duration::from_secs(120)).await;
+    // Paced: simulated time never runs ahead of 20 times the wall clock (it may fall behind on
+    // a busy machine; the run's figures are in its log).
+    let (t_ready, wall) = (ready["t_s"].as_f64().expect("t_s"), started.elapsed().as_secs_f64());
+    assert!(
+        t_ready <= 20.0 * wall + 0.5,
+        "READY at t={t_ready} s after {wall} s of wall clock"
+    );
+    // The program the student loads and starts runs to its end on the simulated machine.
+    send(&mut ws, serde_json::json!({"cmd": "load", "program": 1})).await;
+    send(&mut ws, serde_json::json!({"cmd": "program", "what": "start"})).await;
+    let auto = frame_in(&mut ws, "AUTO", Duration::from_secs(60)).await;
+    let done = frame_in(&mut ws, "READY", Duration::from_secs(120)).await;
+    let ran_s = done["t_s"].as_f64().expect("t_s") - auto["t_s"].as_f64().expect("t_s");
+    assert!(ran_s > 5.0, "the program ran {ran_s} s of simulated time");
+    let status = plc.terminate();
+    assert!(status.success(), "{status:?}\n{}", plc.log());
+    let log = plc.log();
+    assert!(log.contains("simulation paced at 20x real time: "), "{log}");
+    let written = common::read_json(&summary);
+    assert_eq!(written["mode"], "paced", "{written}");
+    // Deterministic: the trace replays identically, the screen's commands with it.
+    common::assert_replays_identically(&trace, &["--machine", "ox-x"]);
+}
