@@ -1560,3 +1560,107 @@ async fn the_screen_shows_a_dro_steps_the_jog_keeps_an_alarm_history_and_dims_th
     plc.stop();
     assert!(plc.log().contains("step G91 G0 X1"), "{}", plc.log());
 }
+
+/// The simulation mode with the 3-D twin: the hexapod in `run --virtual --pace`, its screen
+/// saying it shows a simulation; in 3-D the programmed path and the whole mechanism — struts,
+/// platform, spindle — are in one scene at the machine's scale, every point inside the canvas
+/// however the view is turned; as the tilted circle runs, the spindle tilts with the platform
+/// (the tilt the flat path alone did not show). Screenshot `hmi-3d.png` with PKM_SCREENSHOTS.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_simulation_shows_the_machine_and_its_path_in_one_3d_scene() {
+    let Some(chromium) = chromium_or_skip("hmi_browser::the_simulation_shows_the_machine_and_its_path_in_one_3d_scene")
+    else {
+        return;
+    };
+    let _turn = take_turn().await;
+    let dir = tempfile::tempdir().expect("tempdir");
+    let programs = dir.path().join("programs");
+    std::fs::create_dir(&programs).expect("a directory");
+    std::fs::copy(
+        common::root().join("programs/hexapod-tilted-circle.ngc"),
+        programs.join("hexapod-tilted-circle.ngc"),
+    )
+    .expect("copied");
+    let browser = launch(chromium, dir.path(), &[]).await;
+    let page = browser.new_page("about:blank").await.expect("a page");
+    let mut command = common::pkm_command();
+    command
+        .args([
+            "run",
+            "--machine",
+            "hexapod",
+            "--virtual",
+            "--pace",
+            "5",
+            "--hmi",
+            "127.0.0.1:0",
+        ])
+        .args(["--opcua", "none", "--programs"])
+        .arg(&programs)
+        .env("RUST_LOG", "info");
+    let (run, url) = common::Logged::start(command, "operator screen at ", Duration::from_secs(30));
+    let mut plc = Plc { run, url };
+    page.goto(plc.url.as_str()).await.expect("loads");
+    until(&page, Duration::from_secs(10), "the simulation named", async |p| {
+        text(
+            p,
+            "document.getElementById('simulation').hidden ? '' : document.getElementById('simulation').textContent",
+        )
+        .await
+            == "simulation at 5× real time"
+    })
+    .await;
+    until(&page, Duration::from_secs(60), "READY shown", async |p| {
+        state(p).await == "READY"
+    })
+    .await;
+    click(&page, "#view3d").await;
+    click(&page, "#nc-start").await;
+    until(&page, Duration::from_secs(20), "AUTO shown", async |p| {
+        state(p).await == "AUTO"
+    })
+    .await;
+    // Every point of the scene — the programmed path and the mechanism as it stands — inside
+    // the canvas, at three turns of the view.
+    let inside = "(() => { const c = document.getElementById('path'); const px = projection(c); const pts = programmed.concat((links || []).flat()); return String(links && links.length === 19 && pts.every(p => { const [x, y] = px(p); return x >= 0 && x <= c.width && y >= 0 && y <= c.height; })); })()";
+    for (yaw, pitch) in [(-0.6, 0.9), (1.2, 0.3), (2.8, 1.5)] {
+        page.evaluate(format!("view3d.yaw = {yaw}; view3d.pitch = {pitch}; redraw(true);"))
+            .await
+            .expect("the view turned");
+        until(
+            &page,
+            Duration::from_secs(10),
+            "the whole scene in the canvas",
+            async |p| text(p, inside).await == "true",
+        )
+        .await;
+    }
+    page.evaluate("view3d.yaw = -0.6; view3d.pitch = 0.9; redraw(true);")
+        .await
+        .expect("turned back");
+    // The mechanism stands where the path is: the spindle starts at the tool point the frames
+    // report (both in the machine frame, home at the origin), within the frames' 50 ms apart.
+    let apart = "(() => { const [a] = links[18]; const t = cut[cut.length - 1]; return String(Math.hypot(a[0] - t[0], a[1] - t[1], a[2] - t[2])); })()";
+    until(
+        &page,
+        Duration::from_secs(10),
+        "the spindle at the tool point",
+        async |p| text(p, apart).await.parse::<f64>().unwrap_or(f64::MAX) < 2.0,
+    )
+    .await;
+    // The spindle (the last link) tilts as the platform does: more than 2° off the vertical
+    // at some frame of the circle.
+    let tilt = "(() => { const [a, b] = links[18]; const d = [b[0] - a[0], b[1] - a[1], b[2] - a[2]]; return String(Math.acos(d[2] / Math.hypot(...d)) * 180 / Math.PI); })()";
+    until(&page, Duration::from_secs(60), "the spindle tilted", async |p| {
+        text(p, tilt).await.parse::<f64>().unwrap_or(0.0) > 2.0
+    })
+    .await;
+    if let Some(shots) = std::env::var_os("PKM_SCREENSHOTS") {
+        let shots = std::path::PathBuf::from(shots);
+        page.evaluate("document.getElementById('path-box').scrollIntoView()")
+            .await
+            .expect("scrolled");
+        page.screenshot(&shots.join("hmi-3d.png")).await.expect("a screenshot");
+    }
+    plc.stop();
+}

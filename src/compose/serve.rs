@@ -31,9 +31,9 @@ pub struct RunRequest {
     pub duration_s: Option<f64>,
     /// The time source in place of the configuration's.
     pub time_source: Option<TimeSourceKind>,
-    /// The operator's screen, where it is served (real time only).
+    /// The operator's screen, where it is served (real time, or a paced simulation).
     pub screen: Option<crate::services::hmi::HmiOptions>,
-    /// The OPC UA server (real time only).
+    /// The OPC UA server (real time, or a paced simulation).
     pub opcua: Option<OpcUaRequest>,
     /// The trace to record.
     pub trace: Option<PathBuf>,

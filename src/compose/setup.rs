@@ -374,11 +374,30 @@ impl Setup {
 
 /// The configured machine, drawn on the screen by its kinematics at its measured joints.
 impl crate::services::hmi::mechanism::Drawable for Setup {
-    fn drawing(&self) -> Option<(Box<dyn pkm_kinematics::Kinematics>, Vec<&'static str>)> {
+    fn drawing(&self) -> Option<crate::services::hmi::mechanism::Drawing> {
+        use pkm_api::machine::Home;
+        use pkm_kinematics::frame::{Home as FrameHome, MachineFrame};
         let motion = self.machine?.motion(&self.loaded.json).ok()?;
         let config = pkm_kinematics::KinematicsConfig::from_section(self.loaded.config.kinematics.as_ref()).ok()?;
-        let kinematics = config.build(pkm_kinematics::Machine::from_name(motion.model)?);
-        Some((kinematics, motion.joint_vars))
+        let model = pkm_kinematics::Machine::from_name(motion.model)?;
+        // The machine frame's origin (the home pose) in the mechanism's: the drawing is moved
+        // by it, so that it stands where the tool's positions and the paths are.
+        let home = match &motion.home {
+            Home::Joints(q) => FrameHome::Joints(q),
+            Home::Pose(x) => FrameHome::Pose(x),
+        };
+        let frame = MachineFrame::new(config.build(model), home).ok()?;
+        let mut origin = [0.0; 3];
+        for (key, at) in frame.kinematics().pose_keys().iter().zip(frame.home_pose()) {
+            if let Some(c) = ["x", "y", "z"].iter().position(|k| k == key) {
+                origin[c] = *at;
+            }
+        }
+        Some(crate::services::hmi::mechanism::Drawing {
+            kinematics: config.build(model),
+            joints: motion.joint_vars,
+            origin,
+        })
     }
 }
 

@@ -251,7 +251,7 @@ fn the_screen_draws_the_mechanisms_at_the_measured_joints() {
         let i = plc.vars().index_of(vars::JOINT_POSITION[j].name()).expect("a position");
         image[usize::from(i)] = Value::Real(755.57);
     }
-    assert_eq!(mechanism.links(&image).map(<[_]>::len), Some(18));
+    assert_eq!(mechanism.links(&image).map(<[_]>::len), Some(19));
 }
 
 #[test]

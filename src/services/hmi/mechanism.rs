@@ -8,9 +8,19 @@ use crate::runtime::plc::Plc;
 
 /// A machine the screen can draw: the composition gives the configured machine's.
 pub trait Drawable {
-    /// The machine's kinematics, with the names of the variables that hold its measured joint
-    /// positions; `None` where it has none.
-    fn drawing(&self) -> Option<(Box<dyn Kinematics>, Vec<&'static str>)>;
+    /// How the machine is drawn; `None` where it has no kinematics.
+    fn drawing(&self) -> Option<Drawing>;
+}
+
+/// What draws a machine.
+pub struct Drawing {
+    /// Its kinematics (the mechanism frame).
+    pub kinematics: Box<dyn Kinematics>,
+    /// The variables that hold its measured joint positions.
+    pub joints: Vec<&'static str>,
+    /// The machine frame's origin in the mechanism frame (x y z, mm): the tool's positions and
+    /// the programs' paths are in the machine frame, the links are moved into it.
+    pub origin: [f64; 3],
 }
 
 /// The drawing of one machine.
@@ -19,6 +29,8 @@ pub struct Mechanism {
     /// The image indices of the measured joint positions.
     joints: Vec<usize>,
     links: Vec<[[f64; 3]; 2]>,
+    /// The machine frame's origin in the mechanism frame ([`Drawing::origin`]).
+    origin: [f64; 3],
     /// The links in the middle of every joint's range: the screen lays its views out by them
     /// before the machine is referenced (and drawn).
     sample: Vec<[[f64; 3]; 2]>,
@@ -27,7 +39,11 @@ pub struct Mechanism {
 impl Mechanism {
     /// The drawing of `machine` as `plc` declares its variables, if its kinematics draws one.
     pub fn of(machine: &impl Drawable, plc: &Plc) -> Option<Mechanism> {
-        let (kinematics, joint_vars) = machine.drawing()?;
+        let Drawing {
+            kinematics,
+            joints: joint_vars,
+            origin,
+        } = machine.drawing()?;
         let joints = joint_vars
             .iter()
             .map(|name| plc.vars().index_of(name).map(usize::from))
@@ -42,9 +58,11 @@ impl Mechanism {
         if !kinematics.links(&probe, &mut links) {
             return None;
         }
+        into_machine_frame(&mut links, origin);
         Some(Mechanism {
             kinematics,
             joints,
+            origin,
             sample: links.clone(),
             links,
         })
@@ -66,8 +84,19 @@ impl Mechanism {
         }
         self.links.clear();
         let n = self.joints.len();
-        self.kinematics
-            .links(&q[..n], &mut self.links)
-            .then_some(self.links.as_slice())
+        if !self.kinematics.links(&q[..n], &mut self.links) {
+            return None;
+        }
+        into_machine_frame(&mut self.links, self.origin);
+        Some(self.links.as_slice())
+    }
+}
+
+/// Moves `links` from the mechanism frame into the machine frame, whose origin is `origin`.
+fn into_machine_frame(links: &mut [[[f64; 3]; 2]], origin: [f64; 3]) {
+    for point in links.iter_mut().flatten() {
+        for (c, o) in point.iter_mut().zip(origin) {
+            *c -= o;
+        }
     }
 }

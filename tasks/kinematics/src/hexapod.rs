@@ -255,6 +255,14 @@ impl Kinematics for Hexapod {
             out.push([self.p.base[i], self.p.base[(i + 1) % 6]]);
             out.push([top[i], top[(i + 1) % 6]]);
         }
+        // The spindle: from the tool point along the platform's axis, away from the base, as
+        // long as the platform is wide — so that a drawing shows the tool's tilt.
+        let radius = self.p.platform.iter().map(|a| a[0].hypot(a[1])).sum::<f64>() / 6.0;
+        let [axis, ..] = rotate(angles, [0.0, 0.0, radius]);
+        out.push([
+            [pose[0], pose[1], pose[2]],
+            [pose[0] + axis[0], pose[1] + axis[1], pose[2] + axis[2]],
+        ]);
         true
     }
     fn dof(&self) -> usize {
@@ -317,7 +325,21 @@ mod tests {
         k.inverse(&pose, &mut joints).expect("a reachable pose");
         let mut links = Vec::new();
         assert!(k.links(&joints, &mut links));
-        assert_eq!(links.len(), 18);
+        assert_eq!(links.len(), 19);
+        // The spindle starts at the tool point, square to the tilted platform's every edge.
+        let [s0, s1] = links[18];
+        assert!(
+            (0..3).all(|c| (s0[c] - pose[c]).abs() < 1e-9),
+            "{s0:?} against {pose:?}"
+        );
+        let axis = [s1[0] - s0[0], s1[1] - s0[1], s1[2] - s0[2]];
+        for i in 0..6 {
+            let [a, b] = links[3 * i + 2];
+            let edge = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
+            let dot: f64 = (0..3).map(|c| axis[c] * edge[c]).sum();
+            assert!(dot.abs() < 1e-6, "edge {i}: {dot}");
+        }
+        assert!(axis[2] > 0.0, "away from the base: {axis:?}");
         for (i, q) in joints.iter().enumerate() {
             let [a, b] = links[3 * i];
             let l = ((b[0] - a[0]).powi(2) + (b[1] - a[1]).powi(2) + (b[2] - a[2]).powi(2)).sqrt();

@@ -51,6 +51,9 @@ let origins = null;
 // everything drawn so far (so that it does not jump); the last links drawn.
 let views = null;
 let links = null;
+// The mechanism at mid-travel (from the hello): with the programmed path, the 3-D scene's extent,
+// so that path and machine are drawn at one scale, the machine's, whatever its pose.
+let mechanismSample = null;
 // The 3-D view of the path (and the mechanism): its turn, tilt and zoom, and a drag under way.
 const view3d = { on: false, yaw: -0.6, pitch: 0.9, zoom: 1, drag: null };
 // The tool table's tools: number → comment (the tool change names them).
@@ -135,6 +138,7 @@ function hello(m) {
   axes = m.axes || [];
   origins = m.origins || null;
   layOutMechanism(m.mechanism_sample || null);
+  mechanismSample = m.mechanism_sample || null;
   cutAsked = false;
   trailSeq = 0;
   $("mdi-box").hidden = !jobs;
@@ -598,23 +602,66 @@ function redraw(all = false) {
 }
 
 // A projection of 3-D points onto the canvas: the path's plane (2-D), or the 3-D view turned
-// and tilted as dragged.
+// and tilted as dragged — a parallel projection of the path and the mechanism in one scene at
+// the machine's scale. `px.scale` is pixels per millimetre; `px.direction` projects a direction
+// (the axis triad).
 function projection(canvas) {
-  const c = [0, 1, 2].map((k) => extentOf(programmed.length > 1 ? programmed : (links || []).flat(), k));
-  const centre = c.map(([lo, hi]) => (lo + hi) / 2 || 0);
   if (!view3d.on) {
+    const c = [0, 1, 2].map((k) => extentOf(programmed.length > 1 ? programmed : (links || []).flat(), k));
+    const centre = c.map(([lo, hi]) => (lo + hi) / 2 || 0);
     const [u, v] = plane;
     const span = Math.max(c[u][1] - c[u][0], c[v][1] - c[v][0], 1e-3) * 1.1;
-    return (p) => [(p[u] - centre[u]) / span * canvas.width + canvas.width / 2, canvas.height / 2 - (p[v] - centre[v]) / span * canvas.height];
+    const px = (p) => [(p[u] - centre[u]) / span * canvas.width + canvas.width / 2, canvas.height / 2 - (p[v] - centre[v]) / span * canvas.height];
+    px.scale = canvas.width / span;
+    return px;
   }
-  const span = Math.max(...c.map(([lo, hi]) => hi - lo), 1e-3) * 1.6 / view3d.zoom;
+  // The scene: the programmed path and the mechanism at mid-travel (stable: the view does not
+  // jump as the machine moves), its diagonal fitting the canvas whatever the turn.
+  const scene = programmed.concat((mechanismSample || links || []).flat());
+  const c = [0, 1, 2].map((k) => extentOf(scene, k));
+  const centre = c.map(([lo, hi]) => (lo + hi) / 2 || 0);
+  const diagonal = Math.hypot(...c.map(([lo, hi]) => hi - lo));
+  const span = Math.max(diagonal, 1e-3) * 1.1 / view3d.zoom;
   const [cy, sy, cp, sp] = [Math.cos(view3d.yaw), Math.sin(view3d.yaw), Math.cos(view3d.pitch), Math.sin(view3d.pitch)];
-  return (p) => {
-    const [x, y, z] = [p[0] - centre[0], p[1] - centre[1], p[2] - centre[2]];
+  const turn = ([x, y, z]) => {
     const u = x * cy - y * sy, w = x * sy + y * cy;
-    const v = w * cp + z * sp;
+    return [u, w * cp + z * sp];
+  };
+  const px = (p) => {
+    const [u, v] = turn([p[0] - centre[0], p[1] - centre[1], p[2] - centre[2]]);
     return [u / span * canvas.width + canvas.width / 2, canvas.height / 2 - v / span * canvas.height];
   };
+  px.scale = canvas.width / span;
+  px.direction = (d) => { const [u, v] = turn(d); return [u, -v]; };
+  return px;
+}
+
+// The axis triad (x red, y green, z blue, turned with the view) in the lower left corner, and a
+// scale bar of a round length in the lower right: drawn with the programmed path, in 3-D.
+function drawFrame(g, px) {
+  const { width, height } = g.canvas;
+  const origin = [34, height - 34];
+  g.lineWidth = 2;
+  g.font = "12px sans-serif";
+  [["x", "#c00"], ["y", "#080"], ["z", "#00c"]].forEach(([name, colour], k) => {
+    const d = [0, 0, 0]; d[k] = 1;
+    const [u, v] = px.direction(d);
+    const [x, y] = [origin[0] + u * 24, origin[1] + v * 24];
+    g.strokeStyle = colour; g.fillStyle = colour;
+    g.beginPath(); g.moveTo(...origin); g.lineTo(x, y); g.stroke();
+    g.fillText(name, x + u * 6 - 3, y + v * 6 + 4);
+  });
+  // The largest 1, 2 or 5 × 10^k mm no longer than a fifth of the canvas.
+  const most = width / 5 / px.scale;
+  const decade = 10 ** Math.floor(Math.log10(most));
+  const length = [5, 2, 1].map((f) => f * decade).find((l) => l <= most) || decade;
+  const bar = length * px.scale;
+  const [x1, y1] = [width - 12, height - 16];
+  g.strokeStyle = "#333"; g.fillStyle = "#333";
+  g.beginPath(); g.moveTo(x1 - bar, y1 - 4); g.lineTo(x1 - bar, y1); g.lineTo(x1, y1); g.lineTo(x1, y1 - 4); g.stroke();
+  g.textAlign = "center";
+  g.fillText(`${length >= 1 ? length : length.toPrecision(1)} mm`, x1 - bar / 2, y1 - 6);
+  g.textAlign = "start";
 }
 
 // The path in three layers: the programmed path, the cut path (segments added as the tool
@@ -655,8 +702,11 @@ function drawPath() {
   const g = $("path-tool").getContext("2d");
   g.clearRect(0, 0, canvas.width, canvas.height);
   if (view3d.on && links) {
-    g.strokeStyle = "#333"; g.lineWidth = 2;
-    for (const [a, b] of links) { const [x0, y0] = px(a), [x1, y1] = px(b); g.beginPath(); g.moveTo(x0, y0); g.lineTo(x1, y1); g.stroke(); }
+    // The mechanism as the measured joints put it: its struts, carriages, platform (and the
+    // hexapod's spindle), drawn over the path at the same scale.
+    g.strokeStyle = "#333"; g.lineWidth = 2; g.beginPath();
+    for (const [a, b] of links) { const [x0, y0] = px(a), [x1, y1] = px(b); g.moveTo(x0, y0); g.lineTo(x1, y1); }
+    g.stroke();
   }
   if (newest) { const [x, y] = newest; g.fillStyle = "#c00"; g.beginPath(); g.arc(x, y, 4, 0, 2 * Math.PI); g.fill(); }
 }
@@ -671,6 +721,7 @@ function samePixels(a, b) {
 function drawProgrammed(g, px) {
   const canvas = g.canvas;
   g.clearRect(0, 0, canvas.width, canvas.height);
+  if (view3d.on) drawFrame(g, px);
   // The programmed path: feed moves solid, rapids dashed.
   g.strokeStyle = "#aaa"; g.lineWidth = 2;
   let rapid = null;
