@@ -1101,6 +1101,15 @@ async fn the_screen_sets_the_overrides_steps_a_program_line_by_line_runs_mdi_and
         async |p| x(p).await.abs() < 0.01 && shown(p, "y").await.abs() < 0.01,
     )
     .await;
+    // The chooser names the job loaded (it showed blank for a job not in its list).
+    let chosen = "(() => { const c = document.getElementById('program-choice'); return c.options[c.selectedIndex]?.textContent || ''; })()";
+    until(
+        &page,
+        Duration::from_secs(5),
+        "the job named in the chooser",
+        async |p| text(p, chosen).await.ends_with("steps.ngc from line 4"),
+    )
+    .await;
     // A page opened now draws what was cut: the server kept the run's path (from (3.5, 2) to
     // (4, 4), then around to the origin).
     let late = browser.new_page(plc.url.as_str()).await.expect("a second page");

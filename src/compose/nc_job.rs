@@ -359,6 +359,15 @@ fn prepare_unguarded(
         watch,
     )
     .map_err(|e| fail(2, format!("{name}:{e}")))?;
+    // A laser's S is its power: there is no spindle turning for G95 to feed by.
+    if let (Some(_), Some((line, column))) = (&nc.laser, program.per_revolution) {
+        return Err(fail(
+            2,
+            format!(
+                "{name}:{line}:{column}: G95 (feed per revolution) is refused in laser mode (nc.laser): S is the beam's power, not a spindle's speed; feed per minute (G94)"
+            ),
+        ));
+    }
     let program = edit(program)?;
     let report = check_watched(
         &program,

@@ -129,7 +129,12 @@ impl Standing for StandingPose {
 /// program coordinates they left are in force from the start.
 /// Dwells and pauses before the line do not run.
 pub fn from_line(program: Program, line: usize, start: [f64; 6]) -> Result<Program, NcFailure> {
-    let Program { blocks, messages, .. } = program;
+    let Program {
+        blocks,
+        messages,
+        per_revolution,
+        ..
+    } = program;
     let last = blocks
         .iter()
         .filter(|b| !matches!(b.action, Action::End))
@@ -193,6 +198,7 @@ pub fn from_line(program: Program, line: usize, start: [f64; 6]) -> Result<Progr
         blocks: run,
         messages,
         start,
+        per_revolution,
     })
 }
 
@@ -287,6 +293,7 @@ mod tests {
             ],
             messages: Vec::new(),
             start: [0.0; 6],
+            per_revolution: None,
         }
     }
 

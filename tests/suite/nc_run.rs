@@ -631,6 +631,22 @@ fn laser_power_follows_the_speed_through_corners_and_is_off_through_rapids() {
             .contains(r#""LASER_POWER":0.5"#)
     );
     common::assert_replays_identically(&trace, &["--config", config_arg]);
+    // Feed per revolution has no spindle to follow: refused at its word, before anything runs.
+    let g95 = write_program(
+        dir.path(),
+        "G21 G0 X2
+M3 S500
+G95 G1 X5 F0.1
+M2
+",
+    );
+    let o = pkm(&["nc", "check", g95.to_str().expect("utf-8"), "--config", config_arg]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains(":3:1: G95 (feed per revolution) is refused in laser mode (nc.laser): S is the beam's power, not a spindle's speed; feed per minute (G94)"),
+        "{}",
+        stderr(&o)
+    );
 }
 
 /// A manual tool change confirmed in virtual time by a scenario (the panel's tool-changed

@@ -238,9 +238,25 @@ function showProgram(k) {
   $("program-text").innerHTML = "";
   if (!program) return;
   $("program-file").textContent = program.file;
-  $("program-choice").value = String(k);
+  chooseShown(k, program.file);
   askText(1);
   send({ cmd: "path", program: k });
+}
+
+// The program chooser on program k: a job of the screen (a run from a line, MDI) gets an
+// option of its own, named as its file, in place of the last job's — the chooser never shows
+// blank while a job is loaded.
+function chooseShown(k, file) {
+  const choice = $("program-choice");
+  for (const o of [...choice.options]) if (o.dataset.job && o.value !== String(k)) o.remove();
+  if (![...choice.options].some((o) => o.value === String(k))) {
+    const o = document.createElement("option");
+    o.value = String(k);
+    o.dataset.job = "1";
+    o.textContent = file;
+    choice.append(o);
+  }
+  choice.value = String(k);
 }
 
 // A job this page made: loaded and started by the server; shown once the PLC has loaded it.
@@ -284,6 +300,8 @@ function text(m) {
   if (m.file && programs[m.program - 1]) {
     programs[m.program - 1].file = m.file;
     $("program-file").textContent = m.file;
+    const option = [...$("program-choice").options].find((o) => o.dataset.job && o.value === String(m.program));
+    if (option) option.textContent = m.file;
   }
   textWindow = { program: m.program, from: m.from, lines: m.lines, total: m.total };
   $("program-text").innerHTML = m.lines

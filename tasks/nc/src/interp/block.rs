@@ -260,4 +260,7 @@ pub struct Program {
     /// Where the tool stands when it starts (machine world coordinates): where a program
     /// without moves holds it.
     pub start: Pose,
+    /// Where the program first feeds per revolution (G95: line, column), if it does: a laser
+    /// machine, whose S is the beam's power, refuses it there.
+    pub per_revolution: Option<(usize, usize)>,
 }

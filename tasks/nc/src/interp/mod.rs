@@ -137,6 +137,7 @@ pub fn read_bounded(text: &str, machine: &Machine<'_>, bounds: &Bounds, watch: &
         blocks,
         messages: state.messages,
         start: machine.start,
+        per_revolution: state.per_revolution,
     })
 }
 

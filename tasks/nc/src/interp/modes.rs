@@ -153,6 +153,11 @@ impl State<'_> {
                 self.feed_mm_min = None;
             }
         }
+        if let Some(w) = words.g_word(950)
+            && self.per_revolution.is_none()
+        {
+            self.per_revolution = Some((line, w.column));
+        }
         self.inverse_time = None;
         if let Some(w) = words.get('F') {
             if self.feed_mode == FeedMode::InverseTime {

@@ -76,6 +76,8 @@ pub(super) struct State<'a> {
     /// The height (normal coordinate, program units) where the present series of canned
     /// cycles started; `None` after any other motion.
     pub(super) cycle_initial: Option<f64>,
+    /// Where the program first set G95 (line, column).
+    pub(super) per_revolution: Option<(usize, usize)>,
     /// Cutter compensation while it is on (G41, G42).
     pub(super) comp: Option<Compensation>,
     /// Where the tool stands after G40 ended compensation, off the programmed point the
@@ -210,6 +212,7 @@ impl<'a> State<'a> {
             retract_to_r: true,
             cycle: Cycle::default(),
             cycle_initial: None,
+            per_revolution: None,
             comp: None,
             comp_exit: None,
             arc_after_comp: false,
