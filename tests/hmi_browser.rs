@@ -1673,3 +1673,101 @@ async fn the_simulation_shows_the_machine_and_its_path_in_one_3d_scene() {
     }
     plc.stop();
 }
+
+/// The tool table on the screen, as LinuxCNC's tool table editor: in READY an entry's offsets,
+/// diameter and comment are saved to the file at once (whole, in LinuxCNC's format), a tool is
+/// added and another removed, a wrong value is refused with why and changes nothing; the jobs
+/// made after a change plan with the table as changed (an MDI `G43 H1` takes the new offset).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_tool_table_is_edited_on_the_screen_and_written_to_its_file() {
+    let Some(chromium) =
+        chromium_or_skip("hmi_browser::the_tool_table_is_edited_on_the_screen_and_written_to_its_file")
+    else {
+        return;
+    };
+    let _turn = take_turn().await;
+    let dir = tempfile::tempdir().expect("tempdir");
+    let table = dir.path().join("tool.tbl");
+    std::fs::write(&table, "T1 P1 Z0 D6 ;6 mm end mill\nT2 P2 Z0 D3 ;3 mm drill\n").expect("the table");
+    let browser = launch(chromium, dir.path(), &[]).await;
+    let page = browser.new_page("about:blank").await.expect("a page");
+    let config = quick_config(dir.path());
+    let trace = dir.path().join("tools.jsonl");
+    let mut plc = start_plc(
+        &config,
+        120,
+        &[
+            "--tool-table",
+            table.to_str().expect("utf-8"),
+            "--trace",
+            trace.to_str().expect("utf-8"),
+        ],
+    );
+    page.goto(plc.url.as_str()).await.expect("loads");
+    until(&page, Duration::from_secs(60), "READY shown", async |p| {
+        state(p).await == "READY"
+    })
+    .await;
+    let rows = "String(document.querySelectorAll('#tools tr[data-tool]').length)";
+    assert_eq!(
+        text(&page, rows).await,
+        "2",
+        "{}",
+        text(&page, "JSON.stringify([toolTable, jobs])").await
+    );
+    // T1: Z 1.5 mm, diameter 6.35, another comment; saved.
+    page.evaluate(
+        "(() => { const r = document.querySelector('#tools tr[data-tool=\"1\"]'); r.querySelector('.offset[data-c=\"2\"]').value = '1.5'; r.querySelector('.diameter').value = '6.35'; r.querySelector('.comment').value = '1/4 in end mill'; })()",
+    )
+    .await
+    .expect("edited");
+    click(&page, r#"#tools tr[data-tool="1"] .tool-save"#).await;
+    let file = || std::fs::read_to_string(&table).expect("the table");
+    until(&page, Duration::from_secs(10), "T1 written", async |_| {
+        file().starts_with("T1 P1 Z+1.500000 D6.350000 ;1/4 in end mill\n")
+    })
+    .await;
+    // A wrong value: refused with why, the file as it was.
+    page.evaluate("document.querySelector('#tools tr[data-tool=\"2\"] .diameter').value = '-3'")
+        .await
+        .expect("edited");
+    click(&page, r#"#tools tr[data-tool="2"] .tool-save"#).await;
+    until(&page, Duration::from_secs(10), "the refusal shown", async |p| {
+        text(p, "document.getElementById('access').textContent").await == "the diameter must be 0 … 1000 mm, got -3"
+    })
+    .await;
+    assert!(file().contains("T2 P2 D3.000000 ;3 mm drill"), "{}", file());
+    // Tool 7 added, tool 2 removed: the rows follow the file.
+    page.evaluate("document.getElementById('tool-new').value = '7'")
+        .await
+        .expect("typed");
+    click(&page, "#tool-add").await;
+    until(&page, Duration::from_secs(10), "tool 7 added", async |p| {
+        text(p, rows).await == "3"
+    })
+    .await;
+    click(&page, r#"#tools tr[data-tool="2"] .tool-remove"#).await;
+    until(&page, Duration::from_secs(10), "tool 2 removed", async |p| {
+        text(p, rows).await == "2"
+    })
+    .await;
+    assert_eq!(file(), "T1 P1 Z+1.500000 D6.350000 ;1/4 in end mill\nT7 P7\n");
+    // A job made now plans with the table as changed: G43 H1 takes its Z offset of 1.5 mm.
+    page.evaluate("document.getElementById('mdi-text').value = 'G43 H1\\nG0 Z0'")
+        .await
+        .expect("typed");
+    click(&page, "#nc-mdi").await;
+    until(&page, Duration::from_secs(20), "the tool at z 1.5", async |p| {
+        state(p).await == "READY" && (shown(p, "z").await - 1.5).abs() < 0.005
+    })
+    .await;
+    plc.stop();
+    assert!(
+        plc.log()
+            .contains("tool table: tool 1: T1 P1 Z+1.500000 D6.350000 ;1/4 in end mill"),
+        "{}",
+        plc.log()
+    );
+    // The trace carries the table the MDI was planned with: it replays identically.
+    common::assert_replays_identically(&trace, &["--config", config.to_str().expect("utf-8")]);
+}

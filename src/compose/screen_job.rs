@@ -37,16 +37,26 @@ pub fn plan_watched(
     spec: &ScreenJobSpec,
     watch: &Deadline<'_>,
 ) -> Result<NcJob, NcFailure> {
-    // Planned with the offsets a touch-off had set, where it had.
-    let with_offsets;
-    let setup = match spec.offsets {
-        Some(offsets) => {
+    // Planned with the offsets a touch-off had set and the tool table as it was changed, where
+    // they had been.
+    let changed;
+    let setup = match (spec.offsets, &spec.tool_table) {
+        (None, None) => setup,
+        (offsets, table) => {
             let mut s = setup.clone();
-            s.persistent = Some(offsets);
-            with_offsets = s;
-            &with_offsets
+            if offsets.is_some() {
+                s.persistent = offsets;
+            }
+            if let Some(text) = table {
+                let file = setup
+                    .tools
+                    .as_ref()
+                    .map_or_else(|| "tool table".to_string(), |t| t.file.clone());
+                s.tools = Some(super::setup::ToolTableFile::parse(file, text.clone()).map_err(|e| fail(2, e))?);
+            }
+            changed = s;
+            &changed
         }
-        None => setup,
     };
     match &spec.kind {
         ScreenJobKind::Mdi { text } => {

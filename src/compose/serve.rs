@@ -98,13 +98,22 @@ pub fn run(built: Built, request: RunRequest) -> Result<Ran, Failure> {
     }
     let duration_s = duration(request.duration_s, scenario);
     let pace = request.pace.filter(|_| request.virtual_time);
+    // The tool table as the screen and the programs' G10 L1 change it: written back by a
+    // machine's run, kept for the run by a simulation.
+    let tools = setup.tools.as_ref().map(|t| {
+        Arc::new(crate::runtime::tool_table::ToolTableKeeper::new(
+            t.file.clone(),
+            t.table.clone(),
+            !request.virtual_time,
+        ))
+    });
     if request.virtual_time && pace.is_none() {
         let duration = duration_s.ok_or_else(|| {
             Failure::usage(
                 "--virtual needs --duration (or --pace X: a simulation paced at X times real time runs until stopped)",
             )
         })?;
-        return Ok(run_virtual(plc, &loaded.origin, library.as_ref(), duration));
+        return Ok(run_virtual(plc, &loaded.origin, library.as_ref(), tools, duration));
     }
     let timing = &loaded.config.timing;
     let options = match pace {
@@ -166,13 +175,13 @@ pub fn run(built: Built, request: RunRequest) -> Result<Ran, Failure> {
     };
     let screen = match (request.screen, hmi) {
         (Some(options), Some(sink)) => Some(Screen {
-            info: screen_info(&plc, &setup, library.as_ref(), refused, pace),
+            info: screen_info(&plc, &setup, library.as_ref(), refused, pace, tools.clone()),
             options,
             sink,
         }),
         _ => None,
     };
-    let mut outcome = run_realtime(plc, options, screen, opcua, library.as_ref())?;
+    let mut outcome = run_realtime(plc, options, screen, opcua, library.as_ref(), tools)?;
     if let Some((probe, stop)) = probe {
         stop.store(true, std::sync::atomic::Ordering::Relaxed);
         if let Some(l) = probe.summary(outcome.epoch_ns) {
@@ -217,12 +226,22 @@ fn duration(asked: Option<f64>, scenario: Option<ScenarioTimes>) -> Option<f64> 
 }
 
 /// Runs `plc` in virtual time for `duration` s of simulated time.
-fn run_virtual(mut plc: Plc, origin: &str, library: Option<&pkm_api::library::NcLibrary>, duration: f64) -> Ran {
-    // The programs' message comments to the log as the run reaches them.
+fn run_virtual(
+    mut plc: Plc,
+    origin: &str,
+    library: Option<&pkm_api::library::NcLibrary>,
+    tools: Option<Arc<crate::runtime::tool_table::ToolTableKeeper>>,
+    duration: f64,
+) -> Ran {
+    // The programs' message comments to the log as the run reaches them, and their tool table
+    // entries (G10 L1) kept for the run.
     let mut messages = crate::runtime::messages::MessageWatch::new(plc.vars(), library);
     let report = run::run_virtual_observed(&mut plc, (duration * 1e9) as u64, &mut |plc, t| {
         if let Some(m) = &mut messages {
-            m.log(plc.global_image(), t);
+            let reached = m.log(plc.global_image(), t);
+            if let Some(keeper) = &tools {
+                crate::runtime::tool_table::write_back(keeper, &reached);
+            }
         }
     });
     info!(
@@ -258,6 +277,7 @@ fn screen_info(
     library: Option<&pkm_api::library::NcLibrary>,
     refused: Vec<(String, String)>,
     pace: Option<f64>,
+    tools: Option<Arc<crate::runtime::tool_table::ToolTableKeeper>>,
 ) -> crate::services::hmi::server::HmiInfo {
     let motion = setup.machine.and_then(|m| m.motion(&setup.loaded.json).ok());
     crate::services::hmi::server::HmiInfo {
@@ -308,6 +328,7 @@ fn screen_info(
                     setup.persistent(n),
                     setup.keeper(n),
                 )
+                .with_tools(tools)
             }),
         tools: setup
             .tools
@@ -366,6 +387,7 @@ fn run_realtime(
     screen: Option<Screen>,
     opcua: Option<OpcUa>,
     library: Option<&pkm_api::library::NcLibrary>,
+    tools: Option<Arc<crate::runtime::tool_table::ToolTableKeeper>>,
 ) -> Result<run::RealTimeOutcome, Failure> {
     let runtime = tokio::runtime::Builder::new_current_thread()
         .enable_all()
@@ -411,7 +433,19 @@ fn run_realtime(
         let mut feed = feed.clone();
         tokio::spawn(async move {
             while let Some(frame) = feed.next().await {
-                watch.log(&frame.image, frame.status.t_ns);
+                let reached = watch.log(&frame.image, frame.status.t_ns);
+                // A program's G10 L1 written back to the tool table as the run reaches it, in
+                // order (the file is written and flushed on a blocking thread).
+                if let Some(keeper) = &tools
+                    && reached
+                        .iter()
+                        .any(|m| m.kind == pkm_api::trajectory::NcMessageKind::ToolEntry)
+                {
+                    let keeper = Arc::clone(keeper);
+                    let _ =
+                        tokio::task::spawn_blocking(move || crate::runtime::tool_table::write_back(&keeper, &reached))
+                            .await;
+                }
             }
         });
     }

@@ -26,3 +26,4 @@ pub mod stats;
 pub mod status;
 pub mod summary;
 pub mod timing;
+pub mod tool_table;

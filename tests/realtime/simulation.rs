@@ -85,3 +85,65 @@ async fn a_paced_simulation_serves_the_screen_runs_a_program_and_replays() {
     // Deterministic: the trace replays identically, the screen's commands with it.
     common::assert_replays_identically(&trace, &["--machine", "ox-x"]);
 }
+
+/// A program's `G10 L1` is written back to the tool table as a machine's run reaches it, as
+/// LinuxCNC writes it: the entry whole, in LinuxCNC's format, the file's other tools kept. A
+/// simulation of the same program (`--virtual`) keeps the change for its run and leaves the file
+/// as it was: it checks programs for the machine, it must not change the machine's tools.
+#[test]
+fn a_programs_g10_l1_is_written_back_by_the_machine_and_kept_by_a_simulation() {
+    let dir = tempfile::tempdir().expect("a temporary directory");
+    let table = dir.path().join("tool.tbl");
+    let original = "T1 P1 Z0 D6 ;6 mm end mill\nT2 P2 Z0 D3 ;3 mm drill\n";
+    std::fs::write(&table, original).expect("the table");
+    let program = dir.path().join("g10.ngc");
+    std::fs::write(&program, "G21 G90\nG10 L1 P1 Z2 R1.5\nG0 X1\nG0 X0\nM2\n").expect("the program");
+    let config = common::ox_config(dir.path(), true, |_| {});
+    let arg = |p: &std::path::Path| p.to_str().expect("utf-8").to_string();
+    // The simulation first: the file as it was.
+    let o = common::pkm_command()
+        .args(["run", "--config", &arg(&config), "--virtual", "--duration", "20"])
+        .args(["--program", &arg(&program), "--tool-table", &arg(&table)])
+        .env("RUST_LOG", "info")
+        .output()
+        .expect("pkm-plc runs");
+    assert_eq!(o.status.code(), Some(0), "{}", common::stderr(&o));
+    assert!(
+        common::stderr(&o)
+            .contains("NC line 2: tool 1's entry kept for this simulation (a simulation does not write the tool table"),
+        "{}",
+        common::stderr(&o)
+    );
+    assert_eq!(std::fs::read_to_string(&table).expect("the table"), original);
+    // The machine: written when the run reaches line 2.
+    let mut command = common::pkm_command();
+    command.args([
+        "run",
+        "--config",
+        &arg(&config),
+        "--hmi",
+        "none",
+        "--opcua",
+        "none",
+        "--joystick",
+        "none",
+    ]);
+    command.args([
+        "--duration",
+        "120",
+        "--program",
+        &arg(&program),
+        "--tool-table",
+        &arg(&table),
+    ]);
+    command.env("RUST_LOG", "info");
+    let (mut run, _) = common::Logged::start(command, "configuration: ", Duration::from_secs(30));
+    let written = run.wait_for(0, "NC line 2: tool 1's entry written to ", Duration::from_secs(90));
+    assert!(written.is_some(), "{}", run.log());
+    assert_eq!(
+        std::fs::read_to_string(&table).expect("the table"),
+        "T1 P1 Z+2.000000 D3.000000 ;6 mm end mill\nT2 P2 D3.000000 ;3 mm drill\n"
+    );
+    let status = run.terminate();
+    assert!(status.success(), "{status:?}\n{}", run.log());
+}

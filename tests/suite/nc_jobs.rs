@@ -107,6 +107,7 @@ fn mdi_lines_and_a_run_from_a_line_start_where_the_tool_stands_and_replay_identi
             kind,
             start: at,
             offsets: None,
+            tool_table: None,
         };
         let job = screen_job::plan(&setup, &library, &spec).unwrap_or_else(|e| panic!("{e}"));
         let slot = library.screen.push(ScreenJob { spec, job }).expect("room");
@@ -173,6 +174,7 @@ fn a_job_that_cannot_run_is_refused_with_its_line_and_nothing_is_stored() {
         kind: ScreenJobKind::Mdi { text: text.into() },
         start: [0.0; 6],
         offsets: None,
+        tool_table: None,
     };
     let refused = |text: &str| {
         screen_job::plan(&setup, &library, &spec(text))
@@ -206,6 +208,7 @@ fn a_job_that_cannot_run_is_refused_with_its_line_and_nothing_is_stored() {
         kind: ScreenJobKind::FromLine { program: 1, line: 3 },
         start: [0.0; 6],
         offsets: None,
+        tool_table: None,
     };
     let e = screen_job::plan(&setup, &library, &from)
         .map(|_| ())
@@ -229,6 +232,7 @@ fn a_program_planned_longer_than_nc_max_duration_h_is_refused() {
         },
         start: [0.0; 6],
         offsets: None,
+        tool_table: None,
     };
     let e = screen_job::plan(&setup, &library, &spec)
         .map(|_| ())
@@ -404,6 +408,7 @@ fn the_mdi_that_took_the_plc_down_runs_to_its_end() {
         },
         start: at,
         offsets: None,
+        tool_table: None,
     };
     let job = screen_job::plan(&setup, &library, &spec).unwrap_or_else(|e| panic!("{e}"));
     assert!(job.trajectory.duration_s().is_finite());

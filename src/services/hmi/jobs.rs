@@ -73,6 +73,9 @@ pub struct JobDesk {
     touching: tokio::sync::Mutex<()>,
     /// The loaded program's number in the newest frame.
     loaded: Mutex<i16>,
+    /// The run's tool table as the screen and the programs change it (`None`: the run has
+    /// none).
+    tools: Option<Arc<crate::runtime::tool_table::ToolTableKeeper>>,
 }
 
 /// What keeps the work offsets across runs: writes them, or says why it could not.
@@ -141,7 +144,25 @@ impl JobDesk {
             keep,
             touching: tokio::sync::Mutex::new(()),
             loaded: Mutex::new(0),
+            tools: None,
         }
+    }
+
+    /// The desk whose jobs are planned with `tools` as it changes.
+    pub fn with_tools(mut self, tools: Option<Arc<crate::runtime::tool_table::ToolTableKeeper>>) -> JobDesk {
+        self.tools = tools;
+        self
+    }
+
+    /// The run's tool table as it changes, if it has one.
+    pub fn tools(&self) -> Option<&Arc<crate::runtime::tool_table::ToolTableKeeper>> {
+        self.tools.as_ref()
+    }
+
+    /// Whether the run's programs are planned again before they are loaded: a touch-off has
+    /// changed the work offsets, or the tool table has changed, since they were planned.
+    pub fn plans_changed(&self) -> bool {
+        self.offsets_changed() || self.tools.as_ref().is_some_and(|t| t.changed_text().is_some())
     }
 
     /// The work offsets jobs are planned with now.
@@ -219,6 +240,41 @@ impl JobDesk {
         Ok(TouchOff { was, now })
     }
 
+    /// Sets a tool's entry in the run's tool table (`remove`: removes tool `tool.number`'s),
+    /// from READY, as LinuxCNC's tool table editor does; written to the file on a blocking
+    /// thread, one change at a time. Jobs made from then on, and programs loaded, are planned
+    /// with the table as changed.
+    pub async fn edit_tool(
+        &self,
+        tool: pkm_nc::tools::Tool,
+        remove: bool,
+    ) -> Result<crate::runtime::tool_table::Kept, String> {
+        let Some(keeper) = self.tools.clone() else {
+            return Err(
+                "this run has no tool table (give one with --tool-table or nc.tool_table in the configuration)".into(),
+            );
+        };
+        if self.here.lock().unwrap_or_else(|p| p.into_inner()).is_none() {
+            let state = self.state.lock().unwrap_or_else(|p| p.into_inner()).clone();
+            return Err(format!("the tool table is edited in READY: the machine is {state}"));
+        }
+        tokio::task::spawn_blocking(move || {
+            if remove {
+                keeper.remove(tool.number)
+            } else {
+                // A lathe tool's angles and orientation, which the screen does not edit, stay.
+                let mut tool = tool;
+                if let Some(was) = keeper.table().get(tool.number) {
+                    tool.orientation = was.orientation;
+                    tool.angles = was.angles;
+                }
+                keeper.set(tool)
+            }
+        })
+        .await
+        .map_err(|e| format!("the tool table's writer failed: {e}"))?
+    }
+
     /// The run's library.
     pub fn library(&self) -> &NcLibrary {
         &self.library
@@ -285,6 +341,7 @@ impl JobDesk {
             kind,
             start: at,
             offsets: (offsets != self.planned_with).then_some(offsets),
+            tool_table: self.tools.as_ref().and_then(|t| t.changed_text()),
         };
         let (planner, library, asked) = (Arc::clone(&self.planner), self.library.clone(), spec.clone());
         let (cancel, state) = (Arc::clone(&self.cancel), Arc::clone(&self.state));

@@ -98,6 +98,10 @@ pub struct TraceJob {
     /// The work offsets it was planned with, where a touch-off had changed them.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub offsets: Option<TraceOffsets>,
+    /// The tool table it was planned with (its text), where it had changed since the run's
+    /// start (an entry edited on the screen, a program's `G10 L1`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tool_table: Option<String>,
 }
 
 /// Work offsets as a trace carries them: G54 … G59's origins and G28's and G30's positions
@@ -161,6 +165,7 @@ impl TraceJob {
             mdi,
             from_line,
             offsets: spec.offsets.map(TraceOffsets::from),
+            tool_table: spec.tool_table.clone(),
         }
     }
 
@@ -181,6 +186,7 @@ impl TraceJob {
             kind,
             start,
             offsets: self.offsets.map(Into::into),
+            tool_table: self.tool_table.clone(),
         })
     }
 }

@@ -35,6 +35,9 @@ pub struct ScreenJobSpec {
     /// The work offsets it was planned with, where they were not the run's at its start (a
     /// touch-off changed them).
     pub offsets: Option<crate::offsets::WorkOffsets>,
+    /// The tool table it was planned with (its text, LinuxCNC's format), where it was not the
+    /// run's at its start (an entry edited on the screen, a program's `G10 L1`).
+    pub tool_table: Option<String>,
 }
 
 /// The kinds of screen jobs.
@@ -261,6 +264,7 @@ mod tests {
                 kind: ScreenJobKind::Mdi { text: text.into() },
                 start: [0.0; MAX_AXES],
                 offsets: None,
+                tool_table: None,
             },
             job: NcJob {
                 file: "MDI".into(),

@@ -287,7 +287,9 @@ pub enum TrajectoryEventKind {
     },
 }
 
-/// What a program's message comment asks for (LinuxCNC's `(MSG,…)`, `(DEBUG,…)`, `(PRINT,…)`).
+/// What a program's message asks for: a message comment (LinuxCNC's `(MSG,…)`, `(DEBUG,…)`,
+/// `(PRINT,…)`), or a tool table entry a `G10 L1`/`L10` set, which the run writes back to the
+/// tool table when it reaches its line, as LinuxCNC does.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum NcMessageKind {
     /// `(MSG,…)`: shown to the operator (the screen) and logged.
@@ -296,15 +298,20 @@ pub enum NcMessageKind {
     Debug,
     /// `(PRINT,…)`: logged, its parameters substituted.
     Print,
+    /// `G10 L1`, `G10 L10`: the tool's entry as the program set it (the text its line in the
+    /// tool table, LinuxCNC's format); logged, and written back to the tool table by a machine's
+    /// run (not by a simulation).
+    ToolEntry,
 }
 
 impl NcMessageKind {
-    /// The comment's keyword, upper case.
+    /// The comment's keyword, upper case (`TOOL` for a tool table entry).
     pub fn keyword(self) -> &'static str {
         match self {
             NcMessageKind::Msg => "MSG",
             NcMessageKind::Debug => "DEBUG",
             NcMessageKind::Print => "PRINT",
+            NcMessageKind::ToolEntry => "TOOL",
         }
     }
 }

@@ -32,8 +32,40 @@ pub struct Tool {
     /// A lathe tool's orientation (`Q`, 1 … 9; 0 for a mill's tool): cutter compensation takes
     /// only tools of orientation 0 or 9, whose centre is the point it controls.
     pub orientation: u8,
+    /// A lathe tool's front and back angles (`I`, `J`; degrees), as the table gives them: kept
+    /// so that the table is written back whole, unused by a mill.
+    pub angles: [Option<f64>; 2],
     /// The comment after `;` (trimmed; empty when none).
     pub comment: String,
+}
+
+impl Tool {
+    /// The tool's line in LinuxCNC's format, as LinuxCNC writes it: `T` and `P`, the offsets
+    /// that are not zero, the diameter, a lathe tool's angles and orientation (six decimals,
+    /// signed offsets), the comment after `;`.
+    pub fn line(&self) -> String {
+        let mut line = format!("T{} P{}", self.number, self.pocket);
+        for (letter, v) in crate::interp::AXES.iter().zip(self.offsets) {
+            if v != 0.0 {
+                line += &format!(" {letter}{v:+.6}");
+            }
+        }
+        if self.diameter != 0.0 {
+            line += &format!(" D{:.6}", self.diameter);
+        }
+        for (letter, v) in ['I', 'J'].iter().zip(self.angles) {
+            if let Some(v) = v {
+                line += &format!(" {letter}{v:+.6}");
+            }
+        }
+        if self.orientation != 0 {
+            line += &format!(" Q{}", self.orientation);
+        }
+        if !self.comment.is_empty() {
+            line += &format!(" ;{}", self.comment);
+        }
+        line
+    }
 }
 
 /// A tool table: its tools in the file's order, numbers unique.
@@ -77,6 +109,12 @@ impl ToolTable {
         Ok(ToolTable { tools })
     }
 
+    /// The table in LinuxCNC's format, one tool a line in the table's order, as LinuxCNC writes
+    /// it back (its comment lines and blank lines are not kept, as in LinuxCNC).
+    pub fn format(&self) -> String {
+        self.tools.iter().map(|t| t.line() + "\n").collect()
+    }
+
     /// The tool numbered `number`.
     pub fn get(&self, number: u32) -> Option<&Tool> {
         self.tools.iter().find(|t| t.number == number)
@@ -95,6 +133,7 @@ impl ToolTable {
                     offsets: [0.0; 6],
                     diameter: 0.0,
                     orientation: 0,
+                    angles: [None; 2],
                     comment: String::new(),
                 });
                 self.tools.len() - 1
@@ -121,6 +160,7 @@ fn parse_line(words: &str, comment: &str, line: usize) -> Result<Tool, NcError> 
         offsets: [0.0; 6],
         diameter: 0.0,
         orientation: 0,
+        angles: [None; 2],
         comment: comment.to_string(),
     };
     let (mut number, mut pocket) = (None, None);
@@ -188,9 +228,10 @@ fn parse_line(words: &str, comment: &str, line: usize) -> Result<Tool, NcError> 
                 }
                 tool.orientation = value as u8;
             }
-            // A lathe tool's front and back angles: read as LinuxCNC reads them, unused by a
-            // mill.
-            'I' | 'J' => {}
+            // A lathe tool's front and back angles: read as LinuxCNC reads them, kept, unused by
+            // a mill.
+            'I' => tool.angles[0] = Some(value),
+            'J' => tool.angles[1] = Some(value),
             'U' | 'V' | 'W' => {
                 return Err(err(format!("{letter}: offsets of axes U V W are not supported")));
             }
@@ -275,6 +316,39 @@ mod tests {
                 Err(want.to_string()),
                 "{text}"
             );
+        }
+    }
+
+    proptest::proptest! {
+        /// Any table written in LinuxCNC's format reads back as the same table (to the six
+        /// decimals LinuxCNC writes).
+        #[test]
+        fn a_written_table_reads_back_the_same(
+            tools in proptest::collection::vec(
+                (1u32..=MAX_TOOL, 0u32..=MAX_TOOL, proptest::collection::vec(-9999.0f64..9999.0, 6), 0.0f64..1000.0,
+                 proptest::option::of(-90.0f64..90.0), 0u8..=9, "[a-zA-Z0-9 .,/()-]{0,30}"),
+                0..20,
+            ),
+        ) {
+            let round = |v: f64| (v * 1e6).round() / 1e6;
+            let mut table = ToolTable::default();
+            for (number, pocket, offsets, diameter, angle, orientation, comment) in tools {
+                if table.get(number).is_some() {
+                    continue;
+                }
+                table.tools.push(Tool {
+                    number,
+                    pocket,
+                    offsets: std::array::from_fn(|c| round(offsets[c])),
+                    diameter: round(diameter),
+                    orientation,
+                    angles: [angle.map(round), None],
+                    comment: comment.trim().to_string(),
+                });
+            }
+            let text = table.format();
+            let back = ToolTable::parse(&text).map_err(|e| proptest::test_runner::TestCaseError::fail(format!("{e}\n{text}")))?;
+            proptest::prop_assert_eq!(back, table, "{}", text);
         }
     }
 

@@ -114,6 +114,8 @@ function connect() {
     else if (m.type === "path") path(m);
     else if (m.type === "job") job(m);
     else if (m.type === "touch_off") touchedOff(m);
+    else if (m.type === "tools") showToolTable(m);
+    else if (m.type === "tool") toolKept(m);
     else if (m.type === "origins") { origins = m.origins; }
     else if (m.type === "alarm") alarm(m, true);
     else if (m.type === "planning") planning(true);
@@ -137,6 +139,7 @@ function hello(m) {
   (m.tools || []).forEach(([n, comment]) => { tools[n] = comment; });
   axes = m.axes || [];
   origins = m.origins || null;
+  showToolTable(m.tool_table || null);
   layOutMechanism(m.mechanism_sample || null);
   mechanismSample = m.mechanism_sample || null;
   cutAsked = false;
@@ -272,6 +275,48 @@ function job(m) {
   $("access").textContent = `${m.file}: planned ${m.planned_s.toFixed(2)} s, ${m.started ? "started" : "loaded"}`;
 }
 
+// The tool table (from the hello, and after every change, whoever made it): a row per tool
+// with its pocket, the offsets of the machine's axes, diameter and comment, each row saved or
+// removed on its own. Offsets of axes the machine has not are kept as they are.
+let toolTable = null;
+const POSE = ["x", "y", "z", "a", "b", "c"];
+
+function showToolTable(t) {
+  toolTable = t;
+  $("tools-box").hidden = !t;
+  if (!t) return;
+  tools = {};
+  t.tools.forEach((tool) => { tools[tool.number] = tool.comment; });
+  $("tools-file").textContent = t.writes ? t.file : `${t.file} — a simulation: changes are kept for this run only`;
+  const shown = POSE.map((a, c) => [a, c]).filter(([a]) => axes.includes(a));
+  $("tools").tHead.innerHTML = `<tr><th>T</th><th>P</th>${shown.map(([a]) => `<th>${a.toUpperCase()}</th>`).join("")}<th>D</th><th>comment</th><th></th></tr>`;
+  const field = (cls, value, extra = "") => `<input class="${cls}" type="number" step="any" value="${value}" ${extra}>`;
+  $("tools").tBodies[0].innerHTML = t.tools.map((tool) => `<tr data-tool="${tool.number}"><td>T${tool.number}</td>`
+    + `<td>${field("pocket", tool.pocket, 'min="0" step="1"')}</td>`
+    + shown.map(([, c]) => `<td>${field("offset", tool.offsets[c], `data-c="${c}"`)}</td>`).join("")
+    + `<td>${field("diameter", tool.diameter, 'min="0"')}</td>`
+    + `<td><input class="comment" maxlength="120" value="${escape(tool.comment)}"></td>`
+    + `<td><button class="tool-save">Save</button> <button class="tool-remove">Remove</button></td></tr>`).join("");
+  enableControls(commands);
+}
+
+// Sends a row of the tool table as the operator left it.
+function saveTool(row) {
+  const number = Number(row.dataset.tool);
+  const tool = toolTable.tools.find((t) => t.number === number);
+  const offsets = tool ? [...tool.offsets] : [0, 0, 0, 0, 0, 0];
+  for (const input of row.querySelectorAll(".offset")) offsets[Number(input.dataset.c)] = Number(input.value);
+  send({
+    cmd: "tool", number, pocket: Number(row.querySelector(".pocket").value), offsets,
+    diameter: Number(row.querySelector(".diameter").value), comment: row.querySelector(".comment").value,
+  });
+}
+
+function toolKept(m) {
+  $("tools-status").textContent = `${m.what}: ${m.written ? "written to the file" : "kept for this simulation"}`;
+  if (m.job) $("access").textContent = m.job.type === "refused" ? m.job.why : `${m.job.file}: planned again with the tool table, loaded`;
+}
+
 // A touch-off made: the system's origin before and after; the loaded program planned again.
 function touchedOff(m) {
   planning(false);
@@ -343,7 +388,7 @@ function followLine(line) {
 
 // Enables or disables every control: the buttons, the program choice, the jog pad.
 function enableControls(on) {
-  for (const c of document.querySelectorAll("button, select, .overrides input, #from-line, #mdi-text, #touch-value")) c.disabled = !on;
+  for (const c of document.querySelectorAll("button, select, .overrides input, #from-line, #mdi-text, #touch-value, #tools input, #tool-new")) c.disabled = !on;
   $("pad").classList.toggle("disabled", !on);
 }
 
@@ -863,6 +908,16 @@ $("stop").addEventListener("click", () => send({ cmd: "stop" }));
 $("ack").addEventListener("click", () => send({ cmd: "acknowledge" }));
 $("reference").addEventListener("click", () => send({ cmd: "reference" }));
 $("axes").addEventListener("click", () => send({ cmd: "axes" }));
+$("tools").addEventListener("click", (e) => {
+  const row = e.target.closest("tr[data-tool]");
+  if (!row) return;
+  if (e.target.classList.contains("tool-save")) saveTool(row);
+  else if (e.target.classList.contains("tool-remove")) send({ cmd: "tool_remove", number: Number(row.dataset.tool) });
+});
+$("tool-add").addEventListener("click", () => {
+  const number = Number($("tool-new").value);
+  send({ cmd: "tool", number, offsets: [0, 0, 0, 0, 0, 0], diameter: 0, comment: "" });
+});
 $("nc-load").addEventListener("click", () => { $("access").textContent = ""; send({ cmd: "load", program: Number($("program-choice").value) }); });
 $("nc-start").addEventListener("click", () => send({ cmd: "program", what: "start" }));
 $("nc-hold").addEventListener("click", () => send({ cmd: "program", what: "hold" }));

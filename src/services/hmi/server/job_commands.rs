@@ -72,6 +72,36 @@ impl Shared {
                 return reply;
             }
             Command::TouchOff { axis, value, system } => return self.touch_off(peer, desk, &axis, value, system).await,
+            Command::Tool {
+                number,
+                pocket,
+                offsets,
+                diameter,
+                comment,
+            } => {
+                let tool = pkm_nc::tools::Tool {
+                    number,
+                    pocket: pocket.unwrap_or(number),
+                    offsets,
+                    diameter,
+                    orientation: 0,
+                    angles: [None; 2],
+                    comment: comment.trim().to_string(),
+                };
+                return self.edit_tool(peer, desk, tool, false).await;
+            }
+            Command::ToolRemove { number } => {
+                let tool = pkm_nc::tools::Tool {
+                    number,
+                    pocket: number,
+                    offsets: [0.0; 6],
+                    diameter: 0.0,
+                    orientation: 0,
+                    angles: [None; 2],
+                    comment: String::new(),
+                };
+                return self.edit_tool(peer, desk, tool, true).await;
+            }
             Command::Load { program } => {
                 // Planned again with the offsets a touch-off set, then loaded (not started).
                 if let Err(why) = self.may_load(program) {
@@ -109,7 +139,7 @@ impl Shared {
         tokio::spawn(async move {
             let Some(desk) = &shared.jobs else { return };
             match before {
-                Loaded::Program(k) if !desk.offsets_changed() => {
+                Loaded::Program(k) if !desk.plans_changed() => {
                     info!("screen {peer}: the step done, program {k} loaded again");
                     shared.sink.update(|c| c.program = k);
                 }
@@ -137,10 +167,10 @@ impl Shared {
         Ok(())
     }
 
-    /// Whether a Load plans the program again first: a touch-off has changed the work offsets
-    /// since the run's programs were planned.
+    /// Whether a Load plans the program again first: a touch-off has changed the work offsets,
+    /// or the tool table has changed, since the run's programs were planned.
     pub(super) fn replans_on_load(&self) -> bool {
-        self.jobs.as_ref().is_some_and(JobDesk::offsets_changed)
+        self.jobs.as_ref().is_some_and(JobDesk::plans_changed)
     }
 
     /// A touch-off (see [`Command::TouchOff`]): the offsets changed and kept, then the loaded
@@ -177,6 +207,40 @@ impl Shared {
             let _ = self.frames.send(Arc::from(origins.as_str()));
         }
         let mut reply = json!({"type": "touch_off", "system": name, "axis": axis, "value": value, "was": t.was, "now": t.now, "kept": kept});
+        if let Some(k) = desk.loaded_program() {
+            let kind = pkm_api::screen_jobs::ScreenJobKind::FromLine { program: k, line: 1 };
+            reply["job"] = self.make_and_load(peer, desk, kind, false).await;
+        }
+        reply
+    }
+
+    /// A tool table edit (see [`Command::Tool`], [`Command::ToolRemove`]): the entry set or
+    /// removed and kept, then the loaded program (or the program a loaded run from a line runs)
+    /// planned again with the table and loaded in its place, not started. Every page is sent the
+    /// table as it is now (by the keeper's watch, [`super::tool_table_news`]).
+    async fn edit_tool(&self, peer: SocketAddr, desk: &JobDesk, tool: pkm_nc::tools::Tool, remove: bool) -> Json {
+        let what = if remove {
+            format!("tool {} removed", tool.number)
+        } else {
+            format!("tool {}: {}", tool.number, tool.line())
+        };
+        let kept = match desk.edit_tool(tool, remove).await {
+            Ok(kept) => kept,
+            Err(why) => {
+                info!("screen {peer}: tool table edit refused ({what}): {why}");
+                return json!({"type": "refused", "why": why, "job": true});
+            }
+        };
+        let written = kept == crate::runtime::tool_table::Kept::Written;
+        info!(
+            "screen {peer}: tool table: {what}{}",
+            if written {
+                String::new()
+            } else {
+                " (kept for this simulation: a simulation does not write the tool table)".to_string()
+            }
+        );
+        let mut reply = json!({"type": "tool", "what": what, "written": written});
         if let Some(k) = desk.loaded_program() {
             let kind = pkm_api::screen_jobs::ScreenJobKind::FromLine { program: k, line: 1 };
             reply["job"] = self.make_and_load(peer, desk, kind, false).await;

@@ -149,6 +149,36 @@ pub struct HmiInfo {
     pub simulation: Option<f64>,
 }
 
+/// The run's tool table as the screen shows it: its file, whether edits are written to it, and
+/// its tools (number, pocket, offsets x y z a b c, diameter, comment).
+fn tool_table_json(keeper: &crate::runtime::tool_table::ToolTableKeeper) -> Json {
+    let tools: Vec<Json> = keeper
+        .table()
+        .tools
+        .iter()
+        .map(|t| json!({"number": t.number, "pocket": t.pocket, "offsets": t.offsets, "diameter": t.diameter, "comment": t.comment}))
+        .collect();
+    json!({"file": keeper.file(), "writes": keeper.writes(), "tools": tools})
+}
+
+/// Sends every page the tool table each time a change is kept (an edit on the screen, a
+/// program's `G10 L1` written back), as `{"type": "tools", …}`.
+pub(super) fn tool_table_news(
+    keeper: Arc<crate::runtime::tool_table::ToolTableKeeper>,
+    pages: broadcast::Sender<Arc<str>>,
+) {
+    let mut changes = keeper.changes();
+    tokio::spawn(async move {
+        while changes.changed().await.is_ok() {
+            if pages.receiver_count() > 0 {
+                let mut news = tool_table_json(&keeper);
+                news["type"] = json!("tools");
+                let _ = pages.send(Arc::from(news.to_string().as_str()));
+            }
+        }
+    });
+}
+
 /// Builds the router and the task that pushes frames.
 pub fn router(info: HmiInfo, mut frames: FrameFeed, sink: CommandSink, options: ServerOptions) -> Router {
     let programs: Vec<Served> = info.programs.into_iter().map(Served::new).collect();
@@ -202,6 +232,9 @@ pub fn router(info: HmiInfo, mut frames: FrameFeed, sink: CommandSink, options: 
         cut: CutPath::of(&info.variables).map(std::sync::Mutex::new),
         step_return: std::sync::Mutex::new(None),
     });
+    if let Some(keeper) = shared.jobs.as_ref().and_then(|d| d.tools()) {
+        tool_table_news(Arc::clone(keeper), tx.clone());
+    }
     let pump = Arc::clone(&shared);
     let mut mechanism = info.mechanism;
     let mut last_message: Option<Json> = None;
@@ -504,6 +537,20 @@ enum Command {
     /// that draws 4 times a second need not take 20. Each frame carries the tool's recent
     /// points, so the cut path misses none.
     Frames { hz: f64 },
+    /// The tool table's entry of tool `number` set (added where the table has none), from
+    /// READY: its pocket (its number when left out), offsets x y z a b c (mm, degrees),
+    /// diameter (mm) and comment; written to the tool table's file.
+    Tool {
+        number: u32,
+        #[serde(default)]
+        pocket: Option<u32>,
+        offsets: [f64; 6],
+        diameter: f64,
+        #[serde(default)]
+        comment: String,
+    },
+    /// Tool `number`'s entry removed from the tool table, from READY.
+    ToolRemove { number: u32 },
 }
 
 impl Command {
@@ -584,6 +631,7 @@ async fn client(mut socket: WebSocket, peer: SocketAddr, commands: bool, shared:
     hello["commands"] = json!(commands);
     hello["alarms"] = json!(shared.alarms.history());
     hello["origins"] = json!(shared.jobs.as_ref().map(|d| d.offsets().origins));
+    hello["tool_table"] = json!(shared.jobs.as_ref().and_then(|d| d.tools()).map(|k| tool_table_json(k)));
     if socket.send(Message::Text(hello.to_string().into())).await.is_err() {
         return;
     }
@@ -659,7 +707,7 @@ async fn client(mut socket: WebSocket, peer: SocketAddr, commands: bool, shared:
                             }
                             shared.read(c)
                         }
-                        Ok(c @ (Command::Mdi { .. } | Command::RunFrom { .. } | Command::TouchOff { .. } | Command::Step { .. } | Command::Load { .. }))
+                        Ok(c @ (Command::Mdi { .. } | Command::RunFrom { .. } | Command::TouchOff { .. } | Command::Step { .. } | Command::Load { .. } | Command::Tool { .. } | Command::ToolRemove { .. }))
                             if commands && (!matches!(c, Command::Load { .. }) || shared.replans_on_load()) =>
                         {
                             if job_pending {
@@ -860,6 +908,8 @@ impl Shared {
             | Command::RunFrom { .. }
             | Command::TouchOff { .. }
             | Command::Step { .. }
+            | Command::Tool { .. }
+            | Command::ToolRemove { .. }
             | Command::Frames { .. } => {}
             Command::Cancel {} => {
                 let cancelled = self

@@ -14,6 +14,7 @@ use crate::NcError;
 use crate::lexer::Word;
 
 use super::block::{Action, Block, Path, Plane, Pose};
+use super::compensation::{Compensation, Open, OpenKind, Programmed, Side};
 use super::state::State;
 use super::words::{Words, format_code};
 
@@ -24,49 +25,6 @@ const SMALL: f64 = 0.05;
 const TOLERANCE_EQUAL: f64 = 0.0001;
 const PI: f64 = std::f64::consts::PI;
 const HALF_PI: f64 = std::f64::consts::FRAC_PI_2;
-
-/// The side of the path the tool runs on, looking along the path.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub(super) enum Side {
-    /// G41, G41.1.
-    Left,
-    /// G42, G42.1.
-    Right,
-}
-
-/// Cutter compensation while it is on.
-#[derive(Clone, Debug)]
-pub(super) struct Compensation {
-    pub(super) side: Side,
-    /// The tool's radius (mm). Zero (a tool without a diameter): the side is set, the moves are
-    /// not offset — LinuxCNC's meaning.
-    pub(super) radius: f64,
-    /// The programmed point: where the program's path is (machine coordinates), `None` until
-    /// the first move after G41 or G42 (the entry move).
-    pub(super) programmed: Option<Pose>,
-    /// The moves whose end the next move may still change (indices in the program's actions).
-    open: Vec<Open>,
-    /// Where the last open move in the plane starts (LinuxCNC's `endpoint`), where known: a
-    /// moved end must not turn it back.
-    start: Option<[f64; 2]>,
-}
-
-/// An open move and what moving its end must keep.
-#[derive(Clone, Copy, Debug)]
-struct Open {
-    /// Its index in the program's actions.
-    index: usize,
-    kind: OpenKind,
-}
-
-#[derive(Clone, Copy, Debug)]
-enum OpenKind {
-    /// A line, and the direction it runs in the plane (the programmed one).
-    Line { rapid: bool, direction: [f64; 2] },
-    /// An arc: its turns (LinuxCNC's signed `turn`) and the programmed sweep (rad; 0: not
-    /// checked).
-    Arc { turn: i32, sweep: f64 },
-}
 
 /// The plane coordinates of `p`.
 fn in_plane(p: &Pose, plane: Plane) -> [f64; 2] {
@@ -117,19 +75,6 @@ fn sweep(from: [f64; 2], center: [f64; 2], turn: i32, to: [f64; 2]) -> f64 {
 /// Whether the tool runs inside an arc of `turn` (LinuxCNC's `TOOL_INSIDE_ARC`).
 fn inside(side: Side, turn: i32) -> bool {
     (side == Side::Left && turn > 0) || (side == Side::Right && turn < 0)
-}
-
-/// A move's end as the program gives it: where the program's path goes, and the shape of the
-/// programmed path.
-pub(super) struct Programmed {
-    pub(super) to: Pose,
-    /// An arc's centre (machine coordinates, the plane's two axes) and turns (signed, LinuxCNC's
-    /// `turn`); `None`: a line.
-    pub(super) arc: Option<([f64; 2], i32)>,
-    /// A rapid (G0).
-    pub(super) rapid: bool,
-    /// The feed (mm/min; `None` for a rapid).
-    pub(super) feed: Option<f64>,
 }
 
 impl State<'_> {

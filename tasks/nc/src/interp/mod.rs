@@ -17,6 +17,7 @@
 
 pub mod block;
 mod comp;
+mod compensation;
 mod cycles;
 mod io;
 mod modes;

@@ -188,7 +188,7 @@ impl State<'_> {
                     }
                     Path::Line => None,
                 };
-                let programmed = super::comp::Programmed {
+                let programmed = super::compensation::Programmed {
                     to,
                     arc,
                     rapid: mode == 0,

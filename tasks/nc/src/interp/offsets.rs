@@ -82,7 +82,7 @@ impl State<'_> {
     /// force) set for the axes named — L2 to the machine coordinates given, L20 so that the
     /// tool's position reads as the values given. L1 and L10 (a tool's offsets) are
     /// [`State::set_tool_entry`]'s.
-    pub(super) fn set_coordinate_system(&mut self, words: &Words<'_>) -> Result<(), NcError> {
+    pub(super) fn set_coordinate_system(&mut self, words: &Words<'_>, out: &mut Vec<Block>) -> Result<(), NcError> {
         let Some(g10) = words.g_word(100) else {
             return Ok(());
         };
@@ -95,7 +95,7 @@ impl State<'_> {
             )
         })?;
         if l.value == 1.0 || l.value == 10.0 || l.value == 11.0 {
-            return self.set_tool_entry(words, l);
+            return self.set_tool_entry(words, l, out);
         }
         if l.value != 2.0 && l.value != 20.0 {
             return Err(at(

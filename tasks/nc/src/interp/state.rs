@@ -12,7 +12,7 @@ use pkm_api::trajectory::NcMessage;
 use crate::tools::ToolTable;
 
 use super::block::{AXES, Action, Blend, Block, Machine, Plane, Pose};
-use super::comp::Compensation;
+use super::compensation::Compensation;
 use super::words::Words;
 
 /// The modal state.
@@ -280,7 +280,7 @@ impl<'a> State<'a> {
         self.dwell(&words, out)?;
         self.modes(&words)?;
         self.tool_length(&words)?;
-        self.set_coordinate_system(&words)?;
+        self.set_coordinate_system(&words, out)?;
         self.set_origin(&words)?;
         self.go_home(&words, out)?;
         self.motion(&words, out)

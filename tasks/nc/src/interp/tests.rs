@@ -812,6 +812,22 @@ fn tool_offsets_follow_g43_g43_1_g49_and_the_parameters_show_them() {
         to[1], to[0],
         "L10 makes the tool read Z5 where it stands: G0 Z5 goes nowhere"
     );
+    // Each is written back to the tool table as the run reaches it: the entry's line as
+    // LinuxCNC writes it, at the G10's place among the actions.
+    let entries: Vec<(u32, &str)> = p
+        .messages
+        .iter()
+        .filter(|m| m.kind == pkm_api::trajectory::NcMessageKind::ToolEntry)
+        .map(|m| (m.line, m.text.as_str()))
+        .collect();
+    assert_eq!(
+        entries,
+        [
+            (1, "T1 P1 Z+20.000000 D6.000000 ;6 mm end mill"),
+            (4, "T2 P2 X+0.500000 Z+15.000000 D3.000000 ;drill")
+        ]
+    );
+    assert!(matches!(p.blocks[0].action, Action::Message(0)), "{:?}", p.blocks[0]);
     // G10 L1 fills the table to its most, not beyond.
     let fill = "#1 = 1\no1 while [#1 LE 1001]\nG10 L1 P#1 Z1\n#1 = [#1 + 1]\no1 endwhile";
     assert_eq!(

@@ -6,6 +6,7 @@
 use crate::NcError;
 use crate::lexer::{self, Word};
 use crate::tools::MAX_TOOL;
+use pkm_api::trajectory::{NcMessage, NcMessageKind};
 
 use super::block::{Action, Block, Pose};
 use super::state::State;
@@ -16,17 +17,22 @@ impl State<'_> {
     /// does, as in LinuxCNC.
     pub(super) fn message(&mut self, block: &lexer::Block, out: &mut Vec<Block>) {
         if let Some(message) = &block.message {
-            let index = u32::try_from(self.messages.len()).unwrap_or(u32::MAX);
-            // Counted against the program's memory bound: a loop of long messages is refused
-            // where it passes it, as a loop of moves is.
-            self.cost.add_message(message.text.len());
-            self.messages.push(message.clone());
-            out.push(Block {
-                line: block.line,
-                column: 1,
-                action: Action::Message(index),
-            });
+            self.push_message(message.clone(), block.line, out);
         }
+    }
+
+    /// Adds `message` of line `line` to the program's messages, and the action that reaches it.
+    fn push_message(&mut self, message: NcMessage, line: usize, out: &mut Vec<Block>) {
+        let index = u32::try_from(self.messages.len()).unwrap_or(u32::MAX);
+        // Counted against the program's memory bound: a loop of long messages is refused
+        // where it passes it, as a loop of moves is.
+        self.cost.add_message(message.text.len());
+        self.messages.push(message);
+        out.push(Block {
+            line,
+            column: 1,
+            action: Action::Message(index),
+        });
     }
 
     /// T: selects a tool of the table for the next M6 (T0: none, the spindle emptied).
@@ -153,7 +159,7 @@ impl State<'_> {
     /// offsets so that where the tool is reads as the values given, in the work system in force,
     /// G92 included), for the rest of the program: the tool table's file is not written. L11
     /// (relative to G59.3, which this interpreter has not) is refused.
-    pub(super) fn set_tool_entry(&mut self, words: &Words<'_>, l: &Word) -> Result<(), NcError> {
+    pub(super) fn set_tool_entry(&mut self, words: &Words<'_>, l: &Word, out: &mut Vec<Block>) -> Result<(), NcError> {
         let line = words.line;
         let at = |w: &Word, message: String| NcError::new(line, w.column, message);
         if l.value == 11.0 {
@@ -228,6 +234,17 @@ impl State<'_> {
         if let Some(q) = orientation {
             entry.orientation = q;
         }
+        // The run writes the entry back to the tool table when it reaches this line.
+        let text = entry.line();
+        self.push_message(
+            NcMessage {
+                line: u32::try_from(line).unwrap_or(u32::MAX),
+                kind: NcMessageKind::ToolEntry,
+                text,
+            },
+            line,
+            out,
+        );
         Ok(())
     }
 }

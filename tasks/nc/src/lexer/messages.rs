@@ -36,6 +36,7 @@ pub(super) fn message_of(text: &str, number: usize, block_delete: bool, params: 
     let text = match kind {
         NcMessageKind::Msg => body.to_string(),
         NcMessageKind::Debug | NcMessageKind::Print => substitute(body, params),
+        NcMessageKind::ToolEntry => unreachable!("a comment is MSG, DEBUG or PRINT"),
     };
     Some(NcMessage {
         line: u32::try_from(number).unwrap_or(u32::MAX),
