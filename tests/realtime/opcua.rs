@@ -1049,7 +1049,7 @@ fn serving_beyond_loopback_needs_users_and_the_options_are_checked_before_anythi
         ),
         "{err}"
     );
-    let (code, err) = run(&["--virtual", "--duration", "1", "--opcua", "opc.tcp://127.0.0.1:0"]);
+    let (code, err) = run(&["--virtual", "--opcua", "opc.tcp://127.0.0.1:0"]);
     assert_eq!(code, Some(2), "{err}");
     assert!(
         err.contains("--opcua serves OPC UA in real time or in a paced simulation (--virtual --pace X)"),

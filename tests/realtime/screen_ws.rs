@@ -45,8 +45,8 @@ pub async fn reply(ws: &mut Ws, within: Duration) -> serde_json::Value {
     }
 }
 
-/// Waits for a frame in `state`.
-pub async fn until_state(ws: &mut Ws, state: &str, within: Duration) {
+/// Waits for a frame in `state`; the frame (its simulated time `t_s` included).
+pub async fn until_state(ws: &mut Ws, state: &str, within: Duration) -> serde_json::Value {
     let start = Instant::now();
     let mut last = serde_json::Value::Null;
     loop {
@@ -59,13 +59,14 @@ pub async fn until_state(ws: &mut Ws, state: &str, within: Duration) {
         });
         if m["type"] == "frame" {
             if m["state"] == state {
-                return;
+                return m;
             }
             last = m;
         }
     }
 }
 
+/// Sends `command` (JSON) to the screen.
 pub async fn send(ws: &mut Ws, command: serde_json::Value) {
     ws.send(Message::Text(command.to_string().into()))
         .await

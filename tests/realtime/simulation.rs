@@ -6,28 +6,7 @@
 use std::time::{Duration, Instant};
 
 use crate::common;
-use crate::screen_ws::{Ws, next_within, send, start_with_screen};
-
-/// The next frame in `state` (its simulated time `t_s` included); panics after `within`.
-async fn frame_in(ws: &mut Ws, state: &str, within: Duration) -> serde_json::Value {
-    let start = Instant::now();
-    let mut last = serde_json::Value::Null;
-    loop {
-        let left = within.saturating_sub(start.elapsed());
-        let m = next_within(ws, left).await.unwrap_or_else(|| {
-            panic!(
-                "not {state} within {within:?}; the last frame's state {}, reason {}, note {}",
-                last["state"], last["reason"], last["note"]
-            )
-        });
-        if m["type"] == "frame" {
-            if m["state"] == state {
-                return m;
-            }
-            last = m;
-        }
-    }
-}
+use crate::screen_ws::{send, start_with_screen, until_state};
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_paced_simulation_serves_the_screen_runs_a_program_and_replays() {
@@ -61,7 +40,7 @@ async fn a_paced_simulation_serves_the_screen_runs_a_program_and_replays() {
         hello.contains("simulation: virtual time paced at 20x real time"),
         "{hello}"
     );
-    let ready = frame_in(&mut ws, "READY", Duration::from_secs(120)).await;
+    let ready = until_state(&mut ws, "READY", Duration::from_secs(120)).await;
     // Paced: simulated time never runs ahead of 20 times the wall clock (it may fall behind on
     // a busy machine; the run's figures are in its log).
     let (t_ready, wall) = (ready["t_s"].as_f64().expect("t_s"), started.elapsed().as_secs_f64());
@@ -72,8 +51,8 @@ async fn a_paced_simulation_serves_the_screen_runs_a_program_and_replays() {
     // The program the student loads and starts runs to its end on the simulated machine.
     send(&mut ws, serde_json::json!({"cmd": "load", "program": 1})).await;
     send(&mut ws, serde_json::json!({"cmd": "program", "what": "start"})).await;
-    let auto = frame_in(&mut ws, "AUTO", Duration::from_secs(60)).await;
-    let done = frame_in(&mut ws, "READY", Duration::from_secs(120)).await;
+    let auto = until_state(&mut ws, "AUTO", Duration::from_secs(60)).await;
+    let done = until_state(&mut ws, "READY", Duration::from_secs(120)).await;
     let ran_s = done["t_s"].as_f64().expect("t_s") - auto["t_s"].as_f64().expect("t_s");
     assert!(ran_s > 5.0, "the program ran {ran_s} s of simulated time");
     let status = plc.terminate();

@@ -223,6 +223,12 @@ pub struct TrajectorySample {
 pub enum TrajectoryEventKind {
     /// M0, or M1 (the optional stop): wait for a resume.
     Pause,
+    /// G4: the tool stands this long from here, on the time line (the executing line is the
+    /// dwell's meanwhile).
+    Dwell {
+        /// How long (s).
+        seconds: f64,
+    },
     /// M7, M8, M9: the coolant as it is from here on.
     Coolant {
         /// Mist (M7).

@@ -40,6 +40,19 @@ pub struct Tool {
 }
 
 impl Tool {
+    /// Tool `number` in pocket `number`, without offsets, diameter or comment.
+    pub fn new(number: u32) -> Tool {
+        Tool {
+            number,
+            pocket: number,
+            offsets: [0.0; 6],
+            diameter: 0.0,
+            orientation: 0,
+            angles: [None; 2],
+            comment: String::new(),
+        }
+    }
+
     /// The tool's line in LinuxCNC's format, as LinuxCNC writes it: `T` and `P`, the offsets
     /// that are not zero, the diameter, a lathe tool's angles and orientation (six decimals,
     /// signed offsets), the comment after `;`.
@@ -127,15 +140,7 @@ impl ToolTable {
             Some(at) => at,
             None if self.tools.len() >= MAX_TOOLS => return None,
             None => {
-                self.tools.push(Tool {
-                    number,
-                    pocket: number,
-                    offsets: [0.0; 6],
-                    diameter: 0.0,
-                    orientation: 0,
-                    angles: [None; 2],
-                    comment: String::new(),
-                });
+                self.tools.push(Tool::new(number));
                 self.tools.len() - 1
             }
         };
@@ -155,13 +160,8 @@ fn parse_line(words: &str, comment: &str, line: usize) -> Result<Tool, NcError> 
     let chars: Vec<char> = words.chars().collect();
     let mut at = 0;
     let mut tool = Tool {
-        number: 0,
-        pocket: 0,
-        offsets: [0.0; 6],
-        diameter: 0.0,
-        orientation: 0,
-        angles: [None; 2],
         comment: comment.to_string(),
+        ..Tool::new(0)
     };
     let (mut number, mut pocket) = (None, None);
     let mut seen = String::new();

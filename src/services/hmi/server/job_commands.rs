@@ -80,27 +80,16 @@ impl Shared {
                 comment,
             } => {
                 let tool = pkm_nc::tools::Tool {
-                    number,
                     pocket: pocket.unwrap_or(number),
                     offsets,
                     diameter,
-                    orientation: 0,
-                    angles: [None; 2],
                     comment: comment.trim().to_string(),
+                    ..pkm_nc::tools::Tool::new(number)
                 };
                 return self.edit_tool(peer, desk, tool, false).await;
             }
             Command::ToolRemove { number } => {
-                let tool = pkm_nc::tools::Tool {
-                    number,
-                    pocket: number,
-                    offsets: [0.0; 6],
-                    diameter: 0.0,
-                    orientation: 0,
-                    angles: [None; 2],
-                    comment: String::new(),
-                };
-                return self.edit_tool(peer, desk, tool, true).await;
+                return self.edit_tool(peer, desk, pkm_nc::tools::Tool::new(number), true).await;
             }
             Command::Load { program } => {
                 // Planned again with the offsets a touch-off set, then loaded (not started).

@@ -191,6 +191,8 @@ pub struct Executor {
     line: u32,
     /// Standing at an M0 (paused, or held after it) or an M6: its line is the one executing.
     at_pause: bool,
+    /// Standing for a G4 until this time of the program (s): its line is the one executing.
+    dwell_until: Option<f64>,
     /// The tool the M6 it stands at asks for.
     tool_asked: u32,
     /// A tool change confirmed and not yet taken by [`Executor::confirmed_tool`].
@@ -241,6 +243,7 @@ impl Executor {
             coolant: (false, false),
             line: current.line,
             at_pause: false,
+            dwell_until: None,
             tool_asked: 0,
             tool_confirmed: None,
             tool_changed_was: false,
@@ -396,10 +399,11 @@ impl Executor {
         if moving {
             self.happen_events();
         }
-        if self.at_pause {
-            // Standing at the M0: its line is the one executing.
+        if self.at_pause || self.dwell_until.is_some_and(|until| self.t < until) {
+            // Standing at the M0, or for the G4: its line is the one executing.
             self.current.line = self.line;
         } else {
+            self.dwell_until = None;
             self.line = self.current.line;
         }
         if matches!(self.state, RunState::Paused | RunState::ToolChange | RunState::Waiting) {
@@ -536,6 +540,11 @@ impl Executor {
                 }
                 TrajectoryEventKind::Message { index } => {
                     self.messages = index.saturating_add(1);
+                    self.next_event += 1;
+                }
+                TrajectoryEventKind::Dwell { seconds } => {
+                    self.line = e.line;
+                    self.dwell_until = Some(e.t + seconds);
                     self.next_event += 1;
                 }
                 TrajectoryEventKind::WorkOffset { system, offset } => {
@@ -971,6 +980,28 @@ mod tests {
         t.events.insert(2, at(TrajectoryEventKind::ToolChange { tool: 7 }));
         t.events.insert(3, at(TrajectoryEventKind::Message { index: 1 }));
         Executor::new(Arc::new(t))
+    }
+
+    /// A G4 of line 3 where the first move ends: its line is the one executing while the tool
+    /// stands for it (it was the move's before), and the next move's once it has passed.
+    #[test]
+    fn a_dwells_line_is_shown_while_the_tool_dwells() {
+        let mut t = TwoMoves::new(false);
+        t.events.insert(
+            1,
+            TrajectoryEvent {
+                t: MOVE_S,
+                line: 3,
+                kind: TrajectoryEventKind::Dwell { seconds: 0.3 },
+            },
+        );
+        let mut e = Executor::new(Arc::new(t));
+        walk(&mut e, Command::Run, 1000, |e| e.time_s() >= 1.0);
+        assert_eq!(e.line(), 2);
+        walk(&mut e, Command::Run, 1000, |e| e.time_s() >= MOVE_S + 0.05);
+        assert_eq!((e.line(), e.sample().line), (3, 3));
+        walk(&mut e, Command::Run, 1000, |e| e.time_s() >= MOVE_S + 0.35);
+        assert_eq!(e.line(), 4);
     }
 
     /// Steps under `command` until `until` holds or `max` cycles; the positions seen.

@@ -277,18 +277,7 @@ impl State<'_> {
         kind: OpenKind,
         out: &mut Vec<Block>,
     ) {
-        out.push(Block {
-            line,
-            column: 1,
-            action: Action::Move {
-                from: self.position,
-                to,
-                path,
-                feed_mm_min: feed,
-                blend: self.blend,
-            },
-        });
-        self.position = to;
+        self.push_move(line, to, path, feed, out);
         let index = out.len() - 1;
         self.comp_mut().open.push(Open { index, kind });
     }
@@ -396,18 +385,13 @@ impl State<'_> {
     /// is closed — an arc around a convex one, the move before shortened into a concave one.
     fn next_line(&mut self, line: usize, p: &Programmed, out: &mut Vec<Block>) -> Result<(), String> {
         let plane = self.plane;
-        let Compensation {
+        let Corner {
             side,
             radius,
-            programmed,
-            ..
-        } = *self.comp();
-        let op_pose = programmed.unwrap_or(self.position);
-        let (c, op, end) = (
-            in_plane(&self.position, plane),
-            in_plane(&op_pose, plane),
-            in_plane(&p.to, plane),
-        );
+            c,
+            op,
+            end,
+        } = self.corner(p);
         if end == op {
             // No motion in the plane: the tool stays off the path; the move stays open with
             // the one before it.
@@ -550,6 +534,25 @@ impl State<'_> {
         Ok(())
     }
 
+    /// The corner a move after the first compensated one turns: where the tool is (`c`), the
+    /// programmed point it is off (`op`) and the move's programmed end, in the plane.
+    fn corner(&self, p: &Programmed) -> Corner {
+        let plane = self.plane;
+        let Compensation {
+            side,
+            radius,
+            programmed,
+            ..
+        } = *self.comp();
+        Corner {
+            side,
+            radius,
+            c: in_plane(&self.position, plane),
+            op: in_plane(&programmed.unwrap_or(self.position), plane),
+            end: in_plane(&p.to, plane),
+        }
+    }
+
     /// The first open move, if it is an arc: its index and turns.
     fn front_arc(&self) -> Option<(usize, i32)> {
         match self.comp().open.first()?.kind {
@@ -624,18 +627,13 @@ impl State<'_> {
         out: &mut Vec<Block>,
     ) -> Result<(), String> {
         let plane = self.plane;
-        let Compensation {
+        let Corner {
             side,
             radius,
-            programmed,
-            ..
-        } = *self.comp();
-        let op_pose = programmed.unwrap_or(self.position);
-        let (c, op, end) = (
-            in_plane(&self.position, plane),
-            in_plane(&op_pose, plane),
-            in_plane(&p.to, plane),
-        );
+            c,
+            op,
+            end,
+        } = self.corner(p);
         let arc_radius = distance(center, end);
         let theta = angle(op, c) + if side == Side::Left { -HALF_PI } else { HALF_PI };
         let mut delta = angle(op, center);
@@ -776,6 +774,18 @@ impl State<'_> {
             length(arc_radius, self.inches)
         )
     }
+}
+
+/// The corner before a compensated move ([`State::corner`]).
+struct Corner {
+    side: Side,
+    radius: f64,
+    /// Where the tool is.
+    c: [f64; 2],
+    /// The programmed point.
+    op: [f64; 2],
+    /// The move's programmed end.
+    end: [f64; 2],
 }
 
 /// A length (mm) in the program's units, for messages.

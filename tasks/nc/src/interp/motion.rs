@@ -198,21 +198,27 @@ impl State<'_> {
                 stops(line, &words.m, out);
                 return Ok(());
             }
-            out.push(Block {
-                line,
-                column: 1,
-                action: Action::Move {
-                    from: self.position,
-                    to,
-                    path,
-                    feed_mm_min: feed,
-                    blend: self.blend,
-                },
-            });
-            self.position = to;
+            self.push_move(line, to, path, feed, out);
         }
         stops(line, &words.m, out);
         Ok(())
+    }
+
+    /// Adds a move of line `line` from where the tool is to `to` along `path` at `feed` (`None`:
+    /// a rapid), ending as the path mode in force says; the tool is there after it.
+    pub(super) fn push_move(&mut self, line: usize, to: Pose, path: Path, feed: Option<f64>, out: &mut Vec<Block>) {
+        out.push(Block {
+            line,
+            column: 1,
+            action: Action::Move {
+                from: self.position,
+                to,
+                path,
+                feed_mm_min: feed,
+                blend: self.blend,
+            },
+        });
+        self.position = to;
     }
 
     /// The arc from the current position to `to`, by its centre (I J K) or radius (R).

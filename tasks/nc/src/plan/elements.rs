@@ -135,6 +135,12 @@ pub(super) fn elements_and_events(program: &Program) -> (Vec<Element>, f64, Vec<
                 });
             }
             Action::Dwell(s) => {
+                // Its line is the one executing while the tool stands for it.
+                events.push(Pending {
+                    line: block.line,
+                    kind: TrajectoryEventKind::Dwell { seconds: s },
+                    dwelt_s: dwelt,
+                });
                 dwelt += s;
                 match out.last_mut() {
                     Some(e) => {

@@ -419,6 +419,7 @@ fn pauses_and_spindle_changes_stand_where_the_tool_stops_for_them() {
                     rpm: 1000.0
                 }
             ),
+            (4, TrajectoryEventKind::Dwell { seconds: 1.0 }),
             (5, TrajectoryEventKind::Pause),
             (7, TrajectoryEventKind::Spindle { direction: 0, rpm: 0.0 }),
         ]
@@ -429,13 +430,15 @@ fn pauses_and_spindle_changes_stand_where_the_tool_stops_for_them() {
         .filter(|e| !matches!(e.kind, TrajectoryEventKind::WorkOffset { .. }))
         .collect();
     assert_eq!(events[0].t, 0.0);
-    // The pause after the dwell, at the end of the first line: the tool stands at X10.
+    // The dwell where the tool stops at the end of the first line, the pause a second after
+    // it: the tool stands at X10 from the one to the other.
+    assert!((events[2].t - events[1].t - 1.0).abs() < 1e-9, "{events:?}");
     let mut cursor = 0;
-    let at = p.sample(events[1].t, &mut cursor);
+    let at = p.sample(events[2].t, &mut cursor);
     assert!((at.pose[0] - 10.0).abs() < 1e-9 && at.speed == 0.0, "{at:?}");
-    let before = p.sample(events[1].t - 0.5, &mut cursor);
-    assert!((before.pose[0] - 10.0).abs() < 1e-9, "dwelling first: {before:?}");
-    assert!((events[2].t - p.duration_s).abs() < 1e-9, "M5 at the end");
+    let before = p.sample(events[1].t, &mut cursor);
+    assert!((before.pose[0] - 10.0).abs() < 1e-9 && before.speed == 0.0, "dwelling first: {before:?}");
+    assert!((events[3].t - p.duration_s).abs() < 1e-9, "M5 at the end");
 }
 
 /// The program: four short lines at F6000 whose corners' blends are short arcs. A point
