@@ -1678,6 +1678,7 @@ async fn the_simulation_shows_the_machine_and_its_path_in_one_3d_scene() {
 /// diameter and comment are saved to the file at once (whole, in LinuxCNC's format), a tool is
 /// added and another removed, a wrong value is refused with why and changes nothing; the jobs
 /// made after a change plan with the table as changed (an MDI `G43 H1` takes the new offset).
+/// Screenshot `hmi-tools.png` with PKM_SCREENSHOTS.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_tool_table_is_edited_on_the_screen_and_written_to_its_file() {
     let Some(chromium) =
@@ -1752,6 +1753,11 @@ async fn the_tool_table_is_edited_on_the_screen_and_written_to_its_file() {
     })
     .await;
     assert_eq!(file(), "T1 P1 Z+1.500000 D6.350000 ;1/4 in end mill\nT7 P7\n");
+    if let Some(shots) = std::env::var_os("PKM_SCREENSHOTS") {
+        let shots = std::path::PathBuf::from(shots);
+        page.evaluate("document.getElementById('tools-box').scrollIntoView()").await.expect("scrolled");
+        page.screenshot(&shots.join("hmi-tools.png")).await.expect("a screenshot");
+    }
     // A job made now plans with the table as changed: G43 H1 takes its Z offset of 1.5 mm.
     page.evaluate("document.getElementById('mdi-text').value = 'G43 H1\\nG0 Z0'")
         .await
