@@ -531,6 +531,20 @@ fn conditions_are_raised_acknowledged_and_cleared_as_the_plc_sees_them() {
         "{anonymous}\n{}",
         plc.log()
     );
+    // The refresh is whole through the client's AlarmConditionType filter: its start and end
+    // markers (OPC 10000-9, 4.5) around the condition it sends again.
+    let types: Vec<&str> = anonymous["events"]
+        .as_array()
+        .into_iter()
+        .flatten()
+        .filter_map(|e| e["type"].as_str())
+        .collect();
+    let start = types.iter().position(|t| *t == "RefreshStartEventType");
+    let end = types.iter().position(|t| *t == "RefreshEndEventType");
+    assert!(
+        matches!((start, end), (Some(s), Some(e)) if s < e && types[s + 1..e].contains(&"AlarmConditionType")),
+        "{anonymous}"
+    );
     // The operator acknowledges the condition: the PLC leaves ERROR and the condition clears.
     let out = alarms(
         &OPERATOR_LOGIN,

@@ -4,8 +4,8 @@ use regex::Regex;
 use tracing::error;
 
 use opcua_types::{
-    AttributeId, EventFieldList, FilterOperator, NodeId, NumericRange, QualifiedName, Variant,
-    VariantScalarTypeId, VariantTypeId,
+    AttributeId, EventFieldList, FilterOperator, NodeId, NumericRange, ObjectTypeId,
+    QualifiedName, Variant, VariantScalarTypeId, VariantTypeId,
 };
 
 use crate::TypeTree;
@@ -27,7 +27,13 @@ impl ParsedEventFilter {
         client_handle: u32,
         type_tree: &dyn TypeTree,
     ) -> Option<EventFieldList> {
-        if !self.content_filter.evaluate(event, type_tree) {
+        // pkm-plc: a RefreshStartEvent and a RefreshEndEvent are sent whatever the where clause
+        // says (OPC 10000-9, 4.5): a client that filters on its alarm types must see a refresh
+        // begin and end, or its refresh never completes.
+        let refresh_marker = [ObjectTypeId::RefreshStartEventType, ObjectTypeId::RefreshEndEventType]
+            .into_iter()
+            .any(|t| *event.event_type_id() == NodeId::from(t));
+        if !refresh_marker && !self.content_filter.evaluate(event, type_tree) {
             return None;
         }
 
