@@ -1755,8 +1755,12 @@ async fn the_tool_table_is_edited_on_the_screen_and_written_to_its_file() {
     assert_eq!(file(), "T1 P1 Z+1.500000 D6.350000 ;1/4 in end mill\nT7 P7\n");
     if let Some(shots) = std::env::var_os("PKM_SCREENSHOTS") {
         let shots = std::path::PathBuf::from(shots);
-        page.evaluate("document.getElementById('tools-box').scrollIntoView()").await.expect("scrolled");
-        page.screenshot(&shots.join("hmi-tools.png")).await.expect("a screenshot");
+        page.evaluate("document.getElementById('tools-box').scrollIntoView()")
+            .await
+            .expect("scrolled");
+        page.screenshot(&shots.join("hmi-tools.png"))
+            .await
+            .expect("a screenshot");
     }
     // A job made now plans with the table as changed: G43 H1 takes its Z offset of 1.5 mm.
     page.evaluate("document.getElementById('mdi-text').value = 'G43 H1\\nG0 Z0'")

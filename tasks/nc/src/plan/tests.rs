@@ -437,7 +437,10 @@ fn pauses_and_spindle_changes_stand_where_the_tool_stops_for_them() {
     let at = p.sample(events[2].t, &mut cursor);
     assert!((at.pose[0] - 10.0).abs() < 1e-9 && at.speed == 0.0, "{at:?}");
     let before = p.sample(events[1].t, &mut cursor);
-    assert!((before.pose[0] - 10.0).abs() < 1e-9 && before.speed == 0.0, "dwelling first: {before:?}");
+    assert!(
+        (before.pose[0] - 10.0).abs() < 1e-9 && before.speed == 0.0,
+        "dwelling first: {before:?}"
+    );
     assert!((events[3].t - p.duration_s).abs() < 1e-9, "M5 at the end");
 }
 
