@@ -50,7 +50,8 @@
         own: JSON with how many were refused and how long they took in all (s).
     opcua_client.py call URL MACHINE [options] METHOD [METHOD ...]
         Calls the methods in turn (Load takes `Load=N`); between calls waits for the state a
-        call should bring (`wait=STATE`). Options: --user NAME --password PW, --user-cert DIR (log
+        call should bring (`wait=STATE`). Options: --user NAME --password PW (--clear yes: the
+        password sent in clear whatever the server asks), --user-cert DIR (log
         in with the certificate and key of `usercert DIR`), --secure DIR
         (Basic256Sha256 SignAndEncrypt with a client certificate made in DIR) and --pki DIR (the
         server's certificate store: a first connection is refused as untrusted, the server puts
@@ -60,6 +61,7 @@
 """
 
 import asyncio
+import dataclasses
 import datetime
 import json
 import shutil
@@ -237,8 +239,11 @@ def path_or_none(text):
 
 
 async def call(url, machine, args):
-    options, steps = options_and_steps(args, ["user", "password", "user-cert", "secure", "pki"])
+    options, steps = options_and_steps(args, ["user", "password", "user-cert", "secure", "pki", "clear"])
     user, password = options["user"], options["password"]
+    # --clear yes: the password is sent in clear, whatever the server's token policy asks (as a
+    # client that ignores it would).
+    clear = options["clear"] == "yes"
     user_cert = path_or_none(options["user-cert"])
     secure = path_or_none(options["secure"])
     pki = path_or_none(options["pki"])
@@ -248,6 +253,16 @@ async def call(url, machine, args):
         if user:
             client.set_user(user)
             client.set_password(password)
+        if clear:
+            asked = client.server_policy
+
+            def in_clear(token_type):
+                policy = asked(token_type)
+                if token_type == ua.UserTokenType.UserName:
+                    policy = dataclasses.replace(policy, SecurityPolicyUri=None)
+                return policy
+
+            client.server_policy = in_clear
         if user_cert:
             await client.load_client_certificate(str(user_cert / "cert.der"))
             await client.load_private_key(user_cert / "key.pem")

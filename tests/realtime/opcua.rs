@@ -1095,3 +1095,74 @@ fn serving_beyond_loopback_needs_users_and_the_options_are_checked_before_anythi
     assert!(err.contains("OPC UA: cannot listen on 127.0.0.1:"), "{err}");
     assert!(err.contains("or run without OPC UA with --opcua none"), "{err}");
 }
+
+/// A relay on a free loopback port to the server at `url`, keeping every byte clients send
+/// through it: its URL and what was sent.
+fn recording_relay(url: &str) -> (String, std::sync::Arc<std::sync::Mutex<Vec<u8>>>) {
+    let target = url.trim_start_matches("opc.tcp://").trim_end_matches('/').to_string();
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").expect("a free port");
+    let port = listener.local_addr().expect("its address").port();
+    let sent = std::sync::Arc::new(std::sync::Mutex::new(Vec::new()));
+    let kept = std::sync::Arc::clone(&sent);
+    std::thread::spawn(move || {
+        for client in listener.incoming().map_while(Result::ok) {
+            let Ok(server) = std::net::TcpStream::connect(&target) else {
+                continue;
+            };
+            let (mut from_client, mut to_server) = (
+                client.try_clone().expect("a clone"),
+                server.try_clone().expect("a clone"),
+            );
+            let (mut from_server, mut to_client) = (server, client);
+            let kept = std::sync::Arc::clone(&kept);
+            std::thread::spawn(move || {
+                let mut buffer = [0u8; 16 * 1024];
+                while let Ok(n @ 1..) = from_client.read(&mut buffer) {
+                    kept.lock().expect("the record").extend_from_slice(&buffer[..n]);
+                    if to_server.write_all(&buffer[..n]).is_err() {
+                        break;
+                    }
+                }
+                let _ = to_server.shutdown(std::net::Shutdown::Both);
+            });
+            std::thread::spawn(move || {
+                let _ = std::io::copy(&mut from_server, &mut to_client);
+                let _ = to_client.shutdown(std::net::Shutdown::Both);
+            });
+        }
+    });
+    (format!("opc.tcp://127.0.0.1:{port}/"), sent)
+}
+
+/// No password crosses the unsecured endpoint readable: its user token policy names a security
+/// policy (Basic256Sha256), so asyncua encrypts the password with the server's key — it sent it
+/// in clear before — and the bytes it sent hold no trace of it; a password sent in clear anyway
+/// (a client that ignores the policy) is refused, and no session opens.
+#[test]
+fn a_password_never_crosses_the_unsecured_endpoint_in_clear() {
+    let Some(python) = python_or_skip("opcua::a_password_never_crosses_the_unsecured_endpoint_in_clear") else {
+        return;
+    };
+    let dir = tempfile::tempdir().expect("tempdir");
+    let users = users_file(dir.path(), OPERATOR, 0o600);
+    let plc = Plc::start(&["--duration", "120", "--opcua-users", users.to_str().expect("utf-8")]);
+    let (relay, sent) = recording_relay(&plc.url);
+    let out = client_steps(&python, "call", &relay, &OPERATOR_LOGIN, &["Stop"]);
+    assert_eq!(out["steps"][0]["status"], "Good", "the operator commanded: {out}");
+    let password = OPERATOR_LOGIN[3].as_bytes();
+    let bytes = sent.lock().expect("the record").clone();
+    assert!(
+        bytes.len() > 1000,
+        "the relay carried the session: {} bytes",
+        bytes.len()
+    );
+    assert!(
+        !bytes.windows(password.len()).any(|w| w == password),
+        "the password crossed in clear"
+    );
+    // In clear anyway: refused.
+    let mut login = OPERATOR_LOGIN.to_vec();
+    login.extend(["--clear", "yes"]);
+    let refused = client_steps(&python, "call", &relay, &login, &["Stop"]);
+    assert_eq!(refused["refused"], "BadIdentityTokenInvalid", "{refused}");
+}

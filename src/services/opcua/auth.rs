@@ -9,9 +9,7 @@ use std::time::Instant;
 use async_trait::async_trait;
 use opcua::crypto::{SecurityPolicy, Thumbprint};
 use opcua::server::ServerEndpoint;
-use opcua::server::authenticator::{
-    AuthManager, Password, UserToken, user_pass_security_policy_id, user_pass_security_policy_uri,
-};
+use opcua::server::authenticator::{AuthManager, Password, UserToken, user_pass_security_policy_id};
 use opcua::types::{Error, NodeId, StatusCode, UAString, UserTokenPolicy, UserTokenType};
 use tracing::info;
 
@@ -139,13 +137,21 @@ impl AuthManager for Auth {
         };
         if users.has_passwords() {
             // The password travels encrypted with the server's key whatever the channel's
-            // security (the endpoint's password policy).
+            // security: the policy names the password's security policy (the unsecured
+            // endpoint's is Basic256Sha256), so a client encrypts it — with no policy named, a
+            // client takes the channel's, and on the unsecured endpoint sent it readable. A
+            // password sent in clear is refused.
+            let password_policy = endpoint.password_security_policy();
             policies.push(UserTokenPolicy {
                 policy_id: user_pass_security_policy_id(endpoint),
                 token_type: UserTokenType::UserName,
                 issued_token_type: UAString::null(),
                 issuer_endpoint_url: UAString::null(),
-                security_policy_uri: user_pass_security_policy_uri(endpoint),
+                security_policy_uri: if password_policy == SecurityPolicy::None {
+                    UAString::null()
+                } else {
+                    UAString::from(password_policy.to_uri())
+                },
             });
         }
         if users.has_certificates() {

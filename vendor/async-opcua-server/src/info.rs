@@ -504,6 +504,13 @@ impl ServerInfo {
                         "Failed to decrypt identity token password",
                     ));
                 }
+            } else if endpoint.password_security_policy() != SecurityPolicy::None {
+                // pkm-plc: a password sent in clear where the endpoint's token policy asks for
+                // it encrypted is refused: it crossed the wire readable.
+                return Err(Error::new(
+                    StatusCode::BadIdentityTokenInvalid,
+                    "the password was sent in clear: the endpoint's user token policy asks for it encrypted",
+                ));
             } else {
                 token.plaintext_password()?
             };
