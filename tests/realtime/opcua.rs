@@ -1166,3 +1166,38 @@ fn a_password_never_crosses_the_unsecured_endpoint_in_clear() {
     let refused = client_steps(&python, "call", &relay, &login, &["Stop"]);
     assert_eq!(refused["refused"], "BadIdentityTokenInvalid", "{refused}");
 }
+
+/// The reconnecting recipe of docs/opcua.md (`examples/opcua/reconnect.py`, asyncua) goes on by
+/// itself through a server restart: the PLC stops (SIGTERM: its shutdown notice) and starts
+/// again on the same port, and the recipe's subscription delivers the new run's states.
+#[test]
+fn the_asyncua_recipe_reconnects_after_a_server_restart() {
+    let Some(python) = python_or_skip("opcua::the_asyncua_recipe_reconnects_after_a_server_restart") else {
+        return;
+    };
+    let mut first = Plc::start(&["--duration", "120"]);
+    let url = first.url.clone();
+    let recipe = format!("{}/examples/opcua/reconnect.py", env!("CARGO_MANIFEST_DIR"));
+    let watcher = Command::new(&python)
+        .args([recipe.as_str(), url.as_str(), "trijoint", "30"])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("the recipe runs");
+    // Watching the first run; then it stops, and another starts on the same port.
+    std::thread::sleep(Duration::from_secs(6));
+    assert!(first.run.terminate().success(), "{}", first.run.log());
+    std::thread::sleep(Duration::from_secs(1));
+    let second = Plc::serving(&url, &["--duration", "120"]);
+    let o = watcher.wait_with_output().expect("the recipe ends");
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{stdout}\n{}", String::from_utf8_lossy(&o.stderr));
+    let out: Json =
+        serde_json::from_str(stdout.lines().last().unwrap_or_default()).unwrap_or_else(|e| panic!("{e}: {stdout}"));
+    assert!(out["reconnects"].as_u64() >= Some(1), "{out}");
+    assert!(
+        out["after_reconnect"].as_u64() >= Some(1),
+        "the new run's states after the reconnect: {out}\n{}",
+        second.run.log()
+    );
+}
