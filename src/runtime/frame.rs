@@ -22,6 +22,9 @@ pub struct Frame {
     pub image: Vec<Value>,
     /// The bus reports a fault.
     pub bus_fault: bool,
+    /// While it does: the bus's name and why (`tcp:10.0.0.5:502: 4 failed exchanges in a row, …`),
+    /// as an error reason for it names them; empty otherwise.
+    pub bus_cause: String,
     /// When it was published, wall clock (µs since the Unix epoch): a browser on the same
     /// computer measures the update's latency against it.
     pub published_unix_us: u64,
@@ -49,6 +52,8 @@ pub fn frames(plc: &Plc) -> (FramePublisher, FrameReader) {
         status: Snapshot::for_plc(plc),
         image: plc.global_image().to_vec(),
         bus_fault: false,
+        // Room for a cause, so that publishing one does not allocate on the cyclic thread.
+        bus_cause: String::with_capacity(512),
         published_unix_us: 0,
     };
     let (input, output) = triple_buffer::triple_buffer(&frame);
@@ -84,6 +89,15 @@ impl FramePublisher {
         frame.image.clear();
         frame.image.extend_from_slice(plc.global_image());
         frame.bus_fault = plc.bus().fault();
+        frame.bus_cause.clear();
+        if frame.bus_fault {
+            frame.bus_cause.push_str(plc.bus().name());
+            let named = frame.bus_cause.len();
+            frame.bus_cause.push_str(": ");
+            if !plc.bus().write_fault_cause(&mut frame.bus_cause) {
+                frame.bus_cause.truncate(named);
+            }
+        }
         // The runtime's own clock read (a vDSO call), not a program's: the cycle is done.
         frame.published_unix_us = std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)

@@ -588,6 +588,14 @@ fn conditions_are_raised_acknowledged_and_cleared_as_the_plc_sees_them() {
             .any(|(_, _, _, m)| m.starts_with(&format!("ERROR: bus fault: tcp:{address}"))),
         "{out}"
     );
+    // Every one names the station and its cause, the first too (raised by the bus before the
+    // PLC's ERROR for it).
+    assert!(
+        bus.iter().all(|(_, _, _, m)| m
+            .trim_start_matches("ERROR: ")
+            .starts_with(&format!("bus fault: tcp:{address}: "))),
+        "{out}"
+    );
     let bus_event = first_event(&out, "BusFault");
     assert_eq!(bus_event["type"], "SystemOffNormalAlarmType", "{bus_event}");
     assert_eq!(bus_event["severity"], 800, "{bus_event}");

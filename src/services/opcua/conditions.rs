@@ -306,7 +306,12 @@ impl Conditions {
                 (true, format!("ERROR: {}", status.reason))
             } else {
                 match kind {
-                    Kind::BusFault if frame.bus_fault => (true, "the field bus reports a fault".to_string()),
+                    // The station and its cause first, as the PLC's error reason for it names
+                    // them (an error that comes after it has its own reason).
+                    Kind::BusFault if frame.bus_fault && frame.bus_cause.is_empty() => {
+                        (true, "the field bus reports a fault".to_string())
+                    }
+                    Kind::BusFault if frame.bus_fault => (true, format!("bus fault: {}", frame.bus_cause)),
                     Kind::CycleTime => match &self.cycle_time_until {
                         Some((_, what)) => (true, what.clone()),
                         None => (false, String::new()),
@@ -459,6 +464,7 @@ mod tests {
             },
             image: vec![Value::Int(code)],
             bus_fault,
+            bus_cause: String::new(),
             published_unix_us: 1,
         }
     }
@@ -591,6 +597,23 @@ mod tests {
             seen(&back),
             [("BusFault".into(), false, true, "the field bus answers again".into())]
         );
+        // The station and its cause, where the bus says them: named first, whatever error
+        // comes after it (the PLC's reason then is that error's).
+        let mut named = frame(0.15, "READY", 0, "", 0, true);
+        named.bus_cause = "tcp:127.0.0.1:5020: 4 failed exchanges in a row, the last: cannot connect".into();
+        let fault = c.observe(&named, now);
+        assert_eq!(
+            seen(&fault),
+            [(
+                "BusFault".into(),
+                true,
+                false,
+                "bus fault: tcp:127.0.0.1:5020: 4 failed exchanges in a row, the last: cannot connect".into()
+            )]
+        );
+        c.acknowledge(&node(Kind::BusFault), fault[0].event_id(), "operator", "")
+            .expect("acknowledged");
+        c.observe(&frame(0.2, "READY", 0, "", 0, false), now);
         // Two overruns of the fast class: CycleTime for a second of the PLC's time.
         let over = c.observe(&frame(1.0, "READY", 0, "", 2, false), now);
         assert_eq!(

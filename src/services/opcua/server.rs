@@ -486,6 +486,7 @@ mod tests {
             status: Snapshot::default(),
             image: Vec::new(),
             bus_fault: false,
+            bus_cause: String::new(),
             published_unix_us: 0,
         }
     }

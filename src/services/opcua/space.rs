@@ -767,6 +767,7 @@ mod tests {
             },
             image: vec![Value::Bool(true), Value::Real(1.5), Value::Real(2.0), Value::Int(1)],
             bus_fault: false,
+            bus_cause: String::new(),
             published_unix_us,
         }
     }
