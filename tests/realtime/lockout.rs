@@ -310,6 +310,22 @@ async fn silent_opc_ua_connections_are_closed_at_the_hello_timeout_and_one_host_
     let closed = futures::future::join_all(silent.iter_mut().map(|s| closed_within(s, Duration::from_secs(1)))).await;
     let closed_at_once = closed.iter().filter(|c| **c).count();
     assert_eq!(closed_at_once, 13, "{}", served.run.log());
+    // One more from that host is refused too, and told why (an OPC UA error message, not a
+    // bare closed connection).
+    let mut refused = connect_from([127, 0, 0, 2], served.opcua).await.expect("connects");
+    let mut said = Vec::new();
+    let _ = tokio::time::timeout(Duration::from_secs(5), refused.read_to_end(&mut said)).await;
+    assert_eq!(said.get(..4), Some(&b"ERRF"[..]), "{said:?}");
+    assert_eq!(
+        said.get(8..12),
+        Some(&0x807D_0000u32.to_le_bytes()[..]),
+        "BadTcpServerTooBusy"
+    );
+    let reason = String::from_utf8_lossy(said.get(16..).unwrap_or_default());
+    assert_eq!(
+        reason,
+        "pkm-plc refused the connection: 7 connections from 127.0.0.2 are open already (a source's share of the 14)"
+    );
     // Another client is answered meanwhile.
     assert!(acknowledged([127, 0, 0, 1], served.opcua).await, "{}", served.run.log());
     // The silent ones are closed at the hello timeout (5 s), whatever their client does.

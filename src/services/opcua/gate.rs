@@ -4,7 +4,9 @@
 //! of connections and relays each to the server on a loopback port of its own.
 //!
 //! - A connection beyond the bound, or beyond its source address's share of it, is closed at
-//!   once: one host cannot take every slot, however fast it opens them again.
+//!   once: one host cannot take every slot, however fast it opens them again. It is told why
+//!   first, in an OPC UA error message (`BadTcpServerTooBusy` with the reason), written without
+//!   waiting: a client says why it could not connect instead of a bare closed connection.
 //! - A connection that sends nothing within the hello timeout is closed by the gate, and its
 //!   slot freed.
 //! - A connection ends as soon as either side closes its end: the server closing a connection
@@ -106,12 +108,12 @@ pub fn spawn(public: TcpListener, inner: SocketAddr, bounds: Bounds) {
             };
             let ip = peer.ip();
             if !sources.take(ip, bounds.per_source) {
-                refused.warn(ip, || {
-                    format!(
-                        "OPC UA: refused a connection from {peer}: {} connections from {ip} are open already (a source's share of the {})",
-                        bounds.per_source, bounds.max
-                    )
-                });
+                let why = format!(
+                    "{} connections from {ip} are open already (a source's share of the {})",
+                    bounds.per_source, bounds.max
+                );
+                tell_refused(&socket, &why);
+                refused.warn(ip, || format!("OPC UA: refused a connection from {peer}: {why}"));
                 continue;
             }
             let slot = SourceSlot {
@@ -119,12 +121,9 @@ pub fn spawn(public: TcpListener, inner: SocketAddr, bounds: Bounds) {
                 ip,
             };
             let Ok(permit) = Arc::clone(&permits).try_acquire_owned() else {
-                refused.warn(ip, || {
-                    format!(
-                        "OPC UA: refused a connection from {peer}: {} connections are open already",
-                        bounds.max
-                    )
-                });
+                let why = format!("{} connections are open already", bounds.max);
+                tell_refused(&socket, &why);
+                refused.warn(ip, || format!("OPC UA: refused a connection from {peer}: {why}"));
                 continue;
             };
             let silent = Arc::clone(&silent);
@@ -134,6 +133,20 @@ pub fn spawn(public: TcpListener, inner: SocketAddr, bounds: Bounds) {
             });
         }
     });
+}
+
+/// Tells a refused connection why, as an OPC UA error message (OPC 10000-6, 7.1.2.5:
+/// `BadTcpServerTooBusy` and the reason), if its socket takes it at once: the gate never waits
+/// for a refused client.
+fn tell_refused(socket: &TcpStream, why: &str) {
+    const BAD_TCP_SERVER_TOO_BUSY: u32 = 0x807D_0000;
+    let reason = format!("pkm-plc refused the connection: {why}");
+    let mut message = b"ERRF".to_vec();
+    message.extend_from_slice(&((16 + reason.len()) as u32).to_le_bytes());
+    message.extend_from_slice(&BAD_TCP_SERVER_TOO_BUSY.to_le_bytes());
+    message.extend_from_slice(&(reason.len() as i32).to_le_bytes());
+    message.extend_from_slice(reason.as_bytes());
+    let _ = socket.try_write(&message);
 }
 
 /// Carries one connection's bytes both ways until either side closes, once the client has said
