@@ -91,12 +91,7 @@ impl FramePublisher {
         frame.bus_fault = plc.bus().fault();
         frame.bus_cause.clear();
         if frame.bus_fault {
-            frame.bus_cause.push_str(plc.bus().name());
-            let named = frame.bus_cause.len();
-            frame.bus_cause.push_str(": ");
-            if !plc.bus().write_fault_cause(&mut frame.bus_cause) {
-                frame.bus_cause.truncate(named);
-            }
+            plc.write_bus_fault(&mut frame.bus_cause);
         }
         // The runtime's own clock read (a vDSO call), not a program's: the cycle is done.
         frame.published_unix_us = std::time::SystemTime::now()

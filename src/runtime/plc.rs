@@ -315,12 +315,24 @@ impl Plc {
         if reason.starts_with(pkm_api::bus::BUS_FAULT_REASON) {
             let mark = out.len();
             out.push_str(": ");
-            out.push_str(self.bus.name());
-            out.push_str(": ");
-            if !self.bus.write_fault_cause(out) {
+            if !self.write_bus_fault(out) {
                 out.truncate(mark);
             }
         }
+    }
+
+    /// Writes the bus's name to `out` and, where the bus can tell, why it is (or last was)
+    /// faulty (`tcp:10.0.0.5:502: 4 failed exchanges in a row, …`); whether it told why.
+    /// Allocates nothing once `out` has grown to the longest.
+    pub fn write_bus_fault(&self, out: &mut String) -> bool {
+        out.push_str(self.bus.name());
+        let named = out.len();
+        out.push_str(": ");
+        let told = self.bus.write_fault_cause(out);
+        if !told {
+            out.truncate(named);
+        }
+        told
     }
 
     /// The application's error reason, completed as [`Plc::write_reason`] does; `None` without

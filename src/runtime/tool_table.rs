@@ -27,8 +27,9 @@ pub struct ToolTableKeeper {
     /// Whether changes are written to the file (a machine's run) or kept for the run (a
     /// simulation).
     writes: bool,
-    /// The table now, and whether it is still the one the run started with.
-    now: Mutex<(ToolTable, bool)>,
+    /// The table now, and its text once it is no longer the one the run started with (as
+    /// written: made once a change, not at every look).
+    now: Mutex<(ToolTable, Option<String>)>,
     /// How many changes were kept: the screen sends every page the table at each.
     changes: tokio::sync::watch::Sender<u64>,
 }
@@ -49,7 +50,7 @@ impl ToolTableKeeper {
         ToolTableKeeper {
             file,
             writes,
-            now: Mutex::new((table, true)),
+            now: Mutex::new((table, None)),
             changes: tokio::sync::watch::Sender::new(0),
         }
     }
@@ -77,8 +78,12 @@ impl ToolTableKeeper {
     /// The table's text (LinuxCNC's format) once it is no longer the one the run started with:
     /// what a job made now is planned with.
     pub fn changed_text(&self) -> Option<String> {
-        let now = self.now.lock().unwrap_or_else(|p| p.into_inner());
-        (!now.1).then(|| now.0.format())
+        self.now.lock().unwrap_or_else(|p| p.into_inner()).1.clone()
+    }
+
+    /// Whether the table is no longer the one the run started with.
+    pub fn changed(&self) -> bool {
+        self.now.lock().unwrap_or_else(|p| p.into_inner()).1.is_some()
     }
 
     /// Sets `tool`'s entry (replaced, or added at the end), checked as the table's reader
@@ -86,16 +91,20 @@ impl ToolTableKeeper {
     /// and nothing changed, when the entry is not valid or the file cannot be written.
     pub fn set(&self, tool: Tool) -> Result<Kept, String> {
         check(&tool)?;
+        self.change(|table| put(table, tool))
+    }
+
+    /// Sets `tool`'s entry as the screen edits it, as [`ToolTableKeeper::set`] does: a lathe
+    /// tool's orientation and angles, which the screen does not show, kept from the entry it
+    /// replaces.
+    pub fn edit(&self, mut tool: Tool) -> Result<Kept, String> {
+        check(&tool)?;
         self.change(|table| {
-            let full = table.tools.len() >= MAX_TOOLS;
-            match table.tools.iter_mut().find(|t| t.number == tool.number) {
-                Some(t) => *t = tool,
-                None if full => {
-                    return Err(format!("the tool table holds {MAX_TOOLS} tools already, its most"));
-                }
-                None => table.tools.push(tool),
+            if let Some(was) = table.get(tool.number) {
+                tool.orientation = was.orientation;
+                tool.angles = was.angles;
             }
-            Ok(())
+            put(table, tool)
         })
     }
 
@@ -127,18 +136,30 @@ impl ToolTableKeeper {
         let mut now = self.now.lock().unwrap_or_else(|p| p.into_inner());
         let mut table = now.0.clone();
         edit(&mut table)?;
+        let text = table.format();
         let kept = if self.writes {
-            crate::runtime::files::replace_durably(&PathBuf::from(&self.file), &table.format())
+            crate::runtime::files::replace_durably(&PathBuf::from(&self.file), &text)
                 .map_err(|e| format!("{}: cannot write the tool table: {e}", self.file))?;
             Kept::Written
         } else {
             Kept::ForTheRun
         };
-        *now = (table, false);
+        *now = (table, Some(text));
         drop(now);
         self.changes.send_modify(|n| *n += 1);
         Ok(kept)
     }
+}
+
+/// Puts `tool` in `table`: in place of its entry, or added at the end.
+fn put(table: &mut ToolTable, tool: Tool) -> Result<(), String> {
+    let full = table.tools.len() >= MAX_TOOLS;
+    match table.tools.iter_mut().find(|t| t.number == tool.number) {
+        Some(t) => *t = tool,
+        None if full => return Err(format!("the tool table holds {MAX_TOOLS} tools already, its most")),
+        None => table.tools.push(tool),
+    }
+    Ok(())
 }
 
 /// Writes back the tool table entries among `messages` — a program's `G10 L1`/`L10` as the run

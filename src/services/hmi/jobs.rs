@@ -162,7 +162,7 @@ impl JobDesk {
     /// Whether the run's programs are planned again before they are loaded: a touch-off has
     /// changed the work offsets, or the tool table has changed, since they were planned.
     pub fn plans_changed(&self) -> bool {
-        self.offsets_changed() || self.tools.as_ref().is_some_and(|t| t.changed_text().is_some())
+        self.offsets_changed() || self.tools.as_ref().is_some_and(|t| t.changed())
     }
 
     /// The work offsets jobs are planned with now.
@@ -262,13 +262,7 @@ impl JobDesk {
             if remove {
                 keeper.remove(tool.number)
             } else {
-                // A lathe tool's angles and orientation, which the screen does not edit, stay.
-                let mut tool = tool;
-                if let Some(was) = keeper.table().get(tool.number) {
-                    tool.orientation = was.orientation;
-                    tool.angles = was.angles;
-                }
-                keeper.set(tool)
+                keeper.edit(tool)
             }
         })
         .await

@@ -311,7 +311,9 @@ impl Conditions {
                     Kind::BusFault if frame.bus_fault && frame.bus_cause.is_empty() => {
                         (true, "the field bus reports a fault".to_string())
                     }
-                    Kind::BusFault if frame.bus_fault => (true, format!("bus fault: {}", frame.bus_cause)),
+                    Kind::BusFault if frame.bus_fault => {
+                        (true, format!("{}: {}", pkm_api::bus::BUS_FAULT_REASON, frame.bus_cause))
+                    }
                     Kind::CycleTime => match &self.cycle_time_until {
                         Some((_, what)) => (true, what.clone()),
                         None => (false, String::new()),

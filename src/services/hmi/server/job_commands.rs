@@ -196,9 +196,8 @@ impl Shared {
             let _ = self.frames.send(Arc::from(origins.as_str()));
         }
         let mut reply = json!({"type": "touch_off", "system": name, "axis": axis, "value": value, "was": t.was, "now": t.now, "kept": kept});
-        if let Some(k) = desk.loaded_program() {
-            let kind = pkm_api::screen_jobs::ScreenJobKind::FromLine { program: k, line: 1 };
-            reply["job"] = self.make_and_load(peer, desk, kind, false).await;
+        if let Some(job) = self.replan_loaded(peer, desk).await {
+            reply["job"] = job;
         }
         reply
     }
@@ -230,11 +229,20 @@ impl Shared {
             }
         );
         let mut reply = json!({"type": "tool", "what": what, "written": written});
-        if let Some(k) = desk.loaded_program() {
-            let kind = pkm_api::screen_jobs::ScreenJobKind::FromLine { program: k, line: 1 };
-            reply["job"] = self.make_and_load(peer, desk, kind, false).await;
+        if let Some(job) = self.replan_loaded(peer, desk).await {
+            reply["job"] = job;
         }
         reply
+    }
+
+    /// Plans the loaded program (or the program a loaded run from a line runs) again from its
+    /// first line, with the offsets and the tool table as they are now, and loads it in its
+    /// place, not started: the reply of [`Shared::make_and_load`]; `None` where no program is
+    /// loaded.
+    async fn replan_loaded(&self, peer: SocketAddr, desk: &JobDesk) -> Option<Json> {
+        let k = desk.loaded_program()?;
+        let kind = pkm_api::screen_jobs::ScreenJobKind::FromLine { program: k, line: 1 };
+        Some(self.make_and_load(peer, desk, kind, false).await)
     }
 
     /// Makes job `kind` and loads it, and starts it if `start`: the reply says its number, file,

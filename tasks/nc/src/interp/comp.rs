@@ -182,19 +182,7 @@ impl State<'_> {
             if tool == 0 {
                 0.0
             } else {
-                let entry = self.tools.get(tool).ok_or_else(|| {
-                    let word = d.unwrap_or(w);
-                    if self.machine.tools.is_none() {
-                        at(
-                            word,
-                            format!(
-                                "{name} D{tool}: there is no tool table (give one with --tool-table or nc.tool_table in the configuration)"
-                            ),
-                        )
-                    } else {
-                        at(word, format!("{name} D{tool}: tool {tool} is not in the tool table"))
-                    }
-                })?;
+                let entry = self.tool_entry(line, d.unwrap_or(w), &format!("{name} D{tool}"), tool)?;
                 if !matches!(entry.orientation, 0 | 9) {
                     return Err(at(
                         d.unwrap_or(w),
@@ -277,16 +265,25 @@ impl State<'_> {
         kind: OpenKind,
         out: &mut Vec<Block>,
     ) {
-        self.push_move(line, to, path, feed, out);
+        self.push_move(line, to, path, feed, self.blend, out);
         let index = out.len() - 1;
         self.comp_mut().open.push(Open { index, kind });
     }
 
-    /// Closes the open moves where they end.
-    fn close(&mut self) {
+    /// Closes the open moves where they end; `start`: where the next open move starts (LinuxCNC's
+    /// `set_endpoint`).
+    fn close(&mut self, start: [f64; 2]) {
         let comp = self.comp_mut();
         comp.open.clear();
-        comp.start = None;
+        comp.start = Some(start);
+    }
+
+    /// The pose at the end of the arc around a convex corner (`mid` in the plane): the normal
+    /// coordinate where the tool is, the rotations where the move ends (LinuxCNC turns them on
+    /// the corner's arc).
+    fn corner_end(&self, mid: [f64; 2], p: &Programmed) -> Pose {
+        let corner = with_plane(self.position, self.plane, mid);
+        std::array::from_fn(|k| if k >= 3 { p.to[k] } else { corner[k] })
     }
 
     /// Moves the open moves' ends (in the plane) to `to` and closes them (LinuxCNC's
@@ -347,9 +344,7 @@ impl State<'_> {
         if !open.is_empty() {
             self.position = with_plane(self.position, plane, to);
         }
-        let comp = self.comp_mut();
-        comp.open.clear();
-        comp.start = Some(to);
+        self.close(to);
         Ok(())
     }
 
@@ -429,8 +424,7 @@ impl State<'_> {
             // Convex: around the corner on an arc about the programmed corner (a rapid goes
             // straight to where the arc would end, as LinuxCNC's).
             self.move_end_and_close(c, out)?;
-            let corner = with_plane(self.position, plane, mid);
-            let corner: Pose = std::array::from_fn(|k| if k >= 3 { p.to[k] } else { corner[k] });
+            let corner = self.corner_end(mid, p);
             let path = if p.rapid {
                 Path::Line
             } else {
@@ -441,19 +435,9 @@ impl State<'_> {
                     extra_turns: 0,
                 }
             };
-            self.open_move(
-                line,
-                corner,
-                path,
-                p.feed,
-                OpenKind::Line {
-                    rapid: p.rapid,
-                    direction: [0.0, 0.0],
-                },
-                out,
-            );
-            self.close();
-            self.comp_mut().start = Some(mid);
+            // Not open: the next move starts where it ends.
+            self.push_move(line, corner, path, p.feed, self.blend, out);
+            self.close(mid);
         } else if concave {
             let at = match self.front_arc() {
                 None => {
@@ -522,8 +506,7 @@ impl State<'_> {
             self.move_end_and_close(at, out)?;
         } else {
             // Straight on (or tangent from an arc): no corner.
-            self.close();
-            self.comp_mut().start = Some(c);
+            self.close(c);
         }
         let kind = OpenKind::Line {
             rapid: p.rapid,
@@ -735,21 +718,17 @@ impl State<'_> {
         } else if beta > SMALL {
             // Convex: around the corner on an arc about the programmed corner first.
             let mid = polar(op, radius, delta);
-            self.close();
-            let corner = with_plane(self.position, plane, mid);
-            let corner: Pose = std::array::from_fn(|k| if k >= 3 { p.to[k] } else { corner[k] });
             let around = Path::Arc {
                 plane,
                 center: op,
                 clockwise: side == Side::Left,
                 extra_turns: 0,
             };
-            self.open_move(line, corner, around, p.feed, OpenKind::Arc { turn: 0, sweep: 0.0 }, out);
-            self.close();
-            self.comp_mut().start = Some(mid);
+            // Not open: the next move starts where it ends.
+            self.push_move(line, self.corner_end(mid, p), around, p.feed, self.blend, out);
+            self.close(mid);
         } else {
-            self.close();
-            self.comp_mut().start = Some(c);
+            self.close(c);
         }
         let path = arc(turn < 0, turn.unsigned_abs() - 1);
         self.open_move(line, with_plane(p.to, plane, tool_end), path, p.feed, kind, out);

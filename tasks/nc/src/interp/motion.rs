@@ -5,7 +5,7 @@
 use crate::NcError;
 use crate::lexer::Word;
 
-use super::block::{Action, Block, Path, Plane, Pose};
+use super::block::{Action, Blend, Block, Path, Plane, Pose};
 use super::modes::stops;
 use super::state::State;
 use super::words::{Words, count};
@@ -198,15 +198,23 @@ impl State<'_> {
                 stops(line, &words.m, out);
                 return Ok(());
             }
-            self.push_move(line, to, path, feed, out);
+            self.push_move(line, to, path, feed, self.blend, out);
         }
         stops(line, &words.m, out);
         Ok(())
     }
 
     /// Adds a move of line `line` from where the tool is to `to` along `path` at `feed` (`None`:
-    /// a rapid), ending as the path mode in force says; the tool is there after it.
-    pub(super) fn push_move(&mut self, line: usize, to: Pose, path: Path, feed: Option<f64>, out: &mut Vec<Block>) {
+    /// a rapid), ending as `blend` says; the tool is there after it.
+    pub(super) fn push_move(
+        &mut self,
+        line: usize,
+        to: Pose,
+        path: Path,
+        feed: Option<f64>,
+        blend: Blend,
+        out: &mut Vec<Block>,
+    ) {
         out.push(Block {
             line,
             column: 1,
@@ -215,7 +223,7 @@ impl State<'_> {
                 to,
                 path,
                 feed_mm_min: feed,
-                blend: self.blend,
+                blend,
             },
         });
         self.position = to;

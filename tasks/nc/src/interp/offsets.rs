@@ -7,7 +7,7 @@
 use crate::NcError;
 use crate::lexer::Word;
 
-use super::block::{Action, Blend, Block, Path, Pose};
+use super::block::{Blend, Block, Path, Pose};
 use super::state::State;
 use super::words::{Words, format_code};
 
@@ -212,18 +212,7 @@ impl State<'_> {
     /// nothing).
     pub(super) fn line_to(&mut self, line: usize, to: Pose, feed: Option<f64>, blend: Blend, out: &mut Vec<Block>) {
         if to != self.position {
-            out.push(Block {
-                line,
-                column: 1,
-                action: Action::Move {
-                    from: self.position,
-                    to,
-                    path: Path::Line,
-                    feed_mm_min: feed,
-                    blend,
-                },
-            });
-            self.position = to;
+            self.push_move(line, to, Path::Line, feed, blend, out);
         }
     }
 

@@ -5,7 +5,7 @@
 
 use crate::NcError;
 use crate::lexer::{self, Word};
-use crate::tools::MAX_TOOL;
+use crate::tools::{MAX_TOOL, Tool};
 use pkm_api::trajectory::{NcMessage, NcMessageKind};
 
 use super::block::{Action, Block, Pose};
@@ -96,16 +96,29 @@ impl State<'_> {
             )));
         }
         let number = v as u32;
-        if number != 0 && self.tools.get(number).is_none() {
-            return Err(at(if self.machine.tools.is_none() {
-                format!(
-                    "{letter}{number}: there is no tool table (give one with --tool-table or nc.tool_table in the configuration)"
-                )
-            } else {
-                format!("{letter}{number}: tool {number} is not in the tool table")
-            }));
+        if number != 0 {
+            self.tool_entry(line, word, &format!("{letter}{number}"), number)?;
         }
         Ok(number)
+    }
+
+    /// Tool `number`'s entry in the table; where there is none, the error at `word`, `asked`
+    /// (the words that asked for it: `T7`, `G41 D7`) and why: the run has no table, or no such
+    /// tool.
+    pub(super) fn tool_entry(&self, line: usize, word: &Word, asked: &str, number: u32) -> Result<&Tool, NcError> {
+        self.tools.get(number).ok_or_else(|| {
+            NcError::new(
+                line,
+                word.column,
+                if self.machine.tools.is_none() {
+                    format!(
+                        "{asked}: there is no tool table (give one with --tool-table or nc.tool_table in the configuration)"
+                    )
+                } else {
+                    format!("{asked}: tool {number} is not in the tool table")
+                },
+            )
+        })
     }
 
     /// G43 (the offsets of tool H, or of the tool in the spindle), G43.1 (the offsets of the
