@@ -3,6 +3,7 @@
 #![allow(dead_code)]
 
 pub mod cdp;
+pub mod host;
 pub mod soak;
 
 use std::path::{Path, PathBuf};
@@ -895,6 +896,7 @@ impl Logged {
         let kept = std::sync::Arc::clone(&log);
         let reader = std::thread::spawn(move || {
             for line in std::io::BufReader::new(stderr).lines().map_while(Result::ok) {
+                host::note_log_line(&line);
                 if let Some(at) = line.split(marker).nth(1) {
                     let _ = tx.send(at.split_whitespace().next().unwrap_or("").to_string());
                 }
@@ -921,13 +923,30 @@ impl Logged {
     /// machine the next lines may be in the log already). The log is looked at every 20 ms: the
     /// wait follows the run's own output, not a guess of how long the run takes.
     pub fn wait_for(&self, from: usize, text: &str, within: std::time::Duration) -> Option<usize> {
+        self.wait_for_unless(from, text, None, within)
+    }
+
+    /// As [`Logged::wait_for`], but gives up as soon as a line with `unless` comes first.
+    fn wait_for_unless(
+        &self,
+        from: usize,
+        text: &str,
+        unless: Option<&str>,
+        within: std::time::Duration,
+    ) -> Option<usize> {
         let start = std::time::Instant::now();
         while start.elapsed() < within {
             let log = self.log();
-            if let Some(at) = log.get(from..).and_then(|rest| rest.find(text)) {
+            let rest = log.get(from..).unwrap_or("");
+            let found = rest.find(text);
+            let ended = unless.and_then(|unless| rest.find(unless));
+            if let Some(at) = found.filter(|&at| ended.is_none_or(|end| at < end)) {
                 let found = from + at;
                 let end = log[found..].find('\n').map_or(log.len(), |n| found + n + 1);
                 return Some(end);
+            }
+            if ended.is_some() {
+                return None;
             }
             std::thread::sleep(std::time::Duration::from_millis(20));
         }
@@ -937,10 +956,18 @@ impl Logged {
     /// Waits up to `within` for the run's main state to become `state` (the line it logs then)
     /// after the first `from` bytes of the log; the log's length then, to wait on from there.
     /// Real-time tests act from there, not at times guessed from the start — on a busy machine
-    /// referencing ends later.
+    /// referencing ends later. An ERROR for a cycle time violation ends the wait at once: only
+    /// an operator's acknowledgment leaves it.
     pub fn wait_for_state(&self, from: usize, state: &str, within: std::time::Duration) -> usize {
-        self.wait_for(from, &format!(" s: {state}"), within)
-            .unwrap_or_else(|| panic!("not {state} within {within:?}:\n{}", self.log()))
+        let unless = (state != "ERROR").then_some(" s: ERROR (cycle time violation");
+        self.wait_for_unless(from, &format!(" s: {state}"), unless, within)
+            .unwrap_or_else(|| {
+                let log = self.log();
+                match unless.filter(|unless| log.get(from..).is_some_and(|rest| rest.contains(unless))) {
+                    Some(_) => panic!("not {state}: an ERROR for a cycle time violation first:\n{log}"),
+                    None => panic!("not {state} within {within:?}:\n{log}"),
+                }
+            })
     }
 
     /// Asks the run to end (SIGTERM) and waits for it: outputs safe, summary and trace written.

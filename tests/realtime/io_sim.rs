@@ -152,38 +152,40 @@ fn the_packed_process_image_exchanges_everything_in_one_transaction() {
 /// when asked.
 #[test]
 fn the_soft_plc_references_and_jogs_over_modbus_tcp() {
-    let dir = tempfile::tempdir().expect("tempdir");
-    let config = common::machine_test_config(dir.path(), "trijoint");
-    common::on_generic_station(&config);
-    let (_sim, address) = common::start_io_sim("127.0.0.1:0", &["--config", config.to_str().expect("utf-8")]);
-    let (s, t) = (dir.path().join("summary.json"), dir.path().join("trace.jsonl"));
-    let mut command = common::pkm_command();
-    command
-        .args([
-            "run",
-            "--bus",
-            &format!("tcp:{address}"),
-            "--summary",
-            s.to_str().expect("utf-8"),
-        ])
-        .args(["--trace", t.to_str().expect("utf-8")])
-        .args(["--config", config.to_str().expect("utf-8")])
-        .args(["--hmi", "127.0.0.1:0", "--joystick", "none"])
-        .env("RUST_LOG", "info");
-    let (mut run, url) = common::Logged::start(command, "operator screen at ", std::time::Duration::from_secs(30));
-    let ready = run.wait_for_state(0, "READY", std::time::Duration::from_secs(90));
-    common::screen_jog(&url, 1.0, 0.0, std::time::Duration::from_millis(1500));
-    // The jog moved it, and it stands again once released.
-    let moved = run.wait_for_state(ready, "MOTION", std::time::Duration::from_secs(10));
-    run.wait_for_state(moved, "READY", std::time::Duration::from_secs(20));
-    assert!(run.terminate().success(), "{}", run.log());
-    let s = common::read_json(&s);
-    assert_eq!(s["bus"], format!("tcp:{address}"));
-    assert_eq!(s["main"]["state"], "READY", "{s}");
-    // The jog moved the machine over the link.
-    let trace = std::fs::read_to_string(&t).expect("trace");
-    assert!(trace.contains(r#""state":"MOTION""#), "no MOTION in the trace");
-    assert!(!trace.contains(r#""state":"ERROR""#), "an ERROR in the trace");
+    common::host::on_a_steady_host("the_soft_plc_references_and_jogs_over_modbus_tcp", || {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let config = common::machine_test_config(dir.path(), "trijoint");
+        common::on_generic_station(&config);
+        let (_sim, address) = common::start_io_sim("127.0.0.1:0", &["--config", config.to_str().expect("utf-8")]);
+        let (s, t) = (dir.path().join("summary.json"), dir.path().join("trace.jsonl"));
+        let mut command = common::pkm_command();
+        command
+            .args([
+                "run",
+                "--bus",
+                &format!("tcp:{address}"),
+                "--summary",
+                s.to_str().expect("utf-8"),
+            ])
+            .args(["--trace", t.to_str().expect("utf-8")])
+            .args(["--config", config.to_str().expect("utf-8")])
+            .args(["--hmi", "127.0.0.1:0", "--joystick", "none"])
+            .env("RUST_LOG", "info");
+        let (mut run, url) = common::Logged::start(command, "operator screen at ", std::time::Duration::from_secs(30));
+        let ready = run.wait_for_state(0, "READY", std::time::Duration::from_secs(90));
+        common::screen_jog(&url, 1.0, 0.0, std::time::Duration::from_millis(1500));
+        // The jog moved it, and it stands again once released.
+        let moved = run.wait_for_state(ready, "MOTION", std::time::Duration::from_secs(10));
+        run.wait_for_state(moved, "READY", std::time::Duration::from_secs(20));
+        assert!(run.terminate().success(), "{}", run.log());
+        let s = common::read_json(&s);
+        assert_eq!(s["bus"], format!("tcp:{address}"));
+        assert_eq!(s["main"]["state"], "READY", "{s}");
+        // The jog moved the machine over the link.
+        let trace = std::fs::read_to_string(&t).expect("trace");
+        assert!(trace.contains(r#""state":"MOTION""#), "no MOTION in the trace");
+        assert!(!trace.contains(r#""state":"ERROR""#), "an ERROR in the trace");
+    })
 }
 
 #[test]
@@ -261,36 +263,38 @@ fn the_soft_plc_exchanges_the_packed_image_over_tcp_too() {
 /// READY, then a jog along +x from the operator's screen; the run ends when asked.
 #[test]
 fn the_hexapod_references_and_jogs_over_modbus_tcp() {
-    let dir = tempfile::tempdir().expect("tempdir");
-    let config_path = common::machine_test_config(dir.path(), "hexapod");
-    let (_sim, address) = common::start_io_sim("127.0.0.1:0", &["--config", config_path.to_str().expect("utf-8")]);
-    let (s, t) = (dir.path().join("summary.json"), dir.path().join("trace.jsonl"));
-    let mut command = common::pkm_command();
-    command
-        .args(["run", "--bus", &format!("tcp:{address}")])
-        .args(["--summary", s.to_str().expect("utf-8")])
-        .args(["--trace", t.to_str().expect("utf-8")])
-        .args(["--config", config_path.to_str().expect("utf-8")])
-        .args(["--hmi", "127.0.0.1:0", "--joystick", "none"])
-        .env("RUST_LOG", "info");
-    let (mut run, url) = common::Logged::start(command, "operator screen at ", std::time::Duration::from_secs(30));
-    let ready = run.wait_for_state(0, "READY", std::time::Duration::from_secs(90));
-    common::screen_jog(&url, 1.0, 0.0, std::time::Duration::from_millis(1500));
-    // The jog moved it, and it stands again once released.
-    let moved = run.wait_for_state(ready, "MOTION", std::time::Duration::from_secs(10));
-    run.wait_for_state(moved, "READY", std::time::Duration::from_secs(20));
-    assert!(run.terminate().success(), "{}", run.log());
-    let s = common::read_json(&s);
-    assert_eq!(s["main"]["program"], "hexapod.main");
-    assert_eq!(s["main"]["state"], "READY", "{s}");
-    // The tool pose is in the summary: the jog moved the tool along +x only.
-    let x = s["main"]["values"]["x"].as_f64().expect("x in the summary");
-    assert!(x > 1.0, "the tool moved {x} mm along x: {s}");
-    for c in ["y", "z", "a", "b", "c"] {
-        let v = s["main"]["values"][c].as_f64().expect("pose in the summary");
-        assert!(v.abs() < 0.05, "{c} = {v}: {s}");
-    }
-    let trace = std::fs::read_to_string(&t).expect("trace");
-    assert!(trace.contains(r#""state":"MOTION""#), "no MOTION in the trace");
-    assert!(!trace.contains(r#""state":"ERROR""#), "an ERROR in the trace");
+    common::host::on_a_steady_host("the_hexapod_references_and_jogs_over_modbus_tcp", || {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let config_path = common::machine_test_config(dir.path(), "hexapod");
+        let (_sim, address) = common::start_io_sim("127.0.0.1:0", &["--config", config_path.to_str().expect("utf-8")]);
+        let (s, t) = (dir.path().join("summary.json"), dir.path().join("trace.jsonl"));
+        let mut command = common::pkm_command();
+        command
+            .args(["run", "--bus", &format!("tcp:{address}")])
+            .args(["--summary", s.to_str().expect("utf-8")])
+            .args(["--trace", t.to_str().expect("utf-8")])
+            .args(["--config", config_path.to_str().expect("utf-8")])
+            .args(["--hmi", "127.0.0.1:0", "--joystick", "none"])
+            .env("RUST_LOG", "info");
+        let (mut run, url) = common::Logged::start(command, "operator screen at ", std::time::Duration::from_secs(30));
+        let ready = run.wait_for_state(0, "READY", std::time::Duration::from_secs(90));
+        common::screen_jog(&url, 1.0, 0.0, std::time::Duration::from_millis(1500));
+        // The jog moved it, and it stands again once released.
+        let moved = run.wait_for_state(ready, "MOTION", std::time::Duration::from_secs(10));
+        run.wait_for_state(moved, "READY", std::time::Duration::from_secs(20));
+        assert!(run.terminate().success(), "{}", run.log());
+        let s = common::read_json(&s);
+        assert_eq!(s["main"]["program"], "hexapod.main");
+        assert_eq!(s["main"]["state"], "READY", "{s}");
+        // The tool pose is in the summary: the jog moved the tool along +x only.
+        let x = s["main"]["values"]["x"].as_f64().expect("x in the summary");
+        assert!(x > 1.0, "the tool moved {x} mm along x: {s}");
+        for c in ["y", "z", "a", "b", "c"] {
+            let v = s["main"]["values"][c].as_f64().expect("pose in the summary");
+            assert!(v.abs() < 0.05, "{c} = {v}: {s}");
+        }
+        let trace = std::fs::read_to_string(&t).expect("trace");
+        assert!(trace.contains(r#""state":"MOTION""#), "no MOTION in the trace");
+        assert!(!trace.contains(r#""state":"ERROR""#), "an ERROR in the trace");
+    })
 }

@@ -117,7 +117,9 @@ fn both_exchanges(machine: &str) {
         for exchange in ["tables", "image"] {
             let dir = dir.path().join(exchange);
             std::fs::create_dir(&dir).expect("a directory");
-            scope.spawn(move || session(machine, exchange, &dir));
+            scope.spawn(move || {
+                common::host::on_a_steady_host(&format!("{machine} ({exchange})"), || session(machine, exchange, &dir))
+            });
         }
     });
 }
