@@ -1,4 +1,5 @@
 use std::{
+    net::SocketAddr,
     pin::Pin,
     sync::Arc,
     time::{Duration, Instant},
@@ -64,6 +65,15 @@ impl Response {
     }
 }
 
+/// pkm-plc: forgets a connection's channel when the connection ends, however it ends.
+struct PeerEnded(Arc<super::manager::Peers>, SocketAddr);
+
+impl Drop for PeerEnded {
+    fn drop(&mut self) {
+        self.0.ended(&self.1);
+    }
+}
+
 pub(crate) enum ControllerCommand {
     Close,
 }
@@ -81,6 +91,8 @@ pub(crate) struct SessionController {
     pending_messages: FuturesUnordered<Pin<Box<PendingMessageResponse>>>,
     info: Arc<ServerInfo>,
     deadline: Instant,
+    /// pkm-plc: the connection's peer address, by which a gate in front asks what it holds.
+    peer: Option<SocketAddr>,
 }
 
 enum RequestProcessResult {
@@ -90,6 +102,8 @@ enum RequestProcessResult {
 
 pub(crate) struct SessionStarter<T> {
     connector: T,
+    /// pkm-plc: the connection's peer address (`None`: a reverse connection).
+    peer: Option<SocketAddr>,
     info: Arc<ServerInfo>,
     session_manager: Arc<RwLock<SessionManager>>,
     certificate_store: Arc<RwLock<CertificateStore>>,
@@ -100,6 +114,7 @@ pub(crate) struct SessionStarter<T> {
 impl<T: Connector> SessionStarter<T> {
     pub(crate) fn new(
         connector: T,
+        peer: Option<SocketAddr>,
         info: Arc<ServerInfo>,
         session_manager: Arc<RwLock<SessionManager>>,
         certificate_store: Arc<RwLock<CertificateStore>>,
@@ -108,6 +123,7 @@ impl<T: Connector> SessionStarter<T> {
     ) -> Self {
         Self {
             connector,
+            peer,
             info,
             session_manager,
             certificate_store,
@@ -154,6 +170,7 @@ impl<T: Connector> SessionStarter<T> {
 
         let controller = SessionController::new(
             transport,
+            self.peer,
             self.session_manager,
             self.certificate_store,
             self.info,
@@ -167,6 +184,7 @@ impl<T: Connector> SessionStarter<T> {
 impl SessionController {
     fn new(
         transport: TcpTransport,
+        peer: Option<SocketAddr>,
         session_manager: Arc<RwLock<SessionManager>>,
         certificate_store: Arc<RwLock<CertificateStore>>,
         info: Arc<ServerInfo>,
@@ -190,6 +208,7 @@ impl SessionController {
                 + Duration::from_secs(info.config.tcp_config.hello_timeout as u64),
             info,
             pending_messages: FuturesUnordered::new(),
+            peer,
         }
     }
 
@@ -197,7 +216,19 @@ impl SessionController {
         // pkm-plc: a session of this connection closed to make room for another closes the
         // connection too (it held its place at the port's gate before).
         let evictions = trace_read_lock!(self.session_manager).evictions();
+        // pkm-plc: which channel this connection carries, by its peer address, for as long as it
+        // runs.
+        let peers = trace_read_lock!(self.session_manager).peers();
+        let _ended = self.peer.map(|peer| PeerEnded(Arc::clone(&peers), peer));
+        let mut carried = 0;
         loop {
+            if let Some(peer) = self.peer {
+                let id = self.channel.secure_channel_id();
+                if id != carried {
+                    peers.carry(peer, id);
+                    carried = id;
+                }
+            }
             let evicted = evictions.notify.notified();
             if !self.transport.is_closing() && evictions.take(self.channel.secure_channel_id()) {
                 warn!("Connection closed: its session was closed to make room for a new session");

@@ -1,5 +1,6 @@
 use std::{
     collections::HashMap,
+    net::SocketAddr,
     sync::{
         atomic::{AtomicU32, Ordering},
         Arc,
@@ -57,12 +58,47 @@ impl Evictions {
 /// looks like an anonymous one).
 const ACTIVATION_GRACE: Duration = Duration::from_secs(2);
 
+/// pkm-plc: what a connection holds, for a gate in front of the server that must choose which
+/// connection gives way (see [`SessionManager::standing`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ConnectionStanding {
+    /// No activated session: not yet (opening a channel, a session created and not activated),
+    /// or no longer, or never (a client that only asks for the endpoints).
+    Sessionless,
+    /// An activated anonymous session.
+    Anonymous,
+    /// An activated session of an authenticated user.
+    User,
+}
+
+/// pkm-plc: the secure channel each open connection carries, by the connection's peer address.
+#[derive(Default)]
+pub(crate) struct Peers(parking_lot::Mutex<HashMap<SocketAddr, u32>>);
+
+impl Peers {
+    /// Notes that the connection from `peer` carries the channel `id`.
+    pub(crate) fn carry(&self, peer: SocketAddr, id: u32) {
+        self.0.lock().insert(peer, id);
+    }
+
+    /// The connection from `peer` has ended.
+    pub(crate) fn ended(&self, peer: &SocketAddr) {
+        self.0.lock().remove(peer);
+    }
+
+    fn channel(&self, peer: &SocketAddr) -> Option<u32> {
+        self.0.lock().get(peer).copied()
+    }
+}
+
 /// Manages all sessions on the server.
 pub struct SessionManager {
     sessions: HashMap<NodeId, Arc<RwLock<Session>>>,
     info: Arc<ServerInfo>,
     notify: Arc<Notify>,
     evictions: Arc<Evictions>,
+    peers: Arc<Peers>,
+    max_not_users: usize,
 }
 
 impl SessionManager {
@@ -72,7 +108,41 @@ impl SessionManager {
             info,
             notify,
             evictions: Default::default(),
+            peers: Default::default(),
+            max_not_users: usize::MAX,
         }
+    }
+
+    /// pkm-plc: the connections' channels, for the connections' controllers.
+    pub(crate) fn peers(&self) -> Arc<Peers> {
+        Arc::clone(&self.peers)
+    }
+
+    /// pkm-plc: at most `n` sessions that are not a user's (anonymous, or not activated yet) at
+    /// once: a new session beyond them makes the one of them longest idle give way, as when
+    /// every session is taken; so the sessions beyond `n` are kept for users.
+    pub fn set_max_not_users(&mut self, n: usize) {
+        self.max_not_users = n;
+    }
+
+    /// pkm-plc: what the connection from `peer` holds: a user's activated session, an
+    /// anonymous one, or none.
+    pub fn standing(&self, peer: &SocketAddr) -> ConnectionStanding {
+        let Some(channel) = self.peers.channel(peer) else {
+            return ConnectionStanding::Sessionless;
+        };
+        let mut standing = ConnectionStanding::Sessionless;
+        for session in self.sessions.values() {
+            let session = session.read();
+            if session.secure_channel_id() != channel || !session.is_activated() {
+                continue;
+            }
+            if session.user_token().is_some_and(|t| !t.is_anonymous()) {
+                return ConnectionStanding::User;
+            }
+            standing = ConnectionStanding::Anonymous;
+        }
+        standing
     }
 
     /// pkm-plc: the channels to close, for the connections' controllers.
@@ -101,16 +171,31 @@ impl SessionManager {
         certificate_store: &RwLock<CertificateStore>,
         request: &CreateSessionRequest,
     ) -> Result<CreateSessionResponse, StatusCode> {
-        if self.sessions.len() >= self.info.config.limits.max_sessions {
+        let full = self.sessions.len() >= self.info.config.limits.max_sessions;
+        let not_users = self
+            .sessions
+            .values()
+            .filter(|s| s.read().user_token().is_none_or(|t| t.is_anonymous()))
+            .count();
+        if full || not_users >= self.max_not_users {
             // pkm-plc: a session that may become a user's is never refused because of sessions
             // that are not a user's. The one of those — not activated, or anonymous — that has
             // gone longest without a request gives way; only when every session is a user's is
-            // the new one refused.
-            let Some(victim) = self.least_recent_not_a_users() else {
-                return Err(StatusCode::BadTooManySessions);
+            // the new one refused. Past the bound of sessions not a user's, too, the one longest
+            // idle gives way (if none may, the new one is let in while there is room).
+            let victim = self.least_recent_not_a_users();
+            let victim = match victim {
+                Some(victim) => victim,
+                None if full => return Err(StatusCode::BadTooManySessions),
+                None => return self.create_session_in_room(channel, certificate_store, request),
+            };
+            let bound = if full {
+                format!("the most sessions ({}) are open", self.sessions.len())
+            } else {
+                format!("the most sessions not a user's ({not_users}) are open")
             };
             tracing::warn!(
-                "Session {victim} closed to make room for a new session: the most sessions are open and it was the one longest idle of those that are not a user's; its connection is closed with it"
+                "Session {victim} closed to make room for a new session: {bound} and it was the one longest idle of those that are not a user's; its connection is closed with it"
             );
             let channel = self.sessions.get(&victim).map(|s| s.read().secure_channel_id());
             self.expire_session(&victim);
@@ -118,7 +203,16 @@ impl SessionManager {
                 self.evictions.add(channel);
             }
         }
+        self.create_session_in_room(channel, certificate_store, request)
+    }
 
+    /// The library's CreateSession, once there is room for the session.
+    fn create_session_in_room(
+        &mut self,
+        channel: &mut SecureChannel,
+        certificate_store: &RwLock<CertificateStore>,
+        request: &CreateSessionRequest,
+    ) -> Result<CreateSessionResponse, StatusCode> {
         // TODO: Auditing and diagnostics.
         let endpoints = self
             .info
