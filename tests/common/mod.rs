@@ -706,25 +706,46 @@ pub const NODE_PACKAGES: [&str; 2] = ["node-opcua-client@2.186.4", "node-opcua-c
 pub fn node_interop() -> Result<std::process::Command, String> {
     static MADE: std::sync::Mutex<Option<Result<PathBuf, String>>> = std::sync::Mutex::new(None);
     let mut made = MADE.lock().unwrap_or_else(|p| p.into_inner());
-    let modules = made.get_or_insert_with(make_node_modules).clone()?;
+    let modules = made
+        .get_or_insert_with(|| npm_modules("interop-node", &NODE_PACKAGES))
+        .clone()?;
     let mut node = std::process::Command::new("node");
     node.env("NODE_PATH", modules);
     Ok(node)
 }
 
-fn make_node_modules() -> Result<PathBuf, String> {
-    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("interop-node");
+/// Node-RED and its OPC UA nodes (exact versions), for the gateway test.
+pub const NODE_RED_PACKAGES: [&str; 2] = ["node-red@4.1.15", "node-red-contrib-opcua@0.2.354"];
+
+/// The `node_modules` directory that holds [`NODE_RED_PACKAGES`], installed with npm under
+/// `target/` on first use (never globally). `Err`: why there is none, for the test to say it
+/// skips.
+pub fn node_red_interop() -> Result<PathBuf, String> {
+    static MADE: std::sync::Mutex<Option<Result<PathBuf, String>>> = std::sync::Mutex::new(None);
+    let mut made = MADE.lock().unwrap_or_else(|p| p.into_inner());
+    made.get_or_insert_with(|| npm_modules("interop-node-red", &NODE_RED_PACKAGES))
+        .clone()
+}
+
+/// `packages` installed with npm into `target/tmp/DIR` unless Node.js finds them there already:
+/// its `node_modules` directory.
+fn npm_modules(dir: &str, packages: &[&str]) -> Result<PathBuf, String> {
+    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(dir);
     let modules = dir.join("node_modules");
-    let names: Vec<&str> = NODE_PACKAGES
+    let names: Vec<&str> = packages
         .iter()
         .map(|p| p.rsplit_once('@').map_or(*p, |(name, _)| name))
         .collect();
-    let requires: String = names.iter().map(|n| format!("require('{n}');")).collect();
+    // Each package found, by its package.json or else its main module (resolved, not loaded:
+    // Node-RED would start).
+    let requires: String = names
+        .iter()
+        .map(|n| format!("try {{ require.resolve('{n}/package.json') }} catch (e) {{ require.resolve('{n}') }};"))
+        .collect();
     let has = || {
         std::process::Command::new("node")
             .args(["-e", &requires])
             .env("NODE_PATH", &modules)
-            // node-opcua says its warnings on loading on stdout.
             .stdout(std::process::Stdio::null())
             .stderr(std::process::Stdio::null())
             .status()
@@ -743,13 +764,13 @@ fn make_node_modules() -> Result<PathBuf, String> {
     let npm = std::process::Command::new("npm")
         .args(["install", "--no-audit", "--no-fund", "--loglevel=error", "--prefix"])
         .arg(&dir)
-        .args(NODE_PACKAGES)
+        .args(packages)
         .output()
         .map_err(|e| format!("npm does not run (Debian: apt-get install nodejs npm): {e}"))?;
     if !npm.status.success() || !has() {
         return Err(format!(
             "npm install {} into {} failed: {}",
-            NODE_PACKAGES.join(" "),
+            packages.join(" "),
             dir.display(),
             String::from_utf8_lossy(&npm.stderr).lines().last().unwrap_or("")
         ));

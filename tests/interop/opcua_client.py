@@ -45,6 +45,10 @@
         (127.0.0.2, say), prints "held K" once they are open, and keeps them for SECONDS, reading
         the server's time every second on each (as a dashboard does): JSON with how many were
         opened and how many the server closed meanwhile, with the status it said.
+    opcua_client.py channel URL SECONDS
+        Opens a secure channel (None) and no session, then asks for the endpoints every half
+        second on it for at most SECONDS: JSON with how long the connection lasted (s) and
+        whether the server closed it.
     opcua_client.py guess URL USER COUNT PARALLEL
         Tries COUNT wrong passwords for USER, PARALLEL at a time, each on a connection of its
         own: JSON with how many were refused and how long they took in all (s).
@@ -390,6 +394,27 @@ async def abandon(url, n):
     print(json.dumps({"opened": opened, "refused": refused}))
 
 
+async def channel(url, seconds):
+    client = Client(url, timeout=5)
+    await client.connect_socket()
+    opened = time.time()
+    await client.send_hello()
+    await client.open_secure_channel()
+    closed = False
+    while time.time() - opened < seconds:
+        await asyncio.sleep(0.5)
+        try:
+            params = ua.GetEndpointsParameters()
+            params.EndpointUrl = url
+            await client.uaclient.get_endpoints(params)
+        except Exception:  # noqa: BLE001 - a closed connection fails whatever way it fails
+            closed = True
+            break
+    lasted = time.time() - opened
+    client.disconnect_socket()
+    print(json.dumps({"lasted": lasted, "closed": closed}))
+
+
 async def guess(url, user, count, parallel):
     refused = 0
     lock = asyncio.Semaphore(parallel)
@@ -651,6 +676,9 @@ def main():
         return
     if cmd == "hold":
         asyncio.run(hold(rest[0], int(rest[1]), float(rest[2]), rest[3]))
+        return
+    if cmd == "channel":
+        asyncio.run(channel(rest[0], float(rest[1])))
         return
     if cmd == "guess":
         asyncio.run(guess(rest[0], rest[1], int(rest[2]), int(rest[3])))

@@ -8,6 +8,7 @@
 //! - [`joystick_fifo`]: a joystick through a FIFO.
 //! - [`machines_over_modbus`]: every machine over Modbus TCP, both exchanges.
 //! - [`modbus_faults`]: link faults on Modbus TCP and RTU.
+//! - [`node_red`]: a Node-RED flow of 20 OPC UA nodes (node-red-contrib-opcua).
 //! - [`opcua`]: the OPC UA server with Python's asyncua.
 //! - [`service`]: the notifications a service manager (systemd) waits for.
 //! - [`station_safety`]: what the station and the soft-PLC do when things go wrong.
@@ -27,6 +28,7 @@ mod joystick_fifo;
 mod lockout;
 mod machines_over_modbus;
 mod modbus_faults;
+mod node_red;
 mod opcua;
 mod screen_jobs;
 mod screen_ws;

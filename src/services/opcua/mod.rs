@@ -45,8 +45,21 @@ use std::path::PathBuf;
 /// The default endpoint: loopback, OPC UA's registered port.
 pub const DEFAULT_URL: &str = "opc.tcp://127.0.0.1:4840";
 
-/// The default bound on sessions (and on connections: a few more, for clients connecting).
-pub const DEFAULT_MAX_SESSIONS: usize = 10;
+/// The default bound on sessions: a Node-RED flow opens a connection and a session per OPC UA
+/// node, and a SCADA gateway's clients all come from one computer.
+pub const DEFAULT_MAX_SESSIONS: usize = 100;
+
+/// Of `max_sessions`, how many may be anonymous (or not activated yet) at once: three quarters;
+/// the rest are kept for users, whose sessions then need not close another's.
+pub fn max_not_users(max_sessions: usize) -> usize {
+    (max_sessions - max_sessions / 4).max(1)
+}
+
+/// How many connections the port holds for `max_sessions`: a tenth more (at least 4), for clients
+/// that only ask for the endpoints and for one opening a session while another closes.
+pub fn max_connections(max_sessions: usize) -> usize {
+    max_sessions + (max_sessions / 10).max(4)
+}
 
 /// Where and how the server is served.
 #[derive(Clone, Debug)]

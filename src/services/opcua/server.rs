@@ -29,9 +29,9 @@ const ENDPOINT_PATH: &str = "/";
 /// How long a client may take to say hello after connecting (s).
 const HELLO_TIMEOUT_S: u32 = 5;
 
-/// Connections held beyond the sessions: clients that only ask for the endpoints, one opening
-/// a session while another closes.
-const SPARE_CONNECTIONS: usize = 4;
+/// How long a connection may hold no session before the gate closes it: longer than a login
+/// refused several times waits for its answer (the back-off reaches 10 s).
+const SESSIONLESS: Duration = Duration::from_secs(20);
 
 /// Builds the server for `info` and starts it behind `public` (inside the tokio runtime): the
 /// address space from the first frame, a task that writes every newer frame's changes, the
@@ -129,6 +129,10 @@ pub fn start(
     limits.subscriptions.min_sampling_interval_ms = main_ms;
     private_store(&pki)?;
     let (server, handle) = builder.build()?;
+    handle
+        .session_manager()
+        .write()
+        .set_max_not_users(super::max_not_users(options.max_sessions));
     // The key the library may just have made: the owner's alone.
     let key = pki.join("private/private.pem");
     if key.exists() {
@@ -219,14 +223,14 @@ pub fn start(
             warn!("OPC UA server: {e}");
         }
     });
-    super::gate::spawn(
-        public,
-        inner,
-        super::gate::Bounds::new(
-            options.max_sessions + SPARE_CONNECTIONS,
-            Duration::from_secs(u64::from(HELLO_TIMEOUT_S)),
-        ),
-    );
+    let bounds = super::gate::Bounds {
+        max: super::max_connections(options.max_sessions),
+        hello: Duration::from_secs(u64::from(HELLO_TIMEOUT_S)),
+        sessionless: SESSIONLESS,
+    };
+    let sessions = handle.clone();
+    let standing: super::gate::StandingOf = Arc::new(move |from| sessions.session_manager().read().standing(&from));
+    super::gate::spawn(public, inner, bounds, standing);
     Ok(url)
 }
 
