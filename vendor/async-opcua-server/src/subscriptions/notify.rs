@@ -227,6 +227,25 @@ impl<'a, 'b> SubscriptionEventNotifier<'a, 'b> {
         })
     }
 
+    /// pkm-plc: notifies the monitored items of `node_id` only, not the `Server` object's as
+    /// [`Self::notify`] does: an event emitted on several notifiers (the machine's object and
+    /// another) reaches a subscriber of `Server` once.
+    pub fn notify_only(&mut self, node_id: impl IntoNodeIdRef<'a>, event: &'b dyn Event) {
+        let id_ref = node_id.into_node_id_ref();
+        let Some(items) = self.lock.monitored_items.get(&MonitoredItemKeyRef {
+            id: id_ref,
+            attribute_id: AttributeId::EventNotifier,
+        }) else {
+            return;
+        };
+        SubscriptionEventNotifierBatch {
+            items,
+            items_2: None,
+            by_subscription: &mut self.by_subscription,
+        }
+        .event(event);
+    }
+
     /// pkm-plc: keeps only the notifications for the subscription `subscription_id`
     /// (`ConditionRefresh` answers the subscription it was called for, not every one).
     pub fn keep_only(&mut self, subscription_id: u32) {
