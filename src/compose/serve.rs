@@ -170,6 +170,7 @@ pub fn run(built: Built, request: RunRequest) -> Result<Ran, Failure> {
             info: space_info(&plc, &setup, program_files),
             asked,
             sink: sink.clone(),
+            tools: tools.clone(),
         }),
         _ => None,
     };
@@ -268,6 +269,8 @@ struct OpcUa {
     asked: OpcUaRequest,
     info: crate::services::opcua::space::SpaceInfo,
     sink: crate::services::hmi::commands::CommandSink,
+    /// The tool table, for the machine tool's `Equipment/Tools`.
+    tools: Option<Arc<crate::runtime::tool_table::ToolTableKeeper>>,
 }
 
 /// What the screen shows at connection.
@@ -580,9 +583,14 @@ fn serve_opcua(
     feed: crate::runtime::frame::FrameFeed,
     main_period_ns: u64,
 ) -> Result<(), Failure> {
-    let OpcUa { asked, info, sink } = server;
+    let OpcUa {
+        asked,
+        info,
+        sink,
+        tools,
+    } = server;
     let OpcUaRequest { options, explicit, .. } = asked;
-    match crate::services::opcua::server::start(&options, listener, info, feed, sink, main_period_ns) {
+    match crate::services::opcua::server::start(&options, listener, info, feed, sink, main_period_ns, tools) {
         Ok(url) => info!(
             "OPC UA server at {url} ({})",
             match &options.users {

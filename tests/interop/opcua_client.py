@@ -34,6 +34,23 @@
         MachineryBuildingBlocks' add-ins; MachineryItemState's and MachineryOperationMode's type,
         CurrentState, Id (the state's browse name) and Number; "together": the PLC's State and
         both CurrentStates read in one Read; a tree of it all, to print.
+    opcua_client.py typecheck URL NODEID
+        Checks the instance at NODEID against the type definitions the server itself serves, as
+        a tool that works from types does: every Mandatory instance declaration of its type and
+        of the type's supertypes (and of each declaration, down the hierarchy) present below
+        it with the same browse name (namespace and name), node class, type definition (or a
+        subtype) and data type (or a subtype); every child whose type is a companion's (a
+        placeholder's instance: a channel, a tool, a job) checked against its own type; every
+        object below NODEID, and the objects of namespace urn:pkm-plc, with a type definition.
+        JSON: the nodes and declarations checked, and what is missing, wrong or untyped.
+    opcua_client.py machine_tool URL MACHINE
+        The OPC 40501-1 view of MACHINE as umati reads it, by browse paths: its type, the
+        operation mode, the channel's state, mode and overrides, the spindle, the active
+        program's name and state, the job's state and runs, the prognoses and the tools. JSON.
+    opcua_client.py messages URL MACHINE SECONDS
+        Subscribes to the alarm events (AlarmConditionType) of MACHINE's Notification/Messages,
+        prints "subscribed", then each event as it comes for SECONDS: a JSON line with its
+        condition name and whether it is active.
     opcua_client.py usercert DIR
         Makes a user certificate and key in DIR (cert.der, key.pem) for an X.509 identity token.
     opcua_client.py abandon URL N
@@ -603,6 +620,206 @@ async def history(url, machine, name, seconds, part):
         )
 
 
+MANDATORY = ua.NodeId(ua.ObjectIds.ModellingRule_Mandatory)
+PLACEHOLDERS = {ua.NodeId(ua.ObjectIds.ModellingRule_OptionalPlaceholder), ua.NodeId(ua.ObjectIds.ModellingRule_MandatoryPlaceholder)}
+CHILD_REFS = {ua.NodeId(ua.ObjectIds.HasComponent), ua.NodeId(ua.ObjectIds.HasProperty), ua.NodeId(ua.ObjectIds.HasAddIn)}
+
+
+class TypeChecker:
+    """Checks instances against the type definitions the server serves (cached per node)."""
+
+    def __init__(self, client, namespaces):
+        self.client = client
+        self.namespaces = namespaces
+        self.cache = {}
+        self.out = {"nodes": 0, "declarations": 0, "missing": [], "wrong": [], "untyped": []}
+
+    def name(self, qn):
+        return f"{self.namespaces[qn.NamespaceIndex]}:{qn.Name}"
+
+    async def children(self, node_id):
+        """(reference type, child node id, browse name, node class) of node_id's forward components, properties and add-ins."""
+        key = ("children", node_id)
+        if key not in self.cache:
+            refs = await self.client.get_node(node_id).get_references(refs=ua.ObjectIds.HierarchicalReferences, direction=ua.BrowseDirection.Forward, includesubtypes=True)
+            self.cache[key] = [(r.ReferenceTypeId, r.NodeId, r.BrowseName, r.NodeClass) for r in refs if r.ReferenceTypeId in CHILD_REFS]
+        return self.cache[key]
+
+    async def one_ref(self, node_id, ref, forward=True):
+        key = ("ref", node_id, ref, forward)
+        if key not in self.cache:
+            refs = await self.client.get_node(node_id).get_references(refs=ref, direction=ua.BrowseDirection.Forward if forward else ua.BrowseDirection.Inverse, includesubtypes=False)
+            self.cache[key] = refs[0].NodeId if refs else None
+        return self.cache[key]
+
+    async def supertype(self, type_id):
+        return await self.one_ref(type_id, ua.ObjectIds.HasSubtype, forward=False)
+
+    async def is_subtype(self, sub, sup):
+        while sub is not None:
+            if sub == sup:
+                return True
+            sub = await self.supertype(sub)
+        return False
+
+    async def data_type(self, node_id):
+        key = ("dt", node_id)
+        if key not in self.cache:
+            self.cache[key] = await self.client.get_node(node_id).read_data_type()
+        return self.cache[key]
+
+    async def declarations(self, type_id):
+        """The type's and its supertypes' instance declarations, the most derived first for each browse name: (browse name, node id, node class, rule)."""
+        seen, out = set(), []
+        t = type_id
+        while t is not None:
+            for _, child, bn, nc in await self.children(t):
+                if (bn.NamespaceIndex, bn.Name) in seen:
+                    continue
+                seen.add((bn.NamespaceIndex, bn.Name))
+                out.append((bn, child, nc, await self.one_ref(child, ua.ObjectIds.HasModellingRule)))
+            t = await self.supertype(t)
+        return out
+
+    async def check_against(self, path, instance, decls, type_checked):
+        """Checks `instance` against declarations `decls` (its type's, or a declaration's own children)."""
+        kids = await self.children(instance)
+        by_name = {(bn.NamespaceIndex, bn.Name): (child, nc) for _, child, bn, nc in kids}
+        for bn, decl, nc, rule in decls:
+            if rule != MANDATORY:
+                continue
+            self.out["declarations"] += 1
+            where = f"{path}/{self.name(bn)}"
+            found = by_name.get((bn.NamespaceIndex, bn.Name))
+            if found is None:
+                self.out["missing"].append(where)
+                continue
+            child, child_nc = found
+            if child_nc != nc:
+                self.out["wrong"].append(f"{where}: a {child_nc.name}, declared a {nc.name}")
+                continue
+            decl_type = await self.one_ref(decl, ua.ObjectIds.HasTypeDefinition)
+            child_type = await self.one_ref(child, ua.ObjectIds.HasTypeDefinition)
+            if decl_type is not None and not await self.is_subtype(child_type, decl_type):
+                self.out["wrong"].append(f"{where}: of type {child_type}, declared {decl_type}")
+            if nc == ua.NodeClass.Variable:
+                decl_dt, child_dt = await self.data_type(decl), await self.data_type(child)
+                if not await self.is_subtype(child_dt, decl_dt):
+                    self.out["wrong"].append(f"{where}: data type {child_dt}, declared {decl_dt}")
+            # The declaration's own children, then the child against its own type.
+            await self.check_against(where, child, [(b, c, n, await self.one_ref(c, ua.ObjectIds.HasModellingRule)) for _, c, b, n in await self.children(decl)], type_checked)
+            await self.check(where, child, type_checked)
+
+    async def check(self, path, instance, type_checked):
+        if instance in type_checked:
+            return
+        type_checked.add(instance)
+        self.out["nodes"] += 1
+        node_class = await self.client.get_node(instance).read_node_class()
+        type_id = await self.one_ref(instance, ua.ObjectIds.HasTypeDefinition)
+        if type_id is None:
+            if node_class in (ua.NodeClass.Object, ua.NodeClass.Variable):
+                self.out["untyped"].append(path)
+            return
+        await self.check_against(path, instance, await self.declarations(type_id), type_checked)
+        # Placeholders' instances and other children of a companion's type: against their own type.
+        for _, child, bn, nc in await self.children(instance):
+            child_type = await self.one_ref(child, ua.ObjectIds.HasTypeDefinition)
+            if child_type is not None and child_type.NamespaceIndex not in (0, self.namespaces.index(NS)):
+                await self.check(f"{path}/{self.name(bn)}", child, type_checked)
+
+    async def untyped_below(self, root, depth=0):
+        """Objects below root (in our namespace's hierarchy) without a type definition."""
+        for _, child, bn, nc in await self.children(root) + [(None, r.NodeId, r.BrowseName, r.NodeClass) for r in await self.client.get_node(root).get_references(refs=ua.ObjectIds.Organizes, direction=ua.BrowseDirection.Forward)]:
+            if nc != ua.NodeClass.Object or child.NamespaceIndex != self.namespaces.index(NS) or ("seen", child) in self.cache:
+                continue
+            self.cache[("seen", child)] = True
+            if await self.one_ref(child, ua.ObjectIds.HasTypeDefinition) is None:
+                self.out["untyped"].append(self.name(bn))
+            if depth < 6:
+                await self.untyped_below(child, depth + 1)
+
+
+async def typecheck(url, node_id):
+    async with Client(url, timeout=20) as client:
+        namespaces = await client.get_namespace_array()
+        checker = TypeChecker(client, namespaces)
+        root = ua.NodeId.from_string(node_id.replace("ns=2;", f"ns={namespaces.index(NS)};"))
+        await checker.check(node_id, root, set())
+        await checker.untyped_below(ua.NodeId(ua.ObjectIds.ObjectsFolder))
+        typedef = await checker.one_ref(root, ua.ObjectIds.HasTypeDefinition)
+        checker.out["type"] = f"{namespaces[typedef.NamespaceIndex]}:{await browse_name_of(client, typedef)}"
+        print(json.dumps(checker.out))
+
+
+async def machine_tool(url, machine):
+    mt_uri = "http://opcfoundation.org/UA/MachineTool/"
+    async with Client(url, timeout=10) as client:
+        namespaces = await client.get_namespace_array()
+        ns, mt = namespaces.index(NS), namespaces.index(mt_uri)
+        node = await client.nodes.objects.get_child([f"{ns}:PkmPlc", f"{ns}:{machine}"])
+        typedef = await node.read_type_definition()
+
+        async def value(*path):
+            v = await (await node.get_child(list(path))).read_value()
+            return v.Text if isinstance(v, ua.LocalizedText) else v
+
+        out = {
+            "type": f"{namespaces[typedef.NamespaceIndex]}:{await browse_name_of(client, typedef)}",
+            "operation_mode": await value(f"{mt}:Monitoring", f"{mt}:MachineTool", f"{mt}:OperationMode"),
+            "channel_state": await value(f"{mt}:Monitoring", f"{mt}:Channel1", f"{mt}:ChannelState"),
+            "channel_mode": await value(f"{mt}:Monitoring", f"{mt}:Channel1", f"{mt}:ChannelMode"),
+            "feed_override": await value(f"{mt}:Monitoring", f"{mt}:Channel1", f"{mt}:FeedOverride"),
+            "spindle_rotating": await value(f"{mt}:Monitoring", f"{mt}:Spindle", f"{mt}:IsRotating"),
+            "program": await value(f"{mt}:Production", f"{mt}:ActiveProgram", f"{mt}:Name"),
+            "program_state": await value(f"{mt}:Production", f"{mt}:ActiveProgram", f"{mt}:State", "0:CurrentState"),
+            "job_state": await value(f"{mt}:Production", f"{mt}:ProductionPlan", f"{ns}:Job", f"{mt}:State", "0:CurrentState"),
+            "runs_completed": await value(f"{mt}:Production", f"{mt}:ProductionPlan", f"{ns}:Job", f"{mt}:RunsCompleted"),
+            "prognoses": {},
+            "tools": {},
+        }
+        prognoses = await node.get_child([f"{mt}:Notification", f"{mt}:Prognoses"])
+        for p in await prognoses.get_children(refs=ua.ObjectIds.HasComponent):
+            name = (await p.read_browse_name()).Name
+            fields = {}
+            for child in await p.get_children():
+                v = await child.read_value()
+                fields[(await child.read_browse_name()).Name] = v.Text if isinstance(v, ua.LocalizedText) else str(v)
+            out["prognoses"][name] = fields
+        tools = await node.get_child([f"{mt}:Equipment", f"{mt}:Tools"])
+        for t in await tools.get_children(refs=ua.ObjectIds.HasComponent):
+            name = (await t.read_browse_name()).Name
+            out["tools"][name] = {
+                "name": await (await t.get_child([f"{mt}:Name"])).read_value(),
+                "number": await (await t.get_child([f"{mt}:ControlIdentifier1"])).read_value(),
+            }
+        print(json.dumps(out))
+
+
+async def messages(url, machine, seconds):
+    mt_uri = "http://opcfoundation.org/UA/MachineTool/"
+    async with Client(url, timeout=10) as client:
+        namespaces = await client.get_namespace_array()
+        ns, mt = namespaces.index(NS), namespaces.index(mt_uri)
+        node = await client.nodes.objects.get_child([f"{ns}:PkmPlc", f"{ns}:{machine}", f"{mt}:Notification", f"{mt}:Messages"])
+        subscription = await client.create_subscription(100, EventPrinter())
+        alarm_type = client.get_node(ua.ObjectIds.AlarmConditionType)
+        await subscription.subscribe_events(node, alarm_type)
+        print("subscribed", flush=True)
+        await asyncio.sleep(seconds)
+
+
+class EventPrinter:
+    """Prints each event as a JSON line as it comes: its condition name and whether active."""
+
+    def event_notification(self, event):
+        fields = event.get_event_props_as_fields_dict()
+        name = fields.get("ConditionName")
+        active = fields.get("ActiveState/Id")
+        line = {"name": name.Value if name is not None else None, "active": active.Value if active is not None else None}
+        print(json.dumps(line), flush=True)
+
+
 async def browse_name_of(client, node_id):
     """The browse name (without its namespace) of the node `node_id`."""
     return (await client.get_node(node_id).read_browse_name()).Name
@@ -683,7 +900,16 @@ def main():
     if cmd == "guess":
         asyncio.run(guess(rest[0], rest[1], int(rest[2]), int(rest[3])))
         return
+    if cmd == "typecheck":
+        asyncio.run(typecheck(rest[0], rest[1]))
+        return
     url, machine, *rest = rest
+    if cmd == "machine_tool":
+        asyncio.run(machine_tool(url, machine))
+        return
+    if cmd == "messages":
+        asyncio.run(messages(url, machine, float(rest[0])))
+        return
     if cmd == "survey":
         asyncio.run(survey(url, machine))
     elif cmd == "subscribe":

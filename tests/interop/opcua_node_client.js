@@ -10,8 +10,9 @@
 //       trusted/ as an administrator would, and it connects again), opens an anonymous session
 //       and reads PkmPlc/MACHINE/State. JSON on the last line of stdout: "state", the
 //       advertised "endpoints" (URL, policy, mode), "machinery" (the machine's Model and
-//       MachineryItemState found by browse path from Objects/Machines), "untrusted_first" with
-//       --secure.
+//       MachineryItemState found by browse path from Objects/Machines), "machine_tool" (the
+//       OPC 40501-1 building blocks' types and the operation mode, channel state, feed override,
+//       program state and manufacturer, by browse paths), "untrusted_first" with --secure.
 //
 // Exit 1 with the error on stderr where it cannot connect.
 
@@ -86,7 +87,54 @@ async function readState(url, machine, secure) {
                 const value = await session.read({ nodeId: node.targetId, attributeId: AttributeIds.Value });
                 machinery[name] = value.value.value.text;
             }
-            return { state: state.value.value, endpoints, machinery };
+            // The machine tool (OPC 40501-1), as umati reads it: the building blocks with their
+            // types, and the values, by browse paths through the Machine Tools namespace.
+            const mt = namespaces.indexOf("http://opcfoundation.org/UA/MachineTool/");
+            const machineTool = { types: {}, values: {} };
+            const at = async (browse) => {
+                const found = await session.translateBrowsePath(
+                    makeBrowsePath("RootFolder", `/Objects/${m}:Machines/${ns}:${machine}${browse}`),
+                );
+                const node = (found.targets || [])[0];
+                if (!node) throw new Error(`no ${browse}: ${found.statusCode.toString()}`);
+                return node.targetId;
+            };
+            const typeName = async (nodeId) => {
+                const refs = await session.browse({
+                    nodeId,
+                    referenceTypeId: "i=40",
+                    includeSubtypes: false,
+                    // Forward.
+                    browseDirection: 0,
+                    resultMask: 63,
+                });
+                const type = (refs.references || [])[0];
+                return type ? `${namespaces[type.nodeId.namespace]}:${type.browseName.name}` : null;
+            };
+            machineTool.types.machine = await typeName(await at(""));
+            for (const [name, browse] of [
+                ["identification", `/${di}:Identification`],
+                ["monitoring", `/${mt}:Monitoring`],
+                ["channel", `/${mt}:Monitoring/${mt}:Channel1`],
+                ["production", `/${mt}:Production`],
+                ["active_program", `/${mt}:Production/${mt}:ActiveProgram`],
+                ["notification", `/${mt}:Notification`],
+                ["equipment", `/${mt}:Equipment`],
+            ]) {
+                machineTool.types[name] = await typeName(await at(browse));
+            }
+            for (const [name, browse] of [
+                ["operation_mode", `/${mt}:Monitoring/${mt}:MachineTool/${mt}:OperationMode`],
+                ["channel_state", `/${mt}:Monitoring/${mt}:Channel1/${mt}:ChannelState`],
+                ["feed_override", `/${mt}:Monitoring/${mt}:Channel1/${mt}:FeedOverride`],
+                ["program_state", `/${mt}:Production/${mt}:ActiveProgram/${mt}:State/0:CurrentState`],
+                ["manufacturer", `/${di}:Identification/${di}:Manufacturer`],
+            ]) {
+                const value = (await session.read({ nodeId: await at(browse), attributeId: AttributeIds.Value })).value
+                    .value;
+                machineTool.values[name] = value && value.text !== undefined ? value.text : value;
+            }
+            return { state: state.value.value, endpoints, machinery, machine_tool: machineTool };
         } finally {
             await session.close();
         }

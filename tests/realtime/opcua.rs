@@ -648,7 +648,7 @@ fn machinery_shows_the_machine_its_nameplate_and_states_that_follow_the_plc() {
         assert!(namespaces.iter().any(|n| n == uri), "{uri}: {out}");
     }
     assert_eq!(out["machines"], serde_json::json!(["trijoint"]), "{out}");
-    assert_eq!(out["identification_type"], "MachineIdentificationType", "{out}");
+    assert_eq!(out["identification_type"], "MachineToolIdentificationType", "{out}");
     let di = "http://opcfoundation.org/UA/DI/";
     assert_eq!(
         out["identification"],
@@ -897,6 +897,29 @@ fn node_opcua_connects_with_its_defaults_on_loopback_and_through_another_address
         for e in out["endpoints"].as_array().expect("endpoints") {
             assert_eq!(e[0], url, "{out}");
         }
+        // The machine tool (OPC 40501-1) by browse paths through its namespaces, typed.
+        let mt = "http://opcfoundation.org/UA/MachineTool/";
+        let view = &out["machine_tool"];
+        for (block, ty) in [
+            ("machine", "MachineToolType"),
+            ("identification", "MachineToolIdentificationType"),
+            ("monitoring", "MonitoringType"),
+            ("channel", "ChannelMonitoringType"),
+            ("production", "ProductionType"),
+            ("active_program", "ProductionActiveProgramType"),
+            ("notification", "NotificationType"),
+            ("equipment", "EquipmentType"),
+        ] {
+            assert_eq!(view["types"][block], format!("{mt}:{ty}"), "{block}: {out}");
+        }
+        // Setup while referencing, Manual once READY; the channel waits (Reset).
+        assert!(
+            matches!(view["values"]["operation_mode"].as_i64(), Some(0 | 2)),
+            "{out}"
+        );
+        assert_eq!(view["values"]["channel_state"], 2, "{out}");
+        assert_eq!(view["values"]["feed_override"], 100, "{out}");
+        assert_eq!(view["values"]["program_state"], "Initializing", "{out}");
     }
     let status = plc.run.terminate();
     assert!(status.success(), "{status}");
@@ -1208,4 +1231,176 @@ fn the_asyncua_recipe_reconnects_after_a_server_restart() {
         "the new run's states after the reconnect: {out}\n{}",
         second.run.log()
     );
+}
+
+/// The Machine Tools view (OPC 40501-1) of `url`'s `machine`, as umati reads it.
+fn machine_tool_view(python: &Path, url: &str, machine: &str) -> Json {
+    client(python, &["machine_tool", url, machine])
+}
+
+/// Reads the Machine Tools view every half second until `done` holds (at most `within`): the
+/// view then.
+fn view_until(python: &Path, url: &str, within: Duration, done: impl Fn(&Json) -> bool) -> Json {
+    let start = Instant::now();
+    loop {
+        let view = machine_tool_view(python, url, "ox-x");
+        if done(&view) || start.elapsed() > within {
+            return view;
+        }
+        std::thread::sleep(Duration::from_millis(500));
+    }
+}
+
+/// OPC 40501-1 (Machine Tools) as umati reads it, on the O-X glide with a tool table of two
+/// tools and a program that changes to tool 1 by hand: the machine's object is a
+/// `MachineToolType` whose every Mandatory child — down the declarations' hierarchy, and in
+/// every channel, tool and job — is there with its namespace, node class, type definition and
+/// data type, checked by asyncua against the type definitions the server serves from the
+/// published NodeSet; no object of the server's goes untyped. Then the view follows the run:
+/// Manual and Reset in READY with the program loaded and Initializing and both tools in `Equipment/Tools`; loaded and
+/// started by the operator, Automatic; at the M6 the channel Interrupted and a `ToolChange`
+/// prognosis naming tool 1 and its comment; confirmed on the screen, the program and its job
+/// Ended with one run completed and the prognosis gone. The operator's Stop reaches a
+/// subscriber of `Notification/Messages`.
+#[test]
+fn the_machine_tool_view_is_whole_by_its_types_and_follows_a_program_with_a_manual_tool_change() {
+    use std::io::BufRead;
+    let name = "opcua::the_machine_tool_view_is_whole_by_its_types_and_follows_a_program_with_a_manual_tool_change";
+    let Some(python) = python_or_skip(name) else {
+        return;
+    };
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = |name: &str| dir.path().join(name).to_str().expect("utf-8").to_string();
+    let config = common::read_json(&common::ox_config(dir.path(), true, |_| {}));
+    std::fs::write(path("tool.tbl"), "T1 P1 Z10 ;6 mm end mill\nT2 P2 Z20 ;3 mm drill\n").expect("the table");
+    std::fs::create_dir(path("programs")).expect("programs");
+    std::fs::write(path("programs/tools.ngc"), "T1 M6\nG1 X1 F600\nM2\n").expect("the program");
+    users_file(dir.path(), OPERATOR, 0o600);
+    let plc = Plc::configured(
+        config,
+        "opc.tcp://127.0.0.1:0",
+        &[
+            "--hmi",
+            "127.0.0.1:0",
+            "--joystick",
+            "none",
+            "--duration",
+            "300",
+            "--programs",
+            &path("programs"),
+            "--tool-table",
+            &path("tool.tbl"),
+            "--opcua-users",
+            &path("users.json"),
+        ],
+    );
+    let log = plc.log();
+    let screen = log
+        .lines()
+        .find_map(|l| l.split("operator screen at ").nth(1))
+        .and_then(|rest| rest.split_whitespace().next())
+        .unwrap_or_else(|| panic!("no screen: {log}"))
+        .to_string();
+    plc.run.wait_for_state(0, "READY", Duration::from_secs(120));
+    let mt = "http://opcfoundation.org/UA/MachineTool/";
+
+    let checked = client(&python, &["typecheck", &plc.url, "ns=2;s=ox-x"]);
+    assert_eq!(checked["type"], format!("{mt}:MachineToolType"), "{checked}");
+    for list in ["missing", "wrong", "untyped"] {
+        assert_eq!(checked[list], serde_json::json!([]), "{list}: {checked}");
+    }
+    let declarations = checked["declarations"].as_u64().unwrap_or_default();
+    assert!(declarations >= 60, "{declarations} declarations checked: {checked}");
+
+    let before = machine_tool_view(&python, &plc.url, "ox-x");
+    assert_eq!(before["operation_mode"], 0, "Manual: {before}");
+    assert_eq!(
+        (before["channel_state"].clone(), before["channel_mode"].clone()),
+        (2.into(), 2.into()),
+        "Reset, JogManual: {before}"
+    );
+    // The library's first program is loaded, not started.
+    assert!(
+        before["program"].as_str().is_some_and(|p| p.ends_with("tools.ngc")),
+        "{before}"
+    );
+    assert_eq!(before["program_state"], "Initializing", "{before}");
+    assert_eq!(
+        before["tools"],
+        serde_json::json!({"T1": {"name": "6 mm end mill", "number": 1}, "T2": {"name": "3 mm drill", "number": 2}}),
+        "{before}"
+    );
+    assert_eq!(before["prognoses"], serde_json::json!({}), "{before}");
+
+    let mut messages = Command::new(&python)
+        .arg(format!("{}/tests/interop/opcua_client.py", env!("CARGO_MANIFEST_DIR")))
+        .args(["messages", &plc.url, "ox-x", "90"])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .expect("a subscriber");
+    let mut said = std::io::BufReader::new(messages.stdout.take().expect("stdout"));
+    let mut line = String::new();
+    said.read_line(&mut line).expect("subscribed");
+    assert_eq!(line.trim(), "subscribed");
+
+    let mut start = vec!["call", &plc.url, "ox-x"];
+    start.extend_from_slice(&OPERATOR_LOGIN);
+    start.extend_from_slice(&["Load=1", "Start"]);
+    let started = client(&python, &start);
+    assert_eq!(started["steps"][0]["status"], "Good", "{started}");
+    assert_eq!(started["steps"][1]["status"], "Good", "{started}");
+    let due = view_until(&python, &plc.url, Duration::from_secs(90), |v| {
+        v["prognoses"].get("ToolChange").is_some()
+    });
+    let change = &due["prognoses"]["ToolChange"];
+    assert_eq!(change["ToolIdentifier"], "T1", "{due}");
+    assert_eq!(change["ToolName"], "6 mm end mill", "{due}");
+    assert_eq!(change["Location"], "spindle (manual change)", "{due}");
+    assert_eq!(due["operation_mode"], 1, "Automatic: {due}");
+    assert_eq!(
+        (due["channel_state"].clone(), due["channel_mode"].clone()),
+        (1.into(), 0.into()),
+        "Interrupted, Automatic: {due}"
+    );
+    assert_eq!(due["program_state"], "Interrupted", "{due}");
+    assert!(
+        due["program"].as_str().is_some_and(|p| p.ends_with("tools.ngc")),
+        "{due}"
+    );
+
+    common::screen_command(
+        &screen,
+        serde_json::json!({"cmd": "tool_changed", "tool": 1, "change": 1}),
+    );
+    let ended = view_until(&python, &plc.url, Duration::from_secs(60), |v| {
+        v["program_state"] == "Ended" && v["channel_state"] == 2
+    });
+    assert_eq!(ended["program_state"], "Ended", "{ended}\n{}", plc.log());
+    assert_eq!(ended["job_state"], "Ended", "{ended}");
+    assert_eq!(ended["runs_completed"], 1, "{ended}");
+    assert_eq!(ended["prognoses"], serde_json::json!({}), "{ended}");
+
+    let mut stop = vec!["call", &plc.url, "ox-x"];
+    stop.extend_from_slice(&OPERATOR_LOGIN);
+    stop.extend_from_slice(&["Stop", "wait=ERROR"]);
+    let stopped = client(&python, &stop);
+    assert_eq!(stopped["steps"][0]["status"], "Good", "{stopped}");
+    // The Stop alarm comes to the subscriber of Messages (it ends on its own after 90 s).
+    let mut events = Vec::new();
+    let came = loop {
+        line.clear();
+        if said.read_line(&mut line).unwrap_or(0) == 0 {
+            break false;
+        }
+        let event: Json = serde_json::from_str(line.trim()).unwrap_or_default();
+        events.push(event.clone());
+        if event["name"] == "Stop" && event["active"] == true {
+            break true;
+        }
+    };
+    let _ = messages.kill();
+    let _ = messages.wait();
+    assert!(came, "no active Stop at Notification/Messages: {events:?}");
+    eprintln!("machine tool view: {declarations} mandatory declarations checked; READY {before}");
 }

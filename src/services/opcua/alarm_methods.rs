@@ -9,9 +9,7 @@ use std::sync::{Arc, Mutex};
 
 use opcua::nodes::{BaseEventType, Event};
 use opcua::server::node_manager::{ConditionMethods, MethodCall, RequestContext};
-use opcua::types::{
-    ByteString, DateTime, LocalizedText, MethodId, NodeId, ObjectId, ObjectTypeId, StatusCode, Variant,
-};
+use opcua::types::{ByteString, DateTime, LocalizedText, MethodId, ObjectId, ObjectTypeId, StatusCode, Variant};
 use tracing::info;
 
 use super::conditions::Conditions;
@@ -24,8 +22,8 @@ pub struct AlarmMethods {
     pub conditions: Arc<Mutex<Conditions>>,
     /// The node manager (its commander acknowledges the PLC).
     pub manager: Arc<PlcNodeManager>,
-    /// The node the events are emitted on (the machine's object).
-    pub emitter: NodeId,
+    /// Where the events are emitted (the machine's object, the Machine Tools view's messages).
+    pub emitters: super::emitters::Emitters,
 }
 
 impl ConditionMethods for AlarmMethods {
@@ -96,9 +94,8 @@ impl AlarmMethods {
             },
             event.message()
         );
-        context
-            .subscriptions
-            .notify_events([(&event as &dyn Event, &self.emitter)].into_iter());
+        self.emitters
+            .emit(&mut context.subscriptions.event_notifier(), &event as &dyn Event);
         Ok(())
     }
 
@@ -132,11 +129,11 @@ impl AlarmMethods {
         let states = self.lock().refresh();
         let end = marker(ObjectTypeId::RefreshEndEventType, "refresh end");
         let mut notifier = context.subscriptions.event_notifier();
-        notifier.notify(&self.emitter, &start as &dyn Event);
+        self.emitters.emit(&mut notifier, &start as &dyn Event);
         for e in &states {
-            notifier.notify(&self.emitter, e as &dyn Event);
+            self.emitters.emit(&mut notifier, e as &dyn Event);
         }
-        notifier.notify(&self.emitter, &end as &dyn Event);
+        self.emitters.emit(&mut notifier, &end as &dyn Event);
         notifier.keep_only(subscription);
         Ok(())
     }

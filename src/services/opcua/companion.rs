@@ -36,8 +36,9 @@ pub const IA: &str = "http://opcfoundation.org/UA/IA/";
 /// OPC 40001-1 Machinery.
 pub const MACHINERY: &str = "http://opcfoundation.org/UA/Machinery/";
 
-/// The companions' NodeSet2 files, each after the ones it needs.
-const NODESETS: [(&str, &str); 3] = [
+/// The companions' NodeSet2 files, each after the ones it needs: Machine Tools needs Machinery,
+/// IA, Machinery Jobs and ISA-95 job control.
+const NODESETS: [(&str, &str); 6] = [
     (
         "Opc.Ua.Di.NodeSet2.xml",
         include_str!("nodesets/Opc.Ua.Di.NodeSet2.xml"),
@@ -49,6 +50,18 @@ const NODESETS: [(&str, &str); 3] = [
     (
         "Opc.Ua.Machinery.NodeSet2.xml",
         include_str!("nodesets/Opc.Ua.Machinery.NodeSet2.xml"),
+    ),
+    (
+        "opc.ua.isa95-jobcontrol.nodeset2.xml",
+        include_str!("nodesets/opc.ua.isa95-jobcontrol.nodeset2.xml"),
+    ),
+    (
+        "Opc.Ua.Machinery.Jobs.Nodeset2.xml",
+        include_str!("nodesets/Opc.Ua.Machinery.Jobs.Nodeset2.xml"),
+    ),
+    (
+        "Opc.Ua.MachineTool.NodeSet2.xml",
+        include_str!("nodesets/Opc.Ua.MachineTool.NodeSet2.xml"),
     ),
 ];
 
@@ -286,7 +299,11 @@ impl Machinery {
             "Identification",
         )
         .description("The machine's nameplate (configuration: identification)")
-        .has_type_definition(NodeId::new(m, ids::MACHINE_IDENTIFICATION_TYPE))
+        // A machine tool's where Machine Tools is loaded (a subtype of Machinery's).
+        .has_type_definition(super::machine_tool::machine_tool_namespace(space).map_or(
+            NodeId::new(m, ids::MACHINE_IDENTIFICATION_TYPE),
+            super::machine_tool::identification_type,
+        ))
         .insert(space);
         space.insert_reference(object, &identification, ReferenceTypeId::HasAddIn);
         let mut fields = vec![
@@ -559,7 +576,9 @@ mod tests {
                     span.start
                 );
             }
-            assert_eq!(spans.len(), if name.contains("Machinery") { 0 } else { 2 }, "{name}");
+            // Each file's own: its schema's and its model's (Machinery 1.04.1 has none).
+            let expected = if name == "Opc.Ua.Machinery.NodeSet2.xml" { 0 } else { 2 };
+            assert_eq!(spans.len(), expected, "{name}");
         }
     }
 
@@ -568,6 +587,16 @@ mod tests {
         let imports = imports().expect("the built-in node sets parse");
         use opcua::nodes::NodeSetImport;
         let own: Vec<String> = imports.iter().map(|i| i.get_own_namespaces()[0].clone()).collect();
-        assert_eq!(own, vec![DI.to_string(), IA.to_string(), MACHINERY.to_string()]);
+        assert_eq!(
+            own,
+            [
+                DI,
+                IA,
+                MACHINERY,
+                "http://opcfoundation.org/UA/ISA95-JOBCONTROL_V2/",
+                "http://opcfoundation.org/UA/Machinery/Jobs/",
+                super::super::machine_tool::MACHINE_TOOL,
+            ]
+        );
     }
 }

@@ -11,9 +11,11 @@
 //! - [`nodes`]: the node manager: the nodes in memory, the methods called with the session's
 //!   user.
 //! - [`conditions`], [`alarm_events`]: alarms and conditions: what goes wrong, as events a
-//!   SCADA subscribes to and acknowledges.
+//!   SCADA subscribes to and acknowledges; [`emitters`]: where their events are emitted.
 //! - [`companion`]: OPC 40001-1 Machinery: the machine in the `Machines` folder, its
 //!   nameplate and its Machinery states.
+//! - [`machine_tool`]: OPC 40501-1 Machine Tools: the machine typed `MachineToolType`, its
+//!   channel, spindle, program, job, messages, prognoses and tools.
 //! - [`auth`]: anonymous sessions read; users of the users file ([`users`]) also command.
 //! - [`units`]: engineering units from the variables' names.
 //! - [`ranges`]: their EURange, where the configuration or the PLC bounds them.
@@ -29,8 +31,10 @@ pub mod alarm_methods;
 pub mod auth;
 pub mod companion;
 pub mod conditions;
+pub mod emitters;
 pub mod gate;
 pub mod history;
+pub mod machine_tool;
 pub mod methods;
 pub mod nodes;
 pub mod ranges;

@@ -48,6 +48,7 @@ pub fn start(
     feed: FrameFeed,
     sink: CommandSink,
     main_period_ns: u64,
+    tools: Option<Arc<crate::runtime::tool_table::ToolTableKeeper>>,
 ) -> Result<String, String> {
     let port = public.local_addr().map_err(|e| e.to_string())?.port();
     // The server itself listens on a loopback port of its own, behind the gate.
@@ -148,9 +149,14 @@ pub fn start(
         .ok_or("the namespace is missing (a broken invariant of the server's build)")?;
 
     let first = feed.latest();
+    let sources = super::machine_tool::Sources {
+        programs: info.programs.clone(),
+        jobs: Some(sink.job_news()),
+        tools,
+    };
     let mut space = {
         let mut address_space = manager.address_space().write();
-        Space::build(&mut address_space, ns, &info, &first)
+        Space::build(&mut address_space, ns, &info, &first, sources)
     };
     // What becomes of the screen's jobs (JobRefused), read before the sink goes to the methods.
     let job_news = sink.job_news();
@@ -180,7 +186,7 @@ pub fn start(
     let methods = AlarmMethods {
         conditions: Arc::clone(&conditions),
         manager: Arc::clone(&manager),
-        emitter: space.object.clone(),
+        emitters: space.emitters(),
     };
     if handle.info().condition_methods.set(Arc::new(methods)).is_err() {
         return Err("the conditions' methods were given twice (a broken invariant of the server's start)".into());
@@ -196,7 +202,7 @@ pub fn start(
     if !manager.inner().set_history(Arc::clone(&history)) {
         return Err("the history was given twice (a broken invariant of the server's start)".into());
     }
-    spawn_job_conditions(job_news, Arc::clone(&conditions), handle.clone(), space.object.clone());
+    spawn_job_conditions(job_news, Arc::clone(&conditions), handle.clone(), space.emitters());
     let kept = Kept { conditions, history };
     // The first frame's values (state texts, figures) before any client reads.
     publish(&manager, &handle, &mut space, &kept, &first);
@@ -326,12 +332,12 @@ impl Supervisor {
 }
 
 /// Raises and clears `JobRefused` as the screen's jobs are refused and made (their `news`),
-/// emitting its events on the machine's object `emitter`, until the server stops.
+/// emitting its events on `emitters`, until the server stops.
 fn spawn_job_conditions(
     mut news: tokio::sync::watch::Receiver<crate::services::hmi::job_news::JobNews>,
     conditions: Arc<Mutex<Conditions>>,
     handle: ServerHandle,
-    emitter: NodeId,
+    emitters: super::emitters::Emitters,
 ) {
     tokio::spawn(async move {
         while news.changed().await.is_ok() && !handle.token().is_cancelled() {
@@ -343,9 +349,10 @@ fn spawn_job_conditions(
                 .unwrap_or_else(|p| p.into_inner())
                 .job(&outcome, opcua::types::DateTime::now());
             if let Some(event) = event {
-                handle
-                    .subscriptions()
-                    .notify_events(std::iter::once((&event as &dyn opcua::nodes::Event, &emitter)));
+                emitters.emit(
+                    &mut handle.subscriptions().event_notifier(),
+                    &event as &dyn opcua::nodes::Event,
+                );
             }
         }
     });
@@ -443,9 +450,11 @@ fn publish(
             .unwrap_or_else(opcua::types::DateTime::now);
         let events = conditions.lock().unwrap_or_else(|p| p.into_inner()).observe(frame, at);
         if !events.is_empty() {
-            handle
-                .subscriptions()
-                .notify_events(events.iter().map(|e| (e as &dyn opcua::nodes::Event, &space.object)));
+            let emitters = space.emitters();
+            let mut notifier = handle.subscriptions().event_notifier();
+            for e in &events {
+                emitters.emit(&mut notifier, e as &dyn opcua::nodes::Event);
+            }
         }
     }
     let (ids, values): (Vec<NodeId>, Vec<DataValue>) = changes.into_iter().unzip();

@@ -160,6 +160,8 @@ pub struct Space {
     pub methods: Vec<(Method, NodeId)>,
     /// The machine's Machinery nodes, where the companion is loaded and the run has a machine.
     machinery: Option<super::companion::Machinery>,
+    /// The machine's Machine Tools view, likewise.
+    machine_tool: Option<super::machine_tool::MachineTool>,
 }
 
 /// Whether the history of process-image variable `v` is kept: one with a unit (a position, a
@@ -216,10 +218,17 @@ impl Space {
     /// Builds the nodes of `info` into `space` (namespace index `ns`), with the values of
     /// `first`: the machine's object with its state, the task classes' figures, every variable of
     /// the process image, and the methods.
-    pub fn build(space: &mut AddressSpace, ns: u16, info: &SpaceInfo, first: &Frame) -> Space {
+    pub fn build(
+        space: &mut AddressSpace,
+        ns: u16,
+        info: &SpaceInfo,
+        first: &Frame,
+        sources: super::machine_tool::Sources,
+    ) -> Space {
         let root = NodeId::new(ns, "PkmPlc");
         ObjectBuilder::new(&root, QualifiedName::new(ns, "PkmPlc"), "PkmPlc")
             .description("pkm-plc, a soft-PLC for parallel-kinematic machine models")
+            .is_folder()
             .organized_by(ObjectId::ObjectsFolder)
             .insert(space);
         let object = NodeId::new(ns, info.machine.clone());
@@ -229,6 +238,7 @@ impl Space {
             info.machine.as_str(),
         )
         .description(format!("The {} machine of this run", info.machine))
+        .has_type_definition(super::machine_tool::object_type(space, info.nameplate.is_some()))
         .organized_by(root.clone())
         // Its conditions' events are emitted on it (and so on the Server object).
         .event_notifier(EventNotifier::SUBSCRIBE_TO_EVENTS)
@@ -275,8 +285,13 @@ impl Space {
                 info.variables.iter().position(|v| v.name == "NC_STATE"),
             )
         });
+        let names: Vec<&str> = info.variables.iter().map(|v| v.name.as_str()).collect();
+        let machine_tool = info.nameplate.as_ref().and_then(|_| {
+            super::machine_tool::MachineTool::build(space, (ns, &info.machine, &object), &names, sources)
+        });
         Space {
             machinery,
+            machine_tool,
             historized,
             alarms,
             reason_index: info.variables.iter().position(|v| v.name == "error_reason"),
@@ -310,7 +325,19 @@ impl Space {
         if let Some(machinery) = &self.machinery {
             nodes.extend(machinery.nodes().cloned());
         }
+        if let Some(view) = &self.machine_tool {
+            nodes.extend(view.nodes().cloned());
+        }
         nodes
+    }
+
+    /// Where the alarms' events are emitted: the machine's object and, in the Machine Tools
+    /// view, `Notification/Messages`.
+    pub fn emitters(&self) -> super::emitters::Emitters {
+        super::emitters::Emitters {
+            object: self.object.clone(),
+            messages: self.machine_tool.as_ref().map(|v| v.messages.clone()),
+        }
     }
 
     /// Forgets what was published: the next frame writes every value again (after values
@@ -320,6 +347,9 @@ impl Space {
         self.last_state = None;
         if let Some(machinery) = &mut self.machinery {
             machinery.forget();
+        }
+        if let Some(view) = &mut self.machine_tool {
+            view.forget();
         }
     }
 
@@ -371,6 +401,9 @@ impl Space {
         }
         if let Some(machinery) = &mut self.machinery {
             out.extend(machinery.changes(frame, value));
+        }
+        if let Some(view) = &mut self.machine_tool {
+            out.extend(view.changes(space, frame, value));
         }
         for (c, nodes) in s.classes.iter().zip(&self.classes) {
             let figures = [
@@ -734,6 +767,15 @@ mod tests {
     use super::*;
     use crate::runtime::snapshot::Snapshot;
 
+    /// No programs, screen jobs or tool table.
+    fn no_sources() -> crate::services::opcua::machine_tool::Sources {
+        crate::services::opcua::machine_tool::Sources {
+            programs: Vec::new(),
+            jobs: None,
+            tools: None,
+        }
+    }
+
     fn info() -> SpaceInfo {
         let var = |name: &str, ty: VarType, range: Option<[f64; 2]>| VarNode {
             name: name.to_string(),
@@ -784,7 +826,7 @@ mod tests {
         let ns = 1;
         let before = DateTime::now();
         let first = frame("", vec![], 0);
-        let mut space = Space::build(&mut address_space, ns, &info(), &first);
+        let mut space = Space::build(&mut address_space, ns, &info(), &first, no_sources());
         // Before the first cycle published anything, values carry the time they were known.
         let changes = space.changes(&mut address_space, &first);
         assert!(!changes.is_empty());
@@ -828,7 +870,7 @@ mod tests {
         let mut address_space = AddressSpace::new();
         address_space.add_namespace(NAMESPACE, 1);
         let ns = 1;
-        let space = Space::build(&mut address_space, ns, &info(), &frame("", vec![], 0));
+        let space = Space::build(&mut address_space, ns, &info(), &frame("", vec![], 0), no_sources());
         let has = |path: &str| address_space.find(&node(&space, path)).is_some();
         // JOINT1_REFERENCE reads as a length by its name, but it is a BOOL: a switch.
         assert!(!has("JOINT1_REFERENCE.EngineeringUnits"));
@@ -866,7 +908,7 @@ mod tests {
             "O-X glide, crossed X configuration: …",
             "lab-pc",
         ));
-        let mut space = Space::build(&mut address_space, ns, &info, &frame("", vec![], 0));
+        let mut space = Space::build(&mut address_space, ns, &info, &frame("", vec![], 0), no_sources());
         let organizes = NodeId::from(ReferenceTypeId::Organizes);
         assert!(address_space.has_reference(&NodeId::new(m, 1001u32), &space.object, &organizes));
         // Browse names in the companions' namespaces, as an MES browses them.
