@@ -109,6 +109,16 @@ impl Plc {
     fn log(&self) -> String {
         self.run.log()
     }
+
+    /// The operator screen's URL, for a run started with `--hmi`.
+    fn screen(&self) -> String {
+        let log = self.log();
+        log.lines()
+            .find_map(|l| l.split("operator screen at ").nth(1))
+            .and_then(|rest| rest.split_whitespace().next())
+            .unwrap_or_else(|| panic!("no screen: {log}"))
+            .to_string()
+    }
 }
 
 /// Runs the client script with `args`; its last stdout line as JSON.
@@ -732,13 +742,7 @@ fn a_job_the_screen_refuses_raises_job_refused() {
         "--opcua-users",
         users.to_str().expect("utf-8"),
     ]);
-    let log = plc.log();
-    let screen = log
-        .lines()
-        .find_map(|l| l.split("operator screen at ").nth(1))
-        .and_then(|rest| rest.split_whitespace().next())
-        .unwrap_or_else(|| panic!("no screen: {log}"))
-        .to_string();
+    let screen = plc.screen();
     // Refused whatever the state: in REBOOT or INIT (a busy machine's start may still be in
     // REBOOT) a job waits for READY, in READY this one nests too deep.
     let text = format!("G1 X{}1{} F100", "[".repeat(100), "]".repeat(100));
@@ -1294,13 +1298,7 @@ fn the_machine_tool_view_is_whole_by_its_types_and_follows_a_program_with_a_manu
             &path("users.json"),
         ],
     );
-    let log = plc.log();
-    let screen = log
-        .lines()
-        .find_map(|l| l.split("operator screen at ").nth(1))
-        .and_then(|rest| rest.split_whitespace().next())
-        .unwrap_or_else(|| panic!("no screen: {log}"))
-        .to_string();
+    let screen = plc.screen();
     plc.run.wait_for_state(0, "READY", Duration::from_secs(120));
     let mt = "http://opcfoundation.org/UA/MachineTool/";
 
