@@ -5,6 +5,7 @@
 //! resolution.
 
 use pkm_api::trajectory::vars;
+use pkm_drives::nc::RunState;
 use serde_json::{Value as Json, json};
 
 use crate::image::Value;
@@ -15,8 +16,15 @@ pub const MAX_POINTS: usize = 4000;
 const MIN_STEP_MM: f64 = 0.005;
 
 /// The executor's states in which the tool cuts (running, holding, held, paused, standing after
-/// a line, waiting at an M66): `pkm_drives::nc::RunState` codes.
-const CUTTING: [i16; 6] = [1, 2, 3, 4, 6, 8];
+/// a line, waiting at an M66).
+const CUTTING: [RunState; 6] = [
+    RunState::Running,
+    RunState::Holding,
+    RunState::Held,
+    RunState::Paused,
+    RunState::BlockDone,
+    RunState::Waiting,
+];
 
 /// The cut path of the loaded program's current (or last) run.
 pub struct CutPath {
@@ -55,7 +63,7 @@ impl CutPath {
             _ => 0,
         };
         let (program, state) = (int(self.program), int(self.state));
-        let cutting = CUTTING.contains(&state);
+        let cutting = RunState::from_code(state).is_some_and(|s| CUTTING.contains(&s));
         if program != self.of || (cutting && !self.cutting) {
             self.points.clear();
             self.of = program;

@@ -28,6 +28,7 @@ use opcua::types::{
 use crate::image::Value;
 use crate::runtime::config::identification::Identification;
 use crate::runtime::frame::Frame;
+use pkm_drives::nc::RunState;
 
 /// OPC 10000-100 Devices (DI): the nameplate's fields.
 pub const DI: &str = "http://opcfoundation.org/UA/DI/";
@@ -233,10 +234,10 @@ impl OperationMode {
     }
 }
 
-/// The NC executor's states in which the tool moves (`NC_STATE`: 1 running, 2 holding — braking
-/// on the path); in the others (held, at M0, a single-block stop, a tool change, done) the
-/// program waits for the operator.
-const NC_MOVING: [i16; 2] = [1, 2];
+/// The NC executor's states in which the tool moves (running, holding — braking on the path); in
+/// the others (held, at M0, a single-block stop, a tool change, done) the program waits for the
+/// operator.
+const NC_MOVING: [RunState; 2] = [RunState::Running, RunState::Holding];
 
 /// Machinery's states of the PLC in main state `state` (`None`: outside the automaton), with
 /// the bus faulted or not and the NC executor in `nc_state` (`NC_STATE`, where the run has it).
@@ -254,7 +255,11 @@ pub fn machinery_states(state: Option<&str>, bus_fault: bool, nc_state: Option<i
     let (item, mode) = match state {
         Some("REBOOT" | "READY") => (ItemState::NotExecuting, OperationMode::Setup),
         Some("INIT" | "MOTION") => (ItemState::Executing, OperationMode::Setup),
-        Some("AUTO") if nc_state.is_some_and(|s| NC_MOVING.contains(&s)) => {
+        Some("AUTO")
+            if nc_state
+                .and_then(RunState::from_code)
+                .is_some_and(|s| NC_MOVING.contains(&s)) =>
+        {
             (ItemState::Executing, OperationMode::Processing)
         }
         Some("AUTO") => (ItemState::NotExecuting, OperationMode::Processing),
