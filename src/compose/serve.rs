@@ -171,6 +171,7 @@ pub fn run(built: Built, request: RunRequest) -> Result<Ran, Failure> {
             asked,
             sink: sink.clone(),
             tools: tools.clone(),
+            library: library.clone(),
         }),
         _ => None,
     };
@@ -271,6 +272,8 @@ struct OpcUa {
     sink: crate::services::hmi::commands::CommandSink,
     /// The tool table, for the machine tool's `Equipment/Tools`.
     tools: Option<Arc<crate::runtime::tool_table::ToolTableKeeper>>,
+    /// The programs as planned, for the machine tool's tool change prognosis.
+    library: Option<pkm_api::library::NcLibrary>,
 }
 
 /// What the screen shows at connection.
@@ -588,9 +591,11 @@ fn serve_opcua(
         info,
         sink,
         tools,
+        library,
     } = server;
     let OpcUaRequest { options, explicit, .. } = asked;
-    match crate::services::opcua::server::start(&options, listener, info, feed, sink, main_period_ns, tools) {
+    let planned = crate::services::opcua::server::Planned { tools, library };
+    match crate::services::opcua::server::start(&options, listener, info, feed, sink, main_period_ns, planned) {
         Ok(url) => info!(
             "OPC UA server at {url} ({})",
             match &options.users {

@@ -46,7 +46,8 @@
     opcua_client.py machine_tool URL MACHINE
         The OPC 40501-1 view of MACHINE as umati reads it, by browse paths: its type, the
         operation mode, the channel's state, mode and overrides, the spindle, the active
-        program's name and state, the job's state and runs, the prognoses and the tools. JSON.
+        program's name and state, the job's state and runs, the prognoses (a time as seconds
+        since 1970) and the tools, and when it was read ("read_at"). JSON.
     opcua_client.py messages URL MACHINE SECONDS
         Subscribes to the alarm events (AlarmConditionType) of MACHINE's Notification/Messages,
         prints "subscribed", then each event as it comes for SECONDS: a JSON line with its
@@ -777,6 +778,7 @@ async def machine_tool(url, machine):
             "runs_completed": await value(f"{mt}:Production", f"{mt}:ProductionPlan", f"{ns}:Job", f"{mt}:RunsCompleted"),
             "prognoses": {},
             "tools": {},
+            "read_at": time.time(),
         }
         prognoses = await node.get_child([f"{mt}:Notification", f"{mt}:Prognoses"])
         for p in await prognoses.get_children(refs=ua.ObjectIds.HasComponent):
@@ -784,7 +786,11 @@ async def machine_tool(url, machine):
             fields = {}
             for child in await p.get_children():
                 v = await child.read_value()
-                fields[(await child.read_browse_name()).Name] = v.Text if isinstance(v, ua.LocalizedText) else str(v)
+                if isinstance(v, ua.LocalizedText):
+                    v = v.Text
+                elif isinstance(v, datetime.datetime):
+                    v = unix(v)
+                fields[(await child.read_browse_name()).Name] = v
             out["prognoses"][name] = fields
         tools = await node.get_child([f"{mt}:Equipment", f"{mt}:Tools"])
         for t in await tools.get_children(refs=ua.ObjectIds.HasComponent):

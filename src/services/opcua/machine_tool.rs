@@ -16,7 +16,7 @@
 //! │                                        RunsCompleted, State, ProductionPrograms
 //! ├─ Notification                          NotificationType
 //! │  ├─ Messages                           the alarms' events are emitted here too
-//! │  └─ Prognoses                          ToolChange while a manual tool change is due
+//! │  └─ Prognoses                          ToolChange while a manual tool change is ahead or due
 //! └─ Equipment/Tools                       a ToolType per tool of the tool table
 //! ```
 //!
@@ -31,6 +31,8 @@ use opcua::types::{
     DataTypeId, DataValue, DateTime, EUInformation, ExtensionObject, LocalizedText, NodeId, ObjectTypeId,
     QualifiedName, Range, ReferenceTypeId, UAString, VariableTypeId, Variant,
 };
+use pkm_api::library::NcLibrary;
+use pkm_api::trajectory::TrajectoryEventKind;
 use pkm_drives::nc::RunState;
 
 use crate::image::Value;
@@ -227,6 +229,7 @@ struct Indices {
     spindle_on: Option<usize>,
     spindle_rpm: Option<usize>,
     tool_change_number: Option<usize>,
+    nc_time_s: Option<usize>,
 }
 
 /// The nodes a frame writes.
@@ -245,6 +248,14 @@ struct Nodes {
     runs_completed: NodeId,
 }
 
+/// A tool change prognosis shown: its node and children (`PredictedTime` second), the tool,
+/// the time it predicts.
+struct Prognosis {
+    nodes: Vec<NodeId>,
+    tool: u32,
+    predicted: DateTime,
+}
+
 /// What the view needs beside the frames: the run's programs by number, the screen's jobs, the
 /// tool table.
 pub struct Sources {
@@ -254,6 +265,8 @@ pub struct Sources {
     pub jobs: Option<tokio::sync::watch::Receiver<JobNews>>,
     /// The tool table, as it changes.
     pub tools: Option<Arc<ToolTableKeeper>>,
+    /// The run's programs and screen jobs as planned (the next tool change on their time line).
+    pub library: Option<NcLibrary>,
 }
 
 /// The Machine Tools view of a built address space and what it last showed.
@@ -267,8 +280,8 @@ pub struct MachineTool {
     /// The `Notification/Messages` object, where the alarms' events are emitted too.
     pub messages: NodeId,
     prognoses: NodeId,
-    /// The tool change prognosis while one is due: its node and its children.
-    prognosis: Option<Vec<NodeId>>,
+    /// The tool change prognosis while one is ahead or due.
+    prognosis: Option<Prognosis>,
     tools_list: NodeId,
     /// The tools' nodes (each tool's object and its children), and the tool table's change
     /// count they show.
@@ -453,6 +466,7 @@ impl MachineTool {
             spindle_on: at("SPINDLE_ON"),
             spindle_rpm: at("SPINDLE_RPM"),
             tool_change_number: at("TOOL_CHANGE_NUMBER"),
+            nc_time_s: at("NC_TIME_S"),
         };
         let mut b = Build { space, mt, ns, machine };
         let t = |n: u32| NodeId::new(mt, n);
@@ -757,8 +771,10 @@ impl MachineTool {
         self.refresh_tools(space);
         let state = frame.status.state.as_str();
         let nc = number(frame, self.indices.nc_state).and_then(|c| RunState::from_code(c as i16));
-        self.due_tool_change(space, frame, nc == Some(RunState::ToolChange), &value);
         let k = number(frame, self.indices.nc_program).map_or(0, |k| k as i16);
+        let next = self.next_tool_change(frame, state, nc, k);
+        let mut out = Vec::new();
+        self.tool_change_prognosis(space, next, &value, &mut out);
         let job_count = self.sources.jobs.as_ref().map_or(0, |j| j.borrow().count);
         let loaded_key = (
             k,
@@ -796,7 +812,6 @@ impl MachineTool {
         let last = self.last.replace(now.clone());
         let changed = |f: &dyn Fn(&Shown) -> bool| last.as_ref().is_none_or(f);
         let n = &self.nodes;
-        let mut out = Vec::new();
         if changed(&|l| l.operation_mode != now.operation_mode) {
             out.push((
                 n.operation_mode.clone(),
@@ -838,83 +853,125 @@ impl MachineTool {
         out
     }
 
-    /// Makes the prognosis of the tool change that is `due` (the program stands at an M6 for
-    /// the operator), or unmakes it once it is no longer due.
-    fn due_tool_change(
+    /// The next manual tool change of the loaded program `k`, if a run is under way: the tool
+    /// and how many seconds ahead it is (0: due, the program stands at its M6) — from the
+    /// plan's time line, where the executor stands on it, at the feed override in force.
+    fn next_tool_change(&self, frame: &Frame, state: &str, nc: Option<RunState>, k: i16) -> Option<(u32, f64)> {
+        if nc == Some(RunState::ToolChange) {
+            let tool = number(frame, self.indices.tool_change_number).map_or(0, |t| t as u32);
+            return Some((tool, 0.0));
+        }
+        let under_way = state == "AUTO" && nc.is_some_and(|s| !matches!(s, RunState::Idle | RunState::Done));
+        if !under_way {
+            return None;
+        }
+        let now_s = number(frame, self.indices.nc_time_s)?;
+        let trajectory = self.sources.library.as_ref()?.trajectory(k)?;
+        let (t, tool) = trajectory.events().iter().find_map(|e| match e.kind {
+            TrajectoryEventKind::ToolChange { tool } if e.t > now_s + 1e-6 => Some((e.t, tool)),
+            _ => None,
+        })?;
+        // The time line runs at the feed override's rate (a hold stops it: the prognosis then
+        // moves on with the wall clock until the run goes on).
+        let rate = number(frame, self.indices.feed_override).unwrap_or(100.0).max(1.0) / 100.0;
+        Some((tool, (t - now_s) / rate))
+    }
+
+    /// Makes, moves or unmakes the tool change prognosis for `next` (the tool and how many
+    /// seconds ahead, as [`Self::next_tool_change`]); the time it predicts is written when it
+    /// moves by a second or more.
+    fn tool_change_prognosis(
         &mut self,
         space: &mut AddressSpace,
-        frame: &Frame,
-        due: bool,
+        next: Option<(u32, f64)>,
         value: &impl Fn(Variant) -> DataValue,
+        out: &mut Vec<(NodeId, DataValue)>,
     ) {
-        match (&self.prognosis, due) {
-            (None, true) => {
-                let tool = number(frame, self.indices.tool_change_number).map_or(0, |t| t as u32);
-                let name = self
-                    .sources
-                    .tools
-                    .as_ref()
-                    .and_then(|k| k.table().tools.into_iter().find(|t| t.number == tool))
-                    .map(|t| t.comment)
-                    .filter(|c| !c.is_empty())
-                    .unwrap_or_else(|| format!("T{tool}"));
-                let at = value(Variant::Boolean(true))
-                    .source_timestamp
-                    .unwrap_or_else(DateTime::now);
-                let mut b = Build {
-                    space,
-                    mt: self.mt,
-                    ns: self.ns,
-                    machine: &self.machine,
-                };
-                let node = b.object(
-                    "Notification.Prognoses.ToolChange",
-                    (self.ns, "ToolChange"),
-                    NodeId::new(self.mt, ids::TOOL_CHANGE_PROGNOSIS_TYPE),
-                    &self.prognoses,
-                );
-                let mut made = vec![node.clone()];
-                made.push(b.variable(
-                    "Notification.Prognoses.ToolChange.PredictedTime",
-                    (self.mt, "PredictedTime"),
-                    (DataTypeId::UtcTime.into(), Variant::from(at)),
-                    None,
-                    &node,
-                ));
-                made.push(b.variable(
-                    "Notification.Prognoses.ToolChange.Location",
-                    (self.mt, "Location"),
-                    (
-                        DataTypeId::LocalizedText.into(),
-                        Variant::from(LocalizedText::new("en", "spindle (manual change)")),
-                    ),
-                    Some(VariableTypeId::BaseDataVariableType),
-                    &node,
-                ));
-                made.push(b.variable(
-                    "Notification.Prognoses.ToolChange.ToolIdentifier",
-                    (self.mt, "ToolIdentifier"),
-                    (DataTypeId::String.into(), Variant::from(format!("T{tool}"))),
-                    Some(VariableTypeId::BaseDataVariableType),
-                    &node,
-                ));
-                made.push(b.variable(
-                    "Notification.Prognoses.ToolChange.ToolName",
-                    (self.mt, "ToolName"),
-                    (DataTypeId::String.into(), Variant::from(name)),
-                    Some(VariableTypeId::BaseDataVariableType),
-                    &node,
-                ));
-                self.prognosis = Some(made);
+        let frame_time = value(Variant::Boolean(true))
+            .source_timestamp
+            .unwrap_or_else(DateTime::now);
+        let predicted =
+            |ahead_s: f64| DateTime::from(frame_time.checked_ticks().saturating_add((ahead_s * 1e7) as i64));
+        let changed_tool = match (&self.prognosis, next) {
+            (Some(shown), Some((tool, _))) => shown.tool != tool,
+            (Some(_), None) => true,
+            _ => false,
+        };
+        if changed_tool && let Some(shown) = self.prognosis.take() {
+            for node in shown.nodes.iter().rev() {
+                space.delete(node, true);
             }
-            (Some(made), false) => {
-                for node in made.iter().rev() {
-                    space.delete(node, true);
-                }
-                self.prognosis = None;
-            }
-            _ => {}
         }
+        let Some((tool, ahead_s)) = next else {
+            return;
+        };
+        let at = predicted(ahead_s);
+        if let Some(shown) = &mut self.prognosis {
+            // Due: the time it became due stays; ahead: moved when it moves by a second.
+            let moved = (at.checked_ticks() - shown.predicted.checked_ticks()).abs() >= 10_000_000;
+            if ahead_s > 0.0 && moved {
+                shown.predicted = at;
+                out.push((shown.nodes[1].clone(), value(Variant::from(at))));
+            }
+            return;
+        }
+        let name = self
+            .sources
+            .tools
+            .as_ref()
+            .and_then(|k| k.table().tools.into_iter().find(|t| t.number == tool))
+            .map(|t| t.comment)
+            .filter(|c| !c.is_empty())
+            .unwrap_or_else(|| format!("T{tool}"));
+        let mut b = Build {
+            space,
+            mt: self.mt,
+            ns: self.ns,
+            machine: &self.machine,
+        };
+        let node = b.object(
+            "Notification.Prognoses.ToolChange",
+            (self.ns, "ToolChange"),
+            NodeId::new(self.mt, ids::TOOL_CHANGE_PROGNOSIS_TYPE),
+            &self.prognoses,
+        );
+        let mut nodes = vec![node.clone()];
+        nodes.push(b.variable(
+            "Notification.Prognoses.ToolChange.PredictedTime",
+            (self.mt, "PredictedTime"),
+            (DataTypeId::UtcTime.into(), Variant::from(at)),
+            None,
+            &node,
+        ));
+        nodes.push(b.variable(
+            "Notification.Prognoses.ToolChange.Location",
+            (self.mt, "Location"),
+            (
+                DataTypeId::LocalizedText.into(),
+                Variant::from(LocalizedText::new("en", "spindle (manual change)")),
+            ),
+            Some(VariableTypeId::BaseDataVariableType),
+            &node,
+        ));
+        nodes.push(b.variable(
+            "Notification.Prognoses.ToolChange.ToolIdentifier",
+            (self.mt, "ToolIdentifier"),
+            (DataTypeId::String.into(), Variant::from(format!("T{tool}"))),
+            Some(VariableTypeId::BaseDataVariableType),
+            &node,
+        ));
+        nodes.push(b.variable(
+            "Notification.Prognoses.ToolChange.ToolName",
+            (self.mt, "ToolName"),
+            (DataTypeId::String.into(), Variant::from(name)),
+            Some(VariableTypeId::BaseDataVariableType),
+            &node,
+        ));
+        self.prognosis = Some(Prognosis {
+            nodes,
+            tool,
+            predicted: at,
+        });
     }
 
     /// Makes the tools' nodes again when the tool table has changed since they were made.

@@ -33,6 +33,15 @@ const HELLO_TIMEOUT_S: u32 = 5;
 /// refused several times waits for its answer (the back-off reaches 10 s).
 const SESSIONLESS: Duration = Duration::from_secs(20);
 
+/// What the run planned with, for the machine tool view: the tool table as it changes, the
+/// programs and screen jobs as planned.
+pub struct Planned {
+    /// The tool table.
+    pub tools: Option<Arc<crate::runtime::tool_table::ToolTableKeeper>>,
+    /// The run's programs and screen jobs.
+    pub library: Option<pkm_api::library::NcLibrary>,
+}
+
 /// Builds the server for `info` and starts it behind `public` (inside the tokio runtime): the
 /// address space from the first frame, a task that writes every newer frame's changes, the
 /// methods that command through `sink`, the gate that bounds the connections. Returns the
@@ -48,7 +57,7 @@ pub fn start(
     feed: FrameFeed,
     sink: CommandSink,
     main_period_ns: u64,
-    tools: Option<Arc<crate::runtime::tool_table::ToolTableKeeper>>,
+    planned: Planned,
 ) -> Result<String, String> {
     let port = public.local_addr().map_err(|e| e.to_string())?.port();
     // The server itself listens on a loopback port of its own, behind the gate.
@@ -152,7 +161,8 @@ pub fn start(
     let sources = super::machine_tool::Sources {
         programs: info.programs.clone(),
         jobs: Some(sink.job_news()),
-        tools,
+        tools: planned.tools,
+        library: planned.library,
     };
     let mut space = {
         let mut address_space = manager.address_space().write();

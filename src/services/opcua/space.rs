@@ -773,6 +773,7 @@ mod tests {
             programs: Vec::new(),
             jobs: None,
             tools: None,
+            library: None,
         }
     }
 
