@@ -191,13 +191,22 @@ fn machine_over_rtu(machine: &str, dir: &std::path::Path) -> String {
     // The operator's notes (a refused start says why).
     let mut notes: Vec<String> = Vec::new();
     while !run.is_finished() {
-        let (state, note) = {
+        let (state, note, reason) = {
             let s = snapshot.lock().unwrap_or_else(|p| p.into_inner());
             stillness.saw(s.t_ns as f64 * 1e-9, s.values.iter().map(|(_, v)| *v).collect());
-            (s.state.clone(), s.note.clone())
+            (s.state.clone(), s.note.clone(), s.reason.clone())
         };
         if seen.last() != Some(&state) {
             seen.push(state.clone());
+        }
+        // ERROR ends the run here: the checks below say why (it would otherwise wait out the
+        // run's bound); a cycle time violation is told to the host-stall witnesses.
+        if state == "ERROR" {
+            if reason.contains("cycle time violation") {
+                common::host::note_violation();
+            }
+            run.stop();
+            break;
         }
         if !note.is_empty() && !notes.contains(&note) {
             notes.push(note);
@@ -289,7 +298,7 @@ fn every_machine_references_jogs_and_runs_its_program_over_modbus_rtu() {
                 std::fs::create_dir(&dir).expect("a directory");
                 scope.spawn(move || {
                     let _line = LINES.take();
-                    machine_over_rtu(machine, &dir)
+                    common::host::on_a_steady_host(machine, || machine_over_rtu(machine, &dir))
                 })
             })
             .collect();

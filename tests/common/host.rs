@@ -58,8 +58,14 @@ fn keep<T>(list: &Mutex<Vec<T>>, item: T) {
 /// line is read).
 pub fn note_log_line(line: &str) {
     if line.contains("cycle time violation") {
-        keep(&VIOLATIONS, Instant::now());
+        note_violation();
     }
+}
+
+/// Notes that a PLC the harness runs reported a cycle time violation (one run in the test's own
+/// process: its state's reason said so).
+pub fn note_violation() {
+    keep(&VIOLATIONS, Instant::now());
 }
 
 /// Starts the witnesses once per test binary; whether they watch (real-time priority granted).
