@@ -776,6 +776,7 @@ async def machine_tool(url, machine):
             "program_state": await value(f"{mt}:Production", f"{mt}:ActiveProgram", f"{mt}:State", "0:CurrentState"),
             "job_state": await value(f"{mt}:Production", f"{mt}:ProductionPlan", f"{ns}:Job", f"{mt}:State", "0:CurrentState"),
             "runs_completed": await value(f"{mt}:Production", f"{mt}:ProductionPlan", f"{ns}:Job", f"{mt}:RunsCompleted"),
+            "runs_planned": await value(f"{mt}:Production", f"{mt}:ProductionPlan", f"{ns}:Job", f"{mt}:RunsPlanned"),
             "prognoses": {},
             "tools": {},
             "read_at": time.time(),

@@ -1326,6 +1326,11 @@ fn the_machine_tool_view_is_whole_by_its_types_and_follows_a_program_with_a_manu
     );
     assert_eq!(before["program_state"], "Initializing", "{before}");
     assert_eq!(
+        (before["runs_completed"].clone(), before["runs_planned"].clone()),
+        (0.into(), 1.into()),
+        "{before}"
+    );
+    assert_eq!(
         before["tools"],
         serde_json::json!({"T1": {"name": "6 mm end mill", "number": 1}, "T2": {"name": "3 mm drill", "number": 2}}),
         "{before}"
@@ -1389,6 +1394,7 @@ fn the_machine_tool_view_is_whole_by_its_types_and_follows_a_program_with_a_manu
     assert_eq!(ended["program_state"], "Ended", "{ended}\n{}", plc.log());
     assert_eq!(ended["job_state"], "Ended", "{ended}");
     assert_eq!(ended["runs_completed"], 1, "{ended}");
+    assert_eq!(ended["runs_planned"], 1, "{ended}");
     assert_eq!(ended["prognoses"], serde_json::json!({}), "{ended}");
 
     let mut stop = vec!["call", &plc.url, "ox-x"];

@@ -215,7 +215,18 @@ struct Shown {
     spindle: (bool, f64),
     program: String,
     production: Production,
-    runs_completed: u32,
+    /// The job's runs: completed, and planned (the completed ones and the one loaded, running
+    /// or stopped short; at least 1).
+    runs: (u32, u32),
+}
+
+/// The runs of the loaded program's job, planned: those completed, and one more unless the
+/// last has ended (the one loaded, running, or stopped short); at least one.
+pub fn runs_planned(completed: u32, production: Production) -> u32 {
+    match production {
+        Production::Ended => completed.max(1),
+        _ => completed + 1,
+    }
 }
 
 /// Where the variables the view reads are in the process image.
@@ -246,6 +257,7 @@ struct Nodes {
     program_state: [NodeId; 3],
     job_state: [NodeId; 3],
     runs_completed: NodeId,
+    runs_planned: NodeId,
 }
 
 /// A tool change prognosis shown: its node and children (`PredictedTime` second), the tool,
@@ -615,7 +627,7 @@ impl MachineTool {
             Some(VariableTypeId::BaseDataVariableType),
             &job,
         );
-        // The one run the loaded program is loaded for: a known number.
+        // The runs are counted, so their number is known.
         b.variable(
             "Production.ProductionPlan.Job.RunsPlanned.IsValid",
             (mt, "IsValid"),
@@ -702,6 +714,7 @@ impl MachineTool {
                 program_state,
                 job_state,
                 runs_completed,
+                runs_planned,
             },
             sources,
             messages,
@@ -728,6 +741,7 @@ impl MachineTool {
             &n.feed_override,
             &n.rapid_override,
             &n.runs_completed,
+            &n.runs_planned,
         ]
         .into_iter()
         .chain(n.spindle.iter().flat_map(|(a, b)| [a, b]))
@@ -807,7 +821,7 @@ impl MachineTool {
             ),
             program: self.program_name(k),
             production,
-            runs_completed: self.runs_completed,
+            runs: (self.runs_completed, runs_planned(self.runs_completed, production)),
         };
         let last = self.last.replace(now.clone());
         let changed = |f: &dyn Fn(&Shown) -> bool| last.as_ref().is_none_or(f);
@@ -847,8 +861,9 @@ impl MachineTool {
                 out.push((nodes[2].clone(), value(Variant::UInt32(number))));
             }
         }
-        if changed(&|l| l.runs_completed != now.runs_completed) {
-            out.push((n.runs_completed.clone(), value(Variant::UInt32(now.runs_completed))));
+        if changed(&|l| l.runs != now.runs) {
+            out.push((n.runs_completed.clone(), value(Variant::UInt32(now.runs.0))));
+            out.push((n.runs_planned.clone(), value(Variant::UInt32(now.runs.1))));
         }
         out
     }
@@ -1092,6 +1107,16 @@ mod tests {
         assert_eq!(channel("INIT", None), (ChannelState::Reset, ChannelMode::Reference));
         assert_eq!(channel("MOTION", None), (ChannelState::Active, ChannelMode::JogManual));
         assert_eq!(channel("ERROR", None), (ChannelState::Reset, ChannelMode::Other));
+    }
+
+    #[test]
+    fn a_job_plans_the_runs_completed_and_the_one_under_way() {
+        assert_eq!(runs_planned(0, Production::Initializing), 1);
+        assert_eq!(runs_planned(0, Production::Running), 1);
+        assert_eq!(runs_planned(1, Production::Ended), 1);
+        assert_eq!(runs_planned(1, Production::Running), 2);
+        assert_eq!(runs_planned(1, Production::Aborted), 2);
+        assert_eq!(runs_planned(2, Production::Ended), 2);
     }
 
     #[test]
