@@ -1,7 +1,7 @@
 //! Modbus RTU end to end over an emulated line: the soft-PLC's driver on one end, the I/O
-//! simulator's station on the other, joined by an emulated RS-485 line at 115 200 baud (frames
-//! carried no faster than the baud rate, silent intervals kept; socket pairs at its ends), the
-//! TRIJOINT application running in real time with every limit as shipped — the link's (input
+//! simulator's station on the other, joined by an emulated RS-485 line (frames carried no faster
+//! than the baud rate, silent intervals kept; socket pairs at its ends) at 115 200 baud — the
+//! other machines' at 230 400 ([`line_baud`]) —, the TRIJOINT application running in real time with every limit as shipped — the link's (input
 //! age, exchange time, timeouts), the station's output watchdog, the drives' — referencing
 //! (40 s, as shipped) and, once READY, a jog through the operator's screen's inputs;
 //! the run ends when the jog has moved the machine and it stands again.
@@ -52,6 +52,13 @@ fn over_a_line(setup: &pkm_plc::compose::Setup, baud: u32) -> (StationOnLine, Mo
 #[test]
 fn the_application_runs_over_modbus_rtu_on_an_emulated_line() {
     let _alone = ALONE.lock().unwrap_or_else(|p| p.into_inner());
+    let report = common::host::on_a_steady_host("trijoint", application_over_rtu);
+    eprintln!("{report}");
+}
+
+/// The TRIJOINT over an emulated line at 115 200 baud: referenced, jogged by the screen's
+/// inputs once READY. Returns a line for the log.
+fn application_over_rtu() -> String {
     let dir = tempfile::tempdir().expect("tempdir");
     // The TRIJOINT as shipped, its referencing shortened.
     let config = common::machine_test_config(dir.path(), "trijoint");
@@ -85,7 +92,17 @@ fn the_application_runs_over_modbus_rtu_on_an_emulated_line() {
     let snapshot = run.snapshot();
     let (mut jogged, mut moved) = (None, false);
     while !run.is_finished() {
-        let state = snapshot.lock().unwrap_or_else(|p| p.into_inner()).state.clone();
+        let (state, reason) = {
+            let s = snapshot.lock().unwrap_or_else(|p| p.into_inner());
+            (s.state.clone(), s.reason.clone())
+        };
+        // ERROR ends the run here (the checks below say why); a reason the host can cause is
+        // told to the host's witnesses.
+        if state == "ERROR" {
+            common::host::note_reason(&reason);
+            run.stop();
+            break;
+        }
         if state == "READY" && jogged.is_none() {
             screen.update(|c| c.jog = [1.0, 0.0]);
             jogged = Some(std::time::Instant::now());
@@ -107,7 +124,8 @@ fn the_application_runs_over_modbus_rtu_on_an_emulated_line() {
     let status = outcome.plc.app_status().expect("status");
     // Referenced (about 42 s over this line: the approaches wait for inputs) and jogged, without
     // a bus fault or other error.
-    assert_eq!((status.state, status.reason), ("READY", None));
+    let reason = outcome.plc.error_reason();
+    assert_eq!((status.state, status.reason), ("READY", None), "reason {reason:?}");
     let trace = std::fs::read_to_string(&trace).expect("trace");
     assert!(trace.contains(r#""state":"MOTION""#), "no MOTION in the trace");
     assert!(!trace.contains(r#""state":"ERROR""#), "an ERROR in the trace");
@@ -125,18 +143,24 @@ fn the_application_runs_over_modbus_rtu_on_an_emulated_line() {
     assert!(exchanges as f64 > 78.0 * run_s, "{exchanges} exchanges in {run_s:.1} s");
     assert_eq!(stats.timeouts.load(std::sync::atomic::Ordering::Relaxed), 0);
     let mean_us = stats.exchange_ns_total.load(std::sync::atomic::Ordering::Relaxed) as f64 / exchanges as f64 / 1e3;
-    eprintln!("RTU at 115 200 baud (emulated line): {exchanges} exchanges in {run_s:.1} s, mean {mean_us:.0} µs");
+    format!("RTU at 115 200 baud (emulated line): {exchanges} exchanges in {run_s:.1} s, mean {mean_us:.0} µs")
 }
 
-/// The baud rate of `machine`'s line: 115 200, but 230 400 for the hexapod, whose packed image
-/// (six drives: 60 bytes an exchange) takes 9.2 ms at 115 200 baud — beyond the 8 ms the
-/// driver allows an exchange by default (`--max-exchange-ms`), as the drives' regulators were
-/// tuned for fresher inputs. At 230 400 baud it takes 4.6 ms.
+/// The baud rate of `machine`'s line: 115 200 for the TRIJOINT, whose packed image (36 bytes an
+/// exchange) takes 6.94 ms there, 1.06 ms under the 8 ms the driver allows an exchange by
+/// default (`--max-exchange-ms`: the drives' regulators were tuned for inputs that fresh);
+/// 230 400 for the others. pn101's and the O-X glide's images (40 bytes) take 7.32 ms at
+/// 115 200 baud, 0.68 ms under the bound — less than a station's turnaround and a PC's latency
+/// may take: this VM's host alone held a CPU that long, again and again over tenths of a
+/// second, in every second or third run of a machine, and the median of five exchanges went
+/// over (a bus fault, as shipped; three attempts in a row failed so). The hexapod's (60
+/// bytes) takes 9.2 ms, over the bound at once. At 230 400 baud they take 5.41 and 6.36 ms
+/// (`link-bench`: the two silent intervals of 1.75 ms do not shrink with the baud rate).
 fn line_baud(machine: &str) -> u32 {
-    if machine == "hexapod" { 230_400 } else { 115_200 }
+    if machine == "trijoint" { 115_200 } else { 230_400 }
 }
 
-/// One machine over its own emulated line (115 200 baud or [`line_baud`], the packed image): referenced, its
+/// One machine over its own emulated line (at [`line_baud`], the packed image): referenced, its
 /// shipped program (the first offered, loaded at start) started from the screen's inputs once
 /// READY and run to its end, then jogged along +x. Returns a line for the log.
 fn machine_over_rtu(machine: &str, dir: &std::path::Path) -> String {
@@ -200,11 +224,9 @@ fn machine_over_rtu(machine: &str, dir: &std::path::Path) -> String {
             seen.push(state.clone());
         }
         // ERROR ends the run here: the checks below say why (it would otherwise wait out the
-        // run's bound); a cycle time violation is told to the host-stall witnesses.
+        // run's bound); a reason the host can cause is told to the host's witnesses.
         if state == "ERROR" {
-            if reason.contains("cycle time violation") {
-                common::host::note_violation();
-            }
+            common::host::note_reason(&reason);
             run.stop();
             break;
         }

@@ -135,7 +135,7 @@ fn measure(
         baud: options.baud,
         transactions: load.transactions,
         bytes: load.bytes,
-        computed_ms: ms(timing.frame_ns(load.bytes as usize) + 2 * u64::from(load.transactions) * timing.silent_ns),
+        computed_ms: ms(load.on_line(&timing)),
         exchanges,
         min_ms: if exchanges > 0 {
             ms(get(&stats.exchange_ns_min))

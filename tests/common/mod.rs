@@ -915,9 +915,11 @@ impl Logged {
         let (tx, rx) = std::sync::mpsc::channel();
         let log = std::sync::Arc::new(std::sync::Mutex::new(String::new()));
         let kept = std::sync::Arc::clone(&log);
+        // The log's reader notes for the scenario that started the run (see `host`).
+        let scenario = host::current();
         let reader = std::thread::spawn(move || {
             for line in std::io::BufReader::new(stderr).lines().map_while(Result::ok) {
-                host::note_log_line(&line);
+                host::note_log_line(scenario, &line);
                 if let Some(at) = line.split(marker).nth(1) {
                     let _ = tx.send(at.split_whitespace().next().unwrap_or("").to_string());
                 }

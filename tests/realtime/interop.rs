@@ -57,42 +57,47 @@ fn the_soft_plc_runs_against_a_pymodbus_server() {
             return;
         }
     };
-    // A free port (a small window for another process to take it; the server would then fail
-    // to bind and the test says so).
+    // A free port (a small window for another process to take it: the server then cannot listen
+    // and says so, or — another process listening there — never sees its probe and says that).
     let port = std::net::TcpListener::bind("127.0.0.1:0")
         .and_then(|l| l.local_addr())
         .expect("free port")
         .port();
-    let mut server = Command::new(&python)
-        .arg(script("server.py"))
-        .args([port.to_string(), "10".to_string()])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("server.py");
-    let mut lines = BufReader::new(server.stdout.take().expect("stdout")).lines();
-    // "ready": the server accepts connections.
+    // The server waits up to 60 s for what it must see written: the run follows from there.
+    let mut server = common::KillOnDrop(
+        Command::new(&python)
+            .arg(script("server.py"))
+            .args([port.to_string(), "60".to_string()])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("server.py"),
+    );
+    let mut lines = BufReader::new(server.0.stdout.take().expect("stdout")).lines();
+    // "ready": this server accepts connections.
     assert_eq!(lines.next().and_then(Result::ok).as_deref(), Some("ready"));
     // The server serves the generic station's layout.
     let dir = tempfile::tempdir().expect("tempdir");
     let config = common::write_config(dir.path(), "trijoint.json", &common::busy_machine_config());
     common::on_generic_station(&config);
-    let run = common::pkm_command()
-        .args(["run", "--bus", &format!("tcp:127.0.0.1:{port}"), "--duration", "2"])
+    let mut command = common::pkm_command();
+    command
+        .args(["run", "--bus", &format!("tcp:127.0.0.1:{port}")])
         .args(["--config", config.to_str().expect("utf-8")])
-        .env("RUST_LOG", "warn")
-        .output()
-        .expect("run");
-    let log = String::from_utf8_lossy(&run.stderr);
-    assert_eq!(run.status.code(), Some(0), "{log}");
+        .env("RUST_LOG", "info");
+    let (mut run, _) = common::Logged::start(command, "running in real time", std::time::Duration::from_secs(60));
+    // The run goes on until the server saw what the soft-PLC writes at INIT (a busy machine's
+    // first exchange may come late: no fixed window), then stops as an operator stops it.
+    let verdict = lines.next().and_then(Result::ok);
+    let status = run.terminate();
+    let log = run.log();
+    assert_eq!(verdict.as_deref(), Some("period 50"), "server: {verdict:?}\n{log}");
+    assert!(server.0.wait().expect("server ends").success());
+    assert_eq!(status.code(), Some(0), "{log}");
     // pymodbus's server answers only the first of requests sent together: the link goes on
     // with one request at a time, and says so.
     assert!(
         log.contains("the station answered only part of the requests sent together"),
         "{log}"
     );
-    let verdict = lines.next().and_then(Result::ok);
-    let status = server.wait().expect("server ends");
-    assert_eq!(verdict.as_deref(), Some("period 50"), "server: {verdict:?}");
-    assert!(status.success());
 }

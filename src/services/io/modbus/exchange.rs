@@ -553,6 +553,12 @@ impl WireLoad {
             bytes: frames.iter().sum(),
         }
     }
+
+    /// Its time on a line of `timing` (ns): every frame's characters, and the silent interval
+    /// that ends each frame, request and answer.
+    pub fn on_line(&self, timing: &crate::services::io::line::LineTiming) -> u64 {
+        timing.frame_ns(self.bytes as usize) + 2 * u64::from(self.transactions) * timing.silent_ns
+    }
 }
 
 #[cfg(test)]

@@ -20,6 +20,7 @@ mod exchange;
 mod link;
 mod mbap;
 mod stats;
+pub mod wire;
 
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
@@ -157,6 +158,9 @@ pub enum ModbusSetupError {
          generic station (io-sim's, with \"station\": \"generic\" in the I/O map); use --exchange tables"
     )]
     NoImageOnBusController,
+    /// The serial line is too slow for the exchange (see [`wire::WireTime::check`]).
+    #[error("{0}")]
+    LineTooSlow(String),
 }
 
 /// The Modbus bus.
@@ -218,6 +222,15 @@ impl ModbusBus {
                 max_read: MAX_IMAGE_READ,
                 max_write: MAX_IMAGE_WRITE,
             });
+        }
+        if let Transport::Serial { baud, .. } = &transport {
+            let wire = wire::WireTime::of(options.exchange, RegisterMap::laid_out(&map, station).sizes(), *baud);
+            if let Some(warning) = wire
+                .check(options.max_exchange)
+                .map_err(ModbusSetupError::LineTooSlow)?
+            {
+                tracing::warn!("modbus {}: {warning}", transport.describe());
+            }
         }
         Ok(ModbusBus {
             name: transport.describe(),
