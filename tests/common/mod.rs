@@ -263,8 +263,12 @@ pub fn on_generic_station(config: &Path) {
 type ScreenSocket = tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>;
 
 /// Connects to the screen at `url` (`http://…/`) as a page does, runs `body` with the socket on
-/// a runtime of its own, and closes the socket.
+/// a runtime of its own, and closes the socket with the closing handshake: the screen has read
+/// everything `body` sent when it answers the close (up to 30 s). A socket dropped right after
+/// its last message lost it now and then on a busy machine: the screen's next frame met a
+/// closed connection, which ended the session before the message was read.
 fn on_screen(url: &str, body: impl AsyncFnOnce(&mut ScreenSocket)) {
+    use futures::StreamExt;
     let runtime = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()
@@ -274,6 +278,8 @@ fn on_screen(url: &str, body: impl AsyncFnOnce(&mut ScreenSocket)) {
         let (mut socket, _) = tokio_tungstenite::connect_async(ws.as_str()).await.expect("the screen");
         body(&mut socket).await;
         let _ = socket.close(None).await;
+        let drained = async { while let Some(Ok(_)) = socket.next().await {} };
+        let _ = tokio::time::timeout(std::time::Duration::from_secs(30), drained).await;
     });
 }
 

@@ -235,7 +235,10 @@ fn the_link_comes_back_when_the_station_returns_but_error_stays_until_acknowledg
 /// A proxy in front of `upstream` that passes one request at a time on and holds every
 /// response `delay` before passing it back (a slow link: an exchange's four requests take
 /// 4 × `delay`). Returns its port, and the most requests a client had sent it at once: the
-/// one being answered and those already waiting behind it.
+/// one being answered and those already waiting behind it. Its threads stand for the network
+/// and run at the priority of the threads that emulate hardware where the test may
+/// (`io::line::hardware_priority`): at normal priority, beside `stress-ng --cpu 2` and the
+/// suite, its 0.5 ms holds grew into exchanges of 9 ms, over the 8 ms bound.
 fn delaying_proxy(upstream: std::net::SocketAddr, delay: Duration) -> (u16, Arc<AtomicUsize>) {
     let listener = TcpListener::bind("127.0.0.1:0").expect("bind");
     let port = listener.local_addr().expect("address").port();
@@ -245,6 +248,7 @@ fn delaying_proxy(upstream: std::net::SocketAddr, delay: Duration) -> (u16, Arc<
         for client in listener.incoming().flatten() {
             let most = Arc::clone(&most_seen);
             std::thread::spawn(move || {
+                pkm_plc::services::io::line::hardware_priority();
                 let mut client = client;
                 let Ok(mut station) = TcpStream::connect(upstream) else {
                     return;
