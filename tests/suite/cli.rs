@@ -169,50 +169,37 @@ fn an_output_path_that_cannot_be_written_fails_before_the_run() {
 
 #[test]
 fn a_serial_line_too_slow_for_the_exchange_is_refused_before_it_is_opened() {
-    // The hexapod's packed image (60 bytes) takes 9.23 ms at 115 200 baud, over the 8 ms an
-    // exchange may take: every exchange would be a bus fault. Refused before the port is opened
-    // (it does not exist) and before anything runs, with the next rate that will do.
-    let o = pkm(&[
-        "run",
-        "--machine",
-        "hexapod",
-        "--bus",
-        "serial:/dev/pkm-plc-no-such-port@115200",
-        "--hmi",
-        "none",
-        "--duration",
-        "1",
-    ]);
-    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    // The hexapod over a port that does not exist, at 115 200 baud.
+    let hexapod = |more: &[&str]| {
+        let port = ["--bus", "serial:/dev/pkm-plc-no-such-port@115200"];
+        let run = ["run", "--machine", "hexapod", "--hmi", "none", "--duration", "1"];
+        let args = [&run[..], &port[..], more].concat();
+        let o = pkm(&args);
+        (o.status.code(), stderr(&o))
+    };
+    // Its packed image (60 bytes) takes 9.23 ms there, over the 8 ms an exchange may take: every
+    // exchange would be a bus fault. Refused before the port is opened and before anything
+    // runs, with the next rate that will do.
     assert_eq!(
-        stderr(&o),
-        "error: --bus: one exchange (image, 60 bytes in 1 transaction, 9.23 ms at 115200 baud) takes longer on \
-         the wire than the 8 ms an exchange may take (--max-exchange-ms, what the drive regulators are tuned \
-         for): every exchange would be a bus fault; a faster line will do: 230400 baud takes 6.36 ms; or a \
-         larger --max-exchange-ms once the regulators are checked for slower inputs\n"
+        hexapod(&[]),
+        (
+            Some(2),
+            "error: --bus: one exchange (image, 60 bytes in 1 transaction, 9.23 ms at 115200 baud) takes longer \
+             on the wire than the 8 ms an exchange may take (--max-exchange-ms, what the drive regulators are \
+             tuned for): every exchange would be a bus fault; a faster line will do: 230400 baud takes 6.36 ms; \
+             or a larger --max-exchange-ms once the regulators are checked for slower inputs\n"
+                .to_string()
+        )
     );
     // A larger bound is the user's to give: then the line is only too slow to open here.
-    let o = pkm(&[
-        "run",
-        "--machine",
-        "hexapod",
-        "--bus",
-        "serial:/dev/pkm-plc-no-such-port@115200",
-        "--max-exchange-ms",
-        "12",
-        "--hmi",
-        "none",
-        "--duration",
-        "1",
-    ]);
-    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    let (code, log) = hexapod(&["--max-exchange-ms", "12"]);
+    assert_eq!(code, Some(1), "{log}");
     assert!(
-        stderr(&o).ends_with(
+        log.ends_with(
             "error: serial:/dev/pkm-plc-no-such-port@115200: the bus never came up: 4 failed exchanges in a row, \
              the last: cannot connect: No such file or directory\n"
         ),
-        "{}",
-        stderr(&o)
+        "{log}"
     );
 }
 
