@@ -1242,6 +1242,31 @@ fn machine_tool_view(python: &Path, url: &str, machine: &str) -> Json {
     client(python, &["machine_tool", url, machine])
 }
 
+/// Sends the screen at `screen` (`http://…/`) an MDI job that nests too deep and waits for its
+/// refusal: why.
+fn refuse_a_screen_job(screen: &str) -> String {
+    use crate::screen_ws::{reply, send};
+    let runtime = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .expect("a runtime");
+    runtime.block_on(async {
+        let ws = screen.replacen("http://", "ws://", 1) + "ws";
+        let (mut ws, _) = tokio_tungstenite::connect_async(ws.as_str()).await.expect("the screen");
+        let text = format!("G1 X{}1{} F100", "[".repeat(100), "]".repeat(100));
+        send(&mut ws, serde_json::json!({"cmd": "mdi", "text": text})).await;
+        let planning = reply(&mut ws, Duration::from_secs(30)).await;
+        assert_eq!(planning["type"], "planning", "{planning}");
+        let refused = reply(&mut ws, Duration::from_secs(30)).await;
+        assert_eq!(
+            (&refused["type"], &refused["job"]),
+            (&"refused".into(), &true.into()),
+            "{refused}"
+        );
+        refused["why"].as_str().unwrap_or_default().to_string()
+    })
+}
+
 /// Reads the Machine Tools view every half second until `done` holds (at most `within`): the
 /// view then.
 fn view_until(python: &Path, url: &str, within: Duration, done: impl Fn(&Json) -> bool) -> Json {
@@ -1265,8 +1290,8 @@ fn view_until(python: &Path, url: &str, within: Duration, done: impl Fn(&Json) -
 /// started by the operator, Automatic, with a `ToolChange` prognosis naming tool 1 and its
 /// comment predicted from the plan within the first move's 10 s; at the M6 the channel
 /// Interrupted and the change due; confirmed on the screen, the program and its job
-/// Ended with one run completed and the prognosis gone. The operator's Stop reaches a
-/// subscriber of `Notification/Messages`.
+/// Ended with one run completed and the prognosis gone, and so still after a screen job
+/// refused. The operator's Stop reaches a subscriber of `Notification/Messages`.
 #[test]
 fn the_machine_tool_view_is_whole_by_its_types_and_follows_a_program_with_a_manual_tool_change() {
     use std::io::BufRead;
@@ -1398,6 +1423,25 @@ fn the_machine_tool_view_is_whole_by_its_types_and_follows_a_program_with_a_manu
     assert_eq!(ended["runs_completed"], 1, "{ended}");
     assert_eq!(ended["runs_planned"], 1, "{ended}");
     assert_eq!(ended["prognoses"], serde_json::json!({}), "{ended}");
+
+    // A job the screen refuses loads nothing: the program stays the active one, ended, its run
+    // counted (a refusal was taken for a new load, which counted the runs from 0 again).
+    let refused = refuse_a_screen_job(&screen);
+    assert!(refused.contains("nests deeper than 64 levels"), "{refused}");
+    let after = machine_tool_view(&python, &plc.url, "ox-x");
+    assert!(
+        after["program"].as_str().is_some_and(|p| p.ends_with("tools.ngc")),
+        "{after}"
+    );
+    assert_eq!(
+        (
+            &after["program_state"],
+            &after["runs_completed"],
+            &after["runs_planned"]
+        ),
+        (&"Ended".into(), &1.into(), &1.into()),
+        "{after}"
+    );
 
     let mut stop = vec!["call", &plc.url, "ox-x"];
     stop.extend_from_slice(&OPERATOR_LOGIN);

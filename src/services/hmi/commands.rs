@@ -119,10 +119,7 @@ impl CommandSink {
 
     /// Tells what became of a screen job.
     pub fn report_job(&self, outcome: JobOutcome) {
-        self.jobs.send_modify(|news| {
-            news.count += 1;
-            news.latest = Some(outcome);
-        });
+        self.jobs.send_modify(|news| news.tell(outcome));
     }
 
     /// What became of the screen's jobs: the latest outcome, as it changes.

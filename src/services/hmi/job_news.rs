@@ -1,6 +1,7 @@
 //! What became of the screen's jobs, for whoever reports it beside the screen (OPC UA's
-//! `JobRefused` condition): the latest outcome, numbered, on a watch channel — a reader that
-//! falls behind sees the newest, and nothing piles up.
+//! `JobRefused` condition, the machine tool view's active program): the latest outcome and the
+//! jobs made, on a watch channel — a reader that falls behind sees the newest, and nothing piles
+//! up.
 
 use serde_json::Value as Json;
 
@@ -46,13 +47,27 @@ impl JobOutcome {
     }
 }
 
-/// The latest outcome, and how many there were.
+/// The latest outcome, and the jobs made: a refusal leaves the job loaded before it loaded
+/// (and named so).
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct JobNews {
-    /// Outcomes so far.
-    pub count: u64,
     /// The latest.
     pub latest: Option<JobOutcome>,
+    /// Jobs made and loaded so far.
+    pub made: u64,
+    /// The name of the job made last.
+    pub loaded: Option<String>,
+}
+
+impl JobNews {
+    /// Takes `outcome` in.
+    pub fn tell(&mut self, outcome: JobOutcome) {
+        if let JobOutcome::Made { file } = &outcome {
+            self.made += 1;
+            self.loaded = Some(file.clone());
+        }
+        self.latest = Some(outcome);
+    }
 }
 
 #[cfg(test)]
@@ -92,5 +107,28 @@ mod tests {
             Some(JobOutcome::Made { file: "a.ngc".into() })
         );
         assert_eq!(JobOutcome::of_reply(&json!({"type": "touch_off"}), peer), None);
+    }
+
+    #[test]
+    fn a_refusal_is_the_latest_news_but_leaves_the_job_made_loaded() {
+        let mut news = JobNews::default();
+        news.tell(JobOutcome::Made { file: "MDI".into() });
+        let refused = JobOutcome::Refused {
+            why: "a job runs from READY: the machine is AUTO".into(),
+            peer: "127.0.0.1:5000".into(),
+        };
+        news.tell(refused.clone());
+        assert_eq!(
+            news,
+            JobNews {
+                latest: Some(refused),
+                made: 1,
+                loaded: Some("MDI".into()),
+            }
+        );
+        news.tell(JobOutcome::Made {
+            file: "a.ngc from line 12".into(),
+        });
+        assert_eq!((news.made, news.loaded.as_deref()), (2, Some("a.ngc from line 12")));
     }
 }

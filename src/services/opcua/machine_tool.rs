@@ -38,7 +38,7 @@ use pkm_drives::nc::RunState;
 use crate::image::Value;
 use crate::runtime::frame::Frame;
 use crate::runtime::tool_table::ToolTableKeeper;
-use crate::services::hmi::job_news::{JobNews, JobOutcome};
+use crate::services::hmi::job_news::JobNews;
 
 /// OPC 40501-1 Machine Tools.
 pub const MACHINE_TOOL: &str = "http://opcfoundation.org/UA/MachineTool/";
@@ -768,9 +768,9 @@ impl MachineTool {
         if k <= 0 {
             return String::new();
         }
-        match self.sources.jobs.as_ref().map(|j| j.borrow().latest.clone()) {
-            Some(Some(JobOutcome::Made { file })) => file,
-            _ => format!("job {k}"),
+        match self.sources.jobs.as_ref().and_then(|j| j.borrow().loaded.clone()) {
+            Some(file) => file,
+            None => format!("job {k}"),
         }
     }
 
@@ -789,7 +789,8 @@ impl MachineTool {
         let next = self.next_tool_change(frame, state, nc, k);
         let mut out = Vec::new();
         self.tool_change_prognosis(space, next, &value, &mut out);
-        let job_count = self.sources.jobs.as_ref().map_or(0, |j| j.borrow().count);
+        // A job made is a new load; a refused one leaves the load as it was.
+        let job_count = self.sources.jobs.as_ref().map_or(0, |j| j.borrow().made);
         let loaded_key = (
             k,
             if usize::try_from(k).is_ok_and(|k| k <= self.sources.programs.len()) {
