@@ -1242,10 +1242,10 @@ fn machine_tool_view(python: &Path, url: &str, machine: &str) -> Json {
     client(python, &["machine_tool", url, machine])
 }
 
-/// Sends the screen at `screen` (`http://…/`) an MDI job that nests too deep and waits for its
-/// refusal: why.
-fn refuse_a_screen_job(screen: &str) -> String {
-    use crate::screen_ws::{reply, send};
+/// Sends the screen at `screen` (`http://…/`) the MDI job `text` and waits for what became of
+/// it: the screen's reply, `job` (made, loaded and started) or `refused`.
+fn screen_mdi(screen: &str, text: &str) -> Json {
+    use crate::screen_ws::{next, reply, send};
     let runtime = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()
@@ -1253,17 +1253,13 @@ fn refuse_a_screen_job(screen: &str) -> String {
     runtime.block_on(async {
         let ws = screen.replacen("http://", "ws://", 1) + "ws";
         let (mut ws, _) = tokio_tungstenite::connect_async(ws.as_str()).await.expect("the screen");
-        let text = format!("G1 X{}1{} F100", "[".repeat(100), "]".repeat(100));
+        // The screen greets every page first.
+        let hello = next(&mut ws, Duration::from_secs(30)).await;
+        assert_eq!(hello["type"], "hello", "{hello}");
         send(&mut ws, serde_json::json!({"cmd": "mdi", "text": text})).await;
         let planning = reply(&mut ws, Duration::from_secs(30)).await;
         assert_eq!(planning["type"], "planning", "{planning}");
-        let refused = reply(&mut ws, Duration::from_secs(30)).await;
-        assert_eq!(
-            (&refused["type"], &refused["job"]),
-            (&"refused".into(), &true.into()),
-            "{refused}"
-        );
-        refused["why"].as_str().unwrap_or_default().to_string()
+        reply(&mut ws, Duration::from_secs(60)).await
     })
 }
 
@@ -1290,8 +1286,9 @@ fn view_until(python: &Path, url: &str, within: Duration, done: impl Fn(&Json) -
 /// started by the operator, Automatic, with a `ToolChange` prognosis naming tool 1 and its
 /// comment predicted from the plan within the first move's 10 s; at the M6 the channel
 /// Interrupted and the change due; confirmed on the screen, the program and its job
-/// Ended with one run completed and the prognosis gone, and so still after a screen job
-/// refused. The operator's Stop reaches a subscriber of `Notification/Messages`.
+/// Ended with one run completed and the prognosis gone; a screen MDI job a new load, run and
+/// ended, and so still after a screen job refused. The operator's Stop reaches a subscriber of
+/// `Notification/Messages`.
 #[test]
 fn the_machine_tool_view_is_whole_by_its_types_and_follows_a_program_with_a_manual_tool_change() {
     use std::io::BufRead;
@@ -1424,22 +1421,36 @@ fn the_machine_tool_view_is_whole_by_its_types_and_follows_a_program_with_a_manu
     assert_eq!(ended["runs_planned"], 1, "{ended}");
     assert_eq!(ended["prognoses"], serde_json::json!({}), "{ended}");
 
-    // A job the screen refuses loads nothing: the program stays the active one, ended, its run
-    // counted (a refusal was taken for a new load, which counted the runs from 0 again).
-    let refused = refuse_a_screen_job(&screen);
-    assert!(refused.contains("nests deeper than 64 levels"), "{refused}");
-    let after = machine_tool_view(&python, &plc.url, "ox-x");
-    assert!(
-        after["program"].as_str().is_some_and(|p| p.ends_with("tools.ngc")),
-        "{after}"
+    // A screen job is a new load: an MDI line, made, started, ended — a job of one run.
+    let made = screen_mdi(&screen, "G1 X1 F600");
+    assert_eq!((&made["type"], &made["file"]), (&"job".into(), &"MDI".into()), "{made}");
+    let mdi = view_until(&python, &plc.url, Duration::from_secs(60), |v| {
+        v["program"] == "MDI" && v["program_state"] == "Ended"
+    });
+    assert_eq!(
+        (&mdi["program"], &mdi["program_state"], &mdi["runs_completed"]),
+        (&"MDI".into(), &"Ended".into(), &1.into()),
+        "{mdi}"
     );
+    // One the screen refuses loads nothing: the MDI stays the active program, ended, its run
+    // counted (a refusal was taken for a new load, the runs counted from 0 again, and the
+    // program named "job 2").
+    let deep = format!("G1 X{}1{} F100", "[".repeat(100), "]".repeat(100));
+    let refused = screen_mdi(&screen, &deep);
+    assert_eq!(
+        (&refused["type"], &refused["job"]),
+        (&"refused".into(), &true.into()),
+        "{refused}"
+    );
+    let after = machine_tool_view(&python, &plc.url, "ox-x");
     assert_eq!(
         (
+            &after["program"],
             &after["program_state"],
             &after["runs_completed"],
             &after["runs_planned"]
         ),
-        (&"Ended".into(), &1.into(), &1.into()),
+        (&"MDI".into(), &"Ended".into(), &1.into(), &1.into()),
         "{after}"
     );
 
