@@ -47,8 +47,8 @@ impl JobOutcome {
     }
 }
 
-/// The latest outcome, and the jobs made: a refusal leaves the job loaded before it loaded
-/// (and named so).
+/// The latest outcome, and the jobs made: after a refusal the last job made is still the one
+/// loaded, under its name.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct JobNews {
     /// The latest.
