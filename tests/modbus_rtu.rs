@@ -1,12 +1,11 @@
-//! Modbus RTU end to end over an emulated line: the soft-PLC's driver on one end, the I/O
+//! Modbus RTU end to end over emulated lines: the soft-PLC's driver on one end, the I/O
 //! simulator's station on the other, joined by an emulated RS-485 line (frames carried no faster
-//! than the baud rate, silent intervals kept; socket pairs at its ends) at 115 200 baud — the
-//! other machines' at 230 400 ([`line_baud`]) —, the TRIJOINT application running in real time with every limit as shipped — the link's (input
-//! age, exchange time, timeouts), the station's output watchdog, the drives' — referencing
-//! (40 s, as shipped) and, once READY, a jog through the operator's screen's inputs;
-//! the run ends when the jog has moved the machine and it stands again.
-//! The driver's default exchange on a serial line is the packed image, one transaction per
-//! exchange.
+//! than the baud rate, silent intervals kept; socket pairs at its ends) — 115 200 baud for the
+//! TRIJOINT, 230 400 for the other machines ([`line_baud`]). Every machine runs in real time with
+//! every limit as shipped — the link's (input age, exchange time, timeouts), the station's output
+//! watchdog, the drives' —: referenced, its shipped program run from the screen's inputs, jogged,
+//! at the rate of exchanges its line allows and without a timeout. The driver's default exchange
+//! on a serial line is the packed image, one transaction per exchange.
 //!
 //! `pkm-plc link-bench`, which measures both exchanges over such a line, is tested here too.
 //!
@@ -24,10 +23,6 @@ use pkm_plc::services::io::line::LineTiming;
 use pkm_plc::services::io::modbus::{ExchangeMode, ModbusBus, Transport};
 use pkm_plc::services::sim::modbus::Station;
 use pkm_plc::services::sim::on_line::StationOnLine;
-
-/// The longest the application's run may take (s): referencing over the line (as shipped) and
-/// the jog take about 45 s on a quiet machine.
-const RUN_BOUND_S: u64 = 150;
 
 /// Held by each test for its whole run: the emulated lines' threads of one would slow the other's.
 static ALONE: std::sync::Mutex<()> = std::sync::Mutex::new(());
@@ -49,109 +44,15 @@ fn over_a_line(setup: &pkm_plc::compose::Setup, baud: u32) -> (StationOnLine, Mo
     (station, bus)
 }
 
-#[test]
-fn the_application_runs_over_modbus_rtu_on_an_emulated_line() {
-    let _alone = ALONE.lock().unwrap_or_else(|p| p.into_inner());
-    let report = common::host::on_a_steady_host("trijoint", application_over_rtu);
-    eprintln!("{report}");
-}
-
-/// The TRIJOINT over an emulated line at 115 200 baud: referenced, jogged by the screen's
-/// inputs once READY. Returns a line for the log.
-fn application_over_rtu() -> String {
-    let dir = tempfile::tempdir().expect("tempdir");
-    // The TRIJOINT as shipped, its referencing shortened.
-    let config = common::machine_test_config(dir.path(), "trijoint");
-    let loaded = pkm_plc::runtime::config::load(Some(&config)).expect("the test configuration");
-    let setup = pkm_plc::compose::Setup::new(loaded.clone()).expect("known machine");
-    let (_station, bus) = over_a_line(&setup, 115_200);
-    assert_eq!(bus.exchange(), ExchangeMode::Image);
-    // The operator's screen's inputs over the link: the test jogs through them once READY.
-    let (bus, screen) = setup.with_screen(Box::new(bus));
-    let mut plc = Plc::build(&loaded.config, &pkm_plc::compose::machines::all_programs(), bus).expect("valid");
-    let trace = dir.path().join("trace.jsonl");
-    let digest = setup.digest().expect("digest");
-    plc.set_recorder(Box::new(
-        pkm_plc::services::trace::record::Recorder::create(&trace, &plc, &digest).expect("trace"),
-    ));
-    let options = RealTimeOptions {
-        source: Default::default(),
-        // As `run` does: the cycles ahead of the other tests' processes where the test may
-        // (root, CAP_SYS_NICE); elsewhere a warning and normal scheduling.
-        realtime_priority: 80,
-        lock_memory: false,
-        spin_ns: 0,
-        duration_ns: Some(RUN_BOUND_S * 1_000_000_000),
-        pace: None,
-    };
-    let started = std::time::Instant::now();
-    let run = run::start_realtime(plc, options).expect("real-time run");
-    // Once READY (about 42 s over this line; later on a busy machine) the screen's jog pushes
-    // the stick right for a second; the run ends once the machine stands again (READY after
-    // MOTION). The snapshot is refreshed ten times a second; a jog's MOTION lasts over a second.
-    let snapshot = run.snapshot();
-    let (mut jogged, mut moved) = (None, false);
-    while !run.is_finished() {
-        let (state, reason) = {
-            let s = snapshot.lock().unwrap_or_else(|p| p.into_inner());
-            (s.state.clone(), s.reason.clone())
-        };
-        // ERROR ends the run here (the checks below say why); a reason the host can cause is
-        // told to the host's witnesses.
-        if state == "ERROR" {
-            common::host::note_reason(&reason);
-            run.stop();
-            break;
-        }
-        if state == "READY" && jogged.is_none() {
-            screen.update(|c| c.jog = [1.0, 0.0]);
-            jogged = Some(std::time::Instant::now());
-        }
-        if jogged.is_some_and(|at| at.elapsed() > std::time::Duration::from_secs(1)) {
-            screen.update(|c| c.jog = [0.0, 0.0]);
-        }
-        moved |= state == "MOTION";
-        if moved && state == "READY" {
-            run.stop();
-            break;
-        }
-        std::thread::sleep(std::time::Duration::from_millis(50));
-    }
-    let mut outcome = run.join().expect("real-time run");
-    // Said on failure: a trace writer that fell behind (stalls, extra buffers) reaches the cycle.
-    let recorded = outcome
-        .plc
-        .take_recorder()
-        .map(|recorder| recorder.finish().expect("trace written"))
-        .unwrap_or_default();
-    let status = outcome.plc.app_status().expect("status");
-    // Referenced (about 42 s over this line: the approaches wait for inputs) and jogged, without
-    // a bus fault or other error.
-    let reason = outcome.plc.error_reason();
-    assert_eq!(
-        (status.state, status.reason),
-        ("READY", None),
-        "reason {reason:?}; {}; {recorded}",
-        class_timing(&outcome.plc)
-    );
-    let trace = std::fs::read_to_string(&trace).expect("trace");
-    assert!(trace.contains(r#""state":"MOTION""#), "no MOTION in the trace");
-    assert!(!trace.contains(r#""state":"ERROR""#), "an ERROR in the trace");
-    let bus = outcome
-        .plc
-        .bus()
-        .as_any()
-        .downcast_ref::<ModbusBus>()
-        .expect("the Modbus bus");
-    let stats = bus.stats();
-    let exchanges = stats.exchanges.load(std::sync::atomic::Ordering::Relaxed);
-    // About 7 ms an exchange at 115 200 baud, 144 a second: more than half of that, as before
-    // (2500 in 32 s), whenever the jog ended.
-    let run_s = started.elapsed().as_secs_f64();
-    assert!(exchanges as f64 > 78.0 * run_s, "{exchanges} exchanges in {run_s:.1} s");
-    assert_eq!(stats.timeouts.load(std::sync::atomic::Ordering::Relaxed), 0);
-    let mean_us = stats.exchange_ns_total.load(std::sync::atomic::Ordering::Relaxed) as f64 / exchanges as f64 / 1e3;
-    format!("RTU at 115 200 baud (emulated line): {exchanges} exchanges in {run_s:.1} s, mean {mean_us:.0} µs")
+/// One packed-image exchange's time on the wire of `setup`'s station at `baud`, as `run`
+/// computes it before it opens a serial line.
+fn line_time(setup: &pkm_plc::compose::Setup, baud: u32) -> std::time::Duration {
+    use pkm_plc::services::io::map::StationKind;
+    use pkm_plc::services::io::registers::RegisterMap;
+    let map = setup.io_map().expect("valid map").expect("an io_map");
+    let sizes = RegisterMap::laid_out(&map, StationKind::Generic).sizes();
+    let wire = pkm_plc::services::io::modbus::wire::WireTime::of(ExchangeMode::Image, sizes, baud);
+    std::time::Duration::from_nanos(wire.ns)
 }
 
 /// The baud rate of `machine`'s line: 115 200 for the TRIJOINT, whose packed image (36 bytes an
@@ -197,6 +98,7 @@ fn machine_over_rtu(machine: &str, dir: &std::path::Path) -> String {
         duration_ns: Some(MACHINE_RUN_BOUND_S * 1_000_000_000),
         pace: None,
     };
+    let started = std::time::Instant::now();
     let run = run::start_realtime(plc, options).expect("real-time run");
     let snapshot = run.snapshot();
     // What the run does, step by step: referencing until READY; the program started from the
@@ -285,6 +187,8 @@ fn machine_over_rtu(machine: &str, dir: &std::path::Path) -> String {
         .expect("the Modbus bus");
     let stats = bus.stats();
     let exchanges = stats.exchanges.load(std::sync::atomic::Ordering::Relaxed);
+    let timeouts = stats.timeouts.load(std::sync::atomic::Ordering::Relaxed);
+    let run_s = started.elapsed().as_secs_f64();
     let link = format!(
         "{exchanges} exchanges, mean {:.2} ms, max {:.2} ms",
         stats.exchange_ns_total.load(std::sync::atomic::Ordering::Relaxed) as f64 / exchanges.max(1) as f64 / 1e6,
@@ -305,6 +209,15 @@ fn machine_over_rtu(machine: &str, dir: &std::path::Path) -> String {
         "{machine}: the program did not end: {seen:?}, notes {notes:?}"
     );
     assert!(!text.contains(r#""state":"ERROR""#), "{machine}: an ERROR in the trace");
+    // The line carries an exchange as fast as its wire allows (an image at least half as often,
+    // whenever the run ended), and no frame is lost on it.
+    let wire = line_time(&setup, line_baud(machine));
+    assert!(
+        exchanges as f64 > 0.5 * run_s / wire.as_secs_f64(),
+        "{machine}: {exchanges} exchanges in {run_s:.1} s, {:.2} ms each on the wire",
+        wire.as_secs_f64() * 1e3
+    );
+    assert_eq!(timeouts, 0, "{machine}: {link}");
     let report = station.stop().expect("the station's report");
     let report = serde_json::to_value(report).expect("JSON");
     let positions = common::check_positions(machine, &trace, &report);
