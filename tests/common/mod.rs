@@ -985,15 +985,15 @@ impl Logged {
     /// Waits up to `within` for the run's main state to become `state` (the line it logs then)
     /// after the first `from` bytes of the log; the log's length then, to wait on from there.
     /// Real-time tests act from there, not at times guessed from the start — on a busy machine
-    /// referencing ends later. An ERROR for a cycle time violation ends the wait at once: only
-    /// an operator's acknowledgment leaves it.
+    /// referencing ends later. An ERROR ends the wait at once: only an operator's
+    /// acknowledgment leaves it.
     pub fn wait_for_state(&self, from: usize, state: &str, within: std::time::Duration) -> usize {
-        let unless = (state != "ERROR").then_some(" s: ERROR (cycle time violation");
+        let unless = (state != "ERROR").then_some(" s: ERROR (");
         self.wait_for_unless(from, &format!(" s: {state}"), unless, within)
             .unwrap_or_else(|| {
                 let log = self.log();
                 match unless.filter(|unless| log.get(from..).is_some_and(|rest| rest.contains(unless))) {
-                    Some(_) => panic!("not {state}: an ERROR for a cycle time violation first:\n{log}"),
+                    Some(_) => panic!("not {state}: an ERROR first:\n{log}"),
                     None => panic!("not {state} within {within:?}:\n{log}"),
                 }
             })
