@@ -65,6 +65,14 @@ struct Stall {
     cpu: usize,
 }
 
+impl Stall {
+    /// Whether a failure noted at `at` may be laid to it: it ended at most [`REPORT_LAG`]
+    /// before.
+    fn just_before(&self, at: Instant) -> bool {
+        self.ended <= at && at.saturating_duration_since(self.ended) <= REPORT_LAG
+    }
+}
+
 /// A failure of a PLC's that the host can cause.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Failure {
@@ -237,11 +245,7 @@ fn stall_behind_a_failure(scenario: Scenario) -> Option<(Stall, Failure)> {
         .flat_map(|&(at, failure)| {
             stalls
                 .iter()
-                .filter(move |stall| {
-                    stall.length >= failure.needs()
-                        && stall.ended <= at
-                        && at.saturating_duration_since(stall.ended) <= REPORT_LAG
-                })
+                .filter(move |stall| stall.length >= failure.needs() && stall.just_before(at))
                 .map(move |&stall| (stall, failure))
         })
         .max_by_key(|(stall, _)| stall.length)
@@ -260,17 +264,12 @@ fn account(scenario: Scenario) -> String {
     let told: Vec<String> = failures
         .iter()
         .map(|&(at, failure)| {
-            let mut longest: Vec<(usize, Duration)> = Vec::new();
-            for stall in stalls
-                .iter()
-                .filter(|s| s.ended <= at && at.saturating_duration_since(s.ended) <= REPORT_LAG)
-            {
-                match longest.iter_mut().find(|(cpu, _)| *cpu == stall.cpu) {
-                    Some((_, l)) => *l = (*l).max(stall.length),
-                    None => longest.push((stall.cpu, stall.length)),
-                }
+            // Each CPU's longest, by CPU.
+            let mut longest = std::collections::BTreeMap::<usize, Duration>::new();
+            for stall in stalls.iter().filter(|s| s.just_before(at)) {
+                let l = longest.entry(stall.cpu).or_default();
+                *l = (*l).max(stall.length);
             }
-            longest.sort_unstable();
             let seen: Vec<String> = longest
                 .iter()
                 .map(|(cpu, l)| format!("CPU {cpu} {:.1} ms", l.as_secs_f64() * 1e3))
