@@ -214,7 +214,8 @@ impl ModbusBus {
                 Transport::Serial { .. } | Transport::Stream(_) => ExchangeMode::Image,
             };
         }
-        let layout = ImageLayout::of(RegisterMap::laid_out(&map, station).sizes());
+        let sizes = RegisterMap::laid_out(&map, station).sizes();
+        let layout = ImageLayout::of(sizes);
         if options.exchange == ExchangeMode::Image && !layout.fits_one_transaction() {
             return Err(ModbusSetupError::ImageTooLarge {
                 input: layout.input_len,
@@ -224,7 +225,7 @@ impl ModbusBus {
             });
         }
         if let Transport::Serial { baud, .. } = &transport {
-            let wire = wire::WireTime::of(options.exchange, RegisterMap::laid_out(&map, station).sizes(), *baud);
+            let wire = wire::WireTime::of(options.exchange, sizes, *baud);
             if let Some(warning) = wire
                 .check(options.max_exchange)
                 .map_err(ModbusSetupError::LineTooSlow)?
