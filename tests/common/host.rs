@@ -42,15 +42,17 @@ use std::time::{Duration, Instant};
 /// ms late.
 pub const STALL: Duration = Duration::from_millis(5);
 
-/// The shortest host delay that can excuse a link too slow: a witness that no process can
-/// preempt woke this late. On a steady host it wakes within a tenth of that.
+/// The shortest late wake-up a witness notes, and the least the host must take of a CPU within
+/// [`WINDOW`] to excuse a link too slow: a witness that no process can preempt woke this late.
+/// On a steady host it wakes within a tenth of that.
 pub const DELAY: Duration = Duration::from_millis(1);
 
 /// The least the host must take of a CPU within [`WINDOW`] to excuse inputs too old (the newest
 /// complete input image older than the link's 50 ms bound, `--max-input-age-ms`): half the
-/// bound, since the image a stall finds is already up to an exchange period and an exchange old (over an RTU line up to
-/// about 15 ms), and the cycle that reads it comes after the threads the stall held up. CI saw a
-/// stall of 110 ms put two PLCs over TCP in ERROR with inputs 52 ms old.
+/// bound, since the image the host's taking finds is already up to an exchange period and an
+/// exchange old (over an RTU line up to about 15 ms), and the cycle that reads it comes after
+/// the threads it held up. CI saw a stall of 110 ms put two PLCs over TCP in ERROR with inputs
+/// 52 ms old.
 pub const STALE: Duration = Duration::from_millis(25);
 
 /// The span over which the witnesses' late wake-ups are summed ([`Take`]): a violating fast
