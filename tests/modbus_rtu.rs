@@ -30,29 +30,23 @@ static ALONE: std::sync::Mutex<()> = std::sync::Mutex::new(());
 /// `setup`'s simulated machine served as a station at the far end of an emulated line at
 /// `baud`, and the Modbus bus at the near end, both as shipped: io-sim's output watchdog
 /// (100 ms), the driver's options as `run` sets them (its exchange thread one below the cyclic
-/// thread).
-fn over_a_line(setup: &pkm_plc::compose::Setup, baud: u32) -> (StationOnLine, ModbusBus) {
+/// thread). With one packed-image exchange's time on the wire, as `run` computes it before it
+/// opens a serial line.
+fn over_a_line(setup: &pkm_plc::compose::Setup, baud: u32) -> (StationOnLine, ModbusBus, std::time::Duration) {
+    use pkm_plc::services::io::map::StationKind;
+    use pkm_plc::services::io::registers::RegisterMap;
     let station = Station::new(setup.sim_bus(None).expect("sim"));
     let (station, plc_end) =
         StationOnLine::start(station, LineTiming::modbus_rtu(baud), Default::default()).expect("station on the line");
     let map = setup.io_map().expect("valid map").expect("an io_map");
+    let sizes = RegisterMap::laid_out(&map, StationKind::Generic).sizes();
+    let wire = pkm_plc::services::io::modbus::wire::WireTime::of(ExchangeMode::Image, sizes, baud);
     let link = pkm_plc::services::io::modbus::ModbusOptions {
         priority: 79,
         ..Default::default()
     };
     let bus = ModbusBus::new(map, Transport::Stream(Some(plc_end)), link).expect("the image fits");
-    (station, bus)
-}
-
-/// One packed-image exchange's time on the wire of `setup`'s station at `baud`, as `run`
-/// computes it before it opens a serial line.
-fn line_time(setup: &pkm_plc::compose::Setup, baud: u32) -> std::time::Duration {
-    use pkm_plc::services::io::map::StationKind;
-    use pkm_plc::services::io::registers::RegisterMap;
-    let map = setup.io_map().expect("valid map").expect("an io_map");
-    let sizes = RegisterMap::laid_out(&map, StationKind::Generic).sizes();
-    let wire = pkm_plc::services::io::modbus::wire::WireTime::of(ExchangeMode::Image, sizes, baud);
-    std::time::Duration::from_nanos(wire.ns)
+    (station, bus, std::time::Duration::from_nanos(wire.ns))
 }
 
 /// The baud rate of `machine`'s line: 115 200 for the TRIJOINT, whose packed image (36 bytes an
@@ -78,7 +72,7 @@ fn machine_over_rtu(machine: &str, dir: &std::path::Path) -> String {
     let config = common::machine_test_config(dir, machine);
     let loaded = pkm_plc::runtime::config::load(Some(&config)).unwrap_or_else(|e| panic!("{machine}: {e}"));
     let setup = pkm_plc::compose::Setup::new(loaded).expect("known machine");
-    let (station, bus) = over_a_line(&setup, line_baud(machine));
+    let (station, bus, wire) = over_a_line(&setup, line_baud(machine));
     let programs = pkm_plc::compose::nc_job::programs(&setup, None, Some(&common::root().join("programs")), true)
         .unwrap_or_else(|e| panic!("{machine}: {}", e.message));
     let library = programs.library.expect("programs offered");
@@ -211,7 +205,6 @@ fn machine_over_rtu(machine: &str, dir: &std::path::Path) -> String {
     assert!(!text.contains(r#""state":"ERROR""#), "{machine}: an ERROR in the trace");
     // The line carries an exchange as fast as its wire allows (an image at least half as often,
     // whenever the run ended), and no frame is lost on it.
-    let wire = line_time(&setup, line_baud(machine));
     assert!(
         exchanges as f64 > 0.5 * run_s / wire.as_secs_f64(),
         "{machine}: {exchanges} exchanges in {run_s:.1} s, {:.2} ms each on the wire",

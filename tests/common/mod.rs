@@ -266,8 +266,9 @@ type ScreenSocket = tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeT
 /// a runtime of its own, and closes the socket with the closing handshake: the screen has read
 /// everything `body` sent when it answers the close (up to 30 s). A socket dropped right after
 /// its last message lost it now and then on a busy machine: the screen's next frame met a
-/// closed connection, which ended the session before the message was read.
-fn on_screen(url: &str, body: impl AsyncFnOnce(&mut ScreenSocket)) {
+/// closed connection, which ended the session before the message was read. Returns what `body`
+/// returned.
+pub fn on_screen<T>(url: &str, body: impl AsyncFnOnce(&mut ScreenSocket) -> T) -> T {
     use futures::StreamExt;
     let runtime = tokio::runtime::Builder::new_current_thread()
         .enable_all()
@@ -276,11 +277,12 @@ fn on_screen(url: &str, body: impl AsyncFnOnce(&mut ScreenSocket)) {
     let ws = url.replacen("http://", "ws://", 1) + "ws";
     runtime.block_on(async {
         let (mut socket, _) = tokio_tungstenite::connect_async(ws.as_str()).await.expect("the screen");
-        body(&mut socket).await;
+        let done = body(&mut socket).await;
         let _ = socket.close(None).await;
         let drained = async { while let Some(Ok(_)) = socket.next().await {} };
         let _ = tokio::time::timeout(std::time::Duration::from_secs(30), drained).await;
-    });
+        done
+    })
 }
 
 /// Holds a jog on the screen at `url` (`http://…/`) at `x`, `y` for `hold`, as the page does

@@ -1246,20 +1246,14 @@ fn machine_tool_view(python: &Path, url: &str, machine: &str) -> Json {
 /// it: the screen's reply, `job` (made, loaded and started) or `refused`.
 fn screen_mdi(screen: &str, text: &str) -> Json {
     use crate::screen_ws::{next, reply, send};
-    let runtime = tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()
-        .expect("a runtime");
-    runtime.block_on(async {
-        let ws = screen.replacen("http://", "ws://", 1) + "ws";
-        let (mut ws, _) = tokio_tungstenite::connect_async(ws.as_str()).await.expect("the screen");
+    common::on_screen(screen, async |ws| {
         // The screen greets every page first.
-        let hello = next(&mut ws, Duration::from_secs(30)).await;
+        let hello = next(ws, Duration::from_secs(30)).await;
         assert_eq!(hello["type"], "hello", "{hello}");
-        send(&mut ws, serde_json::json!({"cmd": "mdi", "text": text})).await;
-        let planning = reply(&mut ws, Duration::from_secs(30)).await;
+        send(ws, serde_json::json!({"cmd": "mdi", "text": text})).await;
+        let planning = reply(ws, Duration::from_secs(30)).await;
         assert_eq!(planning["type"], "planning", "{planning}");
-        reply(&mut ws, Duration::from_secs(60)).await
+        reply(ws, Duration::from_secs(60)).await
     })
 }
 
